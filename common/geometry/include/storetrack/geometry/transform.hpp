@@ -1,0 +1,79 @@
+// Rigid transforms and the frame-naming rule of docs/conventions.md.
+//
+// A transform is named after both of its frames, T_a_b, and maps coordinates expressed in frame
+// b into frame a:  p_a = T_a_b * p_b.  Composition chains on the inner letter:
+// T_w_s = T_w_p * T_p_s.  Points carry their frame as a suffix: p_cam, p_pylon, p_world.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+namespace storetrack::geometry {
+
+using Vec2 = Eigen::Vector2d;
+using Vec3 = Eigen::Vector3d;
+using Mat2 = Eigen::Matrix2d;
+using Mat3 = Eigen::Matrix3d;
+using Mat6 = Eigen::Matrix<double, 6, 6>;
+using Vec6 = Eigen::Matrix<double, 6, 1>;
+
+/// Rigid transform T_a_b (rotation R_a_b, translation t_a_b = origin of b expressed in a).
+using Transform = Eigen::Isometry3d;
+
+/// Skew-symmetric matrix [v]x, so that [v]x w = v x w.
+inline Mat3 skew(const Vec3& v) {
+  Mat3 m;
+  m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+  return m;
+}
+
+/// Exponential map of a rotation vector (axis * angle, rad) to a rotation matrix.
+inline Mat3 rotation_from_rotvec(const Vec3& rotvec) {
+  const double angle = rotvec.norm();
+  if (angle < 1e-12) return Mat3::Identity() + skew(rotvec);
+  return Eigen::AngleAxisd(angle, rotvec / angle).toRotationMatrix();
+}
+
+/// Logarithm map: rotation matrix to rotation vector (axis * angle, rad).
+inline Vec3 rotvec_from_rotation(const Mat3& R) {
+  const Eigen::AngleAxisd aa(R);
+  return aa.axis() * aa.angle();
+}
+
+/// Small-perturbation convention used for every 6x6 pose covariance in storetrack:
+/// T_true = exp([delta_rot, delta_trans]) applied on the LEFT, i.e.
+///   R_true = Exp(delta_rot) * R,  t_true = t + delta_trans,
+/// with the 6-vector ordered (rx, ry, rz [rad], tx, ty, tz [m]) in the target frame a of T_a_b.
+inline Transform perturb_left(const Transform& T_a_b, const Vec6& delta) {
+  Transform out = T_a_b;
+  out.linear() = rotation_from_rotvec(delta.head<3>()) * T_a_b.linear();
+  out.translation() = T_a_b.translation() + delta.tail<3>();
+  return out;
+}
+
+/// Builds T_a_b from a rotation vector (rad) and translation (m).
+inline Transform make_transform(const Vec3& rotvec, const Vec3& translation) {
+  Transform T = Transform::Identity();
+  T.linear() = rotation_from_rotvec(rotvec);
+  T.translation() = translation;
+  return T;
+}
+
+/// Aerospace yaw-pitch-roll (Z-Y'-X'', rad) of a rotation R_a_b: R = Rz(yaw) Ry(pitch) Rx(roll).
+inline Vec3 ypr_from_rotation(const Mat3& R) {
+  const double pitch = std::asin(std::clamp(-R(2, 0), -1.0, 1.0));
+  const double roll = std::atan2(R(2, 1), R(2, 2));
+  const double yaw = std::atan2(R(1, 0), R(0, 0));
+  return {yaw, pitch, roll};
+}
+
+inline Mat3 rotation_from_ypr(double yaw, double pitch, double roll) {
+  return (Eigen::AngleAxisd(yaw, Vec3::UnitZ()) * Eigen::AngleAxisd(pitch, Vec3::UnitY()) *
+          Eigen::AngleAxisd(roll, Vec3::UnitX()))
+      .toRotationMatrix();
+}
+
+}  // namespace storetrack::geometry
