@@ -1,0 +1,393 @@
+// Spot rendering: see render.hpp for the model. The disc (*) blur-segment shape is sampled on a
+// grid point-symmetric about the spot centre; each sample's Gaussian PSF is integrated over the
+// pixel with erfc, separably, so the image is an exact sum of pixel-integrated Gaussians:
+//   image(r, c) = sum_ij W(j, i) * Ey(j, r) * Ex(i, c)  =  (Ey^T W Ex)(r, c).
+#include "storetrack/sim/render.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Core>
+
+namespace storetrack::sim {
+namespace {
+
+using RowMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+using RowMap = Eigen::Map<RowMatrix>;
+
+constexpr double kMinSigmaPx = 0.05;
+constexpr double kBoxSigmas = 6.5;  // Gaussian tail beyond 6.5 sigma: < 1e-10 of the flux
+
+double effective_sigma(const Spot& s) {
+  return std::max(s.psf_sigma_px, kMinSigmaPx);
+}
+// Grid spacing of the disc/blur sampling: half a PSF sigma keeps the sum of sampled Gaussians
+// indistinguishable from the continuous convolution (sampling error ~exp(-2 pi^2 (sigma/h)^2)).
+double grid_step(const Spot& s) {
+  return std::clamp(effective_sigma(s) / 2, 0.05, 0.25);
+}
+// A point source is modelled as a disc much smaller than the PSF (adds < 0.01 px^2 variance).
+double disc_radius(const Spot& s) {
+  return std::max(s.disc_diameter_px / 2, 0.75 * grid_step(s));
+}
+
+double normal_cdf(double z) {
+  return 0.5 * std::erfc(-z * M_SQRT1_2);
+}
+
+void grow(std::vector<double>& v, std::size_t n) {
+  if (v.size() < n) v.resize(n);
+}
+
+// Fraction of the exposure during which the disc (radius r) covers the point p, the disc centre
+// moving along the segment [-L/2, L/2] * u.
+double swept_coverage(double px, double py, double r, double ux, double uy, double length) {
+  if (length < 1e-9) return (px * px + py * py <= r * r) ? 1.0 : 0.0;
+  const double a = px * ux + py * uy;
+  const double d2 = px * px + py * py - a * a;
+  if (d2 >= r * r) return 0.0;
+  const double c = std::sqrt(r * r - d2);
+  const double overlap = std::min(a + c, length / 2) - std::max(a - c, -length / 2);
+  return std::max(0.0, overlap) / length;
+}
+
+// Quantisation of electrons to DN with saturation.
+template <typename Pixel>
+Pixel to_dn(double electrons, const SensorModel& sensor) {
+  const double dn = std::floor(electrons / sensor.gain_e_per_dn + sensor.black_level_dn + 0.5);
+  return static_cast<Pixel>(std::clamp(dn, 0.0, static_cast<double>(sensor.full_scale_dn)));
+}
+
+}  // namespace
+
+PixelBox spot_box(const Spot& spot, int width, int height) {
+  const double sigma = effective_sigma(spot);
+  const double r = disc_radius(spot) + grid_step(spot);
+  const double hx = r + std::abs(spot.blur_dx_px) / 2 + kBoxSigmas * sigma + 0.5;
+  const double hy = r + std::abs(spot.blur_dy_px) / 2 + kBoxSigmas * sigma + 0.5;
+  PixelBox box;
+  if (!std::isfinite(spot.x_px) || !std::isfinite(spot.y_px)) return box;
+  const double x0 = std::clamp(std::floor(spot.x_px - hx), 0.0, static_cast<double>(width));
+  const double x1 = std::clamp(std::ceil(spot.x_px + hx) + 1, 0.0, static_cast<double>(width));
+  const double y0 = std::clamp(std::floor(spot.y_px - hy), 0.0, static_cast<double>(height));
+  const double y1 = std::clamp(std::ceil(spot.y_px + hy) + 1, 0.0, static_cast<double>(height));
+  box.x0 = static_cast<int>(x0);
+  box.x1 = static_cast<int>(x1);
+  box.y0 = static_cast<int>(y0);
+  box.y1 = static_cast<int>(y1);
+  return box;
+}
+
+void SpotRenderer::evaluate(const Spot& spot, const PixelBox& box, double* out) {
+  if (box.empty()) return;
+  const double sigma = effective_sigma(spot);
+  const double h = grid_step(spot);
+  const double r = disc_radius(spot);
+  const double length = std::hypot(spot.blur_dx_px, spot.blur_dy_px);
+  const double ux = length > 0 ? spot.blur_dx_px / length : 1.0;
+  const double uy = length > 0 ? spot.blur_dy_px / length : 0.0;
+  const int na = static_cast<int>(std::ceil((r + std::abs(spot.blur_dx_px) / 2 + h) / h));
+  const int nb = static_cast<int>(std::ceil((r + std::abs(spot.blur_dy_px) / 2 + h) / h));
+  const int cols = 2 * na + 1, rows = 2 * nb + 1;
+
+  // Anti-aliased area weights: coverage averaged over radii spread across one grid step, which
+  // approximates the fraction of each h x h cell inside the (swept) disc.
+  grow(weights_, static_cast<std::size_t>(rows) * cols);
+  RowMap W(weights_.data(), rows, cols);
+  constexpr double kRadiusOffsets[4] = {-0.375, -0.125, 0.125, 0.375};
+  double total = 0;
+  for (int j = 0; j < rows; ++j) {
+    const double py = (j - nb) * h;
+    for (int i = 0; i < cols; ++i) {
+      const double px = (i - na) * h;
+      double w = 0;
+      for (double off : kRadiusOffsets)
+        w += swept_coverage(px, py, r + off * h, ux, uy, length);
+      W(j, i) = w;
+      total += w;
+    }
+  }
+  const int bw = box.width(), bh = box.height();
+  RowMap out_map(out, bh, bw);
+  if (total <= 0) {
+    out_map.setZero();
+    return;
+  }
+
+  // Pixel-integrated 1-D Gaussians for each grid column / row.
+  grow(ex_, static_cast<std::size_t>(cols) * bw);
+  grow(ey_, static_cast<std::size_t>(rows) * bh);
+  RowMap Ex(ex_.data(), cols, bw);
+  RowMap Ey(ey_.data(), rows, bh);
+  for (int i = 0; i < cols; ++i) {
+    const double cx = spot.x_px + (i - na) * h;
+    double lower = normal_cdf((box.x0 - 0.5 - cx) / sigma);
+    for (int c = 0; c < bw; ++c) {
+      const double upper = normal_cdf((box.x0 + c + 0.5 - cx) / sigma);
+      Ex(i, c) = upper - lower;
+      lower = upper;
+    }
+  }
+  for (int j = 0; j < rows; ++j) {
+    const double cy = spot.y_px + (j - nb) * h;
+    double lower = normal_cdf((box.y0 - 0.5 - cy) / sigma);
+    for (int c = 0; c < bh; ++c) {
+      const double upper = normal_cdf((box.y0 + c + 0.5 - cy) / sigma);
+      Ey(j, c) = upper - lower;
+      lower = upper;
+    }
+  }
+  grow(tmp_, static_cast<std::size_t>(rows) * bw);
+  RowMap T(tmp_.data(), rows, bw);
+  T.noalias() = W * Ex;
+  out_map.noalias() = Ey.transpose() * T;
+  out_map *= spot.flux_e / total;
+}
+
+void SpotRenderer::add_expected(const Spot& spot, float* electrons, int width, int height,
+                                int stride) {
+  const PixelBox box = spot_box(spot, width, height);
+  if (box.empty()) return;
+  grow(box_, static_cast<std::size_t>(box.width()) * box.height());
+  evaluate(spot, box, box_.data());
+  for (int y = box.y0; y < box.y1; ++y) {
+    const double* src = box_.data() + static_cast<std::size_t>(y - box.y0) * box.width();
+    float* dst = electrons + static_cast<std::size_t>(y) * stride;
+    for (int x = box.x0; x < box.x1; ++x)
+      dst[x] += static_cast<float>(src[x - box.x0]);
+  }
+}
+
+void SpotRenderer::render_expected(std::span<const Spot> spots, const SensorModel& sensor,
+                                   float* electrons, int width, int height, int stride) {
+  for (int y = 0; y < height; ++y) {
+    std::fill_n(electrons + static_cast<std::size_t>(y) * stride, width,
+                static_cast<float>(sensor.background_e));
+  }
+  for (const Spot& s : spots)
+    add_expected(s, electrons, width, height, stride);
+}
+
+void SpotRenderer::prepare_signal(std::span<const Spot> spots, int width, int height) {
+  const std::size_t n = static_cast<std::size_t>(width) * height;
+  if (signal_.size() < n || signal_width_ != width || signal_height_ != height) {
+    signal_.assign(std::max(n, signal_.size()), 0.0f);
+    signal_width_ = width;
+    signal_height_ = height;
+  }
+  boxes_.clear();
+  for (const Spot& s : spots) {
+    const PixelBox box = spot_box(s, width, height);
+    if (box.empty()) continue;
+    boxes_.push_back(box);
+    add_expected(s, signal_.data(), width, height, width);
+  }
+}
+
+void SpotRenderer::build_background_table(const SensorModel& sensor) {
+  const auto same = [&](const SensorModel& a) {
+    return a.background_e == sensor.background_e && a.read_noise_e == sensor.read_noise_e &&
+           a.gain_e_per_dn == sensor.gain_e_per_dn && a.full_scale_dn == sensor.full_scale_dn &&
+           a.black_level_dn == sensor.black_level_dn;
+  };
+  if (table_valid_ && same(table_sensor_)) return;
+  const int levels = sensor.full_scale_dn + 1;
+  std::vector<double> pmf(static_cast<std::size_t>(levels), 0.0);
+  const double mu = std::max(sensor.background_e, 0.0);
+  const double g = sensor.gain_e_per_dn, rn = sensor.read_noise_e;
+  const double spread = 12 * std::sqrt(mu) + 10;
+  const int n_lo = static_cast<int>(std::max(0.0, std::floor(mu - spread)));
+  const int n_hi = static_cast<int>(std::ceil(mu + spread));
+  for (int n = n_lo; n <= n_hi; ++n) {
+    // Poisson pmf in log space (stable for large means).
+    const double p_n =
+        mu > 0 ? std::exp(n * std::log(mu) - mu - std::lgamma(n + 1.0)) : (n == 0 ? 1.0 : 0.0);
+    if (p_n < 1e-300) continue;
+    if (rn <= 0) {
+      pmf[static_cast<std::size_t>(to_dn<int>(n, sensor))] += p_n;
+      continue;
+    }
+    // DN = k when electrons in [g (k - 0.5 - black), g (k + 0.5 - black)).
+    const double centre_dn = n / g + sensor.black_level_dn;
+    const int k_lo = std::max(0, static_cast<int>(std::floor(centre_dn - 9 * rn / g)) - 1);
+    const int k_hi = std::min(levels - 1, static_cast<int>(std::ceil(centre_dn + 9 * rn / g)) + 1);
+    for (int k = k_lo; k <= k_hi; ++k) {
+      const double lo = (k == 0) ? -1e300 : g * (k - 0.5 - sensor.black_level_dn);
+      const double hi = (k == levels - 1) ? 1e300 : g * (k + 0.5 - sensor.black_level_dn);
+      pmf[static_cast<std::size_t>(k)] +=
+          p_n * (normal_cdf((hi - n) / rn) - normal_cdf((lo - n) / rn));
+    }
+  }
+  background_cdf_.assign(static_cast<std::size_t>(levels), 0.0);
+  double acc = 0;
+  for (int k = 0; k < levels; ++k) {
+    acc += pmf[static_cast<std::size_t>(k)];
+    background_cdf_[static_cast<std::size_t>(k)] = acc;
+  }
+  for (double& c : background_cdf_)
+    c /= acc;
+  background_cdf_.back() = 1.0;
+  table_sensor_ = sensor;
+  table_valid_ = true;
+}
+
+template <typename Pixel>
+void SpotRenderer::render_noisy(std::span<const Spot> spots, const SensorModel& sensor,
+                                std::mt19937_64& rng, Pixel* image, int width, int height,
+                                int stride) {
+  build_background_table(sensor);
+  prepare_signal(spots, width, height);
+  // Background pixels: inverse-CDF draw from the exact quantised distribution (fast path).
+  const double* cdf_begin = background_cdf_.data();
+  const double* cdf_end = cdf_begin + background_cdf_.size();
+  for (int y = 0; y < height; ++y) {
+    Pixel* row = image + static_cast<std::size_t>(y) * stride;
+    for (int x = 0; x < width; ++x) {
+      const double u = static_cast<double>(rng() >> 11) * 0x1.0p-53;
+      const double* it = std::upper_bound(cdf_begin, cdf_end - 1, u);
+      row[x] = static_cast<Pixel>(it - cdf_begin);
+    }
+  }
+  // Spot pixels (overlapping boxes are drawn again from the same total mean: still exact).
+  std::normal_distribution<double> read_noise(0.0, 1.0);
+  for (const PixelBox& box : boxes_) {
+    for (int y = box.y0; y < box.y1; ++y) {
+      Pixel* row = image + static_cast<std::size_t>(y) * stride;
+      const float* sig = signal_.data() + static_cast<std::size_t>(y) * width;
+      for (int x = box.x0; x < box.x1; ++x) {
+        const double mu = sensor.background_e + sig[x];
+        double electrons = 0;
+        if (mu > 0) {
+          std::poisson_distribution<long> shot(mu);
+          electrons = static_cast<double>(shot(rng));
+        }
+        electrons += sensor.read_noise_e * read_noise(rng);
+        row[x] = to_dn<Pixel>(electrons, sensor);
+      }
+    }
+  }
+  for (const PixelBox& box : boxes_) {
+    for (int y = box.y0; y < box.y1; ++y) {
+      std::fill(signal_.begin() + static_cast<std::ptrdiff_t>(y) * width + box.x0,
+                signal_.begin() + static_cast<std::ptrdiff_t>(y) * width + box.x1, 0.0f);
+    }
+  }
+}
+
+void SpotRenderer::render(std::span<const Spot> spots, const SensorModel& sensor,
+                          std::mt19937_64& rng, std::uint8_t* image, int width, int height,
+                          int stride) {
+  SensorModel s = sensor;
+  s.full_scale_dn = std::min(s.full_scale_dn, 255);
+  render_noisy(spots, s, rng, image, width, height, stride);
+}
+
+void SpotRenderer::render(std::span<const Spot> spots, const SensorModel& sensor,
+                          std::mt19937_64& rng, std::uint16_t* image, int width, int height,
+                          int stride) {
+  SensorModel s = sensor;
+  s.full_scale_dn = std::min(s.full_scale_dn, 65535);
+  render_noisy(spots, s, rng, image, width, height, stride);
+}
+
+void SpotRenderer::render_noise_free(std::span<const Spot> spots, const SensorModel& sensor,
+                                     std::uint8_t* image, int width, int height, int stride) {
+  SensorModel s = sensor;
+  s.full_scale_dn = std::min(s.full_scale_dn, 255);
+  prepare_signal(spots, width, height);
+  for (int y = 0; y < height; ++y) {
+    std::uint8_t* row = image + static_cast<std::size_t>(y) * stride;
+    const float* sig = signal_.data() + static_cast<std::size_t>(y) * width;
+    for (int x = 0; x < width; ++x)
+      row[x] = to_dn<std::uint8_t>(s.background_e + sig[x], s);
+  }
+  for (const PixelBox& box : boxes_) {
+    for (int y = box.y0; y < box.y1; ++y) {
+      std::fill(signal_.begin() + static_cast<std::ptrdiff_t>(y) * width + box.x0,
+                signal_.begin() + static_cast<std::ptrdiff_t>(y) * width + box.x1, 0.0f);
+    }
+  }
+}
+
+SpotStatistics SpotRenderer::statistics(const Spot& spot, const SensorModel& sensor, int width,
+                                        int height) {
+  SpotStatistics st;
+  PixelBox box = spot_box(spot, width, height);
+  if (box.empty()) return st;
+  box.x0 = std::max(0, box.x0 - 1);
+  box.y0 = std::max(0, box.y0 - 1);
+  box.x1 = std::min(width, box.x1 + 1);
+  box.y1 = std::min(height, box.y1 + 1);
+  const std::size_t n = static_cast<std::size_t>(box.width()) * box.height();
+  // Five evaluations: centre, +-dx, +-dy (central differences for the Fisher information).
+  std::vector<double> buf(5 * n);
+  constexpr double kDelta = 0.01;
+  Spot s = spot;
+  evaluate(s, box, buf.data());
+  s.x_px = spot.x_px + kDelta;
+  evaluate(s, box, buf.data() + n);
+  s.x_px = spot.x_px - kDelta;
+  evaluate(s, box, buf.data() + 2 * n);
+  s.x_px = spot.x_px;
+  s.y_px = spot.y_px + kDelta;
+  evaluate(s, box, buf.data() + 3 * n);
+  s.y_px = spot.y_px - kDelta;
+  evaluate(s, box, buf.data() + 4 * n);
+  // Per-pixel variance in e^2: shot (background + signal), read, quantisation (EMVA 1288).
+  const double quant_var = sensor.gain_e_per_dn * sensor.gain_e_per_dn / 12.0;
+  double fxx = 0, fxy = 0, fyy = 0, sum = 0, peak = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double mu = buf[i];
+    const double var = std::max(sensor.background_e, 0.0) + mu +
+                       sensor.read_noise_e * sensor.read_noise_e + quant_var;
+    const double dx = (buf[n + i] - buf[2 * n + i]) / (2 * kDelta);
+    const double dy = (buf[3 * n + i] - buf[4 * n + i]) / (2 * kDelta);
+    fxx += dx * dx / var;
+    fxy += dx * dy / var;
+    fyy += dy * dy / var;
+    sum += mu;
+    peak = std::max(peak, mu);
+  }
+  const double det = fxx * fyy - fxy * fxy;
+  if (det > 0) {
+    st.crlb_sigma_x_px = std::sqrt(fyy / det);
+    st.crlb_sigma_y_px = std::sqrt(fxx / det);
+  } else {
+    st.crlb_sigma_x_px = st.crlb_sigma_y_px = INFINITY;
+  }
+  st.sigma_px = std::sqrt(
+      0.5 * (st.crlb_sigma_x_px * st.crlb_sigma_x_px + st.crlb_sigma_y_px * st.crlb_sigma_y_px));
+  st.peak_signal_e = peak;
+  st.peak_dn = (sensor.background_e + peak) / sensor.gain_e_per_dn + sensor.black_level_dn;
+  st.saturated = st.peak_dn >= sensor.full_scale_dn;
+  st.in_image_fraction = spot.flux_e > 0 ? sum / spot.flux_e : 0.0;
+  return st;
+}
+
+namespace {
+SpotRenderer& thread_renderer() {
+  thread_local SpotRenderer renderer;
+  return renderer;
+}
+}  // namespace
+
+void render_spots(std::span<const Spot> spots, const SensorModel& sensor, std::mt19937_64& rng,
+                  std::uint8_t* image, int width, int height, int stride) {
+  thread_renderer().render(spots, sensor, rng, image, width, height, stride);
+}
+
+void render_spots_noise_free(std::span<const Spot> spots, const SensorModel& sensor,
+                             std::uint8_t* image, int width, int height, int stride) {
+  thread_renderer().render_noise_free(spots, sensor, image, width, height, stride);
+}
+
+void render_spots_expected(std::span<const Spot> spots, const SensorModel& sensor, float* electrons,
+                           int width, int height, int stride) {
+  thread_renderer().render_expected(spots, sensor, electrons, width, height, stride);
+}
+
+SpotStatistics spot_statistics(const Spot& spot, const SensorModel& sensor, int width, int height) {
+  return thread_renderer().statistics(spot, sensor, width, height);
+}
+
+}  // namespace storetrack::sim
