@@ -1,0 +1,247 @@
+#include "storetrack/trigger/gpio_trigger.hpp"
+
+#include <gpiod.h>
+#include <pthread.h>
+#include <sched.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <ctime>
+
+namespace storetrack::trigger {
+namespace {
+
+timespec to_timespec(std::int64_t ns) {
+  timespec ts{};
+  ts.tv_sec = static_cast<time_t>(ns / time::kNsPerSecond);
+  ts.tv_nsec = static_cast<long>(ns % time::kNsPerSecond);
+  return ts;
+}
+
+std::int64_t to_ns(const timespec& ts) {
+  return static_cast<std::int64_t>(ts.tv_sec) * time::kNsPerSecond + ts.tv_nsec;
+}
+
+std::string describe(const std::string& chip, const std::string& what, int err) {
+  return "GPIO " + chip + ": " + what + ": " + std::strerror(err);
+}
+
+}  // namespace
+
+int validate(const GpioMasterConfig& c, std::string* why) {
+  std::string reason;
+  if (!(c.rate_hz > 0.0 && c.rate_hz <= 400.0)) {
+    reason = "trigger rate must be in (0, 400] Hz";
+  } else if (c.lines.empty()) {
+    reason = "at least one output line is needed";
+  } else if (c.pulse_width_ns <= 0 || static_cast<double>(c.pulse_width_ns) >= 0.9e9 / c.rate_hz) {
+    reason = "pulse width must be > 0 and < 90 % of the trigger period";
+  }
+  if (why != nullptr) *why = reason;
+  return reason.empty() ? 0 : -EINVAL;
+}
+
+// ---------------------------------------------------------------------------------- master
+GpioMasterTrigger::GpioMasterTrigger(GpioMasterConfig config) : config_(std::move(config)) {
+  name_ = config_.chip + " line";
+  for (unsigned l : config_.lines)
+    name_ += " " + std::to_string(l);
+  name_ += " (master)";
+}
+
+GpioMasterTrigger::~GpioMasterTrigger() {
+  stop();
+}
+
+int GpioMasterTrigger::start() {
+  if (running_.load()) return 0;
+  if (int rc = validate(config_, &error_); rc < 0) return rc;
+  chip_ = gpiod_chip_open_lookup(config_.chip.c_str());
+  if (chip_ == nullptr) {
+    const int err = errno != 0 ? errno : ENODEV;
+    error_ = describe(config_.chip, "cannot open chip", err);
+    return -err;
+  }
+  const int flags = config_.active_low ? GPIOD_LINE_REQUEST_FLAG_ACTIVE_LOW : 0;
+  for (unsigned offset : config_.lines) {
+    gpiod_line* line = gpiod_chip_get_line(chip_, offset);
+    if (line == nullptr ||
+        gpiod_line_request_output_flags(line, config_.consumer.c_str(), flags, 0) < 0) {
+      const int err = errno != 0 ? errno : EINVAL;
+      error_ = describe(config_.chip, "cannot request output line " + std::to_string(offset), err);
+      stop();
+      return -err;
+    }
+    lines_.push_back(line);
+  }
+  running_.store(true);
+  thread_ = std::thread([this] { run(); });
+  return 0;
+}
+
+int GpioMasterTrigger::stop() {
+  running_.store(false);
+  if (thread_.joinable()) thread_.join();
+  for (gpiod_line* line : lines_) {
+    gpiod_line_set_value(line, 0);
+    gpiod_line_release(line);
+  }
+  lines_.clear();
+  if (chip_ != nullptr) {
+    gpiod_chip_close(chip_);
+    chip_ = nullptr;
+  }
+  return thread_error_.load();
+}
+
+void GpioMasterTrigger::run() {
+  if (config_.realtime_priority) {
+    sched_param sp{};
+    sp.sched_priority = 50;
+    // Refused without CAP_SYS_NICE / rtprio limits; the schedule still holds, only jitter grows.
+    pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
+  }
+  const std::int64_t period = static_cast<std::int64_t>(std::llround(1e9 / config_.rate_hz));
+  // Phase-lock to the monotonic clock: pulses on whole multiples of the period.
+  const std::int64_t now = time::monotonic_now_ns();
+  std::int64_t k = now / period + 2;
+  std::uint32_t count = 0;
+  while (running_.load(std::memory_order_relaxed)) {
+    const std::int64_t t_k = k * period;
+    timespec ts = to_timespec(t_k);
+    int rc;
+    do {
+      rc = clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr);
+    } while (rc == EINTR);
+    const std::int64_t before = time::monotonic_now_ns();
+    const std::int64_t late = before - t_k;
+    if (late > max_late_ns_.load(std::memory_order_relaxed)) max_late_ns_.store(late);
+    if (late >= period) {  // woke a whole period late: skip, never bunch pulses
+      const std::int64_t skipped = late / period;
+      overruns_.fetch_add(static_cast<std::uint64_t>(skipped));
+      k += skipped;
+      continue;
+    }
+    bool ok = true;
+    for (gpiod_line* line : lines_)
+      ok = ok && gpiod_line_set_value(line, 1) == 0;
+    const std::int64_t after = time::monotonic_now_ns();
+    if (!ok) {
+      thread_error_.store(-(errno != 0 ? errno : EIO));
+      running_.store(false);
+      break;
+    }
+    const std::uint64_t w = write_index_.load(std::memory_order_relaxed);
+    if (w - read_index_.load(std::memory_order_acquire) >= kRing) {
+      dropped_.fetch_add(1, std::memory_order_relaxed);
+    } else {
+      ring_[w % kRing] = TriggerEdge{before + (after - before) / 2, count};
+      write_index_.store(w + 1, std::memory_order_release);
+    }
+    ++count;
+    edges_.fetch_add(1, std::memory_order_relaxed);
+    timespec off = to_timespec(t_k + config_.pulse_width_ns);
+    do {
+      rc = clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &off, nullptr);
+    } while (rc == EINTR);
+    for (gpiod_line* line : lines_)
+      gpiod_line_set_value(line, 0);
+    ++k;
+  }
+}
+
+int GpioMasterTrigger::read_edges(std::span<TriggerEdge> out, int timeout_ms) {
+  if (int err = thread_error_.load(); err < 0) return err;
+  const std::int64_t deadline = time::monotonic_now_ns() + std::int64_t{timeout_ms} * 1'000'000;
+  for (;;) {
+    const std::uint64_t r = read_index_.load(std::memory_order_relaxed);
+    const std::uint64_t w = write_index_.load(std::memory_order_acquire);
+    const std::size_t n = std::min<std::uint64_t>(w - r, out.size());
+    if (n > 0 || timeout_ms <= 0 || time::monotonic_now_ns() >= deadline) {
+      for (std::size_t i = 0; i < n; ++i)
+        out[i] = ring_[(r + i) % kRing];
+      read_index_.store(r + n, std::memory_order_release);
+      return static_cast<int>(n);
+    }
+    timespec nap = to_timespec(200'000);
+    nanosleep(&nap, nullptr);
+  }
+}
+
+TriggerLineStats GpioMasterTrigger::stats() const {
+  TriggerLineStats s;
+  s.edges = edges_.load();
+  s.overruns = overruns_.load();
+  s.max_late_ns = max_late_ns_.load();
+  s.dropped_edges = dropped_.load();
+  return s;
+}
+
+// ----------------------------------------------------------------------------------- slave
+GpioSlaveTrigger::GpioSlaveTrigger(GpioSlaveConfig config) : config_(std::move(config)) {
+  name_ = config_.chip + " line " + std::to_string(config_.line) + " (slave)";
+}
+
+GpioSlaveTrigger::~GpioSlaveTrigger() {
+  stop();
+}
+
+int GpioSlaveTrigger::start() {
+  if (line_ != nullptr) return 0;
+  chip_ = gpiod_chip_open_lookup(config_.chip.c_str());
+  if (chip_ == nullptr) {
+    const int err = errno != 0 ? errno : ENODEV;
+    error_ = describe(config_.chip, "cannot open chip", err);
+    return -err;
+  }
+  line_ = gpiod_chip_get_line(chip_, config_.line);
+  const int flags = config_.active_low ? GPIOD_LINE_REQUEST_FLAG_ACTIVE_LOW : 0;
+  if (line_ == nullptr ||
+      gpiod_line_request_rising_edge_events_flags(line_, config_.consumer.c_str(), flags) < 0) {
+    const int err = errno != 0 ? errno : EINVAL;
+    error_ =
+        describe(config_.chip,
+                 "cannot request rising-edge events on line " + std::to_string(config_.line), err);
+    line_ = nullptr;
+    stop();
+    return -err;
+  }
+  return 0;
+}
+
+int GpioSlaveTrigger::stop() {
+  if (line_ != nullptr) {
+    gpiod_line_release(line_);
+    line_ = nullptr;
+  }
+  if (chip_ != nullptr) {
+    gpiod_chip_close(chip_);
+    chip_ = nullptr;
+  }
+  return 0;
+}
+
+int GpioSlaveTrigger::read_edges(std::span<TriggerEdge> out, int timeout_ms) {
+  if (line_ == nullptr) return -ENOTCONN;
+  if (out.empty()) return 0;
+  const timespec timeout = to_timespec(std::int64_t{std::max(timeout_ms, 0)} * 1'000'000);
+  const int ready = gpiod_line_event_wait(line_, &timeout);
+  if (ready < 0) return -(errno != 0 ? errno : EIO);
+  if (ready == 0) return 0;
+  std::array<gpiod_line_event, 16> events{};
+  const unsigned want = static_cast<unsigned>(std::min(out.size(), events.size()));
+  const int n = gpiod_line_event_read_multiple(line_, events.data(), want);
+  if (n < 0) return -(errno != 0 ? errno : EIO);
+  int written = 0;
+  for (int i = 0; i < n; ++i) {
+    if (events[static_cast<std::size_t>(i)].event_type != GPIOD_LINE_EVENT_RISING_EDGE) continue;
+    out[static_cast<std::size_t>(written++)] =
+        TriggerEdge{to_ns(events[static_cast<std::size_t>(i)].ts), line_count_++};
+    ++stats_.edges;
+  }
+  return written;
+}
+
+}  // namespace storetrack::trigger
