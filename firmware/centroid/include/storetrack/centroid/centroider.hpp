@@ -1,0 +1,186 @@
+// On-board centroiding of retro-reflective marks (the heart of the camera unit).
+//
+// Pipeline per frame (docs/centroiding.md has the method, the noise model and the accuracy):
+//   1. background: sparse-grid median + clipped mean per coarse tile (a few % of the pixels);
+//   2. threshold: per-tile level (background + threshold), scanned 32 pixels at a time so dark
+//      sky/structure costs little more than reading the frame once;
+//   3. connected components (8-connected) over run-length rows, one pass, union-find on runs;
+//   4. per component: background-subtracted moments, flux, peak, area, ellipse, flags;
+//   5. refinement: iterative Gaussian-windowed centroid (SExtractor XWIN_IMAGE, Bertin & Arnouts
+//      1996 / SExtractor manual 2.13; the window is matched to the spot's own width) with its
+//      standard deviation propagated from the per-pixel photon + read + quantisation variance.
+//
+// The per-frame path works in place on the caller's buffer (an mmap'd V4L2 buffer): it does not
+// copy the frame, allocate or throw. All scratch memory is sized in the constructor.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "storetrack/frame/frame_source.hpp"
+
+namespace storetrack::centroid {
+
+/// Blob quality bits; identical to msg::mark_flags (the wire bits of MarkObservation.flags).
+namespace blob_flags {
+inline constexpr std::uint8_t kSaturated = 1;  ///< a pixel reached the saturation level
+inline constexpr std::uint8_t kBorder = 2;     ///< touches the image/ROI border or window clipped
+inline constexpr std::uint8_t kMerged = 4;     ///< several separated maxima, or area too large
+inline constexpr std::uint8_t kElongated = 8;  ///< second-moment axis ratio above the limit
+}  // namespace blob_flags
+
+struct CentroidConfig {
+  // --- Detection --------------------------------------------------------------------------
+  /// Detection level above the local background [DN of the frame's format]. <= 0: use
+  /// threshold_sigma times the background noise of the noise model below.
+  int threshold_dn = 0;
+  double threshold_sigma = 6.0;
+  int min_area_px = 3;    ///< smaller components (hot pixels, noise) are dropped
+  int max_area_px = 600;  ///< larger components are flagged merged
+  // --- Background -------------------------------------------------------------------------
+  int background_tile_px = 128;       ///< tile edge; rounded up to a multiple of 32
+  int background_sample_step_px = 8;  ///< sparse sampling grid inside a tile
+  // --- Noise model (EMVA 1288 linear camera), for thresholds and sigma_px ----------------------
+  double read_noise_e = 12.0;   ///< temporal read noise [e-]
+  double gain_e_per_dn = 20.0;  ///< electrons per DN of the frame's format
+  double black_level_dn = 0.0;  ///< offset added by the ADC [DN]
+  int saturation_dn = 0;        ///< 0: full scale 2^bits - 1
+  // --- Refinement -------------------------------------------------------------------------
+  bool refine = true;              ///< Gaussian-windowed centroid; false: threshold moments only
+  double window_sigma_px = 0.0;    ///< > 0: fixed window sigma; 0: matched to each blob
+  int max_refine_iterations = 16;  ///< iterations of the windowed centroid
+  double refine_tolerance_px = 1e-4;
+  int max_window_half_px = 15;  ///< refinement patch is at most (2h+1)^2 pixels
+  // --- Shape flags ------------------------------------------------------------------------
+  double max_axis_ratio = 1.5;  ///< sqrt(major/minor second moment) above this: kElongated
+  /// Secondary maximum taller than this fraction of the main peak (above background), at least
+  /// 2 px away and separated by a dip below (1 - merge_dip_fraction) of its height: kMerged.
+  double merge_peak_fraction = 0.25;
+  double merge_dip_fraction = 0.2;
+  // --- Capacity (all memory is sized from these in the constructor) ------------------------------
+  int max_runs = 65536;       ///< run-length segments per frame; more: the frame is refused
+  int max_candidates = 4096;  ///< connected components per frame; more are dropped, counted
+  int max_rois = 64;          ///< regions of interest per call
+};
+
+/// Region of interest [x, x + width) x [y, y + height) in pixels; clipped to the frame.
+struct Roi {
+  int x = 0, y = 0, width = 0, height = 0;
+};
+
+/// One detected mark. Positions follow docs/conventions.md (centre of the top-left pixel is
+/// (0, 0)); DN values are in the frame's own format, above the local background.
+struct Blob {
+  double x_px = 0, y_px = 0;
+  double sigma_px = 0;      ///< standard uncertainty per axis (isotropic), noise model
+  float peak_dn = 0;        ///< brightest pixel above background
+  float flux_dn = 0;        ///< background-subtracted sum over the refinement patch
+  float area_px = 0;        ///< pixels above the threshold
+  float diameter_px = 0;    ///< equivalent diameter sqrt(4 area / pi)
+  float axis_ratio = 1;     ///< sqrt(major / minor) of the intensity second moments
+  std::uint8_t flags = 0;   ///< blob_flags (= msg::mark_flags)
+  float background_dn = 0;  ///< local background level under the blob [DN]
+};
+
+/// Counters since construction, and the last frame's levels (for health and bench aids).
+struct CentroidStats {
+  std::uint64_t frames = 0;
+  std::uint64_t frames_refused = 0;      ///< bad frame (-EINVAL) or run overflow (-EOVERFLOW)
+  std::uint64_t run_overflows = 0;       ///< frames with more than max_runs runs
+  std::uint64_t candidates_dropped = 0;  ///< components beyond max_candidates
+  std::uint64_t blobs_too_small = 0;     ///< components below min_area_px
+  std::uint64_t blobs_truncated = 0;     ///< blobs beyond the output span (faintest dropped)
+  std::uint64_t refine_fallbacks = 0;    ///< windowed centroid failed: threshold moments used
+  int last_candidates = 0;
+  int last_runs = 0;
+  float last_background_dn = 0;  ///< median over tiles of the background level
+  float last_noise_dn = 0;       ///< background noise of the noise model at that level
+  float last_threshold_dn = 0;   ///< detection level above background at that level
+};
+
+class Centroider {
+ public:
+  /// Throws std::invalid_argument on an inconsistent configuration (not per frame).
+  Centroider(const CentroidConfig& config, int max_width, int max_height);
+
+  /// Detects and measures the marks of a whole frame. Returns the number of blobs written to
+  /// `out` (the brightest ones if there are more, counted in stats().blobs_truncated), or
+  /// -EINVAL (bad frame), -EOVERFLOW (more runs than max_runs). Never allocates or throws.
+  int process(const frame::FrameView& frame, std::span<Blob> out);
+
+  /// Same, searching only inside `rois` (clipped to the frame; they should not overlap, an
+  /// overlapping mark is reported once per ROI). Blobs touching an ROI edge are kBorder.
+  int process(const frame::FrameView& frame, std::span<const Roi> rois, std::span<Blob> out);
+
+  const CentroidStats& stats() const { return stats_; }
+  const CentroidConfig& config() const { return config_; }
+
+ private:
+  struct Run {
+    std::int32_t y, x0, x1;  // x1 inclusive
+  };
+  struct Region {
+    int x0, y0, x1, y1;  // half-open
+    int run_end;         // one past this region's last run
+  };
+  struct Candidate {
+    double sw, swx, swy, swxx, swyy, swxy;  // background-subtracted moments about (ref_x, ref_y)
+    double sv, svx, svy, svxx, svyy;        // per-pixel variance moments (fallback sigma)
+    int ref_x, ref_y;
+    int xmin, xmax, ymin, ymax;
+    int area;
+    int peak, peak_x, peak_y;
+    int saturated;
+    int region;
+    float background;
+  };
+
+  int process_regions(const frame::FrameView& frame, std::span<Blob> out);
+  int check_frame(const frame::FrameView& frame) const;
+  template <typename Pixel>
+  void estimate_background(const frame::FrameView& frame);
+  template <typename Pixel>
+  int scan_region(const frame::FrameView& frame, int region_index);
+  template <typename Pixel>
+  void accumulate(const frame::FrameView& frame);
+  template <typename Pixel>
+  bool measure(const frame::FrameView& frame, int candidate_index, Blob& blob);
+  template <typename Pixel>
+  bool has_separate_maxima(const frame::FrameView& frame, const Candidate& c) const;
+  template <typename Pixel>
+  bool refine(const frame::FrameView& frame, int candidate_index, Blob& blob);
+  int find(int run) const;
+  void unite(int a, int b);
+  float background_at(double x, double y) const;
+  double pixel_variance_dn2(double value_dn) const;
+
+  CentroidConfig config_;
+  int max_width_, max_height_;
+  int tile_px_;
+  int tiles_x_, tiles_y_;
+  int saturation_dn_ = 0;  // of the current frame
+  int max_value_ = 0;      // 2^bits - 1 of the current frame
+  std::vector<Run> runs_;
+  mutable std::vector<std::int32_t> parent_;
+  std::vector<std::int32_t> label_;
+  int run_count_ = 0;
+  bool run_overflow_ = false;
+  std::vector<Region> regions_;
+  int region_count_ = 0;
+  std::vector<Candidate> candidates_;
+  int candidate_count_ = 0;
+  std::vector<std::int32_t> selected_;  // candidates measured this frame, raster order
+  int selected_count_ = 0;
+  std::vector<float> tile_background_;
+  std::vector<std::int32_t> tile_threshold_;  // absolute: pixel > level is foreground
+  std::vector<std::int32_t> row_threshold_;   // per 32-pixel chunk of the current tile row
+  std::vector<std::int32_t> chunk_tile_;      // tile column of each 32-pixel chunk
+  std::vector<std::uint16_t> samples_;        // one tile's background samples (Mono16)
+  std::vector<float> sorted_tiles_;           // tile levels for the frame median
+  std::vector<float> patch_, patch_var_;      // refinement patch (background-subtracted)
+  std::vector<double> wx_, wy_, dx_, dy_;
+  CentroidStats stats_;
+};
+
+}  // namespace storetrack::centroid

@@ -1,0 +1,736 @@
+// Centroider: see the header and docs/centroiding.md for the method.
+#include "storetrack/centroid/centroider.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <numbers>
+#include <stdexcept>
+#include <string>
+
+namespace storetrack::centroid {
+namespace {
+
+// Pixels are scanned in chunks of this many; background tiles are a multiple of it so one
+// threshold applies to a whole chunk, and the chunk maximum vectorises.
+constexpr int kChunk = 32;
+
+template <typename Pixel>
+const Pixel* row_pointer(const frame::FrameView& frame, int y) {
+  // The frame check guarantees 2-byte alignment of Mono16 rows.
+  return static_cast<const Pixel*>(
+      static_cast<const void*>(frame.pixels + static_cast<std::ptrdiff_t>(y) * frame.stride_bytes));
+}
+
+template <typename Pixel>
+inline Pixel chunk_max(const Pixel* p) {
+  Pixel m = 0;
+  for (int i = 0; i < kChunk; ++i)
+    m = p[i] > m ? p[i] : m;
+  return m;
+}
+
+}  // namespace
+
+Centroider::Centroider(const CentroidConfig& config, int max_width, int max_height)
+    : config_(config), max_width_(max_width), max_height_(max_height) {
+  auto fail = [](const std::string& what) {
+    throw std::invalid_argument("centroid config: " + what);
+  };
+  if (max_width <= 0 || max_height <= 0 || max_width > 65535 || max_height > 65535)
+    fail("max_width/max_height must be in 1..65535");
+  if (config.threshold_dn <= 0 && !(config.threshold_sigma > 0))
+    fail("threshold_sigma must be > 0");
+  if (config.min_area_px < 1) fail("min_area_px must be >= 1");
+  if (config.max_area_px < config.min_area_px) fail("max_area_px must be >= min_area_px");
+  if (config.background_tile_px < 1) fail("background_tile_px must be >= 1");
+  if (config.background_sample_step_px < 1) fail("background_sample_step_px must be >= 1");
+  if (config.background_sample_step_px > config.background_tile_px)
+    fail("background_sample_step_px must be <= background_tile_px");
+  if (!(config.read_noise_e >= 0)) fail("read_noise_e must be >= 0");
+  if (!(config.gain_e_per_dn > 0)) fail("gain_e_per_dn must be > 0");
+  if (config.saturation_dn < 0) fail("saturation_dn must be >= 0");
+  if (config.window_sigma_px < 0) fail("window_sigma_px must be >= 0");
+  if (config.max_refine_iterations < 1) fail("max_refine_iterations must be >= 1");
+  if (!(config.refine_tolerance_px > 0)) fail("refine_tolerance_px must be > 0");
+  if (config.max_window_half_px < 3 || config.max_window_half_px > 64)
+    fail("max_window_half_px must be in 3..64");
+  if (!(config.max_axis_ratio >= 1)) fail("max_axis_ratio must be >= 1");
+  if (!(config.merge_peak_fraction > 0 && config.merge_peak_fraction <= 1))
+    fail("merge_peak_fraction must be in (0, 1]");
+  if (!(config.merge_dip_fraction > 0 && config.merge_dip_fraction < 1))
+    fail("merge_dip_fraction must be in (0, 1)");
+  if (config.max_runs < 16) fail("max_runs must be >= 16");
+  if (config.max_candidates < 1) fail("max_candidates must be >= 1");
+  if (config.max_rois < 1) fail("max_rois must be >= 1");
+
+  tile_px_ = (config.background_tile_px + kChunk - 1) / kChunk * kChunk;
+  const int max_tiles_x = (max_width + tile_px_ - 1) / tile_px_;
+  const int max_tiles_y = (max_height + tile_px_ - 1) / tile_px_;
+  const int max_chunks = (max_width + kChunk - 1) / kChunk;
+  runs_.resize(config.max_runs);
+  parent_.resize(config.max_runs);
+  label_.resize(config.max_runs);
+  regions_.resize(config.max_rois);
+  candidates_.resize(config.max_candidates);
+  selected_.resize(config.max_candidates);
+  tile_background_.resize(static_cast<size_t>(max_tiles_x) * max_tiles_y);
+  tile_threshold_.resize(tile_background_.size());
+  sorted_tiles_.resize(tile_background_.size());
+  row_threshold_.resize(max_chunks);
+  chunk_tile_.resize(max_chunks);
+  for (int c = 0; c < max_chunks; ++c)
+    chunk_tile_[c] = c * kChunk / tile_px_;
+  const int samples_per_side = tile_px_ / config.background_sample_step_px + 1;
+  samples_.resize(static_cast<size_t>(samples_per_side) * samples_per_side);
+  const int patch_side = 2 * config.max_window_half_px + 1;
+  patch_.resize(static_cast<size_t>(patch_side) * patch_side);
+  patch_var_.resize(patch_.size());
+  wx_.resize(patch_side);
+  wy_.resize(patch_side);
+  dx_.resize(patch_side);
+  dy_.resize(patch_side);
+  tiles_x_ = max_tiles_x;
+  tiles_y_ = max_tiles_y;
+}
+
+double Centroider::pixel_variance_dn2(double value_dn) const {
+  // EMVA 1288: photo-electrons are Poisson (variance = mean, in e-), read noise adds in
+  // quadrature, uniform quantisation adds 1/12 DN^2.
+  const double signal_e = std::max(value_dn - config_.black_level_dn, 0.0) * config_.gain_e_per_dn;
+  const double read_dn = config_.read_noise_e / config_.gain_e_per_dn;
+  return signal_e / (config_.gain_e_per_dn * config_.gain_e_per_dn) + read_dn * read_dn +
+         1.0 / 12.0;
+}
+
+int Centroider::check_frame(const frame::FrameView& frame) const {
+  if (frame.pixels == nullptr || frame.width <= 0 || frame.height <= 0) return -EINVAL;
+  if (frame.width > max_width_ || frame.height > max_height_) return -EINVAL;
+  if (frame.format == frame::PixelFormat::kMono8) {
+    if (frame.bits_per_pixel < 1 || frame.bits_per_pixel > 8) return -EINVAL;
+    if (frame.stride_bytes < frame.width) return -EINVAL;
+  } else if (frame.format == frame::PixelFormat::kMono16) {
+    if (frame.bits_per_pixel < 9 || frame.bits_per_pixel > 16) return -EINVAL;
+    if (frame.stride_bytes < 2 * frame.width || frame.stride_bytes % 2 != 0) return -EINVAL;
+    if (reinterpret_cast<std::uintptr_t>(frame.pixels) % 2 != 0) return -EINVAL;
+  } else {
+    return -EINVAL;
+  }
+  return 0;
+}
+
+int Centroider::process(const frame::FrameView& frame, std::span<Blob> out) {
+  ++stats_.frames;
+  if (check_frame(frame) != 0) {
+    ++stats_.frames_refused;
+    return -EINVAL;
+  }
+  regions_[0] = Region{0, 0, frame.width, frame.height, 0};
+  region_count_ = 1;
+  return process_regions(frame, out);
+}
+
+int Centroider::process(const frame::FrameView& frame, std::span<const Roi> rois,
+                        std::span<Blob> out) {
+  ++stats_.frames;
+  if (check_frame(frame) != 0 || rois.size() > regions_.size()) {
+    ++stats_.frames_refused;
+    return -EINVAL;
+  }
+  region_count_ = 0;
+  for (const Roi& roi : rois) {
+    const int x0 = std::clamp(roi.x, 0, frame.width);
+    const int y0 = std::clamp(roi.y, 0, frame.height);
+    // 64-bit sums: an ROI near INT_MAX must not overflow.
+    const int x1 =
+        static_cast<int>(std::clamp<std::int64_t>(std::int64_t{roi.x} + roi.width, 0, frame.width));
+    const int y1 = static_cast<int>(
+        std::clamp<std::int64_t>(std::int64_t{roi.y} + roi.height, 0, frame.height));
+    if (x1 <= x0 || y1 <= y0) continue;
+    regions_[region_count_++] = Region{x0, y0, x1, y1, 0};
+  }
+  return process_regions(frame, out);
+}
+
+int Centroider::process_regions(const frame::FrameView& frame, std::span<Blob> out) {
+  const bool mono16 = frame.format == frame::PixelFormat::kMono16;
+  max_value_ = (1 << frame.bits_per_pixel) - 1;
+  saturation_dn_ =
+      config_.saturation_dn > 0 ? std::min(config_.saturation_dn, max_value_) : max_value_;
+  tiles_x_ = (frame.width + tile_px_ - 1) / tile_px_;
+  tiles_y_ = (frame.height + tile_px_ - 1) / tile_px_;
+  if (mono16) {
+    estimate_background<std::uint16_t>(frame);
+  } else {
+    estimate_background<std::uint8_t>(frame);
+  }
+
+  run_count_ = 0;
+  run_overflow_ = false;
+  for (int r = 0; r < region_count_; ++r) {
+    const int rc =
+        mono16 ? scan_region<std::uint16_t>(frame, r) : scan_region<std::uint8_t>(frame, r);
+    if (rc != 0) {
+      ++stats_.run_overflows;
+      ++stats_.frames_refused;
+      stats_.last_runs = run_count_;
+      stats_.last_candidates = 0;
+      return rc;
+    }
+  }
+  stats_.last_runs = run_count_;
+
+  if (mono16) {
+    accumulate<std::uint16_t>(frame);
+  } else {
+    accumulate<std::uint8_t>(frame);
+  }
+  stats_.last_candidates = candidate_count_;
+
+  // Keep the components big enough to be marks; if the output cannot take them all, keep the
+  // brightest (threshold flux) so the loss is the faintest marks, and say so in the counters.
+  int kept = 0;
+  for (int i = 0; i < candidate_count_; ++i) {
+    const Candidate& c = candidates_[i];
+    if (c.area < config_.min_area_px || !(c.sw > 0)) {
+      ++stats_.blobs_too_small;
+      continue;
+    }
+    selected_[kept++] = i;
+  }
+  const int capacity = static_cast<int>(std::min<size_t>(out.size(), selected_.size()));
+  if (kept > capacity) {
+    stats_.blobs_truncated += static_cast<std::uint64_t>(kept - capacity);
+    auto brighter = [this](std::int32_t a, std::int32_t b) {
+      return candidates_[a].sw > candidates_[b].sw;
+    };
+    std::nth_element(selected_.begin(), selected_.begin() + capacity, selected_.begin() + kept,
+                     brighter);
+    kept = capacity;
+    std::sort(selected_.begin(), selected_.begin() + kept);  // back to raster order
+  }
+  selected_count_ = kept;
+
+  int written = 0;
+  for (int k = 0; k < kept; ++k) {
+    const bool ok = mono16 ? measure<std::uint16_t>(frame, selected_[k], out[written])
+                           : measure<std::uint8_t>(frame, selected_[k], out[written]);
+    if (ok) ++written;
+  }
+  return written;
+}
+
+template <typename Pixel>
+void Centroider::estimate_background(const frame::FrameView& frame) {
+  const int step = config_.background_sample_step_px;
+  const double read_dn = config_.read_noise_e / config_.gain_e_per_dn;
+  std::array<std::uint32_t, 256> histogram{};
+  for (int ty = 0; ty < tiles_y_; ++ty) {
+    const int y0 = ty * tile_px_;
+    const int y1 = std::min(y0 + tile_px_, frame.height);
+    const int ys = y0 + std::min(step / 2, (y1 - y0 - 1) / 2);
+    for (int tx = 0; tx < tiles_x_; ++tx) {
+      const int x0 = tx * tile_px_;
+      const int x1 = std::min(x0 + tile_px_, frame.width);
+      const int xs = x0 + std::min(step / 2, (x1 - x0 - 1) / 2);
+      // Median of a sparse grid (robust against the few mark pixels), then the mean of the
+      // samples within +-3 sigma of it: the median of integer DN is only good to ~0.5 DN.
+      double median = 0, clipped_sum = 0;
+      int clipped_n = 0;
+      if constexpr (sizeof(Pixel) == 1) {
+        histogram.fill(0);
+        int n = 0;
+        for (int y = ys; y < y1; y += step) {
+          const Pixel* row = row_pointer<Pixel>(frame, y);
+          for (int x = xs; x < x1; x += step)
+            ++histogram[row[x]];
+          n += (x1 - xs + step - 1) / step;
+        }
+        int cumulative = 0, m = 0;
+        while (m < 255 && 2 * (cumulative + static_cast<int>(histogram[m])) < n + 1) {
+          cumulative += static_cast<int>(histogram[m]);
+          ++m;
+        }
+        median = m;
+        const double half = std::max(1.0, 3.0 * std::sqrt(pixel_variance_dn2(median)));
+        const int lo = std::max(0, static_cast<int>(std::ceil(median - half)));
+        const int hi = std::min(255, static_cast<int>(std::floor(median + half)));
+        for (int v = lo; v <= hi; ++v) {
+          clipped_sum += static_cast<double>(v) * histogram[v];
+          clipped_n += static_cast<int>(histogram[v]);
+        }
+      } else {
+        int n = 0;
+        for (int y = ys; y < y1; y += step) {
+          const Pixel* row = row_pointer<Pixel>(frame, y);
+          for (int x = xs; x < x1; x += step)
+            samples_[n++] = row[x];
+        }
+        std::nth_element(samples_.begin(), samples_.begin() + n / 2, samples_.begin() + n);
+        median = samples_[n / 2];
+        const double half = std::max(1.0, 3.0 * std::sqrt(pixel_variance_dn2(median)));
+        for (int i = 0; i < n; ++i) {
+          if (std::abs(samples_[i] - median) <= half) {
+            clipped_sum += samples_[i];
+            ++clipped_n;
+          }
+        }
+      }
+      const double background = clipped_n > 0 ? clipped_sum / clipped_n : median;
+      double delta = config_.threshold_dn;
+      if (delta <= 0) {
+        const double signal_e =
+            std::max(background - config_.black_level_dn, 0.0) * config_.gain_e_per_dn;
+        const double noise_dn =
+            std::sqrt(signal_e / (config_.gain_e_per_dn * config_.gain_e_per_dn) +
+                      read_dn * read_dn + 1.0 / 12.0);
+        delta = config_.threshold_sigma * noise_dn;
+      }
+      const int t = ty * tiles_x_ + tx;
+      tile_background_[t] = static_cast<float>(background);
+      tile_threshold_[t] = static_cast<std::int32_t>(
+          std::clamp(std::floor(background + delta), 0.0, static_cast<double>(max_value_)));
+    }
+  }
+  const int n_tiles = tiles_x_ * tiles_y_;
+  std::copy(tile_background_.begin(), tile_background_.begin() + n_tiles, sorted_tiles_.begin());
+  std::nth_element(sorted_tiles_.begin(), sorted_tiles_.begin() + n_tiles / 2,
+                   sorted_tiles_.begin() + n_tiles);
+  stats_.last_background_dn = sorted_tiles_[n_tiles / 2];
+  stats_.last_noise_dn =
+      static_cast<float>(std::sqrt(pixel_variance_dn2(stats_.last_background_dn)));
+  stats_.last_threshold_dn =
+      config_.threshold_dn > 0 ? static_cast<float>(config_.threshold_dn)
+                               : static_cast<float>(config_.threshold_sigma) * stats_.last_noise_dn;
+}
+
+int Centroider::find(int run) const {
+  while (parent_[run] != run) {
+    parent_[run] = parent_[parent_[run]];  // path halving
+    run = parent_[run];
+  }
+  return run;
+}
+
+void Centroider::unite(int a, int b) {
+  a = find(a);
+  b = find(b);
+  if (a == b) return;
+  // The smaller index stays the root, so a component's root is its first run in raster order.
+  if (a < b) {
+    parent_[b] = a;
+  } else {
+    parent_[a] = b;
+  }
+}
+
+template <typename Pixel>
+int Centroider::scan_region(const frame::FrameView& frame, int region_index) {
+  Region& region = regions_[region_index];
+  const int max_runs = static_cast<int>(runs_.size());
+  int prev_begin = run_count_, prev_end = run_count_;
+  int current_tile_row = -1;
+  for (int y = region.y0; y < region.y1; ++y) {
+    const int tile_row = y / tile_px_;
+    if (tile_row != current_tile_row) {
+      current_tile_row = tile_row;
+      const int chunks = (frame.width + kChunk - 1) / kChunk;
+      for (int c = 0; c < chunks; ++c)
+        row_threshold_[c] = tile_threshold_[tile_row * tiles_x_ + chunk_tile_[c]];
+    }
+    const Pixel* row = row_pointer<Pixel>(frame, y);
+    const int row_begin = run_count_;
+    bool in_run = false;
+    int start = 0;
+    int x = region.x0;
+    auto emit = [&](int x_last) {
+      if (run_count_ >= max_runs) {
+        run_overflow_ = true;
+        return;
+      }
+      runs_[run_count_] = Run{y, start, x_last};
+      parent_[run_count_] = run_count_;
+      ++run_count_;
+    };
+    while (x < region.x1) {
+      const int chunk = x / kChunk;
+      const int chunk_end = std::min((chunk + 1) * kChunk, region.x1);
+      const Pixel level = static_cast<Pixel>(row_threshold_[chunk]);
+      if (x == chunk * kChunk && chunk_end - x == kChunk && chunk_max(row + x) <= level) {
+        // Whole chunk below the threshold: the common case, one vector max per 32 pixels.
+        if (in_run) {
+          emit(x - 1);
+          in_run = false;
+        }
+        x = chunk_end;
+        continue;
+      }
+      for (; x < chunk_end; ++x) {
+        const bool on = row[x] > level;
+        if (on == in_run) continue;
+        if (on) {
+          start = x;
+        } else {
+          emit(x - 1);
+        }
+        in_run = on;
+      }
+    }
+    if (in_run) emit(region.x1 - 1);
+    if (run_overflow_) return -EOVERFLOW;
+    const int row_end = run_count_;
+    // 8-connectivity with the previous row: runs overlap when they come within one column.
+    int i = prev_begin;
+    for (int j = row_begin; j < row_end; ++j) {
+      while (i < prev_end && runs_[i].x1 + 1 < runs_[j].x0)
+        ++i;
+      for (int k = i; k < prev_end && runs_[k].x0 <= runs_[j].x1 + 1; ++k)
+        unite(k, j);
+    }
+    prev_begin = row_begin;
+    prev_end = row_end;
+  }
+  region.run_end = run_count_;
+  return 0;
+}
+
+template <typename Pixel>
+void Centroider::accumulate(const frame::FrameView& frame) {
+  candidate_count_ = 0;
+  int region = 0;
+  const int max_candidates = static_cast<int>(candidates_.size());
+  for (int r = 0; r < run_count_; ++r) {
+    while (region < region_count_ - 1 && r >= regions_[region].run_end)
+      ++region;
+    const Run& run = runs_[r];
+    const int root = find(r);
+    if (root == r) {
+      if (candidate_count_ >= max_candidates) {
+        label_[r] = -1;
+        ++stats_.candidates_dropped;
+        continue;
+      }
+      label_[r] = candidate_count_;
+      Candidate& c = candidates_[candidate_count_++];
+      c = Candidate{};
+      c.ref_x = run.x0;
+      c.ref_y = run.y;
+      c.xmin = run.x0;
+      c.xmax = run.x1;
+      c.ymin = c.ymax = run.y;
+      c.peak = -1;
+      c.region = region;
+      c.background = tile_background_[(run.y / tile_px_) * tiles_x_ + run.x0 / tile_px_];
+    } else {
+      label_[r] = label_[root];
+      if (label_[r] < 0) continue;
+    }
+    Candidate& c = candidates_[label_[r]];
+    const Pixel* row = row_pointer<Pixel>(frame, run.y);
+    const double b = c.background;
+    const double dy = run.y - c.ref_y;
+    double sw = 0, swx = 0, swxx = 0, sv = 0, svx = 0, svxx = 0;
+    for (int x = run.x0; x <= run.x1; ++x) {
+      const int value = row[x];
+      const double w = value - b;
+      const double v = pixel_variance_dn2(value);
+      const double dx = x - c.ref_x;
+      sw += w;
+      swx += w * dx;
+      swxx += w * dx * dx;
+      sv += v;
+      svx += v * dx;
+      svxx += v * dx * dx;
+      if (value > c.peak) {
+        c.peak = value;
+        c.peak_x = x;
+        c.peak_y = run.y;
+      }
+      if (value >= saturation_dn_) ++c.saturated;
+    }
+    c.sw += sw;
+    c.swx += swx;
+    c.swy += sw * dy;
+    c.swxx += swxx;
+    c.swyy += sw * dy * dy;
+    c.swxy += swx * dy;
+    c.sv += sv;
+    c.svx += svx;
+    c.svy += sv * dy;
+    c.svxx += svxx;
+    c.svyy += sv * dy * dy;
+    c.area += run.x1 - run.x0 + 1;
+    c.xmin = std::min(c.xmin, run.x0);
+    c.xmax = std::max(c.xmax, run.x1);
+    c.ymax = std::max(c.ymax, run.y);
+  }
+}
+
+float Centroider::background_at(double x, double y) const {
+  // Bilinear between tile centres; constant beyond the outer centres.
+  const double u = std::clamp((x + 0.5) / tile_px_ - 0.5, 0.0, tiles_x_ - 1.0);
+  const double v = std::clamp((y + 0.5) / tile_px_ - 0.5, 0.0, tiles_y_ - 1.0);
+  const int u0 = std::min(static_cast<int>(u), tiles_x_ - 1);
+  const int v0 = std::min(static_cast<int>(v), tiles_y_ - 1);
+  const int u1 = std::min(u0 + 1, tiles_x_ - 1);
+  const int v1 = std::min(v0 + 1, tiles_y_ - 1);
+  const double fu = u - u0, fv = v - v0;
+  const auto at = [this](int tu, int tv) { return tile_background_[tv * tiles_x_ + tu]; };
+  return static_cast<float>((1 - fv) * ((1 - fu) * at(u0, v0) + fu * at(u1, v0)) +
+                            fv * ((1 - fu) * at(u0, v1) + fu * at(u1, v1)));
+}
+
+template <typename Pixel>
+bool Centroider::has_separate_maxima(const frame::FrameView& frame, const Candidate& c) const {
+  const Region& region = regions_[c.region];
+  const double b = c.background;
+  const double main_height = c.peak - b;
+  const double min_height =
+      std::max(config_.merge_peak_fraction * main_height, 0.5 * stats_.last_threshold_dn);
+  for (int y = c.ymin; y <= c.ymax; ++y) {
+    const Pixel* row = row_pointer<Pixel>(frame, y);
+    for (int x = c.xmin; x <= c.xmax; ++x) {
+      const int value = row[x];
+      if (value - b < min_height) continue;
+      if (std::max(std::abs(x - c.peak_x), std::abs(y - c.peak_y)) < 2) continue;
+      bool is_max = true;
+      for (int ny = std::max(y - 1, region.y0); ny <= std::min(y + 1, region.y1 - 1) && is_max;
+           ++ny) {
+        const Pixel* nrow = row_pointer<Pixel>(frame, ny);
+        for (int nx = std::max(x - 1, region.x0); nx <= std::min(x + 1, region.x1 - 1); ++nx) {
+          if (nrow[nx] > value) {
+            is_max = false;
+            break;
+          }
+        }
+      }
+      if (!is_max) continue;
+      // A real second mark has a dip between it and the main peak; noise on a flat top does not.
+      const int steps = std::max(std::abs(x - c.peak_x), std::abs(y - c.peak_y));
+      int dip = value;
+      for (int s = 1; s < steps; ++s) {
+        const int sx = c.peak_x + static_cast<int>(std::lround(double(x - c.peak_x) * s / steps));
+        const int sy = c.peak_y + static_cast<int>(std::lround(double(y - c.peak_y) * s / steps));
+        dip = std::min<int>(dip, row_pointer<Pixel>(frame, sy)[sx]);
+      }
+      const double height = value - b;
+      const double dip_height = dip - b;
+      if (dip_height < (1.0 - config_.merge_dip_fraction) * height &&
+          height - dip_height > 3.0 * std::sqrt(pixel_variance_dn2(value)))
+        return true;
+    }
+  }
+  return false;
+}
+
+template <typename Pixel>
+bool Centroider::measure(const frame::FrameView& frame, int candidate_index, Blob& blob) {
+  const Candidate& c = candidates_[candidate_index];
+  const Region& region = regions_[c.region];
+  const double mx = c.swx / c.sw, my = c.swy / c.sw;
+  const double mxx = std::max(c.swxx / c.sw - mx * mx, 0.0);
+  const double myy = std::max(c.swyy / c.sw - my * my, 0.0);
+  const double mxy = c.swxy / c.sw - mx * my;
+  const double half_trace = 0.5 * (mxx + myy);
+  const double spread = std::sqrt(0.25 * (mxx - myy) * (mxx - myy) + mxy * mxy);
+  const double major = half_trace + spread, minor = half_trace - spread;
+  const float axis_ratio =
+      minor > 1e-12 ? static_cast<float>(std::sqrt(major / minor)) : (major > 0 ? 99.0f : 1.0f);
+
+  blob = Blob{};
+  blob.x_px = c.ref_x + mx;
+  blob.y_px = c.ref_y + my;
+  blob.peak_dn = static_cast<float>(c.peak - c.background);
+  blob.flux_dn = static_cast<float>(c.sw);
+  blob.area_px = static_cast<float>(c.area);
+  blob.diameter_px = static_cast<float>(std::sqrt(4.0 * c.area / std::numbers::pi));
+  blob.axis_ratio = std::min(axis_ratio, 99.0f);
+  blob.background_dn = c.background;
+  if (c.saturated > 0) blob.flags |= blob_flags::kSaturated;
+  if (c.xmin == region.x0 || c.ymin == region.y0 || c.xmax == region.x1 - 1 ||
+      c.ymax == region.y1 - 1)
+    blob.flags |= blob_flags::kBorder;
+  if (axis_ratio > config_.max_axis_ratio) blob.flags |= blob_flags::kElongated;
+  if (c.area > config_.max_area_px || has_separate_maxima<Pixel>(frame, c))
+    blob.flags |= blob_flags::kMerged;
+
+  if (config_.refine && refine<Pixel>(frame, candidate_index, blob)) return true;
+  if (config_.refine) ++stats_.refine_fallbacks;
+  // Threshold moments: var(x) = sum v_i (x_i - x)^2 / (sum w_i)^2 over the thresholded pixels.
+  const double var_x = (c.svxx - 2 * mx * c.svx + mx * mx * c.sv) / (c.sw * c.sw);
+  const double var_y = (c.svyy - 2 * my * c.svy + my * my * c.sv) / (c.sw * c.sw);
+  blob.sigma_px = std::sqrt(std::max(0.5 * (var_x + var_y), 0.0));
+  return true;
+}
+
+template <typename Pixel>
+bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob& blob) {
+  const Candidate& c = candidates_[candidate_index];
+  const Region& region = regions_[c.region];
+  const int max_half = config_.max_window_half_px;
+  const bool adaptive = config_.window_sigma_px <= 0;
+  // Threshold moments underestimate the spot's width (the wings are cut): start wider and let
+  // the windowed second moment fix it.
+  const double threshold_sigma =
+      std::sqrt(std::max(0.5 * ((c.swxx / c.sw - std::pow(c.swx / c.sw, 2)) +
+                                (c.swyy / c.sw - std::pow(c.swy / c.sw, 2))),
+                         0.0));
+  double sigma = adaptive ? std::max(1.0, 1.3 * threshold_sigma) : config_.window_sigma_px;
+  double xc = blob.x_px, yc = blob.y_px;
+  const double x_start = xc, y_start = yc;
+  const float background = background_at(xc, yc);
+
+  int px0 = 0, py0 = 0, pw = 0, ph = 0, half = 0;
+  bool clipped = false;
+  double flux = 0;
+  // Copies the (2 half + 1)^2 patch around (xc, yc), background-subtracted, with the pixels of
+  // other marks' boxes zeroed so a neighbour cannot pull the window.
+  auto extract = [&](int new_half) {
+    half = new_half;
+    const int cx = static_cast<int>(std::lround(xc)), cy = static_cast<int>(std::lround(yc));
+    const int x0 = std::max(cx - half, region.x0), x1 = std::min(cx + half, region.x1 - 1);
+    const int y0 = std::max(cy - half, region.y0), y1 = std::min(cy + half, region.y1 - 1);
+    clipped = x0 != cx - half || x1 != cx + half || y0 != cy - half || y1 != cy + half;
+    px0 = x0;
+    py0 = y0;
+    pw = x1 - x0 + 1;
+    ph = y1 - y0 + 1;
+    if (pw < 3 || ph < 3) return false;
+    flux = 0;
+    for (int j = 0; j < ph; ++j) {
+      const Pixel* row = row_pointer<Pixel>(frame, py0 + j);
+      float* p = &patch_[static_cast<size_t>(j) * pw];
+      float* v = &patch_var_[static_cast<size_t>(j) * pw];
+      for (int i = 0; i < pw; ++i) {
+        const int value = row[px0 + i];
+        p[i] = static_cast<float>(value - background);
+        v[i] = static_cast<float>(pixel_variance_dn2(value));
+      }
+    }
+    for (int k = 0; k < selected_count_; ++k) {
+      const int other_index = selected_[k];
+      if (other_index == candidate_index) continue;
+      const Candidate& o = candidates_[other_index];
+      const int ox0 = std::max(o.xmin - 1, px0), ox1 = std::min(o.xmax + 1, px0 + pw - 1);
+      const int oy0 = std::max(o.ymin - 1, py0), oy1 = std::min(o.ymax + 1, py0 + ph - 1);
+      for (int y = oy0; y <= oy1; ++y) {
+        for (int x = ox0; x <= ox1; ++x) {
+          // Never blank our own thresholded box (overlapping boxes of touching marks).
+          if (x >= c.xmin && x <= c.xmax && y >= c.ymin && y <= c.ymax) continue;
+          patch_[static_cast<size_t>(y - py0) * pw + (x - px0)] = 0;
+          patch_var_[static_cast<size_t>(y - py0) * pw + (x - px0)] = 0;
+        }
+      }
+    }
+    for (int j = 0; j < ph * pw; ++j)
+      flux += patch_[j];
+    return true;
+  };
+  auto half_for = [max_half](double s) {
+    return std::clamp(static_cast<int>(std::ceil(4.0 * s)), 3, max_half);
+  };
+  if (!extract(half_for(sigma))) return false;
+
+  auto weights = [&](double s) {
+    const double k = -0.5 / (s * s);
+    for (int i = 0; i < pw; ++i) {
+      dx_[i] = px0 + i - xc;
+      wx_[i] = std::exp(k * dx_[i] * dx_[i]);
+    }
+    for (int j = 0; j < ph; ++j) {
+      dy_[j] = py0 + j - yc;
+      wy_[j] = std::exp(k * dy_[j] * dy_[j]);
+    }
+  };
+
+  // Fixed point of sum w_i (x_i - xc) p_i = 0, w = Gaussian window centred on xc (XWIN).
+  // For a Gaussian spot of width s_p the raw windowed shift is d s_w^2 / (s_w^2 + s_p^2); the
+  // step is scaled by the inverse, estimated from the windowed second moment M2
+  // (1/M2 = 1/s_p^2 + 1/s_w^2), i.e. a Newton step (SExtractor uses the matched value 2).
+  bool converged = false;
+  const int adapt_iterations = adaptive ? 2 : 0;
+  for (int it = 0; it < config_.max_refine_iterations + adapt_iterations; ++it) {
+    weights(sigma);
+    double s = 0, sx = 0, sy = 0, sxx = 0, syy = 0;
+    for (int j = 0; j < ph; ++j) {
+      const float* p = &patch_[static_cast<size_t>(j) * pw];
+      double r0 = 0, r1 = 0, r2 = 0;
+      for (int i = 0; i < pw; ++i) {
+        const double wp = wx_[i] * p[i];
+        r0 += wp;
+        r1 += wp * dx_[i];
+        r2 += wp * dx_[i] * dx_[i];
+      }
+      s += wy_[j] * r0;
+      sx += wy_[j] * r1;
+      sy += wy_[j] * dy_[j] * r0;
+      sxx += wy_[j] * r2;
+      syy += wy_[j] * dy_[j] * dy_[j] * r0;
+    }
+    if (!(s > 0)) return false;
+    const double m2 = 0.5 * (sxx + syy) / s;
+    const double s2 = sigma * sigma;
+    if (it < adapt_iterations) {
+      // Matched window: s_w = s_p (SExtractor's choice, near-optimal for read-noise-limited
+      // Gaussian spots). If the window is too narrow to measure s_p, widen it.
+      double matched = 2.0 * sigma;
+      if (m2 > 0 && m2 < 0.95 * s2) matched = std::sqrt(1.0 / (1.0 / m2 - 1.0 / s2));
+      sigma = std::clamp(matched, 0.5, max_half / 3.5);
+      if (half_for(sigma) > half || it == adapt_iterations - 1) {
+        if (!extract(half_for(sigma))) return false;
+      }
+      continue;
+    }
+    const double gain = (m2 > 0 && m2 < 0.75 * s2) ? s2 / (s2 - m2) : 4.0;
+    const double step_x = gain * sx / s, step_y = gain * sy / s;
+    xc += step_x;
+    yc += step_y;
+    if (std::abs(xc - x_start) > 0.5 * half || std::abs(yc - y_start) > 0.5 * half) return false;
+    if (std::abs(step_x) < config_.refine_tolerance_px &&
+        std::abs(step_y) < config_.refine_tolerance_px) {
+      converged = true;
+      break;
+    }
+  }
+  if (!converged) return false;
+
+  // Standard deviation by linearising the fixed-point equation g(xc) = sum w (x - xc) p = 0:
+  //   var(xc) = sum w^2 (x - xc)^2 var_i / D^2,  D = -dg/dxc = sum w p (1 - (x - xc)^2 / s_w^2).
+  weights(sigma);
+  double s = 0, qx = 0, qy = 0, vx = 0, vy = 0;
+  for (int j = 0; j < ph; ++j) {
+    const float* p = &patch_[static_cast<size_t>(j) * pw];
+    const float* v = &patch_var_[static_cast<size_t>(j) * pw];
+    double r0 = 0, r2 = 0, a0 = 0, a2 = 0;
+    for (int i = 0; i < pw; ++i) {
+      const double wp = wx_[i] * p[i];
+      const double w2v = wx_[i] * wx_[i] * v[i];
+      r0 += wp;
+      r2 += wp * dx_[i] * dx_[i];
+      a0 += w2v;
+      a2 += w2v * dx_[i] * dx_[i];
+    }
+    const double wy2 = wy_[j] * wy_[j];
+    s += wy_[j] * r0;
+    qx += wy_[j] * r2;
+    qy += wy_[j] * dy_[j] * dy_[j] * r0;
+    vx += wy2 * a2;
+    vy += wy2 * dy_[j] * dy_[j] * a0;
+  }
+  const double inv_s2 = 1.0 / (sigma * sigma);
+  const double dxd = s - qx * inv_s2, dyd = s - qy * inv_s2;
+  if (!(dxd > 0) || !(dyd > 0)) return false;
+  const double var_x = vx / (dxd * dxd), var_y = vy / (dyd * dyd);
+  blob.x_px = xc;
+  blob.y_px = yc;
+  blob.sigma_px = std::sqrt(0.5 * (var_x + var_y));
+  blob.flux_dn = static_cast<float>(flux);
+  blob.background_dn = background;
+  blob.peak_dn = static_cast<float>(c.peak - background);
+  if (clipped) blob.flags |= blob_flags::kBorder;
+  return true;
+}
+
+}  // namespace storetrack::centroid
