@@ -1,0 +1,85 @@
+// Independent IRIG 106-17 Chapter 10 file reader, written from the standard (Chapter 11, packet
+// formats) and NOT sharing code or structs with Chapter10Writer: tests use it to validate the
+// writer's files. It checks sync, lengths, header checksum and data checksum of every packet and
+// stops at the first packet that is incomplete (a file cut by a crash) or corrupt, reporting
+// everything before it.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+namespace storetrack::ch10read {
+
+struct Packet {
+  std::size_t file_offset = 0;
+  std::uint16_t channel_id = 0;
+  std::uint32_t packet_length = 0;
+  std::uint32_t data_length = 0;
+  std::uint8_t data_type_version = 0;
+  std::uint8_t sequence_number = 0;
+  std::uint8_t packet_flags = 0;
+  std::uint8_t data_type = 0;
+  std::uint64_t relative_time_counter = 0;  ///< 48 bits, 10 MHz
+  bool header_checksum_ok = false;
+  int data_checksum_bits = 0;  ///< 0 (none), 8, 16 or 32 (packet flags bits 1-0)
+  bool data_checksum_ok = true;
+  std::vector<std::uint8_t> data;  ///< data_length bytes: channel-specific data word + data
+};
+
+struct File {
+  std::vector<Packet> packets;
+  std::size_t file_bytes = 0;
+  std::size_t bytes_in_whole_packets = 0;
+  bool truncated = false;   ///< the file ends inside a packet (crash while writing)
+  std::string stop_reason;  ///< empty when the whole file parsed
+};
+
+File parse(std::span<const std::uint8_t> bytes);
+File read_file(const std::string& path);  ///< throws std::runtime_error if unreadable
+
+struct TimeF1 {
+  std::uint32_t csdw = 0;
+  int time_source = 0;  ///< CSDW bits 3-0
+  int time_format = 0;  ///< CSDW bits 7-4
+  bool leap_year = false;
+  bool month_year_format = false;
+  int year = 0, month = 0, day = 0, day_of_year = 0;
+  int hour = 0, minute = 0, second = 0, millisecond = 0;
+  /// UTC seconds since 1970 (only when month_year_format).
+  std::int64_t utc_epoch_seconds = 0;
+};
+std::optional<TimeF1> decode_time_f1(const Packet& packet);
+
+struct Message {
+  std::uint64_t intra_packet_time = 0;  ///< RTC (low 48 bits of the 8-byte stamp)
+  std::uint16_t subchannel = 0;
+  bool data_error = false;
+  bool format_error = false;
+  std::vector<std::uint8_t> bytes;
+};
+/// Messages of a Message Data Format 0 packet, or nullopt (and `error`) when malformed.
+std::optional<std::vector<Message>> decode_message_f0(const Packet& packet,
+                                                      std::string* error = nullptr);
+
+/// TMATS text of a Computer-Generated Data Format 1 packet.
+std::optional<std::string> decode_tmats(const Packet& packet);
+
+/// The storetrack FTI parameter block (docs/fti-output.md), decoded from its documentation.
+struct FtiBlock {
+  std::int64_t exposure_mid_tai_ns = 0;
+  std::uint32_t trigger_seq = 0;
+  int store_id = 0, cameras_used = 0, marks_used = 0, pylon_marks_used = 0;
+  std::uint16_t status = 0, version = 0;
+  double pose[6] = {};         ///< x y z [m], yaw pitch roll [rad]
+  double uncertainty[6] = {};  ///< standard uncertainties of the above
+  double correlation[15] = {};
+  double budget[4] = {};  ///< centroid, intrinsic, extrinsic, sync [m]
+  double coverage_factor = 0;
+};
+std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> bytes);
+
+}  // namespace storetrack::ch10read

@@ -1,0 +1,203 @@
+// Written against IRIG 106-17 Chapter 11 ("Recorder Data Packet Format"): 11.2.1 packet header,
+// 11.2.2 packet body, 11.2.3 trailer; data formats Computer-Generated F1 (0x01), Time F1 (0x11),
+// Message F0 (0x30). All multi-byte packet fields are little-endian.
+#include "storetrack/output/chapter10_reader.hpp"
+
+#include <bit>
+#include <chrono>
+#include <fstream>
+#include <iterator>
+#include <stdexcept>
+
+namespace storetrack::ch10read {
+namespace {
+
+std::uint32_t le(std::span<const std::uint8_t> b, std::size_t at, int bytes) {
+  std::uint32_t v = 0;
+  for (int i = bytes - 1; i >= 0; --i)
+    v = (v << 8) | b[at + static_cast<std::size_t>(i)];
+  return v;
+}
+std::uint64_t be_u(std::span<const std::uint8_t> b, std::size_t at, int bytes) {
+  std::uint64_t v = 0;
+  for (int i = 0; i < bytes; ++i)
+    v = (v << 8) | b[at + static_cast<std::size_t>(i)];
+  return v;
+}
+double be_float(std::span<const std::uint8_t> b, std::size_t at) {
+  return static_cast<double>(std::bit_cast<float>(static_cast<std::uint32_t>(be_u(b, at, 4))));
+}
+int bcd_digit(std::uint32_t word, int shift, int bits) {
+  return static_cast<int>((word >> shift) & ((1u << bits) - 1u));
+}
+
+}  // namespace
+
+File parse(std::span<const std::uint8_t> bytes) {
+  File f;
+  f.file_bytes = bytes.size();
+  std::size_t at = 0;
+  while (at < bytes.size()) {
+    if (bytes.size() - at < 24) {
+      f.truncated = true;
+      f.stop_reason = "file ends inside a packet header at offset " + std::to_string(at);
+      break;
+    }
+    if (le(bytes, at, 2) != 0xEB25) {
+      f.stop_reason = "no sync pattern 0xEB25 at offset " + std::to_string(at);
+      break;
+    }
+    Packet p;
+    p.file_offset = at;
+    p.channel_id = static_cast<std::uint16_t>(le(bytes, at + 2, 2));
+    p.packet_length = le(bytes, at + 4, 4);
+    p.data_length = le(bytes, at + 8, 4);
+    p.data_type_version = bytes[at + 12];
+    p.sequence_number = bytes[at + 13];
+    p.packet_flags = bytes[at + 14];
+    p.data_type = bytes[at + 15];
+    p.relative_time_counter =
+        le(bytes, at + 16, 4) | (static_cast<std::uint64_t>(le(bytes, at + 20, 2)) << 32);
+    std::uint32_t sum = 0;
+    for (std::size_t i = 0; i < 22; i += 2)
+      sum += le(bytes, at + i, 2);
+    p.header_checksum_ok = (sum & 0xFFFFu) == le(bytes, at + 22, 2);
+    if (!p.header_checksum_ok) {
+      f.stop_reason = "header checksum mismatch at offset " + std::to_string(at);
+      break;
+    }
+    const bool secondary = (p.packet_flags & 0x80) != 0;
+    const std::size_t body_at = at + 24 + (secondary ? 12 : 0);
+    const int ck = p.packet_flags & 0x03;
+    p.data_checksum_bits = ck == 0 ? 0 : (ck == 1 ? 8 : (ck == 2 ? 16 : 32));
+    const std::size_t trailer = static_cast<std::size_t>(p.data_checksum_bits / 8);
+    if (p.packet_length % 4 != 0 || p.packet_length < (body_at - at) + p.data_length + trailer) {
+      f.stop_reason = "inconsistent packet/data length at offset " + std::to_string(at);
+      break;
+    }
+    if (bytes.size() - at < p.packet_length) {
+      f.truncated = true;
+      f.stop_reason = "file ends inside the packet at offset " + std::to_string(at);
+      break;
+    }
+    const std::size_t trailer_at = at + p.packet_length - trailer;
+    if (p.data_checksum_bits != 0) {
+      // Sum over the body (data + filler) in units of the checksum width.
+      const int w = p.data_checksum_bits / 8;
+      std::uint64_t s = 0;
+      for (std::size_t i = body_at; i + static_cast<std::size_t>(w) <= trailer_at; i += w)
+        s += le(bytes, i, w);
+      const std::uint64_t mask = w == 4 ? 0xFFFFFFFFull : ((1ull << (8 * w)) - 1);
+      p.data_checksum_ok = (s & mask) == le(bytes, trailer_at, w);
+    }
+    p.data.assign(bytes.begin() + static_cast<std::ptrdiff_t>(body_at),
+                  bytes.begin() + static_cast<std::ptrdiff_t>(body_at + p.data_length));
+    at += p.packet_length;
+    f.bytes_in_whole_packets = at;
+    f.packets.push_back(std::move(p));
+  }
+  return f;
+}
+
+File read_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error("cannot open Chapter 10 file '" + path + "'");
+  std::vector<std::uint8_t> bytes((std::istreambuf_iterator<char>(in)),
+                                  std::istreambuf_iterator<char>());
+  return parse(bytes);
+}
+
+std::optional<TimeF1> decode_time_f1(const Packet& p) {
+  if (p.data_type != 0x11 || p.data.size() < 10) return std::nullopt;
+  const std::span<const std::uint8_t> d(p.data);
+  TimeF1 t;
+  t.csdw = le(d, 0, 4);
+  t.time_source = static_cast<int>(t.csdw & 0xF);
+  t.time_format = static_cast<int>((t.csdw >> 4) & 0xF);
+  t.leap_year = (t.csdw >> 8) & 1;
+  t.month_year_format = (t.csdw >> 9) & 1;
+  const std::uint32_t w0 = le(d, 4, 2), w1 = le(d, 6, 2), w2 = le(d, 8, 2);
+  t.millisecond = 10 * bcd_digit(w0, 0, 4) + 100 * bcd_digit(w0, 4, 4);
+  t.second = bcd_digit(w0, 8, 4) + 10 * bcd_digit(w0, 12, 3);
+  t.minute = bcd_digit(w1, 0, 4) + 10 * bcd_digit(w1, 4, 3);
+  t.hour = bcd_digit(w1, 8, 4) + 10 * bcd_digit(w1, 12, 2);
+  if (t.month_year_format) {
+    if (p.data.size() < 12) return std::nullopt;
+    const std::uint32_t w3 = le(d, 10, 2);
+    t.day = bcd_digit(w2, 0, 4) + 10 * bcd_digit(w2, 4, 4);
+    t.month = bcd_digit(w2, 8, 4) + 10 * bcd_digit(w2, 12, 1);
+    t.year = bcd_digit(w3, 0, 4) + 10 * bcd_digit(w3, 4, 4) + 100 * bcd_digit(w3, 8, 4) +
+             1000 * bcd_digit(w3, 12, 2);
+    using namespace std::chrono;
+    const sys_days days_since{year{t.year} / month{static_cast<unsigned>(t.month)} /
+                              day{static_cast<unsigned>(t.day)}};
+    t.utc_epoch_seconds = days_since.time_since_epoch().count() * 86400LL + t.hour * 3600LL +
+                          t.minute * 60LL + t.second;
+  } else {
+    t.day_of_year = bcd_digit(w2, 0, 4) + 10 * bcd_digit(w2, 4, 4) + 100 * bcd_digit(w2, 8, 2);
+  }
+  return t;
+}
+
+std::optional<std::vector<Message>> decode_message_f0(const Packet& p, std::string* error) {
+  auto fail = [error](const std::string& why) -> std::optional<std::vector<Message>> {
+    if (error) *error = why;
+    return std::nullopt;
+  };
+  if (p.data_type != 0x30) return fail("not a Message Data Format 0 packet");
+  if (p.data.size() < 4) return fail("no channel-specific data word");
+  const std::span<const std::uint8_t> d(p.data);
+  const std::uint32_t csdw = le(d, 0, 4);
+  const std::uint32_t count = csdw & 0xFFFF;
+  if (((csdw >> 16) & 0x3) != 0) return fail("segmented messages are not expected");
+  std::vector<Message> out;
+  std::size_t at = 4;
+  for (std::uint32_t i = 0; i < count; ++i) {
+    if (d.size() - at < 12) return fail("intra-packet header past the data");
+    Message m;
+    m.intra_packet_time = le(d, at, 4) | (static_cast<std::uint64_t>(le(d, at + 4, 2)) << 32);
+    const std::uint32_t iph = le(d, at + 8, 4);
+    const std::size_t length = iph & 0xFFFF;
+    m.subchannel = static_cast<std::uint16_t>((iph >> 16) & 0x3FFF);
+    m.format_error = (iph >> 30) & 1;
+    m.data_error = (iph >> 31) & 1;
+    at += 12;
+    if (d.size() - at < length) return fail("message longer than the packet");
+    m.bytes.assign(d.begin() + static_cast<std::ptrdiff_t>(at),
+                   d.begin() + static_cast<std::ptrdiff_t>(at + length));
+    at += length + (length & 1);  // messages are padded to 16 bits
+    out.push_back(std::move(m));
+  }
+  if (at != d.size()) return fail("bytes after the last message");
+  return out;
+}
+
+std::optional<std::string> decode_tmats(const Packet& p) {
+  if (p.data_type != 0x01 || p.data.size() < 4) return std::nullopt;
+  return std::string(p.data.begin() + 4, p.data.end());
+}
+
+std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> b) {
+  if (b.size() < 148) return std::nullopt;
+  FtiBlock f;
+  f.exposure_mid_tai_ns = static_cast<std::int64_t>(be_u(b, 0, 8));
+  f.trigger_seq = static_cast<std::uint32_t>(be_u(b, 8, 4));
+  f.store_id = b[12];
+  f.cameras_used = b[13];
+  f.marks_used = b[14];
+  f.pylon_marks_used = b[15];
+  f.status = static_cast<std::uint16_t>(be_u(b, 16, 2));
+  f.version = static_cast<std::uint16_t>(be_u(b, 18, 2));
+  for (int i = 0; i < 6; ++i) {
+    f.pose[i] = be_float(b, 20 + 4 * static_cast<std::size_t>(i));
+    f.uncertainty[i] = be_float(b, 44 + 4 * static_cast<std::size_t>(i));
+  }
+  for (int i = 0; i < 15; ++i)
+    f.correlation[i] = be_float(b, 68 + 4 * static_cast<std::size_t>(i));
+  for (int i = 0; i < 4; ++i)
+    f.budget[i] = be_float(b, 128 + 4 * static_cast<std::size_t>(i));
+  f.coverage_factor = be_float(b, 144);
+  return f;
+}
+
+}  // namespace storetrack::ch10read

@@ -1,0 +1,292 @@
+// IRIG 106-17 Chapter 10 (Digital Recording Standard) and Chapter 11 (Recorder Data Packet
+// Format) writer; section numbers below are those of Chapter 11 (106-17), where the packet
+// formats live since 106-17.
+#include "storetrack/output/chapter10_writer.hpp"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <chrono>
+#include <cstring>
+
+#include "storetrack/output/fti_parameter_block.hpp"
+
+namespace storetrack::output {
+namespace {
+
+constexpr std::uint16_t kSync = 0xEB25;                // 11.2.1.1 a
+constexpr std::uint8_t kDataTypeVersion106_17 = 0x08;  // 11.2.1.1 e: RCC 106-17
+constexpr std::uint8_t kTypeTmats = 0x01;              // Computer-Generated Data, Format 1
+constexpr std::uint8_t kTypeTimeF1 = 0x11;             // Time Data, Format 1
+constexpr std::uint8_t kTypeMessageF0 = 0x30;          // Message Data, Format 0
+constexpr std::uint8_t kFlagsChecksum32 = 0x03;        // packet flags bits 1-0 = 11
+constexpr std::size_t kHeaderBytes = 24;
+constexpr std::uint8_t kTmatsCh10Version106_17 = 0x0C;  // TMATS CSDW bits 7-0
+
+void put_le16(std::vector<std::uint8_t>& v, std::size_t at, std::uint16_t x) {
+  v[at] = static_cast<std::uint8_t>(x);
+  v[at + 1] = static_cast<std::uint8_t>(x >> 8);
+}
+void put_le32(std::vector<std::uint8_t>& v, std::size_t at, std::uint32_t x) {
+  for (int i = 0; i < 4; ++i)
+    v[at + i] = static_cast<std::uint8_t>(x >> (8 * i));
+}
+void append_le32(std::vector<std::uint8_t>& v, std::uint32_t x) {
+  v.resize(v.size() + 4);
+  put_le32(v, v.size() - 4, x);
+}
+void append_le16(std::vector<std::uint8_t>& v, std::uint16_t x) {
+  v.resize(v.size() + 2);
+  put_le16(v, v.size() - 2, x);
+}
+std::uint8_t bcd2(int value) {
+  return static_cast<std::uint8_t>(((value / 10) % 10) << 4 | (value % 10));
+}
+
+int write_all(int fd, const std::uint8_t* data, std::size_t size) {
+  while (size > 0) {
+    const ssize_t n = ::write(fd, data, size);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      return -errno;
+    }
+    data += n;
+    size -= static_cast<std::size_t>(n);
+  }
+  return 0;
+}
+
+std::int64_t floor_div(std::int64_t a, std::int64_t b) {
+  std::int64_t q = a / b;
+  if ((a % b != 0) && ((a < 0) != (b < 0))) --q;
+  return q;
+}
+
+}  // namespace
+
+UtcCalendar utc_calendar_from_tai(time::TaiNs t_tai) {
+  const std::int64_t utc_ns = t_tai - time::kTaiMinusUtcSeconds * time::kNsPerSecond;
+  const std::int64_t secs = floor_div(utc_ns, time::kNsPerSecond);
+  const std::int64_t sub_ns = utc_ns - secs * time::kNsPerSecond;
+  using namespace std::chrono;
+  const sys_days day{floor<days>(sys_seconds{seconds{secs}})};
+  const year_month_day ymd{day};
+  const std::int64_t sod = secs - duration_cast<seconds>(day.time_since_epoch()).count();
+  UtcCalendar c{};
+  c.year = static_cast<int>(ymd.year());
+  c.month = static_cast<int>(static_cast<unsigned>(ymd.month()));
+  c.day = static_cast<int>(static_cast<unsigned>(ymd.day()));
+  c.hour = static_cast<int>(sod / 3600);
+  c.minute = static_cast<int>((sod / 60) % 60);
+  c.second = static_cast<int>(sod % 60);
+  c.millisecond = static_cast<int>(sub_ns / 1'000'000);
+  return c;
+}
+
+Chapter10Writer::~Chapter10Writer() {
+  close();
+}
+
+std::uint64_t Chapter10Writer::rtc_of(time::TaiNs t_tai) const {
+  if (start_tai_ns_ == kRtcEpochFirstSample) return 0;
+  // 10 MHz counter, 48 bits (11.2.1.1 i).
+  const std::int64_t ticks = floor_div(t_tai - start_tai_ns_, 100);
+  return static_cast<std::uint64_t>(ticks) & 0xFFFF'FFFF'FFFFull;
+}
+
+std::string Chapter10Writer::tmats_text() const {
+  // TMATS (IRIG 106 Chapter 9) attributes, ASCII, one "CODE:value;" per line.
+  std::string t;
+  auto line = [&t](const std::string& code, const std::string& value) {
+    t += code + ":" + value + ";\r\n";
+  };
+  line("G\\PN", config_.program_name);
+  line("G\\TA", config_.test_point);
+  line("G\\106", "17");
+  line("G\\DSI\\N", "1");
+  line("G\\DSI-1", "STORETRACK");
+  line("G\\DST-1", "STO");
+  line("G\\COM",
+       "storetrack host: store pose relative to the pylon with GUM uncertainty; message layout "
+       "docs/fti-output.md (FTI parameter block v1, big-endian, 148 bytes)");
+  line("R-1\\ID", "STORETRACK");
+  line("R-1\\RID", "STORETRACK-HOST");
+  line("R-1\\N", "2");
+  line("R-1\\TK1-1", std::to_string(config_.time_channel_id));
+  line("R-1\\CHE-1", "T");
+  line("R-1\\DSI-1", "TIME");
+  line("R-1\\CDT-1", "TIMIN");
+  line("R-1\\TTF-1", "1");
+  line("R-1\\TK1-2", std::to_string(config_.message_channel_id));
+  line("R-1\\CHE-2", "T");
+  line("R-1\\DSI-2", "FTISAMPLE");
+  line("R-1\\CDT-2", "MSGIN");
+  line("R-1\\CDLN-2", "FTISAMPLE");
+  for (const auto& s : config_.stores) {
+    line("G\\COM", "channel " + std::to_string(config_.message_channel_id) + " subchannel " +
+                       std::to_string(s.store_id) + " = store " + s.name);
+  }
+  return t;
+}
+
+int Chapter10Writer::open(const std::string& path, const Chapter10Config& config,
+                          time::TaiNs rtc_epoch_tai_ns) {
+  close();
+  config_ = config;
+  if (config_.max_messages_per_packet < 1) config_.max_messages_per_packet = 1;
+  start_tai_ns_ = rtc_epoch_tai_ns;
+  counters_ = {};
+  sequence_.assign(65536, 0);
+  last_time_packet_utc_s_ = INT64_MIN;
+  last_sample_tai_ns_ = INT64_MIN;
+  pending_body_.clear();
+  pending_messages_ = 0;
+  fd_ = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_APPEND | O_CLOEXEC, 0644);
+  if (fd_ < 0) return -errno;
+  // Computer-Generated Data Format 1 (setup record): CSDW bit 9 SRCC = 0, bit 8 format = 0
+  // (ASCII TMATS), bits 7-0 Chapter 10 version.
+  std::vector<std::uint8_t> body;
+  append_le32(body, kTmatsCh10Version106_17);
+  const std::string tmats = tmats_text();
+  body.insert(body.end(), tmats.begin(), tmats.end());
+  return write_packet(0, kTypeTmats, 0, body);
+}
+
+int Chapter10Writer::write_packet(std::uint16_t channel_id, std::uint8_t data_type,
+                                  std::uint64_t rtc, const std::vector<std::uint8_t>& body) {
+  if (fd_ < 0) return -EBADF;
+  const std::size_t data_length = body.size();
+  const std::size_t padded = (data_length + 3) & ~std::size_t{3};  // filler to 32 bits
+  const std::size_t trailer = config_.data_checksum ? 4 : 0;
+  const std::size_t packet_length = kHeaderBytes + padded + trailer;
+  packet_.assign(packet_length, 0);
+  put_le16(packet_, 0, kSync);
+  put_le16(packet_, 2, channel_id);
+  put_le32(packet_, 4, static_cast<std::uint32_t>(packet_length));
+  put_le32(packet_, 8, static_cast<std::uint32_t>(data_length));
+  packet_[12] = kDataTypeVersion106_17;
+  packet_[13] = sequence_[channel_id]++;
+  packet_[14] = config_.data_checksum ? kFlagsChecksum32 : 0x00;  // no secondary header, RTC
+  packet_[15] = data_type;
+  for (int i = 0; i < 6; ++i)
+    packet_[16 + i] = static_cast<std::uint8_t>(rtc >> (8 * i));
+  std::uint16_t header_sum = 0;
+  for (std::size_t i = 0; i < 22; i += 2) {
+    header_sum = static_cast<std::uint16_t>(header_sum + (packet_[i] | (packet_[i + 1] << 8)));
+  }
+  put_le16(packet_, 22, header_sum);
+  std::memcpy(packet_.data() + kHeaderBytes, body.data(), body.size());
+  if (config_.data_checksum) {
+    // 32-bit arithmetic sum of the 32-bit little-endian words of the body including filler.
+    std::uint32_t sum = 0;
+    for (std::size_t i = kHeaderBytes; i < kHeaderBytes + padded; i += 4) {
+      sum += std::uint32_t{packet_[i]} | std::uint32_t{packet_[i + 1]} << 8 |
+             std::uint32_t{packet_[i + 2]} << 16 | std::uint32_t{packet_[i + 3]} << 24;
+    }
+    put_le32(packet_, kHeaderBytes + padded, sum);
+  }
+  int rc = write_all(fd_, packet_.data(), packet_.size());
+  if (rc != 0) {
+    ++counters_.write_errors;
+    return rc;
+  }
+  ++counters_.packets_written;
+  counters_.bytes_written += packet_.size();
+  if (config_.sync == Chapter10Sync::kEveryPacket && ::fdatasync(fd_) != 0) {
+    ++counters_.sync_errors;
+    return -errno;
+  }
+  return 0;
+}
+
+int Chapter10Writer::write_time_packet(std::int64_t utc_second) {
+  const time::TaiNs tai = (utc_second + time::kTaiMinusUtcSeconds) * time::kNsPerSecond;
+  const UtcCalendar c = utc_calendar_from_tai(tai);
+  std::vector<std::uint8_t> body;
+  // CSDW: bits 3-0 SRC = 1 (external: PTP), bits 7-4 FMT = 4 (UTC), bit 8 LY, bit 9 DATE = 1
+  // (month and year format), bits 11-10 ITS = 0.
+  const bool leap = (c.year % 4 == 0 && c.year % 100 != 0) || c.year % 400 == 0;
+  append_le32(body, 0x1u | (0x4u << 4) | (leap ? 1u << 8 : 0u) | (1u << 9));
+  // Month/year format: four 16-bit words of BCD digits.
+  append_le16(body, static_cast<std::uint16_t>(bcd2(c.millisecond / 10) | (bcd2(c.second) << 8)));
+  append_le16(body, static_cast<std::uint16_t>(bcd2(c.minute) | (bcd2(c.hour) << 8)));
+  append_le16(body, static_cast<std::uint16_t>(bcd2(c.day) | (bcd2(c.month) << 8)));
+  append_le16(body, static_cast<std::uint16_t>(bcd2(c.year % 100) | (bcd2(c.year / 100) << 8)));
+  const int rc = write_packet(config_.time_channel_id, kTypeTimeF1, rtc_of(tai), body);
+  if (rc == 0) ++counters_.time_packets;
+  return rc;
+}
+
+int Chapter10Writer::write(const msg::FtiSample& sample) {
+  if (fd_ < 0) return -EBADF;
+  const time::TaiNs t = sample.exposure_mid_tai_ns;
+  if (start_tai_ns_ == kRtcEpochFirstSample) {
+    start_tai_ns_ =
+        floor_div(t - time::kTaiMinusUtcSeconds * time::kNsPerSecond, time::kNsPerSecond) *
+            time::kNsPerSecond +
+        time::kTaiMinusUtcSeconds * time::kNsPerSecond;
+  }
+  if (last_sample_tai_ns_ != INT64_MIN && t < last_sample_tai_ns_) ++counters_.samples_out_of_order;
+  last_sample_tai_ns_ = t;
+  int rc = 0;
+  const std::int64_t utc_s =
+      floor_div(t - time::kTaiMinusUtcSeconds * time::kNsPerSecond, time::kNsPerSecond);
+  if (utc_s != last_time_packet_utc_s_) {
+    // A new second: close the running message packet so time packets stay in time order.
+    if (int r = flush(); r != 0) rc = r;
+    if (int r = write_time_packet(utc_s); r != 0) rc = r;
+    last_time_packet_utc_s_ = utc_s;
+  }
+  if (pending_messages_ > 0 && t - pending_first_tai_ns_ > config_.max_packet_span_ns) {
+    if (int r = flush(); r != 0) rc = r;
+  }
+  if (pending_messages_ == 0) pending_first_tai_ns_ = t;
+  // Intra-packet header (11.2.1.1, Message Data F0): 8-byte time stamp (48-bit RTC in the low
+  // bytes), then the intra-packet data header: bits 15-0 message length, bits 29-16 subchannel,
+  // bit 30 format error, bit 31 data error (set when the sample is not a valid pose).
+  const std::uint64_t ipts = rtc_of(t);
+  append_le32(pending_body_, static_cast<std::uint32_t>(ipts));
+  append_le32(pending_body_, static_cast<std::uint32_t>(ipts >> 32));
+  const bool valid = (sample.status & msg::fti_status::kValid) != 0;
+  append_le32(pending_body_, static_cast<std::uint32_t>(kFtiParameterBlockBytes) |
+                                 (static_cast<std::uint32_t>(sample.store_id & 0x3FFF) << 16) |
+                                 (valid ? 0u : 1u << 31));
+  const std::size_t at = pending_body_.size();
+  pending_body_.resize(at + kFtiParameterBlockBytes);  // 148: already a multiple of 2
+  encode_fti_parameter_block(sample, std::span(pending_body_).subspan(at));
+  ++pending_messages_;
+  if (pending_messages_ >= config_.max_messages_per_packet) {
+    if (int r = flush(); r != 0) rc = r;
+  }
+  return rc;
+}
+
+int Chapter10Writer::flush() {
+  if (fd_ < 0 || pending_messages_ == 0) return 0;
+  std::vector<std::uint8_t> body;
+  body.reserve(pending_body_.size() + 4);
+  // CSDW: bits 15-0 message count, bits 17-16 packet type 00 = complete messages.
+  append_le32(body, static_cast<std::uint32_t>(pending_messages_));
+  body.insert(body.end(), pending_body_.begin(), pending_body_.end());
+  const int rc =
+      write_packet(config_.message_channel_id, kTypeMessageF0, rtc_of(pending_first_tai_ns_), body);
+  if (rc == 0) {
+    ++counters_.message_packets;
+    counters_.messages_written += static_cast<std::uint64_t>(pending_messages_);
+  }
+  pending_body_.clear();
+  pending_messages_ = 0;
+  return rc;
+}
+
+int Chapter10Writer::close() {
+  if (fd_ < 0) return 0;
+  const int rc = flush();
+  ::fdatasync(fd_);
+  ::close(fd_);
+  fd_ = -1;
+  return rc;
+}
+
+}  // namespace storetrack::output

@@ -1,0 +1,81 @@
+#include "storetrack/output/csv_writer.hpp"
+
+#include <cerrno>
+#include <cinttypes>
+
+namespace storetrack::output {
+
+std::vector<std::string> fti_csv_columns() {
+  std::vector<std::string> c = {"trigger_seq [1]",
+                                "exposure_mid_tai_ns [ns]",
+                                "store_id [1]",
+                                "status [bitfield]",
+                                "cameras_used [1]",
+                                "marks_used [1]",
+                                "pylon_marks_used [1]",
+                                "x [m]",
+                                "y [m]",
+                                "z [m]",
+                                "yaw [rad]",
+                                "pitch [rad]",
+                                "roll [rad]",
+                                "u_x [m]",
+                                "u_y [m]",
+                                "u_z [m]",
+                                "u_yaw [rad]",
+                                "u_pitch [rad]",
+                                "u_roll [rad]"};
+  const char* names[6] = {"x", "y", "z", "yaw", "pitch", "roll"};
+  for (int i = 0; i < 6; ++i)
+    for (int j = i + 1; j < 6; ++j)
+      c.push_back(std::string("r_") + names[i] + "_" + names[j] + " [1]");
+  for (const char* b : {"u_budget_centroid [m]", "u_budget_intrinsic [m]", "u_budget_extrinsic [m]",
+                        "u_budget_sync [m]", "coverage_factor [1]"})
+    c.emplace_back(b);
+  return c;
+}
+
+FtiCsvWriter::~FtiCsvWriter() {
+  close();
+}
+
+int FtiCsvWriter::open(const std::string& path) {
+  close();
+  file_ = std::fopen(path.c_str(), "w");
+  if (!file_) return -errno;
+  const auto columns = fti_csv_columns();
+  for (std::size_t i = 0; i < columns.size(); ++i)
+    std::fprintf(file_, "%s%s", i ? "," : "", columns[i].c_str());
+  std::fputc('\n', file_);
+  rows_ = 0;
+  return 0;
+}
+
+int FtiCsvWriter::write(const msg::FtiSample& s) {
+  if (!file_) return -EBADF;
+  std::fprintf(file_, "%" PRIu32 ",%" PRId64 ",%u,%u,%u,%u,%u", s.trigger_seq,
+               s.exposure_mid_tai_ns, unsigned{s.store_id}, unsigned{s.status},
+               unsigned{s.cameras_used}, unsigned{s.marks_used}, unsigned{s.pylon_marks_used});
+  const float values[] = {s.x_m,   s.y_m,   s.z_m,   s.yaw_rad,   s.pitch_rad,   s.roll_rad,
+                          s.u_x_m, s.u_y_m, s.u_z_m, s.u_yaw_rad, s.u_pitch_rad, s.u_roll_rad};
+  for (float v : values)
+    std::fprintf(file_, ",%.9g", static_cast<double>(v));
+  for (float v : s.correlation)
+    std::fprintf(file_, ",%.6g", static_cast<double>(v));
+  const float tail[] = {s.u_budget_centroid_m, s.u_budget_intrinsic_m, s.u_budget_extrinsic_m,
+                        s.u_budget_sync_m, s.coverage_factor};
+  for (float v : tail)
+    std::fprintf(file_, ",%.9g", static_cast<double>(v));
+  if (std::fputc('\n', file_) == EOF) return -EIO;
+  ++rows_;
+  return 0;
+}
+
+int FtiCsvWriter::close() {
+  if (!file_) return 0;
+  const int rc = std::fclose(file_);
+  file_ = nullptr;
+  return rc == 0 ? 0 : -EIO;
+}
+
+}  // namespace storetrack::output

@@ -1,0 +1,130 @@
+// UdpReceiver on loopback: real datagrams from the msg codec, plus corrupted and foreign ones,
+// which must be counted by decode error and never delivered.
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+
+#include <array>
+#include <vector>
+
+#include "storetrack/ingest/receivers.hpp"
+
+namespace storetrack::ingest {
+namespace {
+
+class Sender {
+ public:
+  explicit Sender(std::uint16_t port) {
+    fd_ = socket(AF_INET, SOCK_DGRAM, 0);
+    dst_.sin_family = AF_INET;
+    dst_.sin_port = htons(port);
+    inet_pton(AF_INET, "127.0.0.1", &dst_.sin_addr);
+  }
+  ~Sender() { close(fd_); }
+  void send(std::span<const std::uint8_t> bytes) {
+    ASSERT_EQ(
+        sendto(fd_, bytes.data(), bytes.size(), 0, reinterpret_cast<sockaddr*>(&dst_), sizeof dst_),
+        static_cast<ssize_t>(bytes.size()));
+  }
+
+ private:
+  int fd_;
+  sockaddr_in dst_{};
+};
+
+msg::MarkObservations observation(std::uint32_t seq) {
+  msg::MarkObservations o{};
+  o.unit_id = 1;
+  o.camera_id = 3;
+  o.trigger_seq = seq;
+  o.exposure_start_tai_ns = 1'800'000'000'000'000'000 + seq * 2'500'000LL;
+  o.exposure_start_mono_ns = 1000 + seq;
+  o.exposure_duration_ns = 400'000;
+  o.clock_state = 2;
+  o.mark_count = 2;
+  o.marks[0] = {100.25f, 200.5f, 0.05f, 120, 6.0f, 0};
+  o.marks[1] = {1500.0f, 900.75f, 0.08f, 200, 7.5f, 1};
+  return o;
+}
+
+void drain(UdpReceiver& rx, std::vector<msg::MarkObservations>& got, int expected_datagrams) {
+  for (int spins = 0;
+       spins < 200 && rx.counters().datagrams < static_cast<std::uint64_t>(expected_datagrams);
+       ++spins) {
+    pollfd p{rx.fd(), POLLIN, 0};
+    poll(&p, 1, 10);
+    rx.receive([&](const msg::AnyMessage& m) {
+      if (auto* o = std::get_if<msg::MarkObservations>(&m)) got.push_back(*o);
+    });
+  }
+}
+
+TEST(UdpReceiver, DeliversValidDatagramsAndCountsBadOnes) {
+  UdpReceiver rx;
+  ASSERT_EQ(rx.open("127.0.0.1", 0), 0);
+  Sender tx(rx.port());
+  std::array<std::uint8_t, msg::kMaxDatagramBytes> buf{};
+  int sent = 0;
+  for (std::uint32_t k = 0; k < 20; ++k) {
+    if (k == 5) continue;  // one datagram "lost": the sender's counter skips it
+    const int n = msg::encode_datagram(observation(k), buf, k);
+    ASSERT_GT(n, 0);
+    tx.send(std::span<const std::uint8_t>(buf.data(), static_cast<std::size_t>(n)));
+    ++sent;
+  }
+  int n = msg::encode_datagram(observation(99), buf, 20);
+  buf[static_cast<std::size_t>(n) / 2] ^= 0x40;  // bit flip: CRC error
+  tx.send(std::span<const std::uint8_t>(buf.data(), static_cast<std::size_t>(n)));
+  const std::uint8_t junk[] = {1, 2, 3};
+  tx.send(junk);
+  std::vector<msg::MarkObservations> got;
+  drain(rx, got, sent + 2);
+  ASSERT_EQ(got.size(), static_cast<std::size_t>(sent));
+  EXPECT_EQ(got[0].trigger_seq, 0u);
+  EXPECT_EQ(got[0].mark_count, 2);
+  EXPECT_NEAR(got[0].marks[0].x_px, 100.25f, 1.0f / 256);
+  EXPECT_NEAR(got[0].marks[1].y_px, 900.75f, 1.0f / 256);
+  const auto& c = rx.counters();
+  EXPECT_EQ(c.decoded, static_cast<std::uint64_t>(sent));
+  EXPECT_EQ(c.decode_errors.count(msg::DecodeError::kBadCrc), 1u);
+  EXPECT_EQ(c.decode_errors.count(msg::DecodeError::kTooShort), 1u);
+  EXPECT_EQ(c.datagram_seq_gaps, 1u);
+}
+
+TEST(UdpReceiver, BadAddressesAreErrorsNotCrashes) {
+  UdpReceiver rx;
+  EXPECT_EQ(rx.open("not-an-address", 5000), -EINVAL);
+  EXPECT_EQ(rx.open("127.0.0.1", 0, "also-bad"), -EINVAL);
+  CanFdReceiver can;
+  EXPECT_EQ(can.open("no_such_can_if"), -ENODEV);
+}
+
+TEST(UdpReceiver, JoinsMulticastGroupOnLoopback) {
+  UdpReceiver rx;
+  const int rc = rx.open("0.0.0.0", 0, "239.255.42.99", "127.0.0.1");
+  if (rc != 0) GTEST_SKIP() << "multicast join on loopback not possible here: " << rc;
+  const int fd = socket(AF_INET, SOCK_DGRAM, 0);
+  in_addr ifa{};
+  inet_pton(AF_INET, "127.0.0.1", &ifa);
+  setsockopt(fd, IPPROTO_IP, IP_MULTICAST_IF, &ifa, sizeof ifa);
+  sockaddr_in dst{};
+  dst.sin_family = AF_INET;
+  dst.sin_port = htons(rx.port());
+  inet_pton(AF_INET, "239.255.42.99", &dst.sin_addr);
+  std::array<std::uint8_t, msg::kMaxDatagramBytes> buf{};
+  const int n = msg::encode_datagram(observation(1), buf, 0);
+  sendto(fd, buf.data(), static_cast<std::size_t>(n), 0, reinterpret_cast<sockaddr*>(&dst),
+         sizeof dst);
+  close(fd);
+  std::vector<msg::MarkObservations> got;
+  drain(rx, got, 1);
+  if (got.empty()) GTEST_SKIP() << "no multicast route on loopback in this sandbox";
+  EXPECT_EQ(got[0].trigger_seq, 1u);
+}
+
+}  // namespace
+}  // namespace storetrack::ingest

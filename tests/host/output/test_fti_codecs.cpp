@@ -1,0 +1,108 @@
+// iNET-X packet layout, the FTI parameter block round trip, and the CSV header/rows.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+
+#include "fti_sample_factory.hpp"
+#include "storetrack/output/csv_writer.hpp"
+#include "storetrack/output/inetx.hpp"
+
+namespace storetrack::output {
+namespace {
+
+TEST(FtiParameterBlock, RoundTripIsBitExact) {
+  std::mt19937_64 rng(5);
+  for (std::uint32_t k = 0; k < 100; ++k) {
+    const auto s = testing::make_sample(k, 1'800'000'000'000'000'000, rng);
+    std::array<std::uint8_t, kFtiParameterBlockBytes> buf{};
+    ASSERT_EQ(encode_fti_parameter_block(s, buf), 148);
+    msg::FtiSample d{};
+    ASSERT_EQ(decode_fti_parameter_block(buf, d), 0);
+    EXPECT_EQ(std::memcmp(&d.correlation, &s.correlation, sizeof s.correlation), 0);
+    EXPECT_EQ(d.exposure_mid_tai_ns, s.exposure_mid_tai_ns);
+    EXPECT_EQ(d.x_m, s.x_m);
+    EXPECT_EQ(d.u_roll_rad, s.u_roll_rad);
+    EXPECT_EQ(d.status, s.status);
+  }
+  std::array<std::uint8_t, 100> small{};
+  EXPECT_EQ(encode_fti_parameter_block(msg::FtiSample{}, small), -ENOSPC);
+}
+
+TEST(Inetx, HeaderFieldsAreBigEndianAtTheDocumentedOffsets) {
+  std::mt19937_64 rng(9);
+  auto s = testing::make_sample(3, 1'800'000'000'123'456'789, rng);
+  s.status = 0;  // invalid sample: PIF data-error bit
+  std::array<std::uint8_t, kInetxPacketBytes> buf{};
+  ASSERT_EQ(encode_inetx_packet(s, 0xDC000001u, 77, buf), 176);
+  EXPECT_EQ(buf[0], 0x11);  // control word 0x11000000
+  EXPECT_EQ(buf[4], 0xDC);  // stream id MSB first
+  EXPECT_EQ(buf[11], 77);
+  EXPECT_EQ(buf[15], 176);
+  InetxHeader h{};
+  ASSERT_EQ(decode_inetx_header(buf, h), 0);
+  EXPECT_EQ(h.control_word, kInetxControlWord);
+  EXPECT_EQ(h.stream_id, 0xDC000001u);
+  EXPECT_EQ(h.sequence, 77u);
+  EXPECT_EQ(h.packet_length, 176u);
+  const std::int64_t t = s.exposure_mid_tai_ns;
+  EXPECT_EQ(h.ptp_seconds, static_cast<std::uint32_t>(t / 1'000'000'000));
+  EXPECT_EQ(h.ptp_nanoseconds, static_cast<std::uint32_t>(t % 1'000'000'000));
+  EXPECT_EQ(h.pif, kInetxPifDataError);
+  EXPECT_EQ(decode_inetx_header(std::span(buf).first(100), h), -EINVAL);
+}
+
+TEST(Inetx, EndpointParsing) {
+  std::string a;
+  std::uint16_t p = 0;
+  EXPECT_TRUE(parse_ipv4_endpoint("239.1.2.3:6000", a, p));
+  EXPECT_EQ(a, "239.1.2.3");
+  EXPECT_EQ(p, 6000);
+  EXPECT_FALSE(parse_ipv4_endpoint("239.1.2.3", a, p));
+  EXPECT_FALSE(parse_ipv4_endpoint("239.1.2.3:70000", a, p));
+  EXPECT_FALSE(parse_ipv4_endpoint("host:12", a, p));
+  InetxSender tx;
+  EXPECT_EQ(tx.open("nonsense", 1), -EINVAL);
+}
+
+TEST(FtiCsv, HeaderNamesEveryColumnWithAUnit) {
+  const auto path =
+      std::filesystem::temp_directory_path() / ("st_fti_" + std::to_string(::getpid()) + ".csv");
+  FtiCsvWriter w;
+  ASSERT_EQ(w.open(path.string()), 0);
+  std::mt19937_64 rng(2);
+  for (std::uint32_t k = 0; k < 10; ++k)
+    ASSERT_EQ(w.write(testing::make_sample(k, 0, rng)), 0);
+  ASSERT_EQ(w.close(), 0);
+  std::ifstream in(path);
+  std::string header;
+  std::getline(in, header);
+  const auto columns = fti_csv_columns();
+  EXPECT_EQ(columns.size(), 19u + 15u + 5u);
+  std::size_t count = 1;
+  for (char c : header)
+    count += c == ',';
+  EXPECT_EQ(count, columns.size());
+  for (const auto& c : columns) {
+    EXPECT_NE(c.find(" ["), std::string::npos) << c << " has no unit";
+    EXPECT_NE(header.find(c), std::string::npos);
+  }
+  std::string row;
+  int rows = 0;
+  while (std::getline(in, row)) {
+    std::size_t fields = 1;
+    for (char c : row)
+      fields += c == ',';
+    EXPECT_EQ(fields, columns.size());
+    ++rows;
+  }
+  EXPECT_EQ(rows, 10);
+  std::filesystem::remove(path);
+}
+
+}  // namespace
+}  // namespace storetrack::output
