@@ -471,7 +471,7 @@ def icd_blocks(schemas):
         for f in s["fields"]:
             extra = ""
             if "max" in f:
-                extra = " Valid 0..%d or invalid." % f["max"]
+                extra = " (valid: 0..%d or the invalid value)" % f["max"]
             rows.append("| %d | %d | `%s` | %s | %s | %s | %s | %s%s |" % (
                 f["_offset"], f["_size"], f["name"], f["type"], md(f["unit"]), md(f["frame"]),
                 invalid_text(f["invalid"]), md(f["doc"]), extra))
@@ -508,9 +508,9 @@ def icd_blocks(schemas):
                                                             rf.get("overflow", "saturate"))
                 else:
                     off = rf.get("offset", 0.0)
-                    e = "value = code x %g%s; %s" % (rf["scale"],
-                                                     (" %+g" % off) if off else "",
-                                                     rf.get("overflow", "saturate"))
+                    e = "value = code x %g%s; %s" % (
+                        rf["scale"], (" %s %g" % ("-" if off < 0 else "+", abs(off))) if off else "",
+                        rf.get("overflow", "saturate"))
                 w.append("| %d..%d | %d | `%s` | %s | %s | %s | 0x%X | %s |" % (
                     rf["_shift"] + rf["bits"] - 1, rf["_shift"], rf["bits"], rf["name"], md(e),
                     md(rf["unit"]), md(rf["frame"]), rf["invalid"], md(rf["doc"])))
