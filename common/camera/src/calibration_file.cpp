@@ -223,7 +223,7 @@ RigCalibration parse_rig_calibration(const std::string& json_text, const std::st
   json doc;
   try {
     doc = json::parse(json_text);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // parse_error, or out_of_range for number overflow
     rd.fail("", std::string("JSON syntax error: ") + e.what());
   }
   rd.expect_object(doc, "");

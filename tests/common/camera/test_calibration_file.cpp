@@ -1,0 +1,229 @@
+// Rig calibration file: write/read round trip is exact, malformed files give a
+// CalibrationFileError naming the file, the JSON path and the reason.
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include <nlohmann/json.hpp>
+
+#include "storetrack/camera/calibration_file.hpp"
+
+namespace storetrack::camera {
+namespace {
+
+using nlohmann::json;
+
+/// A random symmetric positive-definite n x n covariance with standard deviations ~scale.
+template <int N>
+Eigen::Matrix<double, N, N> random_covariance(std::mt19937_64& rng, double scale) {
+  std::normal_distribution<double> g(0, 1);
+  Eigen::Matrix<double, N, N> a;
+  for (int r = 0; r < N; ++r)
+    for (int c = 0; c < N; ++c)
+      a(r, c) = g(rng) * scale;
+  return a * a.transpose() / N;
+}
+
+RigCalibration example_rig() {
+  std::mt19937_64 rng(7);
+  RigCalibration rig;
+  for (int i = 0; i < 3; ++i) {
+    CalibratedCamera cam;
+    cam.camera_id = 2 * i + 1;
+    cam.unit_id = i / 2;
+    Intrinsics in;
+    in.fx = 1450.123456789 + i;
+    in.fy = 1449.987654321;
+    in.cx = 961.25;
+    in.cy = 510.75 - i;
+    in.skew = 0.3;
+    in.dist = {-0.2, 0.07, 1e-4, -2e-4, 0.01, i == 0 ? 0.0 : 0.02, 0.0, 1e-3};
+    in.width = 1920;
+    in.height = 1024;
+    cam.model = CameraModel(in);
+    cam.T_c_w = geometry::make_transform(geometry::Vec3(0.1, -0.4 + i, 0.02 * i),
+                                         geometry::Vec3(-0.5 * i, 0.02, 3.5));
+    cam.intrinsic_covariance = random_covariance<kNumIntrinsics>(rng, 1e-3);
+    cam.extrinsic_covariance = random_covariance<6>(rng, 1e-4);
+    cam.exposure_offset_ns = 1234.5 * i;
+    cam.exposure_offset_sigma_ns = 50;
+    rig.cameras.push_back(cam);
+  }
+  return rig;
+}
+
+void expect_same_rig(const RigCalibration& a, const RigCalibration& b) {
+  ASSERT_EQ(a.cameras.size(), b.cameras.size());
+  for (size_t i = 0; i < a.cameras.size(); ++i) {
+    const auto& ca = a.cameras[i];
+    const auto& cb = b.cameras[i];
+    EXPECT_EQ(ca.camera_id, cb.camera_id);
+    EXPECT_EQ(ca.unit_id, cb.unit_id);
+    EXPECT_EQ(pack(ca.model.intrinsics()), pack(cb.model.intrinsics()));
+    EXPECT_EQ(ca.model.intrinsics().width, cb.model.intrinsics().width);
+    EXPECT_EQ(ca.model.intrinsics().height, cb.model.intrinsics().height);
+    EXPECT_EQ(ca.intrinsic_covariance, cb.intrinsic_covariance);
+    EXPECT_EQ(ca.extrinsic_covariance, cb.extrinsic_covariance);
+    // The rotation goes through a rotation vector: exact to rounding.
+    EXPECT_LT((ca.T_c_w.matrix() - cb.T_c_w.matrix()).cwiseAbs().maxCoeff(), 1e-15);
+    EXPECT_EQ(ca.exposure_offset_ns, cb.exposure_offset_ns);
+    EXPECT_EQ(ca.exposure_offset_sigma_ns, cb.exposure_offset_sigma_ns);
+  }
+}
+
+TEST(CalibrationFile, StringRoundTrip) {
+  const RigCalibration rig = example_rig();
+  const std::string text = format_rig_calibration(rig);
+  expect_same_rig(rig, parse_rig_calibration(text, "memory"));
+  // Reading what was written and writing it again changes nothing but rounding of the
+  // rotation vector.
+  expect_same_rig(rig, parse_rig_calibration(
+                           format_rig_calibration(parse_rig_calibration(text, "memory")), "m2"));
+}
+
+TEST(CalibrationFile, FileRoundTripAndFind) {
+  const RigCalibration rig = example_rig();
+  const auto path = (std::filesystem::temp_directory_path() /
+                     ("storetrack_calib_" + std::to_string(::getpid()) + ".json"))
+                        .string();
+  write_rig_calibration(rig, path);
+  const RigCalibration back = read_rig_calibration(path);
+  std::filesystem::remove(path);
+  expect_same_rig(rig, back);
+  ASSERT_NE(back.find(3), nullptr);
+  EXPECT_EQ(back.find(3)->camera_id, 3);
+  EXPECT_EQ(back.find(2), nullptr);
+}
+
+TEST(CalibrationFile, MissingFileNamesPath) {
+  try {
+    read_rig_calibration("/nonexistent/dir/calib.json");
+    FAIL() << "no exception";
+  } catch (const CalibrationFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("/nonexistent/dir/calib.json"), std::string::npos);
+  }
+}
+
+TEST(CalibrationFile, StandardDeviationShorthandAndOptionalFields) {
+  json doc = json::parse(format_rig_calibration(example_rig()));
+  json& cam = doc["cameras"][0];
+  cam["intrinsic_covariance"] = {
+      {"standard_deviations", {0.5, 0.5, 0.3, 0.3, 0, 1e-3, 1e-3, 1e-5, 1e-5, 1e-4, 0, 0, 0}}};
+  cam["intrinsics"]["distortion"] = {-0.1, 0.01, 0, 0};  // 4 coefficients: k3..k6 = 0
+  cam["intrinsics"].erase("skew");
+  cam.erase("exposure_offset_ns");
+  cam.erase("exposure_offset_sigma_ns");
+  cam["comment"] = "hand-edited";
+  const RigCalibration rig = parse_rig_calibration(doc.dump(), "memory");
+  const auto& c = rig.cameras[0];
+  EXPECT_DOUBLE_EQ(c.intrinsic_covariance(0, 0), 0.25);
+  EXPECT_DOUBLE_EQ(c.intrinsic_covariance(5, 5), 1e-6);
+  EXPECT_EQ(c.intrinsic_covariance(0, 1), 0);
+  EXPECT_EQ(c.model.intrinsics().skew, 0);
+  EXPECT_EQ(c.model.intrinsics().dist[4], 0);
+  EXPECT_EQ(c.model.intrinsics().dist[0], -0.1);
+  EXPECT_EQ(c.exposure_offset_ns, 0);
+}
+
+/// Applies `edit` to a valid document and expects an error whose message names the origin,
+/// `path_fragment` and `reason_fragment`.
+void expect_error(const std::function<void(json&)>& edit, const std::string& path_fragment,
+                  const std::string& reason_fragment) {
+  json doc = json::parse(format_rig_calibration(example_rig()));
+  edit(doc);
+  try {
+    parse_rig_calibration(doc.dump(), "rig_under_test.json");
+    ADD_FAILURE() << "no exception for " << path_fragment;
+  } catch (const CalibrationFileError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("rig_under_test.json"), std::string::npos) << what;
+    EXPECT_NE(what.find(path_fragment), std::string::npos) << what;
+    EXPECT_NE(what.find(reason_fragment), std::string::npos) << what;
+  }
+}
+
+TEST(CalibrationFile, MalformedFilesAreRejectedWithPathAndReason) {
+  expect_error([](json& d) { d["format"] = "opencv"; }, "/format", "expected");
+  expect_error([](json& d) { d["version"] = 2; }, "/version", "unsupported version");
+  expect_error([](json& d) { d.erase("cameras"); }, "/", "missing required key \"cameras\"");
+  expect_error([](json& d) { d["cameras"] = json::array(); }, "/cameras", "non-empty");
+  expect_error([](json& d) { d["camaras"] = 1; }, "/camaras", "unknown key");
+  expect_error([](json& d) { d["cameras"][1].erase("T_c_w"); }, "/cameras/1",
+               "missing required key \"T_c_w\"");
+  expect_error([](json& d) { d["cameras"][0]["intrinsics"]["fx"] = "1450"; },
+               "/cameras/0/intrinsics/fx", "expected a number");
+  expect_error([](json& d) { d["cameras"][0]["intrinsics"]["fy"] = -3; },
+               "/cameras/0/intrinsics/fy", "must be > 0");
+  expect_error(
+      [](json& d) {
+        d["cameras"][2]["intrinsics"]["distortion"] = {0.1, 0.2, 0.0};
+      },
+      "/cameras/2/intrinsics/distortion", "expected 4..8 numbers");
+  expect_error(
+      [](json& d) { d["cameras"][2]["intrinsics"]["distortion"] = {0.1, 0.2, 0, 0, 0, 0}; },
+      "/cameras/2/intrinsics/distortion", "4, 5 or 8");
+  expect_error(
+      [](json& d) {
+        d["cameras"][0]["T_c_w"]["translation_m"] = {1, 2};
+      },
+      "/cameras/0/T_c_w/translation_m", "expected 3 numbers");
+  expect_error([](json& d) { d["cameras"][0]["T_c_w"]["rotation_vector_rad"][1] = nullptr; },
+               "/cameras/0/T_c_w/rotation_vector_rad/1", "expected a number");
+  expect_error([](json& d) { d["cameras"][1]["camera_id"] = d["cameras"][0]["camera_id"]; },
+               "/cameras/1/camera_id", "duplicate camera_id");
+  expect_error([](json& d) { d["cameras"][1]["camera_id"] = 300; }, "/cameras/1/camera_id",
+               "outside [0, 255]");
+  expect_error([](json& d) { d["cameras"][1]["camera_id"] = 1.5; }, "/cameras/1/camera_id",
+               "expected an integer");
+  expect_error([](json& d) { d["cameras"][0]["image_size"]["width"] = 0; },
+               "/cameras/0/image_size/width", "outside");
+  expect_error([](json& d) { d["cameras"][0]["extrinsic_covariance"][2][3] = 1.0; },
+               "/cameras/0/extrinsic_covariance/2/3", "not symmetric");
+  expect_error(
+      [](json& d) {
+        auto& c = d["cameras"][0]["extrinsic_covariance"];
+        c[0][0] = -1.0;
+      },
+      "/cameras/0/extrinsic_covariance", "not positive semi-definite");
+  expect_error([](json& d) { d["cameras"][0]["intrinsic_covariance"].erase(12); },
+               "/cameras/0/intrinsic_covariance", "13x13");
+  expect_error([](json& d) { d["cameras"][0]["intrinsic_covariance"][4].erase(0); },
+               "/cameras/0/intrinsic_covariance/4", "expected 13 numbers");
+  expect_error(
+      [](json& d) {
+        d["cameras"][0]["extrinsic_covariance"] = {{"standard_deviations", {1, 1, 1, 1, -1, 1}}};
+      },
+      "/cameras/0/extrinsic_covariance/standard_deviations/4", "negative");
+  expect_error([](json& d) { d["cameras"][0]["exposure_offset_sigma_ns"] = -1; },
+               "/cameras/0/exposure_offset_sigma_ns", ">= 0");
+  expect_error([](json& d) { d["cameras"][0]["intrinsics"]["k1"] = 0.1; },
+               "/cameras/0/intrinsics/k1", "unknown key");
+}
+
+TEST(CalibrationFile, SyntaxErrorNamesFile) {
+  try {
+    parse_rig_calibration("{\"format\": \"storetrack-rig-calibration\", ", "broken.json");
+    FAIL() << "no exception";
+  } catch (const CalibrationFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("broken.json"), std::string::npos);
+    EXPECT_NE(std::string(e.what()).find("JSON syntax error"), std::string::npos);
+  }
+}
+
+TEST(CalibrationFile, NonFiniteNumbersRejected) {
+  // JSON has no NaN literal; a huge exponent overflows to inf in the parser.
+  json doc = json::parse(format_rig_calibration(example_rig()));
+  std::string text = doc.dump();
+  const std::string key = "\"cx\":";
+  const auto pos = text.find(key);
+  ASSERT_NE(pos, std::string::npos);
+  const auto end = text.find(',', pos);
+  text.replace(pos + key.size(), end - pos - key.size(), "1e999");
+  EXPECT_THROW(parse_rig_calibration(text, "inf.json"), CalibrationFileError);
+}
+
+}  // namespace
+}  // namespace storetrack::camera
