@@ -36,7 +36,6 @@ CMD=${1:-}
 [ -n "$CMD" ] || [ $PREPARE_ONLY = 1 ] || { echo "usage: $0 [--out DIR] [--prepare-only] 'command'" >&2; exit 2; }
 
 W=${STORETRACK_VMRIG_DIR:-/var/tmp/storetrack-vmrig}
-SELF=$(realpath "$0")
 HERE=$PWD
 
 # --- 0. can the rig start here at all? ------------------------------------------------------
@@ -55,11 +54,47 @@ mkdir -p "$W/runs"
 W=$(realpath "$W")
 
 # --- 1. prepare (once; serialised between concurrent runs) ----------------------------------
+# The VM's /init (busybox sh): mounts the 9p root + overlay, runs $OUTP/cmd, powers off.
+write_init() {
+  cat > "$1" <<'EOF'
+#!/bin/sh
+# storetrack vmrig init: paths come from the kernel command line (vmrig.out=, vmrig.mods=).
+export PATH=/bin
+mount -t proc proc /proc; mount -t sysfs sys /sys; mount -t devtmpfs dev /dev
+for a in $(cat /proc/cmdline); do
+  case "$a" in vmrig.out=*) OUTP=${a#vmrig.out=} ;; vmrig.mods=*) MODS=${a#vmrig.mods=} ;; esac
+done
+for m in $(cat /mod/order); do insmod /mod/$m; done
+O=trans=virtio,version=9p2000.L,msize=262144
+mount -t 9p -o $O,ro,cache=loose hostroot /host && mount -t 9p -o $O,cache=none out /out ||
+  { echo VMTEST_EXIT=98; poweroff -f; }
+mount -t tmpfs -o size=768m tmp /ovl; mkdir /ovl/u /ovl/w
+R=/newroot; mount -t overlay -o lowerdir=/host,upperdir=/ovl/u,workdir=/ovl/w ovl $R
+mount -t proc proc $R/proc; mount -t sysfs sys $R/sys; mount -t devtmpfs dev $R/dev
+mkdir -p $R/dev/pts $R/dev/shm; mount -t devpts devpts $R/dev/pts; mount -t tmpfs shm $R/dev/shm
+mount -t tmpfs run $R/run; mount -t debugfs debugfs $R/sys/kernel/debug
+mount --bind /out $R$OUTP
+KV=$(uname -r); mkdir -p $R/usr/lib/modules; rm -rf $R/usr/lib/modules/$KV; ln -s $MODS $R/usr/lib/modules/$KV
+# kernel module autoload (e.g. `ip link add ... type vcan`) must run modprobe inside the chroot
+printf '#!/bin/sh\nexec /bin/chroot /newroot /sbin/modprobe "$@"\n' > /bin/modprobe-chroot
+chmod +x /bin/modprobe-chroot; echo /bin/modprobe-chroot > /proc/sys/kernel/modprobe
+chroot $R /sbin/modprobe configfs && mount -t configfs configfs $R/sys/kernel/config
+echo VMTEST_START
+chroot $R /usr/bin/env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin HOME=/root TERM=dumb /bin/sh $OUTP/cmd
+rc=$?; echo $rc > /out/exit-code; echo "VMTEST_EXIT=$rc"; sync; poweroff -f
+EOF
+}
+
 prepare() {
   cd "$W"
   # Kernel: the one linux-image-amd64 currently points at, unless KVER pins it. When apt's lists
   # are gone (no network), fall back to a kernel already in the cache.
   local KV=${KVER:-}
+  # apt-cache costs ~5 s: re-resolve only after apt's lists changed (apt-get update).
+  if [ -z "$KV" ] && [ -s kver ] && [ -e "kroot/boot/vmlinuz-$(cat kver)" ] &&
+     [ kver -nt /var/cache/apt/pkgcache.bin ] && [ kver -nt /var/lib/apt/lists ]; then
+    KV=$(cat kver)
+  fi
   if [ -z "$KV" ]; then
     KV=$(apt-cache depends linux-image-amd64 2>/dev/null | sed -n 's/.*Depends: linux-image-//p' | head -1)
     if [ -z "$KV" ] || ! apt-cache show "linux-image-$KV" >/dev/null 2>&1; then
@@ -114,7 +149,8 @@ prepare() {
 
   # initramfs: static busybox + the modules needed to mount the 9p root and the overlay.
   local I=initramfs-$KV.cpio.gz
-  if [ ! -e "$I" ] || [ "$SELF" -nt "$I" ]; then
+  write_init init.new
+  if [ ! -e "$I" ] || ! cmp -s init.new init.used; then
     local D=$W/initramfs-src
     rm -rf "$D"; mkdir -p "$D"/{bin,mod,proc,sys,dev,host,newroot,ovl,out}
     cp /bin/busybox "$D/bin/"
@@ -124,35 +160,10 @@ prepare() {
     for m in virtio_pci 9pnet_virtio 9p overlay; do modprobe -d kroot -S "$KV" --show-depends $m; done |
       awk '$1=="insmod" && !s[$2]++ {print $2}' |
       while read -r f; do cp "$f" "$D/mod/"; basename "$f" >> "$D/mod/order"; done
-    cat > "$D/init" <<'EOF'
-#!/bin/sh
-# storetrack vmrig init: paths come from the kernel command line (vmrig.out=, vmrig.mods=).
-export PATH=/bin
-mount -t proc proc /proc; mount -t sysfs sys /sys; mount -t devtmpfs dev /dev
-for a in $(cat /proc/cmdline); do
-  case "$a" in vmrig.out=*) OUTP=${a#vmrig.out=} ;; vmrig.mods=*) MODS=${a#vmrig.mods=} ;; esac
-done
-for m in $(cat /mod/order); do insmod /mod/$m; done
-O=trans=virtio,version=9p2000.L,msize=262144
-mount -t 9p -o $O,ro,cache=loose hostroot /host && mount -t 9p -o $O,cache=none out /out ||
-  { echo VMTEST_EXIT=98; poweroff -f; }
-mount -t tmpfs -o size=768m tmp /ovl; mkdir /ovl/u /ovl/w
-R=/newroot; mount -t overlay -o lowerdir=/host,upperdir=/ovl/u,workdir=/ovl/w ovl $R
-mount -t proc proc $R/proc; mount -t sysfs sys $R/sys; mount -t devtmpfs dev $R/dev
-mkdir -p $R/dev/pts $R/dev/shm; mount -t devpts devpts $R/dev/pts; mount -t tmpfs shm $R/dev/shm
-mount -t tmpfs run $R/run; mount -t debugfs debugfs $R/sys/kernel/debug
-mount --bind /out $R$OUTP
-KV=$(uname -r); mkdir -p $R/usr/lib/modules; rm -rf $R/usr/lib/modules/$KV; ln -s $MODS $R/usr/lib/modules/$KV
-# kernel module autoload (e.g. `ip link add ... type vcan`) must run modprobe inside the chroot
-printf '#!/bin/sh\nexec /bin/chroot /newroot /sbin/modprobe "$@"\n' > /bin/modprobe-chroot
-chmod +x /bin/modprobe-chroot; echo /bin/modprobe-chroot > /proc/sys/kernel/modprobe
-chroot $R /sbin/modprobe configfs && mount -t configfs configfs $R/sys/kernel/config
-echo VMTEST_START
-chroot $R /usr/bin/env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin HOME=/root TERM=dumb /bin/sh $OUTP/cmd
-rc=$?; echo $rc > /out/exit-code; echo "VMTEST_EXIT=$rc"; sync; poweroff -f
-EOF
+    cp init.new "$D/init"
     chmod +x "$D/init"
     (cd "$D" && find . | cpio -o -H newc --quiet | gzip -1) > "$I.tmp" && mv "$I.tmp" "$I"
+    mv init.new init.used
   fi
 }
 

@@ -1,0 +1,115 @@
+#!/usr/bin/env python3
+"""Edge analysis for the in-VM GPIO tests (independent of the code under test).
+
+  gpio_edges.py poll PATH SECONDS > edges.txt       poll a gpio-sim sim_gpioN/value (outputs)
+  gpio_edges.py check --edges F --format gpiomon|poll --rate HZ [--log emu.csv] [...]
+
+check: rising edges -> intervals; classifies every edge by the nominal period alone (an edge
+closer than period/2 to the previous one is EXTRA; a gap of k > 1.5 periods means k-1 MISSING)
+and compares with --expect-missing/--expect-extra; with --log (storetrack-trigger-emu CSV) every
+sent pulse must have its rising edge within [planned - tol, rise_mono + tol] (CLOCK_MONOTONIC).
+"""
+import argparse
+import csv
+import statistics
+import sys
+import time
+
+
+def poll(path, seconds):
+    end = time.monotonic_ns() + int(seconds * 1e9)
+    last = None
+    with open(path, "rb", buffering=0) as f:
+        while time.monotonic_ns() < end:
+            f.seek(0)
+            v = f.read(8).strip()
+            t = time.monotonic_ns()
+            if v != last:
+                print(t, v.decode(), flush=True)
+                last = v
+            time.sleep(0.0002)
+
+
+def rising_edges(path, fmt):
+    out = []
+    with open(path) as f:
+        for line in f:
+            p = line.split()
+            if not p:
+                continue
+            if fmt == "gpiomon":  # '%e %s %n': event (1 rising), seconds, nanoseconds
+                if p[0] == "1":
+                    out.append(int(p[1]) * 1_000_000_000 + int(p[2]))
+            else:  # poll: 't_ns level', first line is the initial level
+                out.append((int(p[0]), p[1]))
+    if fmt == "poll":
+        rises = [t for i, (t, v) in enumerate(out) if i > 0 and v == "1"]
+        return rises
+    return out
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    p = sub.add_parser("poll")
+    p.add_argument("path")
+    p.add_argument("seconds", type=float)
+    c = sub.add_parser("check")
+    c.add_argument("--edges", required=True)
+    c.add_argument("--format", choices=["gpiomon", "poll"], default="gpiomon")
+    c.add_argument("--rate", type=float, required=True)
+    c.add_argument("--rate-tol", type=float, default=0.02, help="relative, median interval")
+    c.add_argument("--expect-count", type=int)
+    c.add_argument("--expect-missing", type=int, default=0)
+    c.add_argument("--expect-extra", type=int, default=0)
+    c.add_argument("--log", help="storetrack-trigger-emu CSV log")
+    c.add_argument("--tol-ms", type=float, default=3.0)
+    a = ap.parse_args()
+    if a.cmd == "poll":
+        poll(a.path, a.seconds)
+        return 0
+
+    rises = rising_edges(a.edges, a.format)
+    period = 1e9 / a.rate
+    errors = []
+    intervals = [b - x for x, b in zip(rises, rises[1:])]
+    extra = sum(1 for d in intervals if d < 0.5 * period)
+    missing = sum(round(d / period) - 1 for d in intervals if d > 1.5 * period)
+    nominal = [d for d in intervals if 0.5 * period <= d <= 1.5 * period]
+    print(f"rising edges {len(rises)}, extra {extra}, missing {missing}")
+    if nominal:
+        med = statistics.median(nominal)
+        print(f"median nominal interval {med / 1e6:.3f} ms -> {1e9 / med:.3f} Hz "
+              f"(want {a.rate} Hz), max dev {max(abs(d - period) for d in nominal) / 1e6:.3f} ms")
+        if abs(med - period) > a.rate_tol * period:
+            errors.append(f"rate {1e9 / med:.3f} Hz off {a.rate} Hz by > {a.rate_tol:.0%}")
+    else:
+        errors.append("no nominal intervals")
+    if a.expect_count is not None and len(rises) != a.expect_count:
+        errors.append(f"{len(rises)} rising edges, want {a.expect_count}")
+    if extra != a.expect_extra:
+        errors.append(f"{extra} extra edges detected, want {a.expect_extra}")
+    if missing != a.expect_missing:
+        errors.append(f"{missing} missing edges detected, want {a.expect_missing}")
+    if a.log:
+        with open(a.log) as f:
+            sent = [r for r in csv.DictReader(f) if r["kind"] != "missing"]
+        if len(sent) != len(rises):
+            errors.append(f"emulator logged {len(sent)} pulses, line saw {len(rises)} rising edges")
+        tol = int(a.tol_ms * 1e6)
+        worst = 0
+        for r, t in zip(sent, rises):
+            lo, hi = int(r["planned_rise_mono_ns"]) - tol, int(r["rise_mono_ns"]) + tol
+            worst = max(worst, abs(t - int(r["rise_mono_ns"])))
+            if not lo <= t <= hi:
+                errors.append(f"pulse seq {r['seq']} ({r['kind']}): edge at {t}, "
+                              f"want in [{lo}, {hi}]")
+                break
+        print(f"worst |edge - logged rise| {worst / 1e6:.3f} ms")
+    for e in errors:
+        print("FAIL: " + e)
+    return 1 if errors else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,33 @@
+# Helpers for the in-VM tests (sourced). Each test: exit 0 pass, 1 fail ("FAIL: reason"),
+# 77 skip ("SKIP: reason" - only for a project binary that is not built yet).
+set -u
+RIG_GUEST=$(cd "$(dirname "$0")" && pwd)
+T=$(mktemp -d /tmp/vmtest.XXXXXX)
+fail() { echo "FAIL: $*"; exit 1; }
+skip() { echo "SKIP: $*"; exit 77; }
+# waitfor 'shell condition' [tries, 50 ms apart; default 200 = 10 s]
+waitfor() { i=0; until sh -c "$1"; do i=$((i+1)); [ $i -lt "${2:-200}" ] || return 1; sleep 0.05; done; }
+# need_bin OUTVAR ENVVAR program-name: OUTVAR=the build tree's binary (tests/rig/CMakeLists.txt
+# passes the paths in STORETRACK_BIN_*); skips the test when the program is not built.
+need_bin() {
+  eval "p=\${$2:-}"
+  [ -n "$p" ] || skip "$3 is not built in this tree (no CMake target $3)"
+  [ -x "$p" ] || skip "$3 target exists but $p is missing (build it first)"
+  eval "$1=\$p"
+}
+# gpiosim_new NAME NLINES: a live gpio-sim chip; sets GS_CHIP (gpiochipN) and GS_SYS (sysfs dir
+# holding sim_gpioK/{pull,value})
+gpiosim_new() {
+  modprobe gpio-sim || fail "modprobe gpio-sim"
+  g=/sys/kernel/config/gpio-sim/$1
+  mkdir "$g" "$g/bank0" && echo "$2" > "$g/bank0/num_lines" && echo 1 > "$g/live" ||
+    fail "gpio-sim chip $1 not created"
+  GS_CHIP=$(cat "$g/bank0/chip_name")
+  GS_SYS=/sys/devices/platform/$(cat "$g/dev_name")/$GS_CHIP
+  [ -e "$GS_SYS/sim_gpio0/pull" ] || fail "no $GS_SYS/sim_gpio0/pull"
+}
+# vcan_up IF: a CAN FD capable virtual bus
+vcan_up() {
+  modprobe -a vcan can_raw || fail "modprobe vcan can_raw"
+  ip link add "$1" type vcan && ip link set "$1" mtu 72 && ip link set up "$1" || fail "vcan $1"
+}
