@@ -28,7 +28,15 @@ for a in "$@"; do
   esac
 done
 
-if dpkg -s "${want[@]}" >/dev/null 2>&1; then exit 0; fi
+# `dpkg -s libgpiod-dev` fails as "ambiguous" once libgpiod-dev:arm64 is installed too, so
+# compare against dpkg's list of installed names (native ones also without their ":arch").
+all_installed() {
+  dpkg-query -W -f='${binary:Package} ${db:Status-Abbrev}\n' 2>/dev/null |
+    awk -v native=":$(dpkg --print-architecture)" -v want="$*" '
+      $2 == "ii" { have[$1] = 1; n = $1; sub(native "$", "", n); have[n] = 1 }
+      END { k = split(want, w, " "); for (i = 1; i <= k; i++) if (!(w[i] in have)) exit 1 }'
+}
+if all_installed "${want[@]}"; then exit 0; fi
 SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO=sudo
 if printf '%s\n' "${want[@]}" | grep -q ':arm64'; then
   dpkg --print-foreign-architectures | grep -qx arm64 || $SUDO dpkg --add-architecture arm64
