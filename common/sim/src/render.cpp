@@ -320,22 +320,23 @@ SpotStatistics SpotRenderer::statistics(const Spot& spot, const SensorModel& sen
   box.y1 = std::min(height, box.y1 + 1);
   const std::size_t n = static_cast<std::size_t>(box.width()) * box.height();
   // Five evaluations: centre, +-dx, +-dy (central differences for the Fisher information).
-  std::vector<double> buf(5 * n);
+  grow(stats_, 5 * n);
+  double* buf = stats_.data();
   constexpr double kDelta = 0.01;
   Spot s = spot;
-  evaluate(s, box, buf.data());
+  evaluate(s, box, buf);
   s.x_px = spot.x_px + kDelta;
-  evaluate(s, box, buf.data() + n);
+  evaluate(s, box, buf + n);
   s.x_px = spot.x_px - kDelta;
-  evaluate(s, box, buf.data() + 2 * n);
+  evaluate(s, box, buf + 2 * n);
   s.x_px = spot.x_px;
   s.y_px = spot.y_px + kDelta;
-  evaluate(s, box, buf.data() + 3 * n);
+  evaluate(s, box, buf + 3 * n);
   s.y_px = spot.y_px - kDelta;
-  evaluate(s, box, buf.data() + 4 * n);
+  evaluate(s, box, buf + 4 * n);
   // Per-pixel variance in e^2: shot (background + signal), read, quantisation (EMVA 1288).
   const double quant_var = sensor.gain_e_per_dn * sensor.gain_e_per_dn / 12.0;
-  double fxx = 0, fxy = 0, fyy = 0, sum = 0, peak = 0;
+  double fxx = 0, fxy = 0, fyy = 0, sum = 0, peak = 0, mx = 0, my = 0;
   for (std::size_t i = 0; i < n; ++i) {
     const double mu = buf[i];
     const double var = std::max(sensor.background_e, 0.0) + mu +
@@ -346,6 +347,8 @@ SpotStatistics SpotRenderer::statistics(const Spot& spot, const SensorModel& sen
     fxy += dx * dy / var;
     fyy += dy * dy / var;
     sum += mu;
+    mx += mu * (box.x0 + static_cast<int>(i % static_cast<std::size_t>(box.width())));
+    my += mu * (box.y0 + static_cast<int>(i / static_cast<std::size_t>(box.width())));
     peak = std::max(peak, mu);
   }
   const double det = fxx * fyy - fxy * fxy;
@@ -361,6 +364,8 @@ SpotStatistics SpotRenderer::statistics(const Spot& spot, const SensorModel& sen
   st.peak_dn = (sensor.background_e + peak) / sensor.gain_e_per_dn + sensor.black_level_dn;
   st.saturated = st.peak_dn >= sensor.full_scale_dn;
   st.in_image_fraction = spot.flux_e > 0 ? sum / spot.flux_e : 0.0;
+  st.centroid_x_px = sum > 0 ? mx / sum : spot.x_px;
+  st.centroid_y_px = sum > 0 ? my / sum : spot.y_px;
   return st;
 }
 

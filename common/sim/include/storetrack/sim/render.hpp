@@ -61,6 +61,9 @@ struct SpotStatistics {
   double peak_dn = 0;            ///< expected DN of that pixel including background
   bool saturated = false;        ///< peak_dn reaches full scale
   double in_image_fraction = 0;  ///< fraction of flux_e landing inside the image
+  /// Expected centroid of the in-image part of the spot (differs from the centre when the
+  /// spot is clipped by the image border) [px].
+  double centroid_x_px = 0, centroid_y_px = 0;
 };
 
 /// Pixels a spot lights to within 1e-9 of its flux (6.5 sigma beyond disc + blur), clipped.
@@ -100,7 +103,7 @@ class SpotRenderer {
   void prepare_signal(std::span<const Spot> spots, int width, int height);
   void build_background_table(const SensorModel& sensor);
 
-  std::vector<double> weights_, ex_, ey_, tmp_, box_;
+  std::vector<double> weights_, ex_, ey_, tmp_, box_, stats_;
   std::vector<float> signal_;  // width * height expected signal, zero outside spot boxes
   std::vector<PixelBox> boxes_;
   int signal_width_ = 0, signal_height_ = 0;
