@@ -200,8 +200,9 @@ DecodeError CanFdReassembler::push(const CanFdFrame& frame, std::int64_t now_ns,
   if (!last && frame.len != kCanFdMaxData) return count_error(DecodeError::kBadLength);
 
   // ---- duplicates of transfers already delivered (or rejected) ----
+  // (only within one timeout: a later transfer may legitimately reuse the 16-bit sequence)
   for (std::size_t i = 0; i < recent_size_; ++i) {
-    if (recent_[i] == key) {
+    if (recent_[i].key == key && now_ns - recent_[i].done_ns <= config_.timeout_ns) {
       ++counters_.duplicates;
       return DecodeError::kNone;
     }
@@ -246,11 +247,12 @@ DecodeError CanFdReassembler::push(const CanFdFrame& frame, std::int64_t now_ns,
   slot->received_mask |= bit;
   ++counters_.fragments_accepted;
   if (slot->received_mask != (1u << count) - 1u) return DecodeError::kNone;
-  return finish(*slot, completed);
+  return finish(*slot, now_ns, completed);
 }
 
-DecodeError CanFdReassembler::finish(Slot& slot, std::optional<AnyMessage>& completed) {
-  recent_[recent_next_] = slot.key;
+DecodeError CanFdReassembler::finish(Slot& slot, std::int64_t now_ns,
+                                     std::optional<AnyMessage>& completed) {
+  recent_[recent_next_] = RecentKey{slot.key, now_ns};
   recent_next_ = (recent_next_ + 1) % kRecentKeys;
   recent_size_ = std::min(recent_size_ + 1, kRecentKeys);
   const Key key = slot.key;

@@ -262,15 +262,20 @@ TEST(MsgCanFd, LateDuplicatesAndSlotExhaustion) {
   }
   EXPECT_EQ(reassembler.counters().duplicates, frames.size());
   EXPECT_EQ(reassembler.in_flight(), 0u);
+  // After the timeout the same id and 16-bit sequence is a new transfer (sequence reuse).
+  for (const auto& f : frames)
+    reassembler.push(f, 50 * kMs, done);
+  EXPECT_TRUE(done);
+  EXPECT_EQ(reassembler.counters().completed, 2u);
   // More incomplete transfers than slots: the oldest are evicted, memory stays bounded.
   const std::size_t extra = 5;
   for (std::size_t i = 0; i < CanFdReassembler::kSlots + extra; ++i) {
     m.trigger_seq = static_cast<std::uint32_t>(5000 + i);
-    reassembler.push(encode(m)[0], 2000 + static_cast<std::int64_t>(i), done);
+    reassembler.push(encode(m)[0], 60 * kMs + static_cast<std::int64_t>(i), done);
   }
   EXPECT_EQ(reassembler.in_flight(), CanFdReassembler::kSlots);
   EXPECT_EQ(reassembler.counters().evictions, extra);
-  reassembler.expire(100 * kMs);
+  reassembler.expire(200 * kMs);
   EXPECT_EQ(reassembler.counters().timeouts, CanFdReassembler::kSlots);
   EXPECT_EQ(reassembler.in_flight(), 0u);
 }

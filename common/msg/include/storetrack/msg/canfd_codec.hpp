@@ -118,8 +118,9 @@ struct CanReassemblerConfig {
 /// many units/cameras. Not thread-safe: one per receiving thread.
 class CanFdReassembler {
  public:
-  static constexpr std::size_t kSlots = 32;       ///< transfers in flight
-  static constexpr std::size_t kRecentKeys = 64;  ///< delivered transfers remembered (dups)
+  static constexpr std::size_t kSlots = 32;  ///< transfers in flight
+  /// Finished transfers remembered for one timeout, so that late duplicates are recognised.
+  static constexpr std::size_t kRecentKeys = 64;
 
   explicit CanFdReassembler(const CanReassemblerConfig& config = {});
 
@@ -143,6 +144,10 @@ class CanFdReassembler {
     std::uint16_t seq = 0;
     bool operator==(const Key&) const = default;
   };
+  struct RecentKey {
+    Key key;
+    std::int64_t done_ns = 0;
+  };
   struct Slot {
     bool used = false;
     Key key;
@@ -154,13 +159,13 @@ class CanFdReassembler {
   };
 
   DecodeError count_error(DecodeError e);
-  DecodeError finish(Slot& slot, std::optional<AnyMessage>& completed);
+  DecodeError finish(Slot& slot, std::int64_t now_ns, std::optional<AnyMessage>& completed);
   void release(Slot& slot, bool lost);
 
   CanReassemblerConfig config_;
   CanReassemblyCounters counters_;
   std::array<Slot, kSlots> slots_{};
-  std::array<Key, kRecentKeys> recent_{};
+  std::array<RecentKey, kRecentKeys> recent_{};
   std::size_t recent_next_ = 0;
   std::size_t recent_size_ = 0;
 };
