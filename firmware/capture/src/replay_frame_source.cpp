@@ -14,36 +14,68 @@
 namespace storetrack::capture {
 namespace fs = std::filesystem;
 
+namespace {
+
+std::vector<std::string> split_csv(const std::string& line) {
+  std::vector<std::string> out;
+  std::string field;
+  std::istringstream in(line);
+  while (std::getline(in, field, ','))
+    out.push_back(field);
+  if (!line.empty() && line.back() == ',') out.emplace_back();
+  return out;
+}
+
+int column(const std::vector<std::string>& header, std::initializer_list<const char*> names) {
+  for (const char* n : names) {
+    for (std::size_t i = 0; i < header.size(); ++i) {
+      if (header[i] == n) return static_cast<int>(i);
+    }
+  }
+  return -1;
+}
+
+}  // namespace
+
 std::vector<ReplayRecord> parse_trigger_csv(const std::string& text) {
   std::vector<ReplayRecord> out;
   std::istringstream in(text);
   std::string line;
   int line_no = 0;
-  bool header_seen = false;
+  std::vector<std::string> header;
+  int c_file = -1, c_seq = -1, c_mono = -1, c_tai = -1, c_exp = -1;
   while (std::getline(in, line)) {
     ++line_no;
     if (!line.empty() && line.back() == '\r') line.pop_back();
     if (line.empty() || line[0] == '#') continue;
-    if (!header_seen) {
-      header_seen = true;
-      if (line.rfind("file,", 0) == 0) continue;
+    const std::vector<std::string> f = split_csv(line);
+    if (header.empty()) {  // the header names the columns (any order, extra columns ignored)
+      header = f;
+      c_file = column(header, {"file"});
+      c_seq = column(header, {"trigger_seq"});
+      c_mono = column(header, {"exposure_start_mono_ns", "reported_start_mono_ns"});
+      c_tai = column(header, {"exposure_start_tai_ns", "reported_start_tai_ns"});
+      c_exp = column(header, {"exposure_ns"});
+      if (c_file < 0 || c_seq < 0 || c_mono < 0 || c_tai < 0 || c_exp < 0) {
+        throw std::runtime_error(
+            "triggers.csv line " + std::to_string(line_no) +
+            ": header must name file, trigger_seq, exposure_start_mono_ns (or "
+            "reported_start_mono_ns), exposure_start_tai_ns (or reported_start_tai_ns), "
+            "exposure_ns");
+      }
+      continue;
     }
-    std::istringstream fields(line);
-    std::string f[5];
-    int n = 0;
-    while (n < 5 && std::getline(fields, f[n], ','))
-      ++n;
-    if (n != 5) {
-      throw std::runtime_error("triggers.csv line " + std::to_string(line_no) +
-                               ": expected 5 comma-separated fields");
+    if (f.size() != header.size()) {
+      throw std::runtime_error("triggers.csv line " + std::to_string(line_no) + ": expected " +
+                               std::to_string(header.size()) + " comma-separated fields");
     }
     ReplayRecord r;
-    r.file = f[0];
+    r.file = f[static_cast<std::size_t>(c_file)];
     try {
-      r.trigger_seq = static_cast<std::uint32_t>(std::stoul(f[1]));
-      r.exposure_start_mono_ns = std::stoll(f[2]);
-      r.exposure_start_tai_ns = std::stoll(f[3]);
-      r.exposure_ns = static_cast<std::uint32_t>(std::stoul(f[4]));
+      r.trigger_seq = static_cast<std::uint32_t>(std::stoul(f[static_cast<std::size_t>(c_seq)]));
+      r.exposure_start_mono_ns = std::stoll(f[static_cast<std::size_t>(c_mono)]);
+      r.exposure_start_tai_ns = std::stoll(f[static_cast<std::size_t>(c_tai)]);
+      r.exposure_ns = static_cast<std::uint32_t>(std::stoul(f[static_cast<std::size_t>(c_exp)]));
     } catch (const std::exception&) {
       throw std::runtime_error("triggers.csv line " + std::to_string(line_no) +
                                ": bad number in '" + line + "'");

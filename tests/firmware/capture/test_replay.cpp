@@ -104,7 +104,20 @@ TEST(Replay, SixteenBitWithoutTriggerFile) {
 
 TEST(Replay, BadInputIsAClearError) {
   EXPECT_THROW(parse_trigger_csv("file,a\nx.pgm,1,2\n"), std::runtime_error);
-  EXPECT_THROW(parse_trigger_csv("x.pgm,one,2,3,4\n"), std::runtime_error);
+  const std::string header =
+      "file,trigger_seq,exposure_start_mono_ns,exposure_start_tai_ns,exposure_ns\n";
+  EXPECT_THROW(parse_trigger_csv(header + "x.pgm,one,2,3,4\n"), std::runtime_error);
+  EXPECT_THROW(parse_trigger_csv(header + "x.pgm,1,2,3\n"), std::runtime_error);
+  // storetrack-sim's column names (common/sim write_frame_sequence), in its order.
+  const auto sim = parse_trigger_csv(
+      "frame,trigger_seq,trigger_tai_ns,reported_start_tai_ns,reported_start_mono_ns,exposure_ns,"
+      "true_exposure_start_tai_ns,file\n0,17,100,200,300,500000,210,frame_000000.pgm\n");
+  ASSERT_EQ(sim.size(), 1u);
+  EXPECT_EQ(sim[0].file, "frame_000000.pgm");
+  EXPECT_EQ(sim[0].trigger_seq, 17u);
+  EXPECT_EQ(sim[0].exposure_start_tai_ns, 200);
+  EXPECT_EQ(sim[0].exposure_start_mono_ns, 300);
+  EXPECT_EQ(sim[0].exposure_ns, 500000u);
   ReplayFrameSource src(ReplayConfig{"/nonexistent/dir"});
   EXPECT_EQ(src.start(), -ENOENT);
   EXPECT_NE(src.error().find("/nonexistent/dir"), std::string::npos);

@@ -1,9 +1,12 @@
 // ReplayFrameSource: frames from a directory of PGM files, so the unit runs with no camera.
 //
 // Directory layout (docs/unit-config.md, "Replay directory"):
-//   triggers.csv   optional; header line, then one line per frame:
-//                  file,trigger_seq,exposure_start_mono_ns,exposure_start_tai_ns,exposure_ns
-//                  (file relative to the directory). Lines starting with '#' are comments.
+//   triggers.csv   optional; a header line naming the columns, then one line per frame.
+//                  Needed columns (any order, others ignored): file, trigger_seq,
+//                  exposure_start_mono_ns, exposure_start_tai_ns, exposure_ns; storetrack-sim's
+//                  reported_start_mono_ns / reported_start_tai_ns are accepted for the
+//                  exposure-start columns (write_frame_sequence() in common/sim). File names
+//                  are relative to the directory. Lines starting with '#' are comments.
 //   *.pgm          P5 images (8 or 16 bit). Without triggers.csv every *.pgm is replayed in
 //                  name order with sequence = index and time stamps at the configured period.
 // The FrameView's sequence is the trigger_seq of the file and its time stamp the exposure
