@@ -13,23 +13,76 @@
 namespace storetrack::centroid {
 namespace {
 
-// Pixels are scanned in chunks of this many; background tiles are a multiple of it so one
-// threshold applies to a whole chunk, and the chunk maximum vectorises.
-constexpr int kChunk = 32;
+// Rows are scanned in chunks of kChunk pixels; background tiles are a multiple of it so one
+// threshold applies to a whole chunk. A chunk is tested with 16-byte vector maxima (GCC/Clang
+// vector extensions: SSE2 on x86-64, NEON on aarch64), and only chunks with a pixel above the
+// threshold are looked at 16 bytes, then one pixel, at a time.
+constexpr int kChunk = 64;
+
+typedef std::uint8_t VecU8 __attribute__((vector_size(16)));
+typedef std::uint16_t VecU16 __attribute__((vector_size(16)));
+template <typename Pixel>
+struct VectorOf;
+template <>
+struct VectorOf<std::uint8_t> {
+  using type = VecU8;
+};
+template <>
+struct VectorOf<std::uint16_t> {
+  using type = VecU16;
+};
+template <typename Pixel>
+constexpr int kLanes = 16 / static_cast<int>(sizeof(Pixel));
 
 template <typename Pixel>
 const Pixel* row_pointer(const frame::FrameView& frame, int y) {
   // The frame check guarantees 2-byte alignment of Mono16 rows.
-  return static_cast<const Pixel*>(
-      static_cast<const void*>(frame.pixels + static_cast<std::ptrdiff_t>(y) * frame.stride_bytes));
+  return static_cast<const Pixel*>(static_cast<const void*>(
+      frame.pixels + static_cast<std::ptrdiff_t>(y) * frame.stride_bytes));
 }
 
-template <typename Pixel>
-inline Pixel chunk_max(const Pixel* p) {
-  Pixel m = 0;
-  for (int i = 0; i < kChunk; ++i)
-    m = p[i] > m ? p[i] : m;
-  return m;
+/// True if any of the kPixels pixels at p is above level.
+template <typename Pixel, int kPixels>
+inline bool any_above(const Pixel* p, Pixel level) {
+  using Vec = typename VectorOf<Pixel>::type;
+  Vec m;
+  std::memcpy(&m, p, sizeof m);
+  for (int i = kLanes<Pixel>; i < kPixels; i += kLanes<Pixel>) {
+    Vec v;
+    std::memcpy(&v, p + i, sizeof v);
+    m = m > v ? m : v;
+  }
+  const auto above = m > level;
+  std::uint64_t words[2];
+  static_assert(sizeof above == sizeof words);
+  std::memcpy(words, &above, sizeof words);
+  return (words[0] | words[1]) != 0;
+}
+
+/// Gaussian window samples w[i] = exp(-(x0 + i - c)^2 / (2 s^2)) and offsets d[i] = x0 + i - c,
+/// by the exact recurrence w[i+1] / w[i] = exp(-(2 d[i] + 1) / (2 s^2)) (ratios change by the
+/// constant factor exp(-1 / s^2)): four exp() per axis instead of one per pixel.
+void gaussian_window(int x0, int n, double c, double s, float* d, float* w) {
+  const double k = 0.5 / (s * s);
+  const int i0 = std::clamp(static_cast<int>(std::lround(c)) - x0, 0, n - 1);
+  const double d0 = x0 + i0 - c;
+  const double q = std::exp(-2.0 * k);
+  const double w0 = std::exp(-k * d0 * d0);
+  w[i0] = static_cast<float>(w0);
+  double r = std::exp(-k * (2.0 * d0 + 1.0)), wi = w0;
+  for (int i = i0 + 1; i < n; ++i) {
+    wi *= r;
+    w[i] = static_cast<float>(wi);
+    r *= q;
+  }
+  r = std::exp(-k * (1.0 - 2.0 * d0));
+  wi = w0;
+  for (int i = i0 - 1; i >= 0; --i) {
+    wi *= r;
+    w[i] = static_cast<float>(wi);
+    r *= q;
+  }
+  for (int i = 0; i < n; ++i) d[i] = static_cast<float>(x0 + i - c);
 }
 
 }  // namespace
@@ -94,15 +147,11 @@ Centroider::Centroider(const CentroidConfig& config, int max_width, int max_heig
   dy_.resize(patch_side);
   tiles_x_ = max_tiles_x;
   tiles_y_ = max_tiles_y;
-}
-
-double Centroider::pixel_variance_dn2(double value_dn) const {
-  // EMVA 1288: photo-electrons are Poisson (variance = mean, in e-), read noise adds in
-  // quadrature, uniform quantisation adds 1/12 DN^2.
-  const double signal_e = std::max(value_dn - config_.black_level_dn, 0.0) * config_.gain_e_per_dn;
-  const double read_dn = config_.read_noise_e / config_.gain_e_per_dn;
-  return signal_e / (config_.gain_e_per_dn * config_.gain_e_per_dn) + read_dn * read_dn +
-         1.0 / 12.0;
+  // EMVA 1288: photo-electrons are Poisson (variance = mean in e-), read noise adds in
+  // quadrature, uniform quantisation adds 1/12 DN^2. In DN^2: (I - black) / gain + offset.
+  variance_per_dn_ = 1.0 / config.gain_e_per_dn;
+  const double read_dn = config.read_noise_e / config.gain_e_per_dn;
+  variance_offset_dn2_ = read_dn * read_dn + 1.0 / 12.0;
 }
 
 int Centroider::check_frame(const frame::FrameView& frame) const {
@@ -354,20 +403,8 @@ int Centroider::scan_region(const frame::FrameView& frame, int region_index) {
       parent_[run_count_] = run_count_;
       ++run_count_;
     };
-    while (x < region.x1) {
-      const int chunk = x / kChunk;
-      const int chunk_end = std::min((chunk + 1) * kChunk, region.x1);
-      const Pixel level = static_cast<Pixel>(row_threshold_[chunk]);
-      if (x == chunk * kChunk && chunk_end - x == kChunk && chunk_max(row + x) <= level) {
-        // Whole chunk below the threshold: the common case, one vector max per 32 pixels.
-        if (in_run) {
-          emit(x - 1);
-          in_run = false;
-        }
-        x = chunk_end;
-        continue;
-      }
-      for (; x < chunk_end; ++x) {
+    auto scalar = [&](int x_end, Pixel level) {
+      for (; x < x_end; ++x) {
         const bool on = row[x] > level;
         if (on == in_run) continue;
         if (on) {
@@ -376,6 +413,35 @@ int Centroider::scan_region(const frame::FrameView& frame, int region_index) {
           emit(x - 1);
         }
         in_run = on;
+      }
+    };
+    while (x < region.x1) {
+      const int chunk = x / kChunk;
+      const int chunk_end = std::min((chunk + 1) * kChunk, region.x1);
+      const Pixel level = static_cast<Pixel>(row_threshold_[chunk]);
+      if (x != chunk * kChunk || chunk_end - x != kChunk) {
+        scalar(chunk_end, level);  // ROI edges and the end of a row
+        continue;
+      }
+      if (!any_above<Pixel, kChunk>(row + x, level)) {
+        // The common case: the whole chunk is background.
+        if (in_run) {
+          emit(x - 1);
+          in_run = false;
+        }
+        x = chunk_end;
+        continue;
+      }
+      while (x < chunk_end) {
+        if (any_above<Pixel, kLanes<Pixel>>(row + x, level)) {
+          scalar(x + kLanes<Pixel>, level);
+          continue;
+        }
+        if (in_run) {
+          emit(x - 1);
+          in_run = false;
+        }
+        x += kLanes<Pixel>;
       }
     }
     if (in_run) emit(region.x1 - 1);
@@ -634,15 +700,8 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
   if (!extract(half_for(sigma))) return false;
 
   auto weights = [&](double s) {
-    const double k = -0.5 / (s * s);
-    for (int i = 0; i < pw; ++i) {
-      dx_[i] = px0 + i - xc;
-      wx_[i] = std::exp(k * dx_[i] * dx_[i]);
-    }
-    for (int j = 0; j < ph; ++j) {
-      dy_[j] = py0 + j - yc;
-      wy_[j] = std::exp(k * dy_[j] * dy_[j]);
-    }
+    gaussian_window(px0, pw, xc, s, dx_.data(), wx_.data());
+    gaussian_window(py0, ph, yc, s, dy_.data(), wy_.data());
   };
 
   // Fixed point of sum w_i (x_i - xc) p_i = 0, w = Gaussian window centred on xc (XWIN).
@@ -656,38 +715,40 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
     double s = 0, sx = 0, sy = 0, sxx = 0, syy = 0;
     for (int j = 0; j < ph; ++j) {
       const float* p = &patch_[static_cast<size_t>(j) * pw];
-      double r0 = 0, r1 = 0, r2 = 0;
+      const float* wx = wx_.data();
+      const float* dx = dx_.data();
+      float r0 = 0, r1 = 0, r2 = 0;  // one row: float SIMD; rows sum in double
+#pragma omp simd reduction(+ : r0, r1, r2)
       for (int i = 0; i < pw; ++i) {
-        const double wp = wx_[i] * p[i];
+        const float wp = wx[i] * p[i];
         r0 += wp;
-        r1 += wp * dx_[i];
-        r2 += wp * dx_[i] * dx_[i];
+        r1 += wp * dx[i];
+        r2 += wp * dx[i] * dx[i];
       }
-      s += wy_[j] * r0;
-      sx += wy_[j] * r1;
-      sy += wy_[j] * dy_[j] * r0;
-      sxx += wy_[j] * r2;
-      syy += wy_[j] * dy_[j] * dy_[j] * r0;
+      const double wy = wy_[j], dy = dy_[j];
+      s += wy * r0;
+      sx += wy * r1;
+      sy += wy * dy * r0;
+      sxx += wy * r2;
+      syy += wy * dy * dy * r0;
     }
     if (!(s > 0)) return false;
     const double m2 = 0.5 * (sxx + syy) / s;
     const double s2 = sigma * sigma;
+    const double gain = (m2 > 0 && m2 < 0.75 * s2) ? s2 / (s2 - m2) : 4.0;
+    const double step_x = gain * sx / s, step_y = gain * sy / s;
+    xc += step_x;
+    yc += step_y;
+    if (std::abs(xc - x_start) > 0.5 * half || std::abs(yc - y_start) > 0.5 * half) return false;
     if (it < adapt_iterations) {
       // Matched window: s_w = s_p (SExtractor's choice, near-optimal for read-noise-limited
       // Gaussian spots). If the window is too narrow to measure s_p, widen it.
       double matched = 2.0 * sigma;
       if (m2 > 0 && m2 < 0.95 * s2) matched = std::sqrt(1.0 / (1.0 / m2 - 1.0 / s2));
       sigma = std::clamp(matched, 0.5, max_half / 3.5);
-      if (half_for(sigma) > half || it == adapt_iterations - 1) {
-        if (!extract(half_for(sigma))) return false;
-      }
+      if (half_for(sigma) != half && !extract(half_for(sigma))) return false;
       continue;
     }
-    const double gain = (m2 > 0 && m2 < 0.75 * s2) ? s2 / (s2 - m2) : 4.0;
-    const double step_x = gain * sx / s, step_y = gain * sy / s;
-    xc += step_x;
-    yc += step_y;
-    if (std::abs(xc - x_start) > 0.5 * half || std::abs(yc - y_start) > 0.5 * half) return false;
     if (std::abs(step_x) < config_.refine_tolerance_px &&
         std::abs(step_y) < config_.refine_tolerance_px) {
       converged = true;
@@ -703,14 +764,17 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
   for (int j = 0; j < ph; ++j) {
     const float* p = &patch_[static_cast<size_t>(j) * pw];
     const float* v = &patch_var_[static_cast<size_t>(j) * pw];
-    double r0 = 0, r2 = 0, a0 = 0, a2 = 0;
+    const float* wx = wx_.data();
+    const float* dx = dx_.data();
+    float r0 = 0, r2 = 0, a0 = 0, a2 = 0;
+#pragma omp simd reduction(+ : r0, r2, a0, a2)
     for (int i = 0; i < pw; ++i) {
-      const double wp = wx_[i] * p[i];
-      const double w2v = wx_[i] * wx_[i] * v[i];
+      const float wp = wx[i] * p[i];
+      const float w2v = wx[i] * wx[i] * v[i];
       r0 += wp;
-      r2 += wp * dx_[i] * dx_[i];
+      r2 += wp * dx[i] * dx[i];
       a0 += w2v;
-      a2 += w2v * dx_[i] * dx_[i];
+      a2 += w2v * dx[i] * dx[i];
     }
     const double wy2 = wy_[j] * wy_[j];
     s += wy_[j] * r0;

@@ -153,12 +153,17 @@ class Centroider {
   int find(int run) const;
   void unite(int a, int b);
   float background_at(double x, double y) const;
-  double pixel_variance_dn2(double value_dn) const;
+  /// Noise model variance of a pixel reading value_dn [DN^2].
+  double pixel_variance_dn2(double value_dn) const {
+    const double above_black = value_dn - config_.black_level_dn;
+    return (above_black > 0 ? above_black * variance_per_dn_ : 0.0) + variance_offset_dn2_;
+  }
 
   CentroidConfig config_;
   int max_width_, max_height_;
   int tile_px_;
   int tiles_x_, tiles_y_;
+  double variance_per_dn_ = 0, variance_offset_dn2_ = 0;
   int saturation_dn_ = 0;  // of the current frame
   int max_value_ = 0;      // 2^bits - 1 of the current frame
   std::vector<Run> runs_;
@@ -179,7 +184,7 @@ class Centroider {
   std::vector<std::uint16_t> samples_;        // one tile's background samples (Mono16)
   std::vector<float> sorted_tiles_;           // tile levels for the frame median
   std::vector<float> patch_, patch_var_;      // refinement patch (background-subtracted)
-  std::vector<double> wx_, wy_, dx_, dy_;
+  std::vector<float> wx_, wy_, dx_, dy_;  // window samples and offsets of the patch
   CentroidStats stats_;
 };
 
