@@ -1,0 +1,672 @@
+#include "storetrack/pipeline/exposure_processor.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <random>
+#include <stdexcept>
+
+#include "storetrack/pose/body_pose.hpp"
+#include "storetrack/triangulate/triangulate.hpp"
+
+namespace storetrack::pipeline {
+
+using geometry::Mat3;
+using geometry::Mat6;
+using geometry::Transform;
+using geometry::Vec2;
+using geometry::Vec3;
+using geometry::Vec6;
+using uncertainty::Source;
+
+namespace {
+
+constexpr int kCentroid = uncertainty::index(Source::kCentroid);
+constexpr int kIntrinsic = uncertainty::index(Source::kIntrinsic);
+constexpr int kExtrinsic = uncertainty::index(Source::kExtrinsic);
+constexpr int kSync = uncertainty::index(Source::kSync);
+constexpr int kSurvey = uncertainty::index(Source::kSurvey);
+
+using Loadings6 = Eigen::Matrix<double, 6, Eigen::Dynamic>;
+
+// Mid-exposure time of one camera [ns], corrected by its calibrated trigger latency.
+double camera_mid_ns(const msg::MarkObservations& obs, const camera::CalibratedCamera& cam) {
+  return static_cast<double>(exposure_mid_tai_ns(obs)) + cam.exposure_offset_ns;
+}
+
+// A body's fitted pose with its error model: xi = sum over marks, loadings on common factors,
+// independent (centroid, survey) covariances.
+struct BodySolution {
+  bool valid = false;
+  Transform T_w_b = Transform::Identity();
+  Loadings6 loadings;
+  Mat6 cov_centroid = Mat6::Zero();
+  Mat6 cov_survey = Mat6::Zero();
+  int marks_used = 0;
+  double chi2 = 0;
+};
+
+void fill_pose(const BodySolution& b, const uncertainty::CalibrationFactors& f, PoseResult& out) {
+  out.valid = b.valid;
+  out.T = b.T_w_b;
+  out.marks_used = b.marks_used;
+  out.chi2 = b.chi2;
+  if (!b.valid) return;
+  out.cov_by_source[kCentroid] = b.cov_centroid;
+  out.cov_by_source[kIntrinsic] = uncertainty::covariance_of(b.loadings, f, Source::kIntrinsic);
+  out.cov_by_source[kExtrinsic] = uncertainty::covariance_of(b.loadings, f, Source::kExtrinsic);
+  out.cov_by_source[kSync] = uncertainty::covariance_of(b.loadings, f, Source::kSync);
+  out.cov_by_source[kSurvey] = b.cov_survey;
+  out.cov = Mat6::Zero();
+  for (const Mat6& c : out.cov_by_source)
+    out.cov += c;
+}
+
+// d(x, y, z, yaw, pitch, roll)/d(left perturbation of T_p_s).
+Mat6 output_jacobian(const Transform& T_p_s) {
+  Mat6 J = Mat6::Zero();
+  J.topRightCorner<3, 3>() = Mat3::Identity();
+  J.bottomLeftCorner<3, 3>() = pose::ypr_jacobian(T_p_s.linear());
+  return J;
+}
+
+Vec6 xyz_ypr(const Transform& T) {
+  Vec6 v;
+  v.head<3>() = T.translation();
+  v.tail<3>() = geometry::ypr_from_rotation(T.linear());
+  return v;
+}
+
+// Left-perturbation difference xi with T_a = perturb_left(T_b, xi).
+Vec6 pose_difference(const Transform& T_a, const Transform& T_b) {
+  Vec6 xi;
+  xi.head<3>() = geometry::rotvec_from_rotation(T_a.linear() * T_b.linear().transpose());
+  xi.tail<3>() = T_a.translation() - T_b.translation();
+  return xi;
+}
+
+double wrap_angle(double a) {
+  return std::remainder(a, 2.0 * M_PI);
+}
+
+}  // namespace
+
+const MarkResult* ExposureResult::find_mark(int id) const {
+  for (const MarkResult& m : marks)
+    if (m.id == id) return &m;
+  return nullptr;
+}
+
+struct ExposureProcessor::Prepared {
+  double t_ref_ns = 0;
+  time::TaiNs t_ref_tai_ns = std::numeric_limits<time::TaiNs>::min();
+  struct Obs {
+    int slot = -1;
+    int camera_id = -1;
+    int mark_index = -1;
+    Vec2 pixel_px = Vec2::Zero();
+    double sigma_px = 0;
+  };
+  struct Mark {
+    int id = -1;
+    char body = '?';
+    std::vector<Obs> obs;
+    Vec3 velocity_w = Vec3::Zero();
+    bool velocity_valid = false;
+  };
+  std::vector<Mark> marks;
+  std::vector<double> dt_s;  ///< per rig slot: camera mid-time - reference time
+  std::vector<bool> slot_used;
+  int cameras_used = 0;
+  bool clock_not_locked = false;
+};
+
+struct ExposureProcessor::Exclusions {
+  std::vector<int> ids;
+  std::map<int, Mat3> weights;  ///< pose-fit weights (covariances) per mark id
+  bool contains(int id) const { return std::find(ids.begin(), ids.end(), id) != ids.end(); }
+};
+
+ExposureProcessor::ExposureProcessor(const camera::RigCalibration& rig,
+                                     const sim::RigidBodySurvey& pylon,
+                                     const sim::RigidBodySurvey& store,
+                                     const ProcessorConfig& config)
+    : rig_(rig), pylon_(pylon), store_(store), config_(config), factors_(rig) {
+  if (rig_.cameras.empty()) throw std::invalid_argument("ExposureProcessor: empty rig");
+  if (config_.min_cameras_per_mark < 2)
+    throw std::invalid_argument("ExposureProcessor: min_cameras_per_mark must be >= 2");
+  if (config_.min_pose_marks < 3)
+    throw std::invalid_argument("ExposureProcessor: min_pose_marks must be >= 3");
+  if (!(config_.coverage_factor > 0))
+    throw std::invalid_argument("ExposureProcessor: coverage_factor must be > 0");
+  if (config_.max_mark_id < 0 || config_.max_mark_id > 65535)
+    throw std::invalid_argument("ExposureProcessor: max_mark_id must be in 0..65535");
+  for (size_t s = 0; s < rig_.cameras.size(); ++s) {
+    const int id = rig_.cameras[s].camera_id;
+    if (id < 0 || id > 255) throw std::invalid_argument("ExposureProcessor: camera_id not 0..255");
+    if (slot_of_camera_id_.size() <= static_cast<size_t>(id))
+      slot_of_camera_id_.resize(static_cast<size_t>(id) + 1, -1);
+    if (slot_of_camera_id_[static_cast<size_t>(id)] >= 0)
+      throw std::invalid_argument("ExposureProcessor: duplicate camera_id in the rig");
+    slot_of_camera_id_[static_cast<size_t>(id)] = static_cast<int>(s);
+  }
+  if (config_.reference_camera_id >= 0 &&
+      (static_cast<size_t>(config_.reference_camera_id) >= slot_of_camera_id_.size() ||
+       slot_of_camera_id_[static_cast<size_t>(config_.reference_camera_id)] < 0))
+    throw std::invalid_argument("ExposureProcessor: reference_camera_id not in the rig");
+  for (const auto* survey : {&pylon_, &store_})
+    for (const sim::SurveyedMark& m : survey->marks)
+      if (m.id < 0 || m.id > config_.max_mark_id || !(m.sigma_m >= 0))
+        throw std::invalid_argument("ExposureProcessor: survey '" + survey->name +
+                                    "' has a mark id out of range or a negative sigma");
+  tracks_.resize(static_cast<size_t>(config_.max_mark_id) + 1);
+}
+
+void ExposureProcessor::reset_tracking() {
+  for (Track& t : tracks_)
+    t = Track{};
+}
+
+ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& exposure,
+                                                       const MarkIds& ids,
+                                                       ProcessorCounters& counters) const {
+  if (ids.size() != exposure.cameras.size())
+    throw std::invalid_argument("ExposureProcessor: ids must have one entry per camera");
+  Prepared prep;
+  prep.dt_s.assign(rig_.cameras.size(), 0.0);
+  prep.slot_used.assign(rig_.cameras.size(), false);
+
+  // Reference time: the reference camera's mid-exposure, else the earliest delivered camera.
+  const int ref_id =
+      config_.reference_camera_id >= 0 ? config_.reference_camera_id : rig_.cameras[0].camera_id;
+  bool have_ref = false;
+  std::vector<int> slot_of_entry(exposure.cameras.size(), -1);
+  for (size_t e = 0; e < exposure.cameras.size(); ++e) {
+    const msg::MarkObservations& obs = exposure.cameras[e];
+    const size_t cid = obs.camera_id;
+    const int slot = cid < slot_of_camera_id_.size() ? slot_of_camera_id_[cid] : -1;
+    if (slot < 0 || prep.slot_used[static_cast<size_t>(slot)]) {
+      ++counters.unknown_camera;  // unknown or delivered twice: the aligner should not do that
+      continue;
+    }
+    slot_of_entry[e] = slot;
+    prep.slot_used[static_cast<size_t>(slot)] = true;
+    const double t = camera_mid_ns(obs, rig_.cameras[static_cast<size_t>(slot)]);
+    if (obs.camera_id == ref_id) {
+      prep.t_ref_ns = t;
+      prep.t_ref_tai_ns = exposure_mid_tai_ns(obs);
+      have_ref = true;
+    } else if (!have_ref && (prep.t_ref_tai_ns == std::numeric_limits<time::TaiNs>::min() ||
+                             t < prep.t_ref_ns)) {
+      prep.t_ref_ns = t;
+      prep.t_ref_tai_ns = exposure_mid_tai_ns(obs);
+    }
+    if (obs.clock_state != static_cast<std::uint8_t>(time::ClockState::kLocked))
+      prep.clock_not_locked = true;
+  }
+
+  std::vector<int> mark_of_id(static_cast<size_t>(config_.max_mark_id) + 1, -1);
+  for (size_t e = 0; e < exposure.cameras.size(); ++e) {
+    const int slot = slot_of_entry[e];
+    if (slot < 0) continue;
+    const msg::MarkObservations& obs = exposure.cameras[e];
+    prep.dt_s[static_cast<size_t>(slot)] =
+        (camera_mid_ns(obs, rig_.cameras[static_cast<size_t>(slot)]) - prep.t_ref_ns) * 1e-9;
+    const size_t count = std::min<size_t>(obs.mark_count, obs.marks.size());
+    if (ids[e].size() < count)
+      throw std::invalid_argument("ExposureProcessor: ids shorter than a camera's mark_count");
+    bool contributed = false;
+    for (size_t j = 0; j < count; ++j) {
+      const int id = ids[e][j];
+      if (id < 0) continue;
+      const msg::MarkObservation& mo = obs.marks[j];
+      if (id > config_.max_mark_id || !std::isfinite(mo.x_px) || !std::isfinite(mo.y_px) ||
+          !(mo.sigma_px > 0) || !std::isfinite(mo.sigma_px)) {
+        ++counters.bad_observation;
+        continue;
+      }
+      if ((mo.flags & config_.rejected_mark_flags) != 0) {
+        ++counters.rejected_by_flags;
+        continue;
+      }
+      int& mi = mark_of_id[static_cast<size_t>(id)];
+      if (mi < 0) {
+        mi = static_cast<int>(prep.marks.size());
+        Prepared::Mark m;
+        m.id = id;
+        if (pylon_.find(id) != nullptr) {
+          m.body = 'p';
+        } else if (store_.find(id) != nullptr) {
+          m.body = 's';
+        }
+        const Track& tr = tracks_[static_cast<size_t>(id)];
+        if (tr.velocity_valid &&
+            std::abs(prep.t_ref_ns * 1e-9 - tr.t_s) <= config_.tracking_max_gap_s) {
+          m.velocity_w = tr.velocity_w;
+          m.velocity_valid = true;
+        }
+        prep.marks.push_back(std::move(m));
+      }
+      Prepared::Mark& mark = prep.marks[static_cast<size_t>(mi)];
+      bool duplicate = false;
+      for (Prepared::Obs& o : mark.obs)
+        if (o.slot == slot) duplicate = true;
+      if (duplicate) {
+        // The same id twice in one camera is an identification ambiguity: use neither.
+        ++counters.ambiguous_ids;
+        mark.obs.erase(std::remove_if(mark.obs.begin(), mark.obs.end(),
+                                      [slot](const Prepared::Obs& o) { return o.slot == slot; }),
+                       mark.obs.end());
+        continue;
+      }
+      Prepared::Obs o;
+      o.slot = slot;
+      o.camera_id = obs.camera_id;
+      o.mark_index = static_cast<int>(j);
+      o.pixel_px = Vec2(mo.x_px, mo.y_px);
+      // The wire carries 1/256 px steps: add the quantisation variance (uniform, step^2 / 12).
+      o.sigma_px = std::sqrt(static_cast<double>(mo.sigma_px) * mo.sigma_px +
+                             config_.pixel_quantisation_px * config_.pixel_quantisation_px / 12.0);
+      mark.obs.push_back(o);
+      contributed = true;
+    }
+    if (contributed) ++prep.cameras_used;
+  }
+  return prep;
+}
+
+void ExposureProcessor::solve(const Prepared& prep,
+                              const std::vector<camera::CalibratedCamera>& cameras,
+                              const sim::RigidBodySurvey& pylon_survey,
+                              const sim::RigidBodySurvey& store_survey, bool with_uncertainty,
+                              const Exclusions* fixed_exclusions, ExposureResult& out,
+                              ProcessorCounters& counters) const {
+  const int nz = factors_.num_factors();
+  out.marks.clear();
+  out.marks.reserve(prep.marks.size());
+  std::vector<triangulate::Observation> tri_obs;
+  triangulate::Result tri;
+  const triangulate::Options tri_options;
+  for (const Prepared::Mark& mark : prep.marks) {
+    if (static_cast<int>(mark.obs.size()) < config_.min_cameras_per_mark) {
+      ++counters.too_few_cameras;
+      continue;
+    }
+    tri_obs.clear();
+    for (const Prepared::Obs& o : mark.obs) {
+      const camera::CalibratedCamera& cam = cameras[static_cast<size_t>(o.slot)];
+      triangulate::Observation t;
+      t.model = &cam.model;
+      t.T_c_w = cam.T_c_w;
+      t.pixel_px = o.pixel_px;
+      t.sigma_px = o.sigma_px;
+      t.displacement_w = mark.velocity_w * prep.dt_s[static_cast<size_t>(o.slot)];
+      tri_obs.push_back(t);
+    }
+    if (!triangulate::triangulate(tri_obs, tri_options, tri)) {
+      ++counters.triangulation_failed;
+      continue;
+    }
+    MarkResult m;
+    m.id = mark.id;
+    m.body = mark.body;
+    m.p_w = tri.p_w;
+    m.velocity_w = mark.velocity_w;
+    m.velocity_valid = mark.velocity_valid;
+    m.chi2 = tri.chi2;
+    m.observations.resize(mark.obs.size());
+    for (size_t i = 0; i < mark.obs.size(); ++i) {
+      m.observations[i].camera_id = mark.obs[i].camera_id;
+      m.observations[i].mark_index = mark.obs[i].mark_index;
+      m.observations[i].residual_px = tri.residual_px[i];
+      m.observations[i].sigma_px = mark.obs[i].sigma_px;
+    }
+    if (with_uncertainty) {
+      // dp/dtheta = -K_i dproj_i/dtheta for the parameters of observation i's camera (each
+      // camera observes a mark once); loadings = dp/dtheta * F (whitened factors).
+      m.loadings = uncertainty::Loadings3::Zero(3, nz);
+      for (size_t i = 0; i < mark.obs.size(); ++i) {
+        const auto& cf = factors_.camera(mark.obs[i].slot);
+        const auto& K = tri.gain[i];
+        const auto& J = tri.jacobians[i];
+        if (cf.intrinsic.cols() > 0)
+          m.loadings.middleCols(cf.intrinsic_begin, cf.intrinsic.cols()).noalias() -=
+              K * (J.d_intrinsics * cf.intrinsic);
+        if (cf.extrinsic.cols() > 0)
+          m.loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols()).noalias() -=
+              K * (J.d_pose * cf.extrinsic);
+        if (cf.sync_column >= 0 && mark.velocity_valid)
+          m.loadings.col(cf.sync_column).noalias() -=
+              K * (J.d_point_world * mark.velocity_w) * cf.sync_sigma_s;
+      }
+      m.cov_by_source[kCentroid] = tri.cov_centroid;
+      m.cov_by_source[kIntrinsic] =
+          uncertainty::covariance_of(m.loadings, factors_, Source::kIntrinsic);
+      m.cov_by_source[kExtrinsic] =
+          uncertainty::covariance_of(m.loadings, factors_, Source::kExtrinsic);
+      m.cov_by_source[kSync] = uncertainty::covariance_of(m.loadings, factors_, Source::kSync);
+      m.cov_by_source[kSurvey].setZero();
+      m.cov_w = tri.cov_centroid + m.loadings * m.loadings.transpose();
+    }
+    out.marks.push_back(std::move(m));
+  }
+
+  // Rigid-body checks (with uncertainty) or the given exclusions (Monte Carlo draws).
+  auto body_marks = [&](char body) {
+    std::vector<size_t> idx;
+    for (size_t i = 0; i < out.marks.size(); ++i)
+      if (out.marks[i].body == body) idx.push_back(i);
+    return idx;
+  };
+  const rigid::RigidCheckConfig rigid_config{config_.rigid_false_alarm_probability,
+                                             config_.min_pose_marks};
+  auto run_check = [&](char body, rigid::RigidCheckResult& check) {
+    const auto idx = body_marks(body);
+    if (fixed_exclusions != nullptr) {
+      for (size_t i : idx)
+        out.marks[i].excluded = fixed_exclusions->contains(out.marks[i].id);
+      return;
+    }
+    std::vector<rigid::MarkEstimate> est(idx.size());
+    for (size_t k = 0; k < idx.size(); ++k) {
+      const MarkResult& m = out.marks[idx[k]];
+      const sim::SurveyedMark* s = (body == 'p' ? pylon_survey : store_survey).find(m.id);
+      est[k].id = m.id;
+      est[k].p_body = s->p_body;
+      est[k].survey_sigma_m = s->sigma_m;
+      est[k].p_w = m.p_w;
+      est[k].cov_independent = m.cov_by_source[kCentroid];
+      est[k].loadings = &m.loadings;
+    }
+    check = rigid::check_rigid_body(est, rigid_config);
+    for (int id : check.excluded_ids) {
+      for (size_t i : idx)
+        if (out.marks[i].id == id) out.marks[i].excluded = true;
+      ++counters.marks_excluded;
+    }
+  };
+  run_check('p', out.pylon_check);
+  run_check('s', out.store_check);
+
+  // Body poses.
+  auto fit = [&](char body) {
+    BodySolution sol;
+    const sim::RigidBodySurvey& survey = body == 'p' ? pylon_survey : store_survey;
+    std::vector<size_t> idx;
+    for (size_t i : body_marks(body))
+      if (!out.marks[i].excluded) idx.push_back(i);
+    if (static_cast<int>(idx.size()) < config_.min_pose_marks) return sol;
+    std::vector<Vec3> q(idx.size()), p(idx.size());
+    std::vector<Mat3> cov(idx.size());
+    std::vector<double> sigma(idx.size());
+    for (size_t k = 0; k < idx.size(); ++k) {
+      const MarkResult& m = out.marks[idx[k]];
+      const sim::SurveyedMark* s = survey.find(m.id);
+      q[k] = s->p_body;
+      p[k] = m.p_w;
+      // Monte Carlo draws reuse the nominal weights, so that every draw runs the same
+      // estimator (the weights change efficiency, not the estimate's expectation).
+      cov[k] = m.cov_w;
+      if (fixed_exclusions != nullptr) {
+        const auto it = fixed_exclusions->weights.find(m.id);
+        if (it != fixed_exclusions->weights.end()) cov[k] = it->second;
+      }
+      if (!(cov[k].trace() > 0)) cov[k] = Mat3::Identity() * 1e-6;
+      sigma[k] = s->sigma_m;
+    }
+    pose::BodyFit bf;
+    if (!pose::fit_body(q, p, cov, sigma, bf)) return sol;
+    sol.valid = true;
+    sol.T_w_b = bf.T_w_b;
+    sol.marks_used = static_cast<int>(idx.size());
+    sol.chi2 = bf.chi2;
+    if (with_uncertainty) {
+      sol.loadings = Loadings6::Zero(6, nz);
+      for (size_t k = 0; k < idx.size(); ++k) {
+        const MarkResult& m = out.marks[idx[k]];
+        sol.loadings.noalias() += bf.d_pose_d_point[k] * m.loadings;
+        sol.cov_centroid.noalias() +=
+            bf.d_pose_d_point[k] * m.cov_by_source[kCentroid] * bf.d_pose_d_point[k].transpose();
+        sol.cov_survey.noalias() +=
+            sigma[k] * sigma[k] * bf.d_pose_d_survey[k] * bf.d_pose_d_survey[k].transpose();
+      }
+    }
+    return sol;
+  };
+  const BodySolution pylon = fit('p');
+  const BodySolution store = fit('s');
+  out.T_p_s = PoseResult{};
+  fill_pose(pylon, factors_, out.T_w_p);
+  fill_pose(store, factors_, out.T_w_s);
+  if (pylon.valid && store.valid) {
+    BodySolution rel;
+    rel.valid = true;
+    rel.T_w_b = pylon.T_w_b.inverse() * store.T_w_b;
+    rel.marks_used = store.marks_used;
+    rel.chi2 = pylon.chi2 + store.chi2;
+    if (with_uncertainty) {
+      Mat6 A_p, A_s;
+      pose::relative_pose_jacobians(pylon.T_w_b, store.T_w_b, A_p, A_s);
+      // Common calibration factors add as loadings (correlated), the rest independently.
+      rel.loadings = A_p * pylon.loadings + A_s * store.loadings;
+      rel.cov_centroid =
+          A_p * pylon.cov_centroid * A_p.transpose() + A_s * store.cov_centroid * A_s.transpose();
+      rel.cov_survey =
+          A_p * pylon.cov_survey * A_p.transpose() + A_s * store.cov_survey * A_s.transpose();
+    }
+    fill_pose(rel, factors_, out.T_p_s);
+    out.xyz_ypr = xyz_ypr(out.T_p_s.T);
+    if (with_uncertainty) {
+      const Mat6 J = output_jacobian(out.T_p_s.T);
+      out.cov_xyz_ypr = J * out.T_p_s.cov * J.transpose();
+      for (int s = 0; s < uncertainty::kNumSources; ++s)
+        out.cov_xyz_ypr_by_source[static_cast<size_t>(s)] =
+            J * out.T_p_s.cov_by_source[static_cast<size_t>(s)] * J.transpose();
+    }
+  }
+}
+
+void ExposureProcessor::fill_sample(const AlignedExposure& exposure, const Prepared& prep,
+                                    ExposureResult& out) const {
+  msg::FtiSample& s = out.sample;
+  s = msg::FtiSample{};
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  s.store_id = config_.store_id;
+  s.cameras_used = static_cast<std::uint8_t>(std::min(prep.cameras_used, 254));
+  s.marks_used = static_cast<std::uint8_t>(out.T_w_s.valid ? out.T_w_s.marks_used : 0);
+  s.pylon_marks_used = static_cast<std::uint8_t>(out.T_w_p.valid ? out.T_w_p.marks_used : 0);
+  s.trigger_seq = exposure.trigger_seq;
+  s.exposure_mid_tai_ns = prep.t_ref_tai_ns;
+  s.coverage_factor = static_cast<float>(config_.coverage_factor);
+  std::uint16_t status = 0;
+  if (out.T_p_s.valid) {
+    status |= msg::fti_status::kValid;
+    const Vec6& v = out.xyz_ypr;
+    s.x_m = static_cast<float>(v(0));
+    s.y_m = static_cast<float>(v(1));
+    s.z_m = static_cast<float>(v(2));
+    s.yaw_rad = static_cast<float>(v(3));
+    s.pitch_rad = static_cast<float>(v(4));
+    s.roll_rad = static_cast<float>(v(5));
+    const Vec6 u = out.cov_xyz_ypr.diagonal().cwiseMax(0.0).cwiseSqrt();
+    s.u_x_m = static_cast<float>(u(0));
+    s.u_y_m = static_cast<float>(u(1));
+    s.u_z_m = static_cast<float>(u(2));
+    s.u_yaw_rad = static_cast<float>(u(3));
+    s.u_pitch_rad = static_cast<float>(u(4));
+    s.u_roll_rad = static_cast<float>(u(5));
+    size_t k = 0;
+    for (int i = 0; i < 6; ++i)
+      for (int j = i + 1; j < 6; ++j)
+        s.correlation[k++] = (u(i) > 0 && u(j) > 0)
+                                 ? static_cast<float>(out.cov_xyz_ypr(i, j) / (u(i) * u(j)))
+                                 : nan;
+    auto rss = [&](int src) {
+      return static_cast<float>(std::sqrt(std::max(
+          0.0, out.cov_xyz_ypr_by_source[static_cast<size_t>(src)].topLeftCorner<3, 3>().trace())));
+    };
+    s.u_budget_centroid_m = rss(kCentroid);
+    s.u_budget_intrinsic_m = rss(kIntrinsic);
+    // The body-mark survey registers the pylon/store frames: reported with the extrinsics.
+    s.u_budget_extrinsic_m = std::hypot(rss(kExtrinsic), rss(kSurvey));
+    s.u_budget_sync_m = rss(kSync);
+  } else {
+    s.x_m = s.y_m = s.z_m = s.yaw_rad = s.pitch_rad = s.roll_rad = nan;
+    s.u_x_m = s.u_y_m = s.u_z_m = s.u_yaw_rad = s.u_pitch_rad = s.u_roll_rad = nan;
+    s.correlation.fill(nan);
+    s.u_budget_centroid_m = s.u_budget_intrinsic_m = s.u_budget_extrinsic_m = s.u_budget_sync_m =
+        nan;
+  }
+  if (!out.pylon_check.excluded_ids.empty() || !out.store_check.excluded_ids.empty() ||
+      out.pylon_check.failed || out.store_check.failed)
+    status |= msg::fti_status::kRigidBodyFailed;
+  if (prep.clock_not_locked) status |= msg::fti_status::kClockNotLocked;
+  bool missing = exposure.missing_camera_mask != 0;
+  for (bool used : prep.slot_used)
+    missing = missing || !used;
+  if (missing) status |= msg::fti_status::kCameraMissing;
+  const bool fewer_marks = out.T_w_s.marks_used < static_cast<int>(store_.marks.size()) ||
+                           out.T_w_p.marks_used < static_cast<int>(pylon_.marks.size());
+  if (missing || fewer_marks || prep.cameras_used < static_cast<int>(rig_.cameras.size()))
+    status |= msg::fti_status::kDegradedGeometry;
+  s.status = status;
+}
+
+ExposureResult ExposureProcessor::process(const AlignedExposure& exposure, const MarkIds& ids) {
+  ++counters_.exposures;
+  const Prepared prep = prepare(exposure, ids, counters_);
+  ExposureResult out;
+  out.trigger_seq = exposure.trigger_seq;
+  out.reference_mid_tai_ns = prep.t_ref_tai_ns;
+  out.cameras_used = prep.cameras_used;
+  solve(prep, rig_.cameras, pylon_, store_, true, nullptr, out, counters_);
+  if (!out.T_p_s.valid) ++counters_.pose_failed;
+  fill_sample(exposure, prep, out);
+
+  // Tracking: velocity from the previous exposure's position of the same mark.
+  const double t_s = prep.t_ref_ns * 1e-9;
+  for (MarkResult& m : out.marks) {
+    Track& tr = tracks_[static_cast<size_t>(m.id)];
+    const double dt = t_s - tr.t_s;
+    if (tr.valid && dt > 0 && dt <= config_.tracking_max_gap_s) {
+      tr.velocity_w = (m.p_w - tr.p_w) / dt;
+      tr.velocity_valid = true;
+    } else {
+      tr.velocity_valid = false;
+    }
+    tr.valid = true;
+    tr.t_s = t_s;
+    tr.p_w = m.p_w;
+  }
+  return out;
+}
+
+MonteCarloResult ExposureProcessor::monte_carlo(const AlignedExposure& exposure, const MarkIds& ids,
+                                                int draws, std::uint64_t seed) const {
+  if (draws < 2) throw std::invalid_argument("monte_carlo: need at least 2 draws");
+  ProcessorCounters scratch;
+  const Prepared prep = prepare(exposure, ids, scratch);
+  ExposureResult nominal;
+  solve(prep, rig_.cameras, pylon_, store_, true, nullptr, nominal, scratch);
+
+  Exclusions excl;
+  for (const MarkResult& m : nominal.marks)
+    if (m.excluded) excl.ids.push_back(m.id);
+  for (const MarkResult& m : nominal.marks)
+    excl.weights[m.id] = m.cov_w;
+
+  MonteCarloResult mc;
+  for (const MarkResult& m : nominal.marks)
+    mc.mark_ids.push_back(m.id);
+  const size_t nm = mc.mark_ids.size();
+  std::vector<Vec3> sum(nm, Vec3::Zero());
+  std::vector<Mat3> sum2(nm, Mat3::Zero());
+  std::vector<int> n_mark(nm, 0);
+  Vec6 s_ps = Vec6::Zero(), s_out = Vec6::Zero();
+  Mat6 s2_ps = Mat6::Zero(), s2_out = Mat6::Zero();
+  int n_pose = 0;
+
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  const int nz = factors_.num_factors();
+  for (int d = 0; d < draws; ++d) {
+    Eigen::VectorXd z(nz);
+    for (int i = 0; i < nz; ++i)
+      z(i) = normal(rng);
+    // Draw the calibration (JCGM 101, 6.4.8: multivariate Gaussian) and the time offsets.
+    std::vector<camera::CalibratedCamera> cams = rig_.cameras;
+    Prepared p = prep;
+    for (size_t c = 0; c < cams.size(); ++c) {
+      const auto& cf = factors_.camera(static_cast<int>(c));
+      if (cf.intrinsic.cols() > 0) {
+        const camera::IntrinsicVector v =
+            camera::pack(cams[c].model.intrinsics()) +
+            cf.intrinsic * z.segment(cf.intrinsic_begin, cf.intrinsic.cols());
+        cams[c].model = camera::CameraModel(
+            camera::unpack(v, cams[c].model.intrinsics().width, cams[c].model.intrinsics().height));
+      }
+      if (cf.extrinsic.cols() > 0)
+        cams[c].T_c_w = geometry::perturb_left(
+            cams[c].T_c_w, cf.extrinsic * z.segment(cf.extrinsic_begin, cf.extrinsic.cols()));
+      if (cf.sync_column >= 0) p.dt_s[c] += cf.sync_sigma_s * z(cf.sync_column);
+    }
+    for (Prepared::Mark& m : p.marks)
+      for (Prepared::Obs& o : m.obs)
+        o.pixel_px += Vec2(normal(rng), normal(rng)) * o.sigma_px;
+    // Survey errors: the body-frame coordinates are drawn too.
+    sim::RigidBodySurvey pylon = pylon_, store = store_;
+    for (auto* survey : {&pylon, &store})
+      for (sim::SurveyedMark& sm : survey->marks)
+        sm.p_body += Vec3(normal(rng), normal(rng), normal(rng)) * sm.sigma_m;
+    ExposureResult r;
+    solve(p, cams, pylon, store, false, &excl, r, scratch);
+    bool ok = true;
+    for (size_t k = 0; k < nm; ++k) {
+      const MarkResult* m = r.find_mark(mc.mark_ids[k]);
+      if (m == nullptr) {
+        ok = false;
+        continue;
+      }
+      const Vec3 e = m->p_w - nominal.marks[k].p_w;
+      sum[k] += e;
+      sum2[k] += e * e.transpose();
+      ++n_mark[k];
+    }
+    if (nominal.T_p_s.valid) {
+      if (r.T_p_s.valid) {
+        const Vec6 xi = pose_difference(r.T_p_s.T, nominal.T_p_s.T);
+        Vec6 o = r.xyz_ypr - nominal.xyz_ypr;
+        for (int a = 3; a < 6; ++a)
+          o(a) = wrap_angle(o(a));
+        s_ps += xi;
+        s2_ps += xi * xi.transpose();
+        s_out += o;
+        s2_out += o * o.transpose();
+        ++n_pose;
+      } else {
+        ok = false;
+      }
+    }
+    if (ok)
+      ++mc.draws;
+    else
+      ++mc.failed_draws;
+  }
+  mc.mark_cov.resize(nm);
+  mc.mark_mean_offset.resize(nm);
+  for (size_t k = 0; k < nm; ++k) {
+    const double n = std::max(n_mark[k], 2);
+    const Vec3 mean = sum[k] / n;
+    mc.mark_mean_offset[k] = mean;
+    mc.mark_cov[k] = (sum2[k] - n * mean * mean.transpose()) / (n - 1);
+  }
+  if (n_pose >= 2) {
+    const Vec6 m1 = s_ps / n_pose, m2 = s_out / n_pose;
+    mc.cov_T_p_s = (s2_ps - n_pose * m1 * m1.transpose()) / (n_pose - 1);
+    mc.cov_xyz_ypr = (s2_out - n_pose * m2 * m2.transpose()) / (n_pose - 1);
+  }
+  return mc;
+}
+
+}  // namespace storetrack::pipeline

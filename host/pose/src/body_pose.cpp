@@ -1,0 +1,153 @@
+#include "storetrack/pose/body_pose.hpp"
+
+#include <cmath>
+
+#include <Eigen/Cholesky>
+#include <Eigen/SVD>
+
+namespace storetrack::pose {
+
+using geometry::Mat3;
+using geometry::Mat6;
+using geometry::Vec3;
+using geometry::Vec6;
+
+bool absolute_orientation(std::span<const Vec3> q_body, std::span<const Vec3> p_world,
+                          std::span<const double> weights, geometry::Transform& T_w_b) {
+  const size_t n = q_body.size();
+  if (n < 3 || p_world.size() != n || weights.size() != n) return false;
+  double wsum = 0;
+  Vec3 q_mean = Vec3::Zero(), p_mean = Vec3::Zero();
+  for (size_t i = 0; i < n; ++i) {
+    wsum += weights[i];
+    q_mean += weights[i] * q_body[i];
+    p_mean += weights[i] * p_world[i];
+  }
+  if (!(wsum > 0)) return false;
+  q_mean /= wsum;
+  p_mean /= wsum;
+  Mat3 cross = Mat3::Zero();  // sum w (p - p_mean)(q - q_mean)^T
+  for (size_t i = 0; i < n; ++i)
+    cross.noalias() += weights[i] * (p_world[i] - p_mean) * (q_body[i] - q_mean).transpose();
+  const Eigen::JacobiSVD<Mat3> svd(cross, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  const Vec3 s = svd.singularValues();
+  if (!(s(1) > 1e-12 * std::max(s(0), 1e-300))) return false;  // collinear marks
+  Mat3 D = Mat3::Identity();
+  if ((svd.matrixU() * svd.matrixV().transpose()).determinant() < 0) D(2, 2) = -1;
+  const Mat3 R = svd.matrixU() * D * svd.matrixV().transpose();
+  T_w_b = geometry::Transform::Identity();
+  T_w_b.linear() = R;
+  T_w_b.translation() = p_mean - R * q_mean;
+  return true;
+}
+
+bool fit_body(std::span<const Vec3> q_body, std::span<const Vec3> p_world,
+              std::span<const Mat3> cov_w, std::span<const double> survey_sigma_m, BodyFit& out,
+              int max_iterations) {
+  const size_t n = q_body.size();
+  if (n < 3 || p_world.size() != n || cov_w.size() != n || survey_sigma_m.size() != n) return false;
+  std::vector<double> weights(n);
+  for (size_t i = 0; i < n; ++i)
+    weights[i] = 1.0 / (cov_w[i].trace() / 3.0 + survey_sigma_m[i] * survey_sigma_m[i]);
+  geometry::Transform T;
+  if (!absolute_orientation(q_body, p_world, weights, T)) return false;
+
+  std::vector<Mat3> W(n);
+  auto update_weights = [&]() -> bool {
+    for (size_t i = 0; i < n; ++i) {
+      // Survey errors are isotropic in the body frame, so R sigma^2 I R^T = sigma^2 I.
+      const Mat3 C = cov_w[i] + survey_sigma_m[i] * survey_sigma_m[i] * Mat3::Identity();
+      const Eigen::LLT<Mat3> llt(C);
+      if (llt.info() != Eigen::Success) return false;
+      W[i] = llt.solve(Mat3::Identity());
+    }
+    return true;
+  };
+  if (!update_weights()) return false;
+
+  // r_m = p_m - (Exp(phi) R q_m + t + rho):  dr/dphi = [R q_m]x, dr/drho = -I.
+  auto jacobian = [&](size_t i) {
+    Eigen::Matrix<double, 3, 6> J;
+    J.leftCols<3>() = geometry::skew(T.linear() * q_body[i]);
+    J.rightCols<3>() = -Mat3::Identity();
+    return J;
+  };
+  Mat6 H;
+  int it = 0;
+  for (; it < max_iterations; ++it) {
+    H.setZero();
+    Vec6 g = Vec6::Zero();
+    for (size_t i = 0; i < n; ++i) {
+      const Eigen::Matrix<double, 3, 6> J = jacobian(i);
+      const Vec3 r = p_world[i] - T * q_body[i];
+      H.noalias() += J.transpose() * W[i] * J;
+      g.noalias() += J.transpose() * W[i] * r;
+    }
+    const Eigen::LDLT<Mat6> ldlt(H);
+    if (ldlt.info() != Eigen::Success) return false;
+    const Vec6 step = -ldlt.solve(g);  // Gauss-Newton: H step = -J^T W r
+    if (!step.allFinite()) return false;
+    T = geometry::perturb_left(T, step);
+    if (step.head<3>().norm() < 1e-12 && step.tail<3>().norm() < 1e-10) {
+      ++it;
+      break;
+    }
+  }
+  // Linearisation at the solution.
+  H.setZero();
+  std::vector<Eigen::Matrix<double, 3, 6>> Js(n);
+  out.residual_w.resize(n);
+  out.chi2 = 0;
+  for (size_t i = 0; i < n; ++i) {
+    Js[i] = jacobian(i);
+    H.noalias() += Js[i].transpose() * W[i] * Js[i];
+    out.residual_w[i] = p_world[i] - T * q_body[i];
+    out.chi2 += out.residual_w[i].dot(W[i] * out.residual_w[i]);
+  }
+  const Eigen::LLT<Mat6> llt(H);
+  if (llt.info() != Eigen::Success) return false;
+  const Mat6 H_inv = llt.solve(Mat6::Identity());
+  out.d_pose_d_point.resize(n);
+  out.d_pose_d_survey.resize(n);
+  const Mat3 R = T.linear();
+  for (size_t i = 0; i < n; ++i) {
+    out.d_pose_d_point[i].noalias() = -H_inv * Js[i].transpose() * W[i];
+    out.d_pose_d_survey[i].noalias() = -out.d_pose_d_point[i] * R;
+  }
+  out.T_w_b = T;
+  out.normal_matrix = H;
+  out.iterations = it;
+  return true;
+}
+
+void relative_pose_jacobians(const geometry::Transform& T_w_p, const geometry::Transform& T_w_s,
+                             Mat6& d_ps_d_p, Mat6& d_ps_d_s) {
+  // T_p_s = (R_p^T R_s, R_p^T (t_s - t_p)). With R_p <- Exp(phi_p) R_p, t_p <- t_p + rho_p (and
+  // the same for s), to first order:
+  //   phi_ps = R_p^T (phi_s - phi_p)
+  //   rho_ps = R_p^T (rho_s - rho_p) + R_p^T [t_s - t_p]x phi_p
+  const Mat3 Rpt = T_w_p.linear().transpose();
+  const Vec3 d = T_w_s.translation() - T_w_p.translation();
+  d_ps_d_p.setZero();
+  d_ps_d_s.setZero();
+  d_ps_d_p.topLeftCorner<3, 3>() = -Rpt;
+  d_ps_d_p.bottomLeftCorner<3, 3>() = Rpt * geometry::skew(d);
+  d_ps_d_p.bottomRightCorner<3, 3>() = -Rpt;
+  d_ps_d_s.topLeftCorner<3, 3>() = Rpt;
+  d_ps_d_s.bottomRightCorner<3, 3>() = Rpt;
+}
+
+Mat3 ypr_jacobian(const Mat3& R) {
+  // R = Rz(y) Ry(p) Rx(r); a left (spatial) perturbation phi = E d(ypr) with
+  // E = [e_z, Rz(y) e_y, Rz(y) Ry(p) e_x], so d(ypr)/dphi = E^-1 (singular at pitch = +-90 deg).
+  const Vec3 ypr = geometry::ypr_from_rotation(R);
+  const double cy = std::cos(ypr(0)), sy = std::sin(ypr(0));
+  const double cp = std::cos(ypr(1)), sp = std::sin(ypr(1));
+  Mat3 E;
+  E.col(0) = Vec3::UnitZ();
+  E.col(1) = Vec3(-sy, cy, 0);
+  E.col(2) = Vec3(cy * cp, sy * cp, -sp);
+  return E.inverse();
+}
+
+}  // namespace storetrack::pose

@@ -1,0 +1,56 @@
+// Rigid-body distance checks (IPEV SisTrO: every reference-mark pair of a rigid body keeps its
+// surveyed distance). Each pair's distance error is tested against its PREDICTED standard
+// uncertainty, not a fixed gate: z^2 = (d - d_survey)^2 / u^2(d - d_survey) ~ chi-square(1),
+// where u^2 carries both marks' triangulation covariances, their cross-covariance through the
+// shared calibration errors, and both survey sigmas (GUM JCGM 100:2008, 5.2). The per-pair
+// threshold is Bonferroni-corrected so that an intact body fails with probability <= alpha.
+// Failing bodies lose their worst mark (largest mean z^2 over its pairs), then are re-tested.
+#pragma once
+
+#include <span>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "storetrack/geometry/transform.hpp"
+
+namespace storetrack::rigid {
+
+/// One triangulated mark of the body. Its error model: e = n + L z with n ~ N(0, cov_independent)
+/// private to the mark and z ~ N(0, I) the calibration factors shared by all marks.
+struct MarkEstimate {
+  int id = -1;
+  geometry::Vec3 p_body = geometry::Vec3::Zero();  ///< surveyed position
+  double survey_sigma_m = 0;                       ///< per axis
+  geometry::Vec3 p_w = geometry::Vec3::Zero();     ///< triangulated position
+  geometry::Mat3 cov_independent = geometry::Mat3::Zero();
+  const Eigen::Matrix<double, 3, Eigen::Dynamic>* loadings = nullptr;  ///< may be null: no common
+};
+
+struct RigidCheckConfig {
+  double false_alarm_probability = 1e-3;  ///< per body and exposure, for an intact body
+  int min_marks = 3;                      ///< never exclude below this many marks
+};
+
+struct PairTest {
+  int id_a = -1, id_b = -1;
+  double distance_m = 0, surveyed_m = 0;
+  double sigma_m = 0;  ///< predicted standard uncertainty of distance_m - surveyed_m
+  double z2 = 0;       ///< ((distance - surveyed) / sigma)^2
+};
+
+struct RigidCheckResult {
+  std::vector<PairTest> pairs;    ///< all pairs of the marks given (before exclusion)
+  std::vector<int> excluded_ids;  ///< in exclusion order
+  bool failed = false;            ///< at least one pair inconsistent in the first test
+  bool consistent_after = true;   ///< remaining marks pass (false: stopped at min_marks)
+  double pair_threshold_z2 = 0;   ///< threshold of the first test
+};
+
+/// Predicted standard uncertainty of |p_a - p_b| - |q_a - q_b|.
+PairTest test_pair(const MarkEstimate& a, const MarkEstimate& b);
+
+RigidCheckResult check_rigid_body(std::span<const MarkEstimate> marks,
+                                  const RigidCheckConfig& config);
+
+}  // namespace storetrack::rigid

@@ -1,0 +1,94 @@
+#include "storetrack/rigid/rigid_check.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+#include "storetrack/uncertainty/statistics.hpp"
+
+namespace storetrack::rigid {
+
+using geometry::Vec3;
+
+PairTest test_pair(const MarkEstimate& a, const MarkEstimate& b) {
+  PairTest t;
+  t.id_a = a.id;
+  t.id_b = b.id;
+  const Vec3 d = a.p_w - b.p_w;
+  t.distance_m = d.norm();
+  t.surveyed_m = (a.p_body - b.p_body).norm();
+  const Vec3 u = t.distance_m > 0 ? Vec3(d / t.distance_m) : Vec3::UnitX();
+  // Independent parts add; the common calibration part enters through L_a - L_b.
+  double var = u.dot((a.cov_independent + b.cov_independent) * u);
+  if (a.loadings != nullptr && b.loadings != nullptr) {
+    var += (u.transpose() * (*a.loadings - *b.loadings)).squaredNorm();
+  } else if (a.loadings != nullptr) {
+    var += (u.transpose() * *a.loadings).squaredNorm();
+  } else if (b.loadings != nullptr) {
+    var += (u.transpose() * *b.loadings).squaredNorm();
+  }
+  var += a.survey_sigma_m * a.survey_sigma_m + b.survey_sigma_m * b.survey_sigma_m;
+  t.sigma_m = std::sqrt(var);
+  const double e = t.distance_m - t.surveyed_m;
+  t.z2 = var > 0 ? e * e / var : (e == 0 ? 0 : INFINITY);
+  return t;
+}
+
+RigidCheckResult check_rigid_body(std::span<const MarkEstimate> marks,
+                                  const RigidCheckConfig& config) {
+  if (!(config.false_alarm_probability > 0 && config.false_alarm_probability < 1))
+    throw std::invalid_argument("rigid check: false_alarm_probability must be in (0, 1)");
+  RigidCheckResult result;
+  const size_t n = marks.size();
+  for (size_t i = 0; i < n; ++i)
+    for (size_t j = i + 1; j < n; ++j)
+      result.pairs.push_back(test_pair(marks[i], marks[j]));
+  // z2 of pair (i, j) is at pairs[index(i, j)].
+  auto pair_index = [n](size_t i, size_t j) {
+    if (i > j) std::swap(i, j);
+    return i * n - i * (i + 1) / 2 + (j - i - 1);
+  };
+  std::vector<bool> active(n, true);
+  size_t active_count = n;
+  bool first = true;
+  while (active_count >= 2) {
+    const size_t pairs = active_count * (active_count - 1) / 2;
+    const double threshold = uncertainty::chi_square_quantile(
+        1.0 - config.false_alarm_probability / static_cast<double>(pairs), 1.0);
+    if (first) result.pair_threshold_z2 = threshold;
+    bool any_fail = false;
+    size_t worst = n;
+    double worst_score = -1;
+    for (size_t i = 0; i < n; ++i) {
+      if (!active[i]) continue;
+      double sum = 0;
+      for (size_t j = 0; j < n; ++j) {
+        if (j == i || !active[j]) continue;
+        const double z2 = result.pairs[pair_index(i, j)].z2;
+        if (z2 > threshold) any_fail = true;
+        sum += z2;
+      }
+      const double score = sum / static_cast<double>(active_count - 1);
+      if (score > worst_score) {
+        worst_score = score;
+        worst = i;
+      }
+    }
+    if (first) result.failed = any_fail;
+    first = false;
+    if (!any_fail) {
+      result.consistent_after = true;
+      return result;
+    }
+    if (static_cast<int>(active_count) <= config.min_marks) {
+      result.consistent_after = false;
+      return result;
+    }
+    active[worst] = false;
+    --active_count;
+    result.excluded_ids.push_back(marks[worst].id);
+  }
+  return result;
+}
+
+}  // namespace storetrack::rigid

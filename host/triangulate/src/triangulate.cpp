@@ -1,0 +1,105 @@
+#include "storetrack/triangulate/triangulate.hpp"
+
+#include <cmath>
+
+#include <Eigen/Cholesky>
+
+namespace storetrack::triangulate {
+
+using geometry::Mat3;
+using geometry::Vec2;
+using geometry::Vec3;
+
+std::optional<Vec3> triangulate_linear(std::span<const Observation> observations) {
+  // Each view gives two linear equations in X from x (r3.X' + t3) = r1.X' + t1 (and y), with
+  // X' = X + displacement. Solved as weighted linear least squares (normal equations, 3x3):
+  // rows are scaled by f/sigma so that they are approximately in units of pixel noise.
+  Mat3 A = Mat3::Zero();
+  Vec3 b = Vec3::Zero();
+  int used = 0;
+  for (const Observation& obs : observations) {
+    if (obs.model == nullptr) continue;
+    const auto xy = obs.model->unproject(obs.pixel_px);
+    if (!xy) continue;
+    const Mat3 R = obs.T_c_w.linear();
+    const Vec3 t = obs.T_c_w.translation() + R * obs.displacement_w;
+    const double w = obs.model->intrinsics().fx / std::max(obs.sigma_px, 1e-6);
+    for (int row = 0; row < 2; ++row) {
+      const double m = (*xy)(row);
+      const Vec3 a = (m * R.row(2) - R.row(row)).transpose() * w;
+      const double rhs = (t(row) - m * t(2)) * w;
+      A.noalias() += a * a.transpose();
+      b += a * rhs;
+    }
+    ++used;
+  }
+  if (used < 2) return std::nullopt;
+  const Eigen::LDLT<Mat3> ldlt(A);
+  if (ldlt.info() != Eigen::Success) return std::nullopt;
+  // Rank check: two parallel rays leave A (near) singular.
+  const Vec3 d = ldlt.vectorD().cwiseAbs();
+  if (d.minCoeff() <= 1e-12 * d.maxCoeff()) return std::nullopt;
+  Vec3 X = ldlt.solve(b);
+  if (!X.allFinite()) return std::nullopt;
+  return X;
+}
+
+bool triangulate(std::span<const Observation> observations, const Options& options, Result& out) {
+  auto init = triangulate_linear(observations);
+  if (!init) return false;
+  Vec3 X = *init;
+  const size_t n = observations.size();
+  Mat3 H = Mat3::Zero();
+  int it = 0;
+  for (; it < options.max_iterations; ++it) {
+    H.setZero();
+    Vec3 g = Vec3::Zero();
+    for (const Observation& obs : observations) {
+      const Mat3 R = obs.T_c_w.linear();
+      const Vec3 p_cam = obs.T_c_w * (X + obs.displacement_w);
+      Eigen::Matrix<double, 2, 3> J_cam;
+      const auto u = obs.model->project(p_cam, &J_cam);
+      if (!u) return false;
+      const Eigen::Matrix<double, 2, 3> J = J_cam * R;
+      const double w = 1.0 / (obs.sigma_px * obs.sigma_px);
+      H.noalias() += w * J.transpose() * J;
+      g.noalias() += w * J.transpose() * (obs.pixel_px - *u);
+    }
+    const Eigen::LDLT<Mat3> ldlt(H);
+    if (ldlt.info() != Eigen::Success) return false;
+    const Vec3 step = ldlt.solve(g);
+    if (!step.allFinite()) return false;
+    X += step;
+    if (step.norm() < options.step_tolerance_m) {
+      ++it;
+      break;
+    }
+  }
+  // Final linearisation at the solution: residuals, full Jacobians, covariance and gains.
+  out.residual_px.resize(n);
+  out.jacobians.resize(n);
+  out.gain.resize(n);
+  H.setZero();
+  out.chi2 = 0;
+  for (size_t i = 0; i < n; ++i) {
+    const Observation& obs = observations[i];
+    const auto u = obs.model->project_world(obs.T_c_w, X + obs.displacement_w, &out.jacobians[i]);
+    if (!u) return false;
+    out.residual_px[i] = obs.pixel_px - *u;
+    const double w = 1.0 / (obs.sigma_px * obs.sigma_px);
+    out.chi2 += w * out.residual_px[i].squaredNorm();
+    H.noalias() += w * out.jacobians[i].d_point_world.transpose() * out.jacobians[i].d_point_world;
+  }
+  const Eigen::LLT<Mat3> llt(H);
+  if (llt.info() != Eigen::Success) return false;
+  out.cov_centroid = llt.solve(Mat3::Identity());
+  for (size_t i = 0; i < n; ++i) {
+    const double w = 1.0 / (observations[i].sigma_px * observations[i].sigma_px);
+    out.gain[i].noalias() = out.cov_centroid * out.jacobians[i].d_point_world.transpose() * w;
+  }
+  out.p_w = X;
+  out.iterations = it;
+  return out.p_w.allFinite() && out.cov_centroid.allFinite();
+}
+
+}  // namespace storetrack::triangulate

@@ -1,0 +1,70 @@
+// Calibration errors common to every mark of an exposure, in whitened ("factor") form.
+//
+// The intrinsic, extrinsic and time-offset errors of all cameras form one error vector theta.
+// Its covariance is block diagonal (per camera, per group), so theta = F z with z ~ N(0, I) and
+// F = V sqrt(Lambda) from the eigen-decomposition of each block. Every estimate derived from
+// the marks of one exposure carries "loadings" d(estimate)/dz; the covariance of any set of
+// estimates is then L L^T, which keeps the correlations between marks that share a camera's
+// calibration (docs/uncertainty.md). Columns are ordered by source: all intrinsic factors,
+// then all extrinsic, then one sync factor per camera, so each source is a contiguous range.
+#pragma once
+
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "storetrack/camera/calibration_file.hpp"
+#include "storetrack/camera/camera_model.hpp"
+#include "storetrack/uncertainty/sources.hpp"
+
+namespace storetrack::uncertainty {
+
+/// Loadings of a 3-vector on the common factors z (3 x num_factors).
+using Loadings3 = Eigen::Matrix<double, 3, Eigen::Dynamic>;
+
+class CalibrationFactors {
+ public:
+  struct CameraFactors {
+    int intrinsic_begin = 0;  ///< first column of this camera's intrinsic factors
+    /// d(packed intrinsics)/dz for this camera's columns (kNumIntrinsics x count).
+    Eigen::Matrix<double, camera::kNumIntrinsics, Eigen::Dynamic> intrinsic;
+    int extrinsic_begin = 0;
+    Eigen::Matrix<double, 6, Eigen::Dynamic> extrinsic;  ///< d(left perturbation of T_c_w)/dz
+    int sync_column = -1;     ///< column of the exposure time offset (-1: no sync uncertainty)
+    double sync_sigma_s = 0;  ///< standard uncertainty of the exposure time offset [s]
+  };
+
+  CalibrationFactors() = default;
+  /// Factorises each camera's covariance blocks. Eigenvalues below `relative_floor` times the
+  /// block's largest are treated as zero (parameters held fixed in the calibration).
+  explicit CalibrationFactors(const camera::RigCalibration& rig, double relative_floor = 1e-12);
+
+  int num_factors() const { return num_factors_; }
+  int num_cameras() const { return static_cast<int>(cameras_.size()); }
+  const CameraFactors& camera(int slot) const { return cameras_[static_cast<size_t>(slot)]; }
+  /// Column range [begin, begin + count) of one source (kCentroid/kSurvey have none: count 0).
+  std::pair<int, int> range(Source s) const { return ranges_[static_cast<size_t>(index(s))]; }
+
+ private:
+  std::vector<CameraFactors> cameras_;
+  std::array<std::pair<int, int>, kNumSources> ranges_{};
+  int num_factors_ = 0;
+};
+
+/// Covariance of loadings restricted to one source's columns: L_s L_s^T.
+template <typename Derived>
+auto covariance_of(const Eigen::MatrixBase<Derived>& loadings, const CalibrationFactors& f,
+                   Source s) {
+  const auto [begin, count] = f.range(s);
+  using Row = typename Derived::PlainObject;
+  using Out = Eigen::Matrix<double, Row::RowsAtCompileTime, Row::RowsAtCompileTime>;
+  Out out = Out::Zero(loadings.rows(), loadings.rows());
+  if (count > 0) {
+    const auto block = loadings.middleCols(begin, count);
+    out.noalias() = block * block.transpose();
+  }
+  return out;
+}
+
+}  // namespace storetrack::uncertainty
