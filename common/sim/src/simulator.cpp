@@ -431,20 +431,31 @@ void Simulator::render(int k, int camera_index, std::vector<std::uint8_t>& image
   render_into(k, camera_index, image.data(), in.width, renderer);
 }
 
+ExposureTiming Simulator::exposure_timing(int k, int camera_index) const {
+  const CameraTiming ct = timing(k, camera_index);
+  ExposureTiming t;
+  t.trigger_seq = sc_.first_trigger_seq + static_cast<std::uint32_t>(k);
+  t.trigger_tai_ns = trigger_tai_ns(k);
+  t.true_start_tai_ns = ct.true_start;
+  t.reported_start_tai_ns = ct.reported_start;
+  t.reported_start_mono_ns = ct.reported_start - sc_.start_tai_ns + 1000 * time::kNsPerSecond;
+  t.exposure_ns = sc_.exposure_ns;
+  return t;
+}
+
 void Simulator::observe(int k, int camera_index, msg::MarkObservations& out,
                         std::vector<int>* true_mark_ids) const {
   const CameraSetup& cs = sc_.cameras[static_cast<std::size_t>(camera_index)];
   const camera::Intrinsics& in =
       true_rig_.cameras[static_cast<std::size_t>(camera_index)].model.intrinsics();
   const MarkOptics& op = sc_.optics;
-  const CameraTiming ct = timing(k, camera_index);
+  const ExposureTiming et = exposure_timing(k, camera_index);
   out = msg::MarkObservations{};
   out.unit_id = static_cast<std::uint8_t>(cs.unit_id);
   out.camera_id = static_cast<std::uint8_t>(cs.camera_id);
   out.trigger_seq = sc_.first_trigger_seq + static_cast<std::uint32_t>(k);
-  out.exposure_start_tai_ns = ct.reported_start;
-  // The unit's monotonic clock: booted 1000 s before the first trigger.
-  out.exposure_start_mono_ns = ct.reported_start - sc_.start_tai_ns + 1000 * time::kNsPerSecond;
+  out.exposure_start_tai_ns = et.reported_start_tai_ns;
+  out.exposure_start_mono_ns = et.reported_start_mono_ns;
   out.exposure_duration_ns = sc_.exposure_ns;
   out.clock_state = static_cast<std::uint8_t>(sc_.clock_state);
   if (true_mark_ids) true_mark_ids->clear();

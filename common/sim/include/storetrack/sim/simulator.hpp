@@ -67,6 +67,16 @@ struct ExposureTruth {
   std::vector<MarkTruth> marks;  ///< every mark of the scene, ascending id
 };
 
+/// Timing of one exposure of one camera (see the header comment).
+struct ExposureTiming {
+  std::uint32_t trigger_seq = 0;
+  time::TaiNs trigger_tai_ns = 0;
+  time::TaiNs true_start_tai_ns = 0;
+  time::TaiNs reported_start_tai_ns = 0;         ///< MarkObservations.exposure_start_tai_ns
+  time::MonotonicNs reported_start_mono_ns = 0;  ///< the unit booted 1000 s before trigger 0
+  std::uint32_t exposure_ns = 0;
+};
+
 class Simulator {
  public:
   Simulator(const Scenario& scenario, std::uint64_t seed);
@@ -91,6 +101,7 @@ class Simulator {
   const RigidBodySurvey& true_store() const { return sc_.store; }
 
   time::TaiNs trigger_tai_ns(int k) const;
+  ExposureTiming exposure_timing(int k, int camera_index) const;
   double seconds_since_start(time::TaiNs tai) const;
   /// Truth at any instant (TAI ns).
   geometry::Transform T_w_p_at(time::TaiNs tai) const;
