@@ -1,0 +1,219 @@
+// Mark identification across cameras: which observation of which camera is which mark id.
+//
+// Usage (host/pipeline, once per aligned exposure):
+//
+//   match::MarkMatcher matcher(rig, {pylon_survey, store_survey}, match::MatcherConfig{});
+//   matcher.set_prior_pose("pylon", T_w_p_nominal, cov_p);   // for (re-)acquisition
+//   matcher.set_prior_pose("store", T_w_p_nominal * T_p_s_carriage, cov_s);
+//   for each exposure:
+//     match::MatchResult m = matcher.match(exposure.cameras);   // span of MarkObservations
+//     // m.ids[e][j]: mark id of exposure.cameras[e].marks[j], or -1  (= pipeline::MarkIds)
+//     // m.marks: per id, the (camera_id, raw px, undistorted px, sigma_px) observations
+//     processor.process(exposure, m.ids);
+//
+// Method (docs/matching.md): each mark id gets a predicted 3-D position and covariance from,
+// in order of preference, its own constant-velocity track (previous exposures), the
+// constant-velocity track of its body's pose (marks that were hidden), or the prior pose of
+// its body (initial acquisition). The prediction is projected into every camera with the
+// calibrated model; an observation is assigned to a mark only if each is the other's ONLY
+// candidate inside the chi-square gate built from the prediction covariance, the calibration
+// covariance and the observation's sigma_px (ambiguities are rejected and counted, never
+// resolved by "nearest"). Marks assigned in >= 2 cameras are then triangulated and must pass
+// the multi-view epipolar test (reprojection chi-square, dof 2n - 3, with the same sigmas); a
+// failing observation is removed only when it is the unique culprit. Finally each body's
+// identified marks must fit its surveyed layout (rigid fit chi-square); a fitted body pose
+// re-predicts that body's unassigned marks with a tight covariance and the gating is repeated
+// (bootstrap from a coarse prior). Tracks are updated from the triangulated positions.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "storetrack/camera/calibration_file.hpp"
+#include "storetrack/geometry/transform.hpp"
+#include "storetrack/msg/messages.hpp"
+#include "storetrack/sim/body.hpp"
+#include "storetrack/time/time.hpp"
+
+namespace storetrack::match {
+
+struct MatcherConfig {
+  /// Probability that a correct match lies inside a gate (prediction, epipolar and layout
+  /// gates are chi-square quantiles at this probability; no fixed pixel gates).
+  double gate_probability = 0.9999;
+  /// Observations carrying any of these msg::mark_flags bits are never matched.
+  std::uint8_t rejected_mark_flags = msg::mark_flags::kMerged;
+  /// Used when an observation's sigma_px is not a positive finite number (counted).
+  double fallback_sigma_px = 0.2;
+  /// Quantisation step of the wire pixel coordinates; step^2/12 is added to each variance.
+  double pixel_quantisation_px = 1.0 / 256.0;
+  /// Adds the pixel covariance implied by each camera's intrinsic and extrinsic calibration
+  /// covariance (first order) to the gates.
+  bool use_calibration_covariance = true;
+  /// Constant-velocity process noise: bound on unmodelled acceleration of a mark [m/s^2]
+  /// (store ejection ~ 100 m/s^2), used as a 1-sigma value.
+  double max_acceleration_mps2 = 150.0;
+  /// Speed bound for marks with only one past position [m/s] (1 sigma).
+  double max_speed_mps = 10.0;
+  /// Floor on a predicted position's per-axis standard uncertainty [m] (pod vibration etc.).
+  double min_prediction_sigma_m = 3e-4;
+  /// Tracks older than this give no prediction [s].
+  double track_max_gap_s = 0.05;
+  /// Bodies with fewer identified, triangulated marks are not fitted (no layout check).
+  int min_layout_marks = 3;
+  /// Keep marks identified in only one camera (no epipolar check possible) in the output.
+  bool keep_single_view = true;
+  /// ... but only when the prediction came from a track or this exposure's layout fit, never
+  /// from a prior pose alone.
+  bool single_view_requires_track = true;
+  /// Predictions further than this outside the image border are not gated [px].
+  double image_margin_px = 20.0;
+};
+
+/// Where a mark's prediction came from.
+enum class PredictionSource : std::uint8_t {
+  kNone = 0,
+  kMarkTrack = 1,  ///< the mark's own constant-velocity track
+  kBodyTrack = 2,  ///< extrapolated pose of its body
+  kLayout = 3,     ///< pose of its body fitted in this exposure (bootstrap)
+  kPrior = 4,      ///< prior pose of its body (acquisition)
+};
+const char* to_string(PredictionSource source);
+
+/// One observation assigned to a mark.
+struct MatchedObservation {
+  int camera_id = -1;
+  int camera_index = -1;                           ///< index in the span passed to match()
+  int mark_index = -1;                             ///< index in that MarkObservations' marks[]
+  geometry::Vec2 raw_px = geometry::Vec2::Zero();  ///< as received
+  geometry::Vec2 undistorted_px = geometry::Vec2::Zero();  ///< ideal pinhole pixel
+  geometry::Vec2 xy = geometry::Vec2::Zero();              ///< normalised image point (Z = 1)
+  double sigma_px = 0;  ///< per-axis standard uncertainty used (incl. quantisation) [px]
+};
+
+struct MatchedMark {
+  int id = -1;
+  int body = -1;  ///< index into the bodies given to the matcher
+  PredictionSource source = PredictionSource::kNone;
+  std::vector<MatchedObservation> observations;  ///< ascending camera_index
+  /// Triangulated position (>= 2 views; Gauss-Newton on the reprojection error) and its
+  /// covariance from the observation and calibration sigmas. Valid when views >= 2.
+  bool triangulated = false;
+  geometry::Vec3 p_w = geometry::Vec3::Zero();
+  geometry::Mat3 cov_w = geometry::Mat3::Zero();
+  double epipolar_chi2 = 0;  ///< reprojection chi-square, dof = 2 views - 3
+};
+
+/// Result of one exposure.
+struct MatchResult {
+  time::TaiNs t_mid_tai_ns = 0;    ///< mean calibrated exposure mid-point of the cameras
+  std::vector<MatchedMark> marks;  ///< ascending id
+  /// ids[e][j]: mark id of cameras[e].marks[j], -1 when not identified (pipeline::MarkIds).
+  std::vector<std::vector<int>> ids;
+  int observations = 0;  ///< usable observations in this exposure
+  int identified = 0;    ///< observations with an id
+  int ambiguous = 0;     ///< observations or marks rejected as ambiguous in this exposure
+  bool acquired_from_prior = false;  ///< some body was (re-)acquired from its prior pose
+  /// Fitted body poses T_w_b (index as bodies), valid when fitted[b].
+  std::vector<geometry::Transform> T_w_b;
+  std::vector<bool> fitted;
+
+  const MatchedMark* find(int id) const;
+};
+
+struct MatchCounters {
+  std::uint64_t exposures = 0;
+  std::uint64_t observations = 0;           ///< usable observations seen
+  std::uint64_t unknown_camera = 0;         ///< camera_id not in the rig (whole camera ignored)
+  std::uint64_t bad_observation = 0;        ///< non-finite pixel, mark_count out of range
+  std::uint64_t fallback_sigma = 0;         ///< sigma_px unusable: fallback_sigma_px used
+  std::uint64_t rejected_by_flags = 0;      ///< observation flags in rejected_mark_flags
+  std::uint64_t undistort_failed = 0;       ///< unproject did not converge
+  std::uint64_t unmatched = 0;              ///< observation inside no gate
+  std::uint64_t ambiguous_observation = 0;  ///< observation inside >= 2 marks' gates
+  std::uint64_t ambiguous_mark = 0;         ///< >= 2 observations inside one mark's gate (camera)
+  std::uint64_t epipolar_outlier = 0;       ///< observation removed by the multi-view test
+  std::uint64_t epipolar_rejected = 0;      ///< mark dropped: views inconsistent, culprit unknown
+  std::uint64_t layout_rejected = 0;        ///< mark dropped: inconsistent with its body's survey
+  std::uint64_t single_view = 0;            ///< marks identified in exactly one camera
+  std::uint64_t acquisitions = 0;           ///< exposures where a body used its prior pose
+  std::uint64_t duplicate_camera = 0;       ///< same camera_id twice in one exposure (2nd ignored)
+};
+
+class MarkMatcher {
+ public:
+  /// `bodies`: surveys of the rigid bodies whose marks are to be identified (pylon, store, ...).
+  /// Mark ids must be unique across bodies (std::invalid_argument otherwise).
+  MarkMatcher(const camera::RigCalibration& rig, std::vector<sim::RigidBodySurvey> bodies,
+              const MatcherConfig& config = {});
+
+  /// Prior pose T_w_b of a body and its 6x6 covariance (left perturbation, rx ry rz tx ty tz)
+  /// used whenever the body has no valid track. Returns false if no body has that name.
+  bool set_prior_pose(const std::string& body_name, const geometry::Transform& T_w_b,
+                      const geometry::Mat6& covariance);
+  void clear_prior_pose(const std::string& body_name);
+
+  /// Identifies the marks of one exposure (all cameras that delivered it, any order, missing
+  /// cameras simply absent) and updates the tracks.
+  MatchResult match(std::span<const msg::MarkObservations> cameras);
+
+  /// Forgets all tracks (next exposure starts from the priors).
+  void reset_tracking();
+
+  const MatchCounters& counters() const { return counters_; }
+  const std::vector<sim::RigidBodySurvey>& bodies() const { return bodies_; }
+  const MatcherConfig& config() const { return config_; }
+
+ private:
+  struct MarkInfo {
+    int id;
+    int body;
+    geometry::Vec3 p_body;
+    double survey_sigma_m;
+  };
+  struct MarkTrack {
+    int count = 0;  ///< positions held (0..2)
+    double t_s[2] = {0, 0};
+    geometry::Vec3 p_w[2];
+    geometry::Mat3 cov_w[2];
+  };
+  struct BodyTrack {
+    int count = 0;
+    double t_s[2] = {0, 0};
+    geometry::Transform T_w_b[2];
+    geometry::Mat6 cov[2];  ///< fit covariance (left perturbation)
+  };
+  struct Prior {
+    bool valid = false;
+    geometry::Transform T_w_b = geometry::Transform::Identity();
+    geometry::Mat6 cov = geometry::Mat6::Zero();
+  };
+  struct Work;
+
+  void predict(Work& w, double t_s) const;
+  void gate_and_assign(Work& w) const;
+  void verify_views(Work& w) const;
+  void verify_layouts(Work& w) const;
+  bool triangulate(const Work& w, const std::vector<int>& obs, geometry::Vec3& p_w,
+                   geometry::Mat3& cov_w, double& chi2) const;
+  void update_tracks(const Work& w, double t_s);
+
+  camera::RigCalibration rig_;
+  std::vector<sim::RigidBodySurvey> bodies_;
+  MatcherConfig config_;
+  std::vector<MarkInfo> marks_;  ///< all marks of all bodies
+  std::vector<MarkTrack> mark_tracks_;
+  std::vector<BodyTrack> body_tracks_;
+  std::vector<Prior> priors_;
+  std::vector<double> chi2_gate_;  ///< chi2_gate_[dof] at gate_probability, dof 0..kMaxDof
+  MatchCounters counters_;
+  bool have_time_origin_ = false;
+  time::TaiNs time_origin_ns_ = 0;
+};
+
+/// Chi-square quantile: x with P(chi2_dof <= x) = probability (dof >= 1).
+double chi_square_quantile(int dof, double probability);
+
+}  // namespace storetrack::match

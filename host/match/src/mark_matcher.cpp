@@ -1,0 +1,762 @@
+// Mark identification (see mark_matcher.hpp and docs/matching.md for the method).
+//
+// Gating follows the standard Mahalanobis / chi-square validation gate of target tracking
+// (Bar-Shalom, Li, Kirubarajan, "Estimation with Applications to Tracking and Navigation",
+// 2001, sec. 5.4); the multi-view test is the reprojection chi-square of the Gauss-Newton
+// triangulation (Hartley & Zisserman, "Multiple View Geometry", 2nd ed., ch. 12), which for two
+// views is the epipolar constraint with its uncertainty. The layout fit is Umeyama's
+// absolute orientation (IEEE TPAMI 13(4), 1991) via Eigen::umeyama.
+#include "storetrack/match/mark_matcher.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <unordered_map>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Geometry>
+#include <Eigen/LU>
+
+namespace storetrack::match {
+
+using geometry::Mat2;
+using geometry::Mat3;
+using geometry::Mat6;
+using geometry::Transform;
+using geometry::Vec2;
+using geometry::Vec3;
+
+namespace {
+
+constexpr int kMaxDof = 2 * 64;
+
+/// Regularised lower incomplete gamma P(a, x) (series for x < a + 1, else Lentz continued
+/// fraction; Numerical Recipes 3rd ed., sec. 6.2).
+double regularized_gamma_p(double a, double x) {
+  if (x <= 0) return 0;
+  const double log_prefactor = a * std::log(x) - x - std::lgamma(a);
+  if (x < a + 1) {
+    double term = 1 / a, sum = term;
+    for (int n = 1; n < 1000; ++n) {
+      term *= x / (a + n);
+      sum += term;
+      if (std::abs(term) < std::abs(sum) * 1e-16) break;
+    }
+    return sum * std::exp(log_prefactor);
+  }
+  const double tiny = 1e-300;
+  double b = x + 1 - a, c = 1 / tiny, d = 1 / b, h = d;
+  for (int i = 1; i < 1000; ++i) {
+    const double an = -i * (i - a);
+    b += 2;
+    d = an * d + b;
+    if (std::abs(d) < tiny) d = tiny;
+    c = b + an / c;
+    if (std::abs(c) < tiny) c = tiny;
+    d = 1 / d;
+    const double delta = d * c;
+    h *= delta;
+    if (std::abs(delta - 1) < 1e-16) break;
+  }
+  return 1 - std::exp(log_prefactor) * h;
+}
+
+/// d p_w / d(left perturbation of T_w_b) for a body point p_b: [-[R p_b]x, I].
+Eigen::Matrix<double, 3, 6> point_pose_jacobian(const Transform& T_w_b, const Vec3& p_b) {
+  Eigen::Matrix<double, 3, 6> G;
+  G.leftCols<3>() = -geometry::skew(T_w_b.linear() * p_b);
+  G.rightCols<3>() = Mat3::Identity();
+  return G;
+}
+
+enum class ObsState : std::uint8_t { kUnassigned, kAssigned, kAmbiguous, kUngated };
+
+}  // namespace
+
+double chi_square_quantile(int dof, double probability) {
+  if (dof < 1 || !(probability > 0) || !(probability < 1))
+    throw std::invalid_argument("chi_square_quantile: dof >= 1 and 0 < probability < 1");
+  double lo = 0, hi = 10.0 * dof + 100;
+  for (int i = 0; i < 200; ++i) {
+    const double mid = 0.5 * (lo + hi);
+    (regularized_gamma_p(0.5 * dof, 0.5 * mid) < probability ? lo : hi) = mid;
+  }
+  return 0.5 * (lo + hi);
+}
+
+const char* to_string(PredictionSource source) {
+  switch (source) {
+    case PredictionSource::kNone:
+      return "none";
+    case PredictionSource::kMarkTrack:
+      return "mark_track";
+    case PredictionSource::kBodyTrack:
+      return "body_track";
+    case PredictionSource::kLayout:
+      return "layout";
+    case PredictionSource::kPrior:
+      return "prior";
+  }
+  return "?";
+}
+
+const MatchedMark* MatchResult::find(int id) const {
+  const auto it = std::lower_bound(marks.begin(), marks.end(), id,
+                                   [](const MatchedMark& m, int v) { return m.id < v; });
+  return it != marks.end() && it->id == id ? &*it : nullptr;
+}
+
+/// Per-exposure working state.
+struct MarkMatcher::Work {
+  struct Obs {
+    int slot = -1;        ///< index in rig_.cameras
+    int cam = -1;         ///< index into Work::cams
+    int span_index = -1;  ///< index in the caller's span
+    int mark_index = -1;
+    Vec2 raw = Vec2::Zero(), xy = Vec2::Zero();
+    double sigma = 0;
+    int mark = -1;  ///< assigned mark (index in marks_)
+    ObsState state = ObsState::kUnassigned;
+  };
+  struct Cam {
+    int slot = -1;
+    int span_index = -1;
+    std::vector<int> obs;  ///< indices into Work::obs
+  };
+  struct Pred {
+    bool valid = false;
+    Vec3 p = Vec3::Zero();
+    Mat3 cov = Mat3::Zero();
+    PredictionSource source = PredictionSource::kNone;
+  };
+  struct Tri {
+    bool valid = false;
+    Vec3 p = Vec3::Zero();
+    Mat3 cov = Mat3::Zero();
+    double chi2 = 0;
+  };
+  std::vector<Obs> obs;
+  std::vector<Cam> cams;
+  std::vector<Pred> pred;                   ///< per mark
+  std::vector<std::vector<int>> assigned;   ///< per mark: observation indices
+  std::vector<std::vector<int>> ambiguous;  ///< per mark: cams where it was ambiguous
+  std::vector<Tri> tri;                     ///< per mark
+  std::vector<bool> fitted;                 ///< per body
+  std::vector<Transform> T_w_b;
+  std::vector<Mat6> cov_b;
+  bool acquired = false;
+  MatchCounters counts;
+};
+
+MarkMatcher::MarkMatcher(const camera::RigCalibration& rig,
+                         std::vector<sim::RigidBodySurvey> bodies, const MatcherConfig& config)
+    : rig_(rig), bodies_(std::move(bodies)), config_(config) {
+  if (!(config_.gate_probability > 0 && config_.gate_probability < 1))
+    throw std::invalid_argument("MatcherConfig.gate_probability must be in (0, 1)");
+  std::unordered_map<int, int> seen;
+  for (int b = 0; b < static_cast<int>(bodies_.size()); ++b)
+    for (const auto& m : bodies_[b].marks) {
+      if (!seen.emplace(m.id, b).second)
+        throw std::invalid_argument("MarkMatcher: mark id " + std::to_string(m.id) +
+                                    " appears twice in the surveys");
+      marks_.push_back({m.id, b, m.p_body, m.sigma_m});
+    }
+  std::sort(marks_.begin(), marks_.end(),
+            [](const MarkInfo& a, const MarkInfo& b) { return a.id < b.id; });
+  mark_tracks_.resize(marks_.size());
+  body_tracks_.resize(bodies_.size());
+  priors_.resize(bodies_.size());
+  chi2_gate_.assign(kMaxDof + 1, 0.0);
+  for (int dof = 1; dof <= kMaxDof; ++dof)
+    chi2_gate_[dof] = chi_square_quantile(dof, config_.gate_probability);
+}
+
+bool MarkMatcher::set_prior_pose(const std::string& body_name, const Transform& T_w_b,
+                                 const Mat6& covariance) {
+  for (size_t b = 0; b < bodies_.size(); ++b)
+    if (bodies_[b].name == body_name) {
+      priors_[b] = {true, T_w_b, covariance};
+      return true;
+    }
+  return false;
+}
+
+void MarkMatcher::clear_prior_pose(const std::string& body_name) {
+  for (size_t b = 0; b < bodies_.size(); ++b)
+    if (bodies_[b].name == body_name) priors_[b].valid = false;
+}
+
+void MarkMatcher::reset_tracking() {
+  for (auto& t : mark_tracks_)
+    t.count = 0;
+  for (auto& t : body_tracks_)
+    t.count = 0;
+}
+
+void MarkMatcher::predict(Work& w, double t_s) const {
+  const double floor2 = config_.min_prediction_sigma_m * config_.min_prediction_sigma_m;
+  // Body poses first: extrapolated track, else prior.
+  std::vector<Transform> body_T(bodies_.size());
+  std::vector<Mat6> body_cov(bodies_.size());
+  std::vector<PredictionSource> body_src(bodies_.size(), PredictionSource::kNone);
+  std::vector<double> body_extra_var(bodies_.size(), 0.0);  // isotropic per-mark [m^2]
+  for (size_t b = 0; b < bodies_.size(); ++b) {
+    const BodyTrack& bt = body_tracks_[b];
+    const int last = bt.count - 1;
+    if (bt.count > 0 && t_s - bt.t_s[last] <= config_.track_max_gap_s) {
+      const double dt = t_s - bt.t_s[last];
+      const double accel = 0.5 * config_.max_acceleration_mps2 * dt * dt;
+      if (bt.count == 2 && bt.t_s[1] > bt.t_s[0]) {
+        const double r = dt / (bt.t_s[1] - bt.t_s[0]);
+        const Vec3 omega =
+            geometry::rotvec_from_rotation(bt.T_w_b[1].linear() * bt.T_w_b[0].linear().transpose());
+        Transform T = Transform::Identity();
+        T.linear() = geometry::rotation_from_rotvec(r * omega) * bt.T_w_b[1].linear();
+        T.translation() =
+            bt.T_w_b[1].translation() + r * (bt.T_w_b[1].translation() - bt.T_w_b[0].translation());
+        body_T[b] = T;
+        body_cov[b] = (1 + r) * (1 + r) * bt.cov[1] + r * r * bt.cov[0];
+        body_extra_var[b] = accel * accel;
+      } else {
+        body_T[b] = bt.T_w_b[last];
+        body_cov[b] = bt.cov[last];
+        const double v = config_.max_speed_mps * dt;
+        body_extra_var[b] = v * v + accel * accel;
+      }
+      body_src[b] = PredictionSource::kBodyTrack;
+    } else if (priors_[b].valid) {
+      body_T[b] = priors_[b].T_w_b;
+      body_cov[b] = priors_[b].cov;
+      body_src[b] = PredictionSource::kPrior;
+    }
+  }
+
+  w.pred.assign(marks_.size(), {});
+  for (size_t m = 0; m < marks_.size(); ++m) {
+    const MarkInfo& info = marks_[m];
+    const MarkTrack& mt = mark_tracks_[m];
+    auto& pr = w.pred[m];
+    const int last = mt.count - 1;
+    const bool track_fresh = mt.count > 0 && t_s - mt.t_s[last] <= config_.track_max_gap_s;
+    const int b = info.body;
+    if (track_fresh && mt.count == 2 && mt.t_s[1] > mt.t_s[0]) {
+      const double dt = t_s - mt.t_s[1];
+      const double r = dt / (mt.t_s[1] - mt.t_s[0]);
+      const double accel = 0.5 * config_.max_acceleration_mps2 * dt * dt;
+      pr.p = mt.p_w[1] + r * (mt.p_w[1] - mt.p_w[0]);
+      pr.cov = (1 + r) * (1 + r) * mt.cov_w[1] + r * r * mt.cov_w[0] +
+               (accel * accel + floor2) * Mat3::Identity();
+      pr.source = PredictionSource::kMarkTrack;
+      pr.valid = true;
+    } else if (body_src[b] != PredictionSource::kNone) {
+      const auto G = point_pose_jacobian(body_T[b], info.p_body);
+      pr.p = body_T[b] * info.p_body;
+      pr.cov = G * body_cov[b] * G.transpose() +
+               (body_extra_var[b] + info.survey_sigma_m * info.survey_sigma_m + floor2) *
+                   Mat3::Identity();
+      pr.source = body_src[b];
+      pr.valid = true;
+    } else if (track_fresh) {
+      const double dt = t_s - mt.t_s[last];
+      const double v = config_.max_speed_mps * dt;
+      pr.p = mt.p_w[last];
+      pr.cov = mt.cov_w[last] + (v * v + floor2) * Mat3::Identity();
+      pr.source = PredictionSource::kMarkTrack;
+      pr.valid = true;
+    }
+    if (pr.source == PredictionSource::kPrior) w.acquired = true;
+  }
+}
+
+void MarkMatcher::gate_and_assign(Work& w) const {
+  const double gate = chi2_gate_[2];
+  for (int c = 0; c < static_cast<int>(w.cams.size()); ++c) {
+    const Work::Cam& cam = w.cams[c];
+    const camera::CalibratedCamera& cal = rig_.cameras[cam.slot];
+    const camera::Intrinsics& in = cal.model.intrinsics();
+    // Candidate marks: predicted and not yet assigned in this camera. The second (layout) pass
+    // re-gates every remaining mark, so an observation a tight layout prediction claims is
+    // still ambiguous when a coarse prediction of another mark also covers it.
+    std::vector<int> cand_marks;
+    std::vector<Vec2> pred_px;
+    std::vector<Mat2> pred_cov;
+    for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
+      const auto& pr = w.pred[m];
+      if (!pr.valid) continue;
+      bool already = false;
+      for (int o : w.assigned[m])
+        already = already || w.obs[o].cam == c;
+      if (already) continue;
+      camera::ProjectionJacobians J;
+      const auto px = cal.model.project_world(cal.T_c_w, pr.p, &J);
+      if (!px) continue;
+      const double margin = config_.image_margin_px;
+      if (px->x() < -0.5 - margin || px->x() > in.width - 0.5 + margin || px->y() < -0.5 - margin ||
+          px->y() > in.height - 0.5 + margin)
+        continue;
+      Mat2 S = J.d_point_world * pr.cov * J.d_point_world.transpose();
+      if (config_.use_calibration_covariance)
+        S += J.d_intrinsics * cal.intrinsic_covariance * J.d_intrinsics.transpose() +
+             J.d_pose * cal.extrinsic_covariance * J.d_pose.transpose();
+      cand_marks.push_back(m);
+      pred_px.push_back(*px);
+      pred_cov.push_back(S);
+    }
+    // Gate matrix between candidate marks and this camera's free observations.
+    std::vector<int> free_obs;
+    for (int o : cam.obs)
+      if (w.obs[o].state != ObsState::kAssigned) free_obs.push_back(o);
+    const int M = static_cast<int>(cand_marks.size()), N = static_cast<int>(free_obs.size());
+    std::vector<int> mark_hits(M, 0), mark_hit(M, -1), obs_hits(N, 0), obs_hit(N, -1);
+    for (int i = 0; i < M; ++i)
+      for (int k = 0; k < N; ++k) {
+        const auto& ob = w.obs[free_obs[k]];
+        const Mat2 S = pred_cov[i] + ob.sigma * ob.sigma * Mat2::Identity();
+        const Vec2 d = ob.raw - pred_px[i];
+        const double d2 = d.dot(S.ldlt().solve(d));
+        if (!(d2 <= gate)) continue;
+        ++mark_hits[i];
+        mark_hit[i] = k;
+        ++obs_hits[k];
+        obs_hit[k] = i;
+      }
+    for (int k = 0; k < N; ++k) {
+      auto& ob = w.obs[free_obs[k]];
+      if (obs_hits[k] == 0) {
+        ob.state = ObsState::kUngated;
+        continue;
+      }
+      const int i = obs_hit[k];
+      if (obs_hits[k] == 1 && mark_hits[i] == 1) {
+        ob.state = ObsState::kAssigned;
+        ob.mark = cand_marks[i];
+        w.assigned[cand_marks[i]].push_back(free_obs[k]);
+      } else {
+        ob.state = ObsState::kAmbiguous;
+      }
+    }
+    for (int i = 0; i < M; ++i) {
+      auto& amb = w.ambiguous[cand_marks[i]];
+      amb.erase(std::remove(amb.begin(), amb.end(), c), amb.end());
+      if (mark_hits[i] >= 2) amb.push_back(c);
+    }
+  }
+}
+
+bool MarkMatcher::triangulate(const Work& w, const std::vector<int>& obs, Vec3& p_w, Mat3& cov_w,
+                              double& chi2) const {
+  const int n = static_cast<int>(obs.size());
+  if (n < 2) return false;
+  // Linear initialisation: for each view, (x r3 - r1) . X = t1 - x t3 (and y), weighted by the
+  // inverse normalised-coordinate sigma (approximately sigma_px / f).
+  Mat3 AtA = Mat3::Zero();
+  Vec3 Atb = Vec3::Zero();
+  for (int o : obs) {
+    const auto& ob = w.obs[o];
+    const auto& cal = rig_.cameras[ob.slot];
+    const Mat3 R = cal.T_c_w.linear();
+    const Vec3 t = cal.T_c_w.translation();
+    const double f = cal.model.intrinsics().fx;
+    const double weight = f / ob.sigma;
+    for (int row = 0; row < 2; ++row) {
+      const Vec3 a = (ob.xy[row] * R.row(2) - R.row(row)).transpose() * weight;
+      const double b = (t[row] - ob.xy[row] * t[2]) * weight;
+      AtA += a * a.transpose();
+      Atb += a * b;
+    }
+  }
+  const Eigen::LDLT<Mat3> lin(AtA);
+  if (lin.info() != Eigen::Success) return false;
+  p_w = lin.solve(Atb);
+  if (!p_w.allFinite()) return false;
+  // Gauss-Newton on the reprojection error in raw pixels with the full pixel covariance
+  // (centroid + calibration), a few iterations from the linear solution.
+  Mat3 H = Mat3::Zero();
+  constexpr int kIterations = 4;  // the linear solution is already close: GN converges fast
+  for (int iter = 0; iter <= kIterations; ++iter) {
+    H.setZero();
+    Vec3 g = Vec3::Zero();
+    chi2 = 0;
+    for (int o : obs) {
+      const auto& ob = w.obs[o];
+      const auto& cal = rig_.cameras[ob.slot];
+      camera::ProjectionJacobians J;
+      const auto px = cal.model.project_world(cal.T_c_w, p_w, &J);
+      if (!px) return false;
+      Mat2 S = ob.sigma * ob.sigma * Mat2::Identity();
+      if (config_.use_calibration_covariance)
+        S += J.d_intrinsics * cal.intrinsic_covariance * J.d_intrinsics.transpose() +
+             J.d_pose * cal.extrinsic_covariance * J.d_pose.transpose();
+      const Mat2 W = S.inverse();
+      const Vec2 r = ob.raw - *px;
+      chi2 += r.dot(W * r);
+      H += J.d_point_world.transpose() * W * J.d_point_world;
+      g += J.d_point_world.transpose() * W * r;
+    }
+    if (iter == kIterations) break;  // chi2 and H evaluated at the final point
+    const Vec3 step = H.ldlt().solve(g);
+    if (!step.allFinite()) return false;
+    p_w += step;
+  }
+  cov_w = H.inverse();
+  return cov_w.allFinite() && std::isfinite(chi2);
+}
+
+void MarkMatcher::verify_views(Work& w) const {
+  for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
+    auto& as = w.assigned[m];
+    auto& tri = w.tri[m];
+    tri = {};
+    if (as.size() < 2) continue;
+    Vec3 p;
+    Mat3 cov;
+    double chi2 = 0;
+    const int n = static_cast<int>(as.size());
+    const bool ok = triangulate(w, as, p, cov, chi2);
+    if (ok && chi2 <= chi2_gate_[2 * n - 3]) {
+      tri = {true, p, cov, chi2};
+      continue;
+    }
+    // Inconsistent views. With >= 3 views, drop the one observation whose removal makes the
+    // rest consistent, if exactly one does; otherwise the mark is not identified at all.
+    int culprit = -1, passing = 0;
+    Work::Tri best;
+    if (n >= 3) {
+      for (int k = 0; k < n; ++k) {
+        std::vector<int> rest = as;
+        rest.erase(rest.begin() + k);
+        double c2 = 0;
+        if (triangulate(w, rest, p, cov, c2) && c2 <= chi2_gate_[2 * (n - 1) - 3]) {
+          ++passing;
+          culprit = k;
+          best = {true, p, cov, c2};
+        }
+      }
+    }
+    if (passing == 1) {
+      auto& ob = w.obs[as[culprit]];
+      ob.state = ObsState::kUngated;
+      ob.mark = -1;
+      as.erase(as.begin() + culprit);
+      tri = best;
+      ++w.counts.epipolar_outlier;
+    } else {
+      for (int o : as) {
+        w.obs[o].state = ObsState::kUngated;
+        w.obs[o].mark = -1;
+      }
+      as.clear();
+      ++w.counts.epipolar_rejected;
+    }
+  }
+}
+
+void MarkMatcher::verify_layouts(Work& w) const {
+  for (int b = 0; b < static_cast<int>(bodies_.size()); ++b) {
+    w.fitted[b] = false;
+    std::vector<int> members;
+    for (int m = 0; m < static_cast<int>(marks_.size()); ++m)
+      if (marks_[m].body == b && w.tri[m].valid) members.push_back(m);
+    // Fit and test; on failure remove the unique culprit (>= 4 marks) and try again.
+    while (static_cast<int>(members.size()) >= std::max(3, config_.min_layout_marks)) {
+      auto fit = [&](const std::vector<int>& set, Transform& T, Mat6& cov, double& chi2) {
+        const int n = static_cast<int>(set.size());
+        Eigen::Matrix3Xd src(3, n), dst(3, n);
+        for (int i = 0; i < n; ++i) {
+          src.col(i) = marks_[set[i]].p_body;
+          dst.col(i) = w.tri[set[i]].p;
+        }
+        T = Transform(Eigen::umeyama(src, dst, false));
+        Mat6 info = Mat6::Zero();
+        chi2 = 0;
+        for (int i = 0; i < n; ++i) {
+          const double s = marks_[set[i]].survey_sigma_m;
+          const Mat3 C = w.tri[set[i]].cov + s * s * Mat3::Identity();
+          const Mat3 W = C.inverse();
+          const Vec3 e = w.tri[set[i]].p - T * marks_[set[i]].p_body;
+          chi2 += e.dot(W * e);
+          const auto G = point_pose_jacobian(T, marks_[set[i]].p_body);
+          info += G.transpose() * W * G;
+        }
+        cov = info.inverse();
+        return chi2 <= chi2_gate_[3 * n - 6];
+      };
+      Transform T;
+      Mat6 cov;
+      double chi2 = 0;
+      if (fit(members, T, cov, chi2)) {
+        w.fitted[b] = true;
+        w.T_w_b[b] = T;
+        w.cov_b[b] = cov;
+        break;
+      }
+      int culprit = -1, passing = 0;
+      if (members.size() >= 4) {
+        for (size_t k = 0; k < members.size(); ++k) {
+          std::vector<int> rest = members;
+          rest.erase(rest.begin() + static_cast<long>(k));
+          Transform T2;
+          Mat6 cov2;
+          double c2 = 0;
+          if (fit(rest, T2, cov2, c2)) {
+            ++passing;
+            culprit = static_cast<int>(k);
+          }
+        }
+      }
+      std::vector<int> drop;
+      if (passing == 1) {
+        drop.push_back(members[culprit]);
+      } else {
+        drop = members;  // cannot tell which id is wrong: none of this body is trusted
+      }
+      for (int m : drop) {
+        for (int o : w.assigned[m]) {
+          w.obs[o].state = ObsState::kUngated;
+          w.obs[o].mark = -1;
+        }
+        w.assigned[m].clear();
+        w.tri[m] = {};
+        ++w.counts.layout_rejected;
+        members.erase(std::find(members.begin(), members.end(), m));
+      }
+    }
+    // Unverifiable single-view or untriangulated assignments of an unfitted body stay as they
+    // are (their ids rest on the prediction alone, see MatcherConfig::single_view_*).
+  }
+}
+
+void MarkMatcher::update_tracks(const Work& w, double t_s) {
+  for (size_t m = 0; m < marks_.size(); ++m) {
+    if (!w.tri[m].valid) continue;
+    MarkTrack& mt = mark_tracks_[m];
+    if (mt.count > 0 && t_s - mt.t_s[mt.count - 1] > config_.track_max_gap_s) mt.count = 0;
+    if (mt.count == 2) {
+      mt.t_s[0] = mt.t_s[1];
+      mt.p_w[0] = mt.p_w[1];
+      mt.cov_w[0] = mt.cov_w[1];
+      mt.count = 1;
+    }
+    mt.t_s[mt.count] = t_s;
+    mt.p_w[mt.count] = w.tri[m].p;
+    mt.cov_w[mt.count] = w.tri[m].cov;
+    ++mt.count;
+  }
+  for (size_t b = 0; b < bodies_.size(); ++b) {
+    if (!w.fitted[b]) continue;
+    BodyTrack& bt = body_tracks_[b];
+    if (bt.count > 0 && t_s - bt.t_s[bt.count - 1] > config_.track_max_gap_s) bt.count = 0;
+    if (bt.count == 2) {
+      bt.t_s[0] = bt.t_s[1];
+      bt.T_w_b[0] = bt.T_w_b[1];
+      bt.cov[0] = bt.cov[1];
+      bt.count = 1;
+    }
+    bt.t_s[bt.count] = t_s;
+    bt.T_w_b[bt.count] = w.T_w_b[b];
+    bt.cov[bt.count] = w.cov_b[b];
+    ++bt.count;
+  }
+}
+
+MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
+  Work w;
+  MatchResult out;
+  out.ids.resize(cameras.size());
+  ++w.counts.exposures;
+
+  // Observations: validate, undistort; exposure time = mean calibrated mid-point.
+  double t_sum_ns = 0;
+  int t_count = 0;
+  time::TaiNs t_ref = 0;
+  for (int e = 0; e < static_cast<int>(cameras.size()); ++e) {
+    const msg::MarkObservations& mo = cameras[e];
+    const int count = std::min<int>(mo.mark_count, static_cast<int>(mo.marks.size()));
+    out.ids[e].assign(count, -1);
+    if (mo.mark_count > mo.marks.size()) ++w.counts.bad_observation;
+    int slot = -1;
+    for (int s = 0; s < static_cast<int>(rig_.cameras.size()); ++s)
+      if (rig_.cameras[s].camera_id == mo.camera_id) slot = s;
+    if (slot < 0) {
+      ++w.counts.unknown_camera;
+      continue;
+    }
+    bool duplicate = false;
+    for (const auto& c : w.cams)
+      duplicate = duplicate || c.slot == slot;
+    if (duplicate) {
+      ++w.counts.duplicate_camera;
+      continue;
+    }
+    const auto& cal = rig_.cameras[slot];
+    const double mid_ns = static_cast<double>(mo.exposure_duration_ns) / 2 + cal.exposure_offset_ns;
+    if (t_count == 0) t_ref = mo.exposure_start_tai_ns;
+    t_sum_ns += static_cast<double>(mo.exposure_start_tai_ns - t_ref) + mid_ns;
+    ++t_count;
+    Work::Cam cam;
+    cam.slot = slot;
+    cam.span_index = e;
+    const double q2 = config_.pixel_quantisation_px * config_.pixel_quantisation_px / 12;
+    for (int j = 0; j < count; ++j) {
+      const msg::MarkObservation& mk = mo.marks[j];
+      if (!std::isfinite(mk.x_px) || !std::isfinite(mk.y_px)) {
+        ++w.counts.bad_observation;
+        continue;
+      }
+      if (mk.flags & config_.rejected_mark_flags) {
+        ++w.counts.rejected_by_flags;
+        continue;
+      }
+      double sigma = mk.sigma_px;
+      if (!std::isfinite(sigma) || !(sigma > 0)) {
+        sigma = config_.fallback_sigma_px;
+        ++w.counts.fallback_sigma;
+      }
+      Work::Obs ob;
+      ob.slot = slot;
+      ob.cam = static_cast<int>(w.cams.size());
+      ob.span_index = e;
+      ob.mark_index = j;
+      ob.raw = Vec2(mk.x_px, mk.y_px);
+      const auto xy = cal.model.unproject(ob.raw, 1e-6, 30);
+      if (!xy) {
+        ++w.counts.undistort_failed;
+        continue;
+      }
+      ob.xy = *xy;
+      ob.sigma = std::sqrt(sigma * sigma + q2);
+      cam.obs.push_back(static_cast<int>(w.obs.size()));
+      w.obs.push_back(ob);
+      ++w.counts.observations;
+    }
+    w.cams.push_back(std::move(cam));
+  }
+  out.observations = static_cast<int>(w.obs.size());
+  if (t_count > 0)
+    out.t_mid_tai_ns = t_ref + static_cast<time::TaiNs>(std::llround(t_sum_ns / t_count));
+  if (!have_time_origin_ && t_count > 0) {
+    have_time_origin_ = true;
+    time_origin_ns_ = out.t_mid_tai_ns;
+  }
+  const double t_s = static_cast<double>(out.t_mid_tai_ns - time_origin_ns_) * 1e-9;
+
+  w.assigned.assign(marks_.size(), {});
+  w.ambiguous.assign(marks_.size(), {});
+  w.tri.assign(marks_.size(), {});
+  w.fitted.assign(bodies_.size(), false);
+  w.T_w_b.assign(bodies_.size(), Transform::Identity());
+  w.cov_b.assign(bodies_.size(), Mat6::Zero());
+
+  if (t_count > 0) {
+    predict(w, t_s);
+    gate_and_assign(w);
+    verify_views(w);
+    verify_layouts(w);
+    // Bootstrap: a fitted body re-predicts its still-unassigned marks from this exposure's
+    // layout fit (tight), which resolves what the coarse prediction left ambiguous.
+    bool any = false;
+    for (size_t b = 0; b < bodies_.size(); ++b) {
+      if (!w.fitted[b]) continue;
+      for (size_t m = 0; m < marks_.size(); ++m) {
+        if (marks_[m].body != static_cast<int>(b) || w.assigned[m].size() == w.cams.size())
+          continue;
+        const auto G = point_pose_jacobian(w.T_w_b[b], marks_[m].p_body);
+        const double s2 = marks_[m].survey_sigma_m * marks_[m].survey_sigma_m +
+                          config_.min_prediction_sigma_m * config_.min_prediction_sigma_m;
+        w.pred[m].p = w.T_w_b[b] * marks_[m].p_body;
+        w.pred[m].cov = G * w.cov_b[b] * G.transpose() + s2 * Mat3::Identity();
+        w.pred[m].source = PredictionSource::kLayout;
+        w.pred[m].valid = true;
+        any = true;
+      }
+    }
+    if (any) {
+      gate_and_assign(w);
+      verify_views(w);
+      verify_layouts(w);
+    }
+  }
+
+  // Single views: no multi-view check is possible; keep only if allowed.
+  for (size_t m = 0; m < marks_.size(); ++m) {
+    auto& as = w.assigned[m];
+    if (as.size() != 1) continue;
+    const bool from_track = w.pred[m].source != PredictionSource::kPrior;
+    if (!config_.keep_single_view || (config_.single_view_requires_track && !from_track)) {
+      w.obs[as[0]].state = ObsState::kUngated;
+      w.obs[as[0]].mark = -1;
+      as.clear();
+    } else {
+      ++w.counts.single_view;
+    }
+  }
+
+  // Result.
+  for (size_t m = 0; m < marks_.size(); ++m) {
+    const auto& as = w.assigned[m];
+    if (as.empty()) continue;
+    MatchedMark mm;
+    mm.id = marks_[m].id;
+    mm.body = marks_[m].body;
+    mm.source = w.pred[m].source;
+    for (int o : as) {
+      const auto& ob = w.obs[o];
+      const auto& cal = rig_.cameras[ob.slot];
+      mm.observations.push_back({cal.camera_id, ob.span_index, ob.mark_index, ob.raw,
+                                 cal.model.ideal_pixel(ob.xy), ob.xy, ob.sigma});
+      out.ids[ob.span_index][ob.mark_index] = mm.id;
+    }
+    std::sort(mm.observations.begin(), mm.observations.end(),
+              [](const MatchedObservation& a, const MatchedObservation& b) {
+                return a.camera_index < b.camera_index;
+              });
+    mm.triangulated = w.tri[m].valid;
+    mm.p_w = w.tri[m].p;
+    mm.cov_w = w.tri[m].cov;
+    mm.epipolar_chi2 = w.tri[m].chi2;
+    out.marks.push_back(std::move(mm));
+    out.identified += static_cast<int>(as.size());
+  }
+  for (const auto& ob : w.obs) {
+    if (ob.state == ObsState::kAmbiguous) {
+      ++w.counts.ambiguous_observation;
+      ++out.ambiguous;
+    } else if (ob.state == ObsState::kUngated) {
+      ++w.counts.unmatched;
+    }
+  }
+  for (size_t m = 0; m < marks_.size(); ++m) {
+    // Per camera where the mark's gate held >= 2 observations (it may be identified in others).
+    w.counts.ambiguous_mark += w.ambiguous[m].size();
+    out.ambiguous += static_cast<int>(w.ambiguous[m].size());
+  }
+  out.acquired_from_prior = w.acquired;
+  if (w.acquired) ++w.counts.acquisitions;
+  out.T_w_b = w.T_w_b;
+  out.fitted = w.fitted;
+
+  if (t_count > 0) update_tracks(w, t_s);
+
+  // Accumulate counters.
+  auto& c = counters_;
+  const auto& d = w.counts;
+  c.exposures += d.exposures;
+  c.observations += d.observations;
+  c.unknown_camera += d.unknown_camera;
+  c.bad_observation += d.bad_observation;
+  c.fallback_sigma += d.fallback_sigma;
+  c.rejected_by_flags += d.rejected_by_flags;
+  c.undistort_failed += d.undistort_failed;
+  c.unmatched += d.unmatched;
+  c.ambiguous_observation += d.ambiguous_observation;
+  c.ambiguous_mark += d.ambiguous_mark;
+  c.epipolar_outlier += d.epipolar_outlier;
+  c.epipolar_rejected += d.epipolar_rejected;
+  c.layout_rejected += d.layout_rejected;
+  c.single_view += d.single_view;
+  c.acquisitions += d.acquisitions;
+  c.duplicate_camera += d.duplicate_camera;
+  return out;
+}
+
+}  // namespace storetrack::match
