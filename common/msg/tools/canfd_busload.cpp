@@ -18,6 +18,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <fstream>
+#include <map>
 #include <random>
 #include <sstream>
 #include <string>
@@ -175,6 +176,8 @@ struct CaseResult {
   double bytes_per_exposure = 0;               // data bytes incl. padding, all cameras
   double seconds_mean = 0, seconds_worst = 0;  // bus time per trigger, all cameras
   double bits_nominal = 0, bits_data = 0;      // mean per trigger
+  // Per data length: frames, sums of exact nominal/data bits, worst-case nominal/data bits.
+  std::map<int, std::array<double, 5>> by_len;
 };
 
 CaseResult canfd_case(int cameras, double data_bit_rate) {
@@ -195,6 +198,12 @@ CaseResult canfd_case(int cameras, double data_bit_rate) {
         r.seconds_worst += fb.seconds(true, data_bit_rate);
         r.bits_nominal += fb.nominal;
         r.bits_data += fb.data;
+        auto& row = r.by_len[frames[static_cast<std::size_t>(i)].len];
+        row[0] += 1;
+        row[1] += fb.nominal;
+        row[2] += fb.data;
+        row[3] = fb.nominal_worst;
+        row[4] = fb.data_worst;
       }
     }
   }
@@ -239,6 +248,22 @@ std::string render() {
       << fmt("%.1f us", r.seconds_mean * 1e6) << " | " << fmt("%.1f us", r.seconds_worst * 1e6)
       << " | " << fmt("%.1f %%", 100.0 * r.seconds_mean / period) << " | "
       << fmt("%.1f %%", 100.0 * r.seconds_worst / period) << " |\n";
+  }
+  // Anatomy of the frames of one camera's exposure.
+  {
+    const CaseResult one = canfd_case(1, kDataBitRate);
+    o << "\nFrames of one " << kMarks << "-mark exposure (4.4 gives the fields):\n\n"
+      << "| Data bytes (DLC) | Frames / exposure | Nominal-rate bits exact (worst) | "
+         "Data-rate bits exact (worst) | Frame time exact (worst) |\n"
+      << "|---:|---:|---:|---:|---:|\n";
+    for (const auto& [len, row] : one.by_len) {
+      const double nominal = row[1] / row[0], data = row[2] / row[0];
+      o << "| " << len << " | " << fmt("%.0f", row[0] / kSamples) << " | "
+        << fmt("%.1f (%.0f)", nominal, row[3]) << " | " << fmt("%.1f (%.0f)", data, row[4]) << " | "
+        << fmt("%.1f us (%.1f us)", 1e6 * (nominal / kNominalBitRate + data / kDataBitRate),
+               1e6 * (row[3] / kNominalBitRate + row[4] / kDataBitRate))
+        << " |\n";
+    }
   }
   // UnitHealth: 1 Hz per unit, negligible but shown.
   {
