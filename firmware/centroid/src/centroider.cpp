@@ -99,9 +99,8 @@ Centroider::Centroider(const CentroidConfig& config, int max_width, int max_heig
   if (config.min_area_px < 1) fail("min_area_px must be >= 1");
   if (config.max_area_px < config.min_area_px) fail("max_area_px must be >= min_area_px");
   if (config.background_tile_px < 1) fail("background_tile_px must be >= 1");
-  if (config.background_sample_step_px < 1) fail("background_sample_step_px must be >= 1");
-  if (config.background_sample_step_px > config.background_tile_px)
-    fail("background_sample_step_px must be <= background_tile_px");
+  if (config.background_row_step_px < 1 || config.background_column_step_px < 1)
+    fail("background_row_step_px and background_column_step_px must be >= 1");
   if (!(config.read_noise_e >= 0)) fail("read_noise_e must be >= 0");
   if (!(config.gain_e_per_dn > 0)) fail("gain_e_per_dn must be > 0");
   if (config.saturation_dn < 0) fail("saturation_dn must be >= 0");
@@ -136,11 +135,11 @@ Centroider::Centroider(const CentroidConfig& config, int max_width, int max_heig
   chunk_tile_.resize(max_chunks);
   for (int c = 0; c < max_chunks; ++c)
     chunk_tile_[c] = c * kChunk / tile_px_;
-  const int samples_per_side = tile_px_ / config.background_sample_step_px + 1;
-  samples_.resize(static_cast<size_t>(samples_per_side) * samples_per_side);
+  samples_.resize(static_cast<size_t>(tile_px_ / config.background_row_step_px + 1) *
+                  (tile_px_ / config.background_column_step_px + 1));
   const int patch_side = 2 * config.max_window_half_px + 1;
   patch_.resize(static_cast<size_t>(patch_side) * patch_side);
-  patch_var_.resize(patch_.size());
+  patch_keep_.resize(patch_.size());
   wx_.resize(patch_side);
   wy_.resize(patch_side);
   dx_.resize(patch_side);
@@ -273,13 +272,16 @@ int Centroider::process_regions(const frame::FrameView& frame, std::span<Blob> o
 
 template <typename Pixel>
 void Centroider::estimate_background(const frame::FrameView& frame) {
-  const int step = config_.background_sample_step_px;
+  // Few rows, many pixels per row: a sampled row costs its cache lines once, so this reads
+  // 1/row_step of the frame's memory for the same number of samples as a square grid.
+  const int row_step = config_.background_row_step_px;
+  const int step = config_.background_column_step_px;
   const double read_dn = config_.read_noise_e / config_.gain_e_per_dn;
   std::array<std::uint32_t, 256> histogram{};
   for (int ty = 0; ty < tiles_y_; ++ty) {
     const int y0 = ty * tile_px_;
     const int y1 = std::min(y0 + tile_px_, frame.height);
-    const int ys = y0 + std::min(step / 2, (y1 - y0 - 1) / 2);
+    const int ys = y0 + std::min(row_step / 2, (y1 - y0 - 1) / 2);
     for (int tx = 0; tx < tiles_x_; ++tx) {
       const int x0 = tx * tile_px_;
       const int x1 = std::min(x0 + tile_px_, frame.width);
@@ -291,7 +293,7 @@ void Centroider::estimate_background(const frame::FrameView& frame) {
       if constexpr (sizeof(Pixel) == 1) {
         histogram.fill(0);
         int n = 0;
-        for (int y = ys; y < y1; y += step) {
+        for (int y = ys; y < y1; y += row_step) {
           const Pixel* row = row_pointer<Pixel>(frame, y);
           for (int x = xs; x < x1; x += step)
             ++histogram[row[x]];
@@ -312,7 +314,7 @@ void Centroider::estimate_background(const frame::FrameView& frame) {
         }
       } else {
         int n = 0;
-        for (int y = ys; y < y1; y += step) {
+        for (int y = ys; y < y1; y += row_step) {
           const Pixel* row = row_pointer<Pixel>(frame, y);
           for (int x = xs; x < x1; x += step)
             samples_[n++] = row[x];
@@ -650,9 +652,9 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
 
   int px0 = 0, py0 = 0, pw = 0, ph = 0, half = 0;
   bool clipped = false;
-  double flux = 0;
   // Copies the (2 half + 1)^2 patch around (xc, yc), background-subtracted, with the pixels of
-  // other marks' boxes zeroed so a neighbour cannot pull the window.
+  // other marks' boxes zeroed (and their keep weight in patch_keep_ 0) so a neighbour cannot
+  // pull the window.
   auto extract = [&](int new_half) {
     half = new_half;
     const int cx = static_cast<int>(std::lround(xc)), cy = static_cast<int>(std::lround(yc));
@@ -664,15 +666,15 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
     pw = x1 - x0 + 1;
     ph = y1 - y0 + 1;
     if (pw < 3 || ph < 3) return false;
-    flux = 0;
+    const float b = background;
     for (int j = 0; j < ph; ++j) {
-      const Pixel* row = row_pointer<Pixel>(frame, py0 + j);
+      const Pixel* row = row_pointer<Pixel>(frame, py0 + j) + px0;
       float* p = &patch_[static_cast<size_t>(j) * pw];
-      float* v = &patch_var_[static_cast<size_t>(j) * pw];
+      float* keep = &patch_keep_[static_cast<size_t>(j) * pw];
+#pragma omp simd
       for (int i = 0; i < pw; ++i) {
-        const int value = row[px0 + i];
-        p[i] = static_cast<float>(value - background);
-        v[i] = static_cast<float>(pixel_variance_dn2(value));
+        p[i] = static_cast<float>(row[i]) - b;
+        keep[i] = 1.0f;
       }
     }
     for (int k = 0; k < selected_count_; ++k) {
@@ -686,12 +688,10 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
           // Never blank our own thresholded box (overlapping boxes of touching marks).
           if (x >= c.xmin && x <= c.xmax && y >= c.ymin && y <= c.ymax) continue;
           patch_[static_cast<size_t>(y - py0) * pw + (x - px0)] = 0;
-          patch_var_[static_cast<size_t>(y - py0) * pw + (x - px0)] = 0;
+          patch_keep_[static_cast<size_t>(y - py0) * pw + (x - px0)] = 0;
         }
       }
     }
-    for (int j = 0; j < ph * pw; ++j)
-      flux += patch_[j];
     return true;
   };
   auto half_for = [max_half](double s) {
@@ -760,22 +760,29 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
   // Standard deviation by linearising the fixed-point equation g(xc) = sum w (x - xc) p = 0:
   //   var(xc) = sum w^2 (x - xc)^2 var_i / D^2,  D = -dg/dxc = sum w p (1 - (x - xc)^2 / s_w^2).
   weights(sigma);
-  double s = 0, qx = 0, qy = 0, vx = 0, vy = 0;
+  double s = 0, qx = 0, qy = 0, vx = 0, vy = 0, flux = 0;
   for (int j = 0; j < ph; ++j) {
     const float* p = &patch_[static_cast<size_t>(j) * pw];
-    const float* v = &patch_var_[static_cast<size_t>(j) * pw];
+    const float* keep = &patch_keep_[static_cast<size_t>(j) * pw];
     const float* wx = wx_.data();
     const float* dx = dx_.data();
-    float r0 = 0, r2 = 0, a0 = 0, a2 = 0;
-#pragma omp simd reduction(+ : r0, r2, a0, a2)
+    // Per-pixel variance from the noise model, evaluated on the pixel's own reading.
+    const float above_black = background - static_cast<float>(config_.black_level_dn);
+    const float per_dn = static_cast<float>(variance_per_dn_);
+    const float offset = static_cast<float>(variance_offset_dn2_);
+    float r0 = 0, r2 = 0, a0 = 0, a2 = 0, f = 0;
+#pragma omp simd reduction(+ : r0, r2, a0, a2, f)
     for (int i = 0; i < pw; ++i) {
       const float wp = wx[i] * p[i];
-      const float w2v = wx[i] * wx[i] * v[i];
+      const float var = keep[i] * (std::max(p[i] + above_black, 0.0f) * per_dn + offset);
+      const float w2v = wx[i] * wx[i] * var;
       r0 += wp;
       r2 += wp * dx[i] * dx[i];
       a0 += w2v;
       a2 += w2v * dx[i] * dx[i];
+      f += p[i];
     }
+    flux += f;
     const double wy2 = wy_[j] * wy_[j];
     s += wy_[j] * r0;
     qx += wy_[j] * r2;

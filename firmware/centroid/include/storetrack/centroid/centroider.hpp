@@ -40,7 +40,8 @@ struct CentroidConfig {
   int max_area_px = 600;  ///< larger components are flagged merged
   // --- Background -------------------------------------------------------------------------
   int background_tile_px = 128;       ///< tile edge; rounded up to a multiple of 32
-  int background_sample_step_px = 8;  ///< sparse sampling grid inside a tile
+  int background_row_step_px = 16;    ///< background samples: every n-th row of a tile,
+  int background_column_step_px = 4;  ///< every n-th pixel of those rows
   // --- Noise model (EMVA 1288 linear camera), for thresholds and sigma_px ----------------------
   double read_noise_e = 12.0;   ///< temporal read noise [e-]
   double gain_e_per_dn = 20.0;  ///< electrons per DN of the frame's format
@@ -183,7 +184,8 @@ class Centroider {
   std::vector<std::int32_t> chunk_tile_;      // tile column of each 32-pixel chunk
   std::vector<std::uint16_t> samples_;        // one tile's background samples (Mono16)
   std::vector<float> sorted_tiles_;           // tile levels for the frame median
-  std::vector<float> patch_, patch_var_;      // refinement patch (background-subtracted)
+  std::vector<float> patch_;      // refinement patch, background-subtracted [DN]
+  std::vector<float> patch_keep_;  // 1: pixel used, 0: it belongs to another mark's box
   std::vector<float> wx_, wy_, dx_, dy_;  // window samples and offsets of the patch
   CentroidStats stats_;
 };
