@@ -1,8 +1,8 @@
 # Warnings for project targets only (not for Debian's headers, which are SYSTEM includes).
 add_library(storetrack_warnings INTERFACE)
 target_compile_options(storetrack_warnings INTERFACE
-  -Wall -Wextra -Wpedantic -Wshadow=local -Wnon-virtual-dtor -Wcast-align -Wformat=2
-  -Wimplicit-fallthrough)
+  -Wall -Wextra -Wpedantic -Wnon-virtual-dtor -Wcast-align -Wformat=2 -Wimplicit-fallthrough
+  $<$<CXX_COMPILER_ID:GNU>:-Wshadow=local>)
 if(STORETRACK_WERROR)
   target_compile_options(storetrack_warnings INTERFACE -Werror)
 endif()
