@@ -87,13 +87,31 @@ def main():
         errors.append("no nominal intervals")
     if a.expect_count is not None and len(rises) != a.expect_count:
         errors.append(f"{len(rises)} rising edges, want {a.expect_count}")
-    if extra != a.expect_extra:
-        errors.append(f"{extra} extra edges detected, want {a.expect_extra}")
-    if missing != a.expect_missing:
-        errors.append(f"{missing} missing edges detected, want {a.expect_missing}")
+    timing_ok = True
     if a.log:
         with open(a.log) as f:
-            sent = [r for r in csv.DictReader(f) if r["kind"] != "missing"]
+            rows = list(csv.DictReader(f))
+        sent = [r for r in rows if r["kind"] != "missing"]
+        log_missing = sum(1 for r in rows if r["kind"] == "missing")
+        log_extra = sum(1 for r in rows if r["kind"] in ("double", "burst"))
+        late = max(int(r["rise_mono_ns"]) - int(r["planned_rise_mono_ns"]) for r in sent)
+        print(f"emulator log: {len(sent)} sent, {log_missing} withheld, {log_extra} extra, "
+              f"max lateness {late / 1e6:.3f} ms")
+        if log_missing != a.expect_missing or log_extra != a.expect_extra:
+            errors.append(f"emulator logged {log_missing} missing / {log_extra} extra, want "
+                          f"{a.expect_missing} / {a.expect_extra}")
+        # A pulse played later than a quarter period (a starved TCG vCPU on a loaded host)
+        # really is off-rate on the wire: then the edge classification cannot be held to the
+        # script, only to the log (every edge must still match its logged pulse, below).
+        timing_ok = late < 0.25 * period
+        if not timing_ok:
+            print("NOTE: emulator ran late by > period/4 (loaded host); fault classification "
+                  "of the edges is reported, not asserted")
+    if timing_ok and extra != a.expect_extra:
+        errors.append(f"{extra} extra edges detected, want {a.expect_extra}")
+    if timing_ok and missing != a.expect_missing:
+        errors.append(f"{missing} missing edges detected, want {a.expect_missing}")
+    if a.log:
         if len(sent) != len(rises):
             errors.append(f"emulator logged {len(sent)} pulses, line saw {len(rises)} rising edges")
         tol = int(a.tol_ms * 1e6)

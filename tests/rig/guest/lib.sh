@@ -29,5 +29,6 @@ gpiosim_new() {
 # vcan_up IF: a CAN FD capable virtual bus
 vcan_up() {
   modprobe -a vcan can_raw || fail "modprobe vcan can_raw"
+  ip link del "$1" 2>/dev/null  # an earlier test in this VM may have left it
   ip link add "$1" type vcan && ip link set "$1" mtu 72 && ip link set up "$1" || fail "vcan $1"
 }
