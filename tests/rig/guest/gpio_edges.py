@@ -40,6 +40,10 @@ def rising_edges(path, fmt):
             if fmt == "gpiomon":  # '%e %s %n': event (1 rising), seconds, nanoseconds
                 if p[0] == "1":
                     out.append(int(p[1]) * 1_000_000_000 + int(p[2]))
+            elif fmt == "unitcsv":  # storetrack-unit --edges-csv: line_count,t_mono_ns,...
+                if p[0].startswith("line_count"):
+                    continue
+                out.append(int(line.split(",")[1]))
             else:  # poll: 't_ns level', first line is the initial level
                 out.append((int(p[0]), p[1]))
     if fmt == "poll":
@@ -56,7 +60,7 @@ def main():
     p.add_argument("seconds", type=float)
     c = sub.add_parser("check")
     c.add_argument("--edges", required=True)
-    c.add_argument("--format", choices=["gpiomon", "poll"], default="gpiomon")
+    c.add_argument("--format", choices=["gpiomon", "poll", "unitcsv"], default="gpiomon")
     c.add_argument("--rate", type=float, required=True)
     c.add_argument("--rate-tol", type=float, default=0.02, help="relative, median interval")
     c.add_argument("--expect-count", type=int)
