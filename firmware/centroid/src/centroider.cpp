@@ -37,8 +37,8 @@ constexpr int kLanes = 16 / static_cast<int>(sizeof(Pixel));
 template <typename Pixel>
 const Pixel* row_pointer(const frame::FrameView& frame, int y) {
   // The frame check guarantees 2-byte alignment of Mono16 rows.
-  return static_cast<const Pixel*>(static_cast<const void*>(
-      frame.pixels + static_cast<std::ptrdiff_t>(y) * frame.stride_bytes));
+  return static_cast<const Pixel*>(
+      static_cast<const void*>(frame.pixels + static_cast<std::ptrdiff_t>(y) * frame.stride_bytes));
 }
 
 /// True if any of the kPixels pixels at p is above level.
@@ -82,7 +82,8 @@ void gaussian_window(int x0, int n, double c, double s, float* d, float* w) {
     w[i] = static_cast<float>(wi);
     r *= q;
   }
-  for (int i = 0; i < n; ++i) d[i] = static_cast<float>(x0 + i - c);
+  for (int i = 0; i < n; ++i)
+    d[i] = static_cast<float>(x0 + i - c);
 }
 
 }  // namespace
@@ -633,6 +634,85 @@ bool Centroider::measure(const frame::FrameView& frame, int candidate_index, Blo
   return true;
 }
 
+bool Centroider::photon_weighted_step(double sigma, float background, double& xc, double& yc,
+                                      double& var_x, double& var_y) {
+  // Maximum-likelihood estimating equation for a Gaussian spot g of amplitude A under the
+  // Poisson + read noise model (the score of x: sum (I_i - mu_i) dmu_i/dx / var_i = 0, e.g.
+  // Smith et al. 2010, Nat. Methods 7:373; Mortensen et al. 2010, Nat. Methods 7:377): by the
+  // spot's symmetry it reduces to sum p_i (x_i - xc) W_i = 0 with the weight
+  //   W = g / (v0 + k A g),   v0 = background variance [DN^2], k = 1 / gain [DN^2 / DN],
+  // i.e. the Gaussian window flattened where photon noise dominates. Two Newton steps from the
+  // windowed solution (already within the noise of the ML solution).
+  const float above_black = background - static_cast<float>(config_.black_level_dn);
+  const float per_dn = static_cast<float>(variance_per_dn_);
+  const float offset = static_cast<float>(variance_offset_dn2_);
+  const float v0 = std::max(above_black, 0.0f) * per_dn + offset;
+  const double inv_s2 = 1.0 / (sigma * sigma);
+  double new_x = xc, new_y = yc, new_var_x = 0, new_var_y = 0;
+  for (int pass = 0; pass < 2; ++pass) {
+    gaussian_window(patch_x0_, patch_w_, new_x, sigma, dx_.data(), wx_.data());
+    gaussian_window(patch_y0_, patch_h_, new_y, sigma, dy_.data(), wy_.data());
+    // Least-squares amplitude of the Gaussian template: A = sum g p / sum g^2.
+    double sgp = 0, sgx2 = 0, sgy2 = 0;
+    for (int i = 0; i < patch_w_; ++i)
+      sgx2 += double(wx_[i]) * wx_[i];
+    for (int j = 0; j < patch_h_; ++j) {
+      const float* p = &patch_[static_cast<size_t>(j) * patch_w_];
+      float r = 0;
+      for (int i = 0; i < patch_w_; ++i)
+        r += wx_[i] * p[i];
+      sgp += wy_[j] * double(r);
+      sgy2 += double(wy_[j]) * wy_[j];
+    }
+    const float ka = static_cast<float>(std::max(sgp / (sgx2 * sgy2), 0.0) * per_dn);
+    const float c_var = static_cast<float>(v0 * inv_s2);
+    double gx = 0, gy = 0, ddx = 0, ddy = 0, vx = 0, vy = 0;
+    for (int j = 0; j < patch_h_; ++j) {
+      const float* p = &patch_[static_cast<size_t>(j) * patch_w_];
+      const float* keep = &patch_keep_[static_cast<size_t>(j) * patch_w_];
+      const float* wx = wx_.data();
+      const float* dx = dx_.data();
+      const float wy = wy_[j], dy = dy_[j];
+      float rx = 0, ry = 0, rdx = 0, rdy = 0, rvx = 0, rvy = 0;
+#pragma omp simd reduction(+ : rx, ry, rdx, rdy, rvx, rvy)
+      for (int i = 0; i < patch_w_; ++i) {
+        const float g = wx[i] * wy;
+        const float inv = 1.0f / (v0 + ka * g);
+        const float w = g * inv;
+        const float pw = p[i] * w;
+        const float c = c_var * inv;  // v0 / (s^2 (v0 + k A g))
+        const float var = keep[i] * (std::max(p[i] + above_black, 0.0f) * per_dn + offset);
+        const float w2v = w * w * var;
+        rx += pw * dx[i];
+        ry += pw * dy;
+        rdx += pw * (1.0f - dx[i] * dx[i] * c);
+        rdy += pw * (1.0f - dy * dy * c);
+        rvx += w2v * dx[i] * dx[i];
+        rvy += w2v * dy * dy;
+      }
+      gx += rx;
+      gy += ry;
+      ddx += rdx;
+      ddy += rdy;
+      vx += rvx;
+      vy += rvy;
+    }
+    if (!(ddx > 0) || !(ddy > 0)) return false;
+    const double step_x = gx / ddx, step_y = gy / ddy;
+    // A step beyond a few windowed sigmas means the model does not fit: keep the windowed one.
+    if (std::abs(step_x) > 0.5 || std::abs(step_y) > 0.5) return false;
+    new_x += step_x;
+    new_y += step_y;
+    new_var_x = vx / (ddx * ddx);
+    new_var_y = vy / (ddy * ddy);
+  }
+  xc = new_x;
+  yc = new_y;
+  var_x = new_var_x;
+  var_y = new_var_y;
+  return true;
+}
+
 template <typename Pixel>
 bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob& blob) {
   const Candidate& c = candidates_[candidate_index];
@@ -661,10 +741,10 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
     const int x0 = std::max(cx - half, region.x0), x1 = std::min(cx + half, region.x1 - 1);
     const int y0 = std::max(cy - half, region.y0), y1 = std::min(cy + half, region.y1 - 1);
     clipped = x0 != cx - half || x1 != cx + half || y0 != cy - half || y1 != cy + half;
-    px0 = x0;
-    py0 = y0;
-    pw = x1 - x0 + 1;
-    ph = y1 - y0 + 1;
+    px0 = patch_x0_ = x0;
+    py0 = patch_y0_ = y0;
+    pw = patch_w_ = x1 - x0 + 1;
+    ph = patch_h_ = y1 - y0 + 1;
     if (pw < 3 || ph < 3) return false;
     const float b = background;
     for (int j = 0; j < ph; ++j) {
@@ -793,7 +873,8 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
   const double inv_s2 = 1.0 / (sigma * sigma);
   const double dxd = s - qx * inv_s2, dyd = s - qy * inv_s2;
   if (!(dxd > 0) || !(dyd > 0)) return false;
-  const double var_x = vx / (dxd * dxd), var_y = vy / (dyd * dyd);
+  double var_x = vx / (dxd * dxd), var_y = vy / (dyd * dyd);
+  if (config_.photon_weighting) photon_weighted_step(sigma, background, xc, yc, var_x, var_y);
   blob.x_px = xc;
   blob.y_px = yc;
   blob.sigma_px = std::sqrt(0.5 * (var_x + var_y));
