@@ -1,0 +1,155 @@
+// Survey and scenario files: round trips and errors that name file and field.
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "storetrack/sim/body.hpp"
+#include "storetrack/sim/scenario.hpp"
+
+namespace storetrack::sim {
+namespace {
+
+std::string temp_path(const std::string& name) {
+  return (std::filesystem::temp_directory_path() /
+          ("storetrack_sim_" + std::to_string(::getpid()) + "_" + name))
+      .string();
+}
+
+RigidBodySurvey example_survey() {
+  RigidBodySurvey s;
+  s.name = "store";
+  s.frame = 's';
+  s.mark_diameter_m = 0.02;
+  s.marks.push_back({100, geometry::Vec3(0.75, -0.1299038105676658, -0.075), 2e-4});
+  s.marks.push_back({101, geometry::Vec3(-0.25, 0.0513, -0.1409), 1.5e-4});
+  return s;
+}
+
+TEST(SurveyFile, RoundTripIsExact) {
+  const RigidBodySurvey s = example_survey();
+  const std::string path = temp_path("survey.json");
+  write_survey(s, path);
+  const RigidBodySurvey r = read_survey(path);
+  std::filesystem::remove(path);
+  EXPECT_EQ(r.name, s.name);
+  EXPECT_EQ(r.frame, s.frame);
+  EXPECT_EQ(r.mark_diameter_m, s.mark_diameter_m);
+  ASSERT_EQ(r.marks.size(), s.marks.size());
+  for (std::size_t i = 0; i < s.marks.size(); ++i) {
+    EXPECT_EQ(r.marks[i].id, s.marks[i].id);
+    EXPECT_EQ(r.marks[i].p_body, s.marks[i].p_body);  // exact: JSON keeps 17 digits
+    EXPECT_EQ(r.marks[i].sigma_m, s.marks[i].sigma_m);
+  }
+  EXPECT_NE(r.find(101), nullptr);
+  EXPECT_EQ(r.find(7), nullptr);
+}
+
+void expect_survey_error(const std::string& text, const std::string& needle) {
+  try {
+    parse_survey(text, "bad_survey.json");
+    FAIL() << "no error for " << text;
+  } catch (const SurveyFileError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("bad_survey.json"), std::string::npos) << what;
+    EXPECT_NE(what.find(needle), std::string::npos) << what;
+  }
+}
+
+TEST(SurveyFile, BadFilesNameFileAndField) {
+  nlohmann::json good = nlohmann::json::parse(format_survey(example_survey()));
+  expect_survey_error("{not json", "not valid JSON");
+  auto j = good;
+  j.erase("mark_diameter_m");
+  expect_survey_error(j.dump(), "mark_diameter_m");
+  j = good;
+  j["marks"][1]["p_body_m"] = {1.0, 2.0};
+  expect_survey_error(j.dump(), "marks[1].p_body_m");
+  j = good;
+  j["marks"][1]["id"] = 100;
+  expect_survey_error(j.dump(), "duplicate");
+  j = good;
+  j["marks"][0]["sigma_m"] = -1.0;
+  expect_survey_error(j.dump(), "marks[0].sigma_m");
+  j = good;
+  j["marks"][0]["p_body_m"][2] = "x";
+  expect_survey_error(j.dump(), "marks[0].p_body_m[2]");
+  j = good;
+  j["frame"] = "store";
+  expect_survey_error(j.dump(), "frame");
+  EXPECT_THROW(read_survey("/nonexistent/survey.json"), SurveyFileError);
+}
+
+std::string scenario_text() {
+  std::ifstream in(std::string(STORETRACK_SIM_SCENARIO_DIR) + "/static.json");
+  std::stringstream buf;
+  buf << in.rdbuf();
+  return buf.str();
+}
+
+void expect_scenario_error(const nlohmann::json& j, const std::string& needle) {
+  try {
+    parse_scenario(j.dump(), "bad_scenario.json");
+    FAIL() << "no error, expected " << needle;
+  } catch (const ScenarioError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("bad_scenario.json"), std::string::npos) << what;
+    EXPECT_NE(what.find(needle), std::string::npos) << what;
+  }
+}
+
+TEST(ScenarioFile, BadFilesNameFileAndField) {
+  const nlohmann::json good = nlohmann::json::parse(scenario_text());
+  EXPECT_NO_THROW(parse_scenario(good.dump(), "ok.json"));
+  auto j = good;
+  j["kind"] = "flutter";
+  expect_scenario_error(j, "kind");
+  j = good;
+  j["timing"]["frame_rate_hz"] = "fast";
+  expect_scenario_error(j, "timing.frame_rate_hz");
+  j = good;
+  j["timing"]["exposure_ns"] = 5000000;  // longer than the 2.5 ms frame period
+  expect_scenario_error(j, "timing.exposure_ns");
+  j = good;
+  j["cameras"][1]["intrinsics"].erase("fx");
+  expect_scenario_error(j, "cameras[1].intrinsics.fx");
+  j = good;
+  j["cameras"][0]["lens"] = 1;
+  expect_scenario_error(j, "cameras[0].lens");
+  j = good;
+  j["cameras"][1]["camera_id"] = 0;
+  expect_scenario_error(j, "duplicate camera id");
+  j = good;
+  j.erase("store_survey");
+  expect_scenario_error(j, "store_survey");
+  j = good;
+  j["store_survey"]["marks"][3].erase("sigma_m");
+  expect_scenario_error(j, "marks[3].sigma_m");
+  j = good;
+  j["optics"]["sensor"]["bits"] = 20;
+  expect_scenario_error(j, "optics.sensor.bits");
+  EXPECT_THROW(load_scenario("/nonexistent.json"), ScenarioError);
+}
+
+TEST(ScenarioFile, ValuesAreRead) {
+  const Scenario sc = parse_scenario(scenario_text(), "static.json");
+  EXPECT_EQ(sc.kind, ScenarioKind::kStatic);
+  EXPECT_EQ(sc.frame_rate_hz, 400);
+  EXPECT_EQ(sc.exposure_ns, 500000u);
+  EXPECT_EQ(sc.cameras.size(), 4u);
+  EXPECT_EQ(sc.cameras[0].intrinsics.width, 1920);
+  EXPECT_EQ(sc.cameras[0].intrinsics.height, 1024);
+  EXPECT_NEAR(sc.cameras[0].roll_rad, M_PI / 2, 1e-12);
+  EXPECT_EQ(sc.optics.sensor.full_scale_dn, 255);
+  EXPECT_EQ(sc.store.marks.size(), 16u);
+  // Baselines of the rig: 0.5 .. 3 m (pylon pods).
+  const double baseline = (sc.cameras[0].position_p_m - sc.cameras[1].position_p_m).norm();
+  EXPECT_GT(baseline, 0.5);
+  EXPECT_LT(baseline, 1.5);
+}
+
+}  // namespace
+}  // namespace storetrack::sim

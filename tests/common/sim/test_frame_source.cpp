@@ -1,0 +1,130 @@
+// SimFrameSource: sequence, timing, ring discipline, no allocation per frame; PGM sequences.
+#include <atomic>
+#include <cerrno>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <new>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "storetrack/sim/frame_source.hpp"
+
+namespace {
+std::atomic<long> g_allocations{0};
+}  // namespace
+
+void* operator new(std::size_t n) {
+  g_allocations.fetch_add(1, std::memory_order_relaxed);
+  if (void* p = std::malloc(n ? n : 1)) return p;
+  throw std::bad_alloc();
+}
+void operator delete(void* p) noexcept {
+  std::free(p);
+}
+void operator delete(void* p, std::size_t) noexcept {
+  std::free(p);
+}
+
+namespace storetrack::sim {
+namespace {
+
+Scenario short_scenario(int n) {
+  Scenario sc = load_scenario(std::string(STORETRACK_SIM_SCENARIO_DIR) + "/store_separation.json");
+  sc.num_exposures = n;
+  sc.cameras.resize(2);
+  return sc;
+}
+
+TEST(SimFrameSource, DeliversTheSequenceWithTimestampsAndEndsWithNoData) {
+  const Simulator sim(short_scenario(5), 3);
+  SimFrameSource src(sim, 1, 2);
+  frame::FrameView f;
+  EXPECT_EQ(src.acquire(f, 0), -EINVAL);  // not started
+  ASSERT_EQ(src.start(), 0);
+  std::vector<std::uint8_t> reference;
+  for (int k = 0; k < 5; ++k) {
+    ASSERT_EQ(src.acquire(f, 0), 0);
+    EXPECT_EQ(f.sequence, sim.scenario().first_trigger_seq + static_cast<std::uint32_t>(k));
+    EXPECT_EQ(f.width, 1920);
+    EXPECT_EQ(f.height, 1024);
+    EXPECT_EQ(f.exposure_ns, sim.scenario().exposure_ns);
+    EXPECT_EQ(f.timestamp_mono_ns, sim.exposure_timing(k, 1).reported_start_mono_ns);
+    sim.render(k, 1, reference);  // deterministic: the same frame
+    EXPECT_EQ(0, std::memcmp(reference.data(), f.pixels, reference.size()));
+    EXPECT_EQ(src.release(f), 0);
+    EXPECT_EQ(src.release(f), -EINVAL);  // double release
+  }
+  EXPECT_EQ(src.acquire(f, 0), -ENODATA);
+  EXPECT_EQ(src.stop(), 0);
+}
+
+TEST(SimFrameSource, RingIsFiniteAndPerFramePathDoesNotAllocate) {
+  const Simulator sim(short_scenario(12), 3);
+  SimFrameSource src(sim, 0, 3);
+  ASSERT_EQ(src.start(), 0);
+  frame::FrameView a, b, c, d;
+  ASSERT_EQ(src.acquire(a, 0), 0);  // warm-up frame
+  ASSERT_EQ(src.release(a), 0);
+  const long before = g_allocations.load();
+  ASSERT_EQ(src.acquire(a, 0), 0);
+  ASSERT_EQ(src.acquire(b, 0), 0);
+  ASSERT_EQ(src.acquire(c, 0), 0);
+  EXPECT_EQ(src.acquire(d, 0), -EBUSY);
+  EXPECT_NE(a.buffer_index, b.buffer_index);
+  EXPECT_EQ(src.release(b), 0);
+  ASSERT_EQ(src.acquire(d, 0), 0);
+  EXPECT_EQ(d.buffer_index, b.buffer_index);
+  EXPECT_EQ(g_allocations.load() - before, 0);
+  EXPECT_EQ(src.release(a), 0);
+  EXPECT_EQ(src.release(c), 0);
+  EXPECT_EQ(src.release(d), 0);
+}
+
+TEST(FrameSequence, PgmAndTriggerFileRoundTrip) {
+  const Simulator sim(short_scenario(3), 9);
+  const std::string dir = (std::filesystem::temp_directory_path() /
+                           ("storetrack_sim_seq_" + std::to_string(::getpid())))
+                              .string();
+  write_frame_sequence(sim, 0, dir);
+  std::ifstream triggers(dir + "/triggers.csv");
+  std::string header, line;
+  std::getline(triggers, header);
+  EXPECT_EQ(header.rfind("frame,trigger_seq,trigger_tai_ns,reported_start_tai_ns", 0), 0u);
+  std::vector<std::uint8_t> expected;
+  for (int k = 0; k < 3; ++k) {
+    ASSERT_TRUE(std::getline(triggers, line));
+    EXPECT_EQ(
+        line.rfind(std::to_string(k) + "," + std::to_string(sim.scenario().first_trigger_seq + k) +
+                       "," + std::to_string(sim.trigger_tai_ns(k)),
+                   0),
+        0u)
+        << line;
+    char name[64];
+    std::snprintf(name, sizeof name, "/frame_%06d.pgm", k);
+    int w = 0, h = 0;
+    const std::vector<std::uint8_t> px = read_pgm(dir + name, w, h);
+    EXPECT_EQ(w, 1920);
+    EXPECT_EQ(h, 1024);
+    sim.render(k, 0, expected);
+    EXPECT_EQ(px, expected);
+  }
+  EXPECT_FALSE(std::getline(triggers, line));
+  // Truncated files are rejected with the file name.
+  {
+    std::ofstream bad(dir + "/bad.pgm", std::ios::binary);
+    bad << "P5\n10 10\n255\n" << std::string(20, 'x');
+  }
+  int w = 0, h = 0;
+  try {
+    read_pgm(dir + "/bad.pgm", w, h);
+    FAIL();
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("bad.pgm"), std::string::npos);
+  }
+  std::filesystem::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace storetrack::sim
