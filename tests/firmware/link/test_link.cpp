@@ -20,6 +20,14 @@
 namespace storetrack::link {
 namespace {
 
+// UdpLinkConfig has a member without a default initializer: brace-initialising only the
+// destination trips -Wmissing-field-initializers (-Werror).
+UdpLinkConfig udp_config(std::string destination) {
+  UdpLinkConfig c;
+  c.destination = std::move(destination);
+  return c;
+}
+
 struct Receiver {
   int fd = -1;
   int port = 0;
@@ -121,7 +129,7 @@ TEST(UdpLink, ObservationsArriveOnLoopbackAndDecode) {
 
 TEST(UdpLink, UnencodableMessageIsCountedNotSent) {
   Receiver rx;
-  UdpLink link(UdpLinkConfig{"127.0.0.1:" + std::to_string(rx.port)});
+  UdpLink link(udp_config("127.0.0.1:" + std::to_string(rx.port)));
   ASSERT_EQ(link.open(), 0);
   auto m = make_observations(1);
   m.marks[0].x_px = NAN;
@@ -132,7 +140,7 @@ TEST(UdpLink, UnencodableMessageIsCountedNotSent) {
 }
 
 TEST(UdpLink, BadDestinationIsAClearError) {
-  UdpLink link(UdpLinkConfig{"localhost"});
+  UdpLink link(udp_config("localhost"));
   EXPECT_EQ(link.open(), -EINVAL);
   EXPECT_NE(std::string(link.error()).find("localhost"), std::string::npos);
   sockaddr_in a{};
@@ -143,7 +151,7 @@ TEST(UdpLink, BadDestinationIsAClearError) {
 }
 
 TEST(UdpLink, MulticastSocketOpens) {
-  UdpLink link(UdpLinkConfig{"239.255.42.1:50001"});
+  UdpLink link(udp_config("239.255.42.1:50001"));
   EXPECT_EQ(link.open(), 0) << link.error();
 }
 
