@@ -369,3 +369,24 @@ TEST(Simulator, VibrationMovesPylonAndCamerasTogether) {
 
 }  // namespace
 }  // namespace storetrack::sim
+
+namespace storetrack::sim {
+namespace {
+
+TEST(Simulator, FarPylonMarksReappearAsTheStoreDrops) {
+  const Simulator sim(load_scenario(scenario_path("store_separation")), 1);
+  const ExposureTruth before = sim.truth(0), after = sim.truth(60);
+  int reappeared = 0;
+  for (std::size_t m = 0; m < before.marks.size(); ++m) {
+    if (before.marks[m].id >= 100) continue;  // pylon marks
+    for (int c = 0; c < sim.num_cameras(); ++c) {
+      const auto& b = before.marks[m].cameras[static_cast<std::size_t>(c)];
+      const auto& a = after.marks[m].cameras[static_cast<std::size_t>(c)];
+      if (b.occluded && !a.occluded && a.visible) ++reappeared;
+    }
+  }
+  EXPECT_GT(reappeared, 0);
+}
+
+}  // namespace
+}  // namespace storetrack::sim
