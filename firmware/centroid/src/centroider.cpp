@@ -17,7 +17,7 @@ namespace {
 // threshold applies to a whole chunk. A chunk is tested with 16-byte vector maxima (GCC/Clang
 // vector extensions: SSE2 on x86-64, NEON on aarch64), and only chunks with a pixel above the
 // threshold are looked at 16 bytes, then one pixel, at a time.
-constexpr int kChunk = 64;
+constexpr int kChunk = 128;
 
 typedef std::uint8_t VecU8 __attribute__((vector_size(16)));
 typedef std::uint16_t VecU16 __attribute__((vector_size(16)));
@@ -634,47 +634,87 @@ bool Centroider::measure(const frame::FrameView& frame, int candidate_index, Blo
   return true;
 }
 
-bool Centroider::photon_weighted_step(double sigma, float background, double& xc, double& yc,
-                                      double& var_x, double& var_y) {
+bool Centroider::windowed_variance(double sigma, float background, double xc, double yc,
+                                   double& var_x, double& var_y, double& flux) {
+  // Standard deviation by linearising the fixed-point equation g(xc) = sum w (x - xc) p = 0:
+  //   var(xc) = sum w^2 (x - xc)^2 var_i / D^2,  D = -dg/dxc = sum w p (1 - (x - xc)^2 / s_w^2).
+  gaussian_window(patch_x0_, patch_w_, xc, sigma, dx_.data(), wx_.data());
+  gaussian_window(patch_y0_, patch_h_, yc, sigma, dy_.data(), wy_.data());
+  const int pw = patch_w_, ph = patch_h_;
+  double s = 0, qx = 0, qy = 0, vx = 0, vy = 0;
+  flux = 0;
+  for (int j = 0; j < ph; ++j) {
+    const float* p = &patch_[static_cast<size_t>(j) * pw];
+    const float* keep = &patch_keep_[static_cast<size_t>(j) * pw];
+    const float* wx = wx_.data();
+    const float* dx = dx_.data();
+    // Per-pixel variance from the noise model, evaluated on the pixel's own reading.
+    const float above_black = background - static_cast<float>(config_.black_level_dn);
+    const float per_dn = static_cast<float>(variance_per_dn_);
+    const float offset = static_cast<float>(variance_offset_dn2_);
+    float r0 = 0, r2 = 0, a0 = 0, a2 = 0, f = 0;
+#pragma omp simd reduction(+ : r0, r2, a0, a2, f)
+    for (int i = 0; i < pw; ++i) {
+      const float wp = wx[i] * p[i];
+      const float var = keep[i] * (std::max(p[i] + above_black, 0.0f) * per_dn + offset);
+      const float w2v = wx[i] * wx[i] * var;
+      r0 += wp;
+      r2 += wp * dx[i] * dx[i];
+      a0 += w2v;
+      a2 += w2v * dx[i] * dx[i];
+      f += p[i];
+    }
+    flux += f;
+    const double wy2 = wy_[j] * wy_[j];
+    s += wy_[j] * r0;
+    qx += wy_[j] * r2;
+    qy += wy_[j] * dy_[j] * dy_[j] * r0;
+    vx += wy2 * a2;
+    vy += wy2 * dy_[j] * dy_[j] * a0;
+  }
+  const double inv_s2 = 1.0 / (sigma * sigma);
+  const double dxd = s - qx * inv_s2, dyd = s - qy * inv_s2;
+  if (!(dxd > 0) || !(dyd > 0)) return false;
+  var_x = vx / (dxd * dxd);
+  var_y = vy / (dyd * dyd);
+  return true;
+}
+
+bool Centroider::photon_weighted_step(double sigma, float background, double window_sum, double& xc,
+                                      double& yc, double& var_x, double& var_y, double& flux) {
   // Maximum-likelihood estimating equation for a Gaussian spot g of amplitude A under the
   // Poisson + read noise model (the score of x: sum (I_i - mu_i) dmu_i/dx / var_i = 0, e.g.
   // Smith et al. 2010, Nat. Methods 7:373; Mortensen et al. 2010, Nat. Methods 7:377): by the
   // spot's symmetry it reduces to sum p_i (x_i - xc) W_i = 0 with the weight
   //   W = g / (v0 + k A g),   v0 = background variance [DN^2], k = 1 / gain [DN^2 / DN],
   // i.e. the Gaussian window flattened where photon noise dominates. Two Newton steps from the
-  // windowed solution (already within the noise of the ML solution).
+  // windowed solution (already within the noise of the ML solution). A = sum g p / sum g^2
+  // (least squares on the template), from the previous pass.
   const float above_black = background - static_cast<float>(config_.black_level_dn);
   const float per_dn = static_cast<float>(variance_per_dn_);
   const float offset = static_cast<float>(variance_offset_dn2_);
   const float v0 = std::max(above_black, 0.0f) * per_dn + offset;
   const double inv_s2 = 1.0 / (sigma * sigma);
-  double new_x = xc, new_y = yc, new_var_x = 0, new_var_y = 0;
+  double new_x = xc, new_y = yc, new_var_x = 0, new_var_y = 0, sum_gp = window_sum;
   for (int pass = 0; pass < 2; ++pass) {
     gaussian_window(patch_x0_, patch_w_, new_x, sigma, dx_.data(), wx_.data());
     gaussian_window(patch_y0_, patch_h_, new_y, sigma, dy_.data(), wy_.data());
-    // Least-squares amplitude of the Gaussian template: A = sum g p / sum g^2.
-    double sgp = 0, sgx2 = 0, sgy2 = 0;
+    double sgx2 = 0, sgy2 = 0;
     for (int i = 0; i < patch_w_; ++i)
       sgx2 += double(wx_[i]) * wx_[i];
-    for (int j = 0; j < patch_h_; ++j) {
-      const float* p = &patch_[static_cast<size_t>(j) * patch_w_];
-      float r = 0;
-      for (int i = 0; i < patch_w_; ++i)
-        r += wx_[i] * p[i];
-      sgp += wy_[j] * double(r);
+    for (int j = 0; j < patch_h_; ++j)
       sgy2 += double(wy_[j]) * wy_[j];
-    }
-    const float ka = static_cast<float>(std::max(sgp / (sgx2 * sgy2), 0.0) * per_dn);
+    const float ka = static_cast<float>(std::max(sum_gp / (sgx2 * sgy2), 0.0) * per_dn);
     const float c_var = static_cast<float>(v0 * inv_s2);
-    double gx = 0, gy = 0, ddx = 0, ddy = 0, vx = 0, vy = 0;
+    double gx = 0, gy = 0, ddx = 0, ddy = 0, vx = 0, vy = 0, gp = 0, total = 0;
     for (int j = 0; j < patch_h_; ++j) {
       const float* p = &patch_[static_cast<size_t>(j) * patch_w_];
       const float* keep = &patch_keep_[static_cast<size_t>(j) * patch_w_];
       const float* wx = wx_.data();
       const float* dx = dx_.data();
       const float wy = wy_[j], dy = dy_[j];
-      float rx = 0, ry = 0, rdx = 0, rdy = 0, rvx = 0, rvy = 0;
-#pragma omp simd reduction(+ : rx, ry, rdx, rdy, rvx, rvy)
+      float rx = 0, ry = 0, rdx = 0, rdy = 0, rvx = 0, rvy = 0, rgp = 0, rf = 0;
+#pragma omp simd reduction(+ : rx, ry, rdx, rdy, rvx, rvy, rgp, rf)
       for (int i = 0; i < patch_w_; ++i) {
         const float g = wx[i] * wy;
         const float inv = 1.0f / (v0 + ka * g);
@@ -689,6 +729,8 @@ bool Centroider::photon_weighted_step(double sigma, float background, double& xc
         rdy += pw * (1.0f - dy * dy * c);
         rvx += w2v * dx[i] * dx[i];
         rvy += w2v * dy * dy;
+        rgp += g * p[i];
+        rf += p[i];
       }
       gx += rx;
       gy += ry;
@@ -696,15 +738,19 @@ bool Centroider::photon_weighted_step(double sigma, float background, double& xc
       ddy += rdy;
       vx += rvx;
       vy += rvy;
+      gp += rgp;
+      total += rf;
     }
     if (!(ddx > 0) || !(ddy > 0)) return false;
     const double step_x = gx / ddx, step_y = gy / ddy;
-    // A step beyond a few windowed sigmas means the model does not fit: keep the windowed one.
+    // A step beyond half a pixel means the template does not fit: keep the windowed solution.
     if (std::abs(step_x) > 0.5 || std::abs(step_y) > 0.5) return false;
     new_x += step_x;
     new_y += step_y;
     new_var_x = vx / (ddx * ddx);
     new_var_y = vy / (ddy * ddy);
+    sum_gp = gp;
+    flux = total;
   }
   xc = new_x;
   yc = new_y;
@@ -788,93 +834,65 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
   // For a Gaussian spot of width s_p the raw windowed shift is d s_w^2 / (s_w^2 + s_p^2); the
   // step is scaled by the inverse, estimated from the windowed second moment M2
   // (1/M2 = 1/s_p^2 + 1/s_w^2), i.e. a Newton step (SExtractor uses the matched value 2).
-  bool converged = false;
-  const int adapt_iterations = adaptive ? 2 : 0;
-  for (int it = 0; it < config_.max_refine_iterations + adapt_iterations; ++it) {
-    weights(sigma);
-    double s = 0, sx = 0, sy = 0, sxx = 0, syy = 0;
-    for (int j = 0; j < ph; ++j) {
-      const float* p = &patch_[static_cast<size_t>(j) * pw];
-      const float* wx = wx_.data();
-      const float* dx = dx_.data();
-      float r0 = 0, r1 = 0, r2 = 0;  // one row: float SIMD; rows sum in double
+  // With the ML steps to follow, 0.01 px is close enough (a Newton step from there lands within
+  // 1e-4 px); alone, the windowed centroid iterates to refine_tolerance_px.
+  const bool use_ml = config_.photon_weighting && c.saturated == 0;
+  double last_sum = 0;  // sum w p of the last iteration: the ML stage's first amplitude
+  int adapt_iterations = adaptive ? 2 : 0;
+  auto iterate = [&](double tolerance) {
+    for (int it = 0; it < config_.max_refine_iterations + adapt_iterations; ++it) {
+      weights(sigma);
+      double s = 0, sx = 0, sy = 0, sxx = 0, syy = 0;
+      for (int j = 0; j < ph; ++j) {
+        const float* p = &patch_[static_cast<size_t>(j) * pw];
+        const float* wx = wx_.data();
+        const float* dx = dx_.data();
+        float r0 = 0, r1 = 0, r2 = 0;  // one row: float SIMD; rows sum in double
 #pragma omp simd reduction(+ : r0, r1, r2)
-      for (int i = 0; i < pw; ++i) {
-        const float wp = wx[i] * p[i];
-        r0 += wp;
-        r1 += wp * dx[i];
-        r2 += wp * dx[i] * dx[i];
+        for (int i = 0; i < pw; ++i) {
+          const float wp = wx[i] * p[i];
+          r0 += wp;
+          r1 += wp * dx[i];
+          r2 += wp * dx[i] * dx[i];
+        }
+        const double wy = wy_[j], dy = dy_[j];
+        s += wy * r0;
+        sx += wy * r1;
+        sy += wy * dy * r0;
+        sxx += wy * r2;
+        syy += wy * dy * dy * r0;
       }
-      const double wy = wy_[j], dy = dy_[j];
-      s += wy * r0;
-      sx += wy * r1;
-      sy += wy * dy * r0;
-      sxx += wy * r2;
-      syy += wy * dy * dy * r0;
+      if (!(s > 0)) return false;
+      last_sum = s;
+      const double m2 = 0.5 * (sxx + syy) / s;
+      const double s2 = sigma * sigma;
+      const double gain = (m2 > 0 && m2 < 0.75 * s2) ? s2 / (s2 - m2) : 4.0;
+      const double step_x = gain * sx / s, step_y = gain * sy / s;
+      xc += step_x;
+      yc += step_y;
+      if (std::abs(xc - x_start) > 0.5 * half || std::abs(yc - y_start) > 0.5 * half) return false;
+      if (it < adapt_iterations) {
+        // Matched window: s_w = s_p (SExtractor's choice, near-optimal for read-noise-limited
+        // Gaussian spots). If the window is too narrow to measure s_p, widen it.
+        double matched = 2.0 * sigma;
+        if (m2 > 0 && m2 < 0.95 * s2) matched = std::sqrt(1.0 / (1.0 / m2 - 1.0 / s2));
+        sigma = std::clamp(matched, 0.5, max_half / 3.5);
+        if (half_for(sigma) != half && !extract(half_for(sigma))) return false;
+        continue;
+      }
+      if (std::abs(step_x) < tolerance && std::abs(step_y) < tolerance) return true;
     }
-    if (!(s > 0)) return false;
-    const double m2 = 0.5 * (sxx + syy) / s;
-    const double s2 = sigma * sigma;
-    const double gain = (m2 > 0 && m2 < 0.75 * s2) ? s2 / (s2 - m2) : 4.0;
-    const double step_x = gain * sx / s, step_y = gain * sy / s;
-    xc += step_x;
-    yc += step_y;
-    if (std::abs(xc - x_start) > 0.5 * half || std::abs(yc - y_start) > 0.5 * half) return false;
-    if (it < adapt_iterations) {
-      // Matched window: s_w = s_p (SExtractor's choice, near-optimal for read-noise-limited
-      // Gaussian spots). If the window is too narrow to measure s_p, widen it.
-      double matched = 2.0 * sigma;
-      if (m2 > 0 && m2 < 0.95 * s2) matched = std::sqrt(1.0 / (1.0 / m2 - 1.0 / s2));
-      sigma = std::clamp(matched, 0.5, max_half / 3.5);
-      if (half_for(sigma) != half && !extract(half_for(sigma))) return false;
-      continue;
-    }
-    if (std::abs(step_x) < config_.refine_tolerance_px &&
-        std::abs(step_y) < config_.refine_tolerance_px) {
-      converged = true;
-      break;
-    }
+    return false;
+  };
+  if (!iterate(use_ml ? std::max(config_.refine_tolerance_px, 0.01) : config_.refine_tolerance_px))
+    return false;
+  adapt_iterations = 0;
+  double flux = 0, var_x = 0, var_y = 0;
+  if (!use_ml || !photon_weighted_step(sigma, background, last_sum, xc, yc, var_x, var_y, flux)) {
+    if (use_ml && !iterate(config_.refine_tolerance_px)) return false;
+    if (!windowed_variance(sigma, background, xc, yc, var_x, var_y, flux)) return false;
   }
-  if (!converged) return false;
 
-  // Standard deviation by linearising the fixed-point equation g(xc) = sum w (x - xc) p = 0:
-  //   var(xc) = sum w^2 (x - xc)^2 var_i / D^2,  D = -dg/dxc = sum w p (1 - (x - xc)^2 / s_w^2).
-  weights(sigma);
-  double s = 0, qx = 0, qy = 0, vx = 0, vy = 0, flux = 0;
-  for (int j = 0; j < ph; ++j) {
-    const float* p = &patch_[static_cast<size_t>(j) * pw];
-    const float* keep = &patch_keep_[static_cast<size_t>(j) * pw];
-    const float* wx = wx_.data();
-    const float* dx = dx_.data();
-    // Per-pixel variance from the noise model, evaluated on the pixel's own reading.
-    const float above_black = background - static_cast<float>(config_.black_level_dn);
-    const float per_dn = static_cast<float>(variance_per_dn_);
-    const float offset = static_cast<float>(variance_offset_dn2_);
-    float r0 = 0, r2 = 0, a0 = 0, a2 = 0, f = 0;
-#pragma omp simd reduction(+ : r0, r2, a0, a2, f)
-    for (int i = 0; i < pw; ++i) {
-      const float wp = wx[i] * p[i];
-      const float var = keep[i] * (std::max(p[i] + above_black, 0.0f) * per_dn + offset);
-      const float w2v = wx[i] * wx[i] * var;
-      r0 += wp;
-      r2 += wp * dx[i] * dx[i];
-      a0 += w2v;
-      a2 += w2v * dx[i] * dx[i];
-      f += p[i];
-    }
-    flux += f;
-    const double wy2 = wy_[j] * wy_[j];
-    s += wy_[j] * r0;
-    qx += wy_[j] * r2;
-    qy += wy_[j] * dy_[j] * dy_[j] * r0;
-    vx += wy2 * a2;
-    vy += wy2 * dy_[j] * dy_[j] * a0;
-  }
-  const double inv_s2 = 1.0 / (sigma * sigma);
-  const double dxd = s - qx * inv_s2, dyd = s - qy * inv_s2;
-  if (!(dxd > 0) || !(dyd > 0)) return false;
-  double var_x = vx / (dxd * dxd), var_y = vy / (dyd * dyd);
-  if (config_.photon_weighting) photon_weighted_step(sigma, background, xc, yc, var_x, var_y);
   blob.x_px = xc;
   blob.y_px = yc;
   blob.sigma_px = std::sqrt(0.5 * (var_x + var_y));

@@ -40,7 +40,7 @@ struct CentroidConfig {
   int max_area_px = 600;  ///< larger components are flagged merged
   // --- Background -------------------------------------------------------------------------
   int background_tile_px = 128;       ///< tile edge; rounded up to a multiple of 32
-  int background_row_step_px = 16;    ///< background samples: every n-th row of a tile,
+  int background_row_step_px = 32;    ///< background samples: every n-th row of a tile,
   int background_column_step_px = 4;  ///< every n-th pixel of those rows
   // --- Noise model (EMVA 1288 linear camera), for thresholds and sigma_px ----------------------
   double read_noise_e = 12.0;   ///< temporal read noise [e-]
@@ -155,8 +155,10 @@ class Centroider {
   bool has_separate_maxima(const frame::FrameView& frame, const Candidate& c) const;
   template <typename Pixel>
   bool refine(const frame::FrameView& frame, int candidate_index, Blob& blob);
-  bool photon_weighted_step(double sigma, float background, double& xc, double& yc, double& var_x,
-                            double& var_y);
+  bool photon_weighted_step(double sigma, float background, double window_sum, double& xc,
+                            double& yc, double& var_x, double& var_y, double& flux);
+  bool windowed_variance(double sigma, float background, double xc, double yc, double& var_x,
+                         double& var_y, double& flux);
   int find(int run) const;
   void unite(int a, int b);
   float background_at(double x, double y) const;
