@@ -101,7 +101,7 @@ inline constexpr RegisterDef kRegisterMap[] = {
   {RegisterKind::kHolding, 2, ValueType::kU16, std::uint8_t(HoldingField::kExposureUs), "exposure_us", "us", 10, 20000, 1000, "Exposure time (V4L2 exposure control when configured; reported in messages)"},
   {RegisterKind::kHolding, 3, ValueType::kU16, std::uint8_t(HoldingField::kTriggerRateHz), "trigger_rate_hz", "Hz", 1, 400, 100, "Trigger rate (master mode generator; slave mode pairing period)"},
   {RegisterKind::kHolding, 4, ValueType::kU16, std::uint8_t(HoldingField::kPulseWidthUs), "pulse_width_us", "us", 1, 5000, 100, "Master-mode trigger pulse width; must be < 90 % of the period"},
-  {RegisterKind::kHolding, 5, ValueType::kU16, std::uint8_t(HoldingField::kThresholdDn), "threshold_dn", "DN", 1, 65535, 40, "Centroider detection threshold above background"},
+  {RegisterKind::kHolding, 5, ValueType::kU16, std::uint8_t(HoldingField::kThresholdDn), "threshold_dn", "DN", 0, 65535, 0, "Centroider detection threshold above background; 0 = automatic (threshold_sigma x background noise)"},
   {RegisterKind::kHolding, 6, ValueType::kU16, std::uint8_t(HoldingField::kRoiX), "roi_x", "px", 0, 4095, 0, "Search region left column"},
   {RegisterKind::kHolding, 7, ValueType::kU16, std::uint8_t(HoldingField::kRoiY), "roi_y", "px", 0, 4095, 0, "Search region top row"},
   {RegisterKind::kHolding, 8, ValueType::kU16, std::uint8_t(HoldingField::kRoiWidth), "roi_width", "px", 0, 4096, 0, "Search region width; 0 = to the right edge"},

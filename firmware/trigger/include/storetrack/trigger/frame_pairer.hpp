@@ -76,6 +76,8 @@ class TriggerFramePairer {
   void pair_frame(time::MonotonicNs t_frame_ns, PairResult& out);
   /// Edges still waiting for a frame.
   std::size_t pending() const { return count_; }
+  /// Sequence number of the last accepted edge.
+  std::uint32_t anchor_sequence() const { return anchor_seq_; }
   const PairerCounters& counters() const { return counters_; }
   const PairerConfig& config() const { return config_; }
 

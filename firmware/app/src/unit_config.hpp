@@ -1,0 +1,104 @@
+// storetrack-unit configuration: a JSON file (docs/unit-config.md) with command-line overrides.
+// Parsing throws ConfigError with the offending key; nothing here runs per frame.
+#pragma once
+
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "storetrack/capture/v4l2_frame_source.hpp"
+#include "storetrack/centroid/centroider.hpp"
+#include "storetrack/link/canfd_link.hpp"
+#include "storetrack/link/udp_link.hpp"
+
+namespace storetrack::unit {
+
+class ConfigError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+enum class SourceType { kSim, kReplay, kV4l2, kNone };
+enum class TriggerMode { kNone, kSim, kGpioMaster, kGpioSlave };
+
+struct SimSourceConfig {
+  std::string scenario;
+  int camera_index = 0;
+  std::uint64_t seed = 1;
+  bool realtime = false;
+};
+
+struct ReplaySourceConfig {
+  std::string directory;
+  double rate_hz = 0;
+  bool loop = false;
+};
+
+struct V4l2SourceConfig {
+  capture::V4L2Config device;
+  std::string exposure_control;  ///< control name for exposure_us ("" = not set by the unit)
+  double exposure_control_unit_us = 100;  ///< V4L2 exposure_time_absolute counts 100 us
+};
+
+struct TriggerConfig {
+  TriggerMode mode = TriggerMode::kNone;
+  double rate_hz = 100;
+  std::int64_t pulse_width_ns = 100'000;
+  std::string chip = "/dev/gpiochip0";
+  std::vector<unsigned> lines{0};  ///< master outputs
+  unsigned line = 0;               ///< slave input
+  bool active_low = false;
+  std::int64_t latency_ns = 0;                ///< frame time stamp - edge
+  std::int64_t match_tolerance_ns = -1;       ///< -1: period / 4
+  std::int64_t edge_phase_tolerance_ns = -1;  ///< -1: period / 4
+  std::int64_t trigger_to_exposure_ns = 0;
+  // sim trigger faults (tests and demos)
+  std::int64_t sim_jitter_ns = 0;
+  int sim_drop_every = 0;
+  int sim_extra_every = 0;
+  std::string edges_csv;  ///< write every edge (trigger-only runs, bench)
+};
+
+struct UnitConfig {
+  int unit_id = 0;
+  int camera_id = 0;
+  SourceType source = SourceType::kSim;
+  SimSourceConfig sim;
+  ReplaySourceConfig replay;
+  V4l2SourceConfig v4l2;
+  TriggerConfig trigger;
+  centroid::CentroidConfig centroid;
+  int roi_x = 0, roi_y = 0, roi_width = 0, roi_height = 0;
+  std::vector<link::UdpLinkConfig> udp;
+  std::vector<link::CanFdLinkConfig> canfd;
+  int health_period_ms = 1000;
+  bool modbus_enabled = true;
+  std::string modbus_address = "127.0.0.1";
+  int modbus_port = 1502;
+  bool maintenance = false;
+  std::string clock_state = "auto";  ///< auto | free-running | locking | locked | holdover
+  std::uint32_t exposure_us = 1000;
+  // run control
+  long frames = 0;         ///< stop after this many frames (0: until the source ends / signal)
+  double duration_s = 0;   ///< stop after this long (0: no limit)
+  std::string stats_json;  ///< write counters here at exit
+  int max_consecutive_errors = 50;
+  bool verbose = false;
+};
+
+SourceType parse_source(const std::string& s);
+TriggerMode parse_trigger_mode(const std::string& s);
+const char* to_string(SourceType s);
+const char* to_string(TriggerMode m);
+
+/// Reads a JSON configuration file into `config` (keys absent keep their defaults; unknown
+/// keys are an error, so typos do not pass silently).
+void load_config_file(const std::string& path, UnitConfig& config);
+void parse_config_json(const std::string& text, const std::string& origin, UnitConfig& config);
+/// Checks ranges and combinations; throws ConfigError.
+void validate(const UnitConfig& config);
+/// The effective configuration as JSON (print-config).
+std::string to_json(const UnitConfig& config);
+
+}  // namespace storetrack::unit

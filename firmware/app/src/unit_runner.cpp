@@ -1,0 +1,711 @@
+#include "unit_runner.hpp"
+
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <ctime>
+#include <nlohmann/json.hpp>
+
+#include "storetrack/capture/replay_frame_source.hpp"
+#include "storetrack/capture/v4l2_frame_source.hpp"
+#include "storetrack/link/canfd_link.hpp"
+#include "storetrack/link/udp_link.hpp"
+#include "storetrack/sim/frame_source.hpp"
+#include "storetrack/sim/scenario.hpp"
+#include "storetrack/sim/simulator.hpp"
+#include "storetrack/trigger/gpio_trigger.hpp"
+#include "storetrack/trigger/sim_trigger.hpp"
+
+namespace storetrack::unit {
+namespace {
+
+std::uint8_t parse_clock_state(const std::string& s) {
+  if (s == "locking") return static_cast<std::uint8_t>(time::ClockState::kLocking);
+  if (s == "locked") return static_cast<std::uint8_t>(time::ClockState::kLocked);
+  if (s == "holdover") return static_cast<std::uint8_t>(time::ClockState::kHoldover);
+  return static_cast<std::uint8_t>(time::ClockState::kFreeRunning);
+}
+
+std::uint32_t clamp_u32(std::uint64_t v) {
+  return static_cast<std::uint32_t>(v & 0xFFFFFFFFu);
+}
+
+}  // namespace
+
+UnitRunner::UnitRunner(UnitConfig config) : config_(std::move(config)) {}
+
+UnitRunner::~UnitRunner() {
+  shutdown();
+}
+
+void UnitRunner::make_pairer(std::uint32_t first_sequence) {
+  pairer_config_.first_sequence = first_sequence;
+  pairer_.emplace(pairer_config_);
+}
+
+int UnitRunner::setup(std::string& error) {
+  start_mono_ns_ = time::monotonic_now_ns();
+  // --- frame source -------------------------------------------------------------------------
+  int width = config_.v4l2.device.width;
+  int height = config_.v4l2.device.height;
+  clock_state_ = parse_clock_state(config_.clock_state);
+  try {
+    switch (config_.source) {
+      case SourceType::kSim: {
+        const sim::Scenario scenario = sim::load_scenario(config_.sim.scenario);
+        simulator_ = std::make_unique<sim::Simulator>(scenario, config_.sim.seed);
+        if (config_.sim.camera_index < 0 || config_.sim.camera_index >= simulator_->num_cameras()) {
+          error = "sim camera index " + std::to_string(config_.sim.camera_index) + " outside 0.." +
+                  std::to_string(simulator_->num_cameras() - 1);
+          return kExitUsage;
+        }
+        const auto& cam = scenario.cameras[static_cast<std::size_t>(config_.sim.camera_index)];
+        if (config_.unit_id < 0) config_.unit_id = cam.unit_id;
+        if (config_.camera_id < 0) config_.camera_id = cam.camera_id;
+        const auto& intr =
+            simulator_->true_rig().cameras[static_cast<std::size_t>(config_.sim.camera_index)];
+        width = intr.model.intrinsics().width;
+        height = intr.model.intrinsics().height;
+        if (config_.clock_state == "auto")
+          clock_state_ = static_cast<std::uint8_t>(scenario.clock_state);
+        // The simulated unit's clocks: TAI = monotonic + a fixed offset (Simulator timing model).
+        const sim::ExposureTiming t0 = simulator_->exposure_timing(0, config_.sim.camera_index);
+        tai_minus_mono_ns_ = t0.reported_start_tai_ns - t0.reported_start_mono_ns;
+        tai_from_source_ = true;
+        if (config_.trigger.mode == TriggerMode::kSim)
+          config_.trigger.rate_hz = scenario.frame_rate_hz;
+        source_ = std::make_unique<sim::SimFrameSource>(*simulator_, config_.sim.camera_index, 4,
+                                                        config_.sim.realtime);
+        break;
+      }
+      case SourceType::kReplay: {
+        capture::ReplayConfig rc;
+        rc.directory = config_.replay.directory;
+        rc.rate_hz = config_.replay.rate_hz;
+        rc.loop = config_.replay.loop;
+        rc.default_period_ns =
+            static_cast<std::int64_t>(std::llround(1e9 / config_.trigger.rate_hz));
+        rc.default_exposure_ns = config_.exposure_us * 1000u;
+        auto r = std::make_unique<capture::ReplayFrameSource>(rc);
+        replay_ = r.get();
+        source_ = std::move(r);
+        tai_from_source_ = true;
+        break;
+      }
+      case SourceType::kV4l2: {
+        capture::V4L2Config vc = config_.v4l2.device;
+        vc.exposure_ns = config_.exposure_us * 1000u;
+        auto v = std::make_unique<capture::V4L2FrameSource>(vc);
+        v4l2_ = v.get();
+        source_ = std::move(v);
+        break;
+      }
+      case SourceType::kNone:
+        break;
+    }
+  } catch (const std::exception& e) {
+    error = std::string("source: ") + e.what();
+    return kExitUsage;
+  }
+  if (config_.unit_id < 0) config_.unit_id = 0;
+  if (config_.camera_id < 0) config_.camera_id = 0;
+  if (source_) {
+    const int rc = source_->start();
+    if (rc < 0) {
+      error = std::string("cannot start frame source ") + source_->name() + ": " +
+              (v4l2_     ? v4l2_->error()
+               : replay_ ? replay_->error()
+                         : std::strerror(-rc));
+      return kExitStartFailure;
+    }
+    if (v4l2_) {
+      width = v4l2_->format().width;
+      height = v4l2_->format().height;
+      if (!v4l2_->notes().empty())
+        notes_ += std::string(v4l2_->name()) + ": " + v4l2_->notes() + "\n";
+    }
+  }
+  if (!tai_from_source_) tai_minus_mono_ns_ = time::tai_now_ns() - time::monotonic_now_ns();
+
+  // --- holding registers from the configuration ------------------------------------------------
+  using health::HoldingField;
+  store_.set(HoldingField::kUnitId, static_cast<std::uint16_t>(config_.unit_id));
+  store_.set(HoldingField::kCameraId, static_cast<std::uint16_t>(config_.camera_id));
+  store_.set(HoldingField::kExposureUs, static_cast<std::uint16_t>(config_.exposure_us));
+  store_.set(HoldingField::kTriggerRateHz,
+             static_cast<std::uint16_t>(std::lround(std::min(config_.trigger.rate_hz, 400.0))));
+  store_.set(HoldingField::kPulseWidthUs, static_cast<std::uint16_t>(std::clamp<std::int64_t>(
+                                              config_.trigger.pulse_width_ns / 1000, 1, 5000)));
+  store_.set(HoldingField::kThresholdDn,
+             static_cast<std::uint16_t>(std::clamp(config_.centroid.threshold_dn, 0, 65535)));
+  store_.set(HoldingField::kRoiX, static_cast<std::uint16_t>(config_.roi_x));
+  store_.set(HoldingField::kRoiY, static_cast<std::uint16_t>(config_.roi_y));
+  store_.set(HoldingField::kRoiWidth, static_cast<std::uint16_t>(config_.roi_width));
+  store_.set(HoldingField::kRoiHeight, static_cast<std::uint16_t>(config_.roi_height));
+  seen_generation_ = store_.generation();
+
+  // --- centroider ------------------------------------------------------------------------------
+  frame_width_ = width;
+  frame_height_ = height;
+  if (source_) {
+    try {
+      centroid_ = std::make_unique<centroid::Centroider>(config_.centroid, width, height);
+    } catch (const std::exception& e) {
+      error = std::string("centroid configuration: ") + e.what();
+      return kExitUsage;
+    }
+  }
+
+  // --- trigger ---------------------------------------------------------------------------------
+  const auto period = static_cast<std::int64_t>(std::llround(1e9 / config_.trigger.rate_hz));
+  pairer_config_.period_ns = period;
+  pairer_config_.latency_ns = config_.trigger.latency_ns;
+  pairer_config_.match_tolerance_ns =
+      config_.trigger.match_tolerance_ns > 0 ? config_.trigger.match_tolerance_ns : period / 4;
+  pairer_config_.edge_phase_tolerance_ns = config_.trigger.edge_phase_tolerance_ns > 0
+                                               ? config_.trigger.edge_phase_tolerance_ns
+                                               : period / 4;
+  pairer_config_.trigger_to_exposure_ns = config_.trigger.trigger_to_exposure_ns;
+  const char* why = nullptr;
+  if (trigger::validate(pairer_config_, &why) < 0) {
+    error = std::string("trigger pairing: ") + why;
+    return kExitUsage;
+  }
+  switch (config_.trigger.mode) {
+    case TriggerMode::kNone:
+      break;
+    case TriggerMode::kSim: {
+      trigger::SimTriggerConfig sc;
+      sc.period_ns = period;
+      sc.jitter_ns = config_.trigger.sim_jitter_ns;
+      sc.drop_every = config_.trigger.sim_drop_every;
+      sc.extra_every = config_.trigger.sim_extra_every;
+      auto t = std::make_unique<trigger::SimTriggerLine>(sc);
+      sim_trigger_ = t.get();
+      trigger_ = std::move(t);
+      break;
+    }
+    case TriggerMode::kGpioMaster: {
+      trigger::GpioMasterConfig mc;
+      mc.chip = config_.trigger.chip;
+      mc.lines = config_.trigger.lines;
+      mc.rate_hz = config_.trigger.rate_hz;
+      mc.pulse_width_ns = config_.trigger.pulse_width_ns;
+      mc.active_low = config_.trigger.active_low;
+      auto t = std::make_unique<trigger::GpioMasterTrigger>(mc);
+      if (t->start() < 0) {
+        error = "trigger: " + t->error();
+        return kExitStartFailure;
+      }
+      trigger_ = std::move(t);
+      break;
+    }
+    case TriggerMode::kGpioSlave: {
+      trigger::GpioSlaveConfig sc;
+      sc.chip = config_.trigger.chip;
+      sc.line = config_.trigger.line;
+      sc.active_low = config_.trigger.active_low;
+      auto t = std::make_unique<trigger::GpioSlaveTrigger>(sc);
+      if (t->start() < 0) {
+        error = "trigger: " + t->error();
+        return kExitStartFailure;
+      }
+      trigger_ = std::move(t);
+      break;
+    }
+  }
+  if (trigger_ && config_.trigger.mode != TriggerMode::kSim) make_pairer(0);
+  if (!config_.trigger.edges_csv.empty()) {
+    edges_csv_ = std::fopen(config_.trigger.edges_csv.c_str(), "w");
+    if (edges_csv_ == nullptr) {
+      error = config_.trigger.edges_csv + ": " + std::strerror(errno);
+      return kExitStartFailure;
+    }
+    std::fprintf(edges_csv_, "line_count,t_mono_ns,trigger_seq,verdict\n");
+  }
+
+  // --- links -----------------------------------------------------------------------------------
+  for (const auto& u : config_.udp)
+    links_.push_back(std::make_unique<link::UdpLink>(u));
+  for (const auto& c : config_.canfd)
+    links_.push_back(std::make_unique<link::CanFdLink>(c));
+  for (auto& l : links_) {
+    if (l->open() < 0) {
+      error = std::string("link: ") + l->error();
+      return kExitStartFailure;
+    }
+  }
+
+  // --- Modbus ----------------------------------------------------------------------------------
+  if (config_.modbus_enabled) {
+    health::ModbusServerConfig mc;
+    mc.address = config_.modbus_address;
+    mc.port = config_.modbus_port;
+    mc.maintenance = config_.maintenance;
+    modbus_ = std::make_unique<health::ModbusHealthServer>(mc, counters_, store_);
+    if (modbus_->start() < 0) {
+      error = modbus_->error();
+      return kExitStartFailure;
+    }
+  }
+  std::uint16_t status = msg::unit_status::kCapturing;
+  if (config_.maintenance) status |= msg::unit_status::kMaintenanceMode;
+  if (trigger_ && trigger_->is_master() && config_.trigger.mode != TriggerMode::kSim) {
+    status |= msg::unit_status::kTriggerMaster;
+  }
+  counters_.status.store(status);
+  counters_.clock_state.store(clock_state_);
+  counters_.board_temp_cdeg.store(health::read_board_temp_cdeg());
+  last_health_ns_ = time::monotonic_now_ns();
+  return kExitOk;
+}
+
+int UnitRunner::drain_edges(int timeout_ms) {
+  if (!trigger_ || !pairer_) return 0;
+  for (;;) {
+    const int n = trigger_->read_edges(edges_, timeout_ms);
+    if (n <= 0) return n;
+    for (int i = 0; i < n; ++i) {
+      const trigger::TriggerEdge& e = edges_[static_cast<std::size_t>(i)];
+      const trigger::EdgeVerdict v = pairer_->push_edge(e.t_mono_ns);
+      ++run_.edges;
+      if (edges_csv_ != nullptr) {
+        // Extra edges get no sequence number: -1.
+        std::fprintf(
+            edges_csv_, "%u,%lld,%lld,%s\n", e.line_count, static_cast<long long>(e.t_mono_ns),
+            v == trigger::EdgeVerdict::kExtra ? -1LL
+                                              : static_cast<long long>(pairer_->anchor_sequence()),
+            v == trigger::EdgeVerdict::kExtra    ? "extra"
+            : v == trigger::EdgeVerdict::kResync ? "resync"
+                                                 : "accepted");
+      }
+    }
+    timeout_ms = 0;  // only the first read may wait
+    if (n < static_cast<int>(edges_.size())) return 0;
+  }
+}
+
+void UnitRunner::apply_config_changes() {
+  const std::uint32_t gen = store_.generation();
+  if (gen == seen_generation_) return;
+  seen_generation_ = gen;
+  using health::HoldingField;
+  // Maintenance-mode reconfiguration: may allocate (rare, operator-driven, not per frame).
+  const int threshold = store_.get(HoldingField::kThresholdDn);
+  if (centroid_ && threshold != centroid_->config().threshold_dn) {
+    centroid::CentroidConfig cc = centroid_->config();
+    cc.threshold_dn = threshold;
+    try {
+      auto fresh = std::make_unique<centroid::Centroider>(cc, frame_width_, frame_height_);
+      centroid_ = std::move(fresh);
+      config_.centroid = cc;
+    } catch (const std::exception&) {
+      // the table's range check makes this unreachable; keep the old centroider
+    }
+  }
+  const std::uint32_t exposure_us = store_.get(HoldingField::kExposureUs);
+  if (exposure_us != config_.exposure_us) {
+    config_.exposure_us = exposure_us;
+    if (v4l2_ && !config_.v4l2.exposure_control.empty()) {
+      v4l2_->set_control(config_.v4l2.exposure_control,
+                         static_cast<std::int32_t>(
+                             std::lround(exposure_us / config_.v4l2.exposure_control_unit_us)));
+    }
+  }
+  const double rate = store_.get(HoldingField::kTriggerRateHz);
+  const std::int64_t width_ns = std::int64_t{store_.get(HoldingField::kPulseWidthUs)} * 1000;
+  if (rate != config_.trigger.rate_hz || width_ns != config_.trigger.pulse_width_ns) {
+    config_.trigger.rate_hz = rate;
+    config_.trigger.pulse_width_ns = width_ns;
+    const auto period = static_cast<std::int64_t>(std::llround(1e9 / rate));
+    pairer_config_.period_ns = period;
+    pairer_config_.match_tolerance_ns = period / 4;
+    pairer_config_.edge_phase_tolerance_ns = period / 4;
+    if (pairer_) make_pairer(pairer_config_.first_sequence);
+    if (config_.trigger.mode == TriggerMode::kGpioMaster && trigger_) {
+      trigger_->stop();
+      trigger::GpioMasterConfig mc;
+      mc.chip = config_.trigger.chip;
+      mc.lines = config_.trigger.lines;
+      mc.rate_hz = rate;
+      mc.pulse_width_ns = width_ns;
+      mc.active_low = config_.trigger.active_low;
+      auto t = std::make_unique<trigger::GpioMasterTrigger>(mc);
+      if (t->start() == 0) trigger_ = std::move(t);
+    }
+  }
+  config_.roi_x = store_.get(HoldingField::kRoiX);
+  config_.roi_y = store_.get(HoldingField::kRoiY);
+  config_.roi_width = store_.get(HoldingField::kRoiWidth);
+  config_.roi_height = store_.get(HoldingField::kRoiHeight);
+  config_.unit_id = store_.get(HoldingField::kUnitId);
+  config_.camera_id = store_.get(HoldingField::kCameraId);
+}
+
+int UnitRunner::process_frame(const frame::FrameView& frame) {
+  ++run_.frames;
+  health::UnitCounters::add(counters_.frames_captured);
+  // Frame drops: V4L2 sequence gaps, or gaps in a simulated/replayed source's sequence.
+  std::uint64_t dropped_now = 0;
+  if (v4l2_) {
+    const std::uint64_t d = v4l2_->stats().dropped;
+    dropped_now = d - v4l2_dropped_seen_;
+    v4l2_dropped_seen_ = d;
+  } else if (have_source_sequence_ && frame.sequence != last_source_sequence_ + 1) {
+    dropped_now = static_cast<std::uint32_t>(frame.sequence - last_source_sequence_ - 1);
+  }
+  have_source_sequence_ = true;
+  last_source_sequence_ = frame.sequence;
+  if (dropped_now > 0) {
+    health::UnitCounters::add(counters_.frames_dropped, dropped_now);
+    frames_dropped_pending_ = true;
+  }
+
+  // Trigger pairing.
+  std::uint32_t seq = frame.sequence;
+  time::MonotonicNs start_mono = frame.timestamp_mono_ns;
+  std::uint16_t flags = 0;
+  if (trigger_) {
+    if (sim_trigger_) {
+      if (!pairer_) {
+        make_pairer(frame.sequence);
+        sim_trigger_->set_origin(frame.timestamp_mono_ns - pairer_config_.latency_ns);
+      }
+      sim_trigger_->advance_to(frame.timestamp_mono_ns - pairer_config_.latency_ns +
+                               pairer_config_.match_tolerance_ns);
+    }
+    drain_edges(0);
+    trigger::PairResult pr;
+    pairer_->pair_frame(frame.timestamp_mono_ns, pr);
+    seq = pr.trigger_seq;
+    start_mono = pr.exposure_start_mono_ns;
+    if (!pr.matched) flags |= msg::exposure_flags::kTriggerMissing;
+    const trigger::PairerCounters& pc = pairer_->counters();
+    counters_.triggers_seen.store(pc.edges_seen, std::memory_order_relaxed);
+    counters_.triggers_missing.store(pc.frames_unmatched, std::memory_order_relaxed);
+    counters_.triggers_extra.store(pc.edges_unmatched + pc.edges_extra, std::memory_order_relaxed);
+  }
+  if (frames_dropped_pending_) flags |= msg::exposure_flags::kFramesDroppedBefore;
+
+  // Centroiding, on the whole frame or the configured region.
+  frame::FrameView view = frame;
+  centroid::Roi roi[1];
+  const bool use_roi =
+      config_.roi_x > 0 || config_.roi_y > 0 || config_.roi_width > 0 || config_.roi_height > 0;
+  if (use_roi) {
+    roi[0].x = config_.roi_x;
+    roi[0].y = config_.roi_y;
+    roi[0].width = config_.roi_width > 0 ? config_.roi_width : frame.width - config_.roi_x;
+    roi[0].height = config_.roi_height > 0 ? config_.roi_height : frame.height - config_.roi_y;
+    flags |= msg::exposure_flags::kRoiMode;
+  }
+  const time::MonotonicNs t0 = time::monotonic_now_ns();
+  const int n = use_roi ? centroid_->process(view, std::span<const centroid::Roi>(roi, 1), blobs_)
+                        : centroid_->process(view, blobs_);
+  const time::MonotonicNs t1 = time::monotonic_now_ns();
+  const double us = static_cast<double>(t1 - t0) / 1000.0;
+  run_.centroid_us_sum += us;
+  run_.centroid_us_max = std::max(run_.centroid_us_max, us);
+  health::UnitCounters::max(counters_.centroid_time_us_max, static_cast<std::uint32_t>(us));
+  if (n < 0) {
+    ++run_.centroid_errors;
+    return n;
+  }
+  const std::uint64_t truncated = centroid_->stats().blobs_truncated;
+  if (truncated != centroid_truncated_seen_) {
+    flags |= msg::exposure_flags::kMarksTruncated;
+    centroid_truncated_seen_ = truncated;
+  }
+  ++run_.frames_processed;
+  run_.marks += static_cast<std::uint64_t>(n);
+  counters_.marks_last_frame.store(static_cast<std::uint32_t>(n), std::memory_order_relaxed);
+
+  // The message.
+  obs_.unit_id = static_cast<std::uint8_t>(config_.unit_id);
+  obs_.camera_id = static_cast<std::uint8_t>(config_.camera_id);
+  obs_.trigger_seq = seq;
+  obs_.exposure_start_mono_ns = start_mono;
+  if (replay_) {
+    obs_.exposure_start_tai_ns = replay_->tai_ns() + (start_mono - frame.timestamp_mono_ns);
+  } else {
+    obs_.exposure_start_tai_ns = start_mono + tai_minus_mono_ns_;
+  }
+  obs_.exposure_duration_ns =
+      frame.exposure_ns != 0 ? frame.exposure_ns : config_.exposure_us * 1000u;
+  obs_.clock_state = clock_state_;
+  obs_.flags = flags;
+  obs_.mark_count = static_cast<std::uint8_t>(n);
+  const int shift = frame.format == frame::PixelFormat::kMono16 ? frame.bits_per_pixel - 8 : 0;
+  for (int i = 0; i < n; ++i) {
+    const centroid::Blob& b = blobs_[static_cast<std::size_t>(i)];
+    msg::MarkObservation& m = obs_.marks[static_cast<std::size_t>(i)];
+    m.x_px = static_cast<float>(b.x_px);
+    m.y_px = static_cast<float>(b.y_px);
+    m.sigma_px = static_cast<float>(b.sigma_px);
+    const float peak8 = shift > 0 ? b.peak_dn / static_cast<float>(1 << shift) : b.peak_dn;
+    m.peak = static_cast<std::uint16_t>(std::clamp(peak8, 0.0f, 255.0f));
+    m.diameter_px = b.diameter_px;
+    m.flags = b.flags & msg::mark_flags::kAllKnown;
+  }
+  bool sent_any = links_.empty();
+  for (auto& l : links_) {
+    if (l->send(obs_) == 0) sent_any = true;
+  }
+  if (sent_any) frames_dropped_pending_ = false;
+  return 0;
+}
+
+void UnitRunner::update_shared_counters() {
+  std::uint64_t sent = 0, errors = 0, dropped = 0, bus_off = 0, error_frames = 0;
+  bool any_bus_off = false;
+  for (const auto& l : links_) {
+    l->service();
+    const link::LinkStats s = l->stats();
+    sent = std::max(sent, s.observations_sent);  // an exposure counts once, whatever the links
+    errors += s.tx_errors + s.encode_errors;
+    dropped += s.dropped_exposures;
+    bus_off += s.bus_off_events;
+    error_frames += s.error_frames;
+    any_bus_off = any_bus_off || s.bus_off;
+  }
+  counters_.observations_sent.store(sent, std::memory_order_relaxed);
+  counters_.link_tx_errors.store(errors, std::memory_order_relaxed);
+  counters_.link_tx_dropped.store(dropped, std::memory_order_relaxed);
+  counters_.can_bus_off_count.store(bus_off, std::memory_order_relaxed);
+  counters_.can_error_frames.store(error_frames, std::memory_order_relaxed);
+  std::uint16_t status = counters_.status.load(std::memory_order_relaxed);
+  status = any_bus_off ? status | msg::unit_status::kCanBusOff
+                       : status & static_cast<std::uint16_t>(~msg::unit_status::kCanBusOff);
+  counters_.status.store(status, std::memory_order_relaxed);
+}
+
+void UnitRunner::send_health(time::MonotonicNs now) {
+  update_shared_counters();
+  if (!tai_from_source_) tai_minus_mono_ns_ = time::tai_now_ns() - time::monotonic_now_ns();
+  counters_.board_temp_cdeg.store(health::read_board_temp_cdeg(), std::memory_order_relaxed);
+  msg::UnitHealth h{};
+  h.unit_id = static_cast<std::uint8_t>(config_.unit_id);
+  h.clock_state = clock_state_;
+  h.uptime_s = static_cast<std::uint32_t>((now - start_mono_ns_) / time::kNsPerSecond);
+  h.report_tai_ns = now + tai_minus_mono_ns_;
+  h.ptp_offset_ns = counters_.ptp_offset_ns.load();
+  h.sensor_temp_cdeg = counters_.sensor_temp_cdeg.load();
+  h.board_temp_cdeg = counters_.board_temp_cdeg.load();
+  h.frames_captured = clamp_u32(counters_.frames_captured.load());
+  h.frames_dropped = clamp_u32(counters_.frames_dropped.load());
+  h.triggers_seen = clamp_u32(counters_.triggers_seen.load());
+  h.triggers_missing = clamp_u32(counters_.triggers_missing.load());
+  h.triggers_extra = clamp_u32(counters_.triggers_extra.load());
+  h.observations_sent = clamp_u32(counters_.observations_sent.load());
+  h.link_tx_errors = clamp_u32(counters_.link_tx_errors.load());
+  h.link_tx_dropped = clamp_u32(counters_.link_tx_dropped.load());
+  h.can_bus_off_count = static_cast<std::uint16_t>(counters_.can_bus_off_count.load());
+  h.can_error_frames = static_cast<std::uint16_t>(counters_.can_error_frames.load());
+  h.centroid_time_us_max = static_cast<std::uint16_t>(
+      std::min<std::uint32_t>(counters_.centroid_time_us_max.exchange(0), 0xFFFE));
+  h.status = counters_.status.load();
+  for (auto& l : links_)
+    l->send(h);
+  ++run_.health_sent;
+  last_health_ns_ = now;
+}
+
+int UnitRunner::run_trigger_only(const std::atomic<bool>& stop) {
+  const time::MonotonicNs deadline =
+      config_.duration_s > 0 ? start_mono_ns_ + static_cast<std::int64_t>(config_.duration_s * 1e9)
+                             : 0;
+  while (!stop.load(std::memory_order_relaxed)) {
+    apply_config_changes();
+    if (const int rc = drain_edges(100); rc < 0 && rc != -EAGAIN && rc != -EINTR) {
+      return kExitRuntimeError;  // the generator thread or the line failed
+    }
+    const trigger::PairerCounters& pc = pairer_->counters();
+    counters_.triggers_seen.store(pc.edges_seen, std::memory_order_relaxed);
+    counters_.triggers_extra.store(pc.edges_extra, std::memory_order_relaxed);
+    const time::MonotonicNs now = time::monotonic_now_ns();
+    if (now - last_health_ns_ >= std::int64_t{config_.health_period_ms} * 1'000'000)
+      send_health(now);
+    if (config_.frames > 0 && static_cast<long>(run_.edges) >= config_.frames) break;
+    if (deadline != 0 && now >= deadline) break;
+  }
+  send_health(time::monotonic_now_ns());
+  return kExitOk;
+}
+
+int UnitRunner::run(const std::atomic<bool>& stop) {
+  if (!source_) return run_trigger_only(stop);
+  const time::MonotonicNs deadline =
+      config_.duration_s > 0 ? start_mono_ns_ + static_cast<std::int64_t>(config_.duration_s * 1e9)
+                             : 0;
+  int consecutive_errors = 0;
+  int exit_code = kExitOk;
+  while (!stop.load(std::memory_order_relaxed)) {
+    apply_config_changes();
+    frame::FrameView frame;
+    const int rc = source_->acquire(frame, 100);
+    const time::MonotonicNs now = time::monotonic_now_ns();
+    if (rc == 0) {
+      consecutive_errors = 0;
+      const int prc = process_frame(frame);
+      source_->release(frame);
+      if (prc < 0 && ++consecutive_errors > config_.max_consecutive_errors) {
+        exit_code = kExitRuntimeError;
+        break;
+      }
+    } else if (rc == -ENODATA) {
+      break;  // finite source (sim, replay) ended
+    } else if (rc != -EAGAIN) {
+      ++run_.source_errors;
+      counters_.status.fetch_or(msg::unit_status::kCameraError, std::memory_order_relaxed);
+      if (++consecutive_errors > config_.max_consecutive_errors) {
+        exit_code = kExitRuntimeError;
+        break;
+      }
+    }
+    if (trigger_ && !sim_trigger_ && rc == -EAGAIN) drain_edges(0);
+    if (now - last_health_ns_ >= std::int64_t{config_.health_period_ms} * 1'000'000)
+      send_health(now);
+    if (config_.frames > 0 && static_cast<long>(run_.frames) >= config_.frames) break;
+    if (deadline != 0 && now >= deadline) break;
+  }
+  counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kCapturing));
+  send_health(time::monotonic_now_ns());  // final report with the closing counters
+  return exit_code;
+}
+
+int UnitRunner::grab(int skip, frame::FrameView& frame, std::span<const centroid::Blob>& blobs) {
+  if (!source_) return -ENODEV;
+  if (held_) {
+    source_->release(held_frame_);
+    held_ = false;
+  }
+  for (int i = 0;; ++i) {
+    int rc;
+    int tries = 0;
+    do {
+      rc = source_->acquire(frame, 1000);
+    } while (rc == -EAGAIN && ++tries < 10);
+    if (rc < 0) return rc;
+    if (i >= skip) break;
+    source_->release(frame);
+  }
+  held_ = true;
+  held_frame_ = frame;
+  const int n = centroid_->process(frame, blobs_);
+  if (n < 0) return n;
+  blobs = std::span<const centroid::Blob>(blobs_.data(), static_cast<std::size_t>(n));
+  return 0;
+}
+
+void UnitRunner::shutdown() {
+  if (modbus_) modbus_->stop();
+  if (held_ && source_) {
+    source_->release(held_frame_);
+    held_ = false;
+  }
+  if (trigger_) trigger_->stop();
+  if (source_) source_->stop();
+  for (auto& l : links_)
+    l->close();
+  if (edges_csv_ != nullptr) {
+    std::fclose(edges_csv_);
+    edges_csv_ = nullptr;
+  }
+}
+
+std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code) const {
+  nlohmann::json j;
+  j["exit_code"] = exit_code;
+  j["exit_reason"] = exit_reason;
+  j["source"] = to_string(config_.source);
+  j["trigger_mode"] = to_string(config_.trigger.mode);
+  j["unit_id"] = config_.unit_id;
+  j["camera_id"] = config_.camera_id;
+  j["duration_s"] = static_cast<double>(time::monotonic_now_ns() - start_mono_ns_) / 1e9;
+  j["frames_captured"] = run_.frames;
+  j["frames_processed"] = run_.frames_processed;
+  j["frames_dropped"] = counters_.frames_dropped.load();
+  j["source_errors"] = run_.source_errors;
+  j["centroid_errors"] = run_.centroid_errors;
+  j["marks_total"] = run_.marks;
+  j["marks_per_frame_mean"] = run_.frames_processed ? static_cast<double>(run_.marks) /
+                                                          static_cast<double>(run_.frames_processed)
+                                                    : 0.0;
+  j["centroid_time_us_mean"] =
+      run_.frames_processed ? run_.centroid_us_sum / static_cast<double>(run_.frames_processed)
+                            : 0.0;
+  j["centroid_time_us_max"] = run_.centroid_us_max;
+  j["health_sent"] = run_.health_sent;
+  j["edges_read"] = run_.edges;
+  if (pairer_) {
+    const auto& pc = pairer_->counters();
+    j["pairing"] = {{"edges_seen", pc.edges_seen},
+                    {"edges_extra", pc.edges_extra},
+                    {"edges_missing", pc.edges_missing},
+                    {"edges_unmatched", pc.edges_unmatched},
+                    {"frames_paired", pc.frames_paired},
+                    {"frames_unmatched", pc.frames_unmatched},
+                    {"ambiguous", pc.ambiguous},
+                    {"resyncs", pc.resyncs},
+                    {"period_ns", pairer_config_.period_ns}};
+  }
+  if (trigger_) {
+    const trigger::TriggerLineStats ts = trigger_->stats();
+    j["trigger_line"] = {{"name", trigger_->name()},
+                         {"edges", ts.edges},
+                         {"overruns", ts.overruns},
+                         {"max_late_ns", ts.max_late_ns},
+                         {"dropped_edges", ts.dropped_edges}};
+  }
+  if (v4l2_) {
+    const capture::V4L2Stats vs = v4l2_->stats();
+    j["v4l2"] = {{"device", config_.v4l2.device.device},
+                 {"fourcc", capture::fourcc_to_string(v4l2_->format().fourcc)},
+                 {"width", v4l2_->format().width},
+                 {"height", v4l2_->format().height},
+                 {"frames", vs.frames},
+                 {"dropped", vs.dropped},
+                 {"error_buffers", vs.error_buffers},
+                 {"timeouts", vs.timeouts},
+                 {"notes", v4l2_->notes()}};
+  }
+  if (centroid_) {
+    const centroid::CentroidStats& cs = centroid_->stats();
+    j["centroid"] = {{"frames", cs.frames},
+                     {"frames_refused", cs.frames_refused},
+                     {"blobs_truncated", cs.blobs_truncated},
+                     {"blobs_too_small", cs.blobs_too_small},
+                     {"last_background_dn", cs.last_background_dn},
+                     {"last_threshold_dn", cs.last_threshold_dn}};
+  }
+  nlohmann::json links = nlohmann::json::array();
+  for (const auto& l : links_) {
+    const link::LinkStats s = l->stats();
+    links.push_back({{"name", l->name()},
+                     {"observations_sent", s.observations_sent},
+                     {"health_sent", s.health_sent},
+                     {"tx_errors", s.tx_errors},
+                     {"dropped_exposures", s.dropped_exposures},
+                     {"partial_exposures", s.partial_exposures},
+                     {"encode_errors", s.encode_errors},
+                     {"bus_off_events", s.bus_off_events},
+                     {"error_frames", s.error_frames},
+                     {"bus_off", s.bus_off},
+                     {"link_down", s.link_down},
+                     {"last_errno", s.last_errno}});
+  }
+  j["links"] = links;
+  if (modbus_) {
+    const health::ModbusServerStats ms = modbus_->stats();
+    j["modbus"] = {{"port", modbus_->bound_port()},
+                   {"requests", ms.requests},
+                   {"refused_function", ms.refused_function},
+                   {"refused_write_locked", ms.refused_write_locked},
+                   {"refused_value", ms.refused_value},
+                   {"malformed", ms.malformed},
+                   {"writes_accepted", ms.writes_accepted}};
+  }
+  return j.dump(2) + "\n";
+}
+
+}  // namespace storetrack::unit

@@ -1,0 +1,128 @@
+// UnitRunner: the camera unit's capture loop.
+//   FrameSource -> (pair with trigger edge) -> Centroider -> msg::MarkObservations -> link(s)
+// plus the periodic UnitHealth message and the Modbus server thread. setup() allocates
+// everything; the per-frame path (run()) allocates nothing and throws nothing.
+#pragma once
+
+#include <array>
+#include <atomic>
+#include <cstdint>
+#include <cstdio>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "storetrack/centroid/centroider.hpp"
+#include "storetrack/frame/frame_source.hpp"
+#include "storetrack/health/modbus_server.hpp"
+#include "storetrack/health/unit_state.hpp"
+#include "storetrack/link/observation_link.hpp"
+#include "storetrack/msg/messages.hpp"
+#include "storetrack/trigger/frame_pairer.hpp"
+#include "storetrack/trigger/trigger_line.hpp"
+#include "unit_config.hpp"
+
+namespace storetrack::sim {
+class Simulator;
+}
+namespace storetrack::capture {
+class V4L2FrameSource;
+class ReplayFrameSource;
+}  // namespace storetrack::capture
+namespace storetrack::trigger {
+class SimTriggerLine;
+}
+
+namespace storetrack::unit {
+
+/// Process exit codes (docs/unit-config.md).
+inline constexpr int kExitOk = 0;
+inline constexpr int kExitRuntimeError = 1;  ///< source/trigger failed while running
+inline constexpr int kExitUsage = 2;         ///< bad command line or configuration
+inline constexpr int kExitStartFailure = 3;  ///< a device, link or the Modbus server did not start
+
+struct RunCounters {
+  std::uint64_t frames = 0;
+  std::uint64_t frames_processed = 0;
+  std::uint64_t marks = 0;
+  std::uint64_t centroid_errors = 0;
+  std::uint64_t source_errors = 0;
+  std::uint64_t health_sent = 0;
+  std::uint64_t edges = 0;
+  double centroid_us_sum = 0;
+  double centroid_us_max = 0;
+};
+
+class UnitRunner {
+ public:
+  explicit UnitRunner(UnitConfig config);
+  ~UnitRunner();
+  UnitRunner(const UnitRunner&) = delete;
+  UnitRunner& operator=(const UnitRunner&) = delete;
+
+  /// Builds and starts the source, trigger, links, centroider and Modbus server.
+  /// Returns kExitOk, or kExitStartFailure / kExitUsage with the reason in `error`.
+  int setup(std::string& error);
+  /// The capture loop; returns an exit code when the source ends, the frame/duration limit is
+  /// reached, `stop` becomes true, or errors persist.
+  int run(const std::atomic<bool>& stop);
+  /// Bench aid: skips `skip` frames, then captures one and centroids it. The frame stays
+  /// acquired until the next call or destruction. Returns 0 or -errno.
+  int grab(int skip, frame::FrameView& frame, std::span<const centroid::Blob>& blobs);
+  void shutdown();
+
+  /// Counters as JSON (--stats-json).
+  std::string stats_json(const std::string& exit_reason, int exit_code) const;
+  const UnitConfig& config() const { return config_; }
+  const centroid::CentroidConfig& centroid_config() const { return centroid_->config(); }
+  const std::string& notes() const { return notes_; }
+
+ private:
+  int process_frame(const frame::FrameView& frame);
+  int run_trigger_only(const std::atomic<bool>& stop);
+  int drain_edges(int timeout_ms);
+  void apply_config_changes();
+  void send_health(time::MonotonicNs now);
+  void update_shared_counters();
+  void make_pairer(std::uint32_t first_sequence);
+
+  UnitConfig config_;
+  std::string notes_;
+  std::unique_ptr<sim::Simulator> simulator_;
+  std::unique_ptr<frame::FrameSource> source_;
+  capture::V4L2FrameSource* v4l2_ = nullptr;      // = source_ when v4l2
+  capture::ReplayFrameSource* replay_ = nullptr;  // = source_ when replay
+  std::unique_ptr<trigger::TriggerLine> trigger_;
+  trigger::SimTriggerLine* sim_trigger_ = nullptr;  // = trigger_ when sim
+  std::optional<trigger::TriggerFramePairer> pairer_;
+  trigger::PairerConfig pairer_config_;
+  std::unique_ptr<centroid::Centroider> centroid_;
+  std::vector<std::unique_ptr<link::ObservationLink>> links_;
+  health::UnitCounters counters_;
+  health::ConfigStore store_;
+  std::unique_ptr<health::ModbusHealthServer> modbus_;
+  std::uint32_t seen_generation_ = 0;
+  int frame_width_ = 0;
+  int frame_height_ = 0;
+
+  std::array<centroid::Blob, msg::kMaxMarks> blobs_{};
+  std::array<trigger::TriggerEdge, 64> edges_{};
+  msg::MarkObservations obs_{};
+  RunCounters run_{};
+  std::int64_t tai_minus_mono_ns_ = 0;
+  bool tai_from_source_ = false;  // sim: fixed offset set at setup
+  std::uint8_t clock_state_ = 0;
+  time::MonotonicNs start_mono_ns_ = 0;
+  time::MonotonicNs last_health_ns_ = 0;
+  std::uint64_t v4l2_dropped_seen_ = 0;
+  std::uint64_t centroid_truncated_seen_ = 0;
+  bool frames_dropped_pending_ = false;
+  std::uint32_t last_source_sequence_ = 0;
+  bool have_source_sequence_ = false;
+  std::FILE* edges_csv_ = nullptr;
+  bool held_ = false;
+  frame::FrameView held_frame_{};
+};
+
+}  // namespace storetrack::unit
