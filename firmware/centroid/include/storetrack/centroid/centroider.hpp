@@ -39,7 +39,7 @@ struct CentroidConfig {
   int min_area_px = 3;    ///< smaller components (hot pixels, noise) are dropped
   int max_area_px = 600;  ///< larger components are flagged merged
   // --- Background -------------------------------------------------------------------------
-  int background_tile_px = 128;       ///< tile edge; rounded up to a multiple of 32
+  int background_tile_px = 128;       ///< tile edge; rounded up to a multiple of 128
   int background_row_step_px = 32;    ///< background samples: every n-th row of a tile,
   int background_column_step_px = 4;  ///< every n-th pixel of those rows
   // --- Noise model (EMVA 1288 linear camera), for thresholds and sigma_px ----------------------
