@@ -107,6 +107,10 @@ Centroider::Centroider(const CentroidConfig& config, int max_width, int max_heig
   if (config.saturation_dn < 0) fail("saturation_dn must be >= 0");
   if (config.window_sigma_px < 0) fail("window_sigma_px must be >= 0");
   if (config.max_refine_iterations < 1) fail("max_refine_iterations must be >= 1");
+  if (config.photon_weighting_steps < 1 || config.photon_weighting_steps > 8)
+    fail("photon_weighting_steps must be in 1..8");
+  if (!(config.window_radius_sigmas >= 2 && config.window_radius_sigmas <= 8))
+    fail("window_radius_sigmas must be in [2, 8]");
   if (!(config.refine_tolerance_px > 0)) fail("refine_tolerance_px must be > 0");
   if (config.max_window_half_px < 3 || config.max_window_half_px > 64)
     fail("max_window_half_px must be in 3..64");
@@ -696,7 +700,7 @@ bool Centroider::photon_weighted_step(double sigma, float background, double win
   const float v0 = std::max(above_black, 0.0f) * per_dn + offset;
   const double inv_s2 = 1.0 / (sigma * sigma);
   double new_x = xc, new_y = yc, new_var_x = 0, new_var_y = 0, sum_gp = window_sum;
-  for (int pass = 0; pass < 2; ++pass) {
+  for (int pass = 0; pass < config_.photon_weighting_steps; ++pass) {
     gaussian_window(patch_x0_, patch_w_, new_x, sigma, dx_.data(), wx_.data());
     gaussian_window(patch_y0_, patch_h_, new_y, sigma, dy_.data(), wy_.data());
     double sgx2 = 0, sgy2 = 0;
@@ -820,8 +824,8 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
     }
     return true;
   };
-  auto half_for = [max_half](double s) {
-    return std::clamp(static_cast<int>(std::ceil(4.0 * s)), 3, max_half);
+  auto half_for = [max_half, radius = config_.window_radius_sigmas](double s) {
+    return std::clamp(static_cast<int>(std::ceil(radius * s)), 3, max_half);
   };
   if (!extract(half_for(sigma))) return false;
 

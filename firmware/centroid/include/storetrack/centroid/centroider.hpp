@@ -56,7 +56,9 @@ struct CentroidConfig {
   /// template, photon + read noise): closes most of the gap to the Cramer-Rao bound when photon
   /// noise dominates the spot's core.
   bool photon_weighting = true;
-  int max_window_half_px = 15;  ///< refinement patch is at most (2h+1)^2 pixels
+  int photon_weighting_steps = 1;     ///< Newton steps (one lands within 1e-4 px of the ML root)
+  double window_radius_sigmas = 3.0;  ///< refinement patch half-size in window sigmas
+  int max_window_half_px = 15;        ///< refinement patch is at most (2h+1)^2 pixels
   // --- Shape flags ------------------------------------------------------------------------
   double max_axis_ratio = 1.5;  ///< sqrt(major/minor second moment) above this: kElongated
   /// Secondary maximum taller than this fraction of the main peak (above background), at least
