@@ -43,6 +43,8 @@ int FtiCsvWriter::open(const std::string& path) {
   close();
   file_ = std::fopen(path.c_str(), "w");
   if (!file_) return -errno;
+  // Line-buffered: a reader (progress display, crash) sees every complete row.
+  std::setvbuf(file_, nullptr, _IOLBF, 0);
   const auto columns = fti_csv_columns();
   for (std::size_t i = 0; i < columns.size(); ++i)
     std::fprintf(file_, "%s%s", i ? "," : "", columns[i].c_str());

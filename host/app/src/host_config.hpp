@@ -1,0 +1,48 @@
+// storetrack-host configuration: a JSON file (docs/fti-output.md, "storetrack-host") whose
+// values the command line can override. Malformed files throw HostConfigError naming the file
+// and the field.
+#pragma once
+
+#include <map>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "mark_identifier.hpp"
+#include "storetrack/geometry/transform.hpp"
+#include "storetrack/ingest/exposure_aligner.hpp"
+#include "storetrack/output/chapter10_writer.hpp"
+#include "storetrack/pipeline/exposure_processor.hpp"
+
+namespace storetrack::hostapp {
+
+class HostConfigError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+struct HostConfig {
+  // input
+  std::string udp_bind = "0.0.0.0";
+  int udp_port = 47100;
+  std::string udp_group;
+  std::string udp_interface;
+  std::vector<std::string> can_interfaces;
+  // processing
+  ingest::AlignerConfig aligner;  // camera_ids filled from the calibration
+  pipeline::ProcessorConfig processor;
+  IdentifierConfig identifier;
+  std::map<int, geometry::Vec3> initial_marks_w;
+  // outputs
+  std::string ch10_path, csv_path, marks_csv_path, rigid_csv_path;
+  std::string inetx_destination;
+  std::uint32_t inetx_stream_id = 0x53540001;
+  output::Chapter10Config ch10;
+};
+
+/// Applies the JSON file's values onto `config` (fields not in the file keep their value).
+void load_host_config(const std::string& path, HostConfig& config);
+/// Reads {"marks": [{"id": 0, "p_w_m": [x, y, z]}, ...]}.
+std::map<int, geometry::Vec3> load_initial_marks(const std::string& path);
+
+}  // namespace storetrack::hostapp

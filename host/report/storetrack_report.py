@@ -1,0 +1,369 @@
+#!/usr/bin/env python3
+"""storetrack test-point report: HTML page + PNG plots + a printed summary table.
+
+Reads a test-point run directory (tools/testpoint): fti.csv (samples), marks.csv (per-mark
+observations and residuals), rigid.csv (rigid-body pair tests), stats.json (host counters),
+storetrack.ch10 (Chapter 10 file, re-read here with a small independent parser) and the
+simulator's truth (truth_poses.csv, truth_marks.csv). Plots: store trajectory and attitude with
+k = 2 uncertainty bands, error against truth with the k = 2 band, mark position errors, rigid-body
+residuals, per-camera residual maps, the uncertainty budget. Debian packages only
+(python3-matplotlib, python3-numpy).
+"""
+import argparse
+import csv
+import html
+import json
+import math
+import os
+import struct
+import sys
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+K = 2.0  # coverage factor of the bands (GUM expanded uncertainty)
+
+
+def read_csv(path):
+    """Columns as numpy arrays keyed by the column name without its ' [unit]' suffix."""
+    if not os.path.exists(path):
+        return None
+    with open(path, newline="") as f:
+        reader = csv.reader(f)
+        header = [h.split(" [")[0] for h in next(reader)]
+        rows = list(reader)
+    cols = {}
+    for i, name in enumerate(header):
+        values = [r[i] for r in rows]
+        try:
+            cols[name] = np.array([float(v) for v in values])
+        except ValueError:
+            cols[name] = np.array(values)
+    return cols
+
+
+def read_ch10(path):
+    """Minimal independent Chapter 10 pass: packet count by data type, checksums, messages."""
+    out = {"packets": 0, "by_type": {}, "messages": 0, "header_checksum_errors": 0,
+           "truncated_bytes": 0, "first_type": None}
+    if not os.path.exists(path):
+        return None
+    data = open(path, "rb").read()
+    at = 0
+    while at + 24 <= len(data):
+        sync, chan, plen, dlen, ver, seq, flags, dtype = struct.unpack_from("<HHIIBBBB", data, at)
+        if sync != 0xEB25 or plen < 24 or at + plen > len(data):
+            break
+        words = struct.unpack_from("<11H", data, at)
+        if (sum(words) & 0xFFFF) != struct.unpack_from("<H", data, at + 22)[0]:
+            out["header_checksum_errors"] += 1
+        if out["first_type"] is None:
+            out["first_type"] = dtype
+        out["packets"] += 1
+        out["by_type"][dtype] = out["by_type"].get(dtype, 0) + 1
+        if dtype == 0x30:
+            out["messages"] += struct.unpack_from("<I", data, at + 24)[0] & 0xFFFF
+        at += plen
+    out["truncated_bytes"] = len(data) - at
+    return out
+
+
+def savefig(fig, outdir, name, figures):
+    path = os.path.join(outdir, name)
+    fig.savefig(path, dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    figures.append(name)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--run", required=True, help="test-point run directory")
+    ap.add_argument("--truth-poses", help="simulator truth_poses.csv")
+    ap.add_argument("--truth-marks", help="simulator truth_marks.csv (default next to poses)")
+    ap.add_argument("--calibration", help="rig calibration JSON (image size)")
+    ap.add_argument("--out", required=True, help="output directory for index.html and PNGs")
+    args = ap.parse_args()
+    os.makedirs(args.out, exist_ok=True)
+
+    fti = read_csv(os.path.join(args.run, "fti.csv"))
+    if fti is None or len(fti.get("trigger_seq", [])) == 0:
+        print("report: no samples in %s/fti.csv" % args.run, file=sys.stderr)
+        return 2
+    marks = read_csv(os.path.join(args.run, "marks.csv"))
+    rigid = read_csv(os.path.join(args.run, "rigid.csv"))
+    stats = json.load(open(os.path.join(args.run, "stats.json")))
+    truth = read_csv(args.truth_poses) if args.truth_poses else None
+    truth_marks_path = args.truth_marks or (
+        os.path.join(os.path.dirname(args.truth_poses), "truth_marks.csv") if args.truth_poses else None)
+    truth_marks = read_csv(truth_marks_path) if truth_marks_path else None
+    ch10 = read_ch10(os.path.join(args.run, "storetrack.ch10"))
+    width, height = 1920, 1024
+    if args.calibration and os.path.exists(args.calibration):
+        try:
+            cal = json.load(open(args.calibration))
+            cam0 = cal["cameras"][0]
+            intr = cam0.get("intrinsics", cam0)
+            width, height = int(intr.get("width", width)), int(intr.get("height", height))
+        except (KeyError, ValueError, IndexError, TypeError):
+            pass
+
+    seq = fti["trigger_seq"].astype(np.int64)
+    t_tai = fti["exposure_mid_tai_ns"]
+    t = (t_tai - t_tai[0]) * 1e-9
+    valid = (fti["status"].astype(int) & 1) == 1
+    figures = []
+    summary = []  # (name, value)
+    summary.append(("samples (valid / total)", "%d / %d" % (valid.sum(), len(valid))))
+
+    axes_pos = ["x", "y", "z"]
+    axes_att = ["yaw", "pitch", "roll"]
+
+    # --- truth alignment by trigger sequence ---------------------------------------------------
+    has_store_truth = False
+    err = {}
+    if truth is not None and "x_m_T_p_s" in truth:
+        tseq = truth["trigger_seq"].astype(np.int64)
+        idx = {s: i for i, s in enumerate(tseq)}
+        sel = np.array([idx.get(s, -1) for s in seq])
+        ok = (sel >= 0) & valid
+        moving = np.ptp(truth["x_m_T_p_s"]) + np.ptp(truth["z_m_T_p_s"]) > 0 or np.any(truth["x_m_T_p_s"] != 0)
+        if ok.any() and moving:
+            has_store_truth = True
+            for a in axes_pos:
+                tv = np.full(len(seq), np.nan)
+                tv[ok] = truth["%s_m_T_p_s" % a][sel[ok]]
+                err[a] = fti[a] - tv
+            for a in axes_att:
+                tv = np.full(len(seq), np.nan)
+                tv[ok] = truth["%s_rad_T_p_s" % a][sel[ok]]
+                e = fti[a] - tv
+                err[a] = (e + np.pi) % (2 * np.pi) - np.pi
+
+    # --- trajectory and attitude with k=2 bands -----------------------------------------------
+    fig, axs = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
+    for ax, a in zip(axs, axes_pos):
+        v, u = fti[a], fti["u_" + a]
+        ax.fill_between(t[valid], (v - K * u)[valid] * 1e3, (v + K * u)[valid] * 1e3, alpha=0.35,
+                        color="tab:blue", label="k = 2 interval")
+        ax.plot(t[valid], v[valid] * 1e3, ".", ms=2, color="tab:blue", label="storetrack")
+        if has_store_truth:
+            ax.plot(t, (v - err[a]) * 1e3, "-", lw=0.8, color="k", label="truth (simulator)")
+        ax.set_ylabel("%s_p [mm]" % a)
+        ax.grid(alpha=0.3)
+    axs[0].legend(loc="best", fontsize=8)
+    axs[0].set_title("Store position relative to the pylon (T_p_s) with k = 2 uncertainty band")
+    axs[-1].set_xlabel("time since first exposure [s]")
+    savefig(fig, args.out, "trajectory.png", figures)
+
+    fig, axs = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
+    for ax, a in zip(axs, axes_att):
+        v, u = np.degrees(fti[a]), np.degrees(fti["u_" + a])
+        ax.fill_between(t[valid], (v - K * u)[valid], (v + K * u)[valid], alpha=0.35,
+                        color="tab:orange", label="k = 2 interval")
+        ax.plot(t[valid], v[valid], ".", ms=2, color="tab:orange", label="storetrack")
+        if has_store_truth:
+            ax.plot(t, v - np.degrees(err[a]), "-", lw=0.8, color="k", label="truth (simulator)")
+        ax.set_ylabel("%s [deg]" % a)
+        ax.grid(alpha=0.3)
+    axs[0].legend(loc="best", fontsize=8)
+    axs[0].set_title("Store attitude relative to the pylon (Z-Y'-X'') with k = 2 uncertainty band")
+    axs[-1].set_xlabel("time since first exposure [s]")
+    savefig(fig, args.out, "attitude.png", figures)
+
+    # --- error against truth -------------------------------------------------------------------
+    coverage_rows = []
+    if has_store_truth:
+        fig, axs = plt.subplots(2, 3, figsize=(13, 6), sharex=True)
+        for i, a in enumerate(axes_pos + axes_att):
+            ax = axs[i // 3][i % 3]
+            scale, unit = (1e3, "mm") if a in axes_pos else (180 / math.pi, "deg")
+            e, u = err[a], fti["u_" + a]
+            m = np.isfinite(e) & valid
+            ax.fill_between(t[m], -K * u[m] * scale, K * u[m] * scale, alpha=0.3, color="tab:green",
+                            label="±k u (k = 2)")
+            ax.plot(t[m], e[m] * scale, ".", ms=2, color="tab:red", label="error")
+            ax.set_title("%s error [%s]" % (a, unit), fontsize=10)
+            ax.grid(alpha=0.3)
+            inside = np.abs(e[m]) <= K * u[m]
+            coverage_rows.append((a, unit, np.sqrt(np.mean((e[m] * scale) ** 2)),
+                                  np.max(np.abs(e[m] * scale)), np.mean(u[m] * scale),
+                                  100.0 * inside.mean() if m.any() else float("nan")))
+        axs[0][0].legend(fontsize=8)
+        for ax in axs[1]:
+            ax.set_xlabel("time [s]")
+        fig.suptitle("Store pose error against the simulator's truth, with the k = 2 band")
+        savefig(fig, args.out, "error.png", figures)
+
+    # --- mark position error against truth (every scenario) ------------------------------------
+    mark_rows = []
+    if marks is not None and truth_marks is not None and len(marks.get("trigger_seq", [])) > 0:
+        key = {}
+        for i in range(len(truth_marks["trigger_seq"])):
+            key[(int(truth_marks["trigger_seq"][i]), int(truth_marks["mark_id"][i]))] = i
+        # one row per mark and exposure (marks.csv has one row per observation)
+        seen = set()
+        ex, ey, ez, ux, uy, uz, body = [], [], [], [], [], [], []
+        for i in range(len(marks["trigger_seq"])):
+            k = (int(marks["trigger_seq"][i]), int(marks["mark_id"][i]))
+            if k in seen or k not in key or int(marks["excluded"][i]) == 1:
+                continue
+            seen.add(k)
+            j = key[k]
+            ex.append(marks["x_w"][i] - truth_marks["x_w_m"][j])
+            ey.append(marks["y_w"][i] - truth_marks["y_w_m"][j])
+            ez.append(marks["z_w"][i] - truth_marks["z_w_m"][j])
+            ux.append(marks["u_x_w"][i]); uy.append(marks["u_y_w"][i]); uz.append(marks["u_z_w"][i])
+            body.append(marks["body"][i])
+        if ex:
+            E = np.array([ex, ey, ez]) * 1e3
+            U = np.array([ux, uy, uz]) * 1e3
+            fig, axs = plt.subplots(1, 3, figsize=(13, 3.5))
+            for i, a in enumerate(["x_w", "y_w", "z_w"]):
+                z = E[i] / U[i]
+                axs[i].hist(z, bins=60, range=(-5, 5), density=True, alpha=0.7, color="tab:purple")
+                g = np.linspace(-5, 5, 200)
+                axs[i].plot(g, np.exp(-g * g / 2) / np.sqrt(2 * np.pi), "k-", lw=1, label="N(0,1)")
+                axs[i].set_title("mark %s: error / u (ideal: N(0,1))" % a, fontsize=10)
+                inside = 100.0 * np.mean(np.abs(z) <= K)
+                mark_rows.append((a, np.sqrt(np.mean(E[i] ** 2)), np.mean(U[i]), inside))
+            axs[0].legend(fontsize=8)
+            fig.suptitle("Triangulated mark positions against truth (%d mark samples)" % len(ex))
+            savefig(fig, args.out, "mark_errors.png", figures)
+
+    # --- rigid-body residuals -------------------------------------------------------------------
+    if rigid is not None and len(rigid.get("trigger_seq", [])) > 0:
+        fig, axs = plt.subplots(1, 2, figsize=(13, 4))
+        for b, name, color in (("p", "pylon", "tab:blue"), ("s", "store", "tab:orange")):
+            m = rigid["body"] == b
+            if not m.any():
+                continue
+            d = (rigid["distance"][m] - rigid["surveyed"][m]) * 1e3
+            z = d / (rigid["sigma"][m] * 1e3)
+            axs[0].hist(d, bins=80, alpha=0.6, color=color, label="%s (%d pair tests)" % (name, m.sum()))
+            axs[1].hist(z, bins=80, range=(-6, 6), alpha=0.6, density=True, color=color, label=name)
+            summary.append(("rigid-body %s: RMS distance residual" % name, "%.3f mm" % np.sqrt(np.mean(d ** 2))))
+        g = np.linspace(-6, 6, 200)
+        axs[1].plot(g, np.exp(-g * g / 2) / np.sqrt(2 * np.pi), "k-", lw=1, label="N(0,1)")
+        axs[0].set_xlabel("distance - surveyed distance [mm]")
+        axs[1].set_xlabel("(distance - surveyed) / predicted sigma")
+        axs[0].legend(fontsize=8); axs[1].legend(fontsize=8)
+        fig.suptitle("Rigid-body distance checks (every mark pair of each body, every exposure)")
+        savefig(fig, args.out, "rigid_residuals.png", figures)
+
+    # --- per-camera residual maps ---------------------------------------------------------------
+    if marks is not None and len(marks.get("camera_id", [])) > 0:
+        cams = sorted(set(int(c) for c in marks["camera_id"]))
+        fig, axs = plt.subplots(1, len(cams), figsize=(5.5 * len(cams), 4), squeeze=False)
+        for ax, c in zip(axs[0], cams):
+            m = (marks["camera_id"] == c) & np.isfinite(marks["u_obs"])
+            u, v = marks["u_obs"][m], marks["v_obs"][m]
+            du, dv = marks["residual_u"][m], marks["residual_v"][m]
+            mag = np.hypot(du, dv)
+            sc = ax.scatter(u, v, c=mag, s=3, cmap="viridis", vmin=0, vmax=np.percentile(mag, 99) if len(mag) else 1)
+            step = max(1, len(u) // 400)
+            ax.quiver(u[::step], v[::step], du[::step], -dv[::step], angles="xy", scale_units="xy",
+                      scale=0.002, width=0.002, color="tab:red", alpha=0.6)
+            ax.set_xlim(-0.5, width - 0.5); ax.set_ylim(height - 0.5, -0.5)
+            ax.set_aspect("equal")
+            rms = np.sqrt(np.mean(du ** 2 + dv ** 2) / 2) if len(du) else float("nan")
+            ax.set_title("camera %d: RMS residual %.3f px/axis (%d obs)" % (c, rms, len(du)), fontsize=9)
+            summary.append(("camera %d reprojection residual RMS" % c, "%.3f px per axis" % rms))
+            fig.colorbar(sc, ax=ax, label="|residual| [px]", shrink=0.7)
+        fig.suptitle("Per-camera reprojection residual maps (arrows x500)")
+        savefig(fig, args.out, "camera_residuals.png", figures)
+
+    # --- uncertainty budget ---------------------------------------------------------------------
+    comps = [("centroid", "u_budget_centroid"), ("intrinsic", "u_budget_intrinsic"),
+             ("extrinsic / registration", "u_budget_extrinsic"), ("time sync", "u_budget_sync")]
+    fig, axs = plt.subplots(1, 2, figsize=(13, 4), gridspec_kw={"width_ratios": [3, 1]})
+    var = np.array([fti[c][valid] ** 2 for _, c in comps]) * 1e6  # mm^2
+    axs[0].stackplot(t[valid], var, labels=[n for n, _ in comps], alpha=0.8)
+    axs[0].set_ylabel("position variance [mm^2]")
+    axs[0].set_xlabel("time [s]")
+    axs[0].legend(loc="upper left", fontsize=8)
+    axs[0].set_title("Uncertainty budget of the store position (variances add)")
+    share = var.mean(axis=1)
+    share = share / share.sum() * 100 if share.sum() > 0 else share
+    axs[1].barh([n for n, _ in comps], share, color=["C0", "C1", "C2", "C3"])
+    axs[1].set_xlabel("share of the variance [%]")
+    for i, s in enumerate(share):
+        axs[1].text(s, i, " %.1f %%" % s, va="center", fontsize=8)
+        summary.append(("budget share: %s" % comps[i][0], "%.1f %%" % s))
+    savefig(fig, args.out, "budget.png", figures)
+
+    # --- cameras / marks used -------------------------------------------------------------------
+    fig, ax = plt.subplots(figsize=(10, 2.8))
+    ax.plot(t, fti["marks_used"], ".", ms=2, label="store marks used")
+    ax.plot(t, fti["pylon_marks_used"], ".", ms=2, label="pylon marks used")
+    ax.plot(t, fti["cameras_used"], ".", ms=2, label="cameras used")
+    ax.set_xlabel("time [s]"); ax.legend(fontsize=8); ax.grid(alpha=0.3)
+    ax.set_title("Marks and cameras contributing per exposure")
+    savefig(fig, args.out, "usage.png", figures)
+
+    # --- summary --------------------------------------------------------------------------------
+    lat = stats.get("latency", {}).get("last_observation_to_inetx_complete_exposures", {})
+    al = stats.get("aligner", {})
+    summary.append(("exposures complete / partial", "%s / %s" % (al.get("exposures_complete"), al.get("exposures_partial_timeout"))))
+    summary.append(("observations dropped (dup/late/time/unknown)", "%s/%s/%s/%s" % (
+        al.get("dropped_duplicate"), al.get("dropped_late"), al.get("dropped_time_mismatch"), al.get("dropped_unknown_camera"))))
+    ident = stats.get("identifier", {})
+    summary.append(("marks identified / observed", "%s / %s (ambiguous %s)" % (
+        ident.get("identified"), ident.get("observations"), ident.get("ambiguous"))))
+    summary.append(("latency last observation -> iNET-X p50 / p99", "%.0f / %.0f us" % (lat.get("p50_us", float("nan")), lat.get("p99_us", float("nan")))))
+    out = stats.get("outputs", {})
+    summary.append(("iNET-X packets sent", str(out.get("inetx_sent"))))
+    if ch10 is not None:
+        summary.append(("Chapter 10: packets / messages / TMATS first",
+                        "%d / %d / %s" % (ch10["packets"], ch10["messages"], "yes" if ch10["first_type"] == 1 else "NO")))
+        summary.append(("Chapter 10: header checksum errors / trailing bytes",
+                        "%d / %d" % (ch10["header_checksum_errors"], ch10["truncated_bytes"])))
+
+    def fmt_table(rows, headers):
+        widths = [max(len(str(h)), *(len(str(r[i])) for r in rows)) for i, h in enumerate(headers)]
+        line = "  ".join(str(h).ljust(w) for h, w in zip(headers, widths))
+        sep = "  ".join("-" * w for w in widths)
+        return "\n".join([line, sep] + ["  ".join(str(c).ljust(w) for c, w in zip(r, widths)) for r in rows])
+
+    print("\nTest point summary")
+    print(fmt_table(summary, ["quantity", "value"]))
+    cov_table = [(a, unit, "%.4f" % rms, "%.4f" % mx, "%.4f" % mu, "%.1f" % cov)
+                 for a, unit, rms, mx, mu, cov in coverage_rows]
+    if cov_table:
+        print("\nStore pose against truth (coverage of the k = 2 interval should be about 95 %)")
+        print(fmt_table(cov_table, ["axis", "unit", "RMS error", "max |error|", "mean u", "inside k=2 [%]"]))
+    mark_table = [(a, "%.4f" % rms, "%.4f" % mu, "%.1f" % c) for a, rms, mu, c in mark_rows]
+    if mark_table:
+        print("\nTriangulated marks against truth [mm]")
+        print(fmt_table(mark_table, ["axis", "RMS error", "mean u", "inside k=2 [%]"]))
+
+    with open(os.path.join(args.out, "index.html"), "w") as f:
+        f.write("<!doctype html><html><head><meta charset='utf-8'><title>storetrack test point</title>"
+                "<style>body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse}"
+                "td,th{border:1px solid #ccc;padding:3px 8px;text-align:left}img{max-width:100%}</style></head><body>")
+        f.write("<h1>storetrack test point: %s</h1>" % html.escape(os.path.basename(os.path.abspath(args.run))))
+        f.write("<p>Store pose relative to the pylon with GUM standard uncertainties; bands are k = 2 "
+                "expanded uncertainties. Truth from the scene simulator.</p><h2>Summary</h2><table>")
+        for k_, v in summary:
+            f.write("<tr><td>%s</td><td>%s</td></tr>" % (html.escape(k_), html.escape(str(v))))
+        f.write("</table>")
+        for title, table, headers in (("Store pose error against truth", cov_table,
+                                       ["axis", "unit", "RMS error", "max |error|", "mean u", "inside k=2 [%]"]),
+                                      ("Triangulated marks against truth [mm]", mark_table,
+                                       ["axis", "RMS error", "mean u", "inside k=2 [%]"])):
+            if table:
+                f.write("<h2>%s</h2><table><tr>%s</tr>" % (title, "".join("<th>%s</th>" % h for h in headers)))
+                for r in table:
+                    f.write("<tr>%s</tr>" % "".join("<td>%s</td>" % html.escape(str(c)) for c in r))
+                f.write("</table>")
+        for name in figures:
+            f.write("<h2>%s</h2><img src='%s'>" % (html.escape(name[:-4].replace("_", " ")), name))
+        f.write("<h2>Host counters</h2><pre>%s</pre></body></html>" % html.escape(json.dumps(stats, indent=1)))
+    print("\nreport: %s" % os.path.join(args.out, "index.html"))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
