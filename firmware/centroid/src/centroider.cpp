@@ -684,8 +684,9 @@ bool Centroider::windowed_variance(double sigma, float background, double xc, do
   return true;
 }
 
-bool Centroider::photon_weighted_step(double sigma, float background, double window_sum, double& xc,
-                                      double& yc, double& var_x, double& var_y, double& flux) {
+bool Centroider::photon_weighted_step(double sigma, float background, double amplitude, int steps,
+                                      double& xc, double& yc, double& var_x, double& var_y,
+                                      double& flux) {
   // Maximum-likelihood estimating equation for a Gaussian spot g of amplitude A under the
   // Poisson + read noise model (the score of x: sum (I_i - mu_i) dmu_i/dx / var_i = 0, e.g.
   // Smith et al. 2010, Nat. Methods 7:373; Mortensen et al. 2010, Nat. Methods 7:377): by the
@@ -699,8 +700,8 @@ bool Centroider::photon_weighted_step(double sigma, float background, double win
   const float offset = static_cast<float>(variance_offset_dn2_);
   const float v0 = std::max(above_black, 0.0f) * per_dn + offset;
   const double inv_s2 = 1.0 / (sigma * sigma);
-  double new_x = xc, new_y = yc, new_var_x = 0, new_var_y = 0, sum_gp = window_sum;
-  for (int pass = 0; pass < config_.photon_weighting_steps; ++pass) {
+  double new_x = xc, new_y = yc, new_var_x = 0, new_var_y = 0, sum_gp = -1;
+  for (int pass = 0; pass < steps; ++pass) {
     gaussian_window(patch_x0_, patch_w_, new_x, sigma, dx_.data(), wx_.data());
     gaussian_window(patch_y0_, patch_h_, new_y, sigma, dy_.data(), wy_.data());
     double sgx2 = 0, sgy2 = 0;
@@ -708,7 +709,8 @@ bool Centroider::photon_weighted_step(double sigma, float background, double win
       sgx2 += double(wx_[i]) * wx_[i];
     for (int j = 0; j < patch_h_; ++j)
       sgy2 += double(wy_[j]) * wy_[j];
-    const float ka = static_cast<float>(std::max(sum_gp / (sgx2 * sgy2), 0.0) * per_dn);
+    if (sum_gp >= 0) amplitude = sum_gp / (sgx2 * sgy2);
+    const float ka = static_cast<float>(std::max(amplitude, 0.0) * per_dn);
     const float c_var = static_cast<float>(v0 * inv_s2);
     double gx = 0, gy = 0, ddx = 0, ddy = 0, vx = 0, vy = 0, gp = 0, total = 0;
     for (int j = 0; j < patch_h_; ++j) {
@@ -827,6 +829,33 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
   auto half_for = [max_half, radius = config_.window_radius_sigmas](double s) {
     return std::clamp(static_cast<int>(std::ceil(radius * s)), 3, max_half);
   };
+  // Fast start: when the ML stage follows and the window is matched, the windowed iterations
+  // only serve to find s_p and get within reach of the ML root. The threshold moments give both
+  // directly: for a Gaussian of amplitude A cut at level t (tau = t / A, U = -ln tau) the
+  // intensity-weighted second moment per axis is s^2 (1 - (1 + U) tau) / (1 - tau). The
+  // threshold centroid is within a few noise sigmas, so two Newton steps of the ML equation
+  // converge; if they fail, the windowed route below runs from scratch.
+  const bool use_ml_early = config_.photon_weighting && c.saturated == 0 && adaptive;
+  if (use_ml_early) {
+    const double height = c.peak - c.background;
+    const double tau = std::clamp(stats_.last_threshold_dn / std::max(height, 1e-6), 1e-3, 0.9);
+    const double factor = (1.0 - (1.0 - std::log(tau)) * tau) / (1.0 - tau);
+    const double fast_sigma = std::clamp(threshold_sigma / std::sqrt(factor), 0.5, max_half / 3.5);
+    double fx = xc, fy = yc, var_x = 0, var_y = 0, flux = 0;
+    if (extract(half_for(fast_sigma)) &&
+        photon_weighted_step(fast_sigma, background, height, config_.photon_weighting_steps + 1, fx,
+                             fy, var_x, var_y, flux) &&
+        std::abs(fx - x_start) <= 0.5 * half && std::abs(fy - y_start) <= 0.5 * half) {
+      blob.x_px = fx;
+      blob.y_px = fy;
+      blob.sigma_px = std::sqrt(0.5 * (var_x + var_y));
+      blob.flux_dn = static_cast<float>(flux);
+      blob.background_dn = background;
+      blob.peak_dn = static_cast<float>(c.peak - background);
+      if (clipped) blob.flags |= blob_flags::kBorder;
+      return true;
+    }
+  }
   if (!extract(half_for(sigma))) return false;
 
   auto weights = [&](double s) {
@@ -892,7 +921,10 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
     return false;
   adapt_iterations = 0;
   double flux = 0, var_x = 0, var_y = 0;
-  if (!use_ml || !photon_weighted_step(sigma, background, last_sum, xc, yc, var_x, var_y, flux)) {
+  // First amplitude from the windowed sum: sum g^2 over the lattice is ~ pi s^2.
+  if (!use_ml ||
+      !photon_weighted_step(sigma, background, last_sum / (std::numbers::pi * sigma * sigma),
+                            config_.photon_weighting_steps, xc, yc, var_x, var_y, flux)) {
     if (use_ml && !iterate(config_.refine_tolerance_px)) return false;
     if (!windowed_variance(sigma, background, xc, yc, var_x, var_y, flux)) return false;
   }

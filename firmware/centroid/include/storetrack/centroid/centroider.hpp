@@ -157,7 +157,7 @@ class Centroider {
   bool has_separate_maxima(const frame::FrameView& frame, const Candidate& c) const;
   template <typename Pixel>
   bool refine(const frame::FrameView& frame, int candidate_index, Blob& blob);
-  bool photon_weighted_step(double sigma, float background, double window_sum, double& xc,
+  bool photon_weighted_step(double sigma, float background, double amplitude, int steps, double& xc,
                             double& yc, double& var_x, double& var_y, double& flux);
   bool windowed_variance(double sigma, float background, double xc, double yc, double& var_x,
                          double& var_y, double& flux);
