@@ -145,6 +145,9 @@ Centroider::Centroider(const CentroidConfig& config, int max_width, int max_heig
   const int patch_side = 2 * config.max_window_half_px + 1;
   patch_.resize(static_cast<size_t>(patch_side) * patch_side);
   patch_keep_.resize(patch_.size());
+  flat_dx_.resize(patch_.size());
+  flat_dy_.resize(patch_.size());
+  flat_g_.resize(patch_.size());
   wx_.resize(patch_side);
   wy_.resize(patch_side);
   dx_.resize(patch_side);
@@ -712,49 +715,49 @@ bool Centroider::photon_weighted_step(double sigma, float background, double amp
     if (sum_gp >= 0) amplitude = sum_gp / (sgx2 * sgy2);
     const float ka = static_cast<float>(std::max(amplitude, 0.0) * per_dn);
     const float c_var = static_cast<float>(v0 * inv_s2);
-    double gx = 0, gy = 0, ddx = 0, ddy = 0, vx = 0, vy = 0, gp = 0, total = 0;
-    for (int j = 0; j < patch_h_; ++j) {
-      const float* p = &patch_[static_cast<size_t>(j) * patch_w_];
-      const float* keep = &patch_keep_[static_cast<size_t>(j) * patch_w_];
-      const float* wx = wx_.data();
-      const float* dx = dx_.data();
-      const float wy = wy_[j], dy = dy_[j];
-      float rx = 0, ry = 0, rdx = 0, rdy = 0, rvx = 0, rvy = 0, rgp = 0, rf = 0;
-#pragma omp simd reduction(+ : rx, ry, rdx, rdy, rvx, rvy, rgp, rf)
-      for (int i = 0; i < patch_w_; ++i) {
-        const float g = wx[i] * wy;
-        const float inv = 1.0f / (v0 + ka * g);
-        const float w = g * inv;
-        const float pw = p[i] * w;
-        const float c = c_var * inv;  // v0 / (s^2 (v0 + k A g))
-        const float var = keep[i] * (std::max(p[i] + above_black, 0.0f) * per_dn + offset);
-        const float w2v = w * w * var;
-        rx += pw * dx[i];
-        ry += pw * dy;
-        rdx += pw * (1.0f - dx[i] * dx[i] * c);
-        rdy += pw * (1.0f - dy * dy * c);
-        rvx += w2v * dx[i] * dx[i];
-        rvy += w2v * dy * dy;
-        rgp += g * p[i];
-        rf += p[i];
+    // The weight is not separable: flatten the patch so that one SIMD loop covers all of it
+    // (per-row loops of ~11 pixels would spend their time in scalar tails and reductions).
+    const int n = patch_w_ * patch_h_;
+    for (int j = 0, k = 0; j < patch_h_; ++j) {
+      for (int i = 0; i < patch_w_; ++i, ++k) {
+        flat_dx_[k] = dx_[i];
+        flat_dy_[k] = dy_[j];
+        flat_g_[k] = wx_[i] * wy_[j];
       }
-      gx += rx;
-      gy += ry;
-      ddx += rdx;
-      ddy += rdy;
-      vx += rvx;
-      vy += rvy;
-      gp += rgp;
-      total += rf;
+    }
+    const float* p = patch_.data();
+    const float* keep = patch_keep_.data();
+    const float* fdx = flat_dx_.data();
+    const float* fdy = flat_dy_.data();
+    const float* fg = flat_g_.data();
+    float gx = 0, gy = 0, ddx = 0, ddy = 0, vx = 0, vy = 0, gp = 0, total = 0;
+#pragma omp simd reduction(+ : gx, gy, ddx, ddy, vx, vy, gp, total)
+    for (int k = 0; k < n; ++k) {
+      const float g = fg[k];
+      const float inv = 1.0f / (v0 + ka * g);
+      const float w = g * inv;
+      const float pw = p[k] * w;
+      const float c = c_var * inv;  // v0 / (s^2 (v0 + k A g))
+      const float var = keep[k] * (std::max(p[k] + above_black, 0.0f) * per_dn + offset);
+      const float w2v = w * w * var;
+      const float dx2 = fdx[k] * fdx[k], dy2 = fdy[k] * fdy[k];
+      gx += pw * fdx[k];
+      gy += pw * fdy[k];
+      ddx += pw * (1.0f - dx2 * c);
+      ddy += pw * (1.0f - dy2 * c);
+      vx += w2v * dx2;
+      vy += w2v * dy2;
+      gp += g * p[k];
+      total += p[k];
     }
     if (!(ddx > 0) || !(ddy > 0)) return false;
-    const double step_x = gx / ddx, step_y = gy / ddy;
+    const double step_x = double(gx) / ddx, step_y = double(gy) / ddy;
     // A step beyond half a pixel means the template does not fit: keep the windowed solution.
     if (std::abs(step_x) > 0.5 || std::abs(step_y) > 0.5) return false;
     new_x += step_x;
     new_y += step_y;
-    new_var_x = vx / (ddx * ddx);
-    new_var_y = vy / (ddy * ddy);
+    new_var_x = double(vx) / (double(ddx) * ddx);
+    new_var_y = double(vy) / (double(ddy) * ddy);
     sum_gp = gp;
     flux = total;
   }

@@ -195,9 +195,10 @@ class Centroider {
   std::vector<std::uint16_t> samples_;        // one tile's background samples (Mono16)
   std::vector<float> sorted_tiles_;           // tile levels for the frame median
   int patch_x0_ = 0, patch_y0_ = 0, patch_w_ = 0, patch_h_ = 0;
-  std::vector<float> patch_;              // refinement patch, background-subtracted [DN]
-  std::vector<float> patch_keep_;         // 1: pixel used, 0: it belongs to another mark's box
-  std::vector<float> wx_, wy_, dx_, dy_;  // window samples and offsets of the patch
+  std::vector<float> patch_;       // refinement patch, background-subtracted [DN]
+  std::vector<float> patch_keep_;  // 1: pixel used, 0: it belongs to another mark's box
+  std::vector<float> flat_dx_, flat_dy_, flat_g_;  // per patch pixel, for the ML step
+  std::vector<float> wx_, wy_, dx_, dy_;           // window samples and offsets of the patch
   CentroidStats stats_;
 };
 
