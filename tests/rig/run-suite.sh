@@ -7,7 +7,7 @@ set -uo pipefail
 HERE=$(cd "$(dirname "$0")" && pwd)
 RES=$1; shift
 rm -rf "$RES"; mkdir -p "$RES"
-"$HERE/vmrig.sh" --out "$RES" "sh $HERE/guest/suite.sh $*" 2> >(tee "$RES/vmrig.err" >&2)
+VM_TIMEOUT=${VM_TIMEOUT:-1400} "$HERE/vmrig.sh" --out "$RES" "sh $HERE/guest/suite.sh $*" 2> >(tee "$RES/vmrig.err" >&2)
 rc=$?
 wait
 if [ $rc = 77 ]; then

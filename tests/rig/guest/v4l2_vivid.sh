@@ -28,8 +28,9 @@ PY
 modprobe vivid n_devs=1 node_types=0x101 || fail "modprobe vivid"
 C=/dev/video0; O=/dev/video1
 v4l2-ctl -d $C -i 3 >/dev/null && v4l2-ctl -d $O -o 1 >/dev/null || fail "vivid HDMI in/out"
-idx=$(v4l2-ctl -d $C --list-dv-timings | awk '/^Index/{i=$2} /Active width: 1920/{w=1} /Active height: 1080/{if(w){print i; exit}}' | tr -d :)
-[ -n "$idx" ] || fail "no 1920x1080 DV timing in vivid"
+v4l2-ctl -d $C --list-dv-timings > $T/dv.txt
+idx=$(awk '/Index/{i=$NF; w=0} /Active width: 1920$/{w=1} /Active height: 1080$/{if(w){print i; exit}}' $T/dv.txt | tr -d :)
+[ -n "$idx" ] || { head -20 $T/dv.txt; fail "no 1920x1080 DV timing in vivid"; }
 v4l2-ctl -d $C --set-dv-bt-timings index=$idx >/dev/null && v4l2-ctl -d $O --set-dv-bt-timings index=$idx >/dev/null ||
   fail "DV timings"
 v4l2-ctl -d $O --set-fmt-video-out width=1920,height=1080,pixelformat=GREY || fail "output GREY"
