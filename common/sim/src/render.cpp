@@ -23,8 +23,13 @@ double effective_sigma(const Spot& s) {
 }
 // Grid spacing of the disc/blur sampling: half a PSF sigma keeps the sum of sampled Gaussians
 // indistinguishable from the continuous convolution (sampling error ~exp(-2 pi^2 (sigma/h)^2)).
+// The step is 1/m px (m integer) so that grid offsets and pixel edges share one lattice and the
+// erfc values can be shared between grid columns (see evaluate()).
+int grid_steps_per_px(const Spot& s) {
+  return static_cast<int>(std::ceil(1.0 / std::clamp(effective_sigma(s) / 2, 0.05, 0.25)));
+}
 double grid_step(const Spot& s) {
-  return std::clamp(effective_sigma(s) / 2, 0.05, 0.25);
+  return 1.0 / grid_steps_per_px(s);
 }
 // A point source is modelled as a disc much smaller than the PSF (adds < 0.01 px^2 variance).
 double disc_radius(const Spot& s) {
@@ -91,22 +96,35 @@ void SpotRenderer::evaluate(const Spot& spot, const PixelBox& box, double* out) 
   const int cols = 2 * na + 1, rows = 2 * nb + 1;
 
   // Anti-aliased area weights: coverage averaged over radii spread across one grid step, which
-  // approximates the fraction of each h x h cell inside the (swept) disc.
-  grow(weights_, static_cast<std::size_t>(rows) * cols);
-  RowMap W(weights_.data(), rows, cols);
-  constexpr double kRadiusOffsets[4] = {-0.375, -0.125, 0.125, 0.375};
-  double total = 0;
-  for (int j = 0; j < rows; ++j) {
-    const double py = (j - nb) * h;
-    for (int i = 0; i < cols; ++i) {
-      const double px = (i - na) * h;
-      double w = 0;
-      for (double off : kRadiusOffsets)
-        w += swept_coverage(px, py, r + off * h, ux, uy, length);
-      W(j, i) = w;
-      total += w;
+  // approximates the fraction of each h x h cell inside the (swept) disc. They depend only on
+  // the shape, not on the position: cached for repeated evaluations (Fisher information).
+  if (!(weights_valid_ && cached_r_ == r && cached_h_ == h && cached_bx_ == spot.blur_dx_px &&
+        cached_by_ == spot.blur_dy_px)) {
+    grow(weights_, static_cast<std::size_t>(rows) * cols);
+    RowMap Wc(weights_.data(), rows, cols);
+    constexpr double kRadiusOffsets[4] = {-0.375, -0.125, 0.125, 0.375};
+    double sum = 0;
+    for (int j = 0; j < rows; ++j) {
+      const double py = (j - nb) * h;
+      for (int i = 0; i < cols; ++i) {
+        const double px = (i - na) * h;
+        double w = 0;
+        for (double off : kRadiusOffsets) {
+          w += swept_coverage(px, py, r + off * h, ux, uy, length);
+        }
+        Wc(j, i) = w;
+        sum += w;
+      }
     }
+    cached_total_ = sum;
+    cached_r_ = r;
+    cached_h_ = h;
+    cached_bx_ = spot.blur_dx_px;
+    cached_by_ = spot.blur_dy_px;
+    weights_valid_ = true;
   }
+  RowMap W(weights_.data(), rows, cols);
+  const double total = cached_total_;
   const int bw = box.width(), bh = box.height();
   RowMap out_map(out, bh, bw);
   if (total <= 0) {
@@ -114,29 +132,30 @@ void SpotRenderer::evaluate(const Spot& spot, const PixelBox& box, double* out) 
     return;
   }
 
-  // Pixel-integrated 1-D Gaussians for each grid column / row.
+  // Pixel-integrated 1-D Gaussians for each grid column / row. Grid column i sits at
+  // x + (i - na) h and pixel edge c at x0 - 0.5 + c; with h = 1/m their difference lies on the
+  // lattice (base + q h), q = c m - i + na, so one erfc per lattice point serves all columns.
+  const int m = grid_steps_per_px(spot);
+  const auto fill = [&](double base, int n_grid, int half, int n_px, std::vector<double>& cdf,
+                        RowMap& E) {
+    const int n_lattice = n_px * m + n_grid;
+    grow(cdf, static_cast<std::size_t>(n_lattice));
+    for (int q = 0; q < n_lattice; ++q) {
+      cdf[static_cast<std::size_t>(q)] = normal_cdf((base + (q - (n_grid - 1 - half)) * h) / sigma);
+    }
+    // Lattice index of (c, i): c m - i + half + (n_grid - 1 - half) = c m + n_grid - 1 - i.
+    for (int i = 0; i < n_grid; ++i) {
+      const double* f = cdf.data() + (n_grid - 1 - i);
+      for (int c = 0; c < n_px; ++c)
+        E(i, c) = f[(c + 1) * m] - f[c * m];
+    }
+  };
   grow(ex_, static_cast<std::size_t>(cols) * bw);
   grow(ey_, static_cast<std::size_t>(rows) * bh);
   RowMap Ex(ex_.data(), cols, bw);
   RowMap Ey(ey_.data(), rows, bh);
-  for (int i = 0; i < cols; ++i) {
-    const double cx = spot.x_px + (i - na) * h;
-    double lower = normal_cdf((box.x0 - 0.5 - cx) / sigma);
-    for (int c = 0; c < bw; ++c) {
-      const double upper = normal_cdf((box.x0 + c + 0.5 - cx) / sigma);
-      Ex(i, c) = upper - lower;
-      lower = upper;
-    }
-  }
-  for (int j = 0; j < rows; ++j) {
-    const double cy = spot.y_px + (j - nb) * h;
-    double lower = normal_cdf((box.y0 - 0.5 - cy) / sigma);
-    for (int c = 0; c < bh; ++c) {
-      const double upper = normal_cdf((box.y0 + c + 0.5 - cy) / sigma);
-      Ey(j, c) = upper - lower;
-      lower = upper;
-    }
-  }
+  fill(box.x0 - 0.5 - spot.x_px, cols, na, bw, cdf_, Ex);
+  fill(box.y0 - 0.5 - spot.y_px, rows, nb, bh, cdf_, Ey);
   grow(tmp_, static_cast<std::size_t>(rows) * bw);
   RowMap T(tmp_.data(), rows, bw);
   T.noalias() = W * Ex;
@@ -218,15 +237,31 @@ void SpotRenderer::build_background_table(const SensorModel& sensor) {
           p_n * (normal_cdf((hi - n) / rn) - normal_cdf((lo - n) / rn));
     }
   }
-  background_cdf_.assign(static_cast<std::size_t>(levels), 0.0);
+  // Walker/Vose alias table: O(1) exact sampling of the discrete DN distribution.
   double acc = 0;
-  for (int k = 0; k < levels; ++k) {
-    acc += pmf[static_cast<std::size_t>(k)];
-    background_cdf_[static_cast<std::size_t>(k)] = acc;
+  for (double p : pmf)
+    acc += p;
+  const std::size_t n = pmf.size();
+  alias_prob_.assign(n, 1.0);
+  alias_index_.assign(n, 0);
+  std::vector<double> scaled(n);
+  std::vector<std::uint32_t> small, large;
+  for (std::size_t k = 0; k < n; ++k) {
+    scaled[k] = pmf[k] / acc * static_cast<double>(n);
+    alias_index_[k] = static_cast<std::uint32_t>(k);
+    (scaled[k] < 1.0 ? small : large).push_back(static_cast<std::uint32_t>(k));
   }
-  for (double& c : background_cdf_)
-    c /= acc;
-  background_cdf_.back() = 1.0;
+  while (!small.empty() && !large.empty()) {
+    const std::uint32_t s = small.back(), l = large.back();
+    small.pop_back();
+    alias_prob_[s] = scaled[s];
+    alias_index_[s] = l;
+    scaled[l] -= 1.0 - scaled[s];
+    if (scaled[l] < 1.0) {
+      large.pop_back();
+      small.push_back(l);
+    }
+  }
   table_sensor_ = sensor;
   table_valid_ = true;
 }
@@ -237,15 +272,16 @@ void SpotRenderer::render_noisy(std::span<const Spot> spots, const SensorModel& 
                                 int stride) {
   build_background_table(sensor);
   prepare_signal(spots, width, height);
-  // Background pixels: inverse-CDF draw from the exact quantised distribution (fast path).
-  const double* cdf_begin = background_cdf_.data();
-  const double* cdf_end = cdf_begin + background_cdf_.size();
+  // Background pixels: alias-method draw from the exact quantised distribution (fast path);
+  // the high 32 bits pick the column, the low 32 bits decide column vs alias.
+  const std::uint64_t levels = alias_prob_.size();
   for (int y = 0; y < height; ++y) {
     Pixel* row = image + static_cast<std::size_t>(y) * stride;
     for (int x = 0; x < width; ++x) {
-      const double u = static_cast<double>(rng() >> 11) * 0x1.0p-53;
-      const double* it = std::upper_bound(cdf_begin, cdf_end - 1, u);
-      row[x] = static_cast<Pixel>(it - cdf_begin);
+      const std::uint64_t r = rng();
+      const std::size_t k = static_cast<std::size_t>(((r >> 32) * levels) >> 32);
+      const double u = static_cast<double>(r & 0xFFFFFFFFull) * 0x1.0p-32;
+      row[x] = static_cast<Pixel>(u < alias_prob_[k] ? k : alias_index_[k]);
     }
   }
   // Spot pixels (overlapping boxes are drawn again from the same total mean: still exact).

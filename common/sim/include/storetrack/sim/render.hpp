@@ -103,12 +103,16 @@ class SpotRenderer {
   void prepare_signal(std::span<const Spot> spots, int width, int height);
   void build_background_table(const SensorModel& sensor);
 
-  std::vector<double> weights_, ex_, ey_, tmp_, box_, stats_;
+  std::vector<double> weights_, ex_, ey_, tmp_, box_, stats_, cdf_;
+  // Shape key of the cached weights_ (disc radius, grid step, blur vector).
+  bool weights_valid_ = false;
+  double cached_r_ = 0, cached_h_ = 0, cached_bx_ = 0, cached_by_ = 0, cached_total_ = 0;
   std::vector<float> signal_;  // width * height expected signal, zero outside spot boxes
   std::vector<PixelBox> boxes_;
   int signal_width_ = 0, signal_height_ = 0;
-  // Cumulative distribution of background-pixel DN (exact Poisson (*) Gaussian, quantised).
-  std::vector<double> background_cdf_;
+  // Alias table of the background-pixel DN distribution (exact Poisson (*) Gaussian, quantised).
+  std::vector<double> alias_prob_;
+  std::vector<std::uint32_t> alias_index_;
   SensorModel table_sensor_{};
   bool table_valid_ = false;
 };
