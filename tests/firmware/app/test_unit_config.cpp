@@ -1,0 +1,57 @@
+// storetrack-unit configuration: the shipped example parses and validates; typos and bad
+// values are clear errors; the effective-config JSON reads back to the same configuration.
+#include <gtest/gtest.h>
+
+#include <string>
+
+#include "unit_config.hpp"
+
+namespace storetrack::unit {
+namespace {
+
+TEST(UnitConfig, ShippedExampleIsValid) {
+  UnitConfig c;
+  ASSERT_NO_THROW(
+      load_config_file(std::string(STORETRACK_APP_CONFIG_DIR) + "/unit.example.json", c));
+  EXPECT_NO_THROW(validate(c));
+  EXPECT_EQ(c.source, SourceType::kV4l2);
+  EXPECT_EQ(c.trigger.mode, TriggerMode::kGpioSlave);
+  EXPECT_EQ(c.modbus_address, "127.0.0.1");
+  EXPECT_FALSE(c.maintenance);
+}
+
+TEST(UnitConfig, UnknownKeysAndBadValuesAreErrors) {
+  UnitConfig c;
+  EXPECT_THROW(parse_config_json(R"({"unit_idd": 3})", "t", c), ConfigError);
+  EXPECT_THROW(parse_config_json(R"({"trigger": {"mode": "gpio"}})", "t", c), ConfigError);
+  EXPECT_THROW(parse_config_json(R"({"links": {"udp": [{"dest": "x"}]}})", "t", c), ConfigError);
+  EXPECT_THROW(parse_config_json(R"({"unit_id": "three"})", "t", c), ConfigError);
+  EXPECT_THROW(parse_config_json("{", "t", c), ConfigError);
+  UnitConfig ok;
+  ok.source = SourceType::kReplay;
+  ok.replay.directory = "/tmp";
+  EXPECT_NO_THROW(validate(ok));
+  UnitConfig bad = ok;
+  bad.trigger.rate_hz = 401;
+  EXPECT_THROW(validate(bad), ConfigError);
+  bad = ok;
+  bad.unit_id = 255;
+  EXPECT_THROW(validate(bad), ConfigError);
+  bad = ok;
+  bad.trigger.pulse_width_ns = 9'000'000;  // 90 % of 10 ms
+  EXPECT_THROW(validate(bad), ConfigError);
+  bad = ok;
+  bad.source = SourceType::kSim;  // no scenario
+  EXPECT_THROW(validate(bad), ConfigError);
+}
+
+TEST(UnitConfig, EffectiveConfigRoundTrips) {
+  UnitConfig c;
+  load_config_file(std::string(STORETRACK_APP_CONFIG_DIR) + "/unit.example.json", c);
+  UnitConfig back;
+  parse_config_json(to_json(c), "round trip", back);
+  EXPECT_EQ(to_json(back), to_json(c));
+}
+
+}  // namespace
+}  // namespace storetrack::unit

@@ -1,0 +1,279 @@
+// storetrack-unit end to end: the real binary runs on the simulator (and on replayed frames),
+// streams MarkObservations over UDP on 127.0.0.1, and a receiver here decodes them with the
+// ICD codec and checks them against the simulator's truth.
+#include <arpa/inet.h>
+#include <gtest/gtest.h>
+#include <poll.h>
+#include <spawn.h>
+#include <sys/socket.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "storetrack/msg/udp_codec.hpp"
+#include "storetrack/sim/frame_source.hpp"
+#include "storetrack/sim/scenario.hpp"
+#include "storetrack/sim/simulator.hpp"
+
+extern char** environ;
+
+namespace storetrack {
+namespace {
+namespace fs = std::filesystem;
+
+const std::string kScenario = std::string(STORETRACK_SCENARIO_DIR) + "/static.json";
+
+struct Received {
+  std::vector<msg::MarkObservations> observations;
+  std::vector<msg::UnitHealth> health;
+  int decode_errors = 0;
+  int exit_status = -1;
+};
+
+/// Runs storetrack-unit with `args` while receiving its datagrams on 127.0.0.1.
+Received run_unit(std::vector<std::string> args) {
+  const int fd = socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a);
+  socklen_t len = sizeof a;
+  getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len);
+  const int rcvbuf = 8 << 20;
+  setsockopt(fd, SOL_SOCKET, SO_RCVBUF, &rcvbuf, sizeof rcvbuf);
+  args.insert(args.begin(), STORETRACK_UNIT_BIN);
+  args.push_back("--udp");
+  args.push_back("127.0.0.1:" + std::to_string(ntohs(a.sin_port)));
+  std::vector<char*> argv;
+  for (auto& s : args)
+    argv.push_back(s.data());
+  argv.push_back(nullptr);
+  pid_t pid = 0;
+  Received out;
+  if (posix_spawn(&pid, STORETRACK_UNIT_BIN, nullptr, nullptr, argv.data(), environ) != 0) {
+    close(fd);
+    return out;
+  }
+  bool exited = false;
+  for (int idle = 0; idle < 600;) {  // up to 60 s without traffic
+    pollfd p{fd, POLLIN, 0};
+    if (poll(&p, 1, 100) == 1) {
+      std::uint8_t buf[2048];
+      const ssize_t n = recv(fd, buf, sizeof buf, 0);
+      msg::AnyMessage any;
+      if (n > 0 &&
+          msg::decode_datagram(std::span<const std::uint8_t>(buf, static_cast<std::size_t>(n)),
+                               any) == msg::DecodeError::kNone) {
+        if (auto* o = std::get_if<msg::MarkObservations>(&any)) out.observations.push_back(*o);
+        if (auto* h = std::get_if<msg::UnitHealth>(&any)) out.health.push_back(*h);
+      } else {
+        ++out.decode_errors;
+      }
+      idle = 0;
+      continue;
+    }
+    ++idle;
+    if (exited) break;  // drained after exit
+    int status = 0;
+    if (waitpid(pid, &status, WNOHANG) == pid) {
+      exited = true;
+      out.exit_status = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+      idle = 595;  // one last short drain
+    }
+  }
+  if (!exited) {
+    kill(pid, SIGKILL);
+    waitpid(pid, nullptr, 0);
+  }
+  close(fd);
+  return out;
+}
+
+struct Accuracy {
+  int visible = 0;
+  int matched = 0;
+  int spurious = 0;
+  int crowded = 0;
+  std::vector<double> errors_px;
+  std::vector<double> normalised;  // error / reported sigma, per axis
+};
+
+/// Nearest-neighbour match of observed marks to the truth's visible projections.
+void compare(const sim::Simulator& sim, int camera_index, const msg::MarkObservations& obs,
+             Accuracy& acc) {
+  const int k = static_cast<int>(obs.trigger_seq - sim.scenario().first_trigger_seq);
+  ASSERT_GE(k, 0);
+  ASSERT_LT(k, sim.num_exposures());
+  const sim::ExposureTruth truth = sim.truth(k);
+  std::vector<bool> used(obs.mark_count, false);
+  for (const sim::MarkTruth& m : truth.marks) {
+    const sim::MarkCameraTruth& c = m.cameras[static_cast<std::size_t>(camera_index)];
+    if (!c.visible) continue;
+    // Marks whose spots touch another mark's are legitimately reported merged (one blob,
+    // flagged): they are not required to be found individually.
+    bool crowded = false;
+    for (const sim::MarkTruth& other : truth.marks) {
+      const sim::MarkCameraTruth& oc = other.cameras[static_cast<std::size_t>(camera_index)];
+      if (other.id != m.id && oc.visible &&
+          (oc.pixel - c.pixel).norm() < 0.75 * (c.disc_diameter_px + oc.disc_diameter_px) + 6) {
+        crowded = true;
+      }
+    }
+    if (crowded) {
+      ++acc.crowded;
+      continue;
+    }
+    ++acc.visible;
+    int best = -1;
+    double best_d = 1.0;  // px: a match must be within one pixel
+    for (int i = 0; i < obs.mark_count; ++i) {
+      const double d = std::hypot(obs.marks[static_cast<std::size_t>(i)].x_px - c.pixel.x(),
+                                  obs.marks[static_cast<std::size_t>(i)].y_px - c.pixel.y());
+      if (d < best_d && !used[static_cast<std::size_t>(i)]) {
+        best = i;
+        best_d = d;
+      }
+    }
+    if (best < 0) continue;
+    used[static_cast<std::size_t>(best)] = true;
+    ++acc.matched;
+    const auto& o = obs.marks[static_cast<std::size_t>(best)];
+    acc.errors_px.push_back(best_d);
+    acc.normalised.push_back((o.x_px - c.pixel.x()) / o.sigma_px);
+    acc.normalised.push_back((o.y_px - c.pixel.y()) / o.sigma_px);
+  }
+  for (int i = 0; i < obs.mark_count; ++i) {
+    const bool merged = obs.marks[static_cast<std::size_t>(i)].flags & msg::mark_flags::kMerged;
+    if (!used[static_cast<std::size_t>(i)] && !merged) ++acc.spurious;
+  }
+}
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? 0 : v[v.size() / 2];
+}
+
+TEST(UnitIntegration, SimulatorToUdpMatchesTruth) {
+  const fs::path stats =
+      fs::temp_directory_path() / ("st_unit_stats_" + std::to_string(getpid()) + ".json");
+  const int frames = 12;
+  const Received r = run_unit({"run", "--source", "sim", "--scenario", kScenario, "--camera-index",
+                               "1", "--trigger", "sim", "--frames", std::to_string(frames),
+                               "--no-modbus", "--stats-json", stats.string()});
+  ASSERT_EQ(r.exit_status, 0);
+  EXPECT_EQ(r.decode_errors, 0);
+  ASSERT_EQ(static_cast<int>(r.observations.size()), frames);
+  ASSERT_FALSE(r.health.empty());
+  EXPECT_EQ(r.health.back().frames_captured, static_cast<std::uint32_t>(frames));
+  EXPECT_EQ(r.health.back().observations_sent, static_cast<std::uint32_t>(frames));
+
+  const sim::Scenario sc = sim::load_scenario(kScenario);
+  const sim::Simulator sim(sc, 1);
+  Accuracy acc;
+  for (std::size_t i = 0; i < r.observations.size(); ++i) {
+    const msg::MarkObservations& o = r.observations[i];
+    const int k = static_cast<int>(i);
+    // Sequence, ids and time stamps as the simulated unit would report them.
+    EXPECT_EQ(o.trigger_seq, sc.first_trigger_seq + static_cast<std::uint32_t>(k));
+    EXPECT_EQ(o.unit_id, sc.cameras[1].unit_id);
+    EXPECT_EQ(o.camera_id, sc.cameras[1].camera_id);
+    const sim::ExposureTiming t = sim.exposure_timing(k, 1);
+    EXPECT_NEAR(static_cast<double>(o.exposure_start_tai_ns),
+                static_cast<double>(t.reported_start_tai_ns), 1000.0);
+    EXPECT_EQ(o.exposure_start_mono_ns, t.reported_start_mono_ns);
+    EXPECT_EQ(o.exposure_duration_ns, t.exposure_ns);
+    EXPECT_EQ(o.flags & msg::exposure_flags::kTriggerMissing, 0);
+    compare(sim, 1, o, acc);
+  }
+  ASSERT_GT(acc.visible, 0);
+  // Every visible mark found, nothing invented, positions at the centroiding accuracy.
+  EXPECT_GE(acc.matched, acc.visible * 95 / 100) << acc.matched << " of " << acc.visible;
+  EXPECT_LE(acc.spurious, frames);  // at most about one stray blob per frame
+  EXPECT_LT(median(acc.errors_px), 0.1);
+  double sum_sq = 0;
+  for (double z : acc.normalised)
+    sum_sq += z * z;
+  const double rms_z = std::sqrt(sum_sq / static_cast<double>(acc.normalised.size()));
+  // Reported sigma is honest to within a factor of 2 (wire quantisation of x/y is 1/256 px).
+  EXPECT_LT(rms_z, 2.0) << "rms(error / sigma) = " << rms_z;
+  EXPECT_GT(rms_z, 0.3) << "rms(error / sigma) = " << rms_z;
+
+  std::ifstream in(stats);
+  ASSERT_TRUE(in.good());
+  const nlohmann::json j = nlohmann::json::parse(in);
+  EXPECT_EQ(j["frames_captured"].get<int>(), frames);
+  EXPECT_EQ(j["pairing"]["frames_paired"].get<int>(), frames);
+  EXPECT_EQ(j["exit_code"].get<int>(), 0);
+  fs::remove(stats);
+}
+
+TEST(UnitIntegration, InjectedTriggerFaultsAreFlaggedNotMispaired) {
+  const fs::path cfg =
+      fs::temp_directory_path() / ("st_unit_cfg_" + std::to_string(getpid()) + ".json");
+  std::ofstream(cfg) << R"({"trigger": {"mode": "sim", "sim_drop_every": 4, "sim_extra_every": 3,
+                           "sim_jitter_ns": 20000}, "modbus": {"enabled": false}})";
+  const int frames = 12;
+  const Received r =
+      run_unit({"run", "--config", cfg.string(), "--source", "sim", "--scenario", kScenario,
+                "--frames", std::to_string(frames), "--threshold-dn", "30"});
+  fs::remove(cfg);
+  ASSERT_EQ(r.exit_status, 0);
+  ASSERT_EQ(static_cast<int>(r.observations.size()), frames);
+  const sim::Scenario sc = sim::load_scenario(kScenario);
+  for (int k = 0; k < frames; ++k) {
+    const msg::MarkObservations& o = r.observations[static_cast<std::size_t>(k)];
+    EXPECT_EQ(o.trigger_seq, sc.first_trigger_seq + static_cast<std::uint32_t>(k)) << "frame " << k;
+    const bool edge_dropped = k % 4 == 3;
+    EXPECT_EQ((o.flags & msg::exposure_flags::kTriggerMissing) != 0, edge_dropped) << "frame " << k;
+  }
+  EXPECT_EQ(r.health.back().triggers_missing, static_cast<std::uint32_t>(frames / 4));
+}
+
+TEST(UnitIntegration, ReplayedFramesMatchTheSimulator) {
+  const sim::Scenario sc = sim::load_scenario(kScenario);
+  const sim::Simulator sim(sc, 3);
+  const fs::path dir = fs::temp_directory_path() / ("st_unit_replay_" + std::to_string(getpid()));
+  const int frames = 5;
+  sim::write_frame_sequence(sim, 2, dir.string(), frames);
+  const Received r = run_unit({"run", "--source", "replay", "--replay-dir", dir.string(),
+                               "--no-modbus", "--unit-id", "7", "--camera-id", "9"});
+  fs::remove_all(dir);
+  ASSERT_EQ(r.exit_status, 0);
+  ASSERT_EQ(static_cast<int>(r.observations.size()), frames);
+  Accuracy acc;
+  for (int k = 0; k < frames; ++k) {
+    const msg::MarkObservations& o = r.observations[static_cast<std::size_t>(k)];
+    const sim::ExposureTiming t = sim.exposure_timing(k, 2);
+    EXPECT_EQ(o.trigger_seq, t.trigger_seq);
+    EXPECT_EQ(o.exposure_start_tai_ns, t.reported_start_tai_ns);
+    EXPECT_EQ(o.exposure_start_mono_ns, t.reported_start_mono_ns);
+    EXPECT_EQ(o.unit_id, 7);
+    EXPECT_EQ(o.camera_id, 9);
+    compare(sim, 2, o, acc);
+  }
+  ASSERT_GT(acc.visible, 0);
+  EXPECT_GE(acc.matched, acc.visible * 95 / 100)
+      << acc.matched << " of " << acc.visible << " (" << acc.crowded << " crowded)";
+  EXPECT_LE(acc.spurious, frames);
+  EXPECT_LT(median(acc.errors_px), 0.1);
+}
+
+TEST(UnitIntegration, BadConfigurationExitsWithUsageCode) {
+  const Received r = run_unit({"run", "--source", "sim", "--no-modbus"});  // no scenario
+  EXPECT_EQ(r.exit_status, 2);
+  const Received r2 =
+      run_unit({"run", "--source", "v4l2", "--device", "/dev/nonexistent-video", "--no-modbus"});
+  EXPECT_EQ(r2.exit_status, 3);
+}
+
+}  // namespace
+}  // namespace storetrack
