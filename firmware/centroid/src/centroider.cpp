@@ -849,6 +849,7 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
         photon_weighted_step(fast_sigma, background, height, config_.photon_weighting_steps + 1, fx,
                              fy, var_x, var_y, flux) &&
         std::abs(fx - x_start) <= 0.5 * half && std::abs(fy - y_start) <= 0.5 * half) {
+      ++stats_.fast_starts;
       blob.x_px = fx;
       blob.y_px = fy;
       blob.sigma_px = std::sqrt(0.5 * (var_x + var_y));

@@ -98,6 +98,7 @@ struct CentroidStats {
   std::uint64_t candidates_dropped = 0;  ///< components beyond max_candidates
   std::uint64_t blobs_too_small = 0;     ///< components below min_area_px
   std::uint64_t blobs_truncated = 0;     ///< blobs beyond the output span (faintest dropped)
+  std::uint64_t fast_starts = 0;  ///< blobs refined by the ML step straight from threshold moments
   std::uint64_t refine_fallbacks = 0;    ///< windowed centroid failed: threshold moments used
   int last_candidates = 0;
   int last_runs = 0;
