@@ -30,9 +30,10 @@ constexpr int kSurvey = uncertainty::index(Source::kSurvey);
 
 using Loadings6 = Eigen::Matrix<double, 6, Eigen::Dynamic>;
 
-// Mid-exposure time of one camera [ns], corrected by its calibrated trigger latency.
-double camera_mid_ns(const msg::MarkObservations& obs, const camera::CalibratedCamera& cam) {
-  return static_cast<double>(exposure_mid_tai_ns(obs)) + cam.exposure_offset_ns;
+// Mid-exposure time of one camera [TAI ns], corrected by its calibrated trigger latency.
+// Integer arithmetic: TAI ns since 1970 do not fit a double's mantissa at ns resolution.
+time::TaiNs camera_mid_ns(const msg::MarkObservations& obs, const camera::CalibratedCamera& cam) {
+  return exposure_mid_tai_ns(obs) + static_cast<time::TaiNs>(std::llround(cam.exposure_offset_ns));
 }
 
 // A body's fitted pose with its error model: xi = sum over marks, loadings on common factors,
@@ -52,7 +53,8 @@ void fill_pose(const BodySolution& b, const uncertainty::CalibrationFactors& f, 
   out.T = b.T_w_b;
   out.marks_used = b.marks_used;
   out.chi2 = b.chi2;
-  if (!b.valid) return;
+  // Monte Carlo draws solve without uncertainty: no loadings, covariances stay zero.
+  if (!b.valid || b.loadings.cols() != f.num_factors()) return;
   out.cov_by_source[kCentroid] = b.cov_centroid;
   out.cov_by_source[kIntrinsic] = uncertainty::covariance_of(b.loadings, f, Source::kIntrinsic);
   out.cov_by_source[kExtrinsic] = uncertainty::covariance_of(b.loadings, f, Source::kExtrinsic);
@@ -99,7 +101,6 @@ const MarkResult* ExposureResult::find_mark(int id) const {
 }
 
 struct ExposureProcessor::Prepared {
-  double t_ref_ns = 0;
   time::TaiNs t_ref_tai_ns = std::numeric_limits<time::TaiNs>::min();
   struct Obs {
     int slot = -1;
@@ -181,6 +182,7 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
   const int ref_id =
       config_.reference_camera_id >= 0 ? config_.reference_camera_id : rig_.cameras[0].camera_id;
   bool have_ref = false;
+  bool first = true;
   std::vector<int> slot_of_entry(exposure.cameras.size(), -1);
   for (size_t e = 0; e < exposure.cameras.size(); ++e) {
     const msg::MarkObservations& obs = exposure.cameras[e];
@@ -192,15 +194,14 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
     }
     slot_of_entry[e] = slot;
     prep.slot_used[static_cast<size_t>(slot)] = true;
-    const double t = camera_mid_ns(obs, rig_.cameras[static_cast<size_t>(slot)]);
+    const time::TaiNs t = camera_mid_ns(obs, rig_.cameras[static_cast<size_t>(slot)]);
     if (obs.camera_id == ref_id) {
-      prep.t_ref_ns = t;
-      prep.t_ref_tai_ns = exposure_mid_tai_ns(obs);
+      prep.t_ref_tai_ns = t;
       have_ref = true;
-    } else if (!have_ref && (prep.t_ref_tai_ns == std::numeric_limits<time::TaiNs>::min() ||
-                             t < prep.t_ref_ns)) {
-      prep.t_ref_ns = t;
-      prep.t_ref_tai_ns = exposure_mid_tai_ns(obs);
+      first = false;
+    } else if (!have_ref && (first || t < prep.t_ref_tai_ns)) {
+      prep.t_ref_tai_ns = t;
+      first = false;
     }
     if (obs.clock_state != static_cast<std::uint8_t>(time::ClockState::kLocked))
       prep.clock_not_locked = true;
@@ -212,7 +213,9 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
     if (slot < 0) continue;
     const msg::MarkObservations& obs = exposure.cameras[e];
     prep.dt_s[static_cast<size_t>(slot)] =
-        (camera_mid_ns(obs, rig_.cameras[static_cast<size_t>(slot)]) - prep.t_ref_ns) * 1e-9;
+        static_cast<double>(camera_mid_ns(obs, rig_.cameras[static_cast<size_t>(slot)]) -
+                            prep.t_ref_tai_ns) *
+        1e-9;
     const size_t count = std::min<size_t>(obs.mark_count, obs.marks.size());
     if (ids[e].size() < count)
       throw std::invalid_argument("ExposureProcessor: ids shorter than a camera's mark_count");
@@ -242,7 +245,8 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
         }
         const Track& tr = tracks_[static_cast<size_t>(id)];
         if (tr.velocity_valid &&
-            std::abs(prep.t_ref_ns * 1e-9 - tr.t_s) <= config_.tracking_max_gap_s) {
+            std::abs(static_cast<double>(prep.t_ref_tai_ns - tr.t_ns)) * 1e-9 <=
+                config_.tracking_max_gap_s) {
           m.velocity_w = tr.velocity_w;
           m.velocity_valid = true;
         }
@@ -332,10 +336,10 @@ void ExposureProcessor::solve(const Prepared& prep,
         const auto& J = tri.jacobians[i];
         if (cf.intrinsic.cols() > 0)
           m.loadings.middleCols(cf.intrinsic_begin, cf.intrinsic.cols()).noalias() -=
-              K * (J.d_intrinsics * cf.intrinsic);
+              (K * J.d_intrinsics).lazyProduct(cf.intrinsic);
         if (cf.extrinsic.cols() > 0)
           m.loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols()).noalias() -=
-              K * (J.d_pose * cf.extrinsic);
+              (K * J.d_pose).lazyProduct(cf.extrinsic);
         if (cf.sync_column >= 0 && mark.velocity_valid)
           m.loadings.col(cf.sync_column).noalias() -=
               K * (J.d_point_world * mark.velocity_w) * cf.sync_sigma_s;
@@ -347,7 +351,7 @@ void ExposureProcessor::solve(const Prepared& prep,
           uncertainty::covariance_of(m.loadings, factors_, Source::kExtrinsic);
       m.cov_by_source[kSync] = uncertainty::covariance_of(m.loadings, factors_, Source::kSync);
       m.cov_by_source[kSurvey].setZero();
-      m.cov_w = tri.cov_centroid + m.loadings * m.loadings.transpose();
+      m.cov_w = tri.cov_centroid + m.loadings.lazyProduct(m.loadings.transpose());
     }
     out.marks.push_back(std::move(m));
   }
@@ -425,7 +429,7 @@ void ExposureProcessor::solve(const Prepared& prep,
       sol.loadings = Loadings6::Zero(6, nz);
       for (size_t k = 0; k < idx.size(); ++k) {
         const MarkResult& m = out.marks[idx[k]];
-        sol.loadings.noalias() += bf.d_pose_d_point[k] * m.loadings;
+        sol.loadings.noalias() += bf.d_pose_d_point[k].lazyProduct(m.loadings);
         sol.cov_centroid.noalias() +=
             bf.d_pose_d_point[k] * m.cov_by_source[kCentroid] * bf.d_pose_d_point[k].transpose();
         sol.cov_survey.noalias() +=
@@ -449,7 +453,7 @@ void ExposureProcessor::solve(const Prepared& prep,
       Mat6 A_p, A_s;
       pose::relative_pose_jacobians(pylon.T_w_b, store.T_w_b, A_p, A_s);
       // Common calibration factors add as loadings (correlated), the rest independently.
-      rel.loadings = A_p * pylon.loadings + A_s * store.loadings;
+      rel.loadings = A_p.lazyProduct(pylon.loadings) + A_s.lazyProduct(store.loadings);
       rel.cov_centroid =
           A_p * pylon.cov_centroid * A_p.transpose() + A_s * store.cov_centroid * A_s.transpose();
       rel.cov_survey =
@@ -545,10 +549,9 @@ ExposureResult ExposureProcessor::process(const AlignedExposure& exposure, const
   fill_sample(exposure, prep, out);
 
   // Tracking: velocity from the previous exposure's position of the same mark.
-  const double t_s = prep.t_ref_ns * 1e-9;
   for (MarkResult& m : out.marks) {
     Track& tr = tracks_[static_cast<size_t>(m.id)];
-    const double dt = t_s - tr.t_s;
+    const double dt = static_cast<double>(prep.t_ref_tai_ns - tr.t_ns) * 1e-9;
     if (tr.valid && dt > 0 && dt <= config_.tracking_max_gap_s) {
       tr.velocity_w = (m.p_w - tr.p_w) / dt;
       tr.velocity_valid = true;
@@ -556,7 +559,7 @@ ExposureResult ExposureProcessor::process(const AlignedExposure& exposure, const
       tr.velocity_valid = false;
     }
     tr.valid = true;
-    tr.t_s = t_s;
+    tr.t_ns = prep.t_ref_tai_ns;
     tr.p_w = m.p_w;
   }
   return out;

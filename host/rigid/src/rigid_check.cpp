@@ -20,12 +20,15 @@ PairTest test_pair(const MarkEstimate& a, const MarkEstimate& b) {
   const Vec3 u = t.distance_m > 0 ? Vec3(d / t.distance_m) : Vec3::UnitX();
   // Independent parts add; the common calibration part enters through L_a - L_b.
   double var = u.dot((a.cov_independent + b.cov_independent) * u);
-  if (a.loadings != nullptr && b.loadings != nullptr) {
-    var += (u.transpose() * (*a.loadings - *b.loadings)).squaredNorm();
-  } else if (a.loadings != nullptr) {
-    var += (u.transpose() * *a.loadings).squaredNorm();
-  } else if (b.loadings != nullptr) {
-    var += (u.transpose() * *b.loadings).squaredNorm();
+  // (u^T (L_a - L_b))^2 summed over factors, without temporaries (hot loop: all pairs).
+  const auto* La = a.loadings;
+  const auto* Lb = b.loadings;
+  const Eigen::Index nz = La != nullptr ? La->cols() : (Lb != nullptr ? Lb->cols() : 0);
+  for (Eigen::Index j = 0; j < nz; ++j) {
+    double s = 0;
+    if (La != nullptr) s += u.dot(La->col(j));
+    if (Lb != nullptr) s -= u.dot(Lb->col(j));
+    var += s * s;
   }
   var += a.survey_sigma_m * a.survey_sigma_m + b.survey_sigma_m * b.survey_sigma_m;
   t.sigma_m = std::sqrt(var);

@@ -155,7 +155,7 @@ class ExposureProcessor {
 
   struct Track {
     bool valid = false;
-    double t_s = 0;
+    time::TaiNs t_ns = 0;
     geometry::Vec3 p_w = geometry::Vec3::Zero();
     geometry::Vec3 velocity_w = geometry::Vec3::Zero();
     bool velocity_valid = false;

@@ -62,7 +62,7 @@ auto covariance_of(const Eigen::MatrixBase<Derived>& loadings, const Calibration
   Out out = Out::Zero(loadings.rows(), loadings.rows());
   if (count > 0) {
     const auto block = loadings.middleCols(begin, count);
-    out.noalias() = block * block.transpose();
+    out.noalias() = block.lazyProduct(block.transpose());  // small: no GEMM blocking
   }
   return out;
 }
