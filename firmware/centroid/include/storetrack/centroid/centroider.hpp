@@ -2,13 +2,15 @@
 //
 // Pipeline per frame (docs/centroiding.md has the method, the noise model and the accuracy):
 //   1. background: sparse-grid median + clipped mean per coarse tile (a few % of the pixels);
-//   2. threshold: per-tile level (background + threshold), scanned 32 pixels at a time so dark
-//      sky/structure costs little more than reading the frame once;
+//   2. threshold: per-tile level (background + threshold), scanned 128 pixels at a time with
+//      vector maxima, so the dark frame costs about as much as reading it once;
 //   3. connected components (8-connected) over run-length rows, one pass, union-find on runs;
 //   4. per component: background-subtracted moments, flux, peak, area, ellipse, flags;
-//   5. refinement: iterative Gaussian-windowed centroid (SExtractor XWIN_IMAGE, Bertin & Arnouts
-//      1996 / SExtractor manual 2.13; the window is matched to the spot's own width) with its
-//      standard deviation propagated from the per-pixel photon + read + quantisation variance.
+//   5. refinement: Newton steps of the maximum-likelihood weighted centroid for a Gaussian
+//      template under photon + read noise (Smith et al. 2010; Mortensen et al. 2010), started
+//      from the threshold moments; fallback: iterative Gaussian-windowed centroid (SExtractor
+//      XWIN_IMAGE, Bertin & Arnouts 1996). The standard deviation is propagated from the
+//      per-pixel photon + read + quantisation variance through the estimating equation.
 //
 // The per-frame path works in place on the caller's buffer (an mmap'd V4L2 buffer): it does not
 // copy the frame, allocate or throw. All scratch memory is sized in the constructor.
@@ -52,11 +54,11 @@ struct CentroidConfig {
   double window_sigma_px = 0.0;    ///< > 0: fixed window sigma; 0: matched to each blob
   int max_refine_iterations = 16;  ///< iterations of the windowed centroid
   double refine_tolerance_px = 1e-4;
-  /// Then two Newton steps of the maximum-likelihood weighting g / (v0 + k A g) (Gaussian
-  /// template, photon + read noise): closes most of the gap to the Cramer-Rao bound when photon
-  /// noise dominates the spot's core.
+  /// Maximum-likelihood weighting g / (v0 + k A g) (Gaussian template, photon + read noise),
+  /// started from the threshold moments (fast start) or after the windowed centroid: reaches
+  /// the Cramer-Rao bound when photon noise dominates the spot's core. Off: windowed only.
   bool photon_weighting = true;
-  int photon_weighting_steps = 1;     ///< Newton steps (one lands within 1e-4 px of the ML root)
+  int photon_weighting_steps = 1;     ///< after the windowed centroid; fast start uses one more
   double window_radius_sigmas = 3.0;  ///< refinement patch half-size in window sigmas
   int max_window_half_px = 15;        ///< refinement patch is at most (2h+1)^2 pixels
   // --- Shape flags ------------------------------------------------------------------------
@@ -99,7 +101,7 @@ struct CentroidStats {
   std::uint64_t blobs_too_small = 0;     ///< components below min_area_px
   std::uint64_t blobs_truncated = 0;     ///< blobs beyond the output span (faintest dropped)
   std::uint64_t fast_starts = 0;  ///< blobs refined by the ML step straight from threshold moments
-  std::uint64_t refine_fallbacks = 0;    ///< windowed centroid failed: threshold moments used
+  std::uint64_t refine_fallbacks = 0;  ///< windowed centroid failed: threshold moments used
   int last_candidates = 0;
   int last_runs = 0;
   float last_background_dn = 0;  ///< median over tiles of the background level
