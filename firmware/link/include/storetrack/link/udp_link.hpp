@@ -13,7 +13,7 @@ namespace storetrack::link {
 
 struct UdpLinkConfig {
   std::string destination = "127.0.0.1:50000";  ///< IPv4 "address:port"; 224.0.0.0/4 = multicast
-  std::string multicast_interface;  ///< IPv4 address of the interface for multicast ("": default)
+  std::string multicast_interface{};  ///< IPv4 address of the multicast interface ("": default)
   int multicast_ttl = 1;
   bool multicast_loop = true;  ///< deliver multicast to receivers on this host too
   int send_buffer_bytes = 0;   ///< SO_SNDBUF (0: kernel default)
