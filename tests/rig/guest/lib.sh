@@ -5,7 +5,7 @@ RIG_GUEST=$(cd "$(dirname "$0")" && pwd)
 T=$(mktemp -d /tmp/vmtest.XXXXXX)
 # Background helpers (monitors, pollers, a hung program) must not outlive their test; outside
 # the VM (modbus on loopback) the scratch dir goes too.
-cleanup() { kill $(jobs -p) 2>/dev/null; [ -n "${VMRIG_OUT:-}" ] || rm -rf "$T"; }
+cleanup() { pkill -P $$ 2>/dev/null; [ -n "${VMRIG_OUT:-}" ] || rm -rf "$T"; }
 trap cleanup EXIT
 fail() { echo "FAIL: $*"; exit 1; }
 skip() { echo "SKIP: $*"; exit 77; }

@@ -6,7 +6,8 @@ need_bin UNIT STORETRACK_BIN_UNIT storetrack-unit
 command -v mbpoll >/dev/null || fail "mbpoll missing (tools/install-deps.sh)"
 PORT=${MODBUS_PORT:-15020}
 run_unit() {  # $1 = extra flag, $2 = stats file
-  "$UNIT" run --source none --trigger sim --rate-hz 20 --no-links --modbus 127.0.0.1:$PORT \
+  "$UNIT" run --source sim --scenario "$STORETRACK_SOURCE_DIR/common/sim/scenarios/static.json" \
+    --realtime --trigger sim --no-links --modbus 127.0.0.1:$PORT \
     --duration-s 25 $1 --stats-json "$2" > "$2.out" 2>&1 &
   UNITP=$!
   waitfor "mbpoll -m tcp -t 3 -0 -r 0 -c 2 -1 -p $PORT 127.0.0.1 >/dev/null 2>&1" 400 ||
@@ -20,7 +21,8 @@ sleep 1.5
 mbpoll -m tcp -t 3 -0 -r 0 -c 8 -1 -p $PORT 127.0.0.1 > $T/read2 2>&1 || fail "input register read"
 cat $T/read2
 # uptime_s (registers 0-1, u32 high word first) must advance between the reads
-up() { awk -F'[][:= \t]+' '/^\[0\]/{hi=$3} /^\[1\]/{lo=$3} END{print hi*65536+lo}' "$1"; }
+reg() { sed -n "s/^\[$2\]:[[:space:]]*\([0-9-]*\).*/\1/p" "$1"; }
+up() { hi=$(reg "$1" 0); lo=$(reg "$1" 1); [ -n "$hi" ] && [ -n "$lo" ] && echo $((hi * 65536 + lo)); }
 u1=$(up $T/read1); u2=$(up $T/read2)
 echo "uptime_s $u1 -> $u2"
 [ -n "$u1" ] && [ -n "$u2" ] && [ "$u2" -gt "$u1" ] || fail "uptime_s did not advance ($u1 -> $u2)"
