@@ -215,6 +215,8 @@ int Centroider::process_regions(const frame::FrameView& frame, std::span<Blob> o
   max_value_ = (1 << frame.bits_per_pixel) - 1;
   saturation_dn_ =
       config_.saturation_dn > 0 ? std::min(config_.saturation_dn, max_value_) : max_value_;
+  frame_width_ = frame.width;
+  frame_height_ = frame.height;
   tiles_x_ = (frame.width + tile_px_ - 1) / tile_px_;
   tiles_y_ = (frame.height + tile_px_ - 1) / tile_px_;
   if (mono16) {
@@ -544,18 +546,29 @@ void Centroider::accumulate(const frame::FrameView& frame) {
   }
 }
 
+namespace {
+// Tile interval and interpolation weight along one axis: tile centres sit at the middle of
+// each tile's pixels (the last tile may be partial); beyond the outer centres the level is
+// extrapolated linearly for up to half a tile, so gradients hold up to the frame edge.
+struct AxisWeight {
+  int t0, t1;
+  double f;
+};
+AxisWeight axis_weight(double x, int tile, int tiles, int extent) {
+  if (tiles < 2) return {0, 0, 0.0};
+  auto centre = [&](int t) { return 0.5 * (t * tile + std::min((t + 1) * tile, extent) - 1); };
+  const int t0 = std::clamp(static_cast<int>(std::floor((x + 0.5) / tile - 0.5)), 0, tiles - 2);
+  const double c0 = centre(t0), c1 = centre(t0 + 1);
+  return {t0, t0 + 1, std::clamp((x - c0) / (c1 - c0), -0.75, 1.75)};
+}
+}  // namespace
+
 float Centroider::background_at(double x, double y) const {
-  // Bilinear between tile centres; constant beyond the outer centres.
-  const double u = std::clamp((x + 0.5) / tile_px_ - 0.5, 0.0, tiles_x_ - 1.0);
-  const double v = std::clamp((y + 0.5) / tile_px_ - 0.5, 0.0, tiles_y_ - 1.0);
-  const int u0 = std::min(static_cast<int>(u), tiles_x_ - 1);
-  const int v0 = std::min(static_cast<int>(v), tiles_y_ - 1);
-  const int u1 = std::min(u0 + 1, tiles_x_ - 1);
-  const int v1 = std::min(v0 + 1, tiles_y_ - 1);
-  const double fu = u - u0, fv = v - v0;
+  const AxisWeight u = axis_weight(x, tile_px_, tiles_x_, frame_width_);
+  const AxisWeight v = axis_weight(y, tile_px_, tiles_y_, frame_height_);
   const auto at = [this](int tu, int tv) { return tile_background_[tv * tiles_x_ + tu]; };
-  return static_cast<float>((1 - fv) * ((1 - fu) * at(u0, v0) + fu * at(u1, v0)) +
-                            fv * ((1 - fu) * at(u0, v1) + fu * at(u1, v1)));
+  return static_cast<float>((1 - v.f) * ((1 - u.f) * at(u.t0, v.t0) + u.f * at(u.t1, v.t0)) +
+                            v.f * ((1 - u.f) * at(u.t0, v.t1) + u.f * at(u.t1, v.t1)));
 }
 
 template <typename Pixel>

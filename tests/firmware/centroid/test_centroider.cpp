@@ -13,6 +13,7 @@
 
 #include "centroid_eval.hpp"
 #include "storetrack/centroid/centroider.hpp"
+#include "storetrack/msg/messages.hpp"
 #include "storetrack/sim/render.hpp"
 
 // Counting global allocator: the per-frame path must not allocate. (GCC 12 misreads the
@@ -152,6 +153,12 @@ void expect_accurate(const MonteCarloResult& r, double max_ratio) {
   EXPECT_LE(e.ratio_to_crb(), max_ratio);
   EXPECT_NEAR(e.rms_predicted() / e.rms(), 1.0, 0.15);
 }
+
+// Blob flags go on the wire unchanged.
+static_assert(blob_flags::kSaturated == msg::mark_flags::kSaturated);
+static_assert(blob_flags::kBorder == msg::mark_flags::kBorder);
+static_assert(blob_flags::kMerged == msg::mark_flags::kMerged);
+static_assert(blob_flags::kElongated == msg::mark_flags::kElongated);
 
 TEST(CramerRao, AgreesWithSimulatorStatistics) {
   // Independent computation (with flux as nuisance) vs the simulator's (x, y only): the
@@ -293,6 +300,42 @@ TEST(Centroider, SizeAndBrightnessAreReported) {
   EXPECT_NEAR(b.diameter_px, std::sqrt(4 * b.area_px / M_PI), 1e-4);
   EXPECT_LT(b.axis_ratio, 1.3f);
   EXPECT_GT(b.sigma_px, 0.0);
+}
+
+TEST(Centroider, FollowsABackgroundGradient) {
+  // A smooth illumination gradient (0..30 DN across the frame) on top of the sensor background:
+  // the tile background must follow it so that thresholds, fluxes and centroids do not.
+  constexpr int kW = 640, kH = 320;
+  const sim::SensorModel sensor;
+  std::mt19937_64 rng(17);
+  sim::SpotRenderer renderer;
+  std::vector<std::uint8_t> image(kW * kH);
+  Centroider centroider(config_for(sensor), kW, kH);
+  std::vector<Blob> blobs(64);
+  eval::ErrorStats errors;
+  auto ramp = [](double x, double y) { return 20.0 * x / kW + 10.0 * y / kH; };
+  for (int frame = 0; frame < 20; ++frame) {
+    const auto spots = eval::random_spots(gaussian_spot(1.5, 20000), 24, kW, kH, 24, 24, rng);
+    renderer.render(spots, sensor, rng, image.data(), kW, kH, kW);
+    for (int y = 0; y < kH; ++y)
+      for (int x = 0; x < kW; ++x)
+        image[y * kW + x] =
+            static_cast<std::uint8_t>(std::min(255.0, image[y * kW + x] + std::round(ramp(x, y))));
+    const int n = centroider.process(view_of(image, kW, kH), blobs);
+    ASSERT_EQ(n, 24);
+    for (const eval::Match& m : eval::match(spots, std::span(blobs.data(), n), 3.0)) {
+      ASSERT_GE(m.blob, 0);
+      const Blob& b = blobs[m.blob];
+      EXPECT_EQ(b.flags, 0);
+      EXPECT_NEAR(b.background_dn,
+                  sensor.background_e / sensor.gain_e_per_dn + ramp(b.x_px, b.y_px), 0.6);
+      errors.add(m.error_x_px, m.error_y_px, b.sigma_px, 0);
+    }
+  }
+  EXPECT_LT(std::abs(errors.bias_x()), 0.01);
+  EXPECT_LT(std::abs(errors.bias_y()), 0.01);
+  // The gradient adds a little photon noise; the prediction must follow the observed spread.
+  EXPECT_NEAR(errors.rms_predicted() / errors.rms(), 1.0, 0.15);
 }
 
 TEST(Centroider, RegionsOfInterestLimitTheSearch) {

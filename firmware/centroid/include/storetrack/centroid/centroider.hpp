@@ -177,6 +177,7 @@ class Centroider {
   int max_width_, max_height_;
   int tile_px_;
   int tiles_x_, tiles_y_;
+  int frame_width_ = 0, frame_height_ = 0;  // of the current frame
   double variance_per_dn_ = 0, variance_offset_dn2_ = 0;
   int saturation_dn_ = 0;  // of the current frame
   int max_value_ = 0;      // 2^bits - 1 of the current frame
