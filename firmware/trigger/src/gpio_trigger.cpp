@@ -165,7 +165,8 @@ int GpioMasterTrigger::read_edges(std::span<TriggerEdge> out, int timeout_ms) {
       read_index_.store(r + n, std::memory_order_release);
       return static_cast<int>(n);
     }
-    timespec nap = to_timespec(200'000);
+    timespec nap =
+        to_timespec(1'000'000);  // edges are stamped by the generator: latency is harmless
     nanosleep(&nap, nullptr);
   }
 }
