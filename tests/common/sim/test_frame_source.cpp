@@ -2,10 +2,13 @@
 #include <atomic>
 #include <cerrno>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <new>
 #include <string>
+
+#include <unistd.h>
 
 #include <gtest/gtest.h>
 

@@ -1,5 +1,6 @@
 // Simulator against independent truth: projections, rendered centroids, trajectories, noise
 // statistics, calibration-error draws, occlusion, timing.
+#include <algorithm>
 #include <cmath>
 #include <numeric>
 #include <random>
