@@ -50,7 +50,7 @@ struct CentroidConfig {
   double black_level_dn = 0.0;  ///< offset added by the ADC [DN]
   int saturation_dn = 0;        ///< 0: full scale 2^bits - 1
   // --- Refinement -------------------------------------------------------------------------
-  bool refine = true;              ///< Gaussian-windowed centroid; false: threshold moments only
+  bool refine = true;              ///< sub-pixel refinement; false: threshold moments only
   double window_sigma_px = 0.0;    ///< > 0: fixed window sigma; 0: matched to each blob
   int max_refine_iterations = 16;  ///< iterations of the windowed centroid
   double refine_tolerance_px = 1e-4;
