@@ -124,21 +124,21 @@ def main():
     # --- truth alignment by trigger sequence ---------------------------------------------------
     has_store_truth = False
     err = {}
-    if truth is not None and "x_m_T_p_s" in truth:
+    if truth is not None and "T_p_s_x_m" in truth:
         tseq = truth["trigger_seq"].astype(np.int64)
         idx = {s: i for i, s in enumerate(tseq)}
         sel = np.array([idx.get(s, -1) for s in seq])
         ok = (sel >= 0) & valid
-        moving = np.ptp(truth["x_m_T_p_s"]) + np.ptp(truth["z_m_T_p_s"]) > 0 or np.any(truth["x_m_T_p_s"] != 0)
+        moving = np.any(truth["T_p_s_x_m"] != 0) or np.any(truth["T_p_s_z_m"] != 0)
         if ok.any() and moving:
             has_store_truth = True
             for a in axes_pos:
                 tv = np.full(len(seq), np.nan)
-                tv[ok] = truth["%s_m_T_p_s" % a][sel[ok]]
+                tv[ok] = truth["T_p_s_%s_m" % a][sel[ok]]
                 err[a] = fti[a] - tv
             for a in axes_att:
                 tv = np.full(len(seq), np.nan)
-                tv[ok] = truth["%s_rad_T_p_s" % a][sel[ok]]
+                tv[ok] = truth["T_p_s_%s_rad" % a][sel[ok]]
                 e = fti[a] - tv
                 err[a] = (e + np.pi) % (2 * np.pi) - np.pi
 
@@ -256,8 +256,12 @@ def main():
     # --- per-camera residual maps ---------------------------------------------------------------
     if marks is not None and len(marks.get("camera_id", [])) > 0:
         cams = sorted(set(int(c) for c in marks["camera_id"]))
-        fig, axs = plt.subplots(1, len(cams), figsize=(5.5 * len(cams), 4), squeeze=False)
-        for ax, c in zip(axs[0], cams):
+        ncol = min(2, len(cams))
+        nrow = (len(cams) + ncol - 1) // ncol
+        fig, axs = plt.subplots(nrow, ncol, figsize=(7 * ncol, 4 * nrow), squeeze=False)
+        for ax in axs.flat[len(cams):]:
+            ax.set_visible(False)
+        for ax, c in zip(axs.flat, cams):
             m = (marks["camera_id"] == c) & np.isfinite(marks["u_obs"])
             u, v = marks["u_obs"][m], marks["v_obs"][m]
             du, dv = marks["residual_u"][m], marks["residual_v"][m]
@@ -265,14 +269,14 @@ def main():
             sc = ax.scatter(u, v, c=mag, s=3, cmap="viridis", vmin=0, vmax=np.percentile(mag, 99) if len(mag) else 1)
             step = max(1, len(u) // 400)
             ax.quiver(u[::step], v[::step], du[::step], -dv[::step], angles="xy", scale_units="xy",
-                      scale=0.002, width=0.002, color="tab:red", alpha=0.6)
+                      scale=0.01, width=0.002, color="tab:red", alpha=0.6)
             ax.set_xlim(-0.5, width - 0.5); ax.set_ylim(height - 0.5, -0.5)
             ax.set_aspect("equal")
             rms = np.sqrt(np.mean(du ** 2 + dv ** 2) / 2) if len(du) else float("nan")
             ax.set_title("camera %d: RMS residual %.3f px/axis (%d obs)" % (c, rms, len(du)), fontsize=9)
             summary.append(("camera %d reprojection residual RMS" % c, "%.3f px per axis" % rms))
             fig.colorbar(sc, ax=ax, label="|residual| [px]", shrink=0.7)
-        fig.suptitle("Per-camera reprojection residual maps (arrows x500)")
+        fig.suptitle("Per-camera reprojection residual maps (arrows x100)")
         savefig(fig, args.out, "camera_residuals.png", figures)
 
     # --- uncertainty budget ---------------------------------------------------------------------

@@ -68,6 +68,9 @@ int main(int argc, char** argv) {
   app.add_option("--port", port, "UDP port of the host's input");
   app.add_option("--inetx-port", inetx_port, "UDP port the host sends iNET-X to");
   app.add_option("--json", json_out, "Write the results as JSON");
+  std::string ch10_path;
+  app.add_option("--ch10", ch10_path,
+                 "Let the host also write this Chapter 10 file (fdatasync per packet) and a CSV");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -145,10 +148,21 @@ int main(int argc, char** argv) {
     const std::string rig = setup_dir + "/rig_calibration.json",
                       py = setup_dir + "/pylon_survey.json", sv = setup_dir + "/store_survey.json",
                       im = setup_dir + "/initial_marks.json";
-    execl(host_bin.c_str(), host_bin.c_str(), "--calibration", rig.c_str(), "--pylon-survey",
-          py.c_str(), "--store-survey", sv.c_str(), "--initial-marks", im.c_str(), "--udp-port",
-          p.c_str(), "--udp-bind", "127.0.0.1", "--inetx", q.c_str(), "--stats-json",
-          stats_path.c_str(), "--idle-exit-s", "1", "--log-level", "warn", nullptr);
+    std::vector<std::string> args = {
+        host_bin,    "--calibration",   rig,   "--pylon-survey", py,         "--store-survey",
+        sv,          "--initial-marks", im,    "--udp-port",     p,          "--udp-bind",
+        "127.0.0.1", "--inetx",         q,     "--stats-json",   stats_path, "--idle-exit-s",
+        "1",         "--log-level",     "warn"};
+    if (!ch10_path.empty()) {
+      for (const std::string& extra :
+           {std::string("--ch10"), ch10_path, std::string("--csv"), ch10_path + ".csv"})
+        args.push_back(extra);
+    }
+    std::vector<char*> argv_c;
+    for (auto& arg : args)
+      argv_c.push_back(arg.data());
+    argv_c.push_back(nullptr);
+    execv(host_bin.c_str(), argv_c.data());
     std::_Exit(127);
   }
   usleep(700'000);  // host start-up (calibration, surveys)
@@ -203,6 +217,8 @@ int main(int argc, char** argv) {
   j["max_us"] =
       lat.empty() ? NAN : static_cast<double>(*std::max_element(lat.begin(), lat.end())) * 1e-3;
   j["cameras_per_exposure"] = exposures.front().size();
+  j["marks_per_exposure_camera0"] = exposures.front()[0].mark_count;
+  j["host_writes_chapter10_and_csv"] = !ch10_path.empty();
   std::ifstream hs(stats_path);
   if (hs) {
     nlohmann::json h;

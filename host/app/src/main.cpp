@@ -11,10 +11,15 @@
 #include <atomic>
 #include <chrono>
 #include <cinttypes>
+#include <condition_variable>
 #include <cstdio>
+#include <deque>
 #include <fstream>
+#include <functional>
 #include <memory>
+#include <mutex>
 #include <nlohmann/json.hpp>
+#include <thread>
 #include <unordered_map>
 
 #include "host_config.hpp"
@@ -47,6 +52,57 @@ nlohmann::json decode_counters_json(const st::msg::DecodeCounters& c) {
   return j;
 }
 
+// File sinks (Chapter 10 with fdatasync, CSV) run on their own thread so a slow disk never
+// delays the real-time path (receive -> process -> iNET-X).
+class FileWriterThread {
+ public:
+  template <typename Fn>
+  explicit FileWriterThread(Fn&& write)
+      : write_(std::forward<Fn>(write)), thread_([this] { run(); }) {}
+  ~FileWriterThread() { stop(); }
+  void push(const st::msg::FtiSample& s) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      queue_.push_back(s);
+      max_depth_ = std::max(max_depth_, queue_.size());
+    }
+    cv_.notify_one();
+  }
+  void stop() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (stopping_) return;
+      stopping_ = true;
+    }
+    cv_.notify_one();
+    thread_.join();
+  }
+  std::size_t max_depth() const { return max_depth_; }
+
+ private:
+  void run() {
+    std::unique_lock<std::mutex> lock(mutex_);
+    for (;;) {
+      cv_.wait(lock, [this] { return stopping_ || !queue_.empty(); });
+      while (!queue_.empty()) {
+        const st::msg::FtiSample s = queue_.front();
+        queue_.pop_front();
+        lock.unlock();
+        write_(s);
+        lock.lock();
+      }
+      if (stopping_) return;
+    }
+  }
+  std::function<void(const st::msg::FtiSample&)> write_;
+  std::mutex mutex_;
+  std::condition_variable cv_;
+  std::deque<st::msg::FtiSample> queue_;
+  std::size_t max_depth_ = 0;
+  bool stopping_ = false;
+  std::thread thread_;
+};
+
 struct Sinks {
   st::output::InetxSender inetx;
   bool inetx_open = false;
@@ -56,7 +112,7 @@ struct Sinks {
   bool csv_open = false;
   std::FILE* marks = nullptr;
   std::FILE* rigid = nullptr;
-  std::uint64_t write_errors = 0;
+  std::atomic<std::uint64_t> write_errors{0};
 };
 
 void write_marks_rows(std::FILE* f, const st::pipeline::AlignedExposure& e,
@@ -270,6 +326,11 @@ int main(int argc, char** argv) {
                  "sigma [m],z2 [1]\n");
   }
 
+  FileWriterThread file_writer([&sinks](const st::msg::FtiSample& s) {
+    if (sinks.ch10_open && sinks.ch10.write(s) != 0) ++sinks.write_errors;
+    if (sinks.csv_open && sinks.csv.write(s) != 0) ++sinks.write_errors;
+  });
+
   signal(SIGINT, on_signal);
   signal(SIGTERM, on_signal);
 
@@ -315,8 +376,7 @@ int main(int argc, char** argv) {
         if (e.missing_camera_mask == 0) latency_complete.add(t_sent - it->second);
         last_arrival.erase(it);
       }
-      if (sinks.ch10_open && sinks.ch10.write(s) != 0) ++sinks.write_errors;
-      if (sinks.csv_open && sinks.csv.write(s) != 0) ++sinks.write_errors;
+      if (sinks.ch10_open || sinks.csv_open) file_writer.push(s);
       if (sinks.marks) write_marks_rows(sinks.marks, e, r);
       if (sinks.rigid) {
         write_rigid_rows(sinks.rigid, e.trigger_seq, 'p', r.pylon_check);
@@ -379,6 +439,7 @@ int main(int argc, char** argv) {
   aligner->flush(ready);
   process_ready();
   if (progress) std::fprintf(stderr, "\n");
+  file_writer.stop();
   if (sinks.ch10_open && sinks.ch10.close() != 0) ++sinks.write_errors;
   if (sinks.csv_open && sinks.csv.close() != 0) ++sinks.write_errors;
   if (sinks.marks) std::fclose(sinks.marks);
@@ -464,7 +525,8 @@ int main(int argc, char** argv) {
                       {"ch10_write_errors", cc.write_errors},
                       {"ch10_sync_errors", cc.sync_errors},
                       {"csv_rows", sinks.csv.rows_written()},
-                      {"write_errors", sinks.write_errors}};
+                      {"write_errors", sinks.write_errors.load()},
+                      {"file_queue_max_depth", file_writer.max_depth()}};
   stats["latency"] = {{"last_observation_to_inetx_complete_exposures", latency_complete.to_json()},
                       {"last_observation_to_inetx_all_exposures", latency_all.to_json()},
                       {"processing_per_exposure", latency_processing.to_json()}};

@@ -1,0 +1,59 @@
+#!/usr/bin/env python3
+"""Checks a short test point's outputs against the simulator's truth (run_testpoint.sh)."""
+import json
+import os
+import sys
+
+import numpy as np
+
+root, out = sys.argv[1], sys.argv[2]
+sys.path.insert(0, os.path.join(root, "host", "report"))
+from storetrack_report import read_ch10, read_csv  # noqa: E402
+
+failures = []
+
+
+def check(cond, what):
+    print(("ok   " if cond else "FAIL ") + what)
+    if not cond:
+        failures.append(what)
+
+
+fti = read_csv(os.path.join(out, "fti.csv"))
+truth = read_csv(os.path.join(out, "sim", "truth_poses.csv"))
+stats = json.load(open(os.path.join(out, "stats.json")))
+n = len(fti["trigger_seq"])
+al = stats["aligner"]
+# Every exposure comes out once, in order, even with one unit losing 2 % of its messages.
+check(n == 300, "300 samples written (got %d)" % n)
+check(np.all(np.diff(fti["trigger_seq"]) > 0), "samples in trigger order")
+check(al["exposures_partial_timeout"] > 0, "lost messages gave partial exposures (%d)" % al["exposures_partial_timeout"])
+check(al["observations_in"] == al["observations_used"] + al["dropped_duplicate"] + al["dropped_late"]
+      + al["dropped_time_mismatch"] + al["dropped_unknown_camera"] + al["dropped_invalid"],
+      "every observation used or counted as dropped")
+valid = (fti["status"].astype(int) & 1) == 1
+check(valid.mean() > 0.95, "valid samples %.1f %% > 95 %%" % (100 * valid.mean()))
+
+# Pose against truth: errors within 4 standard uncertainties (|z| <= 4 for >= 99 % of samples)
+# and the k = 2 coverage not far below 95 % on the position axes.
+idx = {int(s): i for i, s in enumerate(truth["trigger_seq"])}
+sel = np.array([idx[int(s)] for s in fti["trigger_seq"]])
+for a, unit in (("x", "m"), ("y", "m"), ("z", "m"), ("yaw", "rad"), ("pitch", "rad"), ("roll", "rad")):
+    e = fti[a][valid] - truth["T_p_s_%s_%s" % (a, unit)][sel[valid]]
+    if unit == "rad":
+        e = (e + np.pi) % (2 * np.pi) - np.pi
+    z = np.abs(e) / fti["u_" + a][valid]
+    rms = np.sqrt(np.mean(e ** 2))
+    print("     %-5s RMS error %.3g %s, inside k=2: %.1f %%" % (a, rms, unit, 100 * np.mean(z <= 2)))
+    check(np.mean(z <= 4) >= 0.99, "%s: >= 99 %% of errors within 4 u" % a)
+    if unit == "m":
+        check(rms < 3e-3, "%s: RMS error %.2f mm < 3 mm" % (a, rms * 1e3))
+
+# Chapter 10: TMATS first, no checksum errors, no partial packet, one message per sample.
+ch10 = read_ch10(os.path.join(out, "out.ch10"))
+check(ch10["first_type"] == 0x01, "Chapter 10 starts with TMATS")
+check(ch10["header_checksum_errors"] == 0 and ch10["truncated_bytes"] == 0, "Chapter 10 checksums, no partial packet")
+check(ch10["messages"] == n, "Chapter 10 messages %d == samples %d" % (ch10["messages"], n))
+check(ch10["by_type"].get(0x11, 0) >= 1, "Chapter 10 time packets present")
+check(stats["outputs"]["inetx_sent"] == n, "one iNET-X packet per sample")
+sys.exit(1 if failures else 0)
