@@ -13,12 +13,17 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <variant>
 #include <vector>
 
+#include <modbus/modbus.h>
+#include <thread>
+
+#include "storetrack/health/register_map.hpp"
 #include "storetrack/msg/udp_codec.hpp"
 #include "storetrack/sim/frame_source.hpp"
 #include "storetrack/sim/scenario.hpp"
@@ -39,8 +44,9 @@ struct Received {
   int exit_status = -1;
 };
 
-/// Runs storetrack-unit with `args` while receiving its datagrams on 127.0.0.1.
-Received run_unit(std::vector<std::string> args) {
+/// Runs storetrack-unit with `args` while receiving its datagrams on 127.0.0.1. `during` (if
+/// set) is called once, from another thread, after the first observation arrived.
+Received run_unit(std::vector<std::string> args, std::function<void()> during = {}) {
   const int fd = socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
   sockaddr_in a{};
   a.sin_family = AF_INET;
@@ -64,6 +70,7 @@ Received run_unit(std::vector<std::string> args) {
     return out;
   }
   bool exited = false;
+  std::thread side;
   for (int idle = 0; idle < 600;) {  // up to 60 s without traffic
     pollfd p{fd, POLLIN, 0};
     if (poll(&p, 1, 100) == 1) {
@@ -73,7 +80,10 @@ Received run_unit(std::vector<std::string> args) {
       if (n > 0 &&
           msg::decode_datagram(std::span<const std::uint8_t>(buf, static_cast<std::size_t>(n)),
                                any) == msg::DecodeError::kNone) {
-        if (auto* o = std::get_if<msg::MarkObservations>(&any)) out.observations.push_back(*o);
+        if (auto* o = std::get_if<msg::MarkObservations>(&any)) {
+          out.observations.push_back(*o);
+          if (during && !side.joinable()) side = std::thread(during);
+        }
         if (auto* h = std::get_if<msg::UnitHealth>(&any)) out.health.push_back(*h);
       } else {
         ++out.decode_errors;
@@ -94,6 +104,7 @@ Received run_unit(std::vector<std::string> args) {
     kill(pid, SIGKILL);
     waitpid(pid, nullptr, 0);
   }
+  if (side.joinable()) side.join();
   close(fd);
   return out;
 }
@@ -265,6 +276,56 @@ TEST(UnitIntegration, ReplayedFramesMatchTheSimulator) {
       << acc.matched << " of " << acc.visible << " (" << acc.crowded << " crowded)";
   EXPECT_LE(acc.spurious, frames);
   EXPECT_LT(median(acc.errors_px), 0.1);
+}
+
+int free_tcp_port() {
+  const int s = socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  bind(s, reinterpret_cast<sockaddr*>(&a), sizeof a);
+  socklen_t len = sizeof a;
+  getsockname(s, reinterpret_cast<sockaddr*>(&a), &len);
+  close(s);
+  return ntohs(a.sin_port);
+}
+
+TEST(UnitIntegration, ModbusMaintenanceWriteReachesTheMessages) {
+  const sim::Scenario sc = sim::load_scenario(kScenario);
+  const sim::Simulator sim(sc, 5);
+  const fs::path dir = fs::temp_directory_path() / ("st_unit_modbus_" + std::to_string(getpid()));
+  sim::write_frame_sequence(sim, 0, dir.string(), 3);
+  const int port = free_tcp_port();
+  bool wrote = false;
+  std::uint16_t frames_reg[2] = {};
+  const Received r = run_unit(
+      {"run", "--source", "replay", "--replay-dir", dir.string(), "--replay-loop", "--replay-rate",
+       "50", "--duration-s", "4", "--modbus", "127.0.0.1:" + std::to_string(port), "--maintenance",
+       "--camera-id", "5"},
+      [&] {
+        modbus_t* ctx = modbus_new_tcp("127.0.0.1", port);
+        for (int i = 0; i < 20 && modbus_connect(ctx) != 0; ++i) {
+          std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        }
+        using health::HoldingField;
+        wrote = modbus_write_register(ctx, health::holding_def(HoldingField::kCameraId).address,
+                                      42) == 1;
+        modbus_read_input_registers(
+            ctx, health::input_def(health::InputField::kFramesCaptured).address, 2, frames_reg);
+        modbus_close(ctx);
+        modbus_free(ctx);
+      });
+  fs::remove_all(dir);
+  ASSERT_EQ(r.exit_status, 0);
+  ASSERT_TRUE(wrote);
+  EXPECT_GT(frames_reg[1], 0);  // health counters served while capturing
+  ASSERT_GT(r.observations.size(), 10u);
+  EXPECT_EQ(r.observations.front().camera_id, 5);
+  EXPECT_EQ(r.observations.back().camera_id, 42);
+  // The looped replay continues the sequence: strictly increasing.
+  for (std::size_t i = 1; i < r.observations.size(); ++i) {
+    EXPECT_GT(r.observations[i].trigger_seq, r.observations[i - 1].trigger_seq);
+  }
 }
 
 TEST(UnitIntegration, BadConfigurationExitsWithUsageCode) {
