@@ -18,7 +18,8 @@ wait $UNITP; rc=$?
 tail -3 $T/unit.out
 [ $rc = 0 ] || fail "storetrack-unit exit $rc"
 python3 "$RIG_GUEST/gpio_edges.py" check --edges $T/edges.csv --format unitcsv --rate 20 \
-  --expect-count 26 --expect-missing 1 --expect-extra 3 --log $T/emu.csv || fail "unit edges vs emulator log"
+  --expect-count 26 --expect-missing 1 --expect-extra 3 --log $T/emu.csv --rate-tol 0.05 \
+  --tol-ms 60 || fail "unit edges vs emulator log"
 python3 - "$T/unit.json" "$T/emu.csv" <<'PY' || fail "unit pairing counters"
 import csv, json, sys
 j = json.load(open(sys.argv[1]))
