@@ -115,6 +115,11 @@ struct ExposureProcessor::Prepared {
     std::vector<Obs> obs;
     Vec3 velocity_w = Vec3::Zero();
     bool velocity_valid = false;
+    /// Previous position of a track without velocity yet: the velocity comes from it and this
+    /// exposure's first triangulation (then the mark is triangulated again, compensated).
+    bool has_previous = false;
+    Vec3 previous_p_w = Vec3::Zero();
+    double previous_dt_s = 0;
   };
   std::vector<Mark> marks;
   std::vector<double> dt_s;  ///< per rig slot: camera mid-time - reference time
@@ -133,7 +138,12 @@ ExposureProcessor::ExposureProcessor(const camera::RigCalibration& rig,
                                      const sim::RigidBodySurvey& pylon,
                                      const sim::RigidBodySurvey& store,
                                      const ProcessorConfig& config)
-    : rig_(rig), pylon_(pylon), store_(store), config_(config), factors_(rig) {
+    : rig_(rig),
+      pylon_(pylon),
+      store_(store),
+      config_(config),
+      factors_(rig),
+      matcher_(rig, {pylon, store}, config.matcher) {
   if (rig_.cameras.empty()) throw std::invalid_argument("ExposureProcessor: empty rig");
   if (config_.min_cameras_per_mark < 2)
     throw std::invalid_argument("ExposureProcessor: min_cameras_per_mark must be >= 2");
@@ -167,6 +177,12 @@ ExposureProcessor::ExposureProcessor(const camera::RigCalibration& rig,
 void ExposureProcessor::reset_tracking() {
   for (Track& t : tracks_)
     t = Track{};
+  matcher_.reset_tracking();
+}
+
+ExposureResult ExposureProcessor::process(const AlignedExposure& exposure) {
+  const match::MatchResult m = matcher_.match(exposure.cameras);
+  return process(exposure, m.ids);
 }
 
 ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& exposure,
@@ -244,11 +260,16 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
           m.body = 's';
         }
         const Track& tr = tracks_[static_cast<size_t>(id)];
-        if (tr.velocity_valid &&
-            std::abs(static_cast<double>(prep.t_ref_tai_ns - tr.t_ns)) * 1e-9 <=
-                config_.tracking_max_gap_s) {
-          m.velocity_w = tr.velocity_w;
-          m.velocity_valid = true;
+        const double since_s = static_cast<double>(prep.t_ref_tai_ns - tr.t_ns) * 1e-9;
+        if (tr.valid && since_s > 0 && since_s <= config_.tracking_max_gap_s) {
+          if (tr.velocity_valid) {
+            m.velocity_w = tr.velocity_w;
+            m.velocity_valid = true;
+          } else {
+            m.has_previous = true;
+            m.previous_p_w = tr.p_w;
+            m.previous_dt_s = since_s;
+          }
         }
         prep.marks.push_back(std::move(m));
       }
@@ -312,12 +333,26 @@ void ExposureProcessor::solve(const Prepared& prep,
       ++counters.triangulation_failed;
       continue;
     }
+    Vec3 velocity_w = mark.velocity_w;
+    bool velocity_valid = mark.velocity_valid;
+    if (!velocity_valid && mark.has_previous) {
+      // Second exposure of a track: velocity from the previous position, then the
+      // motion-compensated triangulation (the sync term needs the velocity).
+      velocity_w = (tri.p_w - mark.previous_p_w) / mark.previous_dt_s;
+      velocity_valid = true;
+      for (size_t i = 0; i < mark.obs.size(); ++i)
+        tri_obs[i].displacement_w = velocity_w * prep.dt_s[static_cast<size_t>(mark.obs[i].slot)];
+      if (!triangulate::triangulate(tri_obs, tri_options, tri)) {
+        ++counters.triangulation_failed;
+        continue;
+      }
+    }
     MarkResult m;
     m.id = mark.id;
     m.body = mark.body;
     m.p_w = tri.p_w;
-    m.velocity_w = mark.velocity_w;
-    m.velocity_valid = mark.velocity_valid;
+    m.velocity_w = velocity_w;
+    m.velocity_valid = velocity_valid;
     m.chi2 = tri.chi2;
     m.observations.resize(mark.obs.size());
     for (size_t i = 0; i < mark.obs.size(); ++i) {
@@ -340,9 +375,9 @@ void ExposureProcessor::solve(const Prepared& prep,
         if (cf.extrinsic.cols() > 0)
           m.loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols()).noalias() -=
               (K * J.d_pose).lazyProduct(cf.extrinsic);
-        if (cf.sync_column >= 0 && mark.velocity_valid)
+        if (cf.sync_column >= 0 && velocity_valid)
           m.loadings.col(cf.sync_column).noalias() -=
-              K * (J.d_point_world * mark.velocity_w) * cf.sync_sigma_s;
+              K * (J.d_point_world * velocity_w) * cf.sync_sigma_s;
       }
       m.cov_by_source[kCentroid] = tri.cov_centroid;
       m.cov_by_source[kIntrinsic] =

@@ -2,6 +2,7 @@
 // and flags, the JCGM 101 Monte Carlo mode agreeing with the first-order covariance, bad input
 // counted, displaced-mark exclusion end to end.
 #include <cmath>
+#include <cstdio>
 
 #include <gtest/gtest.h>
 
@@ -72,6 +73,40 @@ TEST(ExposureProcessor, StoreSeparationPoseAgainstTruth) {
   // After the first exposure the tracker provides velocities, so sync uncertainty is non-zero
   // once the store moves.
   EXPECT_EQ(f.proc.counters().pose_failed, 0u);
+}
+
+TEST(ExposureProcessor, WithMatcherIdentifiesAndTracksTheStore) {
+  Fixture f("store_separation", 5);
+  const sim::Scenario& sc = f.sim.scenario();
+  geometry::Mat6 prior_cov = geometry::Mat6::Zero();
+  prior_cov.diagonal() << 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4;  // ~0.6 deg, 1 cm
+  ASSERT_TRUE(f.proc.matcher().set_prior_pose("pylon", sc.T_w_p, prior_cov));
+  ASSERT_TRUE(f.proc.matcher().set_prior_pose("store", sc.T_w_p * sc.separation.T_p_s0, prior_cov));
+  int valid = 0, wrong_ids = 0, identified = 0;
+  for (int k = 0; k < f.sim.num_exposures(); ++k) {
+    const auto in = test::make_exposure(f.sim, k);
+    const ExposureResult r = f.proc.process(in.exposure);
+    for (const MarkResult& m : r.marks)
+      for (const auto& o : m.observations) {
+        size_t e = 0;
+        while (in.exposure.cameras[e].camera_id != o.camera_id)
+          ++e;
+        ++identified;
+        wrong_ids += in.ids[e][static_cast<size_t>(o.mark_index)] != m.id;
+      }
+    if (!r.T_p_s.valid) continue;
+    ++valid;
+    const Vec3 e = f.sim.T_p_s_at(r.reference_mid_tai_ns).translation() - r.T_p_s.T.translation();
+    for (int a = 0; a < 3; ++a)
+      EXPECT_LT(std::abs(e(a)), 5 * std::sqrt(r.cov_xyz_ypr(a, a))) << "k " << k << " axis " << a;
+  }
+  std::printf("matcher: %d observations identified, %d wrong, %d of %d exposures with T_p_s\n",
+              identified, wrong_ids, valid, f.sim.num_exposures());
+  // Integration: ids from the matcher are never wrong (ambiguities are rejected, not guessed)
+  // and most exposures give a pose; the matcher's own tests cover its acquisition rate.
+  EXPECT_EQ(wrong_ids, 0);
+  EXPECT_GT(identified, f.sim.num_exposures() * 30);
+  EXPECT_GE(valid, f.sim.num_exposures() * 70 / 100);
 }
 
 TEST(ExposureProcessor, MonteCarloAgreesWithFirstOrder) {

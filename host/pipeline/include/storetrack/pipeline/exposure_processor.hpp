@@ -16,6 +16,7 @@
 
 #include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/geometry/transform.hpp"
+#include "storetrack/match/mark_matcher.hpp"
 #include "storetrack/msg/messages.hpp"
 #include "storetrack/pipeline/aligned_exposure.hpp"
 #include "storetrack/rigid/rigid_check.hpp"
@@ -31,6 +32,7 @@ using MarkIds = std::vector<std::vector<int>>;
 
 struct ProcessorConfig {
   std::uint8_t store_id = 0;
+  match::MatcherConfig matcher;  ///< used by process(exposure)
   double coverage_factor = 2.0;  ///< k of the expanded uncertainty U = k u
   int min_cameras_per_mark = 2;
   int min_pose_marks = 3;
@@ -121,8 +123,13 @@ class ExposureProcessor {
   ExposureProcessor(const camera::RigCalibration& rig, const sim::RigidBodySurvey& pylon,
                     const sim::RigidBodySurvey& store, const ProcessorConfig& config);
 
-  /// Processes an exposure whose marks are already identified (ids per observation).
-  /// Updates the mark tracking (velocities) used for the synchronisation correction.
+  /// Identifies the marks with the MarkMatcher (host/match: prediction gates, epipolar and
+  /// layout checks; set its prior poses through matcher() for acquisition), then processes.
+  ExposureResult process(const AlignedExposure& exposure);
+
+  /// Processes an exposure whose marks are already identified (ids per observation, e.g.
+  /// simulator truth or an external matcher). Updates the mark tracking (velocities) used for
+  /// the synchronisation correction.
   ExposureResult process(const AlignedExposure& exposure, const MarkIds& ids);
 
   /// JCGM 101 check: `draws` Monte Carlo repetitions of process() for this exposure (with the
@@ -130,7 +137,10 @@ class ExposureProcessor {
   MonteCarloResult monte_carlo(const AlignedExposure& exposure, const MarkIds& ids, int draws,
                                std::uint64_t seed) const;
 
+  /// Forgets the velocity tracks (and the matcher's tracks).
   void reset_tracking();
+  match::MarkMatcher& matcher() { return matcher_; }
+  const match::MarkMatcher& matcher() const { return matcher_; }
   const ProcessorCounters& counters() const { return counters_; }
   const uncertainty::CalibrationFactors& factors() const { return factors_; }
   const camera::RigCalibration& rig() const { return rig_; }
@@ -161,6 +171,7 @@ class ExposureProcessor {
     bool velocity_valid = false;
   };
   std::vector<Track> tracks_;  ///< indexed by mark id
+  match::MarkMatcher matcher_;
   ProcessorCounters counters_;
 };
 
