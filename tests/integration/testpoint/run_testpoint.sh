@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# A short store-separation test point (300 exposures, 4 cameras on 2 unit processes, UDP
+# A short store-separation test point (220 exposures, 4 cameras on 2 unit processes, UDP
 # loopback, one unit drops 2 % of its messages), then check_testpoint.py compares the host's
 # outputs with the simulator's truth and validates the Chapter 10 file.
 set -euo pipefail
@@ -9,7 +9,7 @@ PORT=$(( 45000 + $$ % 1000 ))
 /usr/bin/python3 - "$ROOT/common/sim/scenarios/store_separation.json" "$OUT/scenario.json" <<'PY'
 import json, sys
 s = json.load(open(sys.argv[1]))
-s["timing"]["num_exposures"] = 300
+s["timing"]["num_exposures"] = 220  # the scenario's 0.55 s of separation
 json.dump(s, open(sys.argv[2], "w"))
 PY
 "$SIM" --scenario "$OUT/scenario.json" --seed 7 --out "$OUT/sim" --mode observations >/dev/null
@@ -18,7 +18,7 @@ PY
   --store-survey "$OUT/setup/store_survey.json" --initial-marks "$OUT/setup/initial_marks.json" \
   --udp-port "$PORT" --udp-bind 127.0.0.1 --ch10 "$OUT/out.ch10" --csv "$OUT/fti.csv" \
   --marks-csv "$OUT/marks.csv" --inetx "127.0.0.1:$((PORT + 1))" --stats-json "$OUT/stats.json" \
-  --idle-exit-s 1.5 --expect-exposures 300 >"$OUT/host.log" 2>&1 &
+  --idle-exit-s 1.5 --expect-exposures 220 >"$OUT/host.log" 2>&1 &
 HOST_PID=$!
 trap 'kill $HOST_PID 2>/dev/null || true' EXIT
 sleep 0.5
