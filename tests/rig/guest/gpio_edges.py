@@ -79,9 +79,26 @@ def main():
     period = 1e9 / a.rate
     errors = []
     intervals = [b - x for x, b in zip(rises, rises[1:])]
-    extra = sum(1 for d in intervals if d < 0.5 * period)
-    missing = sum(round(d / period) - 1 for d in intervals if d > 1.5 * period)
     nominal = [d for d in intervals if 0.5 * period <= d <= 1.5 * period]
+    # Classify against the nominal grid (anchored on the edges themselves): an edge within a
+    # quarter period of a grid slot is that slot's pulse, any further edge is EXTRA, and empty
+    # slots between the first and last edge are MISSING.
+    t0 = rises[0] if rises else 0
+    for _ in range(2):
+        res = [(t - t0) / period - round((t - t0) / period) for t in rises]
+        near = [r for r in res if abs(r) < 0.25]
+        if near:
+            t0 += statistics.median(near) * period
+    slots = set()
+    extra = 0
+    for t in rises:
+        ph = (t - t0) / period
+        k = round(ph)
+        if abs(ph - k) < 0.25 and k not in slots:
+            slots.add(k)
+        else:
+            extra += 1
+    missing = (max(slots) - min(slots) + 1 - len(slots)) if slots else 0
     print(f"rising edges {len(rises)}, extra {extra}, missing {missing}")
     if nominal:
         med = statistics.median(nominal)

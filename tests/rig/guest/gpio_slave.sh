@@ -12,7 +12,7 @@ gpiosim_new slave 1
   --stats-json $T/unit.json > $T/unit.out 2>&1 & UNITP=$!
 waitfor "gpioinfo $GS_CHIP | grep -q storetrack-unit" 400 || fail "unit did not request the input line"
 "$EMU" --chip "$GS_CHIP" --backend sim-pull --lines 0 --rate-hz 20 --width-us 5000 --count 24 \
-  --missing 5 --double 10 --double-gap-us 15000 --burst 15 --burst-count 2 --burst-gap-us 12000 \
+  --missing 5 --double 10 --double-gap-us 20000 --burst 15 --burst-count 2 --burst-gap-us 15000 \
   --log $T/emu.csv || fail "trigger-emu exit $?"
 wait $UNITP; rc=$?
 tail -3 $T/unit.out

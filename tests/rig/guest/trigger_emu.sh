@@ -10,7 +10,7 @@ echo "-- sim-pull backend: 24 nominal at 20 Hz, missing 5, double 10, burst 15 (
 timeout 60 gpiomon -b -n 52 -F '%e %s %n' "$GS_CHIP" 0 > $T/mon & P=$!
 waitfor "gpioinfo $GS_CHIP | grep -q gpiomon" || fail "gpiomon did not request line 0"
 "$EMU" --chip "$GS_CHIP" --backend sim-pull --lines 0 --rate-hz 20 --width-us 5000 --count 24 \
-  --missing 5 --double 10 --double-gap-us 15000 --burst 15 --burst-count 2 --burst-gap-us 12000 \
+  --missing 5 --double 10 --double-gap-us 20000 --burst 15 --burst-count 2 --burst-gap-us 15000 \
   --log $T/emu.csv || fail "trigger-emu (sim-pull) exit $?"
 wait $P || fail "gpiomon did not see 52 edges: $(wc -l < $T/mon) lines"
 python3 "$RIG_GUEST/gpio_edges.py" check --edges $T/mon --format gpiomon --rate 20 \
