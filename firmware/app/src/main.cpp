@@ -133,13 +133,19 @@ UnitConfig build_config(CLI::App* app, const Overrides& o) {
   if (given(app, "--clock-state")) c.clock_state = o.clock_state;
   if (given(app, "--udp")) {
     c.udp.clear();
-    for (const auto& d : o.udp)
-      c.udp.push_back(link::UdpLinkConfig{d});
+    for (const auto& d : o.udp) {
+      link::UdpLinkConfig u;
+      u.destination = d;
+      c.udp.push_back(u);
+    }
   }
   if (given(app, "--can")) {
     c.canfd.clear();
-    for (const auto& i : o.can)
-      c.canfd.push_back(link::CanFdLinkConfig{i});
+    for (const auto& i : o.can) {
+      link::CanFdLinkConfig l;
+      l.interface = i;
+      c.canfd.push_back(l);
+    }
   }
   if (o.no_links) {
     c.udp.clear();

@@ -47,7 +47,9 @@ TEST(Replay, EightBitWithTriggerFile) {
         << ",2000\n";
   }
   csv.close();
-  ReplayFrameSource src(ReplayConfig{dir.string()});
+  ReplayConfig cfg8;
+  cfg8.directory = dir.string();
+  ReplayFrameSource src(cfg8);
   ASSERT_EQ(src.start(), 0) << src.error();
   for (int k = 0; k < 5; ++k) {
     frame::FrameView f;
@@ -82,7 +84,8 @@ TEST(Replay, SixteenBitWithoutTriggerFile) {
   f.bits_per_pixel = 12;
   ASSERT_EQ(write_pgm((dir / "a.pgm").string(), f), 0);
   ASSERT_EQ(write_pgm((dir / "b.pgm").string(), f), 0);
-  ReplayConfig cfg{dir.string()};
+  ReplayConfig cfg;
+  cfg.directory = dir.string();
   cfg.default_period_ns = 2'500'000;
   ReplayFrameSource src(cfg);
   ASSERT_EQ(src.start(), 0) << src.error();
@@ -118,7 +121,9 @@ TEST(Replay, BadInputIsAClearError) {
   EXPECT_EQ(sim[0].exposure_start_tai_ns, 200);
   EXPECT_EQ(sim[0].exposure_start_mono_ns, 300);
   EXPECT_EQ(sim[0].exposure_ns, 500000u);
-  ReplayFrameSource src(ReplayConfig{"/nonexistent/dir"});
+  ReplayConfig missing;
+  missing.directory = "/nonexistent/dir";
+  ReplayFrameSource src(missing);
   EXPECT_EQ(src.start(), -ENOENT);
   EXPECT_NE(src.error().find("/nonexistent/dir"), std::string::npos);
   PgmHeader h;

@@ -175,7 +175,9 @@ TEST(CanFdLink, ErrorFrameClassification) {
 }
 
 TEST(CanFdLink, OpenFailureNamesTheInterface) {
-  CanFdLink link(CanFdLinkConfig{"nosuchcan9"});
+  CanFdLinkConfig cfg;
+  cfg.interface = "nosuchcan9";
+  CanFdLink link(cfg);
   const int rc = link.open();
   ASSERT_LT(rc, 0);  // no CAN in this kernel, or no such interface
   EXPECT_NE(std::string(link.error()).find("nosuchcan9"), std::string::npos) << link.error();
