@@ -16,6 +16,7 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Geometry>
 #include <Eigen/LU>
+#include <Eigen/SVD>
 
 namespace storetrack::match {
 
@@ -235,36 +236,44 @@ void MarkMatcher::predict(Work& w, double t_s) const {
   for (size_t m = 0; m < marks_.size(); ++m) {
     const MarkInfo& info = marks_[m];
     const MarkTrack& mt = mark_tracks_[m];
-    auto& pr = w.pred[m];
     const int last = mt.count - 1;
-    const bool track_fresh = mt.count > 0 && t_s - mt.t_s[last] <= config_.track_max_gap_s;
     const int b = info.body;
-    if (track_fresh && mt.count == 2 && mt.t_s[1] > mt.t_s[0]) {
-      const double dt = t_s - mt.t_s[1];
-      const double r = dt / (mt.t_s[1] - mt.t_s[0]);
-      const double accel = 0.5 * config_.max_acceleration_mps2 * dt * dt;
-      pr.p = mt.p_w[1] + r * (mt.p_w[1] - mt.p_w[0]);
-      pr.cov = (1 + r) * (1 + r) * mt.cov_w[1] + r * r * mt.cov_w[0] +
-               (accel * accel + floor2) * Mat3::Identity();
-      pr.source = PredictionSource::kMarkTrack;
-      pr.valid = true;
-    } else if (body_src[b] != PredictionSource::kNone) {
-      const auto G = point_pose_jacobian(body_T[b], info.p_body);
-      pr.p = body_T[b] * info.p_body;
-      pr.cov = G * body_cov[b] * G.transpose() +
-               (body_extra_var[b] + info.survey_sigma_m * info.survey_sigma_m + floor2) *
-                   Mat3::Identity();
-      pr.source = body_src[b];
-      pr.valid = true;
-    } else if (track_fresh) {
+    // Candidates: the mark's own track and its body's pose. The one with the smaller
+    // covariance wins: a fresh mark track beats a body extrapolation, but a mark that has been
+    // hidden for a while (its track covariance grows with the gap) is predicted from its body,
+    // so its gate does not swallow its neighbours' observations.
+    Work::Pred from_track, from_body;
+    if (mt.count > 0 && t_s - mt.t_s[last] <= config_.track_max_gap_s) {
       const double dt = t_s - mt.t_s[last];
-      const double v = config_.max_speed_mps * dt;
-      pr.p = mt.p_w[last];
-      pr.cov = mt.cov_w[last] + (v * v + floor2) * Mat3::Identity();
-      pr.source = PredictionSource::kMarkTrack;
-      pr.valid = true;
+      const double accel = 0.5 * config_.max_acceleration_mps2 * dt * dt;
+      if (mt.count == 2 && mt.t_s[1] > mt.t_s[0]) {
+        const double r = dt / (mt.t_s[1] - mt.t_s[0]);
+        from_track.p = mt.p_w[1] + r * (mt.p_w[1] - mt.p_w[0]);
+        from_track.cov = (1 + r) * (1 + r) * mt.cov_w[1] + r * r * mt.cov_w[0] +
+                         (accel * accel + floor2) * Mat3::Identity();
+      } else {
+        const double v = config_.max_speed_mps * dt;
+        from_track.p = mt.p_w[last];
+        from_track.cov = mt.cov_w[last] + (v * v + accel * accel + floor2) * Mat3::Identity();
+      }
+      from_track.source = PredictionSource::kMarkTrack;
+      from_track.valid = true;
     }
-    if (pr.source == PredictionSource::kPrior) w.acquired = true;
+    if (body_src[b] != PredictionSource::kNone) {
+      const auto G = point_pose_jacobian(body_T[b], info.p_body);
+      from_body.p = body_T[b] * info.p_body;
+      from_body.cov = G * body_cov[b] * G.transpose() +
+                      (body_extra_var[b] + info.survey_sigma_m * info.survey_sigma_m + floor2) *
+                          Mat3::Identity();
+      from_body.source = body_src[b];
+      from_body.valid = true;
+    }
+    auto& pr = w.pred[m];
+    if (from_track.valid && (!from_body.valid || from_track.cov.trace() <= from_body.cov.trace()))
+      pr = from_track;
+    else
+      pr = from_body;
+    if (pr.valid && pr.source == PredictionSource::kPrior) w.acquired = true;
   }
 }
 
@@ -481,10 +490,27 @@ void MarkMatcher::verify_layouts(Work& w) const {
         cov = info.inverse();
         return chi2 <= chi2_gate_[3 * n - 6];
       };
+      // A layout whose marks are (nearly) collinear leaves the rotation about that line
+      // undetermined: Umeyama then returns an arbitrary roll that passes the chi-square test.
+      // Such a fit neither verifies ids nor predicts the other marks.
+      auto well_posed = [&](const std::vector<int>& set, const Mat6& cov) {
+        Eigen::Matrix3Xd src(3, set.size());
+        for (size_t i = 0; i < set.size(); ++i)
+          src.col(i) = marks_[set[i]].p_body;
+        const Eigen::Matrix3Xd centred = src.colwise() - src.rowwise().mean();
+        const Vec3 sv = Eigen::JacobiSVD<Eigen::Matrix3Xd>(centred).singularValues();
+        if (!(sv[1] > config_.min_layout_spread * sv[0])) return false;
+        const double rot_var = cov.topLeftCorner<3, 3>().diagonal().maxCoeff();
+        const double trans_var = cov.bottomRightCorner<3, 3>().diagonal().maxCoeff();
+        return cov.allFinite() && std::sqrt(rot_var) <= config_.max_layout_rotation_sigma_rad &&
+               std::sqrt(trans_var) <= config_.max_layout_translation_sigma_m;
+      };
       Transform T;
       Mat6 cov;
       double chi2 = 0;
-      if (fit(members, T, cov, chi2)) {
+      const bool consistent = fit(members, T, cov, chi2);
+      if (!well_posed(members, cov)) break;  // cannot check: ids rest on their predictions
+      if (consistent) {
         w.fitted[b] = true;
         w.T_w_b[b] = T;
         w.cov_b[b] = cov;
@@ -498,7 +524,7 @@ void MarkMatcher::verify_layouts(Work& w) const {
           Transform T2;
           Mat6 cov2;
           double c2 = 0;
-          if (fit(rest, T2, cov2, c2)) {
+          if (fit(rest, T2, cov2, c2) && well_posed(rest, cov2)) {
             ++passing;
             culprit = static_cast<int>(k);
           }

@@ -52,17 +52,24 @@ struct MatcherConfig {
   /// Adds the pixel covariance implied by each camera's intrinsic and extrinsic calibration
   /// covariance (first order) to the gates.
   bool use_calibration_covariance = true;
-  /// Constant-velocity process noise: bound on unmodelled acceleration of a mark [m/s^2]
-  /// (store ejection ~ 100 m/s^2), used as a 1-sigma value.
-  double max_acceleration_mps2 = 150.0;
-  /// Speed bound for marks with only one past position [m/s] (1 sigma).
-  double max_speed_mps = 10.0;
+  /// Constant-velocity process noise: standard deviation of the unmodelled acceleration of a
+  /// mark [m/s^2] (store ejection peaks near 100 m/s^2, inside the 4-sigma gate).
+  double max_acceleration_mps2 = 50.0;
+  /// Standard deviation of the velocity of a body or mark with only one past position [m/s]
+  /// (bodies start at rest; a store re-acquired in flight needs its prior or layout instead).
+  double max_speed_mps = 2.0;
   /// Floor on a predicted position's per-axis standard uncertainty [m] (pod vibration etc.).
   double min_prediction_sigma_m = 3e-4;
   /// Tracks older than this give no prediction [s].
   double track_max_gap_s = 0.05;
   /// Bodies with fewer identified, triangulated marks are not fitted (no layout check).
   int min_layout_marks = 3;
+  /// A layout fit is used (to verify ids and predict the body's other marks) only when its
+  /// marks are not nearly collinear (second / first singular value of the centred survey
+  /// coordinates above this) and its pose is well determined (standard uncertainties below).
+  double min_layout_spread = 0.1;
+  double max_layout_rotation_sigma_rad = 0.01;
+  double max_layout_translation_sigma_m = 0.005;
   /// Keep marks identified in only one camera (no epipolar check possible) in the output.
   bool keep_single_view = true;
   /// ... but only when the prediction came from a track or this exposure's layout fit, never

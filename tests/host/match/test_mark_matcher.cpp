@@ -1,0 +1,371 @@
+// MarkMatcher against simulator truth (storetrack::sim fast mode): every assigned id must be the
+// true one, coverage of marks seen by >= 2 cameras, ambiguous configurations rejected and
+// counted, missing cameras and occluded/dropped marks handled.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <map>
+#include <memory>
+#include <random>
+#include <vector>
+
+#include "storetrack/match/mark_matcher.hpp"
+#include "storetrack/sim/scenario.hpp"
+#include "storetrack/sim/simulator.hpp"
+
+namespace storetrack::match {
+namespace {
+
+using geometry::Mat6;
+using geometry::Transform;
+using geometry::Vec6;
+
+std::string scenario_path(const std::string& name) {
+  return std::string(STORETRACK_SIM_SCENARIO_DIR) + "/" + name + ".json";
+}
+
+/// Prior pose covariance: isotropic rotation and translation sigmas.
+Mat6 pose_cov(double sigma_rad, double sigma_m) {
+  Vec6 d;
+  d << sigma_rad, sigma_rad, sigma_rad, sigma_m, sigma_m, sigma_m;
+  return d.cwiseAbs2().asDiagonal();
+}
+
+/// A draw from the prior: truth perturbed by the prior's own covariance (diagonal).
+Transform draw_prior(const Transform& truth, const Mat6& cov, std::mt19937_64& rng) {
+  std::normal_distribution<double> g(0, 1);
+  Vec6 d;
+  for (int i = 0; i < 6; ++i)
+    d[i] = std::sqrt(cov(i, i)) * g(rng);
+  return geometry::perturb_left(truth, d);
+}
+
+/// Fast-mode observations of one simulator run, computed once per test executable (the
+/// simulator's spot statistics cost ~20 ms per camera and exposure).
+struct Recorded {
+  std::vector<msg::MarkObservations> obs;  ///< per camera index
+  std::vector<std::vector<int>> truth;     ///< true mark ids per observation
+};
+const Recorded& recorded(const sim::Simulator& sim, int k) {
+  static std::map<std::pair<const sim::Simulator*, int>, Recorded> cache;
+  auto it = cache.find({&sim, k});
+  if (it != cache.end()) return it->second;
+  Recorded r;
+  r.obs.resize(sim.num_cameras());
+  r.truth.resize(sim.num_cameras());
+  for (int c = 0; c < sim.num_cameras(); ++c)
+    sim.observe(k, c, r.obs[c], &r.truth[c]);
+  return cache.emplace(std::make_pair(&sim, k), std::move(r)).first->second;
+}
+
+struct Tally {
+  long assigned = 0, wrong = 0;
+  long marks_in_2_views = 0, marks_identified_2_views = 0;
+  long observations_with_true_id = 0, observations_identified = 0;
+};
+
+/// One exposure: observations of the given cameras, matched, compared with truth.
+void run_exposure(const sim::Simulator& sim, MarkMatcher& matcher, int k,
+                  const std::vector<int>& camera_indices, Tally& tally, double drop_fraction = 0,
+                  std::mt19937_64* rng = nullptr) {
+  std::vector<msg::MarkObservations> obs(camera_indices.size());
+  std::vector<std::vector<int>> truth_ids(camera_indices.size());
+  const Recorded& rec = recorded(sim, k);
+  for (size_t e = 0; e < camera_indices.size(); ++e) {
+    obs[e] = rec.obs[camera_indices[e]];
+    truth_ids[e] = rec.truth[camera_indices[e]];
+    if (drop_fraction > 0) {
+      // Random dropouts (occlusion by things the simulator does not model, missed detections).
+      std::uniform_real_distribution<double> u(0, 1);
+      msg::MarkObservations kept = obs[e];
+      std::vector<int> kept_ids;
+      kept.mark_count = 0;
+      for (int j = 0; j < obs[e].mark_count; ++j) {
+        if (u(*rng) < drop_fraction) continue;
+        kept.marks[kept.mark_count++] = obs[e].marks[j];
+        kept_ids.push_back(truth_ids[e][j]);
+      }
+      obs[e] = kept;
+      truth_ids[e] = kept_ids;
+    }
+  }
+  const MatchResult r = matcher.match(obs);
+  ASSERT_EQ(r.ids.size(), obs.size());
+  std::map<int, int> views_of_id, identified_views_of_id;
+  for (size_t e = 0; e < obs.size(); ++e) {
+    ASSERT_EQ(r.ids[e].size(), obs[e].mark_count);
+    for (int j = 0; j < obs[e].mark_count; ++j) {
+      const int truth = truth_ids[e][j];
+      const int got = r.ids[e][j];
+      if (truth >= 0 && !(obs[e].marks[j].flags & msg::mark_flags::kMerged)) {
+        ++views_of_id[truth];
+        ++tally.observations_with_true_id;
+      }
+      if (got < 0) continue;
+      ++tally.assigned;
+      if (got != truth) {
+        ++tally.wrong;
+        ADD_FAILURE() << "exposure " << k << " camera " << int(obs[e].camera_id) << " obs " << j
+                      << ": id " << got << ", truth " << truth;
+      } else {
+        ++identified_views_of_id[truth];
+        ++tally.observations_identified;
+      }
+    }
+  }
+  for (const auto& [id, n] : views_of_id) {
+    if (n < 2) continue;
+    ++tally.marks_in_2_views;
+    if (identified_views_of_id[id] >= 2) ++tally.marks_identified_2_views;
+  }
+  // The per-id output agrees with ids[][].
+  for (const auto& mm : r.marks)
+    for (const auto& o : mm.observations) {
+      EXPECT_EQ(r.ids[o.camera_index][o.mark_index], mm.id);
+      EXPECT_GT(o.sigma_px, 0);
+      EXPECT_EQ(o.raw_px.x(), obs[o.camera_index].marks[o.mark_index].x_px);
+    }
+}
+
+/// One simulator per scenario for the whole executable (its observations are cached).
+const sim::Simulator& shared_simulator(const std::string& scenario) {
+  static std::map<std::string, std::unique_ptr<sim::Simulator>> sims;
+  auto& slot = sims[scenario];
+  if (!slot)
+    slot = std::make_unique<sim::Simulator>(sim::load_scenario(scenario_path(scenario)), 21);
+  return *slot;
+}
+
+struct Scene {
+  const sim::Simulator* sim = nullptr;
+  std::unique_ptr<MarkMatcher> matcher;
+};
+
+/// A matcher on the calibrated rig and surveyed bodies, with priors drawn around the truth of
+/// exposure 0 from their stated covariance (seed `prior_seed`).
+Scene make_setup(const std::string& scenario, std::uint64_t prior_seed, double prior_rot_rad,
+                 double prior_m, const MatcherConfig& config = {}) {
+  Scene s;
+  s.sim = &shared_simulator(scenario);
+  const bool has_store = s.sim->scenario().has_store();
+  std::vector<sim::RigidBodySurvey> bodies{s.sim->pylon_survey()};
+  if (has_store) bodies.push_back(s.sim->store_survey());
+  s.matcher = std::make_unique<MarkMatcher>(s.sim->calibrated_rig(), bodies, config);
+  std::mt19937_64 rng(prior_seed);
+  const Mat6 cov = pose_cov(prior_rot_rad, prior_m);
+  const sim::ExposureTruth t0 = s.sim->truth(0);
+  EXPECT_TRUE(s.matcher->set_prior_pose("pylon", draw_prior(t0.T_w_p, cov, rng), cov));
+  if (has_store) {
+    EXPECT_TRUE(s.matcher->set_prior_pose("store", draw_prior(t0.T_w_p * t0.T_p_s, cov, rng), cov));
+  }
+  return s;
+}
+
+int views_of(const std::vector<std::vector<int>>& truth, int id) {
+  int n = 0;
+  for (const auto& cam : truth)
+    n += static_cast<int>(std::count(cam.begin(), cam.end(), id));
+  return n;
+}
+
+std::vector<int> all_cameras(const sim::Simulator& sim) {
+  std::vector<int> v(sim.num_cameras());
+  for (int i = 0; i < sim.num_cameras(); ++i)
+    v[i] = i;
+  return v;
+}
+
+TEST(ChiSquare, QuantilesMatchTables) {
+  // NIST/SEMATECH e-Handbook, table 1.3.6.7.4.
+  EXPECT_NEAR(chi_square_quantile(1, 0.95), 3.841, 1e-3);
+  EXPECT_NEAR(chi_square_quantile(2, 0.99), 9.210, 1e-3);
+  EXPECT_NEAR(chi_square_quantile(3, 0.999), 16.266, 1e-3);
+  EXPECT_NEAR(chi_square_quantile(10, 0.95), 18.307, 1e-3);
+  EXPECT_NEAR(chi_square_quantile(2, 0.9999), -2 * std::log(1e-4), 1e-6);  // exact for dof 2
+  EXPECT_THROW(chi_square_quantile(0, 0.5), std::invalid_argument);
+}
+
+TEST(MarkMatcher, StoreSeparationAllIdsCorrect) {
+  Scene s = make_setup("store_separation", 21, 0.005, 0.01);
+  // Until the store has fallen ~1 m (exposure 170) most of its marks stay in view; later only
+  // a collinear row remains in view, which cannot verify the store layout (see
+  // docs/matching.md, limitations): ids must still never be wrong there.
+  constexpr int kTrackedPhase = 170;
+  Tally early, late;
+  for (int k = 0; k < s.sim->num_exposures(); ++k)
+    run_exposure(*s.sim, *s.matcher, k, all_cameras(*s.sim), k < kTrackedPhase ? early : late);
+  EXPECT_EQ(early.wrong + late.wrong, 0);
+  ASSERT_GT(early.marks_in_2_views, 1000);
+  const double coverage = double(early.marks_identified_2_views) / early.marks_in_2_views;
+  EXPECT_GE(coverage, 0.99) << early.marks_identified_2_views << " / " << early.marks_in_2_views;
+  EXPECT_GE(double(early.observations_identified) / early.observations_with_true_id, 0.99);
+  const auto& c = s.matcher->counters();
+  EXPECT_EQ(c.exposures, static_cast<std::uint64_t>(s.sim->num_exposures()));
+  EXPECT_GE(c.acquisitions, 1u);
+  const double late_coverage =
+      late.marks_in_2_views ? double(late.marks_identified_2_views) / late.marks_in_2_views : 1;
+  RecordProperty("coverage", std::to_string(coverage));
+  std::printf(
+      "store separation: %ld ids assigned, %ld wrong; marks in >= 2 views identified: "
+      "%.4f (exposures < %d), %.4f (later); epipolar outliers %lu rejected %lu, "
+      "ambiguous obs %lu, unmatched %lu, flag-rejected %lu\n",
+      early.assigned + late.assigned, early.wrong + late.wrong, coverage, kTrackedPhase,
+      late_coverage, (unsigned long)c.epipolar_outlier, (unsigned long)c.epipolar_rejected,
+      (unsigned long)c.ambiguous_observation, (unsigned long)c.unmatched,
+      (unsigned long)c.rejected_by_flags);
+}
+
+TEST(MarkMatcher, StaticSceneAllIdsCorrect) {
+  Scene s = make_setup("static", 2, 0.005, 0.01);
+  Tally tally;
+  for (int k = 0; k < std::min(100, s.sim->num_exposures()); ++k)
+    run_exposure(*s.sim, *s.matcher, k, all_cameras(*s.sim), tally);
+  EXPECT_EQ(tally.wrong, 0);
+  ASSERT_GT(tally.marks_in_2_views, 0);
+  EXPECT_GE(double(tally.marks_identified_2_views) / tally.marks_in_2_views, 0.995);
+}
+
+TEST(MarkMatcher, MissingCamerasAndDroppedMarks) {
+  Scene s = make_setup("store_separation", 23, 0.005, 0.01);
+  std::mt19937_64 rng(5);
+  Tally tally;
+  const int n = s.sim->num_cameras();
+  ASSERT_GE(n, 3);
+  for (int k = 0; k < 170; ++k) {
+    // Each exposure: a random subset of cameras (sometimes one, rarely none) delivers, and
+    // 15 % of the marks are lost; every 50 exposures a 6-exposure gap without any camera.
+    std::vector<int> cams;
+    if (k % 50 >= 44) {
+      const MatchResult r = s.matcher->match({});
+      EXPECT_TRUE(r.marks.empty());
+      continue;
+    }
+    for (int i = 0; i < n; ++i)
+      if (std::uniform_real_distribution<double>(0, 1)(rng) < 0.7) cams.push_back(i);
+    run_exposure(*s.sim, *s.matcher, k, cams, tally, 0.15, &rng);
+  }
+  EXPECT_EQ(tally.wrong, 0);
+  ASSERT_GT(tally.marks_in_2_views, 500);
+  const double coverage = double(tally.marks_identified_2_views) / tally.marks_in_2_views;
+  std::printf("missing cameras + 15%% dropped marks: %ld ids, %ld wrong, coverage %.4f\n",
+              tally.assigned, tally.wrong, coverage);
+  // Measured 0.33 (see the report: re-acquisition after gaps is the weak point).
+  EXPECT_GE(coverage, 0.3);
+}
+
+TEST(MarkMatcher, CoarsePriorIsRejectedNotGuessed) {
+  // A prior 20x worse than its stated covariance: ids must not be guessed from it.
+  Scene s = make_setup("store_separation", 24, 0.005, 0.01);
+  const sim::ExposureTruth t0 = s.sim->truth(0);
+  Vec6 shift;
+  shift << 0, 0, 0, 0.1, 0.0, 0.0;  // 10 cm along x: about one store mark spacing... and more
+  const Mat6 cov = pose_cov(0.002, 0.005);
+  s.matcher->set_prior_pose("store", geometry::perturb_left(t0.T_w_p * t0.T_p_s, shift), cov);
+  s.matcher->set_prior_pose("pylon", geometry::perturb_left(t0.T_w_p, shift), cov);
+  Tally tally;
+  run_exposure(*s.sim, *s.matcher, 0, all_cameras(*s.sim), tally);
+  EXPECT_EQ(tally.wrong, 0);
+
+  // An honestly stated but very coarse prior (10 cm, 3 deg): the gates overlap, so nothing or
+  // little is identified, ambiguities are counted, and nothing is wrong.
+  Scene s2 = make_setup("store_separation", 25, 0.05, 0.10);
+  Tally t2;
+  run_exposure(*s2.sim, *s2.matcher, 0, all_cameras(*s2.sim), t2);
+  EXPECT_EQ(t2.wrong, 0);
+  EXPECT_GT(s2.matcher->counters().ambiguous_observation + s2.matcher->counters().ambiguous_mark,
+            0u);
+}
+
+TEST(MarkMatcher, ClutterNextToAMarkMakesItAmbiguous) {
+  Scene s = make_setup("store_separation", 26, 0.005, 0.01);
+  Tally tally;
+  for (int k = 0; k < 10; ++k)
+    run_exposure(*s.sim, *s.matcher, k, all_cameras(*s.sim), tally);
+  ASSERT_EQ(tally.wrong, 0);
+  // Exposure 10: camera 0 reports a spurious blob 0.3 px from a tracked mark.
+  std::vector<msg::MarkObservations> obs(s.sim->num_cameras());
+  std::vector<std::vector<int>> truth(obs.size());
+  for (size_t e = 0; e < obs.size(); ++e)
+    s.sim->observe(10, int(e), obs[e], &truth[e]);
+  int victim = -1;
+  for (int j = 0; j < obs[0].mark_count; ++j)
+    if (truth[0][j] >= 0 && views_of(truth, truth[0][j]) >= 3) victim = j;
+  ASSERT_GE(victim, 0);
+  msg::MarkObservation clutter = obs[0].marks[victim];
+  clutter.x_px += 0.3f;
+  obs[0].marks[obs[0].mark_count++] = clutter;
+  const auto before = s.matcher->counters().ambiguous_mark;
+  const MatchResult r = s.matcher->match(obs);
+  EXPECT_EQ(r.ids[0][victim], -1);
+  EXPECT_EQ(r.ids[0][obs[0].mark_count - 1], -1);
+  EXPECT_GT(s.matcher->counters().ambiguous_mark, before);
+  // The mark is still identified in the other cameras, correctly.
+  const MatchedMark* mm = r.find(truth[0][victim]);
+  ASSERT_NE(mm, nullptr);
+  for (const auto& o : mm->observations) {
+    EXPECT_NE(o.camera_index, 0);
+    EXPECT_EQ(truth[o.camera_index][o.mark_index], mm->id);
+  }
+}
+
+TEST(MarkMatcher, EpipolarOutlierIsRemoved) {
+  // Acquisition (coarse prior gates): one camera's observation of a mark is displaced by
+  // 4 px; its prediction gate still holds it, the multi-view test must remove it.
+  Scene s = make_setup("store_separation", 27, 0.002, 0.005);
+  std::vector<msg::MarkObservations> obs(s.sim->num_cameras());
+  std::vector<std::vector<int>> truth(obs.size());
+  for (size_t e = 0; e < obs.size(); ++e)
+    s.sim->observe(0, int(e), obs[e], &truth[e]);
+  int victim = -1;
+  for (int j = 0; j < obs[1].mark_count && victim < 0; ++j)
+    if (truth[1][j] >= 0 && views_of(truth, truth[1][j]) >= 3) victim = j;
+  ASSERT_GE(victim, 0);
+  obs[1].marks[victim].x_px += 4.0f;
+  const MatchResult r = s.matcher->match(obs);
+  EXPECT_EQ(r.ids[1][victim], -1);
+  for (size_t e = 0; e < obs.size(); ++e)
+    for (int j = 0; j < obs[e].mark_count; ++j)
+      if (r.ids[e][j] >= 0) {
+        EXPECT_EQ(r.ids[e][j], truth[e][j]);
+      }
+  const MatchedMark* mm = r.find(truth[1][victim]);
+  ASSERT_NE(mm, nullptr);
+  EXPECT_GE(mm->observations.size(), 2u);
+}
+
+TEST(MarkMatcher, BadInputIsCounted) {
+  Scene s = make_setup("store_separation", 28, 0.005, 0.01);
+  std::vector<msg::MarkObservations> obs(3);
+  obs[0] = recorded(*s.sim, 0).obs[0];
+  obs[1] = recorded(*s.sim, 0).obs[1];
+  obs[2] = obs[1];  // duplicate camera
+  obs[0].marks[0].x_px = std::nanf("");
+  obs[0].marks[1].sigma_px = 0;
+  obs[0].marks[2].flags = msg::mark_flags::kMerged;
+  msg::MarkObservations unknown = obs[1];
+  unknown.camera_id = 77;
+  obs.push_back(unknown);
+  const MatchResult r = s.matcher->match(obs);
+  const auto& c = s.matcher->counters();
+  EXPECT_EQ(c.bad_observation, 1u);
+  EXPECT_EQ(c.fallback_sigma, 1u);
+  EXPECT_EQ(c.rejected_by_flags, 1u);
+  EXPECT_EQ(c.duplicate_camera, 1u);
+  EXPECT_EQ(c.unknown_camera, 1u);
+  EXPECT_EQ(r.ids[0][0], -1);
+  EXPECT_EQ(r.ids[0][2], -1);
+  for (int id : r.ids[3])
+    EXPECT_EQ(id, -1);
+}
+
+TEST(MarkMatcher, DuplicateMarkIdsRejected) {
+  sim::RigidBodySurvey a, b;
+  a.name = "a";
+  b.name = "b";
+  a.marks.push_back({5, geometry::Vec3::Zero(), 0});
+  b.marks.push_back({5, geometry::Vec3::Ones(), 0});
+  EXPECT_THROW(MarkMatcher(camera::RigCalibration{}, {a, b}), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace storetrack::match
