@@ -7,6 +7,8 @@ T=$(mktemp -d /tmp/vmtest.XXXXXX)
 # the VM (modbus on loopback) the scratch dir goes too.
 cleanup() { pkill -P $$ 2>/dev/null; [ -n "${VMRIG_OUT:-}" ] || rm -rf "$T"; }
 trap cleanup EXIT
+# The VM's init brings up no network interface; loopback is needed (Modbus TCP, UDP tests).
+[ -z "${VMRIG_OUT:-}" ] || ip link set lo up 2>/dev/null
 fail() { echo "FAIL: $*"; exit 1; }
 skip() { echo "SKIP: $*"; exit 77; }
 # waitfor 'shell condition' [tries, 50 ms apart; default 200 = 10 s]

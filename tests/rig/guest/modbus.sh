@@ -10,8 +10,9 @@ run_unit() {  # $1 = extra flag, $2 = stats file
     --realtime --trigger sim --no-links --modbus 127.0.0.1:$PORT \
     --duration-s 25 $1 --stats-json "$2" > "$2.out" 2>&1 &
   UNITP=$!
-  waitfor "mbpoll -m tcp -t 3 -0 -r 0 -c 2 -1 -p $PORT 127.0.0.1 >/dev/null 2>&1" 400 ||
+  waitfor "kill -0 $UNITP 2>/dev/null || exit 0; mbpoll -m tcp -t 3 -0 -r 0 -c 2 -1 -p $PORT 127.0.0.1 >/dev/null 2>&1" 200 ||
     { cat "$2.out"; fail "unit's Modbus server did not answer on 127.0.0.1:$PORT"; }
+  kill -0 $UNITP 2>/dev/null || { cat "$2.out"; fail "storetrack-unit exited at start"; }
 }
 stop_unit() { kill -INT $UNITP; wait $UNITP; }
 
