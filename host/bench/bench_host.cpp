@@ -118,6 +118,8 @@ TwoView two_view(const Data& d, int k) {
 // storetrack: undistortion + linear initialisation + Gauss-Newton + covariance + gains +
 // full Jacobians (what the pipeline uses), per point.
 void BM_TriangulateRefinedWithCovariance2Views(benchmark::State& state) {
+  triangulate::Options options;
+  options.calibration_jacobians = state.range(0) != 0;
   const Data& d = data();
   const auto rig = d.sim.calibrated_rig();
   const TwoView tv = two_view(d, d.sim.num_exposures() / 2);
@@ -133,13 +135,15 @@ void BM_TriangulateRefinedWithCovariance2Views(benchmark::State& state) {
     obs[1].pixel_px = tv.px1[i];
     obs[0].sigma_px = tv.sigma0[i];
     obs[1].sigma_px = tv.sigma1[i];
-    benchmark::DoNotOptimize(triangulate::triangulate(obs, triangulate::Options{}, r));
+    benchmark::DoNotOptimize(triangulate::triangulate(obs, options, r));
     benchmark::DoNotOptimize(r.cov_centroid);
     i = (i + 1) % tv.px0.size();
   }
   state.SetItemsProcessed(state.iterations());
 }
-BENCHMARK(BM_TriangulateRefinedWithCovariance2Views);
+// Arg 1: with the calibration Jacobians (as the pipeline runs it); arg 0: refinement +
+// centroid covariance only.
+BENCHMARK(BM_TriangulateRefinedWithCovariance2Views)->Arg(1)->Arg(0);
 
 cv::Matx34d projection(const camera::CalibratedCamera& cam) {
   const auto& in = cam.model.intrinsics();

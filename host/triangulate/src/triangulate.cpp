@@ -83,7 +83,13 @@ bool triangulate(std::span<const Observation> observations, const Options& optio
   out.chi2 = 0;
   for (size_t i = 0; i < n; ++i) {
     const Observation& obs = observations[i];
-    const auto u = obs.model->project_world(obs.T_c_w, X + obs.displacement_w, &out.jacobians[i]);
+    std::optional<Vec2> u;
+    if (options.calibration_jacobians) {
+      u = obs.model->project_world(obs.T_c_w, X + obs.displacement_w, &out.jacobians[i]);
+    } else {
+      u = obs.model->project(obs.T_c_w * (X + obs.displacement_w), &out.jacobians[i].d_point_cam);
+      out.jacobians[i].d_point_world = out.jacobians[i].d_point_cam * obs.T_c_w.linear();
+    }
     if (!u) return false;
     out.residual_px[i] = obs.pixel_px - *u;
     const double w = 1.0 / (obs.sigma_px * obs.sigma_px);

@@ -33,6 +33,9 @@ struct Observation {
 struct Options {
   int max_iterations = 10;
   double step_tolerance_m = 1e-9;  ///< stop when the Gauss-Newton step is shorter
+  /// Also fill d_pose / d_intrinsics of Result::jacobians (needed for the calibration budget);
+  /// without them only d_point_cam / d_point_world are set.
+  bool calibration_jacobians = true;
 };
 
 struct Result {
