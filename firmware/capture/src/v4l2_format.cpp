@@ -77,8 +77,10 @@ int negotiate_format(const IoctlOps& ops, int fd, const FormatRequest& request, 
     offered.push_back(desc.pixelformat);
   }
   std::string offered_text;
-  for (std::uint32_t f : offered)
-    offered_text += (offered_text.empty() ? "" : ",") + fourcc_to_string(f);
+  for (std::uint32_t f : offered) {
+    if (!offered_text.empty()) offered_text += ',';
+    offered_text += fourcc_to_string(f);
+  }
 
   // Try the usable formats best-first: a driver may list a format but refuse it at this size.
   std::vector<std::uint32_t> candidates;

@@ -46,8 +46,10 @@ int validate(const GpioMasterConfig& c, std::string* why) {
 // ---------------------------------------------------------------------------------- master
 GpioMasterTrigger::GpioMasterTrigger(GpioMasterConfig config) : config_(std::move(config)) {
   name_ = config_.chip + " line";
-  for (unsigned l : config_.lines)
-    name_ += " " + std::to_string(l);
+  for (unsigned l : config_.lines) {
+    name_ += ' ';
+    name_ += std::to_string(l);
+  }
   name_ += " (master)";
 }
 
