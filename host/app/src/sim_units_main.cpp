@@ -1,11 +1,11 @@
-// storetrack-sim-units: plays the simulator's camera units on the network. One process per
-// unit (--unit), each sending the MarkObservations of its cameras over UDP or CAN FD exactly as
-// storetrack-unit does (same codecs), paced at the scenario's frame rate. It uses the
-// simulator's fast mode (projected marks + centroid noise), so a test point needs no rendering.
-// With --replay FILE it sends the observations storetrack-sim already computed
-// (observations.udp: u32 big-endian length + datagram, in send order) instead of computing them,
-// so the pacing holds at 400 fps whatever the simulator costs. With --write-setup DIR it instead
-// writes what the host needs (calibrated rig, surveys, initial mark positions) and exits.
+// storetrack-sim-units: a replay/setup helper, NOT a camera unit. The main job
+// (tools/testpoint) and its integration test run the real camera-unit program (storetrack-unit
+// --source sim) instead; this program remains because tests/rig/guest/can_app.sh uses its
+// --write-setup DIR (calibrated rig, surveys, initial mark positions for the host) and it is a
+// cheap load generator for host-only experiments. It sends the simulator's fast-mode
+// observations (projected marks + centroid noise, no rendering, no centroiding) over UDP or CAN
+// FD with the unit's codecs, paced at the scenario's frame rate; with --replay FILE it sends
+// storetrack-sim's precomputed observations.udp (u32 big-endian length + datagram).
 #include <arpa/inet.h>
 #include <linux/can.h>
 #include <linux/can/raw.h>

@@ -1,35 +1,54 @@
 #!/usr/bin/env bash
-# A short store-separation test point (220 exposures, 4 cameras on 2 unit processes, UDP
-# loopback, one unit drops 2 % of its messages), then check_testpoint.py compares the host's
-# outputs with the simulator's truth and validates the Chapter 10 file.
+# A short store-separation test point with the real camera-unit program: storetrack-sim writes
+# the calibrated rig, surveys and truth; four storetrack-unit processes (one per camera, unit
+# ids 0,0,1,1) render their camera's frames from the same scenario and seed, centroid them and
+# send MarkObservations over UDP loopback; storetrack-host aligns, triangulates and writes
+# Chapter 10 + iNET-X + CSV. Camera 3's unit stops 20 frames early (a camera that died), so the
+# last exposures must come out partial after the bounded wait. check_testpoint.py then compares
+# the host's outputs with the simulator's truth and validates the Chapter 10 file.
 set -euo pipefail
-SIM="$1"; UNITS="$2"; HOST="$3"; ROOT="$4"; OUT="$5"
-rm -rf "$OUT"; mkdir -p "$OUT/sim" "$OUT/setup"
+SIM="$1"; UNIT="$2"; HOST="$3"; ROOT="$4"; OUT="$5"
+NEXP=220
+rm -rf "$OUT"; mkdir -p "$OUT/sim"
 PORT=$(( 45000 + $$ % 1000 ))
-/usr/bin/python3 - "$ROOT/common/sim/scenarios/store_separation.json" "$OUT/scenario.json" <<'PY'
+/usr/bin/python3 - "$ROOT/common/sim/scenarios/store_separation.json" "$OUT/scenario.json" "$NEXP" <<'PY'
 import json, sys
 s = json.load(open(sys.argv[1]))
-s["timing"]["num_exposures"] = 220  # the scenario's 0.55 s of separation
+s["timing"]["num_exposures"] = int(sys.argv[3])  # the scenario's 0.55 s of separation
 json.dump(s, open(sys.argv[2], "w"))
 PY
 "$SIM" --scenario "$OUT/scenario.json" --seed 7 --out "$OUT/sim" --mode observations >/dev/null
-"$UNITS" --scenario "$OUT/scenario.json" --seed 7 --write-setup "$OUT/setup"
-"$HOST" --calibration "$OUT/setup/rig_calibration.json" --pylon-survey "$OUT/setup/pylon_survey.json" \
-  --store-survey "$OUT/setup/store_survey.json" --initial-marks "$OUT/setup/initial_marks.json" \
+# Initial mark positions as an installation survey would give them (exposure 0, 1 mm noise).
+/usr/bin/python3 - "$OUT/sim/truth_marks.csv" "$OUT/initial_marks.json" <<'PY'
+import csv, json, random, sys
+rng, marks, first = random.Random(12345), [], None
+for row in csv.DictReader(open(sys.argv[1], newline="")):
+    first = first or row["trigger_seq"]
+    if row["trigger_seq"] != first:
+        break
+    marks.append({"id": int(row["mark_id"]),
+                  "p_w_m": [float(row[k]) + rng.gauss(0, 1e-3) for k in ("x_w_m", "y_w_m", "z_w_m")]})
+json.dump({"marks": marks}, open(sys.argv[2], "w"))
+PY
+STORE_SURVEY="$OUT/sim/survey_store.json"
+"$HOST" --calibration "$OUT/sim/rig_calibrated.json" --pylon-survey "$OUT/sim/survey_pylon.json" \
+  --store-survey "$STORE_SURVEY" --initial-marks "$OUT/initial_marks.json" \
   --udp-port "$PORT" --udp-bind 127.0.0.1 --ch10 "$OUT/out.ch10" --csv "$OUT/fti.csv" \
   --marks-csv "$OUT/marks.csv" --inetx "127.0.0.1:$((PORT + 1))" --stats-json "$OUT/stats.json" \
-  --idle-exit-s 1.5 --expect-exposures 220 >"$OUT/host.log" 2>&1 &
+  --max-wait-ms 3000 --idle-exit-s 5 --expect-exposures "$NEXP" >"$OUT/host.log" 2>&1 &
 HOST_PID=$!
-trap 'kill $HOST_PID 2>/dev/null || true' EXIT
+UNIT_PIDS=""
+trap 'for p in $HOST_PID $UNIT_PIDS; do kill "$p" 2>/dev/null || true; done' EXIT
 sleep 0.5
-START=$(( $(date +%s%3N) + 500 ))
-"$UNITS" --scenario "$OUT/scenario.json" --seed 7 --unit 0 --replay "$OUT/sim/observations.udp" \
-  --dest "127.0.0.1:$PORT" --start-at-ms "$START" --quiet &
-U0=$!
-"$UNITS" --scenario "$OUT/scenario.json" --seed 7 --unit 1 --replay "$OUT/sim/observations.udp" \
-  --dest "127.0.0.1:$PORT" --start-at-ms "$START" --loss 0.02 --quiet &
-U1=$!
-wait $U0; wait $U1
+for c in 0 1 2 3; do
+  FRAMES=$NEXP; [ "$c" -eq 3 ] && FRAMES=$(( NEXP - 20 ))
+  "$UNIT" run --source sim --scenario "$OUT/scenario.json" --camera-index "$c" --seed 7 \
+    --trigger sim --udp "127.0.0.1:$PORT" --no-modbus --frames "$FRAMES" \
+    --stats-json "$OUT/unit_cam$c.json" >"$OUT/unit_cam$c.log" 2>&1 &
+  UNIT_PIDS="$UNIT_PIDS $!"
+done
+for p in $UNIT_PIDS; do wait "$p" || { cat "$OUT"/unit_cam*.log; echo "storetrack-unit failed"; exit 1; }; done
+UNIT_PIDS=""
 wait $HOST_PID || { cat "$OUT/host.log"; echo "storetrack-host failed"; exit 1; }
 trap - EXIT
 cat "$OUT/host.log"
