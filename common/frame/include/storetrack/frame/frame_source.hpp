@@ -25,7 +25,7 @@ struct FrameView {
   int height = 0;
   int stride_bytes = 0;
   PixelFormat format = PixelFormat::kMono8;
-  int bits_per_pixel = 8;  ///< significant bits (8, 10, 12 or 16)
+  int bits_per_pixel = 8;      ///< significant bits (8, 10, 12 or 16)
   std::uint32_t sequence = 0;  ///< the source's own frame counter (V4L2 buffer sequence)
   time::MonotonicNs timestamp_mono_ns = 0;  ///< start of exposure, unit CLOCK_MONOTONIC
   std::uint32_t exposure_ns = 0;            ///< exposure duration
