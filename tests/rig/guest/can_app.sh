@@ -9,6 +9,7 @@ need_bin SIMU STORETRACK_BIN_SIM_UNITS storetrack-sim-units
 SCEN=$STORETRACK_SOURCE_DIR/common/sim/scenarios/static.json
 [ -e "$SCEN" ] || fail "no scenario $SCEN"
 vcan_up vcan0
+mkdir -p $T/setup
 "$SIMU" --scenario "$SCEN" --seed 1 --write-setup $T/setup >/dev/null || fail "sim-units --write-setup"
 
 candump -L vcan0 > $T/candump.log & DUMP=$!
