@@ -240,6 +240,8 @@ Transform Simulator::T_w_p_at(time::TaiNs tai) const {
 }
 
 Transform Simulator::T_p_s_at(time::TaiNs tai) const {
+  // The pendulum is the tracked body of its scenario: the host solves its pose as the "store".
+  if (sc_.kind == ScenarioKind::kPendulum) return pendulum_.T_p_b(seconds_since_start(tai));
   if (!sc_.has_store()) return Transform::Identity();
   if (sc_.kind == ScenarioKind::kStatic) return sc_.separation.T_p_s0;
   return separation_.T_p_s(seconds_since_start(tai));

@@ -389,5 +389,32 @@ TEST(Simulator, FarPylonMarksReappearAsTheStoreDrops) {
   EXPECT_GT(reappeared, 0);
 }
 
+// The pendulum scenario's tracked body is the pendulum: truth(k).T_p_s is its pose, so every
+// pendulum mark is T_w_p * T_p_s * p_body of the true survey (what the host's pose is scored
+// against).
+TEST(Simulator, PendulumTruthPoseCarriesItsMarks) {
+  const Scenario sc = load_scenario(scenario_path("pendulum"));
+  const Simulator sim(sc, 5);
+  double max_err_m = 0, max_angle_rad = 0;
+  geometry::Transform first = geometry::Transform::Identity();
+  for (int k = 0; k < sim.num_exposures(); k += 7) {
+    const ExposureTruth tr = sim.truth(k);
+    if (k == 0) first = tr.T_p_s;
+    max_angle_rad = std::max(
+        max_angle_rad, Eigen::AngleAxisd(first.linear().transpose() * tr.T_p_s.linear()).angle());
+    int checked = 0;
+    for (const MarkTruth& m : tr.marks) {
+      for (const SurveyedMark& s : sc.pendulum.marks) {
+        if (s.id != m.id) continue;
+        max_err_m = std::max(max_err_m, (tr.T_w_p * tr.T_p_s * s.p_body - m.p_w).norm());
+        ++checked;
+      }
+    }
+    EXPECT_EQ(checked, static_cast<int>(sc.pendulum.marks.size()));
+  }
+  EXPECT_LT(max_err_m, 1e-9);
+  EXPECT_GT(max_angle_rad, 0.02);  // it swings: not a constant or identity pose
+}
+
 }  // namespace
 }  // namespace storetrack::sim

@@ -62,7 +62,8 @@ struct ExposureTruth {
   /// Reference instant of this truth: trigger + camera 0's true latency + exposure / 2.
   time::TaiNs reference_tai_ns = 0;
   geometry::Transform T_w_p = geometry::Transform::Identity();  ///< at reference time
-  geometry::Transform T_p_s = geometry::Transform::Identity();  ///< store (identity if none)
+  geometry::Transform T_p_s =
+      geometry::Transform::Identity();  ///< tracked body: store or pendulum (identity if none)
   std::vector<CameraExposureTruth> cameras;
   std::vector<MarkTruth> marks;  ///< every mark of the scene, ascending id
 };
