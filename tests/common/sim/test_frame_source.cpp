@@ -1,11 +1,9 @@
 // SimFrameSource: sequence, timing, ring discipline, no allocation per frame; PGM sequences.
-#include <atomic>
 #include <cerrno>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <new>
 #include <string>
 
 #include <unistd.h>
@@ -13,38 +11,7 @@
 #include <gtest/gtest.h>
 
 #include "storetrack/sim/frame_source.hpp"
-
-// GCC 12 with -fsanitize inlines these replacements and then flags std::free on memory from
-// the (replaced) operator new as a mismatch: a false positive for a replaced allocator.
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
-#endif
-
-namespace {
-std::atomic<long> g_allocations{0};
-}  // namespace
-
-void* operator new(std::size_t n) {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(n ? n : 1)) return p;
-  throw std::bad_alloc();
-}
-// The array forms too, so that every new/delete pair stays matched (GCC checks it).
-void* operator new[](std::size_t n) {
-  return operator new(n);
-}
-void operator delete(void* p) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p) noexcept {
-  std::free(p);
-}
-void operator delete(void* p, std::size_t) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p, std::size_t) noexcept {
-  std::free(p);
-}
+#include "storetrack/testing/counting_allocator.hpp"
 
 namespace storetrack::sim {
 namespace {
@@ -86,7 +53,7 @@ TEST(SimFrameSource, RingIsFiniteAndPerFramePathDoesNotAllocate) {
   frame::FrameView a, b, c, d;
   ASSERT_EQ(src.acquire(a, 0), 0);  // warm-up frame
   ASSERT_EQ(src.release(a), 0);
-  const long before = g_allocations.load();
+  const long before = storetrack::testing::allocation_count();
   ASSERT_EQ(src.acquire(a, 0), 0);
   ASSERT_EQ(src.acquire(b, 0), 0);
   ASSERT_EQ(src.acquire(c, 0), 0);
@@ -95,7 +62,7 @@ TEST(SimFrameSource, RingIsFiniteAndPerFramePathDoesNotAllocate) {
   EXPECT_EQ(src.release(b), 0);
   ASSERT_EQ(src.acquire(d, 0), 0);
   EXPECT_EQ(d.buffer_index, b.buffer_index);
-  EXPECT_EQ(g_allocations.load() - before, 0);
+  EXPECT_EQ(storetrack::testing::allocation_count() - before, 0);
   EXPECT_EQ(src.release(a), 0);
   EXPECT_EQ(src.release(c), 0);
   EXPECT_EQ(src.release(d), 0);

@@ -2,12 +2,10 @@
 // flags, ROIs, Mono16, capacity limits, bad input and the no-allocation guarantee.
 #include <gtest/gtest.h>
 
-#include <atomic>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
-#include <new>
 #include <random>
 #include <vector>
 
@@ -15,33 +13,7 @@
 #include "storetrack/centroid/centroider.hpp"
 #include "storetrack/msg/messages.hpp"
 #include "storetrack/sim/render.hpp"
-
-// Counting global allocator: the per-frame path must not allocate. (GCC 12 misreads the
-// malloc/free pairing of replaced operators once inlined: a known false positive.)
-#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
-namespace {
-std::atomic<long> g_allocations{0};
-}
-void* operator new(std::size_t size) {
-  ++g_allocations;
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-void* operator new[](std::size_t size) {
-  return operator new(size);
-}
-void operator delete(void* p) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p) noexcept {
-  std::free(p);
-}
-void operator delete(void* p, std::size_t) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p, std::size_t) noexcept {
-  std::free(p);
-}
+#include "storetrack/testing/counting_allocator.hpp"
 
 namespace storetrack::centroid {
 namespace {
@@ -380,13 +352,13 @@ TEST(Centroider, DoesNotAllocatePerFrame) {
   Centroider centroider(config_for(sensor), kW, kH);
   std::vector<Blob> blobs(64);
   const std::vector<Roi> rois = {{100, 100, 200, 200}};
-  const long before = g_allocations.load();
+  const long before = storetrack::testing::allocation_count();
   int n = 0;
   for (int i = 0; i < 5; ++i) {
     n = centroider.process(view_of(image, kW, kH), blobs);
     centroider.process(view_of(image, kW, kH), rois, blobs);
   }
-  EXPECT_EQ(g_allocations.load(), before);
+  EXPECT_EQ(storetrack::testing::allocation_count(), before);
   EXPECT_EQ(n, 64);
 }
 
