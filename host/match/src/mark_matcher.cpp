@@ -145,6 +145,15 @@ struct MarkMatcher::Work {
   std::vector<bool> fitted;                 ///< per body
   std::vector<Transform> T_w_b;
   std::vector<Mat6> cov_b;
+  /// Per body: the pose filter extrapolated to this exposure (valid when the body has a track)
+  /// and, when its marks updated it, the posterior.
+  struct BodyState {
+    bool predicted = false;
+    BodyTrack pred;
+    bool updated = false;
+    BodyTrack post;
+  };
+  std::vector<BodyState> body;
   bool acquired = false;
   MatchCounters counts;
 };
@@ -191,39 +200,47 @@ void MarkMatcher::reset_tracking() {
   for (auto& t : mark_tracks_)
     t.count = 0;
   for (auto& t : body_tracks_)
-    t.count = 0;
+    t.valid = false;
 }
 
 void MarkMatcher::predict(Work& w, double t_s) const {
   const double floor2 = config_.min_prediction_sigma_m * config_.min_prediction_sigma_m;
-  // Body poses first: extrapolated track, else prior.
+  // Body poses first: the constant-velocity pose filter extrapolated to t_s (Bar-Shalom et
+  // al. 2001, sec. 6.3.3, discrete white-noise acceleration, per axis for translation and
+  // rotation), else the prior pose (acquisition).
   std::vector<Transform> body_T(bodies_.size());
   std::vector<Mat6> body_cov(bodies_.size());
   std::vector<PredictionSource> body_src(bodies_.size(), PredictionSource::kNone);
-  std::vector<double> body_extra_var(bodies_.size(), 0.0);  // isotropic per-mark [m^2]
+  w.body.assign(bodies_.size(), {});
   for (size_t b = 0; b < bodies_.size(); ++b) {
     const BodyTrack& bt = body_tracks_[b];
-    const int last = bt.count - 1;
-    if (bt.count > 0 && t_s - bt.t_s[last] <= config_.track_max_gap_s) {
-      const double dt = t_s - bt.t_s[last];
-      const double accel = 0.5 * config_.max_acceleration_mps2 * dt * dt;
-      if (bt.count == 2 && bt.t_s[1] > bt.t_s[0]) {
-        const double r = dt / (bt.t_s[1] - bt.t_s[0]);
-        const Vec3 omega =
-            geometry::rotvec_from_rotation(bt.T_w_b[1].linear() * bt.T_w_b[0].linear().transpose());
-        Transform T = Transform::Identity();
-        T.linear() = geometry::rotation_from_rotvec(r * omega) * bt.T_w_b[1].linear();
-        T.translation() =
-            bt.T_w_b[1].translation() + r * (bt.T_w_b[1].translation() - bt.T_w_b[0].translation());
-        body_T[b] = T;
-        body_cov[b] = (1 + r) * (1 + r) * bt.cov[1] + r * r * bt.cov[0];
-        body_extra_var[b] = accel * accel;
-      } else {
-        body_T[b] = bt.T_w_b[last];
-        body_cov[b] = bt.cov[last];
-        const double v = config_.max_speed_mps * dt;
-        body_extra_var[b] = v * v + accel * accel;
+    const double dt = t_s - bt.t_s;
+    if (bt.valid && dt >= 0 && dt <= config_.body_track_max_gap_s) {
+      BodyTrack p = bt;
+      p.t_s = t_s;
+      p.T_w_b.linear() = geometry::rotation_from_rotvec(bt.omega_w * dt) * bt.T_w_b.linear();
+      p.T_w_b.translation() = bt.T_w_b.translation() + bt.v_w * dt;
+      Mat12 F = Mat12::Identity();
+      F.block<3, 3>(0, 6) = dt * Mat3::Identity();
+      F.block<3, 3>(3, 9) = dt * Mat3::Identity();
+      Mat12 Q = Mat12::Zero();
+      const double qa =
+          config_.max_angular_acceleration_radps2 * config_.max_angular_acceleration_radps2;
+      const double ql = config_.max_acceleration_mps2 * config_.max_acceleration_mps2;
+      const double d2 = dt * dt, d3 = d2 * dt, d4 = d3 * dt;
+      for (int i = 0; i < 3; ++i) {
+        Q(i, i) = qa * d4 / 4;
+        Q(i, 6 + i) = Q(6 + i, i) = qa * d3 / 2;
+        Q(6 + i, 6 + i) = qa * d2;
+        Q(3 + i, 3 + i) = ql * d4 / 4;
+        Q(3 + i, 9 + i) = Q(9 + i, 3 + i) = ql * d3 / 2;
+        Q(9 + i, 9 + i) = ql * d2;
       }
+      p.P = F * bt.P * F.transpose() + Q;
+      w.body[b].predicted = true;
+      w.body[b].pred = p;
+      body_T[b] = p.T_w_b;
+      body_cov[b] = p.P.topLeftCorner<6, 6>();
       body_src[b] = PredictionSource::kBodyTrack;
     } else if (priors_[b].valid) {
       body_T[b] = priors_[b].T_w_b;
@@ -263,8 +280,7 @@ void MarkMatcher::predict(Work& w, double t_s) const {
       const auto G = point_pose_jacobian(body_T[b], info.p_body);
       from_body.p = body_T[b] * info.p_body;
       from_body.cov = G * body_cov[b] * G.transpose() +
-                      (body_extra_var[b] + info.survey_sigma_m * info.survey_sigma_m + floor2) *
-                          Mat3::Identity();
+                      (info.survey_sigma_m * info.survey_sigma_m + floor2) * Mat3::Identity();
       from_body.source = body_src[b];
       from_body.valid = true;
     }
@@ -460,12 +476,101 @@ void MarkMatcher::verify_views(Work& w) const {
   }
 }
 
+bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& members,
+                                BodyTrack& post, double& nis) const {
+  // Extended Kalman filter update in information form (Bar-Shalom et al. 2001, sec. 5.2 and
+  // 10.3): Info = P^-1 + sum G^T W G, with one relinearisation (iterated EKF, sec. 10.3.2);
+  // the normalised innovation squared y^T (G P G^T + R)^-1 y = y^T W y - g^T Info^-1 g
+  // (matrix inversion lemma) at the prediction.
+  const BodyTrack& pred = w.body[b].pred;
+  const Eigen::LDLT<Mat12> prior(pred.P);
+  if (prior.info() != Eigen::Success) return false;
+  const Mat12 P_inv = prior.solve(Mat12::Identity());
+  Eigen::Matrix<double, 12, 1> delta = Eigen::Matrix<double, 12, 1>::Zero();
+  Mat12 info;
+  for (int iter = 0; iter < 2; ++iter) {
+    const Transform T = geometry::perturb_left(pred.T_w_b, delta.head<6>());
+    info = P_inv;
+    Eigen::Matrix<double, 12, 1> g = -P_inv * delta;
+    double yWy = 0;
+    for (int m : members) {
+      const double s = marks_[m].survey_sigma_m;
+      const Mat3 W = (w.tri[m].cov + s * s * Mat3::Identity()).inverse();
+      const Vec3 y = w.tri[m].p - T * marks_[m].p_body;
+      const auto G = point_pose_jacobian(T, marks_[m].p_body);
+      info.topLeftCorner<6, 6>() += G.transpose() * W * G;
+      g.head<6>() += G.transpose() * W * y;
+      yWy += y.dot(W * y);
+    }
+    const Eigen::LDLT<Mat12> solver(info);
+    if (solver.info() != Eigen::Success) return false;
+    const Eigen::Matrix<double, 12, 1> step = solver.solve(g);
+    if (!step.allFinite()) return false;
+    if (iter == 0) nis = yWy - g.dot(step);
+    delta += step;
+  }
+  post = pred;
+  post.T_w_b = geometry::perturb_left(pred.T_w_b, delta.head<6>());
+  post.omega_w += delta.segment<3>(6);
+  post.v_w += delta.tail<3>();
+  post.P = info.ldlt().solve(Mat12::Identity());
+  post.P = 0.5 * (post.P + post.P.transpose()).eval();
+  return post.P.allFinite() && std::isfinite(nis);
+}
+
 void MarkMatcher::verify_layouts(Work& w) const {
   for (int b = 0; b < static_cast<int>(bodies_.size()); ++b) {
     w.fitted[b] = false;
+    w.body[b].updated = false;
     std::vector<int> members;
     for (int m = 0; m < static_cast<int>(marks_.size()); ++m)
       if (marks_[m].body == b && w.tri[m].valid) members.push_back(m);
+    if (w.body[b].predicted) {
+      // Tracked body: Kalman update of its pose filter with the triangulated marks; the
+      // normalised innovation squared (dof 3n) is the layout test. Works with any number of
+      // marks, collinear ones included (the filter carries the unobserved roll).
+      while (!members.empty()) {
+        BodyTrack post;
+        double nis = 0;
+        if (filter_update(w, b, members, post, nis) &&
+            nis <= chi2_gate_[std::min(kMaxDof, 3 * static_cast<int>(members.size()))]) {
+          w.body[b].updated = true;
+          w.body[b].post = post;
+          w.fitted[b] = true;
+          w.T_w_b[b] = post.T_w_b;
+          w.cov_b[b] = post.P.topLeftCorner<6, 6>();
+          break;
+        }
+        int culprit = -1, passing = 0;
+        if (members.size() >= 2) {
+          for (size_t k = 0; k < members.size(); ++k) {
+            std::vector<int> rest = members;
+            rest.erase(rest.begin() + static_cast<long>(k));
+            if (filter_update(w, b, rest, post, nis) &&
+                nis <= chi2_gate_[std::min(kMaxDof, 3 * static_cast<int>(rest.size()))]) {
+              ++passing;
+              culprit = static_cast<int>(k);
+            }
+          }
+        }
+        std::vector<int> drop;
+        if (passing == 1)
+          drop.push_back(members[culprit]);
+        else
+          drop = members;
+        for (int m : drop) {
+          for (int o : w.assigned[m]) {
+            w.obs[o].state = ObsState::kUngated;
+            w.obs[o].mark = -1;
+          }
+          w.assigned[m].clear();
+          w.tri[m] = {};
+          ++w.counts.layout_rejected;
+          members.erase(std::find(members.begin(), members.end(), m));
+        }
+      }
+      continue;
+    }
     // Fit and test; on failure remove the unique culprit (>= 4 marks) and try again.
     while (static_cast<int>(members.size()) >= std::max(3, config_.min_layout_marks)) {
       auto fit = [&](const std::vector<int>& set, Transform& T, Mat6& cov, double& chi2) {
@@ -569,19 +674,24 @@ void MarkMatcher::update_tracks(const Work& w, double t_s) {
     ++mt.count;
   }
   for (size_t b = 0; b < bodies_.size(); ++b) {
-    if (!w.fitted[b]) continue;
     BodyTrack& bt = body_tracks_[b];
-    if (bt.count > 0 && t_s - bt.t_s[bt.count - 1] > config_.track_max_gap_s) bt.count = 0;
-    if (bt.count == 2) {
-      bt.t_s[0] = bt.t_s[1];
-      bt.T_w_b[0] = bt.T_w_b[1];
-      bt.cov[0] = bt.cov[1];
-      bt.count = 1;
+    if (w.body[b].updated) {
+      bt = w.body[b].post;
+      bt.valid = true;
+      continue;
     }
-    bt.t_s[bt.count] = t_s;
-    bt.T_w_b[bt.count] = w.T_w_b[b];
-    bt.cov[bt.count] = w.cov_b[b];
-    ++bt.count;
+    if (!w.fitted[b]) continue;
+    // (Re-)acquired by a layout fit: a new filter with the fit's pose covariance, at rest with
+    // the a-priori spread of the rates (MatcherConfig::max_speed_mps, max_angular_speed_radps).
+    BodyTrack fresh;
+    fresh.valid = true;
+    fresh.t_s = t_s;
+    fresh.T_w_b = w.T_w_b[b];
+    fresh.P.topLeftCorner<6, 6>() = w.cov_b[b];
+    const double wr = config_.max_angular_speed_radps, vr = config_.max_speed_mps;
+    fresh.P.block<3, 3>(6, 6) = wr * wr * Mat3::Identity();
+    fresh.P.block<3, 3>(9, 9) = vr * vr * Mat3::Identity();
+    bt = fresh;
   }
 }
 
@@ -672,6 +782,7 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
   w.fitted.assign(bodies_.size(), false);
   w.T_w_b.assign(bodies_.size(), Transform::Identity());
   w.cov_b.assign(bodies_.size(), Mat6::Zero());
+  w.body.assign(bodies_.size(), {});
 
   if (t_count > 0) {
     predict(w, t_s);

@@ -60,8 +60,15 @@ struct MatcherConfig {
   double max_speed_mps = 2.0;
   /// Floor on a predicted position's per-axis standard uncertainty [m] (pod vibration etc.).
   double min_prediction_sigma_m = 3e-4;
-  /// Tracks older than this give no prediction [s].
+  /// Constant-velocity pose track of a body: standard deviation of its unmodelled angular
+  /// acceleration [rad/s^2] and of its angular rate when (re-)acquired [rad/s].
+  double max_angular_acceleration_radps2 = 100.0;
+  double max_angular_speed_radps = 2.0;
+  /// Mark tracks older than this give no prediction [s].
   double track_max_gap_s = 0.05;
+  /// A body's pose track is extrapolated over gaps up to this long [s] (its covariance grows
+  /// with the process noise; ambiguous gates then reject, never guess).
+  double body_track_max_gap_s = 0.25;
   /// Bodies with fewer identified, triangulated marks are not fitted (no layout check).
   int min_layout_marks = 3;
   /// A layout fit is used (to verify ids and predict the body's other marks) only when its
@@ -186,11 +193,16 @@ class MarkMatcher {
     geometry::Vec3 p_w[2];
     geometry::Mat3 cov_w[2];
   };
+  /// Constant-velocity pose filter of a body (error state: left rotation perturbation,
+  /// translation, angular rate, velocity; all in the world frame).
+  using Mat12 = Eigen::Matrix<double, 12, 12>;
   struct BodyTrack {
-    int count = 0;
-    double t_s[2] = {0, 0};
-    geometry::Transform T_w_b[2];
-    geometry::Mat6 cov[2];  ///< fit covariance (left perturbation)
+    bool valid = false;
+    double t_s = 0;
+    geometry::Transform T_w_b = geometry::Transform::Identity();
+    geometry::Vec3 omega_w = geometry::Vec3::Zero();  ///< angular rate [rad/s]
+    geometry::Vec3 v_w = geometry::Vec3::Zero();      ///< velocity of the body origin [m/s]
+    Mat12 P = Mat12::Zero();
   };
   struct Prior {
     bool valid = false;
@@ -203,6 +215,8 @@ class MarkMatcher {
   void gate_and_assign(Work& w) const;
   void verify_views(Work& w) const;
   void verify_layouts(Work& w) const;
+  bool filter_update(const Work& w, int b, const std::vector<int>& members, BodyTrack& post,
+                     double& nis) const;
   bool triangulate(const Work& w, const std::vector<int>& obs, geometry::Vec3& p_w,
                    geometry::Mat3& cov_w, double& chi2) const;
   void update_tracks(const Work& w, double t_s);
