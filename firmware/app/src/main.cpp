@@ -45,7 +45,7 @@ struct Overrides {
   std::vector<std::string> udp, can;
   std::string modbus, stats_json, edges_csv;
   bool realtime = false, no_links = false, no_modbus = false, maintenance = false, verbose = false,
-       replay_loop = false;
+       replay_loop = false, triggered_only = false;
   std::vector<CLI::Option*> opts;
 };
 
@@ -72,6 +72,9 @@ void add_common(CLI::App* app, Overrides& o) {
   app->add_option("--pulse-width-us", o.pulse_width_us, "gpio-master: pulse width [us]");
   app->add_option("--latency-ns", o.latency_ns, "Expected frame time stamp - trigger edge [ns]");
   app->add_option("--edges-csv", o.edges_csv, "Write every trigger edge to this CSV file");
+  app->add_flag("--triggered-only", o.triggered_only,
+                "Send only frames a trigger edge claims; frames without marks claim none "
+                "(free-running source standing in for a triggered camera)");
   app->add_option("--unit-id", o.unit_id, "Unit id in messages (0..254)");
   app->add_option("--camera-id", o.camera_id, "Camera id in messages (0..254)");
   app->add_option("--threshold-dn", o.threshold, "Centroid threshold above background (0: auto)");
@@ -121,6 +124,7 @@ UnitConfig build_config(CLI::App* app, const Overrides& o) {
   }
   if (given(app, "--latency-ns")) c.trigger.latency_ns = o.latency_ns;
   if (given(app, "--edges-csv")) c.trigger.edges_csv = o.edges_csv;
+  if (o.triggered_only) c.trigger.triggered_only = true;
   if (given(app, "--unit-id")) c.unit_id = o.unit_id;
   if (given(app, "--camera-id")) c.camera_id = o.camera_id;
   if (given(app, "--threshold-dn")) c.centroid.threshold_dn = o.threshold;

@@ -154,7 +154,7 @@ void parse_config_json(const std::string& text, const std::string& origin, UnitC
         t, wt,
         {"mode", "rate_hz", "pulse_width_us", "chip", "lines", "line", "active_low", "latency_ns",
          "match_tolerance_ns", "edge_phase_tolerance_ns", "trigger_to_exposure_ns", "sim_jitter_ns",
-         "sim_drop_every", "sim_extra_every", "edges_csv"});
+         "sim_drop_every", "sim_extra_every", "edges_csv", "triggered_only"});
     if (t.contains("mode")) c.trigger.mode = parse_trigger_mode(t["mode"].get<std::string>());
     get(t, "rate_hz", c.trigger.rate_hz, wt);
     if (t.contains("pulse_width_us")) {
@@ -173,6 +173,7 @@ void parse_config_json(const std::string& text, const std::string& origin, UnitC
     get(t, "sim_drop_every", c.trigger.sim_drop_every, wt);
     get(t, "sim_extra_every", c.trigger.sim_extra_every, wt);
     get(t, "edges_csv", c.trigger.edges_csv, wt);
+    get(t, "triggered_only", c.trigger.triggered_only, wt);
   }
   if (j.contains("centroid")) {
     const json& x = j["centroid"];
@@ -299,6 +300,10 @@ void validate(const UnitConfig& c) {
   if (c.source == SourceType::kNone && c.trigger.mode == TriggerMode::kSim) {
     throw ConfigError("source none needs a GPIO trigger (the sim trigger follows the frames)");
   }
+  if (c.trigger.triggered_only &&
+      (c.trigger.mode == TriggerMode::kNone || c.source == SourceType::kNone)) {
+    throw ConfigError("trigger.triggered_only needs a frame source and a trigger mode");
+  }
   if (c.roi_x < 0 || c.roi_y < 0 || c.roi_width < 0 || c.roi_height < 0) {
     throw ConfigError("roi values must be >= 0");
   }
@@ -355,7 +360,8 @@ std::string to_json(const UnitConfig& c) {
                   {"sim_jitter_ns", t.sim_jitter_ns},
                   {"sim_drop_every", t.sim_drop_every},
                   {"sim_extra_every", t.sim_extra_every},
-                  {"edges_csv", t.edges_csv}};
+                  {"edges_csv", t.edges_csv},
+                  {"triggered_only", t.triggered_only}};
   const auto& cc = c.centroid;
   j["centroid"] = {{"threshold_dn", cc.threshold_dn},
                    {"threshold_sigma", cc.threshold_sigma},

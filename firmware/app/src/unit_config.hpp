@@ -58,6 +58,10 @@ struct TriggerConfig {
   int sim_drop_every = 0;
   int sim_extra_every = 0;
   std::string edges_csv;  ///< write every edge (trigger-only runs, bench)
+  /// Only frames a trigger edge claims are sent; frames with no marks never claim one. For a
+  /// FREE-RUNNING source standing in for a camera in external-trigger mode (vivid on the VM rig,
+  /// whose capture delivers dark frames between the triggered ones). Skipped frames are counted.
+  bool triggered_only = false;
 };
 
 struct UnitConfig {

@@ -1,5 +1,6 @@
 #include "unit_runner.hpp"
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
@@ -269,6 +270,13 @@ int UnitRunner::drain_edges(int timeout_ms) {
       const trigger::TriggerEdge& e = edges_[static_cast<std::size_t>(i)];
       const trigger::EdgeVerdict v = pairer_->push_edge(e.t_mono_ns);
       ++run_.edges;
+      if (config_.trigger.triggered_only && v != trigger::EdgeVerdict::kExtra) {
+        if (unclaimed_count_ == unclaimed_edges_.size()) {  // full: the oldest is lost anyway
+          std::copy(unclaimed_edges_.begin() + 1, unclaimed_edges_.end(), unclaimed_edges_.begin());
+          --unclaimed_count_;
+        }
+        unclaimed_edges_[unclaimed_count_++] = e.t_mono_ns;
+      }
       if (edges_csv_ != nullptr) {
         // Extra edges get no sequence number: -1.
         std::fprintf(
@@ -283,6 +291,28 @@ int UnitRunner::drain_edges(int timeout_ms) {
     timeout_ms = 0;  // only the first read may wait
     if (n < static_cast<int>(edges_.size())) return 0;
   }
+}
+
+bool UnitRunner::edge_in_window(time::MonotonicNs t_frame_ns) {
+  // The pairer's window (frame_pairer.hpp): edges older than it can never be claimed; every
+  // edge inside it is consumed by the frame that pairs.
+  const trigger::PairerConfig& pc = pairer_->config();
+  const time::MonotonicNs expected = t_frame_ns - pc.latency_ns;
+  const time::MonotonicNs lo = expected - pc.match_tolerance_ns;
+  const time::MonotonicNs hi = expected + pc.match_tolerance_ns;
+  std::size_t old = 0;
+  while (old < unclaimed_count_ && unclaimed_edges_[old] < lo)
+    ++old;
+  std::size_t in_window = old;
+  while (in_window < unclaimed_count_ && unclaimed_edges_[in_window] <= hi)
+    ++in_window;
+  const bool found = in_window > old;
+  const std::size_t consumed = found ? in_window : old;
+  std::copy(unclaimed_edges_.begin() + static_cast<std::ptrdiff_t>(consumed),
+            unclaimed_edges_.begin() + static_cast<std::ptrdiff_t>(unclaimed_count_),
+            unclaimed_edges_.begin());
+  unclaimed_count_ -= consumed;
+  return found;
 }
 
 void UnitRunner::apply_config_changes() {
@@ -361,30 +391,7 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
     frames_dropped_pending_ = true;
   }
 
-  // Trigger pairing.
-  std::uint32_t seq = frame.sequence;
-  time::MonotonicNs start_mono = frame.timestamp_mono_ns;
   std::uint16_t flags = 0;
-  if (trigger_) {
-    if (sim_trigger_) {
-      if (!pairer_) {
-        make_pairer(frame.sequence);
-        sim_trigger_->set_origin(frame.timestamp_mono_ns - pairer_config_.latency_ns);
-      }
-      sim_trigger_->advance_to(frame.timestamp_mono_ns - pairer_config_.latency_ns +
-                               pairer_config_.match_tolerance_ns);
-    }
-    drain_edges(0);
-    trigger::PairResult pr;
-    pairer_->pair_frame(frame.timestamp_mono_ns, pr);
-    seq = pr.trigger_seq;
-    start_mono = pr.exposure_start_mono_ns;
-    if (!pr.matched) flags |= msg::exposure_flags::kTriggerMissing;
-    const trigger::PairerCounters& pc = pairer_->counters();
-    counters_.triggers_seen.store(pc.edges_seen, std::memory_order_relaxed);
-    counters_.triggers_missing.store(pc.frames_unmatched, std::memory_order_relaxed);
-    counters_.triggers_extra.store(pc.edges_unmatched + pc.edges_extra, std::memory_order_relaxed);
-  }
   if (frames_dropped_pending_) flags |= msg::exposure_flags::kFramesDroppedBefore;
 
   // Centroiding, on the whole frame or the configured region.
@@ -417,6 +424,44 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
     centroid_truncated_seen_ = truncated;
   }
   ++run_.frames_processed;
+  // triggered_only: a frame without marks is not a triggered frame (the free-running source's
+  // dark frames between triggers); it must not claim an edge.
+  if (config_.trigger.triggered_only && n == 0) {
+    ++run_.skipped_no_marks;
+    return 0;
+  }
+
+  // Trigger pairing.
+  std::uint32_t seq = frame.sequence;
+  time::MonotonicNs start_mono = frame.timestamp_mono_ns;
+  if (trigger_) {
+    if (sim_trigger_) {
+      if (!pairer_) {
+        make_pairer(frame.sequence);
+        sim_trigger_->set_origin(frame.timestamp_mono_ns - pairer_config_.latency_ns);
+      }
+      sim_trigger_->advance_to(frame.timestamp_mono_ns - pairer_config_.latency_ns +
+                               pairer_config_.match_tolerance_ns);
+    }
+    drain_edges(0);
+    if (config_.trigger.triggered_only && !edge_in_window(frame.timestamp_mono_ns)) {
+      ++run_.skipped_untriggered;
+      return 0;
+    }
+    trigger::PairResult pr;
+    pairer_->pair_frame(frame.timestamp_mono_ns, pr);
+    seq = pr.trigger_seq;
+    start_mono = pr.exposure_start_mono_ns;
+    if (!pr.matched) flags |= msg::exposure_flags::kTriggerMissing;
+    if (config_.trigger.triggered_only && !pr.matched) {
+      ++run_.skipped_untriggered;
+      return 0;
+    }
+    const trigger::PairerCounters& pc = pairer_->counters();
+    counters_.triggers_seen.store(pc.edges_seen, std::memory_order_relaxed);
+    counters_.triggers_missing.store(pc.frames_unmatched, std::memory_order_relaxed);
+    counters_.triggers_extra.store(pc.edges_unmatched + pc.edges_extra, std::memory_order_relaxed);
+  }
   run_.marks += static_cast<std::uint64_t>(n);
   counters_.marks_last_frame.store(static_cast<std::uint32_t>(n), std::memory_order_relaxed);
 
@@ -637,6 +682,10 @@ std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code
   j["centroid_time_us_max"] = run_.centroid_us_max;
   j["health_sent"] = run_.health_sent;
   j["edges_read"] = run_.edges;
+  if (config_.trigger.triggered_only) {
+    j["triggered_only"] = {{"skipped_no_marks", run_.skipped_no_marks},
+                           {"skipped_untriggered", run_.skipped_untriggered}};
+  }
   if (pairer_) {
     const auto& pc = pairer_->counters();
     j["pairing"] = {{"edges_seen", pc.edges_seen},

@@ -50,6 +50,8 @@ struct RunCounters {
   std::uint64_t source_errors = 0;
   std::uint64_t health_sent = 0;
   std::uint64_t edges = 0;
+  std::uint64_t skipped_no_marks = 0;     ///< triggered_only: frames without marks, not paired
+  std::uint64_t skipped_untriggered = 0;  ///< triggered_only: frames no edge claimed, not sent
   double centroid_us_sum = 0;
   double centroid_us_max = 0;
 };
@@ -82,6 +84,7 @@ class UnitRunner {
   int process_frame(const frame::FrameView& frame);
   int run_trigger_only(const std::atomic<bool>& stop);
   int drain_edges(int timeout_ms);
+  bool edge_in_window(time::MonotonicNs t_frame_ns);
   void apply_config_changes();
   void send_health(time::MonotonicNs now);
   void update_shared_counters();
@@ -121,6 +124,11 @@ class UnitRunner {
   std::uint32_t last_source_sequence_ = 0;
   bool have_source_sequence_ = false;
   std::FILE* edges_csv_ = nullptr;
+  // trigger.triggered_only: times of accepted edges no frame has claimed yet, oldest first. A
+  // frame with no such edge in its window never reaches the pairer: an unmatched frame would
+  // take (and so advance) a sequence number the next triggered frame needs.
+  std::array<time::MonotonicNs, trigger::TriggerFramePairer::kCapacity> unclaimed_edges_{};
+  std::size_t unclaimed_count_ = 0;
   bool held_ = false;
   frame::FrameView held_frame_{};
 };
