@@ -7,6 +7,19 @@ set -uo pipefail
 HERE=$(cd "$(dirname "$0")" && pwd)
 RES=$1; shift
 rm -rf "$RES"; mkdir -p "$RES"
+# Host-side preparation of a test's inputs that are too costly to make under TCG (e2e: the
+# simulator's rendered frames): guest/<name>.host.sh DIR runs here before the VM boots, only when
+# the rig can start; DIR = RESULTS_DIR/<name>.host is visible in the VM at the same path. Its
+# log is RESULTS_DIR/<name>.host.log; the in-VM test checks DIR/ok and reports a failure there.
+if "$HERE/vmrig.sh" --prepare-only 2>/dev/null; then
+  for name in "$@"; do
+    [ -e "$HERE/guest/$name.host.sh" ] || continue
+    start=$(date +%s.%N)
+    sh "$HERE/guest/$name.host.sh" "$RES/$name.host" > "$RES/$name.host.log" 2>&1
+    echo "== host-side preparation of $name: exit $?, $(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN{printf "%.1f", b-a}') s" |
+      tee -a "$RES/$name.host.log"
+  done
+fi
 VM_TIMEOUT=${VM_TIMEOUT:-1400} "$HERE/vmrig.sh" --out "$RES" "sh $HERE/guest/suite.sh $*" 2> >(tee "$RES/vmrig.err" >&2)
 rc=$?
 wait

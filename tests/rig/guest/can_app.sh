@@ -5,12 +5,17 @@
 . "$(dirname "$0")/lib.sh"
 need_bin UNIT STORETRACK_BIN_UNIT storetrack-unit
 need_bin HOST STORETRACK_BIN_HOST storetrack-host
-need_bin SIMU STORETRACK_BIN_SIM_UNITS storetrack-sim-units
+need_bin SIM STORETRACK_BIN_SIM storetrack-sim
 SCEN=$STORETRACK_SOURCE_DIR/common/sim/scenarios/static.json
 [ -e "$SCEN" ] || fail "no scenario $SCEN"
 vcan_up vcan0
-mkdir -p $T/setup
-"$SIMU" --scenario "$SCEN" --seed 1 --write-setup $T/setup >/dev/null || fail "sim-units --write-setup"
+# The host's setup (calibrated rig, surveys, initial marks) from the simulator run with the same
+# scenario and seed as the unit, extracted as tools/testpoint does. One exposure is enough: the
+# calibration and survey draws do not depend on the exposure count (same files), and simulating
+# all 100 would cost a minute under TCG.
+"$SIM" --scenario "$SCEN" --seed 1 --exposures 1 --out $T/sim > $T/sim.out 2>&1 ||
+  { cat $T/sim.out; fail "storetrack-sim"; }
+python3 "$RIG_GUEST/sim_setup.py" "$SCEN" $T/sim $T/setup || fail "setup extraction (sim_setup.py)"
 
 candump -L vcan0 > $T/candump.log & DUMP=$!
 "$HOST" --calibration $T/setup/rig_calibration.json --pylon-survey $T/setup/pylon_survey.json \

@@ -1,0 +1,75 @@
+// rig_ch10_dump FILE: reads a Chapter 10 file with the project's INDEPENDENT reader
+// (host/output chapter10_reader, written from IRIG 106 and sharing nothing with the writer) and
+// prints what it found as JSON for the in-VM end-to-end check (guest/check_e2e.py): packet
+// counts by data type, header / data checksum errors, truncation, and every FTI parameter
+// block (trigger_seq, status, pose, standard uncertainties, coverage factor).
+// Exit 0 when the file was read (whatever its content), 1 when it cannot be read.
+#include <cstdio>
+#include <exception>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "storetrack/output/chapter10_reader.hpp"
+
+int main(int argc, char** argv) {
+  if (argc != 2) {
+    std::fprintf(stderr, "usage: rig_ch10_dump FILE.ch10\n");
+    return 2;
+  }
+  namespace rd = storetrack::ch10read;
+  rd::File file;
+  try {
+    file = rd::read_file(argv[1]);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "rig_ch10_dump: %s\n", e.what());
+    return 1;
+  }
+  nlohmann::json out;
+  std::map<std::string, int> by_type;
+  int header_errors = 0, data_errors = 0, message_errors = 0, block_errors = 0;
+  nlohmann::json samples = nlohmann::json::array();
+  for (const rd::Packet& p : file.packets) {
+    char type[8];
+    std::snprintf(type, sizeof(type), "0x%02x", p.data_type);
+    ++by_type[type];
+    if (!p.header_checksum_ok) ++header_errors;
+    if (!p.data_checksum_ok) ++data_errors;
+    if (p.data_type != 0x30) continue;
+    std::string error;
+    const auto messages = rd::decode_message_f0(p, &error);
+    if (!messages) {
+      ++message_errors;
+      continue;
+    }
+    for (const rd::Message& m : *messages) {
+      const auto b = rd::decode_fti_block(m.bytes);
+      if (!b) {
+        ++block_errors;
+        continue;
+      }
+      samples.push_back({{"trigger_seq", b->trigger_seq},
+                         {"exposure_mid_tai_ns", b->exposure_mid_tai_ns},
+                         {"status", b->status},
+                         {"cameras_used", b->cameras_used},
+                         {"marks_used", b->marks_used},
+                         {"pylon_marks_used", b->pylon_marks_used},
+                         {"pose", b->pose},
+                         {"uncertainty", b->uncertainty},
+                         {"coverage_factor", b->coverage_factor},
+                         {"data_error", m.data_error}});
+    }
+  }
+  out["file_bytes"] = file.file_bytes;
+  out["packets"] = file.packets.size();
+  out["packets_by_type"] = by_type;
+  out["header_checksum_errors"] = header_errors;
+  out["data_checksum_errors"] = data_errors;
+  out["message_decode_errors"] = message_errors;
+  out["fti_block_errors"] = block_errors;
+  out["truncated"] = file.truncated;
+  out["stop_reason"] = file.stop_reason;
+  out["samples"] = samples;
+  std::printf("%s\n", out.dump(1).c_str());
+  return 0;
+}
