@@ -71,11 +71,29 @@ void load_host_config(const std::string& path, HostConfig& c) {
     get(p, "rigid_false_alarm_probability", c.processor.rigid_false_alarm_probability, w);
   }
   if (j.contains("identifier")) {
+    // Mark identification (host/match MarkMatcher, docs/matching.md).
     const auto& i = j["identifier"];
     const std::string w = path + ": /identifier";
-    get(i, "gate_px", c.identifier.gate_px, w);
-    get(i, "ambiguity_ratio", c.identifier.ambiguity_ratio, w);
-    get(i, "max_track_age_s", c.identifier.max_track_age_s, w);
+    for (const char* removed : {"gate_px", "ambiguity_ratio", "max_track_age_s"})
+      if (i.contains(removed))
+        throw HostConfigError(w + "/" + removed +
+                              ": no longer exists (the MarkMatcher gates by chi-square: "
+                              "gate_probability, track_max_gap_s, body_track_max_gap_s)");
+    auto& m = c.processor.matcher;
+    get(i, "gate_probability", m.gate_probability, w);
+    if (!(m.gate_probability > 0 && m.gate_probability < 1))
+      throw HostConfigError(w + "/gate_probability must be in (0, 1)");
+    get(i, "max_acceleration_mps2", m.max_acceleration_mps2, w);
+    get(i, "max_angular_acceleration_radps2", m.max_angular_acceleration_radps2, w);
+    get(i, "max_speed_mps", m.max_speed_mps, w);
+    get(i, "max_angular_speed_radps", m.max_angular_speed_radps, w);
+    get(i, "track_max_gap_s", m.track_max_gap_s, w);
+    get(i, "body_track_max_gap_s", m.body_track_max_gap_s, w);
+    get(i, "keep_single_view", m.keep_single_view, w);
+    get(i, "use_calibration_covariance", m.use_calibration_covariance, w);
+    get(i, "initial_marks_sigma_m", c.initial_marks_sigma_m, w);
+    if (!(c.initial_marks_sigma_m > 0))
+      throw HostConfigError(w + "/initial_marks_sigma_m must be > 0");
   }
   if (j.contains("chapter10")) {
     const auto& o = j["chapter10"];

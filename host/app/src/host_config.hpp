@@ -8,7 +8,6 @@
 #include <string>
 #include <vector>
 
-#include "mark_identifier.hpp"
 #include "storetrack/geometry/transform.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/output/chapter10_writer.hpp"
@@ -31,7 +30,9 @@ struct HostConfig {
   // processing
   ingest::AlignerConfig aligner;  // camera_ids filled from the calibration
   pipeline::ProcessorConfig processor;
-  IdentifierConfig identifier;
+  // mark identification: processor.matcher (host/match MarkMatcher); its prior poses are fitted
+  // to the initial mark positions, whose standard uncertainty per axis is this [m]
+  double initial_marks_sigma_m = 0.005;
   std::map<int, geometry::Vec3> initial_marks_w;
   // outputs
   std::string ch10_path, csv_path, marks_csv_path, rigid_csv_path;

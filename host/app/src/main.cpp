@@ -24,10 +24,10 @@
 
 #include "host_config.hpp"
 #include "latency.hpp"
-#include "mark_identifier.hpp"
 #include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/ingest/receivers.hpp"
+#include "storetrack/match/mark_matcher.hpp"
 #include "storetrack/output/chapter10_writer.hpp"
 #include "storetrack/output/csv_writer.hpp"
 #include "storetrack/output/inetx.hpp"
@@ -249,8 +249,22 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "storetrack-host: bad configuration: %s\n", e.what());
     return 2;
   }
-  st::hostapp::MarkIdentifier identifier(rig, pylon, store, cfg.identifier);
-  identifier.set_initial_positions(cfg.initial_marks_w);
+  // Mark identification: the processor's MarkMatcher. Its prior poses (acquisition, and
+  // re-acquisition of a body lost for longer than its track gap) are fitted to the installation
+  // survey's initial mark positions; without them it cannot acquire a body.
+  for (const auto* body : {&pylon, &store}) {
+    st::geometry::Transform T_w_b;
+    st::geometry::Mat6 cov;
+    if (st::match::fit_body_pose(*body, cfg.initial_marks_w, cfg.initial_marks_sigma_m, T_w_b,
+                                 cov)) {
+      processor->matcher().set_prior_pose(body->name, T_w_b, cov);
+    } else {
+      spdlog::warn(
+          "storetrack-host: no prior pose for '{}' (needs >= 3 non-collinear of its marks in "
+          "--initial-marks): its marks cannot be identified",
+          body->name);
+    }
+  }
 
   // Inputs.
   st::ingest::UdpReceiver udp;
@@ -362,9 +376,7 @@ int main(int argc, char** argv) {
   auto process_ready = [&]() {
     for (const auto& e : ready) {
       const st::time::MonotonicNs t0 = st::time::monotonic_now_ns();
-      const auto ids = identifier.identify(e);
-      const st::pipeline::ExposureResult r = processor->process(e, ids);
-      identifier.update(r, e.exposure_mid_tai_ns);
+      const st::pipeline::ExposureResult r = processor->process(e);  // matcher + geometry
       ++exposures;
       const st::msg::FtiSample& s = r.sample;
       if (s.status & st::msg::fti_status::kValid) ++valid_samples;
@@ -501,10 +513,26 @@ int main(int argc, char** argv) {
                     {"time_mismatch", c.time_mismatch}});
   }
   stats["cameras"] = cams;
-  const auto& ic = identifier.counters();
-  stats["identifier"] = {{"observations", ic.observations}, {"identified", ic.identified},
-                         {"unmatched", ic.unmatched},       {"ambiguous", ic.ambiguous},
-                         {"conflicts", ic.conflicts},       {"no_prediction", ic.no_prediction}};
+  const auto& ic = processor->matcher().counters();
+  stats["identifier"] = {{"matcher", "host/match MarkMatcher"},
+                         {"exposures", ic.exposures},
+                         {"observations", ic.observations},
+                         {"identified", ic.identified},
+                         {"ambiguous", ic.ambiguous_observation + ic.ambiguous_mark},
+                         {"ambiguous_observation", ic.ambiguous_observation},
+                         {"ambiguous_mark", ic.ambiguous_mark},
+                         {"unmatched", ic.unmatched},
+                         {"unknown_camera", ic.unknown_camera},
+                         {"bad_observation", ic.bad_observation},
+                         {"fallback_sigma", ic.fallback_sigma},
+                         {"rejected_by_flags", ic.rejected_by_flags},
+                         {"undistort_failed", ic.undistort_failed},
+                         {"epipolar_outlier", ic.epipolar_outlier},
+                         {"epipolar_rejected", ic.epipolar_rejected},
+                         {"layout_rejected", ic.layout_rejected},
+                         {"single_view", ic.single_view},
+                         {"acquisitions", ic.acquisitions},
+                         {"duplicate_camera", ic.duplicate_camera}};
   const auto& pc = processor->counters();
   stats["processor"] = {{"exposures", pc.exposures},
                         {"unknown_camera", pc.unknown_camera},
@@ -548,7 +576,8 @@ int main(int argc, char** argv) {
               ac.dropped_unknown_camera, ac.dropped_invalid);
   std::printf("  marks identified %" PRIu64 " of %" PRIu64 " (ambiguous %" PRIu64
               ", unmatched %" PRIu64 ")\n",
-              ic.identified, ic.observations, ic.ambiguous, ic.unmatched);
+              ic.identified, ic.observations, ic.ambiguous_observation + ic.ambiguous_mark,
+              ic.unmatched);
   std::printf("  samples valid/total        %9" PRIu64 " / %" PRIu64 "\n", valid_samples,
               exposures);
   std::printf(

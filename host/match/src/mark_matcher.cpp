@@ -85,6 +85,36 @@ double chi_square_quantile(int dof, double probability) {
   return 0.5 * (lo + hi);
 }
 
+bool fit_body_pose(const sim::RigidBodySurvey& body, const std::map<int, Vec3>& p_w_by_id,
+                   double sigma_m, Transform& T_w_b, Mat6& covariance) {
+  std::vector<const sim::SurveyedMark*> used;
+  std::vector<Vec3> p_w;
+  for (const auto& m : body.marks)
+    if (const auto it = p_w_by_id.find(m.id); it != p_w_by_id.end()) {
+      used.push_back(&m);
+      p_w.push_back(it->second);
+    }
+  const int n = static_cast<int>(used.size());
+  if (n < 3) return false;
+  Eigen::Matrix3Xd src(3, n), dst(3, n);
+  for (int i = 0; i < n; ++i) {
+    src.col(i) = used[i]->p_body;
+    dst.col(i) = p_w[i];
+  }
+  const Eigen::Matrix3Xd centred = src.colwise() - src.rowwise().mean();
+  const Vec3 sv = Eigen::JacobiSVD<Eigen::Matrix3Xd>(centred).singularValues();
+  if (!(sv[1] > 0.1 * sv[0])) return false;  // collinear: rotation about the line undefined
+  T_w_b = Transform(Eigen::umeyama(src, dst, false));
+  Mat6 info = Mat6::Zero();
+  for (int i = 0; i < n; ++i) {
+    const double var = sigma_m * sigma_m + used[i]->sigma_m * used[i]->sigma_m;
+    const auto G = point_pose_jacobian(T_w_b, used[i]->p_body);
+    info += G.transpose() * G / var;
+  }
+  covariance = info.inverse();
+  return covariance.allFinite();
+}
+
 const char* to_string(PredictionSource source) {
   switch (source) {
     case PredictionSource::kNone:
@@ -854,6 +884,7 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
     out.marks.push_back(std::move(mm));
     out.identified += static_cast<int>(as.size());
   }
+  w.counts.identified += static_cast<std::uint64_t>(out.identified);
   for (const auto& ob : w.obs) {
     if (ob.state == ObsState::kAmbiguous) {
       ++w.counts.ambiguous_observation;
@@ -879,6 +910,7 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
   const auto& d = w.counts;
   c.exposures += d.exposures;
   c.observations += d.observations;
+  c.identified += d.identified;
   c.unknown_camera += d.unknown_camera;
   c.bad_observation += d.bad_observation;
   c.fallback_sigma += d.fallback_sigma;

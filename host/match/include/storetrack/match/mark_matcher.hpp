@@ -27,6 +27,7 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <span>
 #include <string>
 #include <vector>
@@ -140,6 +141,7 @@ struct MatchResult {
 struct MatchCounters {
   std::uint64_t exposures = 0;
   std::uint64_t observations = 0;           ///< usable observations seen
+  std::uint64_t identified = 0;             ///< observations given an id
   std::uint64_t unknown_camera = 0;         ///< camera_id not in the rig (whole camera ignored)
   std::uint64_t bad_observation = 0;        ///< non-finite pixel, mark_count out of range
   std::uint64_t fallback_sigma = 0;         ///< sigma_px unusable: fallback_sigma_px used
@@ -233,6 +235,14 @@ class MarkMatcher {
   bool have_time_origin_ = false;
   time::TaiNs time_origin_ns_ = 0;
 };
+
+/// Pose T_w_b of a body from the world positions of some of its marks (e.g. the installation
+/// survey's initial mark positions, for set_prior_pose) by Umeyama's absolute orientation, and
+/// its 6x6 covariance (left perturbation) for positions of standard uncertainty `sigma_m` per
+/// axis (plus each mark's survey sigma). Ids not in the survey are ignored. Returns false with
+/// fewer than 3 of the body's marks or nearly collinear ones (no defined pose).
+bool fit_body_pose(const sim::RigidBodySurvey& body, const std::map<int, geometry::Vec3>& p_w_by_id,
+                   double sigma_m, geometry::Transform& T_w_b, geometry::Mat6& covariance);
 
 /// Chi-square quantile: x with P(chi2_dof <= x) = probability (dof >= 1).
 double chi_square_quantile(int dof, double probability);
