@@ -239,6 +239,10 @@ Transform Simulator::T_w_p_at(time::TaiNs tai) const {
   return sc_.T_w_p * vibration_at(sc_.vibration, vibration_phase_, seconds_since_start(tai));
 }
 
+Transform Simulator::T_w0_w_at(time::TaiNs tai) const {
+  return sc_.T_w_p * T_w_p_at(tai).inverse();
+}
+
 Transform Simulator::T_p_s_at(time::TaiNs tai) const {
   // The pendulum is the tracked body of its scenario: the host solves its pose as the "store".
   if (sc_.kind == ScenarioKind::kPendulum) return pendulum_.T_p_b(seconds_since_start(tai));
@@ -374,10 +378,12 @@ ExposureTruth Simulator::truth(int k) const {
   }
   const double t_ref = seconds_since_start(tr.reference_tai_ns);
   constexpr double kDt = 1e-5;
+  const Transform T_w0_w = T_w0_w_at(tr.reference_tai_ns);
   for (const MarkRef& m : marks_) {
     MarkTruth mt;
     mt.id = m.id;
     mt.p_w = position_w(m, t_ref);
+    mt.p_w0 = T_w0_w * mt.p_w;
     mt.v_w = (position_w(m, t_ref + kDt) - position_w(m, t_ref - kDt)) / (2 * kDt);
     for (int i = 0; i < num_cameras(); ++i) {
       const auto& w = windows[static_cast<std::size_t>(i)];
@@ -578,7 +584,8 @@ void write_truth_csv(const Simulator& sim, const std::string& poses_path,
           << "_reported_exposure_start_tai_ns,cam" << c.camera_id << "_exposure_ns";
   }
   poses << "\n";
-  marks << "trigger_seq,reference_tai_ns,mark_id,x_w_m,y_w_m,z_w_m,vx_w_m_s,vy_w_m_s,vz_w_m_s";
+  marks << "trigger_seq,reference_tai_ns,mark_id,x_w_m,y_w_m,z_w_m,vx_w_m_s,vy_w_m_s,vz_w_m_s,"
+           "x_w0_m,y_w0_m,z_w0_m";
   for (const CameraSetup& c : sim.scenario().cameras) {
     const std::string p = ",cam" + std::to_string(c.camera_id) + "_";
     marks << p << "visible" << p << "u_px" << p << "v_px" << p << "blur_du_px" << p << "blur_dv_px";
@@ -597,7 +604,7 @@ void write_truth_csv(const Simulator& sim, const std::string& poses_path,
     for (const MarkTruth& m : tr.marks) {
       marks << tr.trigger_seq << "," << tr.reference_tai_ns << "," << m.id << "," << m.p_w.x()
             << "," << m.p_w.y() << "," << m.p_w.z() << "," << m.v_w.x() << "," << m.v_w.y() << ","
-            << m.v_w.z();
+            << m.v_w.z() << "," << m.p_w0.x() << "," << m.p_w0.y() << "," << m.p_w0.z();
       for (const MarkCameraTruth& c : m.cameras) {
         marks << "," << (c.visible ? 1 : 0) << "," << c.pixel.x() << "," << c.pixel.y() << ","
               << c.blur_px.x() << "," << c.blur_px.y();

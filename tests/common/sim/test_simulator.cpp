@@ -366,6 +366,16 @@ TEST(Simulator, VibrationMovesPylonAndCamerasTogether) {
   const geometry::Transform ca = a.cameras[0].T_w_c.inverse() * a.T_w_p;
   const geometry::Transform cb = b.cameras[0].T_w_c.inverse() * b.T_w_p;
   EXPECT_LT((ca.translation() - cb.translation()).norm(), 5e-6);
+  // So in the rig's world frame (w0) the pylon marks stand still while in the true world frame
+  // they vibrate; w0 is what static extrinsics measure.
+  double moved_w = 0, moved_w0 = 0;
+  for (std::size_t m = 0; m < a.marks.size(); ++m) {
+    if (a.marks[m].id >= 100) continue;  // pylon marks 0..6
+    moved_w = std::max(moved_w, (a.marks[m].p_w - b.marks[m].p_w).norm());
+    moved_w0 = std::max(moved_w0, (a.marks[m].p_w0 - b.marks[m].p_w0).norm());
+  }
+  EXPECT_GT(moved_w, 1e-5);
+  EXPECT_LT(moved_w0, 1e-9);
 }
 
 }  // namespace

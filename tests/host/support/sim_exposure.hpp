@@ -36,7 +36,7 @@ inline SimExposure make_exposure(const sim::Simulator& sim, int k) {
 /// The cameras ride on the pylon pod, so the host's world frame is the NOMINAL one: the truth
 /// position p_w(t) seen through static extrinsics is T_w_p0 T_w_p(t)^-1 p_w(t).
 inline geometry::Transform host_world_from_true_world(const sim::Simulator& sim, time::TaiNs t) {
-  return sim.scenario().T_w_p * sim.T_w_p_at(t).inverse();
+  return sim.T_w0_w_at(t);
 }
 
 inline geometry::Vec3 true_mark_in_host_world(const sim::Simulator& sim, int id, time::TaiNs t) {

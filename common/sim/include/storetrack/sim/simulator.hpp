@@ -45,7 +45,11 @@ struct MarkTruth {
   int id = 0;
   geometry::Vec3 p_w = geometry::Vec3::Zero();  ///< at the exposure's reference time
   geometry::Vec3 v_w = geometry::Vec3::Zero();  ///< velocity [m/s], world frame
-  std::vector<MarkCameraTruth> cameras;         ///< per camera index
+  /// Position in the world frame as the rig realises it (w0): the cameras ride on the pylon
+  /// pod and were registered at rest, so the host, seeing through static extrinsics, measures
+  /// T_w_p0 T_w_p(t)^-1 p_w(t) (pod vibration cancels). What host mark positions are scored on.
+  geometry::Vec3 p_w0 = geometry::Vec3::Zero();
+  std::vector<MarkCameraTruth> cameras;  ///< per camera index
 };
 
 struct CameraExposureTruth {
@@ -107,6 +111,8 @@ class Simulator {
   /// Truth at any instant (TAI ns).
   geometry::Transform T_w_p_at(time::TaiNs tai) const;
   geometry::Transform T_p_s_at(time::TaiNs tai) const;
+  /// The rig's world frame (w0, see MarkTruth::p_w0) from the true world frame at `tai`.
+  geometry::Transform T_w0_w_at(time::TaiNs tai) const;
   geometry::Vec3 mark_position_w(int mark_id, time::TaiNs tai) const;
   /// All mark ids of the scene, ascending.
   const std::vector<int>& mark_ids() const { return mark_ids_; }
@@ -172,7 +178,8 @@ class Simulator {
 ///    (translation m, yaw/pitch/roll rad, rotation vector rad), per camera true and reported
 ///    exposure start TAI ns;
 ///  marks_path: one row per exposure and mark: trigger_seq, reference TAI, mark_id, p_w (m),
-///    v_w (m/s), and per camera visible (0/1), u, v, blur (px).
+///    v_w (m/s), p_w0 (m, the rig's world frame, see MarkTruth), and per camera visible (0/1),
+///    u, v, blur (px).
 void write_truth_csv(const Simulator& sim, const std::string& poses_path,
                      const std::string& marks_path);
 
