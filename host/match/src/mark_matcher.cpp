@@ -9,6 +9,7 @@
 #include "storetrack/match/mark_matcher.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <stdexcept>
 #include <unordered_map>
@@ -146,7 +147,9 @@ struct MarkMatcher::Work {
     int mark_index = -1;
     Vec2 raw = Vec2::Zero(), xy = Vec2::Zero();
     double sigma = 0;
-    int mark = -1;  ///< assigned mark (index in marks_)
+    Mat2 S_cal = Mat2::Zero();  ///< calibration pixel covariance at the mark (when assigned)
+    Mat2 W = Mat2::Identity();  ///< (S_cal + sigma^2 I)^-1 (when assigned)
+    int mark = -1;              ///< assigned mark (index in marks_)
     ObsState state = ObsState::kUnassigned;
   };
   struct Cam {
@@ -168,11 +171,24 @@ struct MarkMatcher::Work {
   };
   std::vector<Obs> obs;
   std::vector<Cam> cams;
-  std::vector<Pred> pred;                   ///< per mark
-  std::vector<std::vector<int>> assigned;   ///< per mark: observation indices
-  std::vector<std::vector<int>> ambiguous;  ///< per mark: cams where it was ambiguous
-  std::vector<Tri> tri;                     ///< per mark
-  std::vector<bool> fitted;                 ///< per body
+  std::vector<Pred> pred;                     ///< per mark
+  std::vector<std::vector<int>> assigned;     ///< per mark: observation indices
+  std::vector<std::uint64_t> ambiguous_cams;  ///< per mark: bit c = ambiguous in cams[c]
+  std::vector<bool> dirty;                    ///< per mark: assignments changed since last verified
+  /// Gating scratch (one camera at a time).
+  struct Cand {
+    int mark = -1;
+    Vec2 px = Vec2::Zero();
+    Vec3 p_w = Vec3::Zero();
+    Mat2 S_pred = Mat2::Zero();
+    Mat2 S_cal = Mat2::Zero();
+    bool cal_done = false;
+    double radius2 = 0;
+  };
+  std::vector<Cand> cand;
+  std::vector<int> free_obs, mark_hits, mark_hit, obs_hits, obs_hit;
+  std::vector<Tri> tri;      ///< per mark
+  std::vector<bool> fitted;  ///< per body
   std::vector<Transform> T_w_b;
   std::vector<Mat6> cov_b;
   /// Per body: the pose filter extrapolated to this exposure (valid when the body has a track)
@@ -187,6 +203,15 @@ struct MarkMatcher::Work {
   bool acquired = false;
   MatchCounters counts;
 };
+
+MarkMatcher::WorkBuffers::WorkBuffers() : work(std::make_unique<Work>()) {}
+MarkMatcher::WorkBuffers::WorkBuffers(const WorkBuffers&) : work(std::make_unique<Work>()) {}
+MarkMatcher::WorkBuffers& MarkMatcher::WorkBuffers::operator=(const WorkBuffers&) {
+  return *this;  // scratch only: nothing to copy
+}
+MarkMatcher::WorkBuffers::WorkBuffers(WorkBuffers&&) noexcept = default;
+MarkMatcher::WorkBuffers& MarkMatcher::WorkBuffers::operator=(WorkBuffers&&) noexcept = default;
+MarkMatcher::WorkBuffers::~WorkBuffers() = default;
 
 MarkMatcher::MarkMatcher(const camera::RigCalibration& rig,
                          std::vector<sim::RigidBodySurvey> bodies, const MatcherConfig& config)
@@ -206,9 +231,47 @@ MarkMatcher::MarkMatcher(const camera::RigCalibration& rig,
   mark_tracks_.resize(marks_.size());
   body_tracks_.resize(bodies_.size());
   priors_.resize(bodies_.size());
+  compute_calibration_bounds();
   chi2_gate_.assign(kMaxDof + 1, 0.0);
   for (int dof = 1; dof <= kMaxDof; ++dof)
     chi2_gate_[dof] = chi_square_quantile(dof, config_.gate_probability);
+}
+
+void MarkMatcher::compute_calibration_bounds() {
+  // Upper bound on trace(S_cal) (pixel covariance from the calibration covariance) over the
+  // image (plus margin) as a + b / z^2 for a point at depth z: with p_cam = z (x, y, 1) the
+  // intrinsic and rotation parts do not depend on z, the translation part scales with 1/z, and
+  // (u + v)^T C (u + v) <= 2 u^T C u + 2 v^T C v. Evaluated on a grid, x 1.5 between nodes.
+  cal_bounds_.assign(rig_.cameras.size(), {});
+  if (!config_.use_calibration_covariance) return;
+  for (size_t slot = 0; slot < rig_.cameras.size(); ++slot) {
+    const auto& cal = rig_.cameras[slot];
+    const auto& in = cal.model.intrinsics();
+    const double margin = config_.image_margin_px + 0.5;
+    constexpr int kGrid = 12;
+    double a = 0, b = 0;
+    for (int iu = 0; iu <= kGrid; ++iu)
+      for (int iv = 0; iv <= kGrid; ++iv) {
+        const Vec2 px(-margin + (in.width + 2 * margin) * iu / kGrid,
+                      -margin + (in.height + 2 * margin) * iv / kGrid);
+        const auto xy = cal.model.unproject(px, 1e-6, 50);
+        if (!xy) continue;
+        const Vec3 p_cam(xy->x(), xy->y(), 1.0);
+        Eigen::Matrix<double, 2, 3> J_cam;
+        Eigen::Matrix<double, 2, camera::kNumIntrinsics> J_int;
+        if (!cal.model.project(p_cam, &J_cam, &J_int)) continue;
+        const Eigen::Matrix<double, 2, 3> J_rot = -J_cam * geometry::skew(p_cam);
+        const Mat3 C_rot = cal.extrinsic_covariance.topLeftCorner<3, 3>();
+        const Mat3 C_trans = cal.extrinsic_covariance.bottomRightCorner<3, 3>();
+        const double t_int = (J_int * cal.intrinsic_covariance * J_int.transpose()).trace();
+        const double t_rot = (J_rot * C_rot * J_rot.transpose()).trace();
+        const double t_trans = (J_cam * C_trans * J_cam.transpose()).trace();
+        a = std::max(a, t_int + 2 * t_rot);
+        b = std::max(b, 2 * t_trans);
+      }
+    // intrinsic and extrinsic parts add: trace(A + B) = trace A + trace B
+    cal_bounds_[slot] = {1.5 * a, 1.5 * b};
+  }
 }
 
 bool MarkMatcher::set_prior_pose(const std::string& body_name, const Transform& T_w_b,
@@ -329,12 +392,22 @@ void MarkMatcher::gate_and_assign(Work& w) const {
     const Work::Cam& cam = w.cams[c];
     const camera::CalibratedCamera& cal = rig_.cameras[cam.slot];
     const camera::Intrinsics& in = cal.model.intrinsics();
+    const Mat3 R_c_w = cal.T_c_w.linear();
+    const Vec3 t_c_w = cal.T_c_w.translation();
+    // This camera's free observations and their largest variance (for the pixel pre-gate).
+    auto& free_obs = w.free_obs;
+    free_obs.clear();
+    double max_var = 0;
+    for (int o : cam.obs)
+      if (w.obs[o].state != ObsState::kAssigned) {
+        free_obs.push_back(o);
+        max_var = std::max(max_var, w.obs[o].sigma * w.obs[o].sigma);
+      }
     // Candidate marks: predicted and not yet assigned in this camera. The second (layout) pass
     // re-gates every remaining mark, so an observation a tight layout prediction claims is
     // still ambiguous when a coarse prediction of another mark also covers it.
-    std::vector<int> cand_marks;
-    std::vector<Vec2> pred_px;
-    std::vector<Mat2> pred_cov;
+    auto& cand = w.cand;
+    cand.clear();
     for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
       const auto& pr = w.pred[m];
       if (!pr.valid) continue;
@@ -342,39 +415,57 @@ void MarkMatcher::gate_and_assign(Work& w) const {
       for (int o : w.assigned[m])
         already = already || w.obs[o].cam == c;
       if (already) continue;
-      camera::ProjectionJacobians J;
-      const auto px = cal.model.project_world(cal.T_c_w, pr.p, &J);
+      const Vec3 p_cam = R_c_w * pr.p + t_c_w;
+      Eigen::Matrix<double, 2, 3> J_cam;
+      const auto px = cal.model.project(p_cam, &J_cam);
       if (!px) continue;
       const double margin = config_.image_margin_px;
       if (px->x() < -0.5 - margin || px->x() > in.width - 0.5 + margin || px->y() < -0.5 - margin ||
           px->y() > in.height - 0.5 + margin)
         continue;
-      Mat2 S = J.d_point_world * pr.cov * J.d_point_world.transpose();
-      if (config_.use_calibration_covariance)
-        S += J.d_intrinsics * cal.intrinsic_covariance * J.d_intrinsics.transpose() +
-             J.d_pose * cal.extrinsic_covariance * J.d_pose.transpose();
-      cand_marks.push_back(m);
-      pred_px.push_back(*px);
-      pred_cov.push_back(S);
+      const Eigen::Matrix<double, 2, 3> J_w = J_cam * R_c_w;
+      Work::Cand cd;
+      cd.mark = m;
+      cd.px = *px;
+      cd.p_w = pr.p;
+      cd.S_pred = J_w * pr.cov * J_w.transpose();
+      // Pre-gate radius: lambda_max(S) <= trace(S_pred) + bound on trace(S_cal) + max sigma^2,
+      // and d^T S^-1 d >= |d|^2 / lambda_max(S); pairs further apart cannot be in the gate.
+      cd.radius2 = gate * (cd.S_pred.trace() + calibration_bound(cam.slot, p_cam.z()) + max_var);
+      cand.push_back(cd);
     }
-    // Gate matrix between candidate marks and this camera's free observations.
-    std::vector<int> free_obs;
-    for (int o : cam.obs)
-      if (w.obs[o].state != ObsState::kAssigned) free_obs.push_back(o);
-    const int M = static_cast<int>(cand_marks.size()), N = static_cast<int>(free_obs.size());
-    std::vector<int> mark_hits(M, 0), mark_hit(M, -1), obs_hits(N, 0), obs_hit(N, -1);
-    for (int i = 0; i < M; ++i)
+    const int M = static_cast<int>(cand.size()), N = static_cast<int>(free_obs.size());
+    auto& mark_hits = w.mark_hits;
+    auto& mark_hit = w.mark_hit;
+    auto& obs_hits = w.obs_hits;
+    auto& obs_hit = w.obs_hit;
+    mark_hits.assign(M, 0);
+    mark_hit.assign(M, -1);
+    obs_hits.assign(N, 0);
+    obs_hit.assign(N, -1);
+    for (int i = 0; i < M; ++i) {
+      Work::Cand& cd = cand[i];
       for (int k = 0; k < N; ++k) {
         const auto& ob = w.obs[free_obs[k]];
-        const Mat2 S = pred_cov[i] + ob.sigma * ob.sigma * Mat2::Identity();
-        const Vec2 d = ob.raw - pred_px[i];
-        const double d2 = d.dot(S.ldlt().solve(d));
+        const Vec2 d = ob.raw - cd.px;
+        if (d.squaredNorm() > cd.radius2) continue;
+        if (!cd.cal_done) {
+          cd.S_cal = calibration_pixel_covariance(cam.slot, cd.p_w);
+          cd.cal_done = true;
+        }
+        const Mat2 S = cd.S_pred + cd.S_cal + ob.sigma * ob.sigma * Mat2::Identity();
+        const double det = S(0, 0) * S(1, 1) - S(0, 1) * S(1, 0);
+        if (!(det > 0)) continue;
+        const double d2 = (S(1, 1) * d.x() * d.x() - (S(0, 1) + S(1, 0)) * d.x() * d.y() +
+                           S(0, 0) * d.y() * d.y()) /
+                          det;
         if (!(d2 <= gate)) continue;
         ++mark_hits[i];
         mark_hit[i] = k;
         ++obs_hits[k];
         obs_hit[k] = i;
       }
+    }
     for (int k = 0; k < N; ++k) {
       auto& ob = w.obs[free_obs[k]];
       if (obs_hits[k] == 0) {
@@ -384,74 +475,71 @@ void MarkMatcher::gate_and_assign(Work& w) const {
       const int i = obs_hit[k];
       if (obs_hits[k] == 1 && mark_hits[i] == 1) {
         ob.state = ObsState::kAssigned;
-        ob.mark = cand_marks[i];
-        w.assigned[cand_marks[i]].push_back(free_obs[k]);
+        ob.mark = cand[i].mark;
+        ob.S_cal = cand[i].S_cal;
+        ob.W = (ob.S_cal + ob.sigma * ob.sigma * Mat2::Identity()).inverse();
+        w.assigned[cand[i].mark].push_back(free_obs[k]);
+        w.dirty[cand[i].mark] = true;
       } else {
         ob.state = ObsState::kAmbiguous;
       }
     }
     for (int i = 0; i < M; ++i) {
-      auto& amb = w.ambiguous[cand_marks[i]];
-      amb.erase(std::remove(amb.begin(), amb.end(), c), amb.end());
-      if (mark_hits[i] >= 2) amb.push_back(c);
+      const std::uint64_t bit = std::uint64_t{1} << c;
+      auto& amb = w.ambiguous_cams[cand[i].mark];
+      amb = mark_hits[i] >= 2 ? (amb | bit) : (amb & ~bit);
     }
   }
 }
 
-bool MarkMatcher::triangulate(const Work& w, const std::vector<int>& obs, Vec3& p_w, Mat3& cov_w,
-                              double& chi2) const {
+Mat2 MarkMatcher::calibration_pixel_covariance(int slot, const Vec3& p_w) const {
+  if (!config_.use_calibration_covariance) return Mat2::Zero();
+  const camera::CalibratedCamera& cal = rig_.cameras[slot];
+  camera::ProjectionJacobians J;
+  if (!cal.model.project_world(cal.T_c_w, p_w, &J)) return Mat2::Zero();
+  return J.d_intrinsics * cal.intrinsic_covariance * J.d_intrinsics.transpose() +
+         J.d_pose * cal.extrinsic_covariance * J.d_pose.transpose();
+}
+
+double MarkMatcher::calibration_bound(int slot, double z_cam) const {
+  const auto& bd = cal_bounds_[slot];
+  return bd.a + bd.b / (z_cam * z_cam);
+}
+
+bool MarkMatcher::triangulate(const Work& w, const std::vector<int>& obs, const Vec3& initial,
+                              Vec3& p_w, Mat3& cov_w, double& chi2) const {
   const int n = static_cast<int>(obs.size());
   if (n < 2) return false;
-  // Linear initialisation: for each view, (x r3 - r1) . X = t1 - x t3 (and y), weighted by the
-  // inverse normalised-coordinate sigma (approximately sigma_px / f).
-  Mat3 AtA = Mat3::Zero();
-  Vec3 Atb = Vec3::Zero();
-  for (int o : obs) {
-    const auto& ob = w.obs[o];
-    const auto& cal = rig_.cameras[ob.slot];
-    const Mat3 R = cal.T_c_w.linear();
-    const Vec3 t = cal.T_c_w.translation();
-    const double f = cal.model.intrinsics().fx;
-    const double weight = f / ob.sigma;
-    for (int row = 0; row < 2; ++row) {
-      const Vec3 a = (ob.xy[row] * R.row(2) - R.row(row)).transpose() * weight;
-      const double b = (t[row] - ob.xy[row] * t[2]) * weight;
-      AtA += a * a.transpose();
-      Atb += a * b;
-    }
-  }
-  const Eigen::LDLT<Mat3> lin(AtA);
-  if (lin.info() != Eigen::Success) return false;
-  p_w = lin.solve(Atb);
-  if (!p_w.allFinite()) return false;
-  // Gauss-Newton on the reprojection error in raw pixels with the full pixel covariance
-  // (centroid + calibration), a few iterations from the linear solution.
+  // Gauss-Newton on the reprojection error in raw pixels, started at the mark's prediction
+  // (inside its gate, i.e. close), with the pixel covariance sigma^2 I + calibration part (the
+  // latter evaluated at the prediction during gating: it varies negligibly over the gate).
+  p_w = initial;
   Mat3 H = Mat3::Zero();
-  constexpr int kIterations = 4;  // the linear solution is already close: GN converges fast
-  for (int iter = 0; iter <= kIterations; ++iter) {
+  constexpr int kMaxIterations = 6;
+  for (int iter = 0;; ++iter) {
     H.setZero();
     Vec3 g = Vec3::Zero();
     chi2 = 0;
     for (int o : obs) {
       const auto& ob = w.obs[o];
       const auto& cal = rig_.cameras[ob.slot];
-      camera::ProjectionJacobians J;
-      const auto px = cal.model.project_world(cal.T_c_w, p_w, &J);
+      const Mat3 R_c_w = cal.T_c_w.linear();
+      Eigen::Matrix<double, 2, 3> J_cam;
+      const auto px = cal.model.project(R_c_w * p_w + cal.T_c_w.translation(), &J_cam);
       if (!px) return false;
-      Mat2 S = ob.sigma * ob.sigma * Mat2::Identity();
-      if (config_.use_calibration_covariance)
-        S += J.d_intrinsics * cal.intrinsic_covariance * J.d_intrinsics.transpose() +
-             J.d_pose * cal.extrinsic_covariance * J.d_pose.transpose();
-      const Mat2 W = S.inverse();
+      const Eigen::Matrix<double, 2, 3> J = J_cam * R_c_w;
       const Vec2 r = ob.raw - *px;
-      chi2 += r.dot(W * r);
-      H += J.d_point_world.transpose() * W * J.d_point_world;
-      g += J.d_point_world.transpose() * W * r;
+      chi2 += r.dot(ob.W * r);
+      const Eigen::Matrix<double, 3, 2> JtW = J.transpose() * ob.W;
+      H += JtW * J;
+      g += JtW * r;
     }
-    if (iter == kIterations) break;  // chi2 and H evaluated at the final point
+    if (iter == kMaxIterations) break;  // chi2 and H evaluated at the final point
     const Vec3 step = H.ldlt().solve(g);
     if (!step.allFinite()) return false;
     p_w += step;
+    // Converged: one more evaluation at the final point (chi2 and H), then stop.
+    if (step.squaredNorm() < 1e-14) iter = kMaxIterations - 1;
   }
   cov_w = H.inverse();
   return cov_w.allFinite() && std::isfinite(chi2);
@@ -459,6 +547,9 @@ bool MarkMatcher::triangulate(const Work& w, const std::vector<int>& obs, Vec3& 
 
 void MarkMatcher::verify_views(Work& w) const {
   for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
+    // Only marks whose assignments changed since they were last verified.
+    if (!w.dirty[m]) continue;
+    w.dirty[m] = false;
     auto& as = w.assigned[m];
     auto& tri = w.tri[m];
     tri = {};
@@ -467,7 +558,8 @@ void MarkMatcher::verify_views(Work& w) const {
     Mat3 cov;
     double chi2 = 0;
     const int n = static_cast<int>(as.size());
-    const bool ok = triangulate(w, as, p, cov, chi2);
+    const Vec3 initial = w.pred[m].p;
+    const bool ok = triangulate(w, as, initial, p, cov, chi2);
     if (ok && chi2 <= chi2_gate_[2 * n - 3]) {
       tri = {true, p, cov, chi2};
       continue;
@@ -481,7 +573,7 @@ void MarkMatcher::verify_views(Work& w) const {
         std::vector<int> rest = as;
         rest.erase(rest.begin() + k);
         double c2 = 0;
-        if (triangulate(w, rest, p, cov, c2) && c2 <= chi2_gate_[2 * (n - 1) - 3]) {
+        if (triangulate(w, rest, initial, p, cov, c2) && c2 <= chi2_gate_[2 * (n - 1) - 3]) {
           ++passing;
           culprit = k;
           best = {true, p, cov, c2};
@@ -726,7 +818,11 @@ void MarkMatcher::update_tracks(const Work& w, double t_s) {
 }
 
 MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
-  Work w;
+  Work& w = *work_.work;  // buffers reused across exposures (no per-call reallocation)
+  w.obs.clear();
+  w.cams.clear();
+  w.acquired = false;
+  w.counts = {};
   MatchResult out;
   out.ids.resize(cameras.size());
   ++w.counts.exposures;
@@ -806,8 +902,11 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
   }
   const double t_s = static_cast<double>(out.t_mid_tai_ns - time_origin_ns_) * 1e-9;
 
-  w.assigned.assign(marks_.size(), {});
-  w.ambiguous.assign(marks_.size(), {});
+  w.assigned.resize(marks_.size());
+  for (auto& as : w.assigned)
+    as.clear();
+  w.ambiguous_cams.assign(marks_.size(), 0);
+  w.dirty.assign(marks_.size(), false);
   w.tri.assign(marks_.size(), {});
   w.fitted.assign(bodies_.size(), false);
   w.T_w_b.assign(bodies_.size(), Transform::Identity());
@@ -821,8 +920,12 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
     verify_layouts(w);
     // Bootstrap: a fitted body re-predicts its still-unassigned marks from this exposure's
     // layout fit (tight), which resolves what the coarse prediction left ambiguous.
+    // Needed only when some observation is still without an id.
+    bool free_left = false;
+    for (const auto& ob : w.obs)
+      free_left = free_left || ob.state != ObsState::kAssigned;
     bool any = false;
-    for (size_t b = 0; b < bodies_.size(); ++b) {
+    for (size_t b = 0; b < bodies_.size() && free_left; ++b) {
       if (!w.fitted[b]) continue;
       for (size_t m = 0; m < marks_.size(); ++m) {
         if (marks_[m].body != static_cast<int>(b) || w.assigned[m].size() == w.cams.size())
@@ -895,8 +998,9 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
   }
   for (size_t m = 0; m < marks_.size(); ++m) {
     // Per camera where the mark's gate held >= 2 observations (it may be identified in others).
-    w.counts.ambiguous_mark += w.ambiguous[m].size();
-    out.ambiguous += static_cast<int>(w.ambiguous[m].size());
+    const int n_amb = std::popcount(w.ambiguous_cams[m]);
+    w.counts.ambiguous_mark += static_cast<std::uint64_t>(n_amb);
+    out.ambiguous += n_amb;
   }
   out.acquired_from_prior = w.acquired;
   if (w.acquired) ++w.counts.acquisitions;

@@ -28,6 +28,7 @@
 
 #include <cstdint>
 #include <map>
+#include <memory>
 #include <span>
 #include <string>
 #include <vector>
@@ -213,14 +214,32 @@ class MarkMatcher {
   };
   struct Work;
 
+  /// Owns the per-exposure scratch buffers (reused; a copied matcher gets fresh ones).
+  struct WorkBuffers {
+    WorkBuffers();
+    WorkBuffers(const WorkBuffers&);
+    WorkBuffers& operator=(const WorkBuffers&);
+    WorkBuffers(WorkBuffers&&) noexcept;
+    WorkBuffers& operator=(WorkBuffers&&) noexcept;
+    ~WorkBuffers();
+    std::unique_ptr<Work> work;
+  };
+  /// trace(calibration pixel covariance) <= a + b / z_cam^2 (per camera slot; pre-gate).
+  struct CalibrationBound {
+    double a = 0, b = 0;
+  };
+
+  void compute_calibration_bounds();
+  geometry::Mat2 calibration_pixel_covariance(int slot, const geometry::Vec3& p_w) const;
+  double calibration_bound(int slot, double z_cam) const;
   void predict(Work& w, double t_s) const;
   void gate_and_assign(Work& w) const;
   void verify_views(Work& w) const;
   void verify_layouts(Work& w) const;
   bool filter_update(const Work& w, int b, const std::vector<int>& members, BodyTrack& post,
                      double& nis) const;
-  bool triangulate(const Work& w, const std::vector<int>& obs, geometry::Vec3& p_w,
-                   geometry::Mat3& cov_w, double& chi2) const;
+  bool triangulate(const Work& w, const std::vector<int>& obs, const geometry::Vec3& initial,
+                   geometry::Vec3& p_w, geometry::Mat3& cov_w, double& chi2) const;
   void update_tracks(const Work& w, double t_s);
 
   camera::RigCalibration rig_;
@@ -231,7 +250,9 @@ class MarkMatcher {
   std::vector<BodyTrack> body_tracks_;
   std::vector<Prior> priors_;
   std::vector<double> chi2_gate_;  ///< chi2_gate_[dof] at gate_probability, dof 0..kMaxDof
+  std::vector<CalibrationBound> cal_bounds_;  ///< per camera slot
   MatchCounters counters_;
+  WorkBuffers work_;
   bool have_time_origin_ = false;
   time::TaiNs time_origin_ns_ = 0;
 };
