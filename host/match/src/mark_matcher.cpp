@@ -313,9 +313,12 @@ void MarkMatcher::predict(Work& w, double t_s) const {
       p.t_s = t_s;
       p.T_w_b.linear() = geometry::rotation_from_rotvec(bt.omega_w * dt) * bt.T_w_b.linear();
       p.T_w_b.translation() = bt.T_w_b.translation() + bt.v_w * dt;
-      Mat12 F = Mat12::Identity();
-      F.block<3, 3>(0, 6) = dt * Mat3::Identity();
-      F.block<3, 3>(3, 9) = dt * Mat3::Identity();
+      // F = [I dt*I; 0 I] over (pose, rates): F P F^T by 6x6 blocks.
+      const Mat6 Ppp = bt.P.topLeftCorner<6, 6>(), Ppr = bt.P.topRightCorner<6, 6>(),
+                 Prr = bt.P.bottomRightCorner<6, 6>();
+      p.P.topLeftCorner<6, 6>() = Ppp + dt * (Ppr + Ppr.transpose()) + dt * dt * Prr;
+      p.P.topRightCorner<6, 6>() = Ppr + dt * Prr;
+      p.P.bottomLeftCorner<6, 6>() = p.P.topRightCorner<6, 6>().transpose();
       Mat12 Q = Mat12::Zero();
       const double qa =
           config_.max_angular_acceleration_radps2 * config_.max_angular_acceleration_radps2;
@@ -329,7 +332,7 @@ void MarkMatcher::predict(Work& w, double t_s) const {
         Q(3 + i, 9 + i) = Q(9 + i, 3 + i) = ql * d3 / 2;
         Q(9 + i, 9 + i) = ql * d2;
       }
-      p.P = F * bt.P * F.transpose() + Q;
+      p.P += Q;
       w.body[b].predicted = true;
       w.body[b].pred = p;
       body_T[b] = p.T_w_b;
@@ -600,43 +603,54 @@ void MarkMatcher::verify_views(Work& w) const {
 
 bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& members,
                                 BodyTrack& post, double& nis) const {
-  // Extended Kalman filter update in information form (Bar-Shalom et al. 2001, sec. 5.2 and
-  // 10.3): Info = P^-1 + sum G^T W G, with one relinearisation (iterated EKF, sec. 10.3.2);
-  // the normalised innovation squared y^T (G P G^T + R)^-1 y = y^T W y - g^T Info^-1 g
-  // (matrix inversion lemma) at the prediction.
+  // Extended Kalman filter update (Bar-Shalom et al. 2001, sec. 5.2 and 10.3). The marks
+  // measure the pose only, so the pose is updated in information form on its 6x6 block,
+  // Info = Ppp^-1 + sum G^T W G, with one relinearisation (iterated EKF, sec. 10.3.2), and the
+  // rates follow through their correlation with the pose (L = Prp Ppp^-1, exact for a
+  // measurement of a sub-state). The normalised innovation squared
+  // y^T (G Ppp G^T + R)^-1 y = y^T W y - g^T Info^-1 g (matrix inversion lemma) at the prediction.
   const BodyTrack& pred = w.body[b].pred;
-  const Eigen::LDLT<Mat12> prior(pred.P);
+  const Mat6 Ppp = pred.P.topLeftCorner<6, 6>();
+  const Eigen::LLT<Mat6> prior(Ppp);
   if (prior.info() != Eigen::Success) return false;
-  const Mat12 P_inv = prior.solve(Mat12::Identity());
-  Eigen::Matrix<double, 12, 1> delta = Eigen::Matrix<double, 12, 1>::Zero();
-  Mat12 info;
+  const Mat6 Ppp_inv = prior.solve(Mat6::Identity());
+  geometry::Vec6 delta = geometry::Vec6::Zero();
+  Mat6 info;
   for (int iter = 0; iter < 2; ++iter) {
-    const Transform T = geometry::perturb_left(pred.T_w_b, delta.head<6>());
-    info = P_inv;
-    Eigen::Matrix<double, 12, 1> g = -P_inv * delta;
+    const Transform T = geometry::perturb_left(pred.T_w_b, delta);
+    info = Ppp_inv;
+    geometry::Vec6 g = -Ppp_inv * delta;
     double yWy = 0;
     for (int m : members) {
       const double s = marks_[m].survey_sigma_m;
       const Mat3 W = (w.tri[m].cov + s * s * Mat3::Identity()).inverse();
       const Vec3 y = w.tri[m].p - T * marks_[m].p_body;
       const auto G = point_pose_jacobian(T, marks_[m].p_body);
-      info.topLeftCorner<6, 6>() += G.transpose() * W * G;
-      g.head<6>() += G.transpose() * W * y;
+      const Eigen::Matrix<double, 6, 3> GtW = G.transpose() * W;
+      info.noalias() += GtW * G;
+      g.noalias() += GtW * y;
       yWy += y.dot(W * y);
     }
-    const Eigen::LDLT<Mat12> solver(info);
+    const Eigen::LLT<Mat6> solver(info);
     if (solver.info() != Eigen::Success) return false;
-    const Eigen::Matrix<double, 12, 1> step = solver.solve(g);
+    const geometry::Vec6 step = solver.solve(g);
     if (!step.allFinite()) return false;
     if (iter == 0) nis = yWy - g.dot(step);
     delta += step;
   }
+  const Mat6 Ppp_post = info.llt().solve(Mat6::Identity());
+  const Mat6 L = pred.P.bottomLeftCorner<6, 6>() * Ppp_inv;  // rates | pose gain
   post = pred;
-  post.T_w_b = geometry::perturb_left(pred.T_w_b, delta.head<6>());
-  post.omega_w += delta.segment<3>(6);
-  post.v_w += delta.tail<3>();
-  post.P = info.ldlt().solve(Mat12::Identity());
-  post.P = 0.5 * (post.P + post.P.transpose()).eval();
+  post.T_w_b = geometry::perturb_left(pred.T_w_b, delta);
+  const geometry::Vec6 d_rates = L * delta;
+  post.omega_w += d_rates.head<3>();
+  post.v_w += d_rates.tail<3>();
+  post.P.topLeftCorner<6, 6>() = 0.5 * (Ppp_post + Ppp_post.transpose());
+  post.P.bottomLeftCorner<6, 6>() = L * post.P.topLeftCorner<6, 6>();
+  post.P.topRightCorner<6, 6>() = post.P.bottomLeftCorner<6, 6>().transpose();
+  const Mat6 Prr = pred.P.bottomRightCorner<6, 6>() - L * pred.P.topRightCorner<6, 6>() +
+                   L * post.P.topLeftCorner<6, 6>() * L.transpose();
+  post.P.bottomRightCorner<6, 6>() = 0.5 * (Prr + Prr.transpose());
   return post.P.allFinite() && std::isfinite(nis);
 }
 
