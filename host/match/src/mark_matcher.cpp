@@ -500,8 +500,12 @@ Mat2 MarkMatcher::calibration_pixel_covariance(int slot, const Vec3& p_w) const 
   const camera::CalibratedCamera& cal = rig_.cameras[slot];
   camera::ProjectionJacobians J;
   if (!cal.model.project_world(cal.T_c_w, p_w, &J)) return Mat2::Zero();
-  return J.d_intrinsics * cal.intrinsic_covariance * J.d_intrinsics.transpose() +
-         J.d_pose * cal.extrinsic_covariance * J.d_pose.transpose();
+  // Coefficient-based (lazy) products: Eigen would send the 2x13x13 product to its blocked
+  // GEMM kernel, which costs more than the arithmetic here.
+  const Eigen::Matrix<double, 2, camera::kNumIntrinsics> JC =
+      J.d_intrinsics.lazyProduct(cal.intrinsic_covariance);
+  const Eigen::Matrix<double, 2, 6> JE = J.d_pose.lazyProduct(cal.extrinsic_covariance);
+  return JC.lazyProduct(J.d_intrinsics.transpose()) + JE.lazyProduct(J.d_pose.transpose());
 }
 
 double MarkMatcher::calibration_bound(int slot, double z_cam) const {
