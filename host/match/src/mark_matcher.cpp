@@ -184,7 +184,16 @@ struct MarkMatcher::Work {
     Mat2 S_cal = Mat2::Zero();
     bool cal_done = false;
     double radius2 = 0;
+    double z = 0;  ///< depth in the camera [m]
   };
+  /// Calibration pixel covariance per (mark, camera slot), reused across exposures.
+  struct CalCache {
+    bool valid = false;
+    Vec2 px = Vec2::Zero();
+    double z = 0;
+    Mat2 S_cal = Mat2::Zero();
+  };
+  std::vector<CalCache> cal_cache;
   std::vector<Cand> cand;
   std::vector<int> free_obs, mark_hits, mark_hit, obs_hits, obs_hit;
   std::vector<Tri> tri;      ///< per mark
@@ -431,6 +440,7 @@ void MarkMatcher::gate_and_assign(Work& w) const {
       cd.mark = m;
       cd.px = *px;
       cd.p_w = pr.p;
+      cd.z = p_cam.z();
       cd.S_pred = J_w * pr.cov * J_w.transpose();
       // Pre-gate radius: lambda_max(S) <= trace(S_pred) + bound on trace(S_cal) + max sigma^2,
       // and d^T S^-1 d >= |d|^2 / lambda_max(S); pairs further apart cannot be in the gate.
@@ -453,7 +463,20 @@ void MarkMatcher::gate_and_assign(Work& w) const {
         const Vec2 d = ob.raw - cd.px;
         if (d.squaredNorm() > cd.radius2) continue;
         if (!cd.cal_done) {
-          cd.S_cal = calibration_pixel_covariance(cam.slot, cd.p_w);
+          // The calibration part varies slowly over the image and with depth: reuse this mark's
+          // value from a previous exposure while its projection stayed within kCacheRadiusPx
+          // and its depth within 5 % (cache per mark and camera, invalidated otherwise).
+          constexpr double kCacheRadiusPx = 16.0;
+          auto& cache = w.cal_cache[static_cast<size_t>(cd.mark) * rig_.cameras.size() +
+                                    static_cast<size_t>(cam.slot)];
+          if (!(cache.valid && (cache.px - cd.px).squaredNorm() < kCacheRadiusPx * kCacheRadiusPx &&
+                std::abs(cd.z / cache.z - 1) < 0.05)) {
+            cache.S_cal = calibration_pixel_covariance(cam.slot, cd.p_w);
+            cache.px = cd.px;
+            cache.z = cd.z;
+            cache.valid = true;
+          }
+          cd.S_cal = cache.S_cal;
           cd.cal_done = true;
         }
         const Mat2 S = cd.S_pred + cd.S_cal + ob.sigma * ob.sigma * Mat2::Identity();
@@ -546,7 +569,7 @@ bool MarkMatcher::triangulate(const Work& w, const std::vector<int>& obs, const 
     if (!step.allFinite()) return false;
     p_w += step;
     // Converged: one more evaluation at the final point (chi2 and H), then stop.
-    if (step.squaredNorm() < 1e-14) iter = kMaxIterations - 1;
+    if (step.squaredNorm() < 1e-12) iter = kMaxIterations - 1;  // < 1 um: << its sigma
   }
   cov_w = H.inverse();
   return cov_w.allFinite() && std::isfinite(chi2);
@@ -924,6 +947,7 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
   for (auto& as : w.assigned)
     as.clear();
   w.ambiguous_cams.assign(marks_.size(), 0);
+  w.cal_cache.resize(marks_.size() * rig_.cameras.size());
   w.dirty.assign(marks_.size(), false);
   w.tri.assign(marks_.size(), {});
   w.fitted.assign(bodies_.size(), false);
