@@ -7,6 +7,7 @@
 #include <random>
 #include <stdexcept>
 
+#include "sample_fields.hpp"
 #include "storetrack/pose/body_pose.hpp"
 #include "storetrack/triangulate/triangulate.hpp"
 
@@ -28,7 +29,7 @@ constexpr int kExtrinsic = uncertainty::index(Source::kExtrinsic);
 constexpr int kSync = uncertainty::index(Source::kSync);
 constexpr int kSurvey = uncertainty::index(Source::kSurvey);
 
-using Loadings6 = Eigen::Matrix<double, 6, Eigen::Dynamic>;
+using uncertainty::Loadings6;
 
 // Mid-exposure time of one camera [TAI ns], corrected by its calibrated trigger latency.
 // Integer arithmetic: TAI ns since 1970 do not fit a double's mantissa at ns resolution.
@@ -63,21 +64,7 @@ void fill_pose(const BodySolution& b, const uncertainty::CalibrationFactors& f, 
   out.cov = Mat6::Zero();
   for (const Mat6& c : out.cov_by_source)
     out.cov += c;
-}
-
-// d(x, y, z, yaw, pitch, roll)/d(left perturbation of T_p_s).
-Mat6 output_jacobian(const Transform& T_p_s) {
-  Mat6 J = Mat6::Zero();
-  J.topRightCorner<3, 3>() = Mat3::Identity();
-  J.bottomLeftCorner<3, 3>() = pose::ypr_jacobian(T_p_s.linear());
-  return J;
-}
-
-Vec6 xyz_ypr(const Transform& T) {
-  Vec6 v;
-  v.head<3>() = T.translation();
-  v.tail<3>() = geometry::ypr_from_rotation(T.linear());
-  return v;
+  out.loadings = b.loadings;
 }
 
 // Left-perturbation difference xi with T_a = perturb_left(T_b, xi).
@@ -223,7 +210,13 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
       prep.clock_not_locked = true;
   }
 
-  std::vector<int> mark_of_id(static_cast<size_t>(config_.max_mark_id) + 1, -1);
+  // Index of a mark id in prep.marks: a linear search over the few marks of an exposure is
+  // cheaper than clearing an id-indexed table for every exposure.
+  auto find_mark = [&prep](int id) {
+    for (size_t i = 0; i < prep.marks.size(); ++i)
+      if (prep.marks[i].id == id) return static_cast<int>(i);
+    return -1;
+  };
   for (size_t e = 0; e < exposure.cameras.size(); ++e) {
     const int slot = slot_of_entry[e];
     if (slot < 0) continue;
@@ -249,7 +242,7 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
         ++counters.rejected_by_flags;
         continue;
       }
-      int& mi = mark_of_id[static_cast<size_t>(id)];
+      int mi = find_mark(id);
       if (mi < 0) {
         mi = static_cast<int>(prep.marks.size());
         Prepared::Mark m;
@@ -364,29 +357,41 @@ void ExposureProcessor::solve(const Prepared& prep,
     if (with_uncertainty) {
       // dp/dtheta = -K_i dproj_i/dtheta for the parameters of observation i's camera (each
       // camera observes a mark once); loadings = dp/dtheta * F (whitened factors).
-      m.loadings = uncertainty::Loadings3::Zero(3, nz);
+      // Each observation is a different camera, so its columns are written once (sparsity: a
+      // mark loads only on the factors of the cameras that saw it; the others stay zero), and
+      // each source's covariance L_s L_s^T is the sum of the per-camera blocks' B B^T.
+      m.loadings.setZero(3, nz);
+      Mat3 cov_intrinsic = Mat3::Zero(), cov_extrinsic = Mat3::Zero(), cov_sync = Mat3::Zero();
       for (size_t i = 0; i < mark.obs.size(); ++i) {
         const auto& cf = factors_.camera(mark.obs[i].slot);
         const auto& K = tri.gain[i];
         const auto& J = tri.jacobians[i];
-        if (cf.intrinsic.cols() > 0)
-          m.loadings.middleCols(cf.intrinsic_begin, cf.intrinsic.cols()).noalias() -=
-              (K * J.d_intrinsics).lazyProduct(cf.intrinsic);
-        if (cf.extrinsic.cols() > 0)
-          m.loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols()).noalias() -=
-              (K * J.d_pose).lazyProduct(cf.extrinsic);
-        if (cf.sync_column >= 0 && velocity_valid)
-          m.loadings.col(cf.sync_column).noalias() -=
-              K * (J.d_point_world * velocity_w) * cf.sync_sigma_s;
+        if (cf.intrinsic.cols() > 0) {
+          const Eigen::Matrix<double, 3, camera::kNumIntrinsics> KJ = K * J.d_intrinsics;
+          const Eigen::Matrix<double, 3, Eigen::Dynamic, 0, 3, camera::kNumIntrinsics> B =
+              -KJ.lazyProduct(cf.intrinsic);
+          m.loadings.middleCols(cf.intrinsic_begin, B.cols()) = B;
+          cov_intrinsic.noalias() += B.lazyProduct(B.transpose());
+        }
+        if (cf.extrinsic.cols() > 0) {
+          const Eigen::Matrix<double, 3, 6> KJ = K * J.d_pose;
+          const Eigen::Matrix<double, 3, Eigen::Dynamic, 0, 3, 6> B = -KJ.lazyProduct(cf.extrinsic);
+          m.loadings.middleCols(cf.extrinsic_begin, B.cols()) = B;
+          cov_extrinsic.noalias() += B.lazyProduct(B.transpose());
+        }
+        if (cf.sync_column >= 0 && velocity_valid) {
+          const Vec3 b = -K * (J.d_point_world * velocity_w) * cf.sync_sigma_s;
+          m.loadings.col(cf.sync_column) = b;
+          cov_sync.noalias() += b * b.transpose();
+        }
       }
       m.cov_by_source[kCentroid] = tri.cov_centroid;
-      m.cov_by_source[kIntrinsic] =
-          uncertainty::covariance_of(m.loadings, factors_, Source::kIntrinsic);
-      m.cov_by_source[kExtrinsic] =
-          uncertainty::covariance_of(m.loadings, factors_, Source::kExtrinsic);
-      m.cov_by_source[kSync] = uncertainty::covariance_of(m.loadings, factors_, Source::kSync);
+      m.cov_by_source[kIntrinsic] = cov_intrinsic;
+      m.cov_by_source[kExtrinsic] = cov_extrinsic;
+      m.cov_by_source[kSync] = cov_sync;
       m.cov_by_source[kSurvey].setZero();
-      m.cov_w = tri.cov_centroid + m.loadings.lazyProduct(m.loadings.transpose());
+      // The sources partition the factor columns: L L^T is the sum of the per-source parts.
+      m.cov_w = tri.cov_centroid + cov_intrinsic + cov_extrinsic + cov_sync;
     }
     out.marks.push_back(std::move(m));
   }
@@ -510,7 +515,6 @@ void ExposureProcessor::fill_sample(const AlignedExposure& exposure, const Prepa
                                     ExposureResult& out) const {
   msg::FtiSample& s = out.sample;
   s = msg::FtiSample{};
-  const float nan = std::numeric_limits<float>::quiet_NaN();
   s.store_id = config_.store_id;
   s.cameras_used = static_cast<std::uint8_t>(std::min(prep.cameras_used, 254));
   s.marks_used = static_cast<std::uint8_t>(out.T_w_s.valid ? out.T_w_s.marks_used : 0);
@@ -521,41 +525,9 @@ void ExposureProcessor::fill_sample(const AlignedExposure& exposure, const Prepa
   std::uint16_t status = 0;
   if (out.T_p_s.valid) {
     status |= msg::fti_status::kValid;
-    const Vec6& v = out.xyz_ypr;
-    s.x_m = static_cast<float>(v(0));
-    s.y_m = static_cast<float>(v(1));
-    s.z_m = static_cast<float>(v(2));
-    s.yaw_rad = static_cast<float>(v(3));
-    s.pitch_rad = static_cast<float>(v(4));
-    s.roll_rad = static_cast<float>(v(5));
-    const Vec6 u = out.cov_xyz_ypr.diagonal().cwiseMax(0.0).cwiseSqrt();
-    s.u_x_m = static_cast<float>(u(0));
-    s.u_y_m = static_cast<float>(u(1));
-    s.u_z_m = static_cast<float>(u(2));
-    s.u_yaw_rad = static_cast<float>(u(3));
-    s.u_pitch_rad = static_cast<float>(u(4));
-    s.u_roll_rad = static_cast<float>(u(5));
-    size_t k = 0;
-    for (int i = 0; i < 6; ++i)
-      for (int j = i + 1; j < 6; ++j)
-        s.correlation[k++] = (u(i) > 0 && u(j) > 0)
-                                 ? static_cast<float>(out.cov_xyz_ypr(i, j) / (u(i) * u(j)))
-                                 : nan;
-    auto rss = [&](int src) {
-      return static_cast<float>(std::sqrt(std::max(
-          0.0, out.cov_xyz_ypr_by_source[static_cast<size_t>(src)].topLeftCorner<3, 3>().trace())));
-    };
-    s.u_budget_centroid_m = rss(kCentroid);
-    s.u_budget_intrinsic_m = rss(kIntrinsic);
-    // The body-mark survey registers the pylon/store frames: reported with the extrinsics.
-    s.u_budget_extrinsic_m = std::hypot(rss(kExtrinsic), rss(kSurvey));
-    s.u_budget_sync_m = rss(kSync);
+    write_pose_fields(out.xyz_ypr, out.cov_xyz_ypr, out.cov_xyz_ypr_by_source, s);
   } else {
-    s.x_m = s.y_m = s.z_m = s.yaw_rad = s.pitch_rad = s.roll_rad = nan;
-    s.u_x_m = s.u_y_m = s.u_z_m = s.u_yaw_rad = s.u_pitch_rad = s.u_roll_rad = nan;
-    s.correlation.fill(nan);
-    s.u_budget_centroid_m = s.u_budget_intrinsic_m = s.u_budget_extrinsic_m = s.u_budget_sync_m =
-        nan;
+    clear_pose_fields(s);
   }
   if (!out.pylon_check.excluded_ids.empty() || !out.store_check.excluded_ids.empty() ||
       out.pylon_check.failed || out.store_check.failed)

@@ -5,6 +5,8 @@
 #include <Eigen/Cholesky>
 #include <Eigen/SVD>
 
+#include "storetrack/uncertainty/spd_inverse.hpp"
+
 namespace storetrack::pose {
 
 using geometry::Mat3;
@@ -52,40 +54,42 @@ bool fit_body(std::span<const Vec3> q_body, std::span<const Vec3> p_world,
   geometry::Transform T;
   if (!absolute_orientation(q_body, p_world, weights, T)) return false;
 
+  // Weights: inverse of each mark's total covariance. Survey errors are isotropic in the body
+  // frame, so R sigma^2 I R^T = sigma^2 I.
   std::vector<Mat3> W(n);
-  auto update_weights = [&]() -> bool {
-    for (size_t i = 0; i < n; ++i) {
-      // Survey errors are isotropic in the body frame, so R sigma^2 I R^T = sigma^2 I.
-      const Mat3 C = cov_w[i] + survey_sigma_m[i] * survey_sigma_m[i] * Mat3::Identity();
-      const Eigen::LLT<Mat3> llt(C);
-      if (llt.info() != Eigen::Success) return false;
-      W[i] = llt.solve(Mat3::Identity());
-    }
-    return true;
-  };
-  if (!update_weights()) return false;
+  for (size_t i = 0; i < n; ++i) {
+    const Mat3 C = cov_w[i] + survey_sigma_m[i] * survey_sigma_m[i] * Mat3::Identity();
+    if (!uncertainty::inverse_spd<3>(C, W[i])) return false;
+  }
 
-  // r_m = p_m - (Exp(phi) R q_m + t + rho):  dr/dphi = [R q_m]x, dr/drho = -I.
-  auto jacobian = [&](size_t i) {
-    Eigen::Matrix<double, 3, 6> J;
-    J.leftCols<3>() = geometry::skew(T.linear() * q_body[i]);
-    J.rightCols<3>() = -Mat3::Identity();
-    return J;
+  // r_m = p_m - (Exp(phi) R q_m + t + rho):  J_m = [S_m, -I] with S_m = [R q_m]x, so
+  // J^T W J = [[S^T W S, -S^T W], [-W S, W]] and J^T W r = [S^T W r; -W r] (3x3 blocks only).
+  auto accumulate = [&](size_t i, Mat6& H, Vec6* g) {
+    const Mat3 S = geometry::skew(T.linear() * q_body[i]);
+    const Mat3 StW = S.transpose() * W[i];  // W symmetric: (W S)^T = S^T W
+    H.topLeftCorner<3, 3>().noalias() += StW * S;
+    H.topRightCorner<3, 3>() -= StW;
+    H.bottomRightCorner<3, 3>() += W[i];
+    if (g != nullptr) {
+      const Vec3 Wr = W[i] * (p_world[i] - T * q_body[i]);
+      g->head<3>().noalias() += S.transpose() * Wr;
+      g->tail<3>() -= Wr;
+    }
+  };
+  auto symmetrise = [](Mat6& H) {
+    H.bottomLeftCorner<3, 3>() = H.topRightCorner<3, 3>().transpose();
   };
   Mat6 H;
   int it = 0;
   for (; it < max_iterations; ++it) {
     H.setZero();
     Vec6 g = Vec6::Zero();
-    for (size_t i = 0; i < n; ++i) {
-      const Eigen::Matrix<double, 3, 6> J = jacobian(i);
-      const Vec3 r = p_world[i] - T * q_body[i];
-      H.noalias() += J.transpose() * W[i] * J;
-      g.noalias() += J.transpose() * W[i] * r;
-    }
-    const Eigen::LDLT<Mat6> ldlt(H);
-    if (ldlt.info() != Eigen::Success) return false;
-    const Vec6 step = -ldlt.solve(g);  // Gauss-Newton: H step = -J^T W r
+    for (size_t i = 0; i < n; ++i)
+      accumulate(i, H, &g);
+    symmetrise(H);
+    const Eigen::LLT<Mat6> llt(H);  // H = J^T W J: positive definite for >= 3 non-collinear
+    if (llt.info() != Eigen::Success) return false;
+    const Vec6 step = -llt.solve(g);  // Gauss-Newton: H step = -J^T W r
     if (!step.allFinite()) return false;
     T = geometry::perturb_left(T, step);
     if (step.head<3>().norm() < 1e-12 && step.tail<3>().norm() < 1e-10) {
@@ -95,23 +99,26 @@ bool fit_body(std::span<const Vec3> q_body, std::span<const Vec3> p_world,
   }
   // Linearisation at the solution.
   H.setZero();
-  std::vector<Eigen::Matrix<double, 3, 6>> Js(n);
   out.residual_w.resize(n);
   out.chi2 = 0;
   for (size_t i = 0; i < n; ++i) {
-    Js[i] = jacobian(i);
-    H.noalias() += Js[i].transpose() * W[i] * Js[i];
+    accumulate(i, H, nullptr);
     out.residual_w[i] = p_world[i] - T * q_body[i];
     out.chi2 += out.residual_w[i].dot(W[i] * out.residual_w[i]);
   }
-  const Eigen::LLT<Mat6> llt(H);
-  if (llt.info() != Eigen::Success) return false;
-  const Mat6 H_inv = llt.solve(Mat6::Identity());
+  symmetrise(H);
+  Mat6 H_inv;
+  if (!uncertainty::inverse_spd<6>(H, H_inv)) return false;
   out.d_pose_d_point.resize(n);
   out.d_pose_d_survey.resize(n);
   const Mat3 R = T.linear();
   for (size_t i = 0; i < n; ++i) {
-    out.d_pose_d_point[i].noalias() = -H_inv * Js[i].transpose() * W[i];
+    // dxi/dp_m = -H^-1 J_m^T W_m with J_m^T W_m = [S_m^T W_m; -W_m].
+    const Mat3 S = geometry::skew(R * q_body[i]);
+    Mat63 JtW;
+    JtW.topRows<3>().noalias() = S.transpose() * W[i];
+    JtW.bottomRows<3>() = -W[i];
+    out.d_pose_d_point[i].noalias() = -H_inv * JtW;
     out.d_pose_d_survey[i].noalias() = -out.d_pose_d_point[i] * R;
   }
   out.T_w_b = T;

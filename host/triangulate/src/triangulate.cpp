@@ -4,6 +4,8 @@
 
 #include <Eigen/Cholesky>
 
+#include "storetrack/uncertainty/spd_inverse.hpp"
+
 namespace storetrack::triangulate {
 
 using geometry::Mat3;
@@ -65,9 +67,11 @@ bool triangulate(std::span<const Observation> observations, const Options& optio
       H.noalias() += w * J.transpose() * J;
       g.noalias() += w * J.transpose() * (obs.pixel_px - *u);
     }
-    const Eigen::LDLT<Mat3> ldlt(H);
-    if (ldlt.info() != Eigen::Success) return false;
-    const Vec3 step = ldlt.solve(g);
+    // H is symmetric positive definite unless the rays are degenerate: Cholesky (no pivoting)
+    // is the cheapest solver and fails exactly in the degenerate case.
+    const Eigen::LLT<Mat3> llt(H);
+    if (llt.info() != Eigen::Success) return false;
+    const Vec3 step = llt.solve(g);
     if (!step.allFinite()) return false;
     X += step;
     if (step.norm() < options.step_tolerance_m) {
@@ -96,9 +100,7 @@ bool triangulate(std::span<const Observation> observations, const Options& optio
     out.chi2 += w * out.residual_px[i].squaredNorm();
     H.noalias() += w * out.jacobians[i].d_point_world.transpose() * out.jacobians[i].d_point_world;
   }
-  const Eigen::LLT<Mat3> llt(H);
-  if (llt.info() != Eigen::Success) return false;
-  out.cov_centroid = llt.solve(Mat3::Identity());
+  if (!uncertainty::inverse_spd<3>(H, out.cov_centroid)) return false;
   for (size_t i = 0; i < n; ++i) {
     const double w = 1.0 / (observations[i].sigma_px * observations[i].sigma_px);
     out.gain[i].noalias() = out.cov_centroid * out.jacobians[i].d_point_world.transpose() * w;

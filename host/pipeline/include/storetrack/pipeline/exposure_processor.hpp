@@ -76,6 +76,11 @@ struct PoseResult {
   std::array<geometry::Mat6, uncertainty::kNumSources> cov_by_source{};
   int marks_used = 0;
   double chi2 = 0;  ///< fit chi-square (block-diagonal weights)
+  /// Loadings of the pose perturbation on the common calibration factors (6 x
+  /// factors().num_factors(); empty in Monte Carlo draws): cov_by_source of intrinsic,
+  /// extrinsic and sync are their column blocks' L L^T. Lets consumers combine poses of
+  /// different exposures with their shared calibration errors (PoseTracker).
+  uncertainty::Loadings6 loadings;
 };
 
 struct ExposureResult {
@@ -90,6 +95,15 @@ struct ExposureResult {
   Eigen::Matrix<double, 6, 1> xyz_ypr = Eigen::Matrix<double, 6, 1>::Zero();
   geometry::Mat6 cov_xyz_ypr = geometry::Mat6::Zero();
   std::array<geometry::Mat6, uncertainty::kNumSources> cov_xyz_ypr_by_source{};
+
+  /// Set by PoseTracker::update() when T_p_s could not be solved from this exposure and was
+  /// predicted from the track instead (sample.status kValid | kExtrapolated). xyz_ypr,
+  /// cov_xyz_ypr (including the process noise) and cov_xyz_ypr_by_source then describe the
+  /// prediction; T_p_s stays invalid.
+  bool extrapolated = false;
+  geometry::Transform T_p_s_extrapolated = geometry::Transform::Identity();
+  geometry::Mat6 cov_T_p_s_extrapolated = geometry::Mat6::Zero();  ///< left perturbation
+  double extrapolation_horizon_s = 0;  ///< time since the last solved T_p_s
 
   const MarkResult* find_mark(int id) const;
 };

@@ -1,0 +1,75 @@
+// PoseTracker: constant-velocity extrapolation of the store pose T_p_s over short gaps in the
+// store marks (FtiSample status bit "extrapolated", common/msg/schema/fti_sample.yaml), with an
+// honest covariance (docs/uncertainty.md, "Extrapolation").
+//
+// The ExposureProcessor solves each exposure on its own; the tracker keeps the last two solved
+// poses. When an exposure has no solved T_p_s (fewer than 3 non-collinear store marks, or no
+// pylon frame) and the last solved pose is at most `max_gap_s` old, the sample carries the
+// constant-velocity prediction (translation and rotation) with status valid | extrapolated;
+// beyond the gap the sample stays invalid. The prediction's covariance is first-order: the two
+// poses' calibration errors are the same factors (loadings combine, they largely cancel in the
+// velocity), their centroid errors are independent, the survey error is common, and an
+// unmodelled relative acceleration (white, per axis: accel_sigma_m_s2, angular_accel_sigma_rad_s2)
+// adds the process noise.
+#pragma once
+
+#include <cstdint>
+
+#include "storetrack/pipeline/exposure_processor.hpp"
+
+namespace storetrack::pipeline {
+
+struct PoseTrackerConfig {
+  /// Longest extrapolation after the last solved pose [s]; older tracks give invalid samples.
+  double max_gap_s = 0.02;
+  /// The two solved poses that give the velocity must be at most this far apart [s].
+  double max_velocity_baseline_s = 0.05;
+  /// Standard uncertainty per axis of the relative (pylon-frame) acceleration the constant-
+  /// velocity model ignores [m/s^2]. Must cover the test point's manoeuvre: gravity and drag
+  /// after release are ~1 g; during an ejector stroke of s in t it is 2 s / t^2 (0.1 m in
+  /// 50 ms: 80 m/s^2).
+  double accel_sigma_m_s2 = 20.0;
+  /// The same for the angular acceleration of the store relative to the pylon [rad/s^2].
+  double angular_accel_sigma_rad_s2 = 5.0;
+};
+
+struct PoseTrackerCounters {
+  std::uint64_t solved = 0;            ///< exposures with a solved T_p_s (track updated)
+  std::uint64_t extrapolated = 0;      ///< samples predicted from the track
+  std::uint64_t not_extrapolated = 0;  ///< unsolved and no usable track (gap, no velocity)
+};
+
+class PoseTracker {
+ public:
+  /// `factors`: the processor's (ExposureProcessor::factors()), to split the prediction's
+  /// calibration covariance by source.
+  explicit PoseTracker(const uncertainty::CalibrationFactors& factors,
+                       const PoseTrackerConfig& config = {});
+
+  /// Call once per exposure, in time order, with the ExposureProcessor's result (host app:
+  /// `ExposureResult r = processor.process(exposure); tracker.update(r); output(r.sample);`). A
+  /// solved T_p_s updates the track. An unsolved one is replaced, when the track allows, by the
+  /// prediction: result.extrapolated, T_p_s_extrapolated, cov_T_p_s_extrapolated, xyz_ypr,
+  /// cov_xyz_ypr(_by_source) and the sample's pose fields, status |= kValid | kExtrapolated.
+  /// Returns true when it extrapolated.
+  bool update(ExposureResult& result);
+
+  /// Forgets the track (e.g. after ExposureProcessor::reset_tracking()).
+  void reset();
+
+  const PoseTrackerCounters& counters() const { return counters_; }
+  const PoseTrackerConfig& config() const { return config_; }
+
+ private:
+  struct Solved {
+    bool valid = false;
+    time::TaiNs t_ns = 0;
+    PoseResult pose;
+  };
+  uncertainty::CalibrationFactors factors_;
+  PoseTrackerConfig config_;
+  Solved last_, previous_;
+  PoseTrackerCounters counters_;
+};
+
+}  // namespace storetrack::pipeline

@@ -1,0 +1,122 @@
+#include "storetrack/pipeline/pose_tracker.hpp"
+
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include "sample_fields.hpp"
+
+namespace storetrack::pipeline {
+
+using geometry::Mat3;
+using geometry::Mat6;
+using geometry::Transform;
+using geometry::Vec3;
+using uncertainty::Source;
+
+PoseTracker::PoseTracker(const uncertainty::CalibrationFactors& factors,
+                         const PoseTrackerConfig& config)
+    : factors_(factors), config_(config) {
+  if (!(config_.max_gap_s >= 0) || !std::isfinite(config_.max_gap_s))
+    throw std::invalid_argument("PoseTracker: max_gap_s must be finite and >= 0");
+  if (!(config_.max_velocity_baseline_s > 0) || !std::isfinite(config_.max_velocity_baseline_s))
+    throw std::invalid_argument("PoseTracker: max_velocity_baseline_s must be finite and > 0");
+  if (!(config_.accel_sigma_m_s2 >= 0) || !std::isfinite(config_.accel_sigma_m_s2) ||
+      !(config_.angular_accel_sigma_rad_s2 >= 0) ||
+      !std::isfinite(config_.angular_accel_sigma_rad_s2))
+    throw std::invalid_argument("PoseTracker: process noise sigmas must be finite and >= 0");
+}
+
+void PoseTracker::reset() {
+  last_ = Solved{};
+  previous_ = Solved{};
+}
+
+bool PoseTracker::update(ExposureResult& r) {
+  r.extrapolated = false;
+  const time::TaiNs t = r.reference_mid_tai_ns;
+  if (r.T_p_s.valid) {
+    ++counters_.solved;
+    // The velocity pair is the last two solved poses, if close enough in time.
+    previous_ = last_;
+    last_.valid = true;
+    last_.t_ns = t;
+    last_.pose = r.T_p_s;
+    return false;
+  }
+  const bool no_time = t == std::numeric_limits<time::TaiNs>::min();
+  const double tau = static_cast<double>(t - last_.t_ns) * 1e-9;              // horizon
+  const double dt = static_cast<double>(last_.t_ns - previous_.t_ns) * 1e-9;  // baseline
+  if (no_time || !last_.valid || !previous_.valid || !(tau > 0) || tau > config_.max_gap_s ||
+      !(dt > 0) || dt > config_.max_velocity_baseline_s) {
+    ++counters_.not_extrapolated;
+    return false;
+  }
+
+  // Constant velocity: v = (t1 - t0) / dt, omega dt = Log(R1 R0^T) (left/spatial increments,
+  // docs/conventions.md); prediction at tau after the last solved pose.
+  const Transform& T1 = last_.pose.T;
+  const Transform& T0 = previous_.pose.T;
+  const double a = tau / dt;
+  const Vec3 rot_step = geometry::rotvec_from_rotation(T1.linear() * T0.linear().transpose());
+  Transform T_pred = Transform::Identity();
+  T_pred.linear() = geometry::rotation_from_rotvec(a * rot_step) * T1.linear();
+  T_pred.translation() = T1.translation() + a * (T1.translation() - T0.translation());
+
+  // First order (the rotation between the two poses and over tau is small, so Exp's Jacobian
+  // and the adjoint of Exp(omega tau) are I to first order): xi_pred = (1 + a) xi_1 - a xi_0.
+  std::array<Mat6, uncertainty::kNumSources> by_source{};
+  const PoseResult& p1 = last_.pose;
+  const PoseResult& p0 = previous_.pose;
+  const double w1 = 1.0 + a, w0 = -a;
+  const auto i_cent = static_cast<size_t>(uncertainty::index(Source::kCentroid));
+  const auto i_surv = static_cast<size_t>(uncertainty::index(Source::kSurvey));
+  // Centroid noise: independent between exposures.
+  by_source[i_cent] = w1 * w1 * p1.cov_by_source[i_cent] + w0 * w0 * p0.cov_by_source[i_cent];
+  // Survey: the same survey errors move both poses alike (w1 + w0 = 1): the last pose's part.
+  by_source[i_surv] = p1.cov_by_source[i_surv];
+  const int nz = factors_.num_factors();
+  const bool have_loadings = p1.loadings.cols() == nz && p0.loadings.cols() == nz;
+  // Common calibration factors: the loadings combine (their errors largely cancel in the
+  // velocity and the prediction keeps the last pose's calibration error).
+  const uncertainty::Loadings6 L = have_loadings
+                                       ? uncertainty::Loadings6(w1 * p1.loadings + w0 * p0.loadings)
+                                       : uncertainty::Loadings6();
+  for (Source src : {Source::kIntrinsic, Source::kExtrinsic, Source::kSync}) {
+    const auto i = static_cast<size_t>(uncertainty::index(src));
+    if (have_loadings) {
+      by_source[i] = uncertainty::covariance_of(L, factors_, src);
+    } else {
+      // No loadings (poses from another processor): correlation unknown; the bound
+      // cov(w1 x1 + w0 x0) <= 2 w1^2 C1 + 2 w0^2 C0 holds whatever it is.
+      by_source[i] = 2.0 * (w1 * w1 * p1.cov_by_source[i] + w0 * w0 * p0.cov_by_source[i]);
+    }
+  }
+  // Process noise: with the velocity from differencing over dt, an unmodelled constant
+  // acceleration alpha gives the error alpha tau (tau + dt) / 2 at the horizon.
+  const double lever = 0.5 * tau * (tau + dt);
+  Mat6 process = Mat6::Zero();
+  process.topLeftCorner<3, 3>() =
+      Mat3::Identity() * std::pow(config_.angular_accel_sigma_rad_s2 * lever, 2);
+  process.bottomRightCorner<3, 3>() =
+      Mat3::Identity() * std::pow(config_.accel_sigma_m_s2 * lever, 2);
+  Mat6 cov = process;
+  for (const Mat6& c : by_source)
+    cov += c;
+
+  r.extrapolated = true;
+  r.T_p_s_extrapolated = T_pred;
+  r.cov_T_p_s_extrapolated = cov;
+  r.extrapolation_horizon_s = tau;
+  r.xyz_ypr = xyz_ypr(T_pred);
+  const Mat6 J = output_jacobian(T_pred);
+  r.cov_xyz_ypr = J * cov * J.transpose();
+  for (size_t s = 0; s < by_source.size(); ++s)
+    r.cov_xyz_ypr_by_source[s] = J * by_source[s] * J.transpose();
+  write_pose_fields(r.xyz_ypr, r.cov_xyz_ypr, r.cov_xyz_ypr_by_source, r.sample);
+  r.sample.status |= msg::fti_status::kValid | msg::fti_status::kExtrapolated;
+  ++counters_.extrapolated;
+  return true;
+}
+
+}  // namespace storetrack::pipeline

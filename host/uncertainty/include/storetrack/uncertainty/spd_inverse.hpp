@@ -1,0 +1,33 @@
+// Inverse of a small fixed-size symmetric positive definite matrix (normal matrices, mark
+// covariances) through its Cholesky factor H = L L^T: H^-1 = L^-T L^-1, with L^-1 by forward
+// substitution in fixed-size loops. Eigen's llt.solve(Identity) routes a matrix right-hand side
+// through the blocked triangular solver, whose set-up dominates for 3x3 and 6x6 matrices on the
+// per-exposure path (docs/performance.md, "Host processing").
+#pragma once
+
+#include <Eigen/Cholesky>
+#include <Eigen/Core>
+
+namespace storetrack::uncertainty {
+
+/// Returns false (out untouched) when H is not numerically positive definite.
+template <int N>
+bool inverse_spd(const Eigen::Matrix<double, N, N>& H, Eigen::Matrix<double, N, N>& out) {
+  const Eigen::LLT<Eigen::Matrix<double, N, N>> llt(H);
+  if (llt.info() != Eigen::Success) return false;
+  const Eigen::Matrix<double, N, N> L = llt.matrixL();
+  Eigen::Matrix<double, N, N> L_inv = Eigen::Matrix<double, N, N>::Zero();
+  for (int j = 0; j < N; ++j) {
+    L_inv(j, j) = 1.0 / L(j, j);
+    for (int i = j + 1; i < N; ++i) {
+      double s = 0;
+      for (int k = j; k < i; ++k)
+        s -= L(i, k) * L_inv(k, j);
+      L_inv(i, j) = s / L(i, i);
+    }
+  }
+  out.noalias() = L_inv.transpose() * L_inv;
+  return out.allFinite();
+}
+
+}  // namespace storetrack::uncertainty
