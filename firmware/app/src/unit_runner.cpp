@@ -293,9 +293,9 @@ int UnitRunner::drain_edges(int timeout_ms) {
   }
 }
 
-bool UnitRunner::edge_in_window(time::MonotonicNs t_frame_ns) {
-  // The pairer's window (frame_pairer.hpp): edges older than it can never be claimed; every
-  // edge inside it is consumed by the frame that pairs.
+bool UnitRunner::edge_in_window(time::MonotonicNs t_frame_ns, bool consume) {
+  // The pairer's window (frame_pairer.hpp): edges older than it can never be claimed (dropped
+  // here too); every edge inside it is consumed by the frame that pairs (when `consume`).
   const trigger::PairerConfig& pc = pairer_->config();
   const time::MonotonicNs expected = t_frame_ns - pc.latency_ns;
   const time::MonotonicNs lo = expected - pc.match_tolerance_ns;
@@ -307,7 +307,7 @@ bool UnitRunner::edge_in_window(time::MonotonicNs t_frame_ns) {
   while (in_window < unclaimed_count_ && unclaimed_edges_[in_window] <= hi)
     ++in_window;
   const bool found = in_window > old;
-  const std::size_t consumed = found ? in_window : old;
+  const std::size_t consumed = found && consume ? in_window : old;
   std::copy(unclaimed_edges_.begin() + static_cast<std::ptrdiff_t>(consumed),
             unclaimed_edges_.begin() + static_cast<std::ptrdiff_t>(unclaimed_count_),
             unclaimed_edges_.begin());
@@ -391,6 +391,16 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
     frames_dropped_pending_ = true;
   }
 
+  // triggered_only: a frame no edge can claim is not centroided at all (the free-running
+  // source's frames between triggers: most of them; centroiding them would only cost time).
+  if (config_.trigger.triggered_only && trigger_ && !sim_trigger_) {
+    drain_edges(0);
+    if (!edge_in_window(frame.timestamp_mono_ns, false)) {
+      ++run_.skipped_untriggered;
+      return 0;
+    }
+  }
+
   std::uint16_t flags = 0;
   if (frames_dropped_pending_) flags |= msg::exposure_flags::kFramesDroppedBefore;
 
@@ -444,7 +454,7 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
                                pairer_config_.match_tolerance_ns);
     }
     drain_edges(0);
-    if (config_.trigger.triggered_only && !edge_in_window(frame.timestamp_mono_ns)) {
+    if (config_.trigger.triggered_only && !edge_in_window(frame.timestamp_mono_ns, true)) {
       ++run_.skipped_untriggered;
       return 0;
     }

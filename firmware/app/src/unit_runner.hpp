@@ -84,7 +84,7 @@ class UnitRunner {
   int process_frame(const frame::FrameView& frame);
   int run_trigger_only(const std::atomic<bool>& stop);
   int drain_edges(int timeout_ms);
-  bool edge_in_window(time::MonotonicNs t_frame_ns);
+  bool edge_in_window(time::MonotonicNs t_frame_ns, bool consume);
   void apply_config_changes();
   void send_health(time::MonotonicNs now);
   void update_shared_counters();

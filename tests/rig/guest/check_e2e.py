@@ -112,6 +112,11 @@ def main():
     missing = sorted(set(range(n)) - set(seqs))
     host_dropped = sum(v for k, v in host.get("aligner", {}).items()
                        if k.startswith("exposures_dropped") or k.startswith("observations_dropped"))
+    for c in host.get("can", []):
+        r = c.get("reassembly", {})
+        print(f"host CAN {c.get('interface')}: {c.get('frames')} frames, {c.get('decoded')} "
+              f"messages, reassembly timeouts {r.get('timeouts')}, fragments lost "
+              f"{r.get('fragments_lost')}")
     print(f"host: {len(fti)} samples for {n} edges; missing {missing}; aligner "
           f"{json.dumps(host.get('aligner', {}))}")
     if len(set(seqs)) != len(seqs) or any(s < 0 or s >= n for s in seqs):

@@ -2,12 +2,12 @@
 # Rendering full frames is floating-point heavy and would take minutes under TCG, and the
 # simulator is the truth, not the system under test, so the frames are rendered here, with the
 # same storetrack-sim binary, into $1 (shared writable into the VM at the same path).
-#   $1/scenario.json   the scenario as run: store_separation, its first 2 cameras on units 0 and 1,
+#   $1/scenario.json   the scenario as run: pendulum (a moving board: every exposure has its own truth), its first 2 cameras on units 0 and 1,
 #                      E2E_EXPOSURES exposures (default 40), trigger sequence numbers from 0
 #                      (the units number the trigger edges from 0, so truth and host share them).
-#                      The cameras are the scenario's optics on a 2/3-scale sensor, 1280 x 682
-#                      (same field of view, larger pixels): vivid then carries 720p frames, which
-#                      a single TCG vCPU can loop, capture and centroid for two cameras.
+#                      The cameras are the scenario's optics at 2/3 scale on a 1280 x 720 sensor
+#                      (larger pixels, a little more field below): vivid then carries 720p frames,
+#                      which a single TCG vCPU can loop, capture and centroid for two cameras.
 #   $1/sim/            storetrack-sim --mode frames output (frames/cam<id>/*.pgm, truth CSVs, rigs)
 #   $1/setup/          the host's setup files (sim_setup.py, as tools/testpoint makes them)
 set -eu
@@ -17,7 +17,7 @@ SIM=${STORETRACK_BIN_SIM:-}
 [ -n "$SIM" ] && [ -x "$SIM" ] || { echo "SKIP: storetrack-sim is not built"; exit 77; }
 N=${E2E_EXPOSURES:-40}
 rm -rf "$OUT"; mkdir -p "$OUT"
-python3 - "$STORETRACK_SOURCE_DIR/common/sim/scenarios/store_separation.json" "$OUT/scenario.json" "$N" <<'PY'
+python3 - "$STORETRACK_SOURCE_DIR/common/sim/scenarios/pendulum.json" "$OUT/scenario.json" "$N" <<'PY'
 import json, sys
 s = json.load(open(sys.argv[1]))
 s["cameras"] = s["cameras"][:2]
@@ -30,7 +30,7 @@ for i, c in enumerate(s["cameras"]):
         k[f] *= scale
     for f in ("cx", "cy"):
         k[f] = scale * (k[f] + 0.5) - 0.5
-    k["width"], k["height"] = 1280, int(k["height"] * scale)
+    k["width"], k["height"] = 1280, 720  # the whole 720p frame: no padding rows to centroid
 s["optics"]["psf_sigma_px"] *= scale
 for f in ("focal_px", "principal_point_px", "skew_px"):
     s["calibration_errors"][f] *= scale

@@ -2,7 +2,9 @@
 #   storetrack-trigger-emu --(gpio-sim lines)--> rig_camera_emu --(vivid output -> loopback)-->
 #   vivid capture --(V4L2)--> storetrack-unit x2 (gpio-slave pairing, centroiding) --(CAN FD,
 #   vcan0)--> storetrack-host (align, identify, triangulate, pose, GUM) --> Chapter 10 + CSV
-# checked against the simulator's truth (check_e2e.py).
+# checked against the simulator's truth (check_e2e.py). The scene is the pendulum scenario (its
+# board stands in for the store): with two cameras it is the one the host identifies and solves
+# honestly (store_separation's first two cameras see 3 store marks; its pose fails the truth).
 #
 # Two cameras, each a real vivid instance (n_devs=2: capture + HDMI output, looped) read by its
 # own storetrack-unit process; one trigger line per consumer (a line has one requester), all
@@ -12,12 +14,13 @@
 # units run --triggered-only: the dark frames between triggers and the second capture of a frame
 # claim no edge (counted). The frames are rendered before the VM boots (e2e.host.sh).
 #
-# Rates: the cameras are 1280 x 682 (e2e.host.sh) in vivid's 1280x720 frames at E2E_VIVID_FPS
-# (24: the lowest 720p rate; every dark frame is captured and centroided too, and one TCG vCPU
-# runs both cameras). A queued frame is captured within one to two vivid frame periods after the
-# emulator reacts; the trigger runs at E2E_RATE_HZ (5) so that this plus the emulator's reaction
-# under TCG fits the units' pairing window [1 ms, 0.8 period], and the second capture of a frame
-# (83 ms + reaction) stays ahead of the next edge's window.
+# Rates: the cameras are 1280 x 720 (e2e.host.sh), vivid's 720p frames at E2E_VIVID_FPS
+# (15; one TCG vCPU runs vivid, both units, the host and the emulators). A queued frame is
+# captured within one to two vivid frame periods after the emulator reacts; the trigger runs at
+# E2E_RATE_HZ (2) so that this plus the emulator's reaction under TCG fits the units' pairing
+# window [1 ms, period - 10 ms], and the second capture of a frame (up to 2 vivid periods +
+# reaction) stays ahead of the next edge's window. Frames outside every window are not centroided
+# (--triggered-only).
 . "$(dirname "$0")/lib.sh"
 need_bin UNIT STORETRACK_BIN_UNIT storetrack-unit
 need_bin HOST STORETRACK_BIN_HOST storetrack-host
@@ -34,12 +37,15 @@ if [ ! -e "$P/ok" ]; then
   fail "host-side preparation (e2e.host.sh) did not finish; see $VMRIG_OUT/e2e.host.log"
 fi
 N=$(python3 -c "import json;print(json.load(open('$P/setup/setup.json'))['num_exposures'])")
-RATE=${E2E_RATE_HZ:-5}
-VFPS=${E2E_VIVID_FPS:-24}
+RATE=${E2E_RATE_HZ:-2}
+VFPS=${E2E_VIVID_FPS:-15}
 PERIOD_NS=$((1000000000 / RATE))
-# Pairing window (frame time stamp - edge) = [1 ms, 0.8 period]: centre 0.4 period + 0.5 ms.
-TOL_NS=$((PERIOD_NS * 2 / 5 - 500000))
+# Pairing window (frame time stamp - edge) = [1 ms, period - 10 ms] (its half-width must stay
+# below half a period); edges further than 0.45 period off the grid would be extra (TCG's
+# gpio-sim interrupt latency is not what this test is about: gpio_slave checks the edges).
+TOL_NS=$(((PERIOD_NS - 11000000) / 2))
 LAT_NS=$((TOL_NS + 1000000))
+PHASE_NS=$((PERIOD_NS * 9 / 20))
 echo "e2e: $N triggers at $RATE Hz, vivid at $VFPS fps, pairing window [$(((LAT_NS - TOL_NS) / 1000000)), $(((LAT_NS + TOL_NS) / 1000000))] ms"
 
 # --- vivid: two instances, each HDMI capture (input 3) looped from its HDMI output (output 1)
@@ -49,27 +55,11 @@ for i in 0 1; do
   C=/dev/video$((2 * i)); O=/dev/video$((2 * i + 1))
   v4l2-ctl -d $C --info | grep -q "vivid-00$i" || { v4l2-ctl -d $C --info; fail "$C is not vivid instance $i"; }
   v4l2-ctl -d $C -i 3 >/dev/null && v4l2-ctl -d $O -o 1 >/dev/null || fail "vivid $i HDMI in/out"
-  v4l2-ctl -d $C --list-dv-timings > $T/dv$i.txt
-  idx=$(python3 - $T/dv$i.txt "$VFPS" <<'PY'
-import re, sys
-text, want = open(sys.argv[1]).read(), float(sys.argv[2])
-best = None
-for block in re.split(r"\n(?=\s*Index:)", text):
-    m = re.search(r"Index:\s*(\d+)", block)
-    w = re.search(r"Active width:\s*(\d+)", block)
-    h = re.search(r"Active height:\s*(\d+)", block)
-    f = re.search(r"\(([\d.]+) frames per second\)", block)
-    if m and w and h and f and int(w.group(1)) == 1280 and int(h.group(1)) == 720 \
-            and "progressive" in block:
-        d = abs(float(f.group(1)) - want)
-        if best is None or d < best[0]:
-            best = (d, m.group(1))
-print(best[1] if best else "")
-PY
-)
-  [ -n "$idx" ] || { head -30 $T/dv$i.txt; fail "no 1280x720 progressive DV timing in vivid"; }
-  v4l2-ctl -d $C --set-dv-bt-timings index=$idx >/dev/null &&
-    v4l2-ctl -d $O --set-dv-bt-timings index=$idx >/dev/null || fail "DV timings"
+  # CVT reduced-blanking timings at E2E_VIVID_FPS: the lowest 720p rates are CVT ones (the
+  # presets start at 24 Hz); vivid's minimum pixel clock (14 MHz) allows about 15 Hz.
+  cvt="cvt,width=1280,height=720,fps=$VFPS,interlaced=0,reduced-blanking=1"
+  v4l2-ctl -d $C --set-dv-bt-timings $cvt >/dev/null 2>&1 &&
+    v4l2-ctl -d $O --set-dv-bt-timings $cvt >/dev/null 2>&1 || fail "vivid $i: CVT timings $cvt refused"
   v4l2-ctl -d $O --set-fmt-video-out width=1280,height=720,pixelformat=GREY >/dev/null || fail "output GREY"
   v4l2-ctl -d $C --set-fmt-video width=1280,height=720,pixelformat=GREY >/dev/null || fail "capture GREY"
   # Between triggers the output queue is empty and the capture shows the test pattern: black,
@@ -77,7 +67,8 @@ PY
   black=$(v4l2-ctl -d $C -L | sed -n 's/^[[:space:]]*\([0-9]*\): 100% Black$/\1/p' | head -1)
   [ -n "$black" ] || fail "vivid has no '100% Black' test pattern"
   v4l2-ctl -d $C -c loop_video=1,osd_text_mode=2,test_pattern=$black || fail "vivid controls"
-  v4l2-ctl -d $C --get-dv-timings | grep -E "frames per second" | sed "s/^/vivid $i: /"
+  v4l2-ctl -d $C --get-dv-timings | grep -E "frames per second" | sed "s/^/vivid $i capture: /"
+  v4l2-ctl -d $O --get-dv-timings | grep -E "frames per second" | sed "s/^/vivid $i output: /"
 done
 
 # --- trigger lines, CAN bus
@@ -86,8 +77,12 @@ vcan_up vcan0
 ip link set vcan0 txqueuelen 1000
 
 # --- host
+# The trigger emulator's sim-pull backend writes the three lines one after another: under TCG
+# the units' edges of one pulse are up to tens of ms apart (a real trigger fans out within
+# microseconds), so the aligner accepts mid-points up to 0.2 period apart.
 cat > $T/host.json <<EOF
-{"aligner": {"max_wait_ms": 3000, "min_cameras": 2, "max_pending": 256}}
+{"aligner": {"max_wait_ms": 3000, "min_cameras": 2, "max_pending": 256,
+             "max_mid_time_spread_ms": $((PERIOD_NS / 5000000))}}
 EOF
 S=$P/setup
 "$HOST" --calibration $S/rig_calibration.json --pylon-survey $S/pylon_survey.json \
@@ -97,10 +92,13 @@ S=$P/setup
   --log-level warn > $T/host.out 2>&1 & HOSTP=$!
 waitfor "[ \$(grep -c vcan0 /proc/net/can/rcvlist_all) -ge 1 ]" 400 || echo "note: host receiver not seen in rcvlist_all"
 
-# --- units: V4L2 capture, GPIO slave trigger, CAN FD
-printf '{"trigger": {"match_tolerance_ns": %d}}\n' $TOL_NS > $T/unit.json
+# --- units: V4L2 capture, GPIO slave trigger, CAN FD. Each unit has a CPU of its own in the
+# aircraft; here one vCPU runs everything, so the units run SCHED_FIFO: an exposure's CAN FD
+# frames then leave as one burst (a unit preempted mid-transfer for longer than the host's
+# 20 ms reassembly timeout loses the exposure).
+printf '{"trigger": {"match_tolerance_ns": %d, "edge_phase_tolerance_ns": %d}}\n' $TOL_NS $PHASE_NS > $T/unit.json
 for i in 0 1; do
-  "$UNIT" run --config $T/unit.json --source v4l2 --device /dev/video$((2 * i)) --input 3 \
+  chrt -f 10 "$UNIT" run --config $T/unit.json --source v4l2 --device /dev/video$((2 * i)) --input 3 \
     --width 1280 --height 720 --trigger gpio-slave --gpio-chip "$GS_CHIP" --gpio-line $i \
     --rate-hz "$RATE" --latency-ns $LAT_NS --triggered-only --can vcan0 --no-modbus \
     --unit-id $i --camera-id $i --clock-state locked --duration-s 150 \
