@@ -348,6 +348,19 @@ void MarkMatcher::predict(Work& w, double t_s) const {
       body_cov[b] = p.P.topLeftCorner<6, 6>();
       body_src[b] = PredictionSource::kBodyTrack;
     } else if (priors_[b].valid) {
+      // Acquisition: the prior pose is the filter's prediction (at rest, rates with their
+      // a-priori spread), so even one or two marks, or a collinear row, start the track; the
+      // innovation test then checks the marks against the prior and the survey together.
+      BodyTrack p;
+      p.valid = true;
+      p.t_s = t_s;
+      p.T_w_b = priors_[b].T_w_b;
+      p.P.topLeftCorner<6, 6>() = priors_[b].cov;
+      const double wr = config_.max_angular_speed_radps, vr = config_.max_speed_mps;
+      p.P.block<3, 3>(6, 6) = wr * wr * Mat3::Identity();
+      p.P.block<3, 3>(9, 9) = vr * vr * Mat3::Identity();
+      w.body[b].predicted = true;
+      w.body[b].pred = p;
       body_T[b] = priors_[b].T_w_b;
       body_cov[b] = priors_[b].cov;
       body_src[b] = PredictionSource::kPrior;
