@@ -11,17 +11,19 @@
 //     // m.marks: per id, the (camera_id, raw px, undistorted px, sigma_px) observations
 //     processor.process(exposure, m.ids);
 //
-// Method (docs/matching.md): each mark id gets a predicted 3-D position and covariance from,
-// in order of preference, its own constant-velocity track (previous exposures), the
-// constant-velocity track of its body's pose (marks that were hidden), or the prior pose of
-// its body (initial acquisition). The prediction is projected into every camera with the
-// calibrated model; an observation is assigned to a mark only if each is the other's ONLY
+// Method (docs/matching.md): each mark id gets a predicted 3-D position and covariance from
+// its own constant-velocity track (previous exposures) or, whichever is tighter, its body's
+// constant-velocity pose filter (an EKF over pose, angular rate and velocity, which keeps
+// predicting hidden marks and the roll about a collinear row); a body without a track starts
+// its filter from its prior pose (acquisition). The prediction is projected into every camera with
+// the calibrated model; an observation is assigned to a mark only if each is the other's ONLY
 // candidate inside the chi-square gate built from the prediction covariance, the calibration
 // covariance and the observation's sigma_px (ambiguities are rejected and counted, never
 // resolved by "nearest"). Marks assigned in >= 2 cameras are then triangulated and must pass
 // the multi-view epipolar test (reprojection chi-square, dof 2n - 3, with the same sigmas); a
 // failing observation is removed only when it is the unique culprit. Finally each body's
-// identified marks must fit its surveyed layout (rigid fit chi-square); a fitted body pose
+// identified marks update its pose filter, whose innovation chi-square is the layout test; a
+// fitted body pose
 // re-predicts that body's unassigned marks with a tight covariance and the gating is repeated
 // (bootstrap from a coarse prior). Tracks are updated from the triangulated positions.
 #pragma once
