@@ -67,6 +67,15 @@ void fill_pose(const BodySolution& b, const uncertainty::CalibrationFactors& f, 
   out.loadings = b.loadings;
 }
 
+// out += A L for row-major loadings: each output row is a combination of L's contiguous rows
+// (vectorised axpys instead of strided dot products per coefficient).
+template <typename MatA, typename MatL, typename MatOut>
+void add_product(const MatA& A, const MatL& L, MatOut& out) {
+  for (Eigen::Index r = 0; r < A.rows(); ++r)
+    for (Eigen::Index j = 0; j < A.cols(); ++j)
+      if (A(r, j) != 0.0) out.row(r) += A(r, j) * L.row(j);
+}
+
 // Left-perturbation difference xi with T_a = perturb_left(T_b, xi).
 Vec6 pose_difference(const Transform& T_a, const Transform& T_b) {
   Vec6 xi;
@@ -107,6 +116,10 @@ struct ExposureProcessor::Prepared {
     bool has_previous = false;
     Vec3 previous_p_w = Vec3::Zero();
     double previous_dt_s = 0;
+    /// Position predicted by the track for the reference time: starts the triangulation's
+    /// Gauss-Newton refinement (skips the linear initialisation).
+    bool has_prediction = false;
+    Vec3 predicted_p_w = Vec3::Zero();
   };
   std::vector<Mark> marks;
   std::vector<double> dt_s;  ///< per rig slot: camera mid-time - reference time
@@ -246,6 +259,7 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
       if (mi < 0) {
         mi = static_cast<int>(prep.marks.size());
         Prepared::Mark m;
+        m.obs.reserve(rig_.cameras.size());  // one allocation per mark
         m.id = id;
         if (pylon_.find(id) != nullptr) {
           m.body = 'p';
@@ -255,6 +269,8 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
         const Track& tr = tracks_[static_cast<size_t>(id)];
         const double since_s = static_cast<double>(prep.t_ref_tai_ns - tr.t_ns) * 1e-9;
         if (tr.valid && since_s > 0 && since_s <= config_.tracking_max_gap_s) {
+          m.has_prediction = true;
+          m.predicted_p_w = tr.velocity_valid ? Vec3(tr.p_w + tr.velocity_w * since_s) : tr.p_w;
           if (tr.velocity_valid) {
             m.velocity_w = tr.velocity_w;
             m.velocity_valid = true;
@@ -305,7 +321,7 @@ void ExposureProcessor::solve(const Prepared& prep,
   out.marks.reserve(prep.marks.size());
   std::vector<triangulate::Observation> tri_obs;
   triangulate::Result tri;
-  const triangulate::Options tri_options;
+  triangulate::Options tri_options;
   for (const Prepared::Mark& mark : prep.marks) {
     if (static_cast<int>(mark.obs.size()) < config_.min_cameras_per_mark) {
       ++counters.too_few_cameras;
@@ -322,6 +338,8 @@ void ExposureProcessor::solve(const Prepared& prep,
       t.displacement_w = mark.velocity_w * prep.dt_s[static_cast<size_t>(o.slot)];
       tri_obs.push_back(t);
     }
+    tri_options.initial_p_w.reset();
+    if (mark.has_prediction) tri_options.initial_p_w = mark.predicted_p_w;
     if (!triangulate::triangulate(tri_obs, tri_options, tri)) {
       ++counters.triangulation_failed;
       continue;
@@ -335,6 +353,7 @@ void ExposureProcessor::solve(const Prepared& prep,
       velocity_valid = true;
       for (size_t i = 0; i < mark.obs.size(); ++i)
         tri_obs[i].displacement_w = velocity_w * prep.dt_s[static_cast<size_t>(mark.obs[i].slot)];
+      tri_options.initial_p_w = tri.p_w;
       if (!triangulate::triangulate(tri_obs, tri_options, tri)) {
         ++counters.triangulation_failed;
         continue;
@@ -469,7 +488,7 @@ void ExposureProcessor::solve(const Prepared& prep,
       sol.loadings = Loadings6::Zero(6, nz);
       for (size_t k = 0; k < idx.size(); ++k) {
         const MarkResult& m = out.marks[idx[k]];
-        sol.loadings.noalias() += bf.d_pose_d_point[k].lazyProduct(m.loadings);
+        add_product(bf.d_pose_d_point[k], m.loadings, sol.loadings);
         sol.cov_centroid.noalias() +=
             bf.d_pose_d_point[k] * m.cov_by_source[kCentroid] * bf.d_pose_d_point[k].transpose();
         sol.cov_survey.noalias() +=
@@ -493,7 +512,9 @@ void ExposureProcessor::solve(const Prepared& prep,
       Mat6 A_p, A_s;
       pose::relative_pose_jacobians(pylon.T_w_b, store.T_w_b, A_p, A_s);
       // Common calibration factors add as loadings (correlated), the rest independently.
-      rel.loadings = A_p.lazyProduct(pylon.loadings) + A_s.lazyProduct(store.loadings);
+      rel.loadings = Loadings6::Zero(6, nz);
+      add_product(A_p, pylon.loadings, rel.loadings);
+      add_product(A_s, store.loadings, rel.loadings);
       rel.cov_centroid =
           A_p * pylon.cov_centroid * A_p.transpose() + A_s * store.cov_centroid * A_s.transpose();
       rel.cov_survey =

@@ -1,6 +1,7 @@
 #include "storetrack/rigid/rigid_check.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <stdexcept>
 
@@ -9,6 +10,31 @@
 namespace storetrack::rigid {
 
 using geometry::Vec3;
+
+namespace {
+
+// Bonferroni per-pair threshold: chi-square(1) quantile at 1 - alpha / pairs. The inverse
+// incomplete gamma function costs as much as a few dozen pair tests and the same few values
+// recur every exposure, so the last ones are kept (per thread: no locking).
+double pair_threshold(double alpha, size_t pairs) {
+  struct Entry {
+    double alpha = -1;
+    size_t pairs = 0;
+    double threshold = 0;
+  };
+  thread_local std::array<Entry, 16> cache{};
+  thread_local size_t next = 0;
+  for (const Entry& e : cache)
+    if (e.alpha == alpha && e.pairs == pairs) return e.threshold;
+  Entry& e = cache[next];
+  next = (next + 1) % cache.size();
+  e.alpha = alpha;
+  e.pairs = pairs;
+  e.threshold = uncertainty::chi_square_quantile(1.0 - alpha / static_cast<double>(pairs), 1.0);
+  return e.threshold;
+}
+
+}  // namespace
 
 PairTest test_pair(const MarkEstimate& a, const MarkEstimate& b) {
   PairTest t;
@@ -20,15 +46,17 @@ PairTest test_pair(const MarkEstimate& a, const MarkEstimate& b) {
   const Vec3 u = t.distance_m > 0 ? Vec3(d / t.distance_m) : Vec3::UnitX();
   // Independent parts add; the common calibration part enters through L_a - L_b.
   double var = u.dot((a.cov_independent + b.cov_independent) * u);
-  // (u^T (L_a - L_b))^2 summed over factors, without temporaries (hot loop: all pairs).
+  // |u^T (L_a - L_b)|^2 over the factors: a combination of the loadings' rows (row-major,
+  // contiguous: one vectorised pass, no temporaries; hot loop over all pairs).
   const auto* La = a.loadings;
   const auto* Lb = b.loadings;
-  const Eigen::Index nz = La != nullptr ? La->cols() : (Lb != nullptr ? Lb->cols() : 0);
-  for (Eigen::Index j = 0; j < nz; ++j) {
-    double s = 0;
-    if (La != nullptr) s += u.dot(La->col(j));
-    if (Lb != nullptr) s -= u.dot(Lb->col(j));
-    var += s * s;
+  if (La != nullptr && Lb != nullptr) {
+    var += (u(0) * (La->row(0) - Lb->row(0)) + u(1) * (La->row(1) - Lb->row(1)) +
+            u(2) * (La->row(2) - Lb->row(2)))
+               .squaredNorm();
+  } else if (La != nullptr || Lb != nullptr) {
+    const auto* L = La != nullptr ? La : Lb;
+    var += (u(0) * L->row(0) + u(1) * L->row(1) + u(2) * L->row(2)).squaredNorm();
   }
   var += a.survey_sigma_m * a.survey_sigma_m + b.survey_sigma_m * b.survey_sigma_m;
   t.sigma_m = std::sqrt(var);
@@ -56,8 +84,7 @@ RigidCheckResult check_rigid_body(std::span<const MarkEstimate> marks,
   bool first = true;
   while (active_count >= 2) {
     const size_t pairs = active_count * (active_count - 1) / 2;
-    const double threshold = uncertainty::chi_square_quantile(
-        1.0 - config.false_alarm_probability / static_cast<double>(pairs), 1.0);
+    const double threshold = pair_threshold(config.false_alarm_probability, pairs);
     if (first) result.pair_threshold_z2 = threshold;
     bool any_fail = false;
     size_t worst = n;

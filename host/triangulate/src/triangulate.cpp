@@ -46,10 +46,10 @@ std::optional<Vec3> triangulate_linear(std::span<const Observation> observations
   return X;
 }
 
-bool triangulate(std::span<const Observation> observations, const Options& options, Result& out) {
-  auto init = triangulate_linear(observations);
-  if (!init) return false;
-  Vec3 X = *init;
+namespace {
+
+bool refine(std::span<const Observation> observations, const Options& options, Vec3 X,
+            Result& out) {
   const size_t n = observations.size();
   Mat3 H = Mat3::Zero();
   int it = 0;
@@ -108,6 +108,16 @@ bool triangulate(std::span<const Observation> observations, const Options& optio
   out.p_w = X;
   out.iterations = it;
   return out.p_w.allFinite() && out.cov_centroid.allFinite();
+}
+
+}  // namespace
+
+bool triangulate(std::span<const Observation> observations, const Options& options, Result& out) {
+  if (options.initial_p_w && options.initial_p_w->allFinite() &&
+      refine(observations, options, *options.initial_p_w, out))
+    return true;
+  const auto init = triangulate_linear(observations);
+  return init && refine(observations, options, *init, out);
 }
 
 }  // namespace storetrack::triangulate

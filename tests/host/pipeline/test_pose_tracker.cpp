@@ -22,9 +22,9 @@ using geometry::Vec3;
 using Vec6 = Eigen::Matrix<double, 6, 1>;
 
 #ifdef STORETRACK_SANITIZE
-constexpr int kSeeds = 80;
+constexpr int kSeeds = 60;
 #else
-constexpr int kSeeds = 300;
+constexpr int kSeeds = 200;
 #endif
 constexpr int kSolvedBefore = 3;  // exposures with all marks before the store marks vanish
 constexpr int kHidden = 10;       // 25 ms at 400 fps: longer than the 20 ms gap
@@ -52,12 +52,11 @@ Vec6 error_to_truth(const sim::Simulator& sim, const ExposureResult& r) {
 
 TEST(PoseTracker, ExtrapolatesHonestlyWithinTheGapAndStopsAfterIt) {
   const sim::Scenario scenario = sim::load_scenario(test::scenario_path("store_separation"));
+  // The product defaults: 20 m/s^2 and 5 rad/s^2 of unmodelled relative acceleration (the
+  // scenario's own, after the ejector stroke, are |(-3, 0.4, 9.79)| m/s^2 and 0.8 rad/s^2;
+  // docs/uncertainty.md reports the roll coverage with those).
   PoseTrackerConfig config;
-  config.max_gap_s = 0.02;
-  // The test point's relative acceleration after the ejector stroke: gravity and drag,
-  // |(-3, 0.4, 9.79)| m/s^2 and 0.8 rad/s^2 (common/sim/scenarios/store_separation.json).
-  config.accel_sigma_m_s2 = 10.0;
-  config.angular_accel_sigma_rad_s2 = 1.0;
+  ASSERT_EQ(config.max_gap_s, 0.02);
   const double frame_s = 1.0 / scenario.frame_rate_hz;
   // After the release and the 50 ms ejector stroke (20 + 50 ms), leaving room for the window.
   const int first_k = static_cast<int>(std::ceil(0.1 / frame_s));

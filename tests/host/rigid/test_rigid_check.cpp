@@ -18,7 +18,7 @@ using geometry::Vec3;
 struct Scene {
   std::vector<Vec3> q;
   std::vector<Mat3> cov;
-  std::vector<Eigen::Matrix<double, 3, Eigen::Dynamic>> loadings;
+  std::vector<Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>> loadings;
   std::vector<Mat3> chol;
 };
 

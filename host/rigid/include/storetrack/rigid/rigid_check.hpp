@@ -24,7 +24,8 @@ struct MarkEstimate {
   double survey_sigma_m = 0;                       ///< per axis
   geometry::Vec3 p_w = geometry::Vec3::Zero();     ///< triangulated position
   geometry::Mat3 cov_independent = geometry::Mat3::Zero();
-  const Eigen::Matrix<double, 3, Eigen::Dynamic>* loadings = nullptr;  ///< may be null: no common
+  /// Loadings on the common factors (uncertainty::Loadings3); may be null: no common part.
+  const Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>* loadings = nullptr;
 };
 
 struct RigidCheckConfig {

@@ -36,6 +36,10 @@ struct Options {
   /// Also fill d_pose / d_intrinsics of Result::jacobians (needed for the calibration budget);
   /// without them only d_point_cam / d_point_world are set.
   bool calibration_jacobians = true;
+  /// Starting point of the Gauss-Newton refinement instead of the linear (DLT) estimate, e.g.
+  /// the position predicted by tracking (saves the undistortion of every observation). The
+  /// refinement converges to the same point; on failure from it the linear start is tried.
+  std::optional<geometry::Vec3> initial_p_w;
 };
 
 struct Result {

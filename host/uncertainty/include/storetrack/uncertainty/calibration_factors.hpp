@@ -20,10 +20,12 @@
 
 namespace storetrack::uncertainty {
 
-/// Loadings of a 3-vector on the common factors z (3 x num_factors).
-using Loadings3 = Eigen::Matrix<double, 3, Eigen::Dynamic>;
+/// Loadings of a 3-vector on the common factors z (3 x num_factors). Row-major: the hot
+/// operations (rigid-body pair variances, pose loadings, covariances) combine whole rows, which
+/// are then contiguous and vectorise.
+using Loadings3 = Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>;
 /// Loadings of a 6-vector (pose perturbation) on the common factors z (6 x num_factors).
-using Loadings6 = Eigen::Matrix<double, 6, Eigen::Dynamic>;
+using Loadings6 = Eigen::Matrix<double, 6, Eigen::Dynamic, Eigen::RowMajor>;
 
 class CalibrationFactors {
  public:
@@ -66,11 +68,12 @@ auto covariance_of(const Eigen::MatrixBase<Derived>& loadings, const Calibration
   using Row = typename Derived::PlainObject;
   using Out = Eigen::Matrix<double, Row::RowsAtCompileTime, Row::RowsAtCompileTime>;
   Out out = Out::Zero(loadings.rows(), loadings.rows());
-  // Sum of fixed-size rank-1 updates over the source's columns: for 3- and 6-row loadings this
-  // is several times faster than a dynamic-depth product (same sum, same order of terms).
-  for (int j = begin; j < begin + count; ++j) {
-    const auto c = loadings.col(j);
-    out.noalias() += c * c.transpose();
+  if (count > 0) {
+    // Symmetric: one dot product of (contiguous, for row-major loadings) rows per element.
+    const auto block = loadings.middleCols(begin, count);
+    for (Eigen::Index r = 0; r < loadings.rows(); ++r)
+      for (Eigen::Index c = r; c < loadings.rows(); ++c)
+        out(r, c) = out(c, r) = block.row(r).dot(block.row(c));
   }
   return out;
 }
