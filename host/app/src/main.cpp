@@ -542,7 +542,8 @@ int main(int argc, char** argv) {
                         {"too_few_cameras", pc.too_few_cameras},
                         {"triangulation_failed", pc.triangulation_failed},
                         {"marks_excluded", pc.marks_excluded},
-                        {"pose_failed", pc.pose_failed}};
+                        {"pose_failed", pc.pose_failed},
+                        {"degenerate_geometry", pc.degenerate_geometry}};
   const auto& cc = sinks.ch10.counters();
   stats["outputs"] = {{"inetx_sent", sinks.inetx.counters().packets_sent},
                       {"inetx_send_errors", sinks.inetx.counters().send_errors},

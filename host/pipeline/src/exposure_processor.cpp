@@ -7,6 +7,9 @@
 #include <random>
 #include <stdexcept>
 
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+
 #include "sample_fields.hpp"
 #include "storetrack/pose/body_pose.hpp"
 #include "storetrack/triangulate/triangulate.hpp"
@@ -22,6 +25,19 @@ using geometry::Vec6;
 using uncertainty::Source;
 
 namespace {
+
+/// True when the largest rotation standard uncertainty implied by a body fit's normal matrix
+/// (J^T W J over left perturbations (r, t)) is finite and at most max_rotation_sigma_rad.
+bool pose_well_determined(const geometry::Mat6& normal_matrix, double max_rotation_sigma_rad) {
+  const Eigen::LDLT<geometry::Mat6> ldlt(normal_matrix);
+  if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return false;
+  const geometry::Mat6 cov = ldlt.solve(geometry::Mat6::Identity());
+  if (!cov.allFinite()) return false;
+  const Eigen::SelfAdjointEigenSolver<geometry::Mat3> es(cov.topLeftCorner<3, 3>(),
+                                                         Eigen::EigenvaluesOnly);
+  const double largest = es.eigenvalues().maxCoeff();
+  return largest >= 0 && std::sqrt(largest) <= max_rotation_sigma_rad;
+}
 
 constexpr int kCentroid = uncertainty::index(Source::kCentroid);
 constexpr int kIntrinsic = uncertainty::index(Source::kIntrinsic);
@@ -480,6 +496,15 @@ void ExposureProcessor::solve(const Prepared& prep,
     }
     pose::BodyFit bf;
     if (!pose::fit_body(q, p, cov, sigma, bf)) return sol;
+    // First-order propagation is only honest while the pose is well determined: a nearly
+    // collinear set of marks (one row of the store, three marks of the pendulum's cross) leaves
+    // the rotation about their line to the survey noise, and the linearised covariance then
+    // understates errors of tens of degrees. The rotation block of the fit's own covariance
+    // (its normal matrix, weighted by the marks' total covariances) must stay small.
+    if (!pose_well_determined(bf.normal_matrix, config_.max_pose_rotation_sigma_rad)) {
+      ++counters.degenerate_geometry;
+      return sol;
+    }
     sol.valid = true;
     sol.T_w_b = bf.T_w_b;
     sol.marks_used = static_cast<int>(idx.size());

@@ -110,7 +110,7 @@ void run_exposure(const sim::Simulator& sim, MarkMatcher& matcher, int k,
     for (int j = 0; j < obs[e].mark_count; ++j) {
       const int truth = truth_ids[e][j];
       const int got = r.ids[e][j];
-      if (truth >= 0 && !(obs[e].marks[j].flags & msg::mark_flags::kMerged)) {
+      if (truth >= 0 && !(obs[e].marks[j].flags & MatcherConfig{}.rejected_mark_flags)) {
         ++views_of_id[truth];
         ++tally.observations_with_true_id;
       }
@@ -507,6 +507,7 @@ TEST(MarkMatcher, BadInputIsCounted) {
   obs[0].marks[0].x_px = std::nanf("");
   obs[0].marks[1].sigma_px = 0;
   obs[0].marks[2].flags = msg::mark_flags::kMerged;
+  obs[0].marks[3].flags = msg::mark_flags::kBorder;  // cut by the image edge: biased centroid
   msg::MarkObservations unknown = obs[1];
   unknown.camera_id = 77;
   obs.push_back(unknown);
@@ -514,11 +515,12 @@ TEST(MarkMatcher, BadInputIsCounted) {
   const auto& c = s.matcher->counters();
   EXPECT_EQ(c.bad_observation, 1u);
   EXPECT_EQ(c.fallback_sigma, 1u);
-  EXPECT_EQ(c.rejected_by_flags, 1u);
+  EXPECT_EQ(c.rejected_by_flags, 2u);
   EXPECT_EQ(c.duplicate_camera, 1u);
   EXPECT_EQ(c.unknown_camera, 1u);
   EXPECT_EQ(r.ids[0][0], -1);
   EXPECT_EQ(r.ids[0][2], -1);
+  EXPECT_EQ(r.ids[0][3], -1);
   for (int id : r.ids[3])
     EXPECT_EQ(id, -1);
 }

@@ -1,8 +1,10 @@
 // ExposureProcessor against simulator truth: marks and store pose vs truth, FtiSample fields
 // and flags, the JCGM 101 Monte Carlo mode agreeing with the first-order covariance, bad input
 // counted, displaced-mark exclusion end to end.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <initializer_list>
 
 #include <gtest/gtest.h>
 
@@ -165,6 +167,32 @@ TEST(ExposureProcessor, DisplacedMarkIsExcludedAndFlagged) {
   EXPECT_EQ(f.proc.counters().marks_excluded, 1u);
 }
 
+// One row of store marks (the same clock position at three stations) is collinear: the roll about
+// the row is left to the survey noise. The processor must refuse that pose, not publish it with
+// a linearised covariance that no longer holds; one more mark off the row makes it valid again.
+TEST(ExposureProcessor, CollinearStoreMarksAreRefusedNotTrusted) {
+  const auto keep_only = [](test::SimExposure in, std::initializer_list<int> store_ids) {
+    for (auto& cam : in.ids)
+      for (int& id : cam)
+        if (id >= 100 && std::find(store_ids.begin(), store_ids.end(), id) == store_ids.end())
+          id = -1;
+    return in;
+  };
+  Fixture f("static");
+  const auto row = keep_only(test::make_exposure(f.sim, 10), {104, 108, 112});
+  const ExposureResult r = f.proc.process(row.exposure, row.ids);
+  EXPECT_FALSE(r.T_p_s.valid);
+  EXPECT_FALSE(r.sample.status & msg::fti_status::kValid);
+  EXPECT_TRUE(r.sample.status & msg::fti_status::kDegradedGeometry);
+  EXPECT_EQ(f.proc.counters().degenerate_geometry, 1u);
+  EXPECT_TRUE(r.T_w_p.valid);  // the pylon's marks are fine
+
+  const auto off_row = keep_only(test::make_exposure(f.sim, 11), {104, 108, 112, 107});
+  const ExposureResult r2 = f.proc.process(off_row.exposure, off_row.ids);
+  EXPECT_TRUE(r2.T_p_s.valid);
+  EXPECT_EQ(f.proc.counters().degenerate_geometry, 1u);
+}
+
 TEST(ExposureProcessor, BadInputIsCountedNotUsed) {
   Fixture f("static");
   auto in = test::make_exposure(f.sim, 3);
@@ -185,7 +213,11 @@ TEST(ExposureProcessor, BadInputIsCountedNotUsed) {
   EXPECT_EQ(f.proc.counters().bad_observation, 2u);
   EXPECT_TRUE(r.sample.status & msg::fti_status::kCameraMissing);
   EXPECT_TRUE(r.sample.status & msg::fti_status::kDegradedGeometry);
-  EXPECT_TRUE(r.T_p_s.valid);  // three cameras still see enough
+  // Before release each store mark is seen by one camera pair (0+1 or 2+3): without camera 1
+  // only the row 107/111/115 is triangulated, collinear, so the store pose is refused.
+  EXPECT_TRUE(r.T_w_p.valid);
+  EXPECT_FALSE(r.T_p_s.valid);
+  EXPECT_EQ(f.proc.counters().degenerate_geometry, 1u);
   pipeline::MarkIds short_ids = in.ids;
   short_ids.pop_back();
   EXPECT_THROW(f.proc.process(in.exposure, short_ids), std::invalid_argument);

@@ -48,7 +48,9 @@ struct MatcherConfig {
   /// gates are chi-square quantiles at this probability; no fixed pixel gates).
   double gate_probability = 0.9999;
   /// Observations carrying any of these msg::mark_flags bits are never matched.
-  std::uint8_t rejected_mark_flags = msg::mark_flags::kMerged;
+  /// Merged blobs mix two marks; border blobs are cut by the image edge, so their centroid is
+  /// pulled inwards by up to a radius (seen: 3 px at u = 1917.6 of 1920).
+  std::uint8_t rejected_mark_flags = msg::mark_flags::kMerged | msg::mark_flags::kBorder;
   /// Used when an observation's sigma_px is not a positive finite number (counted).
   double fallback_sigma_px = 0.2;
   /// Quantisation step of the wire pixel coordinates; step^2/12 is added to each variance.

@@ -36,6 +36,10 @@ struct ProcessorConfig {
   double coverage_factor = 2.0;  ///< k of the expanded uncertainty U = k u
   int min_cameras_per_mark = 2;
   int min_pose_marks = 3;
+  /// A body pose is refused (sample not valid, degraded geometry) when the rotation standard
+  /// uncertainty its marks' layout allows exceeds this [rad]: nearly collinear marks, where
+  /// first-order propagation no longer holds.
+  double max_pose_rotation_sigma_rad = 0.02;
   int reference_camera_id = -1;                 ///< -1: the first camera of the RigCalibration
   double rigid_false_alarm_probability = 1e-3;  ///< per body and exposure (intact body)
   double tracking_max_gap_s = 0.05;             ///< older previous positions give no velocity
@@ -128,8 +132,9 @@ struct ProcessorCounters {
   std::uint64_t ambiguous_ids = 0;    ///< same id twice in one camera: both dropped
   std::uint64_t too_few_cameras = 0;  ///< identified marks seen by < min cameras
   std::uint64_t triangulation_failed = 0;
-  std::uint64_t marks_excluded = 0;  ///< by the rigid-body test
-  std::uint64_t pose_failed = 0;     ///< exposures without a valid T_p_s
+  std::uint64_t marks_excluded = 0;       ///< by the rigid-body test
+  std::uint64_t pose_failed = 0;          ///< exposures without a valid T_p_s
+  std::uint64_t degenerate_geometry = 0;  ///< body poses refused: rotation sigma above the max
 };
 
 class ExposureProcessor {
