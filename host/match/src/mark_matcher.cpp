@@ -71,6 +71,15 @@ Eigen::Matrix<double, 3, 6> point_pose_jacobian(const Transform& T_w_b, const Ve
   return G;
 }
 
+/// Inverse of a 6x6 SPD matrix from its Cholesky factor, one column at a time: the matrix
+/// right-hand side would go through Eigen's blocked GEMM path, slower at this size.
+Mat6 spd_inverse(const Eigen::LLT<Mat6>& llt) {
+  Mat6 out;
+  for (int i = 0; i < 6; ++i)
+    out.col(i) = llt.solve(geometry::Vec6::Unit(i));
+  return out;
+}
+
 enum class ObsState : std::uint8_t { kUnassigned, kAssigned, kAmbiguous, kUngated };
 
 }  // namespace
@@ -654,7 +663,7 @@ bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& me
   const Mat6 Ppp = pred.P.topLeftCorner<6, 6>();
   const Eigen::LLT<Mat6> prior(Ppp);
   if (prior.info() != Eigen::Success) return false;
-  const Mat6 Ppp_inv = prior.solve(Mat6::Identity());
+  const Mat6 Ppp_inv = spd_inverse(prior);
   geometry::Vec6 delta = geometry::Vec6::Zero();
   Mat6 info;
   for (int iter = 0; iter < 2; ++iter) {
@@ -679,7 +688,7 @@ bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& me
     if (iter == 0) nis = yWy - g.dot(step);
     delta += step;
   }
-  const Mat6 Ppp_post = info.llt().solve(Mat6::Identity());
+  const Mat6 Ppp_post = spd_inverse(Eigen::LLT<Mat6>(info));
   const Mat6 L = pred.P.bottomLeftCorner<6, 6>() * Ppp_inv;  // rates | pose gain
   post = pred;
   post.T_w_b = geometry::perturb_left(pred.T_w_b, delta);
