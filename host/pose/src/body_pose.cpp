@@ -123,6 +123,7 @@ bool fit_body(std::span<const Vec3> q_body, std::span<const Vec3> p_world,
   }
   out.T_w_b = T;
   out.normal_matrix = H;
+  out.normal_matrix_inverse = H_inv;
   out.iterations = it;
   return true;
 }

@@ -28,6 +28,8 @@ bool absolute_orientation(std::span<const geometry::Vec3> q_body,
 struct BodyFit {
   geometry::Transform T_w_b = geometry::Transform::Identity();
   geometry::Mat6 normal_matrix = geometry::Mat6::Zero();  ///< J^T W J at the solution
+  /// Its inverse: the pose covariance the fit's own weights imply (block-diagonal marks).
+  geometry::Mat6 normal_matrix_inverse = geometry::Mat6::Zero();
   std::vector<Mat63> d_pose_d_point;       ///< dxi/dp_w,m per mark (left perturbation)
   std::vector<Mat63> d_pose_d_survey;      ///< dxi/dq_m per mark
   std::vector<geometry::Vec3> residual_w;  ///< p_w,m - T_w_b q_m
