@@ -67,11 +67,10 @@ bool refine(std::span<const Observation> observations, const Options& options, V
       H.noalias() += w * J.transpose() * J;
       g.noalias() += w * J.transpose() * (obs.pixel_px - *u);
     }
-    // H is symmetric positive definite unless the rays are degenerate: Cholesky (no pivoting)
-    // is the cheapest solver and fails exactly in the degenerate case.
-    const Eigen::LLT<Mat3> llt(H);
-    if (llt.info() != Eigen::Success) return false;
-    const Vec3 step = llt.solve(g);
+    // H is symmetric positive definite unless the rays are degenerate (then this fails).
+    Mat3 H_inv;
+    if (!uncertainty::inverse_spd<3>(H, H_inv)) return false;
+    const Vec3 step = H_inv * g;
     if (!step.allFinite()) return false;
     X += step;
     if (step.norm() < options.step_tolerance_m) {

@@ -1,18 +1,33 @@
 // Inverse of a small fixed-size symmetric positive definite matrix (normal matrices, mark
-// covariances) through its Cholesky factor H = L L^T: H^-1 = L^-T L^-1, with L^-1 by forward
-// substitution in fixed-size loops. Eigen's llt.solve(Identity) routes a matrix right-hand side
-// through the blocked triangular solver, whose set-up dominates for 3x3 and 6x6 matrices on the
-// per-exposure path (docs/performance.md, "Host processing").
+// covariances): 3x3 by cofactors, larger through the Cholesky factor H = L L^T:
+// H^-1 = L^-T L^-1, with L^-1 by forward substitution in fixed-size loops. Eigen's
+// llt.solve(Identity) routes a matrix right-hand side through the blocked triangular solver, whose
+// set-up dominates for 3x3 and 6x6 matrices on the per-exposure path (docs/performance.md, "Host
+// processing").
 #pragma once
 
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
+#include <Eigen/LU>
 
 namespace storetrack::uncertainty {
 
 /// Returns false (out untouched) when H is not numerically positive definite.
 template <int N>
 bool inverse_spd(const Eigen::Matrix<double, N, N>& H, Eigen::Matrix<double, N, N>& out) {
+  if constexpr (N == 3) {
+    // 3x3: positive definite by Sylvester's criterion (leading minors > 0), inverse by
+    // cofactors (closed form, a few dozen operations).
+    Eigen::Matrix<double, 3, 3> inv;
+    double det = 0;
+    bool invertible = false;
+    H.computeInverseAndDetWithCheck(inv, det, invertible, 0.0);
+    const double minor2 = H(0, 0) * H(1, 1) - H(0, 1) * H(1, 0);
+    if (!(H(0, 0) > 0) || !(minor2 > 0) || !(det > 0) || !invertible || !inv.allFinite())
+      return false;
+    out = inv;
+    return true;
+  }
   const Eigen::LLT<Eigen::Matrix<double, N, N>> llt(H);
   if (llt.info() != Eigen::Success) return false;
   const Eigen::Matrix<double, N, N> L = llt.matrixL();
