@@ -590,9 +590,13 @@ bool MarkMatcher::triangulate(const Work& w, const std::vector<int>& obs, const 
     const Vec3 step = H.ldlt().solve(g);
     if (!step.allFinite()) return false;
     p_w += step;
-    // Converged: a step below 1 mm from inside the gate leaves an error of order |step|^2 / depth
-    // (< 1 um at >= 1 m): evaluate chi2 and H once more there and stop.
-    if (step.squaredNorm() < 1e-6) iter = kMaxIterations - 1;
+    // Converged: after a step below 1 mm from inside the gate the Gauss-Newton model is exact
+    // to order |step|^2 / depth (< 1 um at >= 1 m): its minimum chi2 - g^T step is the chi2 at
+    // the new point, and H (the information) is unchanged to that order.
+    if (step.squaredNorm() < 1e-6) {
+      chi2 = std::max(0.0, chi2 - g.dot(step));
+      break;
+    }
   }
   cov_w = H.inverse();
   return cov_w.allFinite() && std::isfinite(chi2);
