@@ -22,9 +22,11 @@ using geometry::Vec3;
 using Vec6 = Eigen::Matrix<double, 6, 1>;
 
 #ifdef STORETRACK_SANITIZE
-constexpr int kSeeds = 60;
+constexpr int kSeeds = 60;  // ASan/UBSan ~10x slower: a smoke run, coverage standard error ~3 %
+constexpr double kMinCoverage = 0.90;
 #else
-constexpr int kSeeds = 200;
+constexpr int kSeeds = 200;  // seeds are the effective sample (own calibration each): s.e. 1.5 %
+constexpr double kMinCoverage = 0.93;
 #endif
 constexpr int kSolvedBefore = 3;  // exposures with all marks before the store marks vanish
 constexpr int kHidden = 10;       // 25 ms at 400 fps: longer than the 20 ms gap
@@ -155,9 +157,9 @@ TEST(PoseTracker, ExtrapolatesHonestlyWithinTheGapAndStopsAfterIt) {
   // ahead, where the process noise is small and the propagated calibration/centroid
   // correlations between the two tracked poses decide.
   for (int a = 0; a < 3; ++a) {
-    EXPECT_GE(position.coverage(a), 0.93) << "position axis " << a;
-    EXPECT_GE(attitude.coverage(a), 0.93) << "attitude axis " << a;
-    EXPECT_GE(position_short.coverage(a), 0.93) << "position 1 frame ahead, axis " << a;
+    EXPECT_GE(position.coverage(a), kMinCoverage) << "position axis " << a;
+    EXPECT_GE(attitude.coverage(a), kMinCoverage) << "attitude axis " << a;
+    EXPECT_GE(position_short.coverage(a), kMinCoverage) << "position 1 frame ahead, axis " << a;
   }
 }
 
