@@ -69,6 +69,22 @@ void load_host_config(const std::string& path, HostConfig& c) {
     get(p, "min_pose_marks", c.processor.min_pose_marks, w);
     get(p, "reference_camera_id", c.processor.reference_camera_id, w);
     get(p, "rigid_false_alarm_probability", c.processor.rigid_false_alarm_probability, w);
+    get(p, "max_pose_rotation_sigma_rad", c.processor.max_pose_rotation_sigma_rad, w);
+    if (!(c.processor.max_pose_rotation_sigma_rad > 0))
+      throw HostConfigError(w + "/max_pose_rotation_sigma_rad must be > 0");
+  }
+  if (j.contains("pose_tracker")) {
+    // Extrapolation of T_p_s over short gaps (host/pipeline PoseTracker, docs/uncertainty.md).
+    const auto& t = j["pose_tracker"];
+    const std::string w = path + ": /pose_tracker";
+    auto& pt = c.pose_tracker;
+    get(t, "max_gap_s", pt.max_gap_s, w);
+    get(t, "max_velocity_baseline_s", pt.max_velocity_baseline_s, w);
+    get(t, "accel_sigma_m_s2", pt.accel_sigma_m_s2, w);
+    get(t, "angular_accel_sigma_rad_s2", pt.angular_accel_sigma_rad_s2, w);
+    if (!(pt.max_gap_s >= 0) || !(pt.max_velocity_baseline_s > 0) || !(pt.accel_sigma_m_s2 > 0) ||
+        !(pt.angular_accel_sigma_rad_s2 > 0))
+      throw HostConfigError(w + ": max_gap_s must be >= 0 (0: never extrapolate), the others > 0");
   }
   if (j.contains("identifier")) {
     // Mark identification (host/match MarkMatcher, docs/matching.md).

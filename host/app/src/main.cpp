@@ -32,6 +32,7 @@
 #include "storetrack/output/csv_writer.hpp"
 #include "storetrack/output/inetx.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
+#include "storetrack/pipeline/pose_tracker.hpp"
 #include "storetrack/sim/body.hpp"
 #include "storetrack/time/time.hpp"
 
@@ -241,9 +242,12 @@ int main(int argc, char** argv) {
 
   // Processing chain.
   std::unique_ptr<st::pipeline::ExposureProcessor> processor;
+  std::unique_ptr<st::pipeline::PoseTracker> pose_tracker;
   std::unique_ptr<st::ingest::ExposureAligner> aligner;
   try {
     processor = std::make_unique<st::pipeline::ExposureProcessor>(rig, pylon, store, cfg.processor);
+    pose_tracker =
+        std::make_unique<st::pipeline::PoseTracker>(processor->factors(), cfg.pose_tracker);
     aligner = std::make_unique<st::ingest::ExposureAligner>(cfg.aligner);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "storetrack-host: bad configuration: %s\n", e.what());
@@ -376,7 +380,8 @@ int main(int argc, char** argv) {
   auto process_ready = [&]() {
     for (const auto& e : ready) {
       const st::time::MonotonicNs t0 = st::time::monotonic_now_ns();
-      const st::pipeline::ExposureResult r = processor->process(e);  // matcher + geometry
+      st::pipeline::ExposureResult r = processor->process(e);  // matcher + geometry
+      pose_tracker->update(r);  // an unsolved T_p_s: extrapolated over a short gap, or invalid
       ++exposures;
       const st::msg::FtiSample& s = r.sample;
       if (s.status & st::msg::fti_status::kValid) ++valid_samples;
@@ -544,6 +549,10 @@ int main(int argc, char** argv) {
                         {"marks_excluded", pc.marks_excluded},
                         {"pose_failed", pc.pose_failed},
                         {"degenerate_geometry", pc.degenerate_geometry}};
+  const auto& tc = pose_tracker->counters();
+  stats["pose_tracker"] = {{"solved", tc.solved},
+                           {"extrapolated", tc.extrapolated},
+                           {"not_extrapolated", tc.not_extrapolated}};
   const auto& cc = sinks.ch10.counters();
   stats["outputs"] = {{"inetx_sent", sinks.inetx.counters().packets_sent},
                       {"inetx_send_errors", sinks.inetx.counters().send_errors},

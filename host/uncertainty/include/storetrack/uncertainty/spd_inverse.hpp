@@ -18,7 +18,8 @@ bool inverse_spd(const Eigen::Matrix<double, N, N>& H, Eigen::Matrix<double, N, 
   if constexpr (N == 3) {
     // 3x3: positive definite by Sylvester's criterion (leading minors > 0), inverse by
     // cofactors (closed form, a few dozen operations).
-    Eigen::Matrix<double, 3, 3> inv;
+    // Zero-initialised: GCC -O3 cannot see computeInverseAndDetWithCheck writes every entry.
+    Eigen::Matrix<double, 3, 3> inv = Eigen::Matrix<double, 3, 3>::Zero();
     double det = 0;
     bool invertible = false;
     H.computeInverseAndDetWithCheck(inv, det, invertible, 0.0);
