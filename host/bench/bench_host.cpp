@@ -1,5 +1,6 @@
 // storetrack-host-bench: cost of one exposure on the host (4 cameras, 23 marks, store
-// separation from the simulator's fast mode) and triangulation per point against OpenCV's
+// separation from the simulator's fast mode): identification alone, identification +
+// geometry, geometry with known ids; and triangulation per point against OpenCV's
 // linear cv::triangulatePoints on the same observations (docs/performance.md, "Host processing").
 #include <string>
 #include <vector>
@@ -8,6 +9,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 
+#include "storetrack/match/mark_matcher.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/sim/simulator.hpp"
 #include "storetrack/triangulate/triangulate.hpp"
@@ -50,6 +52,30 @@ pipeline::ExposureProcessor make_processor(const Data& d) {
                                 d.sim.scenario().T_w_p * d.sim.scenario().separation.T_p_s0, prior);
   return proc;
 }
+
+// Identification alone: MarkMatcher::match (the processor's own matcher, so the same priors and
+// configuration), tracked exposure after exposure.
+void BM_Match(benchmark::State& state) {
+  const Data& d = data();
+  auto proc = make_processor(d);
+  match::MarkMatcher& matcher = proc.matcher();
+  size_t k = 0, identified = 0;
+  for (auto _ : state) {
+    const match::MatchResult r = matcher.match(d.exposures[k].cameras);
+    benchmark::DoNotOptimize(r.ids.data());
+    identified += static_cast<size_t>(r.identified);
+    if (++k == d.exposures.size()) {
+      state.PauseTiming();
+      k = 0;
+      matcher.reset_tracking();
+      state.ResumeTiming();
+    }
+  }
+  state.counters["identified"] =
+      benchmark::Counter(static_cast<double>(identified), benchmark::Counter::kAvgIterations);
+  state.SetItemsProcessed(state.iterations());
+}
+BENCHMARK(BM_Match);
 
 // Everything after alignment: matching + triangulation + rigid-body checks + poses + full
 // covariance and budget + FtiSample. Exposures are replayed in order (tracking stays valid);
