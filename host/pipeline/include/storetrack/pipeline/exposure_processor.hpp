@@ -50,13 +50,23 @@ struct ProcessorConfig {
   double pixel_quantisation_px = 1.0 / 256.0;
 };
 
+/// One zero matrix per uncertainty source (value-initialising an Eigen matrix leaves it unset).
+template <class Matrix>
+std::array<Matrix, uncertainty::kNumSources> zero_by_source() {
+  std::array<Matrix, uncertainty::kNumSources> by_source;
+  for (Matrix& m : by_source)
+    m.setZero();
+  return by_source;
+}
+
 /// A triangulated mark.
 struct MarkResult {
   int id = -1;
   char body = '?';  ///< 'p' pylon, 's' store, '?' other
   geometry::Vec3 p_w = geometry::Vec3::Zero();
   geometry::Mat3 cov_w = geometry::Mat3::Zero();  ///< total 3x3 covariance [m^2]
-  std::array<geometry::Mat3, uncertainty::kNumSources> cov_by_source{};  ///< survey: zero
+  std::array<geometry::Mat3, uncertainty::kNumSources> cov_by_source =
+      zero_by_source<geometry::Mat3>();                ///< survey: zero
   geometry::Vec3 velocity_w = geometry::Vec3::Zero();  ///< from tracking (zero if unknown)
   bool velocity_valid = false;
   bool excluded = false;  ///< removed by the rigid-body test
@@ -77,7 +87,8 @@ struct PoseResult {
   bool valid = false;
   geometry::Transform T = geometry::Transform::Identity();
   geometry::Mat6 cov = geometry::Mat6::Zero();
-  std::array<geometry::Mat6, uncertainty::kNumSources> cov_by_source{};
+  std::array<geometry::Mat6, uncertainty::kNumSources> cov_by_source =
+      zero_by_source<geometry::Mat6>();
   int marks_used = 0;
   double chi2 = 0;  ///< fit chi-square (block-diagonal weights)
   /// Loadings of the pose perturbation on the common calibration factors (6 x
