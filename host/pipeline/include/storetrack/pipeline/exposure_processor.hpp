@@ -109,7 +109,8 @@ struct ExposureResult {
   /// (x, y, z, yaw, pitch, roll) of T_p_s and its covariance (what the FtiSample carries).
   Eigen::Matrix<double, 6, 1> xyz_ypr = Eigen::Matrix<double, 6, 1>::Zero();
   geometry::Mat6 cov_xyz_ypr = geometry::Mat6::Zero();
-  std::array<geometry::Mat6, uncertainty::kNumSources> cov_xyz_ypr_by_source{};
+  std::array<geometry::Mat6, uncertainty::kNumSources> cov_xyz_ypr_by_source =
+      zero_by_source<geometry::Mat6>();
 
   /// Set by PoseTracker::update() when T_p_s could not be solved from this exposure and was
   /// predicted from the track instead (sample.status kValid | kExtrapolated). xyz_ypr,
