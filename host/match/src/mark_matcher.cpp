@@ -709,6 +709,20 @@ bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& me
 }
 
 void MarkMatcher::verify_layouts(Work& w) const {
+  // Marks whose ids their body's layout does not confirm lose their observations (left for the
+  // next gating pass) and leave the body's member list.
+  const auto reject_layout = [&w](const std::vector<int>& drop, std::vector<int>& members) {
+    for (int m : drop) {
+      for (int o : w.assigned[m]) {
+        w.obs[o].state = ObsState::kUngated;
+        w.obs[o].mark = -1;
+      }
+      w.assigned[m].clear();
+      w.tri[m] = {};
+      ++w.counts.layout_rejected;
+      members.erase(std::find(members.begin(), members.end(), m));
+    }
+  };
   for (int b = 0; b < static_cast<int>(bodies_.size()); ++b) {
     w.fitted[b] = false;
     w.body[b].updated = false;
@@ -748,16 +762,7 @@ void MarkMatcher::verify_layouts(Work& w) const {
           drop.push_back(members[culprit]);
         else
           drop = members;
-        for (int m : drop) {
-          for (int o : w.assigned[m]) {
-            w.obs[o].state = ObsState::kUngated;
-            w.obs[o].mark = -1;
-          }
-          w.assigned[m].clear();
-          w.tri[m] = {};
-          ++w.counts.layout_rejected;
-          members.erase(std::find(members.begin(), members.end(), m));
-        }
+        reject_layout(drop, members);
       }
       continue;
     }
@@ -831,16 +836,7 @@ void MarkMatcher::verify_layouts(Work& w) const {
       } else {
         drop = members;  // cannot tell which id is wrong: none of this body is trusted
       }
-      for (int m : drop) {
-        for (int o : w.assigned[m]) {
-          w.obs[o].state = ObsState::kUngated;
-          w.obs[o].mark = -1;
-        }
-        w.assigned[m].clear();
-        w.tri[m] = {};
-        ++w.counts.layout_rejected;
-        members.erase(std::find(members.begin(), members.end(), m));
-      }
+      reject_layout(drop, members);
     }
     // Unverifiable single-view or untriangulated assignments of an unfitted body stay as they
     // are (their ids rest on the prediction alone, see MatcherConfig::single_view_*).
