@@ -711,7 +711,24 @@ bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& me
 void MarkMatcher::verify_layouts(Work& w) const {
   // Marks whose ids their body's layout does not confirm lose their observations (left for the
   // next gating pass) and leave the body's member list.
-  const auto reject_layout = [&w](const std::vector<int>& drop, std::vector<int>& members) {
+  // The layout test failed: when leaving out exactly one member makes it pass (only tried with
+  // at least min_members), that member's id is rejected; otherwise the wrong id cannot be told
+  // and none of this body's ids is trusted.
+  const auto reject_unique_culprit = [&w](std::vector<int>& members, size_t min_members,
+                                          const auto& passes_without) {
+    int culprit = -1, passing = 0;
+    if (members.size() >= min_members) {
+      for (size_t k = 0; k < members.size(); ++k) {
+        std::vector<int> rest = members;
+        rest.erase(rest.begin() + static_cast<long>(k));
+        if (passes_without(rest)) {
+          ++passing;
+          culprit = static_cast<int>(k);
+        }
+      }
+    }
+    const std::vector<int> drop =
+        passing == 1 ? std::vector<int>{members[static_cast<size_t>(culprit)]} : members;
     for (int m : drop) {
       for (int o : w.assigned[m]) {
         w.obs[o].state = ObsState::kUngated;
@@ -745,24 +762,12 @@ void MarkMatcher::verify_layouts(Work& w) const {
           w.cov_b[b] = post.P.topLeftCorner<6, 6>();
           break;
         }
-        int culprit = -1, passing = 0;
-        if (members.size() >= 2) {
-          for (size_t k = 0; k < members.size(); ++k) {
-            std::vector<int> rest = members;
-            rest.erase(rest.begin() + static_cast<long>(k));
-            if (filter_update(w, b, rest, post, nis) &&
-                nis <= chi2_gate_[std::min(kMaxDof, 3 * static_cast<int>(rest.size()))]) {
-              ++passing;
-              culprit = static_cast<int>(k);
-            }
-          }
-        }
-        std::vector<int> drop;
-        if (passing == 1)
-          drop.push_back(members[culprit]);
-        else
-          drop = members;
-        reject_layout(drop, members);
+        reject_unique_culprit(members, 2, [&](const std::vector<int>& rest) {
+          BodyTrack post_rest;
+          double nis_rest = 0;
+          return filter_update(w, b, rest, post_rest, nis_rest) &&
+                 nis_rest <= chi2_gate_[std::min(kMaxDof, 3 * static_cast<int>(rest.size()))];
+        });
       }
       continue;
     }
@@ -816,27 +821,12 @@ void MarkMatcher::verify_layouts(Work& w) const {
         w.cov_b[b] = cov;
         break;
       }
-      int culprit = -1, passing = 0;
-      if (members.size() >= 4) {
-        for (size_t k = 0; k < members.size(); ++k) {
-          std::vector<int> rest = members;
-          rest.erase(rest.begin() + static_cast<long>(k));
-          Transform T2;
-          Mat6 cov2;
-          double c2 = 0;
-          if (fit(rest, T2, cov2, c2) && well_posed(rest, cov2)) {
-            ++passing;
-            culprit = static_cast<int>(k);
-          }
-        }
-      }
-      std::vector<int> drop;
-      if (passing == 1) {
-        drop.push_back(members[culprit]);
-      } else {
-        drop = members;  // cannot tell which id is wrong: none of this body is trusted
-      }
-      reject_layout(drop, members);
+      reject_unique_culprit(members, 4, [&](const std::vector<int>& rest) {
+        Transform T2;
+        Mat6 cov2;
+        double c2 = 0;
+        return fit(rest, T2, cov2, c2) && well_posed(rest, cov2);
+      });
     }
     // Unverifiable single-view or untriangulated assignments of an unfitted body stay as they
     // are (their ids rest on the prediction alone, see MatcherConfig::single_view_*).
