@@ -86,6 +86,8 @@ TEST(MsgIcdVectors, CanFdFramesBuiltFromTheIcdReassemble) {
       f.can_id = r.get_u32();
       f.len = r.get_u8();
       r.get_u16();  // time step, for the fuzzer
+      // A seed file names the frame length itself: never write past the 64-byte payload.
+      ASSERT_LE(f.len, sizeof(f.data)) << entry.path();
       for (std::size_t i = 0; i < f.len; ++i)
         f.data[i] = r.get_u8();
       ASSERT_TRUE(r.ok());
