@@ -2,6 +2,7 @@
 // jumps, sequence wrap and restart, overflow. Every test checks the released exposures against
 // what was injected (the truth), and that every dropped observation is counted with its reason.
 #include "storetrack/ingest/exposure_aligner.hpp"
+#include "storetrack/time/saturating.hpp"
 
 #include <gtest/gtest.h>
 
@@ -22,7 +23,8 @@ msg::MarkObservations make_obs(int camera_id, std::uint32_t seq, std::int64_t st
   o.camera_id = static_cast<std::uint8_t>(camera_id);
   o.trigger_seq = seq;
   o.exposure_start_tai_ns = start_tai;
-  o.exposure_start_mono_ns = start_tai - 7 * time::kNsPerSecond;  // a consistent unit clock
+  o.exposure_start_mono_ns =
+      time::saturating_sub_ns(start_tai, 7 * time::kNsPerSecond);  // a consistent unit clock
   o.exposure_duration_ns = 500'000;
   o.clock_state = 2;
   o.mark_count = 1;

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "storetrack/ingest/exposure_aligner.hpp"
+#include "storetrack/time/saturating.hpp"
 
 namespace storetrack::ingest {
 namespace {
@@ -24,7 +25,8 @@ msg::MarkObservations make_obs(int camera_id, std::uint32_t seq, std::int64_t st
   o.camera_id = static_cast<std::uint8_t>(camera_id);
   o.trigger_seq = seq;
   o.exposure_start_tai_ns = start_tai;
-  o.exposure_start_mono_ns = start_tai - 7 * time::kNsPerSecond;  // a consistent unit clock
+  o.exposure_start_mono_ns =
+      time::saturating_sub_ns(start_tai, 7 * time::kNsPerSecond);  // a consistent unit clock
   o.exposure_duration_ns = 500'000;
   o.clock_state = 2;
   o.mark_count = 1;
