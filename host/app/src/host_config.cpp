@@ -34,6 +34,12 @@ void get(const nlohmann::json& j, const char* key, T& out, const std::string& wh
   }
 }
 
+std::string number_text(double x) {
+  std::ostringstream o;
+  o << x;  // 1e+300, not 300 digits
+  return o.str();
+}
+
 std::string range_text(double lo, bool lo_open, double hi) {
   std::ostringstream o;
   o << (lo_open ? "(" : "[") << lo << ", " << hi << "]";
@@ -50,7 +56,7 @@ double get_number(const nlohmann::json& j, const char* key, double value, double
   const bool above = lo_open ? value > lo : value >= lo;
   if (!std::isfinite(value) || !above || !(value <= hi))
     throw HostConfigError(where + "/" + key + " must be a number in " +
-                          range_text(lo, lo_open, hi) + " (got " + std::to_string(value) + ")");
+                          range_text(lo, lo_open, hi) + " (got " + number_text(value) + ")");
   return value;
 }
 
@@ -87,7 +93,7 @@ void set_max_wait_ms(HostConfig& c, double max_wait_ms, const std::string& where
   const double max_ms = static_cast<double>(ingest::kMaxAlignerWaitNs) * 1e-6;
   if (!std::isfinite(max_wait_ms) || !(max_wait_ms > 0) || !(max_wait_ms <= max_ms))
     throw HostConfigError(where + " must be a number in " + range_text(0, true, max_ms) +
-                          " ms (got " + std::to_string(max_wait_ms) + ")");
+                          " ms (got " + number_text(max_wait_ms) + ")");
   c.aligner.max_wait_ns = ms_to_ns(max_wait_ms);
 }
 
