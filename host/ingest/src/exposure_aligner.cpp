@@ -311,7 +311,8 @@ void ExposureAligner::try_trigger_restart(time::MonotonicNs now) {
     if (abs_diff(mid, reference) <= config_.max_mid_time_spread_ns)
       agreeing.push_back(static_cast<int>(i));
   }
-  if (agreeing.size() < restart_quorum_) return;
+  if (agreeing.size() < restart_quorum_ || restarting_) return;
+  restarting_ = true;  // placing the held ones may quarantine again: no nested restart
   ++counters_.sequence_restarts;
   const std::int64_t new_key = newest_key_ + 1;
   grid_period_ns_ = 0;  // a new trigger: learn its period again
@@ -325,6 +326,7 @@ void ExposureAligner::try_trigger_restart(time::MonotonicNs now) {
     const msg::MarkObservations held = cs.held;
     place(cam, held, now);
   }
+  restarting_ = false;
 }
 
 std::uint32_t ExposureAligner::majority_sequence(

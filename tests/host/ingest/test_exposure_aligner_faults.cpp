@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <functional>
 #include <limits>
+#include <random>
 #include <vector>
 
 #include "storetrack/ingest/exposure_aligner.hpp"
@@ -402,6 +403,56 @@ TEST(ExposureAlignerFaults, TriggerRestartAfterAPauseIsFollowedByTheMajority) {
   }
   EXPECT_EQ(aligner.counters().sequence_restarts, 1u);
   EXPECT_EQ(total_dropped(aligner.counters()), 0u);
+}
+
+TEST(ExposureAlignerFaults, ArbitraryObservationsKeepEveryBoundAndAreAllCounted) {
+  // Valid-looking but arbitrary observations (any camera, unit, sequence, times, host times going
+  // backwards): never more than max_pending exposures or one held observation per camera, each
+  // released exposure carries each camera once, and every observation is used or counted.
+  std::mt19937_64 rng(7);
+  AlignerConfig cfg = rig_config(4);
+  cfg.max_pending = 16;
+  ExposureAligner aligner(cfg);
+  std::vector<pipeline::AlignedExposure> out;
+  std::uniform_int_distribution<int> pick(0, 9);
+  std::uint64_t pushed = 0;
+  for (int i = 0; i < 100'000; ++i) {
+    const int r = pick(rng);
+    auto o = make_obs(9 + static_cast<int>(rng() % 6), static_cast<std::uint32_t>(rng()),
+                      static_cast<std::int64_t>(rng()));
+    if (r < 6) {  // mostly near a plausible stream, so the interesting paths run
+      const auto k = static_cast<std::int64_t>(rng() % 64);
+      o.trigger_seq = kSeq0 + static_cast<std::uint32_t>(k + (r == 0 ? rng() % 3000 : 0));
+      o.exposure_start_tai_ns = kT0Tai + k * kPeriodNs + (r == 1 ? rng() % 10'000'000 : 0);
+      o.exposure_start_mono_ns =
+          r == 2 ? static_cast<std::int64_t>(rng()) : o.exposure_start_tai_ns;
+    }
+    if (r == 3) o.unit_id = static_cast<std::uint8_t>(rng());
+    const std::int64_t now = static_cast<std::int64_t>(rng() % 1'000'000'000) * (r == 4 ? -1 : 1);
+    aligner.push(o, now, out);
+    ++pushed;
+    ASSERT_LE(aligner.pending(), cfg.max_pending);
+    ASSERT_LE(aligner.held(), 4u);
+    if (r == 5) aligner.poll(now, out);
+  }
+  aligner.flush(out);
+  std::uint64_t used = 0;
+  for (const auto& e : out) {
+    std::uint32_t seen = 0;
+    for (const auto& o : e.cameras) {
+      const std::uint32_t bit = 1u << (o.camera_id - 10);
+      EXPECT_EQ(seen & bit, 0u) << "a camera twice in one exposure";
+      EXPECT_EQ(e.missing_camera_mask & bit, 0u);
+      seen |= bit;
+    }
+    used += e.cameras.size();
+  }
+  const auto& c = aligner.counters();
+  EXPECT_EQ(c.observations_in, pushed);
+  EXPECT_EQ(c.observations_used, used);
+  EXPECT_EQ(c.observations_in, c.observations_used + total_dropped(c));
+  EXPECT_EQ(aligner.pending(), 0u);
+  EXPECT_EQ(aligner.held(), 0u);
 }
 
 }  // namespace

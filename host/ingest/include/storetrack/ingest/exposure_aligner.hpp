@@ -10,7 +10,8 @@
 //    disagrees) is QUARANTINED, and the camera's
 //    offset is re-learned from the exposure mid-time (the trigger grid) only when two of its
 //    observations in a row agree on the new offset. A restart of the whole trigger is accepted
-//    when a majority of cameras agree on it.
+//    when a majority of cameras agree on it. When the unit's TAI stepped against its own
+//    monotonic clock, its time is what is wrong: the sequence is kept and the time judged.
 //  - An exposure's reference mid-time is the majority of its cameras (the mid-time most of them
 //    agree with, ties broken by the trigger grid), never the first to arrive; the others are
 //    dropped as time mismatches.
@@ -184,6 +185,7 @@ class ExposureAligner {
   AlignerConfig config_;
   std::uint32_t all_mask_ = 0;
   std::size_t restart_quorum_ = 1;  // cameras that must agree on a trigger restart
+  bool restarting_ = false;
   PendingMap pending_;
   bool have_key_ = false;
   std::int64_t newest_key_ = 0;        // newest exposure index opened
