@@ -1,6 +1,10 @@
 #include "host_config.hpp"
 
+#include <arpa/inet.h>
+
+#include <cmath>
 #include <fstream>
+#include <limits>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
@@ -30,7 +34,110 @@ void get(const nlohmann::json& j, const char* key, T& out, const std::string& wh
   }
 }
 
+std::string number_text(double x) {
+  std::ostringstream o;
+  o << x;  // 1e+300, not 300 digits
+  return o.str();
+}
+
+std::string range_text(double lo, bool lo_open, double hi) {
+  std::ostringstream o;
+  o << (lo_open ? "(" : "[") << lo << ", " << hi << "]";
+  return o.str();
+}
+
+// A finite number in [lo, hi] (or (lo, hi]); NaN, infinities and out-of-range values refused.
+double get_number(const nlohmann::json& j, const char* key, double value, double lo, bool lo_open,
+                  double hi, const std::string& where) {
+  if (j.contains(key) && !j.at(key).is_number())
+    throw HostConfigError(where + "/" + key + " must be a number in " +
+                          range_text(lo, lo_open, hi) + " (got " + j.at(key).dump() + ")");
+  get(j, key, value, where);
+  const bool above = lo_open ? value > lo : value >= lo;
+  if (!std::isfinite(value) || !above || !(value <= hi))
+    throw HostConfigError(where + "/" + key + " must be a number in " +
+                          range_text(lo, lo_open, hi) + " (got " + number_text(value) + ")");
+  return value;
+}
+
+// An integer in [lo, hi]: a JSON float, bool or string is refused, and so is a value that would
+// wrap when cast (nlohmann converts 4294967297 to an int silently).
+std::int64_t get_integer(const nlohmann::json& j, const char* key, std::int64_t value,
+                         std::int64_t lo, std::int64_t hi, const std::string& where) {
+  if (!j.contains(key)) return value;
+  const auto& v = j.at(key);
+  const std::string range =
+      " must be an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]";
+  if (!v.is_number_integer()) throw HostConfigError(where + "/" + key + range);
+  if (v.is_number_unsigned() && v.get<std::uint64_t>() > static_cast<std::uint64_t>(hi))
+    throw HostConfigError(where + "/" + key + range + " (got " + v.dump() + ")");
+  const auto x = v.get<std::int64_t>();
+  if (x < lo || x > hi)
+    throw HostConfigError(where + "/" + key + range + " (got " + v.dump() + ")");
+  return x;
+}
+
+std::int64_t ms_to_ns(double ms) {
+  return static_cast<std::int64_t>(std::llround(ms * 1e6));
+}
+
+void check_address(const std::string& address, const std::string& what) {
+  in_addr a{};
+  if (inet_pton(AF_INET, address.c_str(), &a) != 1)
+    throw HostConfigError(what + " must be an IPv4 address a.b.c.d (got '" + address + "')");
+}
+
 }  // namespace
+
+void set_max_wait_ms(HostConfig& c, double max_wait_ms, const std::string& where) {
+  const double max_ms = static_cast<double>(ingest::kMaxAlignerWaitNs) * 1e-6;
+  if (!std::isfinite(max_wait_ms) || !(max_wait_ms > 0) || !(max_wait_ms <= max_ms))
+    throw HostConfigError(where + " must be a number in " + range_text(0, true, max_ms) +
+                          " ms (got " + number_text(max_wait_ms) + ")");
+  c.aligner.max_wait_ns = ms_to_ns(max_wait_ms);
+}
+
+UdpSource parse_udp_source(const std::string& text) {
+  const auto at = text.find('@');
+  UdpSource s;
+  try {
+    std::size_t used = 0;
+    if (at == std::string::npos || at == 0) throw std::invalid_argument("no unit");
+    s.unit_id = std::stoi(text.substr(0, at), &used);
+    if (used != at) throw std::invalid_argument("not a number");
+  } catch (const std::exception&) {
+    throw HostConfigError("--udp-source must be UNIT@a.b.c.d (got '" + text + "')");
+  }
+  s.address = text.substr(at + 1);
+  return s;
+}
+
+void finish_host_config(HostConfig& c, const std::vector<int>& camera_ids,
+                        const std::vector<int>& unit_ids) {
+  c.aligner.camera_ids = camera_ids;
+  c.aligner.unit_ids = unit_ids;
+  if (c.aligner.min_cameras < 1 ||
+      static_cast<std::size_t>(c.aligner.min_cameras) > camera_ids.size())
+    throw HostConfigError("aligner/min_cameras (--min-cameras) must be in [1, " +
+                          std::to_string(camera_ids.size()) + "] (the rig's cameras; got " +
+                          std::to_string(c.aligner.min_cameras) + ")");
+  if (c.udp_port < 0 || c.udp_port > 65535)
+    throw HostConfigError("udp/port must be an integer in [0, 65535] (0: no UDP; got " +
+                          std::to_string(c.udp_port) + ")");
+  if (c.udp_port > 0) {
+    if (c.udp_bind.empty())
+      throw HostConfigError(
+          "udp/bind (--udp-bind) is required with UDP: the address of the FTI network "
+          "interface to receive on (0.0.0.0 receives on every interface; say so explicitly)");
+    check_address(c.udp_bind, "udp/bind (--udp-bind)");
+  }
+  for (const auto& s : c.udp_sources) {
+    if (s.unit_id < 0 || s.unit_id > 254)
+      throw HostConfigError("udp/sources/unit_id (--udp-source) must be in [0, 254] (got " +
+                            std::to_string(s.unit_id) + ")");
+    check_address(s.address, "udp/sources/address (--udp-source)");
+  }
+}
 
 void load_host_config(const std::string& path, HostConfig& c) {
   const nlohmann::json j = read_json(path);
@@ -39,31 +146,52 @@ void load_host_config(const std::string& path, HostConfig& c) {
     const auto& u = j["udp"];
     const std::string w = path + ": /udp";
     get(u, "bind", c.udp_bind, w);
-    get(u, "port", c.udp_port, w);
+    c.udp_port = static_cast<int>(get_integer(u, "port", c.udp_port, 0, 65535, w));
     get(u, "group", c.udp_group, w);
     get(u, "interface", c.udp_interface, w);
+    if (u.contains("sources")) {
+      // [{"unit_id": 0, "address": "10.0.0.10"}, ...]: the only senders accepted.
+      if (!u["sources"].is_array()) throw HostConfigError(w + "/sources must be an array");
+      c.udp_sources.clear();
+      for (const auto& s : u["sources"]) {
+        if (!s.is_object()) throw HostConfigError(w + "/sources: entries must be objects");
+        UdpSource src;
+        src.unit_id = static_cast<int>(get_integer(s, "unit_id", -1, 0, 254, w + "/sources"));
+        get(s, "address", src.address, w + "/sources");
+        if (src.unit_id < 0 || src.address.empty())
+          throw HostConfigError(w + "/sources: every entry needs unit_id and address");
+        check_address(src.address, w + "/sources/address");
+        c.udp_sources.push_back(src);
+      }
+    }
   }
   get(j, "can_interfaces", c.can_interfaces, path + ": ");
   if (j.contains("aligner")) {
     const auto& a = j["aligner"];
     const std::string w = path + ": /aligner";
-    double max_wait_ms = static_cast<double>(c.aligner.max_wait_ns) * 1e-6;
-    get(a, "max_wait_ms", max_wait_ms, w);
-    if (!(max_wait_ms > 0)) throw HostConfigError(w + "/max_wait_ms must be > 0");
-    c.aligner.max_wait_ns = static_cast<std::int64_t>(max_wait_ms * 1e6);
-    double spread_ms = static_cast<double>(c.aligner.max_mid_time_spread_ns) * 1e-6;
-    get(a, "max_mid_time_spread_ms", spread_ms, w);
-    c.aligner.max_mid_time_spread_ns = static_cast<std::int64_t>(spread_ms * 1e6);
-    get(a, "max_pending", c.aligner.max_pending, w);
-    get(a, "min_cameras", c.aligner.min_cameras, w);
+    auto& al = c.aligner;
+    const double wait_ms =
+        get_number(a, "max_wait_ms", static_cast<double>(al.max_wait_ns) * 1e-6, 0, true,
+                   static_cast<double>(ingest::kMaxAlignerWaitNs) * 1e-6, w);
+    al.max_wait_ns = ms_to_ns(wait_ms);
+    const double spread_ms = get_number(
+        a, "max_mid_time_spread_ms", static_cast<double>(al.max_mid_time_spread_ns) * 1e-6, 0,
+        false, static_cast<double>(ingest::kMaxMidTimeSpreadNs) * 1e-6, w);
+    al.max_mid_time_spread_ns = ms_to_ns(spread_ms);
+    al.max_pending = static_cast<std::size_t>(
+        get_integer(a, "max_pending", static_cast<std::int64_t>(al.max_pending), 1,
+                    static_cast<std::int64_t>(ingest::kMaxAlignerPending), w));
+    al.min_cameras =
+        static_cast<int>(get_integer(a, "min_cameras", al.min_cameras, 1,
+                                     static_cast<std::int64_t>(ingest::kMaxAlignerCameras), w));
+    al.max_sequence_lead = static_cast<std::uint32_t>(
+        get_integer(a, "max_sequence_lead", al.max_sequence_lead, 1, ingest::kMaxSequenceLead, w));
   }
   if (j.contains("processor")) {
     const auto& p = j["processor"];
     const std::string w = path + ": /processor";
-    int store_id = c.processor.store_id;
-    get(p, "store_id", store_id, w);
-    if (store_id < 0 || store_id > 254) throw HostConfigError(w + "/store_id must be 0..254");
-    c.processor.store_id = static_cast<std::uint8_t>(store_id);
+    c.processor.store_id =
+        static_cast<std::uint8_t>(get_integer(p, "store_id", c.processor.store_id, 0, 254, w));
     get(p, "coverage_factor", c.processor.coverage_factor, w);
     get(p, "min_cameras_per_mark", c.processor.min_cameras_per_mark, w);
     get(p, "min_pose_marks", c.processor.min_pose_marks, w);

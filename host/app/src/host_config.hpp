@@ -1,6 +1,6 @@
 // storetrack-host configuration: a JSON file (docs/fti-output.md, "storetrack-host") whose
-// values the command line can override. Malformed files throw HostConfigError naming the file
-// and the field.
+// values the command line can override. Malformed files and values outside their range throw
+// HostConfigError naming the file, the field and the allowed range.
 #pragma once
 
 #include <map>
@@ -21,10 +21,17 @@ class HostConfigError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+/// A configured sender: datagrams of `unit_id` are accepted from `address` only.
+struct UdpSource {
+  int unit_id = 0;
+  std::string address;
+};
+
 struct HostConfig {
   // input
-  std::string udp_bind = "0.0.0.0";
-  int udp_port = 47100;
+  std::string udp_bind;  // required with UDP: the FTI interface's address (0.0.0.0 explicitly)
+  int udp_port = 47100;  // 0: no UDP
+  std::vector<UdpSource> udp_sources;  // empty: any sender (warned)
   std::string udp_group;
   std::string udp_interface;
   std::vector<std::string> can_interfaces;
@@ -45,6 +52,15 @@ struct HostConfig {
 
 /// Applies the JSON file's values onto `config` (fields not in the file keep their value).
 void load_host_config(const std::string& path, HostConfig& config);
+/// Sets the aligner's wait from milliseconds: finite, in (0, 60000]; `where` names the source.
+void set_max_wait_ms(HostConfig& config, double max_wait_ms, const std::string& where);
+/// Parses a --udp-source value "UNIT@a.b.c.d".
+UdpSource parse_udp_source(const std::string& text);
+/// Completes the configuration with the rig (camera and unit ids, in rig order) and checks what
+/// depends on it or on several fields: min_cameras within the rig, a UDP bind address when UDP
+/// is on, the source addresses.
+void finish_host_config(HostConfig& config, const std::vector<int>& camera_ids,
+                        const std::vector<int>& unit_ids);
 /// Reads {"marks": [{"id": 0, "p_w_m": [x, y, z]}, ...]}.
 std::map<int, geometry::Vec3> load_initial_marks(const std::string& path);
 

@@ -156,6 +156,7 @@ int main(int argc, char** argv) {
   HostConfig cfg;
   std::string calibration_path, pylon_path, store_path, config_path, initial_marks_path;
   std::string stats_json_path, ch10_sync = "every", log_level = "info";
+  std::vector<std::string> udp_sources;
   double max_wait_ms = 0, duration_s = 0, idle_exit_s = 0;
   std::int64_t expect_exposures = 0;
   int min_cameras = 0;
@@ -176,7 +177,10 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   app.add_option("--udp-port", cfg.udp_port, "UDP port to receive observations on (0: no UDP)")
       ->check(CLI::Range(0, 65535));
-  app.add_option("--udp-bind", cfg.udp_bind, "Local address to bind");
+  app.add_option("--udp-bind", cfg.udp_bind,
+                 "Local address to bind (required with UDP; 0.0.0.0: every interface)");
+  app.add_option("--udp-source", udp_sources,
+                 "UNIT@a.b.c.d: accept unit UNIT's datagrams from this address only (repeat)");
   app.add_option("--udp-group", cfg.udp_group, "Multicast group to join");
   app.add_option("--udp-interface", cfg.udp_interface, "Interface address for the multicast join");
   app.add_option("--can", cfg.can_interfaces, "SocketCAN interface(s) to receive CAN FD on");
@@ -231,11 +235,21 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "storetrack-host: no input: give --udp-port and/or --can\n");
     return 2;
   }
-  if (max_wait_ms > 0) cfg.aligner.max_wait_ns = static_cast<std::int64_t>(max_wait_ms * 1e6);
-  if (min_cameras > 0) cfg.aligner.min_cameras = min_cameras;
-  cfg.aligner.camera_ids.clear();
-  for (const auto& c : rig.cameras)
-    cfg.aligner.camera_ids.push_back(c.camera_id);
+  try {
+    if (max_wait_ms > 0) st::hostapp::set_max_wait_ms(cfg, max_wait_ms, "--max-wait-ms");
+    if (min_cameras > 0) cfg.aligner.min_cameras = min_cameras;
+    for (const auto& text : udp_sources)
+      cfg.udp_sources.push_back(st::hostapp::parse_udp_source(text));
+    std::vector<int> camera_ids, unit_ids;
+    for (const auto& c : rig.cameras) {
+      camera_ids.push_back(c.camera_id);
+      unit_ids.push_back(c.unit_id);
+    }
+    st::hostapp::finish_host_config(cfg, camera_ids, unit_ids);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "storetrack-host: %s\n", e.what());
+    return 2;
+  }
   cfg.ch10.sync = ch10_sync == "none" ? st::output::Chapter10Sync::kNone
                                       : st::output::Chapter10Sync::kEveryPacket;
   cfg.ch10.stores = {{cfg.processor.store_id, store.name}};
@@ -282,6 +296,11 @@ int main(int argc, char** argv) {
                    cfg.udp_group.c_str(), std::strerror(-rc));
       return rc == -EINVAL ? 2 : 1;
     }
+    for (const auto& src : cfg.udp_sources)
+      udp.allow_source(src.unit_id, src.address);  // checked by finish_host_config
+    if (cfg.udp_sources.empty())
+      spdlog::warn(
+          "storetrack-host: no udp.sources configured: datagrams from any sender accepted");
   }
   for (const auto& ifname : cfg.can_interfaces) {
     auto rx = std::make_unique<st::ingest::CanFdReceiver>();
@@ -474,6 +493,9 @@ int main(int argc, char** argv) {
                   {"decoded", uc.decoded},
                   {"receive_errors", uc.receive_errors},
                   {"datagram_seq_gaps", uc.datagram_seq_gaps},
+                  {"spoofed_source", uc.spoofed_source},
+                  {"kernel_drops", uc.kernel_drops},
+                  {"budget_exhausted", uc.budget_exhausted},
                   {"decode_errors", decode_counters_json(uc.decode_errors)}};
   nlohmann::json can_json = nlohmann::json::array();
   for (std::size_t i = 0; i < cans.size(); ++i) {
@@ -484,6 +506,8 @@ int main(int argc, char** argv) {
                         {"classic_or_bad_frames", c.classic_or_bad_frames},
                         {"decoded", c.decoded},
                         {"receive_errors", c.receive_errors},
+                        {"kernel_drops", c.kernel_drops},
+                        {"budget_exhausted", c.budget_exhausted},
                         {"decode_errors", decode_counters_json(c.decode_errors)},
                         {"reassembly",
                          {{"completed", r.completed},
@@ -501,10 +525,15 @@ int main(int argc, char** argv) {
                       {"exposures_partial_overflow", ac.exposures_partial_overflow},
                       {"exposures_dropped_too_few_cameras", ac.exposures_dropped_too_few_cameras},
                       {"dropped_unknown_camera", ac.dropped_unknown_camera},
+                      {"dropped_spoofed", ac.dropped_spoofed},
                       {"dropped_invalid", ac.dropped_invalid},
+                      {"dropped_time_out_of_range", ac.dropped_time_out_of_range},
                       {"dropped_duplicate", ac.dropped_duplicate},
                       {"dropped_late", ac.dropped_late},
                       {"dropped_time_mismatch", ac.dropped_time_mismatch},
+                      {"dropped_quarantined", ac.dropped_quarantined},
+                      {"dropped_too_few_cameras", ac.dropped_too_few_cameras},
+                      {"sequence_offset_changes", ac.sequence_offset_changes},
                       {"sequence_restarts", ac.sequence_restarts}};
   nlohmann::json cams = nlohmann::json::array();
   for (std::size_t i = 0; i < cfg.aligner.camera_ids.size(); ++i) {
@@ -515,7 +544,11 @@ int main(int argc, char** argv) {
                     {"missing", c.missing},
                     {"late", c.late},
                     {"duplicate", c.duplicate},
-                    {"time_mismatch", c.time_mismatch}});
+                    {"time_mismatch", c.time_mismatch},
+                    {"spoofed", c.spoofed},
+                    {"quarantined", c.quarantined},
+                    {"offset_changes", c.offset_changes},
+                    {"sequence_offset", c.sequence_offset}});
   }
   stats["cameras"] = cams;
   const auto& ic = processor->matcher().counters();

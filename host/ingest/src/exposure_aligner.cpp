@@ -4,18 +4,46 @@
 #include <bit>
 #include <climits>
 #include <stdexcept>
+#include <string>
+
+#include "storetrack/time/saturating.hpp"
 
 namespace storetrack::ingest {
+namespace {
+
+std::int64_t abs_diff(std::int64_t a, std::int64_t b) {
+  const std::int64_t d = time::saturating_sub_ns(a, b);
+  return d == INT64_MIN ? INT64_MAX : (d < 0 ? -d : d);
+}
+
+void require(bool ok, const std::string& field, const std::string& range) {
+  if (!ok) throw std::invalid_argument("ExposureAligner: " + field + " must be " + range);
+}
+
+void validate(const AlignerConfig& c) {
+  require(!c.camera_ids.empty() && c.camera_ids.size() <= kMaxAlignerCameras, "camera_ids",
+          "1..32 cameras (the rig)");
+  require(c.unit_ids.empty() || c.unit_ids.size() == c.camera_ids.size(), "unit_ids",
+          "empty or one per camera");
+  require(c.max_wait_ns > 0 && c.max_wait_ns <= kMaxAlignerWaitNs, "max_wait_ns", "in (0, 60 s]");
+  require(c.max_mid_time_spread_ns >= 0 && c.max_mid_time_spread_ns <= kMaxMidTimeSpreadNs,
+          "max_mid_time_spread_ns", "in [0, 1 s]");
+  require(c.max_pending >= 1 && c.max_pending <= kMaxAlignerPending, "max_pending", "1..4096");
+  require(c.min_cameras >= 1 && static_cast<std::size_t>(c.min_cameras) <= c.camera_ids.size(),
+          "min_cameras", "1..the number of rig cameras");
+  require(c.max_sequence_lead >= 1 && c.max_sequence_lead <= kMaxSequenceLead, "max_sequence_lead",
+          "1..100000");
+}
+
+}  // namespace
 
 ExposureAligner::ExposureAligner(AlignerConfig config) : config_(std::move(config)) {
-  if (config_.camera_ids.empty() || config_.camera_ids.size() > 32)
-    throw std::invalid_argument("ExposureAligner: the rig needs 1..32 cameras");
-  if (config_.max_wait_ns <= 0) throw std::invalid_argument("ExposureAligner: max_wait_ns <= 0");
-  if (config_.max_pending == 0) config_.max_pending = 1;
-  all_mask_ =
-      config_.camera_ids.size() == 32 ? 0xFFFFFFFFu : ((1u << config_.camera_ids.size()) - 1u);
-  camera_counters_.resize(config_.camera_ids.size());
-  history_key_.fill(INT64_MIN);
+  validate(config_);
+  const std::size_t n = config_.camera_ids.size();
+  all_mask_ = n == 32 ? 0xFFFFFFFFu : ((1u << n) - 1u);
+  restart_quorum_ = n / 2 + 1;  // a strict majority of the rig
+  camera_counters_.resize(n);
+  cameras_.resize(n);
 }
 
 int ExposureAligner::camera_index(int camera_id) const {
@@ -24,16 +52,48 @@ int ExposureAligner::camera_index(int camera_id) const {
   return -1;
 }
 
-std::int64_t ExposureAligner::unwrap(std::uint32_t seq) const {
-  // Serial-number arithmetic (RFC 1982): the nearest 64-bit value congruent to seq.
-  const auto delta = static_cast<std::int32_t>(seq - static_cast<std::uint32_t>(newest_seen_));
-  return newest_seen_ + delta;
+std::size_t ExposureAligner::held() const {
+  return static_cast<std::size_t>(std::count_if(cameras_.begin(), cameras_.end(),
+                                                [](const CameraState& c) { return c.holding; }));
 }
 
-void ExposureAligner::remember_released(std::int64_t key, std::uint32_t mask) {
-  const std::size_t slot = static_cast<std::size_t>(key) % kHistory;
-  history_key_[slot] = key;
-  history_mask_[slot] = mask;
+std::int64_t ExposureAligner::unwrap(const CameraState& cs, std::uint32_t seq) const {
+  // Serial-number arithmetic (RFC 1982): the nearest 64-bit value congruent to seq.
+  const auto delta = static_cast<std::int32_t>(seq - static_cast<std::uint32_t>(cs.last_unwrapped));
+  return cs.last_unwrapped + delta;
+}
+
+const ExposureAligner::Released* ExposureAligner::released_entry(std::int64_t key) const {
+  const auto h = static_cast<std::int64_t>(kHistory);
+  const Released& r = history_[static_cast<std::size_t>(((key % h) + h) % h)];
+  return r.key == key ? &r : nullptr;
+}
+
+void ExposureAligner::remember_released(std::int64_t key, std::uint32_t mask, time::TaiNs mid) {
+  const auto h = static_cast<std::int64_t>(kHistory);
+  history_[static_cast<std::size_t>(((key % h) + h) % h)] = {key, mask, mid};
+}
+
+bool ExposureAligner::accept_fields(const msg::MarkObservations& obs, int cam) {
+  CameraCounters& cc = camera_counters_[static_cast<std::size_t>(cam)];
+  if (!config_.unit_ids.empty() && config_.unit_ids[static_cast<std::size_t>(cam)] != obs.unit_id) {
+    ++counters_.dropped_spoofed;
+    ++cc.spoofed;
+    return false;
+  }
+  if (obs.trigger_seq == msg::mark_observations_invalid::kTriggerSeq ||
+      obs.exposure_start_tai_ns == msg::mark_observations_invalid::kExposureStartTaiNs ||
+      obs.mark_count > obs.marks.size()) {
+    ++counters_.dropped_invalid;
+    return false;
+  }
+  // Refused, not saturated: a start time this far out is no exposure of this flight, and inside
+  // the range every mid-time sum and difference below fits int64.
+  if (obs.exposure_start_tai_ns < 0 || obs.exposure_start_tai_ns > kMaxExposureStartTaiNs) {
+    ++counters_.dropped_time_out_of_range;
+    return false;
+  }
+  return true;
 }
 
 void ExposureAligner::push(const msg::MarkObservations& obs, time::MonotonicNs now,
@@ -44,67 +104,277 @@ void ExposureAligner::push(const msg::MarkObservations& obs, time::MonotonicNs n
     ++counters_.dropped_unknown_camera;
     return;
   }
-  CameraCounters& cc = camera_counters_[static_cast<std::size_t>(cam)];
-  ++cc.received;
-  if (obs.trigger_seq == 0xFFFFFFFFu || obs.exposure_start_tai_ns == INT64_MIN ||
-      obs.mark_count > obs.marks.size()) {
-    ++counters_.dropped_invalid;
-    return;
-  }
-  if (!have_reference_) {
-    have_reference_ = true;
-    newest_seen_ = obs.trigger_seq;
-  }
-  std::int64_t key = unwrap(obs.trigger_seq);
-  if (released_any_ && key <= released_through_ - config_.sequence_restart_threshold) {
-    // The trigger source restarted (sequence went far back): close the old run and start anew.
-    ++counters_.sequence_restarts;
-    flush(out);
-    released_any_ = false;
-    history_key_.fill(INT64_MIN);
-    newest_seen_ = obs.trigger_seq;
-    key = obs.trigger_seq;
-  }
-  const std::uint32_t bit = 1u << cam;
-  if (released_any_ && key <= released_through_) {
-    const std::size_t slot = static_cast<std::size_t>(key) % kHistory;
-    if (history_key_[slot] == key && (history_mask_[slot] & bit)) {
-      ++counters_.dropped_duplicate;
-      ++cc.duplicate;
-    } else {
-      ++counters_.dropped_late;
-      ++cc.late;
-    }
-    return;
-  }
-  newest_seen_ = std::max(newest_seen_, key);
-  const time::TaiNs mid = pipeline::exposure_mid_tai_ns(obs);
-  auto [it, inserted] = pending_.try_emplace(key);
-  Pending& p = it->second;
-  if (inserted) {
-    p.first_arrival = now;
-    p.reference_mid_tai_ns = mid;
-    p.cameras.reserve(config_.camera_ids.size());
-  } else {
-    if (p.present_mask & bit) {
-      ++counters_.dropped_duplicate;
-      ++cc.duplicate;
-      return;
-    }
-    const std::int64_t spread = mid - p.reference_mid_tai_ns;
-    if (spread > config_.max_mid_time_spread_ns || spread < -config_.max_mid_time_spread_ns) {
-      ++counters_.dropped_time_mismatch;
-      ++cc.time_mismatch;
-      return;
-    }
-  }
-  p.cameras.push_back(obs);
-  p.present_mask |= bit;
-  ++counters_.observations_used;
-  ++cc.used;
+  ++camera_counters_[static_cast<std::size_t>(cam)].received;
+  if (!accept_fields(obs, cam)) return;
+  place(cam, obs, now);
   while (pending_.size() > config_.max_pending)
     release(pending_.begin(), ReleaseReason::kOverflow, out);
   release_ready(now, out);
+}
+
+std::optional<time::TaiNs> ExposureAligner::grid_mid(std::int64_t key) const {
+  if (!released_any_ || grid_period_ns_ <= 0) return std::nullopt;
+  const std::int64_t d = key - grid_key_;
+  if (d > (1 << 20) || d < -(1 << 20)) return std::nullopt;
+  return grid_mid_ + d * grid_period_ns_;
+}
+
+std::optional<std::int64_t> ExposureAligner::exposure_at_time(time::TaiNs mid) const {
+  // The exposure whose mid-time this is: a pending one, a recently released one, or a slot of
+  // the trigger grid not yet opened but within the lead window. Nothing further: a clock that
+  // jumped by seconds must not look like a sequence offset.
+  std::optional<std::int64_t> best;
+  std::int64_t best_err = match_tolerance();
+  auto consider = [&](std::int64_t key, time::TaiNs ref) {
+    const std::int64_t err = abs_diff(mid, ref);
+    if (err <= best_err) {
+      best = key;
+      best_err = err;
+    }
+  };
+  for (const auto& [key, p] : pending_)
+    consider(key, p.reference_mid_tai_ns);
+  if (released_any_)
+    for (std::int64_t k = released_through_ - kRecentReleased + 1; k <= released_through_; ++k)
+      if (const Released* r = released_entry(k)) consider(k, r->mid);
+  if (released_any_ && grid_period_ns_ > 0) {
+    const std::int64_t offset = time::saturating_sub_ns(mid, grid_mid_);
+    const std::int64_t half = grid_period_ns_ / 2;
+    const std::int64_t d = (offset >= 0 ? offset + half : offset - half) / grid_period_ns_;
+    const std::int64_t k = grid_key_ + d;
+    const auto predicted = grid_mid(k);
+    if (predicted && k > released_through_ && k <= newest_key_ + lead_limit() &&
+        pending_.find(k) == pending_.end())
+      consider(k, *predicted);
+  }
+  return best;
+}
+
+std::int64_t ExposureAligner::lead_limit() const {
+  const auto configured = static_cast<std::int64_t>(config_.max_sequence_lead);
+  if (grid_period_ns_ <= 0) return configured;
+  return std::max<std::int64_t>(1, std::min(configured, config_.max_wait_ns / grid_period_ns_));
+}
+
+bool ExposureAligner::on_grid(std::int64_t key, time::TaiNs mid) const {
+  const auto predicted = grid_mid(key);
+  return !predicted || abs_diff(mid, *predicted) <= config_.max_mid_time_spread_ns;
+}
+
+std::int64_t ExposureAligner::match_tolerance() const {
+  // Identifying an exposure by time needs a tolerance below half the period, whatever the
+  // configured spread: a quarter period leaves margin for the units' latency differences.
+  if (grid_period_ns_ <= 0) return config_.max_mid_time_spread_ns;
+  return std::min(config_.max_mid_time_spread_ns, grid_period_ns_ / 4);
+}
+
+bool ExposureAligner::clock_stepped(const CameraState& cs, const msg::MarkObservations& obs) const {
+  // The unit's TAI moved against its own monotonic clock since this camera last agreed with the
+  // majority: its time is what is wrong, not its sequence.
+  if (!cs.have_clock_baseline ||
+      obs.exposure_start_mono_ns == msg::mark_observations_invalid::kExposureStartMonoNs)
+    return false;
+  const std::int64_t tai_minus_mono =
+      time::saturating_sub_ns(obs.exposure_start_tai_ns, obs.exposure_start_mono_ns);
+  return abs_diff(tai_minus_mono, cs.tai_minus_mono_ns) > match_tolerance();
+}
+
+void ExposureAligner::place(int cam, const msg::MarkObservations& obs, time::MonotonicNs now) {
+  CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
+  if (!cs.seen) {
+    cs.seen = true;
+    cs.last_unwrapped = obs.trigger_seq;  // offset 0: the rig shares one trigger sequence
+  }
+  const std::int64_t unwrapped = unwrap(cs, obs.trigger_seq);
+  const std::int64_t key = unwrapped + cs.offset;
+  const time::TaiNs mid = pipeline::exposure_mid_tai_ns(obs);
+  const auto names_other_exposure = [&] {
+    const auto other = exposure_at_time(mid);
+    return other && *other != key;
+  };
+  auto it = pending_.find(key);
+  const bool released = it == pending_.end() && released_any_ && key <= released_through_;
+  const Released* entry = released ? released_entry(key) : nullptr;
+  // Does the sequence name a place an exposure can be (pending, a released one still in the
+  // history, or a new one the others can reach within the wait), and does the time agree?
+  bool plausible = true, time_agrees = true;
+  if (it != pending_.end()) {
+    time_agrees = abs_diff(mid, it->second.reference_mid_tai_ns) <= config_.max_mid_time_spread_ns;
+  } else if (released) {
+    plausible = released_through_ - key < static_cast<std::int64_t>(kHistory);
+    time_agrees = entry && abs_diff(mid, entry->mid) <= config_.max_mid_time_spread_ns;
+  } else if (have_key_ && key > newest_key_) {
+    plausible = key - newest_key_ <= lead_limit();
+    time_agrees = on_grid(key, mid);
+  }
+  // A disagreeing time is a clock fault (the majority judges it at release) when the unit's
+  // TAI stepped, or when it names no other exposure; otherwise the sequence is what is wrong.
+  const bool fits = plausible && (time_agrees || clock_stepped(cs, obs) || !names_other_exposure());
+  if (!fits) {
+    quarantine(cam, obs, unwrapped, now);
+    return;
+  }
+  if (cs.holding) drop_held(cam);  // the sequence fits again: the held one was a lone glitch
+  cs.last_unwrapped = std::max(cs.last_unwrapped, unwrapped);
+  if (released) {
+    drop_known(key, cam);
+    return;
+  }
+  if (it == pending_.end()) {
+    it = pending_.try_emplace(key).first;
+    it->second.first_arrival = now;
+    it->second.cameras.reserve(config_.camera_ids.size());
+    newest_key_ = have_key_ ? std::max(newest_key_, key) : key;
+    have_key_ = true;
+  }
+  add_to_pending(it, cam, obs);
+}
+
+void ExposureAligner::add_to_pending(PendingMap::iterator it, int cam,
+                                     const msg::MarkObservations& obs) {
+  Pending& p = it->second;
+  const std::uint32_t bit = 1u << cam;
+  if (p.present_mask & bit) {
+    ++counters_.dropped_duplicate;
+    ++camera_counters_[static_cast<std::size_t>(cam)].duplicate;
+    return;
+  }
+  p.cameras.push_back(obs);
+  p.present_mask |= bit;
+  const Majority m = majority(p.cameras, it->first);
+  p.reference_mid_tai_ns = pipeline::exposure_mid_tai_ns(p.cameras[m.reference]);
+}
+
+void ExposureAligner::drop_known(std::int64_t key, int cam) {
+  CameraCounters& cc = camera_counters_[static_cast<std::size_t>(cam)];
+  const Released* r = released_entry(key);
+  if (r && (r->mask & (1u << cam))) {
+    ++counters_.dropped_duplicate;
+    ++cc.duplicate;
+  } else {
+    ++counters_.dropped_late;
+    ++cc.late;
+  }
+}
+
+void ExposureAligner::drop_held(int cam) {
+  CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
+  if (!cs.holding) return;
+  cs.holding = false;
+  ++counters_.dropped_quarantined;
+  ++camera_counters_[static_cast<std::size_t>(cam)].quarantined;
+}
+
+void ExposureAligner::quarantine(int cam, const msg::MarkObservations& obs, std::int64_t unwrapped,
+                                 time::MonotonicNs now) {
+  CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
+  const auto target = exposure_at_time(pipeline::exposure_mid_tai_ns(obs));
+  std::optional<std::int64_t> implied;
+  if (target) implied = *target - unwrapped;
+  if (implied && cs.holding && cs.held_offset == implied) {
+    // Two observations in a row agree on where this camera's sequence now sits (a restarted
+    // unit, a re-numbered trigger): re-learn the offset and place both.
+    cs.offset = *implied;
+    cs.last_unwrapped = unwrapped;
+    cs.holding = false;
+    ++counters_.sequence_offset_changes;
+    CameraCounters& cc = camera_counters_[static_cast<std::size_t>(cam)];
+    ++cc.offset_changes;
+    cc.sequence_offset = cs.offset;
+    const msg::MarkObservations held = cs.held;
+    place(cam, held, now);
+    place(cam, obs, now);
+    return;
+  }
+  drop_held(cam);
+  cs.holding = true;
+  cs.held = obs;
+  cs.held_offset = implied;
+  if (!implied) try_trigger_restart(now);
+}
+
+void ExposureAligner::try_trigger_restart(time::MonotonicNs now) {
+  // Held observations that no exposure explains, agreeing in time with the newest one: when a
+  // majority of the rig holds them, the trigger itself restarted (or jumped): open a new
+  // exposure for them after the newest, and a new grid.
+  std::vector<int> agreeing;
+  time::TaiNs reference = 0;
+  bool have_reference = false;
+  for (std::size_t i = 0; i < cameras_.size(); ++i) {
+    const CameraState& cs = cameras_[i];
+    if (!cs.holding || cs.held_offset) continue;
+    const time::TaiNs mid = pipeline::exposure_mid_tai_ns(cs.held);
+    if (!have_reference) {
+      reference = mid;
+      have_reference = true;
+    }
+    if (abs_diff(mid, reference) <= config_.max_mid_time_spread_ns)
+      agreeing.push_back(static_cast<int>(i));
+  }
+  if (agreeing.size() < restart_quorum_ || restarting_) return;
+  restarting_ = true;  // placing the held ones may quarantine again: no nested restart
+  ++counters_.sequence_restarts;
+  const std::int64_t new_key = newest_key_ + 1;
+  grid_period_ns_ = 0;  // a new trigger: learn its period again
+  for (const int cam : agreeing) {
+    CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
+    const std::int64_t unwrapped = unwrap(cs, cs.held.trigger_seq);
+    cs.offset = new_key - unwrapped;
+    cs.last_unwrapped = unwrapped;
+    cs.holding = false;
+    camera_counters_[static_cast<std::size_t>(cam)].sequence_offset = cs.offset;
+    const msg::MarkObservations held = cs.held;
+    place(cam, held, now);
+  }
+  restarting_ = false;
+}
+
+std::uint32_t ExposureAligner::majority_sequence(
+    const std::vector<msg::MarkObservations>& kept) const {
+  // The trigger sequence most cameras of the exposure carry; a tie goes to the cameras whose
+  // offset changed least often (a restarted unit's new numbering does not rename the exposure).
+  std::uint32_t best = kept.front().trigger_seq;
+  std::size_t best_votes = 0;
+  std::uint64_t best_changes = UINT64_MAX;
+  for (const auto& o : kept) {
+    const auto votes = static_cast<std::size_t>(std::count_if(
+        kept.begin(), kept.end(),
+        [&](const msg::MarkObservations& x) { return x.trigger_seq == o.trigger_seq; }));
+    const std::uint64_t changes =
+        camera_counters_[static_cast<std::size_t>(camera_index(o.camera_id))].offset_changes;
+    if (votes > best_votes || (votes == best_votes && changes < best_changes)) {
+      best = o.trigger_seq;
+      best_votes = votes;
+      best_changes = changes;
+    }
+  }
+  return best;
+}
+
+ExposureAligner::Majority ExposureAligner::majority(
+    const std::vector<msg::MarkObservations>& cameras, std::int64_t key) const {
+  // The mid-time most cameras agree with (within the spread); a tie goes to the one nearest the
+  // trigger grid's prediction. Never simply the first to arrive.
+  const auto predicted = grid_mid(key);
+  Majority best;
+  int best_count = -1;
+  std::int64_t best_err = INT64_MAX;
+  for (std::size_t i = 0; i < cameras.size(); ++i) {
+    const time::TaiNs mid_i = pipeline::exposure_mid_tai_ns(cameras[i]);
+    std::uint32_t mask = 0;
+    for (std::size_t j = 0; j < cameras.size(); ++j)
+      if (abs_diff(pipeline::exposure_mid_tai_ns(cameras[j]), mid_i) <=
+          config_.max_mid_time_spread_ns)
+        mask |= 1u << j;
+    const int count = std::popcount(mask);
+    const std::int64_t err = predicted ? abs_diff(mid_i, *predicted) : 0;
+    if (count > best_count || (count == best_count && err < best_err)) {
+      best = {mask, i};
+      best_count = count;
+      best_err = err;
+    }
+  }
+  return best;
 }
 
 void ExposureAligner::poll(time::MonotonicNs now, std::vector<pipeline::AlignedExposure>& out) {
@@ -114,12 +384,14 @@ void ExposureAligner::poll(time::MonotonicNs now, std::vector<pipeline::AlignedE
 void ExposureAligner::flush(std::vector<pipeline::AlignedExposure>& out) {
   while (!pending_.empty())
     release(pending_.begin(), ReleaseReason::kFlush, out);
+  for (std::size_t i = 0; i < cameras_.size(); ++i)
+    drop_held(static_cast<int>(i));
 }
 
 time::MonotonicNs ExposureAligner::next_deadline() const {
   time::MonotonicNs earliest = INT64_MAX;
   for (const auto& [key, p] : pending_)
-    earliest = std::min(earliest, p.first_arrival + config_.max_wait_ns);
+    earliest = std::min(earliest, time::saturating_add_ns(p.first_arrival, config_.max_wait_ns));
   return earliest;
 }
 
@@ -130,7 +402,8 @@ void ExposureAligner::release_ready(time::MonotonicNs now,
   // everything older than it, whatever their own deadlines.
   auto newest_expired = pending_.end();
   for (auto it = pending_.begin(); it != pending_.end(); ++it)
-    if (now - it->second.first_arrival >= config_.max_wait_ns) newest_expired = it;
+    if (time::saturating_sub_ns(now, it->second.first_arrival) >= config_.max_wait_ns)
+      newest_expired = it;
   while (!pending_.empty()) {
     auto it = pending_.begin();
     const bool complete = it->second.present_mask == all_mask_;
@@ -141,51 +414,89 @@ void ExposureAligner::release_ready(time::MonotonicNs now,
   }
 }
 
-void ExposureAligner::release(std::map<std::int64_t, Pending>::iterator it, ReleaseReason reason,
+void ExposureAligner::update_grid(std::int64_t key, time::TaiNs mid, int agreeing_cameras) {
+  if (!released_any_) {
+    grid_key_ = key;
+    grid_mid_ = mid;
+    return;
+  }
+  const std::int64_t d = key - grid_key_;
+  if (d <= 0) return;
+  // A lone camera off the grid (a clock that jumped) does not move it; a few in a row do.
+  const auto predicted = grid_mid(key);
+  if (predicted && abs_diff(mid, *predicted) > config_.max_mid_time_spread_ns &&
+      agreeing_cameras < 2 && ++grid_misses_ < 4)
+    return;
+  grid_misses_ = 0;
+  if (d <= 64) {
+    const std::int64_t period = (mid - grid_mid_) / d;
+    if (period > 0 && period <= time::kNsPerSecond) grid_period_ns_ = period;
+  }
+  grid_key_ = key;
+  grid_mid_ = mid;
+}
+
+void ExposureAligner::release(PendingMap::iterator it, ReleaseReason reason,
                               std::vector<pipeline::AlignedExposure>& out) {
   const std::int64_t key = it->first;
   Pending& p = it->second;
-  const std::uint32_t missing = all_mask_ & ~p.present_mask;
+  const Majority m = majority(p.cameras, key);
+  const time::TaiNs reference_mid = pipeline::exposure_mid_tai_ns(p.cameras[m.reference]);
+  std::vector<msg::MarkObservations> kept;
+  kept.reserve(p.cameras.size());
+  std::uint32_t present = 0;
+  for (std::size_t j = 0; j < p.cameras.size(); ++j) {
+    const msg::MarkObservations& o = p.cameras[j];
+    const int cam = camera_index(o.camera_id);
+    if (m.inlier_mask & (1u << j)) {
+      kept.push_back(o);
+      present |= 1u << cam;
+      CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
+      if (o.exposure_start_mono_ns != msg::mark_observations_invalid::kExposureStartMonoNs) {
+        cs.tai_minus_mono_ns =
+            time::saturating_sub_ns(o.exposure_start_tai_ns, o.exposure_start_mono_ns);
+        cs.have_clock_baseline = true;
+      }
+    } else {
+      ++counters_.dropped_time_mismatch;
+      ++camera_counters_[static_cast<std::size_t>(cam)].time_mismatch;
+    }
+  }
+  pending_.erase(it);
+  const std::uint32_t missing = all_mask_ & ~present;
+  update_grid(key, reference_mid, std::popcount(present));
   released_through_ = released_any_ ? std::max(released_through_, key) : key;
   released_any_ = true;
-  remember_released(key, p.present_mask);
+  remember_released(key, present, reference_mid);
   for (std::size_t i = 0; i < config_.camera_ids.size(); ++i)
     if (missing & (1u << i)) ++camera_counters_[i].missing;
-  const int delivered = static_cast<int>(p.cameras.size());
-  if (delivered < config_.min_cameras) {
+  if (static_cast<int>(kept.size()) < config_.min_cameras) {
     ++counters_.exposures_dropped_too_few_cameras;
-    pending_.erase(it);
+    counters_.dropped_too_few_cameras += kept.size();
     return;
   }
-  switch (reason) {
-    case ReleaseReason::kComplete:
-      ++counters_.exposures_complete;
-      break;
-    case ReleaseReason::kOverflow:
-      ++counters_.exposures_partial_overflow;
-      break;
-    case ReleaseReason::kTimeout:
-    case ReleaseReason::kFlush:
-      if (missing == 0)
-        ++counters_.exposures_complete;
-      else
-        ++counters_.exposures_partial_timeout;
-      break;
-  }
+  counters_.observations_used += kept.size();
+  for (const auto& o : kept)
+    ++camera_counters_[static_cast<std::size_t>(camera_index(o.camera_id))].used;
+  if (reason == ReleaseReason::kOverflow)
+    ++counters_.exposures_partial_overflow;
+  else if (missing == 0)
+    ++counters_.exposures_complete;
+  else
+    ++counters_.exposures_partial_timeout;
   counters_.camera_missing_total += static_cast<std::uint64_t>(std::popcount(missing));
   pipeline::AlignedExposure e;
-  e.trigger_seq = static_cast<std::uint32_t>(key);
+  e.trigger_seq = majority_sequence(kept);
   e.missing_camera_mask = missing;
   e.closed_by_timeout = missing != 0;
   time::TaiNs earliest_start = INT64_MAX;
-  for (const auto& o : p.cameras) {
+  for (const auto& o : kept) {
     if (o.exposure_start_tai_ns < earliest_start) {
       earliest_start = o.exposure_start_tai_ns;
       e.exposure_mid_tai_ns = pipeline::exposure_mid_tai_ns(o);
     }
   }
-  e.cameras = std::move(p.cameras);
-  pending_.erase(it);
+  e.cameras = std::move(kept);
   out.push_back(std::move(e));
 }
 

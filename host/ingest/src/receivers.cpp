@@ -8,6 +8,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <array>
 #include <cerrno>
 #include <cstring>
@@ -17,6 +18,41 @@
 #include "storetrack/time/time.hpp"
 
 namespace storetrack::ingest {
+namespace {
+
+constexpr std::size_t kMaxAllowedSources = 1024;
+
+// One recvmsg() that also returns the kernel's count of datagrams/frames dropped on this socket
+// because its buffer was full (SO_RXQ_OVFL: cumulative since enabled, sent with a datagram).
+ssize_t receive_one(int fd, void* buf, std::size_t len, int flags, sockaddr_in* from,
+                    std::uint64_t& kernel_drops) {
+  iovec iov{buf, len};
+  alignas(cmsghdr) std::array<char, CMSG_SPACE(sizeof(std::uint32_t))> control{};
+  msghdr m{};
+  m.msg_name = from;
+  m.msg_namelen = from ? sizeof *from : 0;
+  m.msg_iov = &iov;
+  m.msg_iovlen = 1;
+  m.msg_control = control.data();
+  m.msg_controllen = control.size();
+  const ssize_t n = ::recvmsg(fd, &m, flags);
+  if (n < 0) return n;
+  for (cmsghdr* c = CMSG_FIRSTHDR(&m); c; c = CMSG_NXTHDR(&m, c)) {
+    if (c->cmsg_level == SOL_SOCKET && c->cmsg_type == SO_RXQ_OVFL) {
+      std::uint32_t dropped = 0;
+      std::memcpy(&dropped, CMSG_DATA(c), sizeof dropped);
+      kernel_drops = dropped;
+    }
+  }
+  return n;
+}
+
+void enable_drop_count(int fd) {
+  const int one = 1;
+  setsockopt(fd, SOL_SOCKET, SO_RXQ_OVFL, &one, sizeof one);
+}
+
+}  // namespace
 
 UdpReceiver::~UdpReceiver() {
   close();
@@ -37,6 +73,7 @@ int UdpReceiver::open(const std::string& bind_address, std::uint16_t port,
   setsockopt(fd_, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
   // A large buffer absorbs bursts (all cameras of one exposure arrive together).
   setsockopt(fd_, SOL_SOCKET, SO_RCVBUF, &receive_buffer_bytes, sizeof receive_buffer_bytes);
+  enable_drop_count(fd_);
   if (::bind(fd_, reinterpret_cast<const sockaddr*>(&addr), sizeof addr) != 0) {
     const int e = errno;
     close();
@@ -69,13 +106,31 @@ std::uint16_t UdpReceiver::port() const {
   return ntohs(addr.sin_port);
 }
 
-int UdpReceiver::receive(const MessageHandler& handler) {
+int UdpReceiver::allow_source(int unit_id, const std::string& address) {
+  in_addr a{};
+  if (unit_id < 0 || unit_id > 254 || inet_pton(AF_INET, address.c_str(), &a) != 1) return -EINVAL;
+  if (source_allowed(static_cast<std::uint8_t>(unit_id), a.s_addr)) return 0;
+  if (allowed_.size() >= kMaxAllowedSources) return -ENOSPC;
+  allowed_.push_back({static_cast<std::uint8_t>(unit_id), a.s_addr});
+  return 0;
+}
+
+bool UdpReceiver::source_allowed(std::uint8_t unit_id, std::uint32_t address) const {
+  return std::any_of(allowed_.begin(), allowed_.end(), [&](const AllowedSource& s) {
+    return s.unit_id == unit_id && s.address == address;
+  });
+}
+
+int UdpReceiver::receive(const MessageHandler& handler, int max_datagrams) {
   if (fd_ < 0) return -EBADF;
   std::array<std::uint8_t, 2048> buf{};
   int decoded = 0;
   msg::AnyMessage message;
-  for (;;) {
-    const ssize_t n = ::recv(fd_, buf.data(), buf.size(), MSG_TRUNC);
+  int read = 0;
+  for (; read < max_datagrams; ++read) {
+    sockaddr_in from{};
+    const ssize_t n =
+        receive_one(fd_, buf.data(), buf.size(), MSG_TRUNC, &from, counters_.kernel_drops);
     if (n < 0) {
       if (errno == EINTR) continue;
       if (errno == EAGAIN || errno == EWOULDBLOCK) break;
@@ -93,8 +148,12 @@ int UdpReceiver::receive(const MessageHandler& handler) {
         std::span<const std::uint8_t>(buf.data(), static_cast<std::size_t>(n)), message, &header);
     counters_.decode_errors.record(e);
     if (e != msg::DecodeError::kNone) continue;
-    // Per-unit datagram counter: forward gaps are datagrams lost on the way.
     const std::uint8_t u = header.unit_id;
+    if (!allowed_.empty() && !source_allowed(u, from.sin_addr.s_addr)) {
+      ++counters_.spoofed_source;  // before the gap count: a forger cannot disturb it
+      continue;
+    }
+    // Per-unit datagram counter: forward gaps are datagrams lost on the way.
     if (seen_unit_[u]) {
       const auto gap = static_cast<std::int32_t>(header.datagram_seq - last_seq_[u] - 1);
       if (gap > 0 && gap < (1 << 20))
@@ -108,6 +167,7 @@ int UdpReceiver::receive(const MessageHandler& handler) {
     ++decoded;
     handler(message);
   }
+  if (read >= max_datagrams) ++counters_.budget_exhausted;
   return decoded;
 }
 
@@ -132,6 +192,7 @@ int CanFdReceiver::open(const std::string& interface_name) {
     close();
     return -e;
   }
+  enable_drop_count(fd_);
   sockaddr_can addr{};
   addr.can_family = AF_CAN;
   addr.can_ifindex = static_cast<int>(index);
@@ -143,13 +204,14 @@ int CanFdReceiver::open(const std::string& interface_name) {
   return 0;
 }
 
-int CanFdReceiver::receive(const MessageHandler& handler) {
+int CanFdReceiver::receive(const MessageHandler& handler, int max_frames) {
   if (fd_ < 0) return -EBADF;
   int decoded = 0;
   canfd_frame raw{};
   std::optional<msg::AnyMessage> completed;
-  for (;;) {
-    const ssize_t n = ::read(fd_, &raw, sizeof raw);
+  int read = 0;
+  for (; read < max_frames; ++read) {
+    const ssize_t n = receive_one(fd_, &raw, sizeof raw, 0, nullptr, counters_.kernel_drops);
     if (n < 0) {
       if (errno == EINTR) continue;
       if (errno == EAGAIN || errno == EWOULDBLOCK) break;
@@ -171,6 +233,7 @@ int CanFdReceiver::receive(const MessageHandler& handler) {
       handler(*completed);
     }
   }
+  if (read >= max_frames) ++counters_.budget_exhausted;
   return decoded;
 }
 

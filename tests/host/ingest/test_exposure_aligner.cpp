@@ -2,6 +2,7 @@
 // jumps, sequence wrap and restart, overflow. Every test checks the released exposures against
 // what was injected (the truth), and that every dropped observation is counted with its reason.
 #include "storetrack/ingest/exposure_aligner.hpp"
+#include "storetrack/time/saturating.hpp"
 
 #include <gtest/gtest.h>
 
@@ -22,7 +23,8 @@ msg::MarkObservations make_obs(int camera_id, std::uint32_t seq, std::int64_t st
   o.camera_id = static_cast<std::uint8_t>(camera_id);
   o.trigger_seq = seq;
   o.exposure_start_tai_ns = start_tai;
-  o.exposure_start_mono_ns = start_tai / 3;
+  o.exposure_start_mono_ns =
+      time::saturating_sub_ns(start_tai, 7 * time::kNsPerSecond);  // a consistent unit clock
   o.exposure_duration_ns = 500'000;
   o.clock_state = 2;
   o.mark_count = 1;
@@ -39,8 +41,9 @@ AlignerConfig config4() {
 }
 
 std::uint64_t total_dropped(const AlignerCounters& c) {
-  return c.dropped_unknown_camera + c.dropped_invalid + c.dropped_duplicate + c.dropped_late +
-         c.dropped_time_mismatch;
+  return c.dropped_unknown_camera + c.dropped_spoofed + c.dropped_invalid +
+         c.dropped_time_out_of_range + c.dropped_duplicate + c.dropped_late +
+         c.dropped_time_mismatch + c.dropped_quarantined + c.dropped_too_few_cameras;
 }
 
 TEST(ExposureAligner, CompleteExposuresReleaseImmediatelyInOrder) {
@@ -219,8 +222,10 @@ TEST(ExposureAligner, SequenceWrapAndRestart) {
   ASSERT_EQ(out.size(), sent.size());
   for (std::size_t i = 0; i < sent.size(); ++i)
     EXPECT_EQ(out[i].trigger_seq, sent[i]);
-  // 0xFFFFFFF0 -> 3 is a wrap (continuous); 2003 -> 0 is far behind: a restart.
-  EXPECT_EQ(aligner.counters().sequence_restarts, 1u);
+  // 0xFFFFFFF0 -> 3 is a wrap, and skipping 0xFFFFFFFF one period later leaves the sequence a
+  // step ahead of the trigger grid; 2003 -> 0 is far behind: a restart on the same grid. Each is
+  // a re-learned offset of every camera (4 + 4), losing nothing.
+  EXPECT_EQ(aligner.counters().sequence_offset_changes, 8u);
   EXPECT_EQ(total_dropped(aligner.counters()), 0u);
 }
 

@@ -18,8 +18,14 @@ namespace {
 
 class Sender {
  public:
-  explicit Sender(std::uint16_t port) {
+  explicit Sender(std::uint16_t port, const char* from = nullptr) {
     fd_ = socket(AF_INET, SOCK_DGRAM, 0);
+    if (from) {  // send from this loopback address (any of 127/8 works on Linux)
+      sockaddr_in src{};
+      src.sin_family = AF_INET;
+      inet_pton(AF_INET, from, &src.sin_addr);
+      EXPECT_EQ(bind(fd_, reinterpret_cast<sockaddr*>(&src), sizeof src), 0);
+    }
     dst_.sin_family = AF_INET;
     dst_.sin_port = htons(port);
     inet_pton(AF_INET, "127.0.0.1", &dst_.sin_addr);
@@ -124,6 +130,79 @@ TEST(UdpReceiver, JoinsMulticastGroupOnLoopback) {
   drain(rx, got, 1);
   if (got.empty()) GTEST_SKIP() << "no multicast route on loopback in this sandbox";
   EXPECT_EQ(got[0].trigger_seq, 1u);
+}
+
+void send_observations(Sender& tx, std::uint32_t first, int count) {
+  std::array<std::uint8_t, msg::kMaxDatagramBytes> buf{};
+  for (int k = 0; k < count; ++k) {
+    const auto seq = first + static_cast<std::uint32_t>(k);
+    const int n = msg::encode_datagram(observation(seq), buf, seq);
+    ASSERT_GT(n, 0);
+    tx.send(std::span<const std::uint8_t>(buf.data(), static_cast<std::size_t>(n)));
+  }
+}
+
+TEST(UdpReceiver, OnlyConfiguredUnitAndSourceCombinationsAreDelivered) {
+  // Unit 1 is configured at 127.0.0.2: the same valid datagrams from 127.0.0.3 (another host),
+  // and unit 1's datagrams are all the test sends, so any delivery from .3 is a spoof accepted.
+  UdpReceiver rx;
+  ASSERT_EQ(rx.open("127.0.0.1", 0), 0);
+  ASSERT_EQ(rx.allow_source(1, "127.0.0.2"), 0);
+  EXPECT_EQ(rx.allow_source(1, "not-an-address"), -EINVAL);
+  EXPECT_EQ(rx.allow_source(255, "127.0.0.2"), -EINVAL);
+  Sender genuine(rx.port(), "127.0.0.2");
+  Sender forger(rx.port(), "127.0.0.3");
+  send_observations(genuine, 0, 10);
+  send_observations(forger, 1000, 7);
+  std::vector<msg::MarkObservations> got;
+  drain(rx, got, 17);
+  ASSERT_EQ(got.size(), 10u);
+  for (const auto& o : got)
+    EXPECT_LT(o.trigger_seq, 10u) << "a forged datagram was delivered";
+  EXPECT_EQ(rx.counters().spoofed_source, 7u);
+  EXPECT_EQ(rx.counters().datagram_seq_gaps, 0u) << "the forger's counter disturbed the gaps";
+}
+
+TEST(UdpReceiver, ReceiveReadsAtMostItsBoundPerCall) {
+  // A flood waiting in the socket: one call reads kMaxDatagramsPerReceive and returns, so the
+  // caller's loop gets to align and process; the rest is read by the next calls, none lost.
+  UdpReceiver rx;
+  ASSERT_EQ(rx.open("127.0.0.1", 0), 0);
+  Sender tx(rx.port());
+  const int sent = kMaxDatagramsPerReceive * 2 + 10;
+  send_observations(tx, 0, sent);
+  pollfd p{rx.fd(), POLLIN, 0};
+  ASSERT_EQ(poll(&p, 1, 1000), 1);
+  int delivered = 0;
+  const auto count = [&](const msg::AnyMessage&) { ++delivered; };
+  EXPECT_EQ(rx.receive(count), kMaxDatagramsPerReceive);
+  EXPECT_EQ(delivered, kMaxDatagramsPerReceive);
+  EXPECT_EQ(rx.counters().budget_exhausted, 1u);
+  EXPECT_EQ(rx.receive(count), kMaxDatagramsPerReceive);
+  EXPECT_EQ(rx.receive(count), 10);
+  EXPECT_EQ(delivered, sent);
+  EXPECT_EQ(rx.counters().budget_exhausted, 2u);
+}
+
+TEST(UdpReceiver, KernelDropsOfAFullSocketBufferAreCounted) {
+  // A small receive buffer overflows on loopback (the sender never blocks): every datagram sent
+  // is either received or counted as a kernel drop.
+  UdpReceiver rx;
+  ASSERT_EQ(rx.open("127.0.0.1", 0, "", "", 8192), 0);
+  Sender tx(rx.port());
+  const int sent = 400;
+  send_observations(tx, 0, sent);
+  int delivered = 0;
+  for (int calls = 0; calls < 20; ++calls)
+    rx.receive([&](const msg::AnyMessage&) { ++delivered; });
+  // The drop count rides on the next datagram received: send one more after the flood.
+  send_observations(tx, static_cast<std::uint32_t>(sent), 1);
+  pollfd p{rx.fd(), POLLIN, 0};
+  ASSERT_EQ(poll(&p, 1, 1000), 1);
+  rx.receive([&](const msg::AnyMessage&) { ++delivered; });
+  EXPECT_GT(rx.counters().kernel_drops, 0u);
+  EXPECT_EQ(static_cast<std::uint64_t>(delivered) + rx.counters().kernel_drops,
+            static_cast<std::uint64_t>(sent + 1));
 }
 
 }  // namespace

@@ -33,7 +33,7 @@ PY
 STORE_SURVEY="$OUT/sim/survey_store.json"
 "$HOST" --calibration "$OUT/sim/rig_calibrated.json" --pylon-survey "$OUT/sim/survey_pylon.json" \
   --store-survey "$STORE_SURVEY" --initial-marks "$OUT/initial_marks.json" \
-  --udp-port "$PORT" --udp-bind 127.0.0.1 --ch10 "$OUT/out.ch10" --csv "$OUT/fti.csv" \
+  --udp-port "$PORT" --udp-bind 127.0.0.1 --udp-source 0@127.0.0.1 --udp-source 1@127.0.0.1 --ch10 "$OUT/out.ch10" --csv "$OUT/fti.csv" \
   --marks-csv "$OUT/marks.csv" --inetx "127.0.0.1:$((PORT + 1))" --stats-json "$OUT/stats.json" \
   --max-wait-ms 3000 --idle-exit-s 5 --expect-exposures "$NEXP" >"$OUT/host.log" 2>&1 &
 HOST_PID=$!

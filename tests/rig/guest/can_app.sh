@@ -16,6 +16,16 @@ vcan_up vcan0
 "$SIM" --scenario "$SCEN" --seed 1 --exposures 1 --out $T/sim > $T/sim.out 2>&1 ||
   { cat $T/sim.out; fail "storetrack-sim"; }
 python3 "$RIG_GUEST/sim_setup.py" "$SCEN" $T/sim $T/setup || fail "setup extraction (sim_setup.py)"
+# The unit below runs as unit 1: the calibration must say so (the host drops observations whose
+# unit id is not their camera's calibrated one, as spoofed).
+python3 - $T/setup/rig_calibration.json <<'PY' || fail "calibration unit id"
+import json, sys
+rig = json.load(open(sys.argv[1]))
+for c in rig["cameras"]:
+    if c["camera_id"] == 0:
+        c["unit_id"] = 1
+json.dump(rig, open(sys.argv[1], "w"), indent=1)
+PY
 
 candump -L vcan0 > $T/candump.log & DUMP=$!
 "$HOST" --calibration $T/setup/rig_calibration.json --pylon-survey $T/setup/pylon_survey.json \

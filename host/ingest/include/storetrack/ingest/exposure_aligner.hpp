@@ -1,14 +1,30 @@
-// ExposureAligner: groups the MarkObservations of one exposure (same trigger sequence) across
-// cameras, releasing each exposure when every rig camera has delivered it or when its bounded
-// wait expires, so one dead camera never stalls the output. Tolerates loss, duplicates,
-// reordering, sequence wrap and restarts and unit clock jumps; every dropped observation is
-// counted with its reason. Pure logic: the caller supplies the host's monotonic time, so tests
-// inject faults deterministically (tests/host/ingest).
+// ExposureAligner: groups the MarkObservations of one exposure across cameras, releasing each
+// exposure when every rig camera has delivered it or when its bounded wait expires, so one dead
+// camera never stalls the output. Pure logic: the caller supplies the host's monotonic time, so
+// tests inject faults deterministically (tests/host/ingest). Design (docs/architecture.md,
+// "Exposure alignment"):
+//  - Exposures are keyed on the aligner's own exposure index. Each camera maps its trigger
+//    sequence onto it with its own offset (0 while the rig shares one trigger), so one camera's
+//    sequence can never move the others': a sequence that does not fit (further ahead than the
+//    others can reach within the wait, far behind, or naming an exposure whose mid-time
+//    disagrees) is QUARANTINED, and the camera's
+//    offset is re-learned from the exposure mid-time (the trigger grid) only when two of its
+//    observations in a row agree on the new offset. A restart of the whole trigger is accepted
+//    when a majority of cameras agree on it. When the unit's TAI stepped against its own
+//    monotonic clock, its time is what is wrong: the sequence is kept and the time judged.
+//  - An exposure's reference mid-time is the majority of its cameras (the mid-time most of them
+//    agree with, ties broken by the trigger grid), never the first to arrive; the others are
+//    dropped as time mismatches.
+//  - Only configured (camera id, unit id) pairs are accepted; times that could overflow int64
+//    arithmetic are refused. Every observation is either used or counted by its reason, and
+//    every container is bounded (max_pending exposures x rig cameras, one held observation per
+//    camera, a fixed history).
 #pragma once
 
 #include <array>
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <vector>
 
 #include "storetrack/msg/messages.hpp"
@@ -17,25 +33,41 @@
 
 namespace storetrack::ingest {
 
+/// Limits checked by the ExposureAligner constructor (and by the host configuration reader).
+inline constexpr std::size_t kMaxAlignerCameras = 32;  ///< one bit per camera in the masks
+inline constexpr time::MonotonicNs kMaxAlignerWaitNs = 60 * time::kNsPerSecond;
+inline constexpr std::int64_t kMaxMidTimeSpreadNs = time::kNsPerSecond;
+inline constexpr std::size_t kMaxAlignerPending = 4096;
+inline constexpr std::uint32_t kMaxSequenceLead = 100'000;
+/// Exposure start times outside [0, kMaxExposureStartTaiNs] are refused: 2^62 ns is year 2116,
+/// and within this range every sum and difference of two times fits int64.
+inline constexpr time::TaiNs kMaxExposureStartTaiNs = std::int64_t{1} << 62;
+
 struct AlignerConfig {
   /// Camera ids in rig order (rig.cameras[i].id): bit i of missing_camera_mask is camera_ids[i].
   std::vector<int> camera_ids;
+  /// Unit id of each camera, same order (rig.cameras[i].unit_id). An observation naming a camera
+  /// with another unit id is counted as spoofed. Empty: not checked.
+  std::vector<int> unit_ids;
   /// Longest wait for the missing cameras of an exposure, from its first observation's arrival
-  /// (host CLOCK_MONOTONIC). Bounds the latency added by a dead camera.
+  /// (host CLOCK_MONOTONIC). Bounds the latency added by a dead camera. (0, 60 s].
   time::MonotonicNs max_wait_ns = 10'000'000;
-  /// Observations with the same trigger sequence whose exposure mid-points (TAI) differ by more
-  /// than this are inconsistent (a unit's clock jumped, or a sequence number was reused): the
-  /// later one is dropped.
+  /// Cameras of one exposure whose mid-points (TAI) differ from the majority's by more than this
+  /// are inconsistent (a unit's clock jumped): they are dropped. [0, 1 s].
   std::int64_t max_mid_time_spread_ns = 2'000'000;
-  /// Exposures waiting at once; beyond it the oldest is released early (counted).
+  /// Exposures waiting at once; beyond it the oldest is released early (counted). 1..4096.
   std::size_t max_pending = 64;
-  /// Exposures with fewer delivered cameras are dropped (counted), not released.
+  /// Exposures with fewer delivered cameras are dropped (counted), not released. 1..cameras.
   int min_cameras = 1;
-  /// A sequence this far BEHIND the newest released one means the trigger source restarted.
-  std::uint32_t sequence_restart_threshold = 1000;
+  /// A camera may open a new exposure at most this far ahead of the newest one; beyond it its
+  /// sequence is quarantined. Once the trigger period is known the lead is also limited to
+  /// max_wait / period: an exposure further ahead would time out before the other cameras reach
+  /// it and, released, make their observations of every exposure in between late. 1..100000.
+  std::uint32_t max_sequence_lead = kMaxSequenceLead;
 };
 
 /// Why observations or exposures were dropped, and what was released. All counts since start.
+/// After flush(): observations_in = observations_used + every dropped_* counter.
 struct AlignerCounters {
   std::uint64_t observations_in = 0;
   std::uint64_t observations_used = 0;
@@ -43,13 +75,18 @@ struct AlignerCounters {
   std::uint64_t exposures_partial_timeout = 0;   ///< released on the deadline, cameras missing
   std::uint64_t exposures_partial_overflow = 0;  ///< released early: too many pending
   std::uint64_t exposures_dropped_too_few_cameras = 0;
-  std::uint64_t dropped_unknown_camera = 0;  ///< camera_id not in the rig
-  std::uint64_t dropped_invalid = 0;         ///< invalid sequence or time fields
-  std::uint64_t dropped_duplicate = 0;       ///< same camera, same exposure, seen before
-  std::uint64_t dropped_late = 0;            ///< exposure already released without it
-  std::uint64_t dropped_time_mismatch = 0;   ///< mid-time disagrees with the other cameras
-  std::uint64_t sequence_restarts = 0;
-  std::uint64_t camera_missing_total = 0;  ///< sum over released exposures of missing cameras
+  std::uint64_t dropped_unknown_camera = 0;     ///< camera_id not in the rig
+  std::uint64_t dropped_spoofed = 0;            ///< unit_id is not the camera's calibrated unit
+  std::uint64_t dropped_invalid = 0;            ///< invalid sequence or mark count
+  std::uint64_t dropped_time_out_of_range = 0;  ///< start time outside [0, 2^62] ns
+  std::uint64_t dropped_duplicate = 0;          ///< same camera, same exposure, seen before
+  std::uint64_t dropped_late = 0;               ///< exposure already released without it
+  std::uint64_t dropped_time_mismatch = 0;      ///< mid-time disagrees with the majority
+  std::uint64_t dropped_quarantined = 0;        ///< sequence did not fit and was not confirmed
+  std::uint64_t dropped_too_few_cameras = 0;    ///< observations of exposures below min_cameras
+  std::uint64_t sequence_offset_changes = 0;    ///< a camera's offset re-learned from time
+  std::uint64_t sequence_restarts = 0;          ///< a majority of cameras restarted together
+  std::uint64_t camera_missing_total = 0;       ///< sum over released exposures of missing cameras
 };
 
 struct CameraCounters {
@@ -59,10 +96,17 @@ struct CameraCounters {
   std::uint64_t time_mismatch = 0;
   std::uint64_t late = 0;
   std::uint64_t duplicate = 0;
+  std::uint64_t spoofed = 0;
+  std::uint64_t quarantined = 0;
+  std::uint64_t offset_changes = 0;
+  /// Current offset: exposure index = unwrapped trigger_seq + offset.
+  std::int64_t sequence_offset = 0;
 };
 
 class ExposureAligner {
  public:
+  /// Throws std::invalid_argument naming the field and its range when the config is outside the
+  /// limits above.
   explicit ExposureAligner(AlignerConfig config);
 
   /// Adds one observation received at host time `now`; appends released exposures to `out`.
@@ -70,42 +114,92 @@ class ExposureAligner {
             std::vector<pipeline::AlignedExposure>& out);
   /// Releases exposures whose wait expired by `now`.
   void poll(time::MonotonicNs now, std::vector<pipeline::AlignedExposure>& out);
-  /// Releases everything pending (end of input).
+  /// Releases everything pending and drops held observations (end of input).
   void flush(std::vector<pipeline::AlignedExposure>& out);
   /// Host time at which the oldest pending exposure times out; INT64_MAX when none pending.
   time::MonotonicNs next_deadline() const;
 
   std::size_t pending() const { return pending_.size(); }
+  /// Observations held in quarantine (at most one per camera).
+  std::size_t held() const;
   const AlignerCounters& counters() const { return counters_; }
   const std::vector<CameraCounters>& camera_counters() const { return camera_counters_; }
   const AlignerConfig& config() const { return config_; }
 
  private:
   struct Pending {
-    std::vector<msg::MarkObservations> cameras;
+    std::vector<msg::MarkObservations> cameras;  // at most one per rig camera
     std::uint32_t present_mask = 0;
     time::MonotonicNs first_arrival = 0;
-    time::TaiNs reference_mid_tai_ns = 0;
+    time::TaiNs reference_mid_tai_ns = 0;  // majority mid-time of the cameras so far
+  };
+  struct CameraState {
+    bool seen = false;
+    std::int64_t last_unwrapped = 0;  // unwrapped trigger_seq of the last placed observation
+    std::int64_t offset = 0;          // exposure index = unwrapped trigger_seq + offset
+    bool holding = false;             // an observation in quarantine
+    msg::MarkObservations held{};
+    std::optional<std::int64_t> held_offset;  // the offset its mid-time implies, if any
+    // TAI - unit monotonic time when this camera last agreed with the majority: a change means
+    // the unit's TAI stepped (a clock fault), not its sequence.
+    bool have_clock_baseline = false;
+    std::int64_t tai_minus_mono_ns = 0;
+  };
+  struct Released {
+    std::int64_t key = INT64_MIN;
+    std::uint32_t mask = 0;
+    time::TaiNs mid = 0;
+  };
+  struct Majority {
+    std::uint32_t inlier_mask = 0;  // bit = index in Pending::cameras
+    std::size_t reference = 0;      // index of the camera whose mid-time the majority shares
   };
   enum class ReleaseReason { kComplete, kTimeout, kOverflow, kFlush };
+  using PendingMap = std::map<std::int64_t, Pending>;  // by exposure index
 
   int camera_index(int camera_id) const;
-  std::int64_t unwrap(std::uint32_t seq) const;
-  void release(std::map<std::int64_t, Pending>::iterator it, ReleaseReason reason,
+  bool accept_fields(const msg::MarkObservations& obs, int cam);
+  std::int64_t unwrap(const CameraState& cs, std::uint32_t seq) const;
+  void place(int cam, const msg::MarkObservations& obs, time::MonotonicNs now);
+  bool on_grid(std::int64_t key, time::TaiNs mid) const;
+  std::int64_t lead_limit() const;
+  std::int64_t match_tolerance() const;
+  bool clock_stepped(const CameraState& cs, const msg::MarkObservations& obs) const;
+  std::uint32_t majority_sequence(const std::vector<msg::MarkObservations>& kept) const;
+  void add_to_pending(PendingMap::iterator it, int cam, const msg::MarkObservations& obs);
+  void drop_known(std::int64_t key, int cam);
+  void quarantine(int cam, const msg::MarkObservations& obs, std::int64_t unwrapped,
+                  time::MonotonicNs now);
+  void try_trigger_restart(time::MonotonicNs now);
+  void drop_held(int cam);
+  std::optional<std::int64_t> exposure_at_time(time::TaiNs mid) const;
+  std::optional<time::TaiNs> grid_mid(std::int64_t key) const;
+  Majority majority(const std::vector<msg::MarkObservations>& cameras, std::int64_t key) const;
+  void release(PendingMap::iterator it, ReleaseReason reason,
                std::vector<pipeline::AlignedExposure>& out);
   void release_ready(time::MonotonicNs now, std::vector<pipeline::AlignedExposure>& out);
-  void remember_released(std::int64_t key, std::uint32_t mask);
+  void remember_released(std::int64_t key, std::uint32_t mask, time::TaiNs mid);
+  void update_grid(std::int64_t key, time::TaiNs mid, int agreeing_cameras);
+  const Released* released_entry(std::int64_t key) const;
 
   AlignerConfig config_;
   std::uint32_t all_mask_ = 0;
-  std::map<std::int64_t, Pending> pending_;  // by unwrapped trigger sequence
-  bool have_reference_ = false;
-  std::int64_t newest_seen_ = 0;       // unwrapped sequence used as the unwrap reference
+  std::size_t restart_quorum_ = 1;  // cameras that must agree on a trigger restart
+  bool restarting_ = false;
+  PendingMap pending_;
+  bool have_key_ = false;
+  std::int64_t newest_key_ = 0;        // newest exposure index opened
   std::int64_t released_through_ = 0;  // every exposure <= this has been released
   bool released_any_ = false;
+  // The trigger grid, from released exposures: last index and mid-time, and the period.
+  std::int64_t grid_key_ = 0;
+  time::TaiNs grid_mid_ = 0;
+  std::int64_t grid_period_ns_ = 0;  // 0: not known yet
+  int grid_misses_ = 0;              // consecutive lone exposures off the grid
   static constexpr std::size_t kHistory = 1024;
-  std::array<std::int64_t, kHistory> history_key_{};
-  std::array<std::uint32_t, kHistory> history_mask_{};
+  static constexpr std::int64_t kRecentReleased = 8;  // searched when re-learning an offset
+  std::array<Released, kHistory> history_{};
+  std::vector<CameraState> cameras_;
   AlignerCounters counters_;
   std::vector<CameraCounters> camera_counters_;
 };

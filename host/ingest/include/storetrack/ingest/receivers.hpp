@@ -1,12 +1,16 @@
 // Socket adapters of the host's input: UDP (unicast or multicast) and CAN FD (SocketCAN raw,
-// CAN_RAW_FD_FRAMES). Both are non-blocking: the caller poll()s fd() and then drains with
-// receive(), which decodes every datagram/frame and hands complete messages to a callback.
-// Decoding lives in common/msg; these classes only move bytes and count.
+// CAN_RAW_FD_FRAMES). Both are non-blocking: the caller poll()s fd() and then calls receive(),
+// which reads at most a fixed number of datagrams/frames (so a flood cannot starve alignment
+// and processing: the rest waits in the socket for the next call), decodes them and hands
+// complete messages to a callback. Datagrams the kernel dropped because the socket buffer was
+// full are counted (SO_RXQ_OVFL). Decoding lives in common/msg; these classes only move bytes,
+// filter senders and count.
 #pragma once
 
 #include <cstdint>
 #include <functional>
 #include <string>
+#include <vector>
 
 #include "storetrack/msg/canfd_codec.hpp"
 #include "storetrack/msg/decode_error.hpp"
@@ -16,6 +20,12 @@ namespace storetrack::ingest {
 
 using MessageHandler = std::function<void(const msg::AnyMessage&)>;
 
+/// Most datagrams one UdpReceiver::receive() call reads: 256 is 80 ms of the nominal 8 cameras
+/// x 400 fps and 8 ms of a 10x flood, so one loop turn never holds alignment longer than that.
+inline constexpr int kMaxDatagramsPerReceive = 256;
+/// Most frames one CanFdReceiver::receive() call reads (a MarkObservations is up to 9 frames).
+inline constexpr int kMaxCanFramesPerReceive = 1024;
+
 struct UdpReceiverCounters {
   std::uint64_t datagrams = 0;
   std::uint64_t bytes = 0;
@@ -23,6 +33,9 @@ struct UdpReceiverCounters {
   std::uint64_t receive_errors = 0;
   msg::DecodeCounters decode_errors;    ///< index = DecodeError
   std::uint64_t datagram_seq_gaps = 0;  ///< datagrams missing per the senders' counters
+  std::uint64_t spoofed_source = 0;     ///< valid datagram, (unit id, source address) not allowed
+  std::uint64_t kernel_drops = 0;       ///< dropped by the kernel: socket buffer full
+  std::uint64_t budget_exhausted = 0;   ///< receive() calls that stopped at the per-call bound
 };
 
 class UdpReceiver {
@@ -38,16 +51,28 @@ class UdpReceiver {
            const std::string& multicast_group = "", const std::string& interface_address = "",
            int receive_buffer_bytes = 4 << 20);
   int fd() const { return fd_; }
-  /// Reads until the socket is empty; returns messages decoded or -errno.
-  int receive(const MessageHandler& handler);
+  /// Accepts datagrams of unit `unit_id` (0..254) from IPv4 `address` (a.b.c.d). Once any source
+  /// is allowed, every other (unit id, source address) combination is counted as spoofed and
+  /// dropped. Returns 0 or -EINVAL.
+  int allow_source(int unit_id, const std::string& address);
+  /// Reads until the socket is empty or `max_datagrams` were read; returns messages decoded or
+  /// -errno.
+  int receive(const MessageHandler& handler, int max_datagrams = kMaxDatagramsPerReceive);
   void close();
   const UdpReceiverCounters& counters() const { return counters_; }
   /// The bound port (useful with port 0).
   std::uint16_t port() const;
 
  private:
+  struct AllowedSource {
+    std::uint8_t unit_id;
+    std::uint32_t address;  // network byte order
+  };
+  bool source_allowed(std::uint8_t unit_id, std::uint32_t address) const;
+
   int fd_ = -1;
   UdpReceiverCounters counters_;
+  std::vector<AllowedSource> allowed_;  // one per configured (unit, address); empty: any
   std::uint32_t last_seq_[256] = {};
   bool seen_unit_[256] = {};
 };
@@ -58,6 +83,8 @@ struct CanReceiverCounters {
   std::uint64_t decoded = 0;
   std::uint64_t receive_errors = 0;
   msg::DecodeCounters decode_errors;
+  std::uint64_t kernel_drops = 0;      ///< dropped by the kernel: socket buffer full
+  std::uint64_t budget_exhausted = 0;  ///< receive() calls that stopped at the per-call bound
 };
 
 class CanFdReceiver {
@@ -71,7 +98,9 @@ class CanFdReceiver {
   /// Returns 0 or -errno (-ENODEV when the interface does not exist).
   int open(const std::string& interface_name);
   int fd() const { return fd_; }
-  int receive(const MessageHandler& handler);
+  /// Reads until the socket is empty or `max_frames` were read; returns messages completed or
+  /// -errno.
+  int receive(const MessageHandler& handler, int max_frames = kMaxCanFramesPerReceive);
   /// Expires stale partial transfers (call when idle).
   void expire(std::int64_t now_ns) { reassembler_.expire(now_ns); }
   void close();

@@ -1,0 +1,132 @@
+// storetrack-host configuration: every value outside its range is refused with a message naming
+// the field and the range, never cast (a NaN wait, a port wrapping to 16 bits, a negative
+// max_pending turned into 2^64 - 1). The accepted values are checked against what was written.
+#include "host_config.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <string>
+
+namespace storetrack::hostapp {
+namespace {
+
+class ConfigFile {
+ public:
+  explicit ConfigFile(const std::string& text) {
+    path_ = ::testing::TempDir() + "host_config_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name() + ".json";
+    std::ofstream(path_) << text;
+  }
+  ~ConfigFile() { std::remove(path_.c_str()); }
+  const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
+};
+
+// Loads `json` and completes it with a 4-camera rig; returns the error message ("" if none).
+std::string load(const std::string& json, HostConfig* out = nullptr) {
+  ConfigFile f(json);
+  HostConfig c;
+  c.udp_bind = "127.0.0.1";
+  try {
+    load_host_config(f.path(), c);
+    finish_host_config(c, {0, 1, 2, 3}, {0, 0, 1, 1});
+  } catch (const HostConfigError& e) {
+    return e.what();
+  }
+  if (out) *out = c;
+  return "";
+}
+
+void expect_refused(const std::string& json, const std::string& field, const std::string& range) {
+  const std::string msg = load(json);
+  EXPECT_NE(msg.find(field), std::string::npos) << json << " -> '" << msg << "'";
+  EXPECT_NE(msg.find(range), std::string::npos) << json << " -> '" << msg << "'";
+}
+
+TEST(HostConfig, AlignerWaitAndSpreadOutsideTheirRangeAreRefused) {
+  for (const char* v : {"0", "-1", "60001", "1e300", "\"10\""})
+    expect_refused(std::string(R"({"aligner": {"max_wait_ms": )") + v + "}}", "max_wait_ms",
+                   "(0, 60000]");
+  // JSON has no NaN literal; a NaN reaches the aligner through the command line.
+  HostConfig c;
+  for (const double v : {std::nan(""), -1.0, 0.0, 1e300}) {
+    try {
+      set_max_wait_ms(c, v, "--max-wait-ms");
+      ADD_FAILURE() << v << " accepted";
+    } catch (const HostConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find("--max-wait-ms"), std::string::npos);
+    }
+  }
+  for (const char* v : {"-0.5", "1001", "1e300", "null"})
+    expect_refused(std::string(R"({"aligner": {"max_mid_time_spread_ms": )") + v + "}}",
+                   "max_mid_time_spread_ms", "[0, 1000]");
+}
+
+TEST(HostConfig, AlignerIntegersOutsideTheirRangeAreRefused) {
+  for (const char* v : {"0", "-1", "4097", "18446744073709551615", "2.5", "true"})
+    expect_refused(std::string(R"({"aligner": {"max_pending": )") + v + "}}", "max_pending",
+                   "[1, 4096]");
+  for (const char* v : {"0", "-3", "33", "4294967297"})
+    expect_refused(std::string(R"({"aligner": {"min_cameras": )") + v + "}}", "min_cameras",
+                   "[1, 32]");
+  // Within 1..32 but more than the rig has.
+  expect_refused(R"({"aligner": {"min_cameras": 5}})", "min_cameras", "[1, 4]");
+  for (const char* v : {"0", "100001"})
+    expect_refused(std::string(R"({"aligner": {"max_sequence_lead": )") + v + "}}",
+                   "max_sequence_lead", "[1, 100000]");
+}
+
+TEST(HostConfig, UdpPortBindAndSourcesAreChecked) {
+  // 65536 + 47100 used to wrap to port 47100; -1 to 65535.
+  for (const char* v : {"112636", "65536", "-1", "4294967297", "47100.5"})
+    expect_refused(std::string(R"({"udp": {"port": )") + v + "}}", "port", "[0, 65535]");
+  expect_refused(R"({"udp": {"bind": "eth0"}})", "bind", "IPv4");
+  expect_refused(R"({"udp": {"sources": [{"unit_id": 255, "address": "10.0.0.1"}]}})", "unit_id",
+                 "[0, 254]");
+  expect_refused(R"({"udp": {"sources": [{"unit_id": 1, "address": "10.0.0"}]}})", "address",
+                 "IPv4");
+  // No default bind to every interface: UDP without a bind address is refused.
+  ConfigFile f(R"({"udp": {"port": 47100}})");
+  HostConfig c;
+  load_host_config(f.path(), c);
+  EXPECT_THROW(finish_host_config(c, {0}, {0}), HostConfigError);
+  c.udp_port = 0;  // CAN only: no bind needed
+  EXPECT_NO_THROW(finish_host_config(c, {0}, {0}));
+}
+
+TEST(HostConfig, ValuesInRangeAreAppliedExactly) {
+  HostConfig c;
+  ASSERT_EQ(load(R"({"udp": {"port": 65535, "sources": [{"unit_id": 3, "address": "10.1.2.3"}]},
+                     "aligner": {"max_wait_ms": 2.5, "max_mid_time_spread_ms": 0.75,
+                                 "max_pending": 4096, "min_cameras": 4,
+                                 "max_sequence_lead": 8}})",
+                 &c),
+            "");
+  EXPECT_EQ(c.udp_port, 65535);
+  ASSERT_EQ(c.udp_sources.size(), 1u);
+  EXPECT_EQ(c.udp_sources[0].unit_id, 3);
+  EXPECT_EQ(c.udp_sources[0].address, "10.1.2.3");
+  EXPECT_EQ(c.aligner.max_wait_ns, 2'500'000);
+  EXPECT_EQ(c.aligner.max_mid_time_spread_ns, 750'000);
+  EXPECT_EQ(c.aligner.max_pending, 4096u);
+  EXPECT_EQ(c.aligner.min_cameras, 4);
+  EXPECT_EQ(c.aligner.max_sequence_lead, 8u);
+  EXPECT_EQ(c.aligner.camera_ids, (std::vector<int>{0, 1, 2, 3}));
+  EXPECT_EQ(c.aligner.unit_ids, (std::vector<int>{0, 0, 1, 1}));
+}
+
+TEST(HostConfig, UdpSourceOption) {
+  const UdpSource s = parse_udp_source("7@192.168.1.20");
+  EXPECT_EQ(s.unit_id, 7);
+  EXPECT_EQ(s.address, "192.168.1.20");
+  for (const char* bad : {"7", "@1.2.3.4", "x@1.2.3.4", "7x@1.2.3.4"})
+    EXPECT_THROW(parse_udp_source(bad), HostConfigError) << bad;
+}
+
+}  // namespace
+}  // namespace storetrack::hostapp
