@@ -68,7 +68,11 @@ int FtiCsvWriter::write(const msg::FtiSample& s) {
                         s.u_budget_sync_m, s.coverage_factor};
   for (float v : tail)
     std::fprintf(file_, ",%.9g", static_cast<double>(v));
-  if (std::fputc('\n', file_) == EOF) return -EIO;
+  // Line-buffered: the newline writes the row, so a full disk shows here.
+  if (std::fputc('\n', file_) == EOF || std::ferror(file_)) {
+    std::clearerr(file_);
+    return -EIO;
+  }
   ++rows_;
   return 0;
 }
