@@ -73,6 +73,7 @@ RANDOM=$$
 for run in $(seq 0 $(( KILLS - 1 ))); do
   F=$(ch10_of_run "$run")
   for _ in $(seq 600); do [ "$(stat -c %s "$F" 2>/dev/null || echo 0)" -gt 2000 ] && break; sleep 0.1; done
+  [ -f "$F" ] || { ls -l "$OUT"; echo "FAIL run $run never created $F (an earlier file overwritten?)"; exit 1; }
   sleep "$(( 2 + RANDOM % 11 ))e-1"
   kill -9 "$HOST_PID"; wait "$HOST_PID" 2>/dev/null || true
   echo "killed run $run"
