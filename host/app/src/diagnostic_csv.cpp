@@ -4,7 +4,9 @@
 #include <cerrno>
 #include <cinttypes>
 #include <cmath>
+
 #include <cstdarg>
+#include "storetrack/output/csv_writer.hpp"
 
 namespace storetrack::hostapp {
 
@@ -66,9 +68,9 @@ CsvFile::~CsvFile() {
   close();
 }
 
-int CsvFile::open(const std::string& path, const char* header) {
+int CsvFile::open(const std::string& path, const char* header, bool number_if_exists) {
   close();
-  file_ = std::fopen(path.c_str(), "w");
+  file_ = output::fopen_new_file(path, number_if_exists, path_);
   if (!file_) return -errno;
   const std::string line = std::string(header) + "\n";
   return write(line);

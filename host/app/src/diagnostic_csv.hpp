@@ -28,8 +28,10 @@ class CsvFile {
   ~CsvFile();
   CsvFile(const CsvFile&) = delete;
   CsvFile& operator=(const CsvFile&) = delete;
-  /// Creates `path` with `header` (one line, without newline); 0 or -errno.
-  int open(const std::string& path, const char* header);
+  /// Creates `path` (a new file: output::fopen_new_file) with `header` (one line, without
+  /// newline); 0 or -errno.
+  int open(const std::string& path, const char* header, bool number_if_exists = true);
+  const std::string& path() const { return path_; }  ///< the file created
   bool is_open() const { return file_ != nullptr; }
   /// Writes `rows` (whole lines); 0 or -errno, errors counted.
   int write(const std::string& rows);
@@ -39,6 +41,7 @@ class CsvFile {
 
  private:
   std::FILE* file_ = nullptr;
+  std::string path_;
   std::uint64_t bytes_ = 0, errors_ = 0;
 };
 

@@ -1,5 +1,6 @@
 #include "recording_writer.hpp"
 
+#include <spdlog/spdlog.h>
 #include <algorithm>
 
 namespace storetrack::hostapp {
@@ -16,16 +17,27 @@ int RecordingWriter::open_ch10(const std::string& path, const output::Chapter10C
   ch10_open_ = rc == 0;
   return rc;
 }
+namespace {
+
+// A restarted host never overwrites: the numbered name it chose instead is logged.
+int report_created(int rc, const std::string& requested, const std::string& created) {
+  if (rc == 0 && created != requested)
+    spdlog::warn("storetrack-host: '{}' exists and is kept; writing '{}'", requested, created);
+  return rc;
+}
+
+}  // namespace
+
 int RecordingWriter::open_csv(const std::string& path) {
   const int rc = csv_.open(path);
   csv_open_ = rc == 0;
-  return rc;
+  return report_created(rc, path, csv_.path());
 }
 int RecordingWriter::open_marks_csv(const std::string& path) {
-  return marks_.open(path, kMarksCsvHeader);
+  return report_created(marks_.open(path, kMarksCsvHeader), path, marks_.path());
 }
 int RecordingWriter::open_rigid_csv(const std::string& path) {
-  return rigid_.open(path, kRigidCsvHeader);
+  return report_created(rigid_.open(path, kRigidCsvHeader), path, rigid_.path());
 }
 bool RecordingWriter::has_files() const {
   return ch10_open_ || csv_open_ || marks_.is_open() || rigid_.is_open();

@@ -72,6 +72,10 @@ class RecordingWriter {
   std::uint64_t error_count() const;
   const output::Chapter10Writer& ch10() const { return ch10_; }
   bool ch10_open() const { return ch10_open_; }
+  /// The CSV files created (numbered names when the requested ones existed), "" when off.
+  const std::string& csv_path() const { return csv_.path(); }
+  const std::string& marks_csv_path() const { return marks_.path(); }
+  const std::string& rigid_csv_path() const { return rigid_.path(); }
 
  private:
   void run();

@@ -108,5 +108,37 @@ TEST(RecordingWriter, CsvWriteErrorsAreCounted) {
   EXPECT_GT(w.error_count(), 0u);
 }
 
+TEST(RecordingWriter, RestartNeverOverwritesTheCsvFiles) {
+  // The CSVs are part of the recording too: a second run on the same paths keeps the first
+  // run's files and writes numbered ones (fti.001.csv, ...).
+  const fs::path dir = fresh_dir("st_recording_restart");
+  auto run = [&](std::uint32_t first, std::uint32_t n) {
+    RecordingWriter w;
+    EXPECT_EQ(w.open_csv((dir / "fti.csv").string()), 0);
+    EXPECT_EQ(w.open_marks_csv((dir / "marks.csv").string()), 0);
+    w.start();
+    for (std::uint32_t k = first; k < first + n; ++k)
+      w.push(item(k));
+    w.stop();
+    EXPECT_EQ(w.error_count(), 0u);
+    return std::make_pair(w.csv_path(), w.marks_csv_path());
+  };
+  const auto lines = [](const fs::path& p) {
+    std::ifstream in(p);
+    std::size_t n = 0;
+    for (std::string l; std::getline(in, l);)
+      ++n;
+    return n;
+  };
+  run(0, 30);
+  const auto second = run(100, 7);
+  EXPECT_EQ(lines(dir / "fti.csv"), 31u) << "the first run's CSV was overwritten";
+  EXPECT_EQ(lines(dir / "marks.csv"), 31u);
+  EXPECT_EQ(second.first, (dir / "fti.001.csv").string());
+  EXPECT_EQ(second.second, (dir / "marks.001.csv").string());
+  EXPECT_EQ(lines(dir / "fti.001.csv"), 8u);
+  fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace storetrack::hostapp
