@@ -4,7 +4,7 @@
 # (0.2 .. 1.2 s after its file holds its first message packets) and restarted at once with the SAME --ch10 path, so every run
 # must keep the earlier files and record to the next number; the last run ends normally. Each
 # run sends iNET-X to its own port, where a listener records every trigger_seq sent. Checked
-# with the independent Chapter 10 reader (storetrack_ch10_check): every file starts with TMATS,
+# with the independent Chapter 10 reader (rig_ch10_dump): every file starts with TMATS,
 # has no checksum error, ends at most in one partial packet, holds no sample twice, and a killed
 # run lost at most the samples in flight: its open message batch (<= 10) + the one being
 # processed + the recording queue (bounded here at 16, 40 ms at 400 fps).
@@ -86,7 +86,10 @@ wait "$LISTENER" || true
 cat "$OUT/host_run$KILLS.log"
 FILES=()
 for i in $(seq 0 "$KILLS"); do FILES+=("$(ch10_of_run "$i")"); done
-"$CHECK" "${FILES[@]}" >"$OUT/ch10_check.jsonl"
+for f in "${FILES[@]}"; do
+  "$CHECK" "$f" | /usr/bin/python3 -c "import json,sys; d=json.load(sys.stdin); d['path']='$f'; print(json.dumps(d))" \
+    >>"$OUT/ch10_check.jsonl" || echo "{\"path\": \"$f\", \"error\": \"unreadable\"}" >>"$OUT/ch10_check.jsonl"
+done
 /usr/bin/python3 - "$OUT" "$KILLS" <<'PY'
 import json, sys
 out, kills = sys.argv[1], int(sys.argv[2])
@@ -107,14 +110,16 @@ for run, f in enumerate(files):
     check("error" not in f, "%s exists and reads (%s)" % (name, f.get("error", "")))
     if "error" in f:
         continue
-    seqs = f["trigger_seqs"]
+    seqs = [x["trigger_seq"] for x in f["samples"]]
+    trailing = f["file_bytes"] - f["bytes_in_whole_packets"]
     check(f["first_data_type"] == 1, "%s starts with TMATS" % name)
-    check(f["data_checksum_errors"] == 0 and f["bad_message_packets"] == 0,
+    check(f["header_checksum_errors"] == 0 and f["data_checksum_errors"] == 0
+          and f["message_decode_errors"] == 0 and f["fti_block_errors"] == 0,
           "%s: no checksum error, every message packet decodes" % name)
     clean = f["stop_reason"] == "" or f["truncated"]
-    check(clean and f["trailing_bytes"] <= 24 + 4 + 10 * 160 + 4,
+    check(clean and trailing <= 24 + 4 + 10 * 160 + 4,
           "%s: whole packets up to at most one partial last packet (%d bytes after, %s)"
-          % (name, f["trailing_bytes"], f["stop_reason"] or "read to its end"))
+          % (name, trailing, f["stop_reason"] or "read to its end"))
     check(len(seqs) == len(set(seqs)), "%s: no sample twice" % name)
     s = set(sent.get(run, []))
     check(set(seqs) <= s, "%s: every recorded sample was also sent on iNET-X" % name)
