@@ -12,15 +12,19 @@
 namespace storetrack::hostapp {
 namespace {
 
-nlohmann::json read_json(const std::string& path) {
+std::string read_text(const std::string& path) {
   std::ifstream in(path);
   if (!in) throw HostConfigError("cannot open '" + path + "'");
   std::stringstream ss;
   ss << in.rdbuf();
+  return ss.str();
+}
+
+nlohmann::json parse_json(const std::string& json_text, const std::string& origin) {
   try {
-    return nlohmann::json::parse(ss.str());
+    return nlohmann::json::parse(json_text);
   } catch (const nlohmann::json::exception& e) {
-    throw HostConfigError(path + ": not valid JSON: " + e.what());
+    throw HostConfigError(origin + ": not valid JSON: " + e.what());
   }
 }
 
@@ -139,8 +143,12 @@ void finish_host_config(HostConfig& c, const std::vector<int>& camera_ids,
   }
 }
 
-void load_host_config(const std::string& path, HostConfig& c) {
-  const nlohmann::json j = read_json(path);
+void load_host_config(const std::string& path, HostConfig& config) {
+  parse_host_config(read_text(path), path, config);
+}
+
+void parse_host_config(const std::string& json_text, const std::string& path, HostConfig& c) {
+  const nlohmann::json j = parse_json(json_text, path);
   if (!j.is_object()) throw HostConfigError(path + ": top level must be an object");
   if (j.contains("udp")) {
     const auto& u = j["udp"];
@@ -249,7 +257,12 @@ void load_host_config(const std::string& path, HostConfig& c) {
 }
 
 std::map<int, geometry::Vec3> load_initial_marks(const std::string& path) {
-  const nlohmann::json j = read_json(path);
+  return parse_initial_marks(read_text(path), path);
+}
+
+std::map<int, geometry::Vec3> parse_initial_marks(const std::string& json_text,
+                                                  const std::string& path) {
+  const nlohmann::json j = parse_json(json_text, path);
   std::map<int, geometry::Vec3> out;
   try {
     for (const auto& m : j.at("marks")) {
