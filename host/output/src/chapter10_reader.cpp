@@ -162,10 +162,16 @@ std::optional<std::vector<Message>> decode_message_f0(const Packet& p, std::stri
     m.format_error = (iph >> 30) & 1;
     m.data_error = (iph >> 31) & 1;
     at += 12;
-    if (d.size() - at < length) return fail("message longer than the packet");
+    // Messages are padded to 16 bits: an odd-length message needs its filler byte inside the
+    // packet too, or `at` would step past the data.
+    const std::size_t padded = length + (length & 1);
+    if (d.size() - at < padded) {
+      return fail(d.size() - at < length ? "message longer than the packet"
+                                         : "message filler byte past the data");
+    }
     m.bytes.assign(d.begin() + static_cast<std::ptrdiff_t>(at),
                    d.begin() + static_cast<std::ptrdiff_t>(at + length));
-    at += length + (length & 1);  // messages are padded to 16 bits
+    at += padded;
     out.push_back(std::move(m));
   }
   if (at != d.size()) return fail("bytes after the last message");
