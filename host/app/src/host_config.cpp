@@ -81,6 +81,10 @@ std::int64_t get_integer(const nlohmann::json& j, const char* key, std::int64_t 
   return x;
 }
 
+// Mark ids of surveys and initial marks: small non-negative integers; the bound only keeps a
+// typo (or 1e300) from becoming an id.
+constexpr std::int64_t kMaxMarkIds = 1'000'000;
+
 std::int64_t ms_to_ns(double ms) {
   return static_cast<std::int64_t>(std::llround(ms * 1e6));
 }
@@ -201,9 +205,15 @@ void parse_host_config(const std::string& json_text, const std::string& path, Ho
     c.processor.store_id =
         static_cast<std::uint8_t>(get_integer(p, "store_id", c.processor.store_id, 0, 254, w));
     get(p, "coverage_factor", c.processor.coverage_factor, w);
-    get(p, "min_cameras_per_mark", c.processor.min_cameras_per_mark, w);
-    get(p, "min_pose_marks", c.processor.min_pose_marks, w);
-    get(p, "reference_camera_id", c.processor.reference_camera_id, w);
+    // Integers through get_integer: nlohmann's get<int> of 1e300 is an out-of-range cast (UB).
+    auto& pc = c.processor;
+    pc.min_cameras_per_mark =
+        static_cast<int>(get_integer(p, "min_cameras_per_mark", pc.min_cameras_per_mark, 1,
+                                     static_cast<std::int64_t>(ingest::kMaxAlignerCameras), w));
+    pc.min_pose_marks =
+        static_cast<int>(get_integer(p, "min_pose_marks", pc.min_pose_marks, 3, 1024, w));
+    pc.reference_camera_id =
+        static_cast<int>(get_integer(p, "reference_camera_id", pc.reference_camera_id, -1, 254, w));
     get(p, "rigid_false_alarm_probability", c.processor.rigid_false_alarm_probability, w);
     get(p, "max_pose_rotation_sigma_rad", c.processor.max_pose_rotation_sigma_rad, w);
     if (!(c.processor.max_pose_rotation_sigma_rad > 0))
@@ -250,7 +260,8 @@ void parse_host_config(const std::string& json_text, const std::string& path, Ho
   if (j.contains("chapter10")) {
     const auto& o = j["chapter10"];
     const std::string w = path + ": /chapter10";
-    get(o, "max_messages_per_packet", c.ch10.max_messages_per_packet, w);
+    c.ch10.max_messages_per_packet = static_cast<int>(
+        get_integer(o, "max_messages_per_packet", c.ch10.max_messages_per_packet, 1, 65535, w));
     get(o, "data_checksum", c.ch10.data_checksum, w);
     get(o, "test_point", c.ch10.test_point, w);
   }
@@ -265,10 +276,16 @@ std::map<int, geometry::Vec3> parse_initial_marks(const std::string& json_text,
   const nlohmann::json j = parse_json(json_text, path);
   std::map<int, geometry::Vec3> out;
   try {
-    for (const auto& m : j.at("marks")) {
+    const auto& marks = j.at("marks");
+    if (!marks.is_array()) throw HostConfigError(path + ": /marks must be an array");
+    for (const auto& m : marks) {
+      if (!m.is_object()) throw HostConfigError(path + ": /marks: entries must be objects");
+      if (!m.contains("id")) throw HostConfigError(path + ": /marks: every entry needs an id");
+      const int id = static_cast<int>(get_integer(m, "id", 0, 0, kMaxMarkIds, path + ": /marks"));
       const auto p = m.at("p_w_m").get<std::vector<double>>();
       if (p.size() != 3) throw HostConfigError(path + ": /marks/p_w_m needs 3 values");
-      out[m.at("id").get<int>()] = geometry::Vec3(p[0], p[1], p[2]);
+      if (!out.emplace(id, geometry::Vec3(p[0], p[1], p[2])).second)
+        throw HostConfigError(path + ": /marks/id: duplicate mark id " + std::to_string(id));
     }
   } catch (const nlohmann::json::exception& e) {
     throw HostConfigError(path + ": /marks: " + e.what());
