@@ -13,6 +13,7 @@
 //  - bounds: pending() <= max_pending, held() <= cameras; after poll(now) nothing is overdue.
 #include <cstddef>
 #include <cstdint>
+#include <cstdio>
 #include <cstdlib>
 #include <limits>
 #include <set>
@@ -63,15 +64,37 @@ msg::MarkObservations make_observation(FuzzedDataProvider& in, const ingest::Ali
   const std::uint32_t seq = in.ConsumeIntegralInRange<std::uint32_t>(0, 4000);
   o.trigger_seq = (shape & 0x04) ? in.ConsumeIntegral<std::uint32_t>() : seq;
   const std::int64_t jitter = in.ConsumeIntegralInRange<std::int64_t>(-5'000'000, 5'000'000);
-  o.exposure_start_tai_ns =
-      (shape & 0x08) ? in.ConsumeIntegral<std::int64_t>() : kStartTaiNs + kPeriodNs * seq + jitter;
+  const std::int64_t on_grid_tai_ns = kStartTaiNs + kPeriodNs * seq + jitter;
+  o.exposure_start_tai_ns = (shape & 0x08) ? in.ConsumeIntegral<std::int64_t>() : on_grid_tai_ns;
   o.exposure_start_mono_ns = (shape & 0x10) ? in.ConsumeIntegral<std::int64_t>()
-                                            : o.exposure_start_tai_ns - kStartTaiNs + 1'000'000;
+                                            : on_grid_tai_ns - kStartTaiNs + 1'000'000;
   o.exposure_duration_ns = (shape & 0x20) ? in.ConsumeIntegral<std::uint32_t>() : 500'000;
   o.clock_state = 2;
   o.mark_count = (shape & 0x40) ? in.ConsumeIntegral<std::uint8_t>() : 4;
   o.marks[kTagMark].x_px = static_cast<float>(serial);  // exact below 2^24
   return o;
+}
+
+// STORETRACK_FUZZ_TRACE=1: print the pushes and releases (to read a crash's input).
+const bool kTrace = std::getenv("STORETRACK_FUZZ_TRACE") != nullptr;
+
+void trace_push(const msg::MarkObservations& o, std::int64_t now) {
+  if (!kTrace) return;
+  std::fprintf(stderr, "push now=%lld cam=%d unit=%d seq=%u tai=%lld mono=%lld dur=%u marks=%d\n",
+               static_cast<long long>(now), o.camera_id, o.unit_id, o.trigger_seq,
+               static_cast<long long>(o.exposure_start_tai_ns),
+               static_cast<long long>(o.exposure_start_mono_ns), o.exposure_duration_ns,
+               o.mark_count);
+}
+
+void trace_release(const AlignedExposure& e) {
+  if (!kTrace) return;
+  std::fprintf(stderr, "release seq=%u mid=%lld missing=%x timeout=%d cams:", e.trigger_seq,
+               static_cast<long long>(e.exposure_mid_tai_ns), e.missing_camera_mask,
+               e.closed_by_timeout);
+  for (const auto& o : e.cameras)
+    std::fprintf(stderr, " %d/%u", o.camera_id, o.trigger_seq);
+  std::fprintf(stderr, "\n");
 }
 
 struct Audit {
@@ -81,6 +104,7 @@ struct Audit {
 };
 
 void check_released(const AlignedExposure& e, const ingest::AlignerConfig& c, Audit& audit) {
+  trace_release(e);
   if (e.cameras.size() < static_cast<std::size_t>(c.min_cameras)) std::abort();
   if (e.exposure_mid_tai_ns == std::numeric_limits<std::int64_t>::min()) std::abort();
   std::uint32_t present = 0;
@@ -112,6 +136,13 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   FuzzedDataProvider in(data, size);
   const ingest::AlignerConfig config = make_config(in);
   ingest::ExposureAligner aligner(config);
+  if (kTrace)
+    std::fprintf(stderr,
+                 "config cameras=%zu units=%zu wait=%lld spread=%lld pending=%zu min=%d lead=%u\n",
+                 config.camera_ids.size(), config.unit_ids.size(),
+                 static_cast<long long>(config.max_wait_ns),
+                 static_cast<long long>(config.max_mid_time_spread_ns), config.max_pending,
+                 config.min_cameras, config.max_sequence_lead);
   std::vector<AlignedExposure> out;
   Audit audit;
   std::int64_t now = 1'000'000'000;
@@ -119,7 +150,9 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   while (in.remaining_bytes() > 0 && serial < 4096) {
     now += in.ConsumeIntegralInRange<std::int64_t>(0, 20'000'000);
     if (in.ConsumeBool()) {
-      aligner.push(make_observation(in, config, serial++), now, out);
+      const msg::MarkObservations o = make_observation(in, config, serial++);
+      trace_push(o, now);
+      aligner.push(o, now, out);
     } else {
       aligner.poll(now, out);
       if (aligner.next_deadline() <= now) std::abort();  // an overdue exposure was kept
