@@ -7,9 +7,13 @@
 # (docs/reliability.md, "Fuzzing"). The fuzzers are single-threaded, so they run side by side:
 # N seconds of wall time for all of them. Exits non-zero on any crash, sanitizer report or
 # violated property; each fuzzer's log is $B/<fuzzer>.log, a crash's input $B/crash-*.
+#   FUZZ_STEP=build|run tools/fuzz-decoders.sh N   only that half (CI builds in the background
+#                                                  and runs later); default both.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds=${1:-30}
+STEP=${FUZZ_STEP:-all}
+case "$STEP" in build | run | all) ;; *) echo "fuzz-decoders: FUZZ_STEP must be build, run or all" >&2; exit 2 ;; esac
 B=${STORETRACK_FUZZ_BUILD_DIR:-build-fuzz}
 # fuzzer target, corpus name, -max_len
 FUZZERS=(
@@ -22,12 +26,15 @@ FUZZERS=(
   "fuzz_initial_marks initial_marks 8192"
   "fuzz_exposure_aligner exposure_aligner 4096"
 )
-cmake -S . -B "$B" -G Ninja -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
-  -DSTORETRACK_FUZZERS=ON -DSTORETRACK_BENCHMARKS=OFF >/dev/null
-targets=()
-for f in "${FUZZERS[@]}"; do targets+=("${f%% *}"); done
-ninja -C "$B" "${targets[@]}"
-python3 tests/common/msg/fuzz_seeds/make_seeds.py "$B/fuzz-seeds"
+if [ "$STEP" != run ]; then
+  cmake -S . -B "$B" -G Ninja -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
+    -DSTORETRACK_FUZZERS=ON -DSTORETRACK_BENCHMARKS=OFF >/dev/null
+  targets=()
+  for f in "${FUZZERS[@]}"; do targets+=("${f%% *}"); done
+  ninja -C "$B" "${targets[@]}"
+  python3 tests/common/msg/fuzz_seeds/make_seeds.py "$B/fuzz-seeds"
+fi
+[ "$STEP" != build ] || exit 0
 
 pids=()
 for f in "${FUZZERS[@]}"; do

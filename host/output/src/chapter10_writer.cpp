@@ -6,9 +6,12 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <chrono>
+#include <cstdio>
 #include <cstring>
+#include <filesystem>
 
 #include "storetrack/output/fti_parameter_block.hpp"
 
@@ -42,19 +45,6 @@ void append_le16(std::vector<std::uint8_t>& v, std::uint16_t x) {
 }
 std::uint8_t bcd2(int value) {
   return static_cast<std::uint8_t>(((value / 10) % 10) << 4 | (value % 10));
-}
-
-int write_all(int fd, const std::uint8_t* data, std::size_t size) {
-  while (size > 0) {
-    const ssize_t n = ::write(fd, data, size);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      return -errno;
-    }
-    data += n;
-    size -= static_cast<std::size_t>(n);
-  }
-  return 0;
 }
 
 std::int64_t floor_div(std::int64_t a, std::int64_t b) {
@@ -130,11 +120,23 @@ std::string Chapter10Writer::tmats_text() const {
   return t;
 }
 
+Chapter10FileOps posix_chapter10_file_ops() {
+  return {::write, ::fdatasync, ::ftruncate, ::close, ::fsync};
+}
+
+std::string numbered_chapter10_path(const std::string& path, int number) {
+  const std::filesystem::path p(path);
+  char digits[16];
+  std::snprintf(digits, sizeof digits, ".%03d", number);
+  return (p.parent_path() / (p.stem().string() + digits + p.extension().string())).string();
+}
+
 int Chapter10Writer::open(const std::string& path, const Chapter10Config& config,
                           time::TaiNs rtc_epoch_tai_ns) {
   close();
   config_ = config;
-  if (config_.max_messages_per_packet < 1) config_.max_messages_per_packet = 1;
+  config_.max_messages_per_packet =
+      std::clamp(config_.max_messages_per_packet, 1, kMaxChapter10MessagesPerPacket);
   start_tai_ns_ = rtc_epoch_tai_ns;
   counters_ = {};
   sequence_.assign(65536, 0);
@@ -142,65 +144,215 @@ int Chapter10Writer::open(const std::string& path, const Chapter10Config& config
   last_sample_tai_ns_ = INT64_MIN;
   pending_body_.clear();
   pending_messages_ = 0;
-  fd_ = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_APPEND | O_CLOEXEC, 0644);
-  if (fd_ < 0) return -errno;
+  requested_path_ = path;
+  files_.clear();
+  next_number_ = 1;
+  current_utc_s_ = INT64_MIN;
+  failed_reopen_utc_s_ = INT64_MIN;
+  const int rc = create_file(config_.existing == Chapter10Existing::kNumberNewFile ? 0 : -1);
+  if (rc != 0) return rc;
+  if (const int r = write_file_header(); r != 0) {
+    abandon_file();
+    return r;
+  }
+  opened_ = true;
+  return 0;
+}
+
+// number 0: the requested path, then the numbered names; -1: the requested path or -EEXIST.
+int Chapter10Writer::create_file(int number) {
+  const bool refuse_existing = number < 0;
+  number = std::max(number, 0);
+  std::string candidate;
+  for (;;) {
+    candidate = number == 0 ? requested_path_ : numbered_chapter10_path(requested_path_, number);
+    // O_EXCL: an existing recording is never opened for writing, let alone truncated.
+    fd_ = ::open(candidate.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_APPEND | O_CLOEXEC, 0644);
+    if (fd_ >= 0) break;
+    if (errno != EEXIST || refuse_existing) return -errno;
+    if (++number > kMaxChapter10FileNumber) return -EEXIST;
+  }
+  if (number > 0) next_number_ = number + 1;
+  if (number > 0 && files_.empty()) ++counters_.numbered_instead_of_existing;
+  files_.push_back(candidate);
+  ++counters_.files_opened;
+  file_bytes_ = 0;
+  file_data_packets_ = 0;
+  // The new directory entry must survive a power loss as well as the packets.
+  std::filesystem::path dir = std::filesystem::path(candidate).parent_path();
+  if (dir.empty()) dir = ".";
+  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dfd < 0 || ops_.fsync_directory(dfd) != 0) ++counters_.directory_sync_errors;
+  if (dfd >= 0) ::close(dfd);
+  return 0;
+}
+
+// TMATS first; a continuation file also repeats the current time packet so its RTCs map to
+// absolute time without the previous file.
+int Chapter10Writer::write_file_header() {
   // Computer-Generated Data Format 1 (setup record): CSDW bit 9 SRCC = 0, bit 8 format = 0
   // (ASCII TMATS), bits 7-0 Chapter 10 version.
   std::vector<std::uint8_t> body;
   append_le32(body, kTmatsCh10Version106_17);
   const std::string tmats = tmats_text();
   body.insert(body.end(), tmats.begin(), tmats.end());
-  return write_packet(0, kTypeTmats, 0, body);
+  bool written = false;
+  if (int rc = append(build_packet(0, kTypeTmats, 0, body), written); rc != 0) return rc;
+  if (last_time_packet_utc_s_ == INT64_MIN) return 0;
+  const std::int64_t s = last_time_packet_utc_s_;
+  const time::TaiNs tai = (s + time::kTaiMinusUtcSeconds) * time::kNsPerSecond;
+  if (int rc = append(build_packet(config_.time_channel_id, kTypeTimeF1, rtc_of(tai), time_body(s)),
+                      written);
+      rc != 0)
+    return rc;
+  ++counters_.time_packets;
+  return 0;
 }
 
-int Chapter10Writer::write_packet(std::uint16_t channel_id, std::uint8_t data_type,
-                                  std::uint64_t rtc, const std::vector<std::uint8_t>& body) {
-  if (fd_ < 0) return -EBADF;
+int Chapter10Writer::start_continuation_file() {
+  if (current_utc_s_ == failed_reopen_utc_s_) return -EAGAIN;  // one failed try per second
+  int rc = create_file(next_number_);
+  if (rc == 0) {
+    ++counters_.continuation_files;
+    rc = write_file_header();
+    if (rc != 0) abandon_file();
+  } else {
+    ++counters_.open_errors;
+  }
+  if (rc != 0) failed_reopen_utc_s_ = current_utc_s_;
+  return rc;
+}
+
+// Closes a failed file (it ends at its last whole packet); a continuation file that never got a
+// sample is removed again so a lasting fault leaves no trail of empty files.
+void Chapter10Writer::abandon_file() {
+  if (fd_ < 0) return;
+  const bool empty_continuation = file_data_packets_ == 0 && files_.size() > 1;
+  close_file();
+  if (empty_continuation && ::unlink(files_.back().c_str()) == 0) {
+    files_.pop_back();
+    next_number_ = std::max(1, next_number_ - 1);
+  }
+}
+
+int Chapter10Writer::close_file() {
+  if (fd_ < 0) return 0;
+  const int rc = ops_.close(fd_) == 0 ? 0 : -errno;
+  if (rc != 0) ++counters_.close_errors;
+  fd_ = -1;
+  return rc;
+}
+
+std::vector<std::uint8_t> Chapter10Writer::build_packet(std::uint16_t channel_id,
+                                                        std::uint8_t data_type, std::uint64_t rtc,
+                                                        const std::vector<std::uint8_t>& body) {
   const std::size_t data_length = body.size();
   const std::size_t padded = (data_length + 3) & ~std::size_t{3};  // filler to 32 bits
   const std::size_t trailer = config_.data_checksum ? 4 : 0;
   const std::size_t packet_length = kHeaderBytes + padded + trailer;
-  packet_.assign(packet_length, 0);
-  put_le16(packet_, 0, kSync);
-  put_le16(packet_, 2, channel_id);
-  put_le32(packet_, 4, static_cast<std::uint32_t>(packet_length));
-  put_le32(packet_, 8, static_cast<std::uint32_t>(data_length));
-  packet_[12] = kDataTypeVersion106_17;
-  packet_[13] = sequence_[channel_id]++;
-  packet_[14] = config_.data_checksum ? kFlagsChecksum32 : 0x00;  // no secondary header, RTC
-  packet_[15] = data_type;
+  std::vector<std::uint8_t> packet(packet_length, 0);
+  put_le16(packet, 0, kSync);
+  put_le16(packet, 2, channel_id);
+  put_le32(packet, 4, static_cast<std::uint32_t>(packet_length));
+  put_le32(packet, 8, static_cast<std::uint32_t>(data_length));
+  packet[12] = kDataTypeVersion106_17;
+  packet[13] = sequence_[channel_id]++;
+  packet[14] = config_.data_checksum ? kFlagsChecksum32 : 0x00;  // no secondary header, RTC
+  packet[15] = data_type;
   for (int i = 0; i < 6; ++i)
-    packet_[16 + i] = static_cast<std::uint8_t>(rtc >> (8 * i));
+    packet[16 + i] = static_cast<std::uint8_t>(rtc >> (8 * i));
   std::uint16_t header_sum = 0;
   for (std::size_t i = 0; i < 22; i += 2) {
-    header_sum = static_cast<std::uint16_t>(header_sum + (packet_[i] | (packet_[i + 1] << 8)));
+    header_sum = static_cast<std::uint16_t>(header_sum + (packet[i] | (packet[i + 1] << 8)));
   }
-  put_le16(packet_, 22, header_sum);
-  std::memcpy(packet_.data() + kHeaderBytes, body.data(), body.size());
+  put_le16(packet, 22, header_sum);
+  std::memcpy(packet.data() + kHeaderBytes, body.data(), body.size());
   if (config_.data_checksum) {
     // 32-bit arithmetic sum of the 32-bit little-endian words of the body including filler.
     std::uint32_t sum = 0;
     for (std::size_t i = kHeaderBytes; i < kHeaderBytes + padded; i += 4) {
-      sum += std::uint32_t{packet_[i]} | std::uint32_t{packet_[i + 1]} << 8 |
-             std::uint32_t{packet_[i + 2]} << 16 | std::uint32_t{packet_[i + 3]} << 24;
+      sum += std::uint32_t{packet[i]} | std::uint32_t{packet[i + 1]} << 8 |
+             std::uint32_t{packet[i + 2]} << 16 | std::uint32_t{packet[i + 3]} << 24;
     }
-    put_le32(packet_, kHeaderBytes + padded, sum);
+    put_le32(packet, kHeaderBytes + padded, sum);
   }
-  int rc = write_all(fd_, packet_.data(), packet_.size());
+  return packet;
+}
+
+// One packet onto the current file. A failed write is cut back to the last whole packet, so the
+// file never holds partial bytes that later packets would follow. `written`: the packet is in the
+// file (then only its fdatasync can have failed).
+int Chapter10Writer::append(const std::vector<std::uint8_t>& packet, bool& written) {
+  written = false;
+  std::size_t done = 0;
+  int rc = 0;
+  while (done < packet.size()) {
+    const ssize_t n = ops_.write(fd_, packet.data() + done, packet.size() - done);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      rc = n < 0 ? -errno : -EIO;
+      break;
+    }
+    done += static_cast<std::size_t>(n);
+  }
   if (rc != 0) {
     ++counters_.write_errors;
+    if (ops_.ftruncate(fd_, static_cast<off_t>(file_bytes_)) != 0)
+      ++counters_.truncate_errors;
+    else if (done > 0)
+      ++counters_.truncations;
     return rc;
   }
+  written = true;
+  file_bytes_ += packet.size();
   ++counters_.packets_written;
-  counters_.bytes_written += packet_.size();
-  if (config_.sync == Chapter10Sync::kEveryPacket && ::fdatasync(fd_) != 0) {
+  counters_.bytes_written += packet.size();
+  if (config_.sync == Chapter10Sync::kEveryPacket && ops_.fdatasync(fd_) != 0) {
     ++counters_.sync_errors;
     return -errno;
   }
   return 0;
 }
 
-int Chapter10Writer::write_time_packet(std::int64_t utc_second) {
+// The packet goes to the current file; when that fails, the file is closed and the packet gets
+// one more try at the start of a continuation file. `messages`: samples the packet carries.
+// Returns 0, or the first error met (also when the continuation file then took the packet).
+int Chapter10Writer::write_packet(std::uint16_t channel_id, std::uint8_t data_type,
+                                  std::uint64_t rtc, const std::vector<std::uint8_t>& body,
+                                  int messages) {
+  if (!opened_) return -EBADF;
+  const std::vector<std::uint8_t> packet = build_packet(channel_id, data_type, rtc, body);
+  int rc = 0;
+  bool written = false;
+  if (fd_ >= 0) {
+    rc = append(packet, written);
+    if (rc != 0) abandon_file();  // after an fdatasync error the file is not trusted either
+  }
+  if (!written) {
+    if (const int r = start_continuation_file(); r != 0) {
+      if (rc == 0) rc = -EIO;  // no usable file since an earlier failure
+    } else if (const int r2 = append(packet, written); r2 != 0) {
+      abandon_file();
+      failed_reopen_utc_s_ = current_utc_s_;
+      if (rc == 0) rc = r2;
+    }
+  }
+  if (written) {
+    if (data_type == kTypeMessageF0) {
+      ++file_data_packets_;
+      ++counters_.message_packets;
+      counters_.messages_written += static_cast<std::uint64_t>(messages);
+    } else if (data_type == kTypeTimeF1) {
+      ++counters_.time_packets;
+    }
+  } else {
+    ++counters_.packets_dropped;
+    counters_.messages_dropped += static_cast<std::uint64_t>(messages);
+  }
+  return rc;
+}
+
+std::vector<std::uint8_t> Chapter10Writer::time_body(std::int64_t utc_second) const {
   const time::TaiNs tai = (utc_second + time::kTaiMinusUtcSeconds) * time::kNsPerSecond;
   const UtcCalendar c = utc_calendar_from_tai(tai);
   std::vector<std::uint8_t> body;
@@ -213,13 +365,16 @@ int Chapter10Writer::write_time_packet(std::int64_t utc_second) {
   append_le16(body, static_cast<std::uint16_t>(bcd2(c.minute) | (bcd2(c.hour) << 8)));
   append_le16(body, static_cast<std::uint16_t>(bcd2(c.day) | (bcd2(c.month) << 8)));
   append_le16(body, static_cast<std::uint16_t>(bcd2(c.year % 100) | (bcd2(c.year / 100) << 8)));
-  const int rc = write_packet(config_.time_channel_id, kTypeTimeF1, rtc_of(tai), body);
-  if (rc == 0) ++counters_.time_packets;
-  return rc;
+  return body;
+}
+
+int Chapter10Writer::write_time_packet(std::int64_t utc_second) {
+  const time::TaiNs tai = (utc_second + time::kTaiMinusUtcSeconds) * time::kNsPerSecond;
+  return write_packet(config_.time_channel_id, kTypeTimeF1, rtc_of(tai), time_body(utc_second), 0);
 }
 
 int Chapter10Writer::write(const msg::FtiSample& sample) {
-  if (fd_ < 0) return -EBADF;
+  if (!opened_) return -EBADF;
   const time::TaiNs t = sample.exposure_mid_tai_ns;
   if (start_tai_ns_ == kRtcEpochFirstSample) {
     start_tai_ns_ =
@@ -232,6 +387,7 @@ int Chapter10Writer::write(const msg::FtiSample& sample) {
   int rc = 0;
   const std::int64_t utc_s =
       floor_div(t - time::kTaiMinusUtcSeconds * time::kNsPerSecond, time::kNsPerSecond);
+  current_utc_s_ = utc_s;
   if (utc_s != last_time_packet_utc_s_) {
     // A new second: close the running message packet so time packets stay in time order.
     if (int r = flush(); r != 0) rc = r;
@@ -263,29 +419,29 @@ int Chapter10Writer::write(const msg::FtiSample& sample) {
 }
 
 int Chapter10Writer::flush() {
-  if (fd_ < 0 || pending_messages_ == 0) return 0;
+  if (!opened_ || pending_messages_ == 0) return 0;
   std::vector<std::uint8_t> body;
   body.reserve(pending_body_.size() + 4);
-  // CSDW: bits 15-0 message count, bits 17-16 packet type 00 = complete messages.
+  // CSDW: bits 15-0 message count (<= kMaxChapter10MessagesPerPacket by open()), bits 17-16
+  // packet type 00 = complete messages.
   append_le32(body, static_cast<std::uint32_t>(pending_messages_));
   body.insert(body.end(), pending_body_.begin(), pending_body_.end());
-  const int rc =
-      write_packet(config_.message_channel_id, kTypeMessageF0, rtc_of(pending_first_tai_ns_), body);
-  if (rc == 0) {
-    ++counters_.message_packets;
-    counters_.messages_written += static_cast<std::uint64_t>(pending_messages_);
-  }
+  const int rc = write_packet(config_.message_channel_id, kTypeMessageF0,
+                              rtc_of(pending_first_tai_ns_), body, pending_messages_);
   pending_body_.clear();
   pending_messages_ = 0;
   return rc;
 }
 
 int Chapter10Writer::close() {
-  if (fd_ < 0) return 0;
-  const int rc = flush();
-  ::fdatasync(fd_);
-  ::close(fd_);
-  fd_ = -1;
+  if (!opened_) return close_file();
+  int rc = flush();
+  if (fd_ >= 0 && ops_.fdatasync(fd_) != 0) {
+    ++counters_.sync_errors;
+    if (rc == 0) rc = -errno;
+  }
+  if (const int r = close_file(); r != 0 && rc == 0) rc = r;
+  opened_ = false;
   return rc;
 }
 

@@ -1,7 +1,11 @@
 #include "storetrack/output/csv_writer.hpp"
 
+#include <sys/stat.h>
+
 #include <cerrno>
 #include <cinttypes>
+
+#include "storetrack/output/chapter10_writer.hpp"
 
 namespace storetrack::output {
 
@@ -35,13 +39,28 @@ std::vector<std::string> fti_csv_columns() {
   return c;
 }
 
+std::FILE* fopen_new_file(const std::string& path, bool number_if_exists, std::string& created) {
+  for (int number = 0; number <= kMaxChapter10FileNumber; ++number) {
+    created = number == 0 ? path : numbered_chapter10_path(path, number);
+    if (std::FILE* f = std::fopen(created.c_str(), "wx")) return f;  // "x": O_EXCL
+    if (errno != EEXIST) return nullptr;
+    // A FIFO or device (a live display, /dev/stdout) holds no recording to overwrite.
+    struct stat st {};
+    if (number == 0 && ::stat(path.c_str(), &st) == 0 && !S_ISREG(st.st_mode))
+      return std::fopen(path.c_str(), "w");
+    if (!number_if_exists) return nullptr;
+  }
+  errno = EEXIST;
+  return nullptr;
+}
+
 FtiCsvWriter::~FtiCsvWriter() {
   close();
 }
 
-int FtiCsvWriter::open(const std::string& path) {
+int FtiCsvWriter::open(const std::string& path, bool number_if_exists) {
   close();
-  file_ = std::fopen(path.c_str(), "w");
+  file_ = fopen_new_file(path, number_if_exists, path_);
   if (!file_) return -errno;
   // Line-buffered: a reader (progress display, crash) sees every complete row.
   std::setvbuf(file_, nullptr, _IOLBF, 0);
@@ -68,7 +87,11 @@ int FtiCsvWriter::write(const msg::FtiSample& s) {
                         s.u_budget_sync_m, s.coverage_factor};
   for (float v : tail)
     std::fprintf(file_, ",%.9g", static_cast<double>(v));
-  if (std::fputc('\n', file_) == EOF) return -EIO;
+  // Line-buffered: the newline writes the row, so a full disk shows here.
+  if (std::fputc('\n', file_) == EOF || std::ferror(file_)) {
+    std::clearerr(file_);
+    return -EIO;
+  }
   ++rows_;
   return 0;
 }

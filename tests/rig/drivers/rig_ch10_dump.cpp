@@ -2,7 +2,8 @@
 // (host/output chapter10_reader, written from IRIG 106 and sharing nothing with the writer) and
 // prints what it found as JSON for the in-VM end-to-end check (guest/check_e2e.py): packet
 // counts by data type, header / data checksum errors, truncation, and every FTI parameter
-// block (trigger_seq, status, pose, standard uncertainties, coverage factor).
+// block (trigger_seq, status, pose, standard uncertainties, coverage factor). Also used by
+// tests/integration/host_kill.
 // Exit 0 when the file was read (whatever its content), 1 when it cannot be read.
 #include <cstdio>
 #include <exception>
@@ -61,6 +62,8 @@ int main(int argc, char** argv) {
     }
   }
   out["file_bytes"] = file.file_bytes;
+  out["bytes_in_whole_packets"] = file.bytes_in_whole_packets;
+  out["first_data_type"] = file.packets.empty() ? -1 : file.packets.front().data_type;
   out["packets"] = file.packets.size();
   out["packets_by_type"] = by_type;
   out["header_checksum_errors"] = header_errors;

@@ -1,0 +1,100 @@
+#include "diagnostic_csv.hpp"
+
+#include <algorithm>
+#include <cerrno>
+#include <cinttypes>
+#include <cmath>
+
+#include <cstdarg>
+#include "storetrack/output/csv_writer.hpp"
+
+namespace storetrack::hostapp {
+
+const char* const kMarksCsvHeader =
+    "trigger_seq [1],reference_mid_tai_ns [ns],mark_id [1],body [p|s|?],"
+    "excluded [0|1],x_w [m],y_w [m],z_w [m],u_x_w [m],u_y_w [m],u_z_w [m],"
+    "camera_id [1],u_obs [px],v_obs [px],residual_u [px],residual_v [px],"
+    "sigma [px]";
+const char* const kRigidCsvHeader =
+    "trigger_seq [1],body [p|s],id_a [1],id_b [1],distance [m],surveyed [m],"
+    "sigma [m],z2 [1]";
+
+namespace {
+
+__attribute__((format(printf, 2, 3))) void append_format(std::string& out, const char* format,
+                                                         ...) {
+  char line[512];
+  va_list args;
+  va_start(args, format);
+  const int n = std::vsnprintf(line, sizeof line, format, args);
+  va_end(args);
+  if (n > 0) out.append(line, std::min(static_cast<std::size_t>(n), sizeof line - 1));
+}
+
+}  // namespace
+
+void format_marks_rows(const pipeline::AlignedExposure& e, const pipeline::ExposureResult& r,
+                       std::string& out) {
+  for (const auto& m : r.marks) {
+    const double su = std::sqrt(m.cov_w(0, 0)), sv = std::sqrt(m.cov_w(1, 1)),
+                 sw = std::sqrt(m.cov_w(2, 2));
+    for (const auto& o : m.observations) {
+      double u = NAN, v = NAN;
+      for (const auto& cam : e.cameras) {
+        if (cam.camera_id == o.camera_id && o.mark_index >= 0 && o.mark_index < cam.mark_count) {
+          u = cam.marks[static_cast<std::size_t>(o.mark_index)].x_px;
+          v = cam.marks[static_cast<std::size_t>(o.mark_index)].y_px;
+        }
+      }
+      append_format(out,
+                    "%" PRIu32 ",%" PRId64
+                    ",%d,%c,%d,%.9g,%.9g,%.9g,%.4g,%.4g,%.4g,%d,%.3f,%.3f,%.5f,%.5f,%.4f\n",
+                    e.trigger_seq, r.reference_mid_tai_ns, m.id, m.body, m.excluded ? 1 : 0,
+                    m.p_w.x(), m.p_w.y(), m.p_w.z(), su, sv, sw, o.camera_id, u, v,
+                    o.residual_px.x(), o.residual_px.y(), o.sigma_px);
+    }
+  }
+}
+
+void format_rigid_rows(std::uint32_t trigger_seq, char body, const rigid::RigidCheckResult& c,
+                       std::string& out) {
+  for (const auto& p : c.pairs) {
+    append_format(out, "%" PRIu32 ",%c,%d,%d,%.9g,%.9g,%.4g,%.4g\n", trigger_seq, body, p.id_a,
+                  p.id_b, p.distance_m, p.surveyed_m, p.sigma_m, p.z2);
+  }
+}
+
+CsvFile::~CsvFile() {
+  close();
+}
+
+int CsvFile::open(const std::string& path, const char* header, bool number_if_exists) {
+  close();
+  file_ = output::fopen_new_file(path, number_if_exists, path_);
+  if (!file_) return -errno;
+  const std::string line = std::string(header) + "\n";
+  return write(line);
+}
+
+int CsvFile::write(const std::string& rows) {
+  if (!file_) return -EBADF;
+  if (std::fwrite(rows.data(), 1, rows.size(), file_) != rows.size()) {
+    ++errors_;
+    const int rc = errno ? -errno : -EIO;
+    std::clearerr(file_);
+    return rc;
+  }
+  bytes_ += rows.size();
+  return 0;
+}
+
+int CsvFile::close() {
+  if (!file_) return 0;
+  // fclose flushes the buffer: a full disk shows here.
+  const int rc = std::fclose(file_) == 0 ? 0 : -errno;
+  file_ = nullptr;
+  if (rc != 0) ++errors_;
+  return rc;
+}
+
+}  // namespace storetrack::hostapp

@@ -1,0 +1,127 @@
+#include "host_loop.hpp"
+
+#include <poll.h>
+
+#include <spdlog/spdlog.h>
+#include <algorithm>
+#include <cerrno>
+#include <cinttypes>
+#include <cstdio>
+#include <cstring>
+
+#include "diagnostic_csv.hpp"
+
+namespace storetrack::hostapp {
+
+void HostLoop::on_message(const msg::AnyMessage& m) {
+  if (const auto* obs = std::get_if<msg::MarkObservations>(&m)) {
+    if (t_first_input_ == 0) t_first_input_ = now_;
+    t_last_input_ = now_;
+    last_arrival_[obs->trigger_seq] = now_;
+    p_.aligner.push(*obs, now_, ready_);
+  } else if (const auto* h = std::get_if<msg::UnitHealth>(&m)) {
+    ++totals_.health_messages;
+    totals_.unit_health[h->unit_id] = {
+        {"clock_state", h->clock_state},       {"frames_captured", h->frames_captured},
+        {"frames_dropped", h->frames_dropped}, {"observations_sent", h->observations_sent},
+        {"link_tx_errors", h->link_tx_errors}, {"status", h->status}};
+  }
+}
+
+void HostLoop::process(const pipeline::AlignedExposure& e) {
+  const time::MonotonicNs t0 = time::monotonic_now_ns();
+  pipeline::ExposureResult r = p_.processor.process(e);  // matcher + geometry
+  p_.pose_tracker.update(r);  // an unsolved T_p_s: extrapolated over a short gap, or invalid
+  ++totals_.exposures;
+  const msg::FtiSample& s = r.sample;
+  if (s.status & msg::fti_status::kValid) ++totals_.valid_samples;
+  if (p_.inetx) p_.inetx->send(s);
+  const time::MonotonicNs t_sent = time::monotonic_now_ns();
+  totals_.latency_processing.add(t_sent - t0);
+  if (auto it = last_arrival_.find(e.trigger_seq); it != last_arrival_.end()) {
+    totals_.latency_all.add(t_sent - it->second);
+    if (e.missing_camera_mask == 0) totals_.latency_complete.add(t_sent - it->second);
+    last_arrival_.erase(it);
+  }
+  if (!p_.recording.has_files()) return;
+  RecordingItem item;
+  item.sample = s;
+  if (p_.recording.wants_marks_rows()) format_marks_rows(e, r, item.marks_rows);
+  if (p_.recording.wants_rigid_rows()) {
+    format_rigid_rows(e.trigger_seq, 'p', r.pylon_check, item.rigid_rows);
+    format_rigid_rows(e.trigger_seq, 's', r.store_check, item.rigid_rows);
+  }
+  p_.recording.push(std::move(item));  // never blocks; a full queue is counted there
+}
+
+void HostLoop::process_ready() {
+  for (const auto& e : ready_)
+    process(e);
+  ready_.clear();
+  if (last_arrival_.size() > kMaxTrackedArrivals) {  // stale entries of dropped exposures
+    totals_.arrivals_forgotten += last_arrival_.size();
+    last_arrival_.clear();
+  }
+}
+
+int HostLoop::run(const LoopLimits& limits, const std::atomic<bool>& stop) {
+  std::vector<pollfd> fds;
+  if (p_.udp.fd() >= 0) fds.push_back({p_.udp.fd(), POLLIN, 0});
+  for (const auto& c : p_.cans)
+    fds.push_back({c->fd(), POLLIN, 0});
+  auto handler = [this](const msg::AnyMessage& m) { on_message(m); };
+  const time::MonotonicNs t_start = time::monotonic_now_ns();
+  time::MonotonicNs t_last_progress = t_start;
+  int exit_code = 0;
+  while (!stop) {
+    now_ = time::monotonic_now_ns();
+    const time::MonotonicNs deadline = p_.aligner.next_deadline();
+    int timeout_ms = 100;
+    if (deadline != INT64_MAX)
+      timeout_ms = static_cast<int>(
+          std::clamp<std::int64_t>((deadline - now_ + 999'999) / 1'000'000, 0, 100));
+    const int n = ::poll(fds.data(), fds.size(), timeout_ms);
+    if (n < 0 && errno != EINTR) {
+      spdlog::error("poll: {}", std::strerror(errno));
+      exit_code = 1;
+      break;
+    }
+    now_ = time::monotonic_now_ns();
+    std::size_t fi = 0;
+    if (p_.udp.fd() >= 0) {
+      if (fds[fi].revents & POLLIN) p_.udp.receive(handler);
+      ++fi;
+    }
+    for (auto& c : p_.cans) {
+      if (fds[fi].revents & POLLIN)
+        c->receive(handler);
+      else
+        c->expire(now_);
+      ++fi;
+    }
+    p_.aligner.poll(time::monotonic_now_ns(), ready_);
+    process_ready();
+    now_ = time::monotonic_now_ns();
+    if (limits.progress && now_ - t_last_progress >= 1'000'000'000) {
+      t_last_progress = now_;
+      std::fprintf(stderr,
+                   "\rstoretrack-host: %" PRIu64 " exposures, %" PRIu64 " valid, pending %zu   ",
+                   totals_.exposures, totals_.valid_samples, p_.aligner.pending());
+    }
+    if (limits.duration_s > 0 &&
+        now_ - t_start >= static_cast<std::int64_t>(limits.duration_s * 1e9))
+      break;
+    if (limits.idle_exit_s > 0 && t_first_input_ != 0 &&
+        now_ - t_last_input_ >= static_cast<std::int64_t>(limits.idle_exit_s * 1e9))
+      break;
+    if (limits.expect_exposures > 0 &&
+        static_cast<std::int64_t>(totals_.exposures) >= limits.expect_exposures)
+      break;
+  }
+  p_.aligner.flush(ready_);
+  process_ready();
+  if (limits.progress) std::fprintf(stderr, "\n");
+  return exit_code;
+}
+
+}  // namespace storetrack::hostapp

@@ -1,0 +1,72 @@
+// The real-time loop of storetrack-host: one thread, poll() on every input with the aligner's
+// next deadline as timeout; each released exposure is processed, sent on iNET-X first, then
+// handed to the RecordingWriter (files on their own thread). No file I/O on this thread.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <unordered_map>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "latency.hpp"
+#include "recording_writer.hpp"
+#include "storetrack/ingest/exposure_aligner.hpp"
+#include "storetrack/ingest/receivers.hpp"
+#include "storetrack/output/inetx.hpp"
+#include "storetrack/pipeline/exposure_processor.hpp"
+#include "storetrack/pipeline/pose_tracker.hpp"
+#include "storetrack/time/time.hpp"
+
+namespace storetrack::hostapp {
+
+struct LoopLimits {
+  double duration_s = 0;              ///< stop after this long (0: until signalled)
+  double idle_exit_s = 0;             ///< stop this long after the last observation
+  std::int64_t expect_exposures = 0;  ///< stop after this many exposures (0: no limit)
+  bool progress = false;              ///< a progress line every second on stderr
+};
+
+struct LoopTotals {
+  std::uint64_t exposures = 0, valid_samples = 0, health_messages = 0;
+  std::map<int, nlohmann::json> unit_health;  // keyed by the 8-bit unit id: <= 256 entries
+  LatencyStats latency_complete, latency_all, latency_processing;
+  std::uint64_t arrivals_forgotten = 0;  // arrival times of exposures that never came out
+};
+
+/// The parts the loop drives; all owned by main.
+struct LoopParts {
+  ingest::UdpReceiver& udp;
+  std::vector<std::unique_ptr<ingest::CanFdReceiver>>& cans;
+  ingest::ExposureAligner& aligner;
+  pipeline::ExposureProcessor& processor;
+  pipeline::PoseTracker& pose_tracker;
+  output::InetxSender* inetx;  ///< nullptr: no iNET-X
+  RecordingWriter& recording;
+};
+
+class HostLoop {
+ public:
+  /// Arrival times kept for the latency of exposures still pending in the aligner.
+  static constexpr std::size_t kMaxTrackedArrivals = 4096;
+  explicit HostLoop(const LoopParts& parts) : p_(parts) {}
+  /// Runs until `stop`, a limit, or a poll() failure; returns the exit code (0 or 1).
+  int run(const LoopLimits& limits, const std::atomic<bool>& stop);
+  const LoopTotals& totals() const { return totals_; }
+
+ private:
+  void on_message(const msg::AnyMessage& m);
+  void process_ready();
+  void process(const pipeline::AlignedExposure& e);
+
+  LoopParts p_;
+  LoopTotals totals_;
+  std::vector<pipeline::AlignedExposure> ready_;
+  std::unordered_map<std::uint32_t, time::MonotonicNs> last_arrival_;
+  time::MonotonicNs now_ = 0, t_first_input_ = 0, t_last_input_ = 0;
+};
+
+}  // namespace storetrack::hostapp

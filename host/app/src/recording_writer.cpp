@@ -1,0 +1,136 @@
+#include "recording_writer.hpp"
+
+#include <spdlog/spdlog.h>
+#include <algorithm>
+
+namespace storetrack::hostapp {
+
+RecordingWriter::RecordingWriter(std::size_t max_items, std::size_t max_text_bytes)
+    : max_items_(std::max<std::size_t>(1, max_items)), max_text_bytes_(max_text_bytes) {}
+
+RecordingWriter::~RecordingWriter() {
+  stop();
+}
+
+int RecordingWriter::open_ch10(const std::string& path, const output::Chapter10Config& config) {
+  const int rc = ch10_.open(path, config);
+  ch10_open_ = rc == 0;
+  return rc;
+}
+namespace {
+
+// A restarted host never overwrites: the numbered name it chose instead is logged.
+int report_created(int rc, const std::string& requested, const std::string& created) {
+  if (rc == 0 && created != requested)
+    spdlog::warn("storetrack-host: '{}' exists and is kept; writing '{}'", requested, created);
+  return rc;
+}
+
+}  // namespace
+
+int RecordingWriter::open_csv(const std::string& path) {
+  const int rc = csv_.open(path);
+  csv_open_ = rc == 0;
+  return report_created(rc, path, csv_.path());
+}
+int RecordingWriter::open_marks_csv(const std::string& path) {
+  return report_created(marks_.open(path, kMarksCsvHeader), path, marks_.path());
+}
+int RecordingWriter::open_rigid_csv(const std::string& path) {
+  return report_created(rigid_.open(path, kRigidCsvHeader), path, rigid_.path());
+}
+bool RecordingWriter::has_files() const {
+  return ch10_open_ || csv_open_ || marks_.is_open() || rigid_.is_open();
+}
+
+void RecordingWriter::start() {
+  if (started_) return;
+  started_ = true;
+  thread_ = std::thread([this] { run(); });
+}
+
+bool RecordingWriter::push(RecordingItem&& item) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const std::size_t text = item.marks_rows.size() + item.rigid_rows.size();
+    if (stopping_ || queue_.size() >= max_items_ ||
+        (!queue_.empty() && queued_text_bytes_ + text > max_text_bytes_)) {
+      ++counters_.items_dropped_queue_full;
+      return false;
+    }
+    queued_text_bytes_ += text;
+    queue_.push_back(std::move(item));
+    ++counters_.items_queued;
+    counters_.queue_max_items = std::max<std::uint64_t>(counters_.queue_max_items, queue_.size());
+    counters_.queue_max_text_bytes =
+        std::max<std::uint64_t>(counters_.queue_max_text_bytes, queued_text_bytes_);
+  }
+  cv_.notify_one();
+  return true;
+}
+
+void RecordingWriter::run() {
+  std::unique_lock<std::mutex> lock(mutex_);
+  for (;;) {
+    cv_.wait(lock, [this] { return stopping_ || !queue_.empty(); });
+    while (!queue_.empty()) {
+      RecordingItem item = std::move(queue_.front());
+      queue_.pop_front();
+      queued_text_bytes_ -= item.marks_rows.size() + item.rigid_rows.size();
+      lock.unlock();
+      write(item);
+      lock.lock();
+    }
+    if (stopping_) return;
+  }
+}
+
+// Runs on the writer thread only; its counters are merged under the lock.
+void RecordingWriter::write(const RecordingItem& item) {
+  RecordingCounters d;
+  if (ch10_open_ && ch10_.write(item.sample) != 0) ++d.ch10_write_errors;
+  if (csv_open_ && csv_.write(item.sample) != 0) ++d.csv_write_errors;
+  if (marks_.is_open() && !item.marks_rows.empty() && marks_.write(item.marks_rows) != 0)
+    ++d.marks_csv_write_errors;
+  if (rigid_.is_open() && !item.rigid_rows.empty() && rigid_.write(item.rigid_rows) != 0)
+    ++d.rigid_csv_write_errors;
+  std::lock_guard<std::mutex> lock(mutex_);
+  counters_.ch10_write_errors += d.ch10_write_errors;
+  counters_.csv_write_errors += d.csv_write_errors;
+  counters_.marks_csv_write_errors += d.marks_csv_write_errors;
+  counters_.rigid_csv_write_errors += d.rigid_csv_write_errors;
+}
+
+void RecordingWriter::stop() {
+  if (stopped_) return;
+  stopped_ = true;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stopping_ = true;
+  }
+  cv_.notify_one();
+  if (thread_.joinable()) thread_.join();
+  std::uint64_t close_errors = 0;
+  if (ch10_open_ && ch10_.close() != 0) ++close_errors;
+  if (csv_open_ && csv_.close() != 0) ++close_errors;
+  if (marks_.close() != 0) ++close_errors;
+  if (rigid_.close() != 0) ++close_errors;
+  std::lock_guard<std::mutex> lock(mutex_);
+  counters_.close_errors += close_errors;
+  counters_.csv_rows = csv_.rows_written();
+}
+
+RecordingCounters RecordingWriter::counters() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return counters_;
+}
+
+std::uint64_t RecordingWriter::error_count() const {
+  const RecordingCounters c = counters();
+  return c.items_dropped_queue_full + c.ch10_write_errors + c.csv_write_errors +
+         c.marks_csv_write_errors + c.rigid_csv_write_errors + c.close_errors +
+         ch10_.counters().write_errors + ch10_.counters().sync_errors +
+         ch10_.counters().messages_dropped;
+}
+
+}  // namespace storetrack::hostapp

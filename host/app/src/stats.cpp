@@ -1,0 +1,272 @@
+#include "stats.hpp"
+
+#include <cinttypes>
+#include <cstdio>
+#include <fstream>
+
+namespace storetrack::hostapp {
+namespace {
+
+nlohmann::json decode_counters_json(const msg::DecodeCounters& c) {
+  nlohmann::json j = nlohmann::json::object();
+  for (std::size_t i = 1; i < msg::kNumDecodeErrors; ++i)
+    j[msg::to_string(static_cast<msg::DecodeError>(i))] = c.by_error[i];
+  return j;
+}
+
+nlohmann::json udp_stats_json(const ingest::UdpReceiver& udp) {
+  const auto& uc = udp.counters();
+  return {{"datagrams", uc.datagrams},
+          {"bytes", uc.bytes},
+          {"decoded", uc.decoded},
+          {"receive_errors", uc.receive_errors},
+          {"datagram_seq_gaps", uc.datagram_seq_gaps},
+          {"spoofed_source", uc.spoofed_source},
+          {"kernel_drops", uc.kernel_drops},
+          {"budget_exhausted", uc.budget_exhausted},
+          {"decode_errors", decode_counters_json(uc.decode_errors)}};
+}
+
+nlohmann::json can_stats_json(const std::vector<std::unique_ptr<ingest::CanFdReceiver>>& cans,
+                              const std::vector<std::string>& interfaces) {
+  nlohmann::json can_json = nlohmann::json::array();
+  for (std::size_t i = 0; i < cans.size(); ++i) {
+    const auto& c = cans[i]->counters();
+    const auto& r = cans[i]->reassembly_counters();
+    can_json.push_back({{"interface", interfaces[i]},
+                        {"frames", c.frames},
+                        {"classic_or_bad_frames", c.classic_or_bad_frames},
+                        {"decoded", c.decoded},
+                        {"receive_errors", c.receive_errors},
+                        {"kernel_drops", c.kernel_drops},
+                        {"budget_exhausted", c.budget_exhausted},
+                        {"decode_errors", decode_counters_json(c.decode_errors)},
+                        {"reassembly",
+                         {{"completed", r.completed},
+                          {"duplicates", r.duplicates},
+                          {"crc_errors", r.crc_errors},
+                          {"timeouts", r.timeouts},
+                          {"evictions", r.evictions},
+                          {"fragments_lost", r.fragments_lost}}}});
+  }
+  return can_json;
+}
+
+nlohmann::json aligner_stats_json(const ingest::ExposureAligner& aligner) {
+  const auto& ac = aligner.counters();
+  return {{"observations_in", ac.observations_in},
+          {"observations_used", ac.observations_used},
+          {"exposures_complete", ac.exposures_complete},
+          {"exposures_partial_timeout", ac.exposures_partial_timeout},
+          {"exposures_partial_overflow", ac.exposures_partial_overflow},
+          {"exposures_dropped_too_few_cameras", ac.exposures_dropped_too_few_cameras},
+          {"dropped_unknown_camera", ac.dropped_unknown_camera},
+          {"dropped_spoofed", ac.dropped_spoofed},
+          {"dropped_invalid", ac.dropped_invalid},
+          {"dropped_time_out_of_range", ac.dropped_time_out_of_range},
+          {"dropped_duplicate", ac.dropped_duplicate},
+          {"dropped_late", ac.dropped_late},
+          {"dropped_time_mismatch", ac.dropped_time_mismatch},
+          {"dropped_quarantined", ac.dropped_quarantined},
+          {"dropped_too_few_cameras", ac.dropped_too_few_cameras},
+          {"sequence_offset_changes", ac.sequence_offset_changes},
+          {"sequence_restarts", ac.sequence_restarts}};
+}
+
+nlohmann::json camera_stats_json(const ingest::ExposureAligner& aligner,
+                                 const std::vector<int>& camera_ids) {
+  nlohmann::json cams = nlohmann::json::array();
+  for (std::size_t i = 0; i < camera_ids.size(); ++i) {
+    const auto& c = aligner.camera_counters()[i];
+    cams.push_back({{"camera_id", camera_ids[i]},
+                    {"received", c.received},
+                    {"used", c.used},
+                    {"missing", c.missing},
+                    {"late", c.late},
+                    {"duplicate", c.duplicate},
+                    {"time_mismatch", c.time_mismatch},
+                    {"spoofed", c.spoofed},
+                    {"quarantined", c.quarantined},
+                    {"offset_changes", c.offset_changes},
+                    {"sequence_offset", c.sequence_offset}});
+  }
+  return cams;
+}
+
+nlohmann::json identifier_stats_json(const pipeline::ExposureProcessor& processor) {
+  const auto& ic = processor.matcher().counters();
+  return {{"matcher", "host/match MarkMatcher"},
+          {"exposures", ic.exposures},
+          {"observations", ic.observations},
+          {"identified", ic.identified},
+          {"ambiguous", ic.ambiguous_observation + ic.ambiguous_mark},
+          {"ambiguous_observation", ic.ambiguous_observation},
+          {"ambiguous_mark", ic.ambiguous_mark},
+          {"unmatched", ic.unmatched},
+          {"unknown_camera", ic.unknown_camera},
+          {"bad_observation", ic.bad_observation},
+          {"fallback_sigma", ic.fallback_sigma},
+          {"rejected_by_flags", ic.rejected_by_flags},
+          {"undistort_failed", ic.undistort_failed},
+          {"epipolar_outlier", ic.epipolar_outlier},
+          {"epipolar_rejected", ic.epipolar_rejected},
+          {"layout_rejected", ic.layout_rejected},
+          {"single_view", ic.single_view},
+          {"acquisitions", ic.acquisitions},
+          {"duplicate_camera", ic.duplicate_camera}};
+}
+
+nlohmann::json processor_stats_json(const pipeline::ExposureProcessor& processor) {
+  const auto& pc = processor.counters();
+  return {{"exposures", pc.exposures},
+          {"unknown_camera", pc.unknown_camera},
+          {"bad_observation", pc.bad_observation},
+          {"rejected_by_flags", pc.rejected_by_flags},
+          {"ambiguous_ids", pc.ambiguous_ids},
+          {"too_few_cameras", pc.too_few_cameras},
+          {"triangulation_failed", pc.triangulation_failed},
+          {"marks_excluded", pc.marks_excluded},
+          {"pose_failed", pc.pose_failed},
+          {"degenerate_geometry", pc.degenerate_geometry}};
+}
+
+}  // namespace
+
+nlohmann::json recording_stats_json(const RecordingWriter& recording,
+                                    const std::string& requested_ch10_path) {
+  const RecordingCounters rc = recording.counters();
+  const auto& cc = recording.ch10().counters();
+  nlohmann::json ch10 = {{"requested_path", requested_ch10_path},
+                         {"files", recording.ch10().files()},
+                         {"files_opened", cc.files_opened},
+                         {"numbered_instead_of_existing", cc.numbered_instead_of_existing},
+                         {"continuation_files", cc.continuation_files},
+                         {"packets_written", cc.packets_written},
+                         {"messages_written", cc.messages_written},
+                         {"messages_dropped", cc.messages_dropped},
+                         {"packets_dropped", cc.packets_dropped},
+                         {"write_errors", cc.write_errors},
+                         {"sync_errors", cc.sync_errors},
+                         {"truncations", cc.truncations},
+                         {"truncate_errors", cc.truncate_errors},
+                         {"close_errors", cc.close_errors},
+                         {"directory_sync_errors", cc.directory_sync_errors},
+                         {"open_errors", cc.open_errors},
+                         {"samples_out_of_order", cc.samples_out_of_order}};
+  return {{"queue",
+           {{"max_items", RecordingWriter::kQueueItems},
+            {"max_text_bytes", RecordingWriter::kQueueTextBytes},
+            {"items_queued", rc.items_queued},
+            {"items_dropped_queue_full", rc.items_dropped_queue_full},
+            {"max_depth_items", rc.queue_max_items},
+            {"max_depth_text_bytes", rc.queue_max_text_bytes}}},
+          {"chapter10", ch10},
+          {"csv_files",
+           {{"csv", recording.csv_path()},
+            {"marks_csv", recording.marks_csv_path()},
+            {"rigid_csv", recording.rigid_csv_path()}}},
+          {"csv_rows", rc.csv_rows},
+          {"csv_write_errors", rc.csv_write_errors},
+          {"marks_csv_write_errors", rc.marks_csv_write_errors},
+          {"rigid_csv_write_errors", rc.rigid_csv_write_errors},
+          {"close_errors", rc.close_errors}};
+}
+
+nlohmann::json host_stats_json(const StatsSources& s) {
+  nlohmann::json stats;
+  stats["exposures_processed"] = s.totals.exposures;
+  stats["valid_samples"] = s.totals.valid_samples;
+  stats["wall_time_s"] = s.wall_time_s;
+  stats["udp"] = udp_stats_json(s.udp);
+  stats["can"] = can_stats_json(s.cans, s.cfg.can_interfaces);
+  stats["aligner"] = aligner_stats_json(s.aligner);
+  stats["cameras"] = camera_stats_json(s.aligner, s.cfg.aligner.camera_ids);
+  stats["identifier"] = identifier_stats_json(s.processor);
+  stats["processor"] = processor_stats_json(s.processor);
+  const auto& tc = s.pose_tracker.counters();
+  stats["pose_tracker"] = {{"solved", tc.solved},
+                           {"extrapolated", tc.extrapolated},
+                           {"not_extrapolated", tc.not_extrapolated}};
+  const auto& cc = s.recording.ch10().counters();
+  const RecordingCounters rc = s.recording.counters();
+  // "outputs" keeps its keys (tools read them); the details are under "recording".
+  stats["outputs"] = {{"inetx_sent", s.inetx.counters().packets_sent},
+                      {"inetx_send_errors", s.inetx.counters().send_errors},
+                      {"ch10_packets", cc.packets_written},
+                      {"ch10_messages", cc.messages_written},
+                      {"ch10_time_packets", cc.time_packets},
+                      {"ch10_bytes", cc.bytes_written},
+                      {"ch10_write_errors", cc.write_errors},
+                      {"ch10_sync_errors", cc.sync_errors},
+                      {"csv_rows", rc.csv_rows},
+                      {"write_errors", s.recording.error_count()},
+                      {"file_queue_max_depth", rc.queue_max_items}};
+  stats["recording"] = recording_stats_json(s.recording, s.cfg.ch10_path);
+  const LoopTotals& t = s.totals;
+  stats["latency"] = {
+      {"last_observation_to_inetx_complete_exposures", t.latency_complete.to_json()},
+      {"last_observation_to_inetx_all_exposures", t.latency_all.to_json()},
+      {"processing_per_exposure", t.latency_processing.to_json()},
+      {"arrivals_forgotten", t.arrivals_forgotten}};
+  stats["unit_health_messages"] = t.health_messages;
+  nlohmann::json health = nlohmann::json::object();
+  for (const auto& [unit, h] : t.unit_health)
+    health[std::to_string(unit)] = h;
+  stats["unit_health"] = health;
+  return stats;
+}
+
+void print_summary(const StatsSources& s) {
+  const auto& ac = s.aligner.counters();
+  const auto& ic = s.processor.matcher().counters();
+  const LoopTotals& t = s.totals;
+  std::printf("storetrack-host summary\n");
+  std::printf("  observations in/used      %10" PRIu64 " / %" PRIu64 "\n", ac.observations_in,
+              ac.observations_used);
+  std::printf("  exposures complete/partial %9" PRIu64 " / %" PRIu64 " (dropped %" PRIu64 ")\n",
+              ac.exposures_complete, ac.exposures_partial_timeout + ac.exposures_partial_overflow,
+              ac.exposures_dropped_too_few_cameras);
+  std::printf("  dropped: duplicate %" PRIu64 ", late %" PRIu64 ", time mismatch %" PRIu64
+              ", unknown camera %" PRIu64 ", invalid %" PRIu64 "\n",
+              ac.dropped_duplicate, ac.dropped_late, ac.dropped_time_mismatch,
+              ac.dropped_unknown_camera, ac.dropped_invalid);
+  std::printf("  dropped: spoofed %" PRIu64 ", quarantined %" PRIu64 ", time out of range %" PRIu64
+              ", too few cameras %" PRIu64 "; sequence offset changes %" PRIu64
+              ", restarts %" PRIu64 "\n",
+              ac.dropped_spoofed, ac.dropped_quarantined, ac.dropped_time_out_of_range,
+              ac.dropped_too_few_cameras, ac.sequence_offset_changes, ac.sequence_restarts);
+  const auto& uc = s.udp.counters();
+  if (s.cfg.udp_port > 0)
+    std::printf("  udp: %" PRIu64 " datagrams, spoofed source %" PRIu64 ", kernel drops %" PRIu64
+                ", receive budget exhausted %" PRIu64 "\n",
+                uc.datagrams, uc.spoofed_source, uc.kernel_drops, uc.budget_exhausted);
+  std::printf("  marks identified %" PRIu64 " of %" PRIu64 " (ambiguous %" PRIu64
+              ", unmatched %" PRIu64 ")\n",
+              ic.identified, ic.observations, ic.ambiguous_observation + ic.ambiguous_mark,
+              ic.unmatched);
+  std::printf("  samples valid/total        %9" PRIu64 " / %" PRIu64 "\n", t.valid_samples,
+              t.exposures);
+  if (s.recording.ch10_open()) {
+    const auto& cc = s.recording.ch10().counters();
+    std::printf("  Chapter 10: %zu file(s), %" PRIu64 " samples written, %" PRIu64
+                " dropped, %" PRIu64 " write / %" PRIu64 " sync errors\n",
+                s.recording.ch10().files().size(), cc.messages_written,
+                cc.messages_dropped + s.recording.counters().items_dropped_queue_full,
+                cc.write_errors, cc.sync_errors);
+  }
+  std::printf(
+      "  latency last obs -> iNET-X p50 %.0f us, p99 %.0f us, max %.0f us (%zu complete "
+      "exposures)\n",
+      static_cast<double>(t.latency_complete.percentile(0.5)) * 1e-3,
+      static_cast<double>(t.latency_complete.percentile(0.99)) * 1e-3,
+      static_cast<double>(t.latency_complete.max()) * 1e-3, t.latency_complete.count());
+}
+
+bool write_stats_json(const nlohmann::json& stats, const std::string& path) {
+  std::ofstream out(path);
+  out << stats.dump(2) << "\n";
+  out.close();
+  return static_cast<bool>(out);
+}
+
+}  // namespace storetrack::hostapp
