@@ -1,9 +1,12 @@
 #!/usr/bin/env bash
-# Fuzzes the wire decoders (UDP datagram decoder, CAN FD reassembler) with libFuzzer for
-# N seconds each (default 30), seeded with valid messages of both framings (docs/icd.md).
-# The fuzzers are single-threaded, so they run side by side (one per core): N seconds of wall
-# time for all of them. Exits non-zero on any crash, sanitizer report or non-canonical
-# acceptance; each fuzzer's log is $B/<fuzzer>.log.
+# Fuzzes every reader of outside input with libFuzzer (ASan + UBSan) for N seconds each
+# (default 30): the wire decoders (UDP datagram decoder, CAN FD reassembler), seeded with valid
+# messages of both framings (docs/icd.md), and the host's readers (Chapter 10 reader, rig
+# calibration, survey, host config, initial marks, the ExposureAligner on arbitrary decoded
+# observations), seeded with the committed corpora tests/host/fuzz/seeds/<corpus>/
+# (docs/reliability.md, "Fuzzing"). The fuzzers are single-threaded, so they run side by side:
+# N seconds of wall time for all of them. Exits non-zero on any crash, sanitizer report or
+# violated property; each fuzzer's log is $B/<fuzzer>.log, a crash's input $B/crash-*.
 #   FUZZ_STEP=build|run tools/fuzz-decoders.sh N   only that half (CI builds in the background
 #                                                  and runs later); default both.
 set -euo pipefail
@@ -16,6 +19,12 @@ B=${STORETRACK_FUZZ_BUILD_DIR:-build-fuzz}
 FUZZERS=(
   "fuzz_msg_udp_decode udp 600"
   "fuzz_msg_canfd_reassemble canfd 4096"
+  "fuzz_ch10_reader ch10_reader 4096"
+  "fuzz_rig_calibration rig_calibration 16384"
+  "fuzz_survey survey 8192"
+  "fuzz_host_config host_config 8192"
+  "fuzz_initial_marks initial_marks 8192"
+  "fuzz_exposure_aligner exposure_aligner 4096"
 )
 if [ "$STEP" != run ]; then
   cmake -S . -B "$B" -G Ninja -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
@@ -32,8 +41,10 @@ for f in "${FUZZERS[@]}"; do
   read -r target corpus max_len <<<"$f"
   mkdir -p "$B/corpus-$corpus"
   exe=$(find "$B/tests" -type f -name "$target" | head -1)
-  "$exe" "$B/corpus-$corpus" "$B/fuzz-seeds/$corpus" -max_total_time="$seconds" \
-    -max_len="$max_len" -print_final_stats=1 >"$B/$target.log" 2>&1 &
+  seeds="$B/fuzz-seeds/$corpus"  # generated (wire decoders) or committed (host readers)
+  [ -d "tests/host/fuzz/seeds/$corpus" ] && seeds="tests/host/fuzz/seeds/$corpus"
+  "$exe" "$B/corpus-$corpus" "$seeds" -max_total_time="$seconds" -max_len="$max_len" \
+    -print_final_stats=1 -artifact_prefix="$B/" >"$B/$target.log" 2>&1 &
   pids+=($!)
 done
 failed=0

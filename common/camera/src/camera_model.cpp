@@ -18,9 +18,9 @@ using geometry::Vec3;
 
 namespace {
 
-// Indices into the packed intrinsic vector (camera_model.hpp).
-constexpr int kFx = 0, kFy = 1, kCx = 2, kCy = 3, kSkew = 4, kK1 = 5, kK2 = 6, kP1 = 7, kP2 = 8,
-              kK3 = 9, kK4 = 10, kK5 = 11, kK6 = 12;
+// Indices 0..12 into the packed intrinsic vector (camera_model.hpp); all named, some unused (an
+// enum, so clang's -Wunused-const-variable does not object).
+enum IntrinsicIndex : int { kFx, kFy, kCx, kCy, kSkew, kK1, kK2, kP1, kP2, kK3, kK4, kK5, kK6 };
 
 /// Everything of the distortion map at one normalised point, shared by distort() and the
 /// intrinsic Jacobian.

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <fstream>
+#include <limits>
 #include <set>
 #include <sstream>
 
@@ -44,7 +45,7 @@ RigidBodySurvey parse_survey(const std::string& json_text, const std::string& or
   json root;
   try {
     root = json::parse(json_text);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // parse_error, or out_of_range for a number overflow
     throw SurveyFileError(origin + ": not valid JSON: " + e.what());
   }
   if (!root.is_object()) fail(origin, "$", "expected a JSON object");
@@ -74,8 +75,14 @@ RigidBodySurvey parse_survey(const std::string& json_text, const std::string& or
     const json& m = marks[i];
     SurveyedMark mark;
     const json& id = require(m, "id", origin, path);
-    if (!id.is_number_integer()) fail(origin, path + ".id", "expected an integer");
-    mark.id = id.get<int>();
+    // An id outside int would wrap silently onto another mark's (4294967396 -> 100).
+    const bool in_range = id.is_number_unsigned()
+                              ? id.get<std::uint64_t>() <= std::numeric_limits<int>::max()
+                              : id.is_number_integer() &&
+                                    id.get<std::int64_t>() >= std::numeric_limits<int>::min() &&
+                                    id.get<std::int64_t>() <= std::numeric_limits<int>::max();
+    if (!in_range) fail(origin, path + ".id", "expected an integer in the range of int");
+    mark.id = static_cast<int>(id.get<std::int64_t>());
     if (!ids.insert(mark.id).second) fail(origin, path + ".id", "duplicate mark id");
     const json& p = require(m, "p_body_m", origin, path);
     if (!p.is_array() || p.size() != 3) fail(origin, path + ".p_body_m", "expected [x, y, z]");

@@ -12,15 +12,19 @@
 namespace storetrack::hostapp {
 namespace {
 
-nlohmann::json read_json(const std::string& path) {
+std::string read_text(const std::string& path) {
   std::ifstream in(path);
   if (!in) throw HostConfigError("cannot open '" + path + "'");
   std::stringstream ss;
   ss << in.rdbuf();
+  return ss.str();
+}
+
+nlohmann::json parse_json(const std::string& json_text, const std::string& origin) {
   try {
-    return nlohmann::json::parse(ss.str());
+    return nlohmann::json::parse(json_text);
   } catch (const nlohmann::json::exception& e) {
-    throw HostConfigError(path + ": not valid JSON: " + e.what());
+    throw HostConfigError(origin + ": not valid JSON: " + e.what());
   }
 }
 
@@ -76,6 +80,10 @@ std::int64_t get_integer(const nlohmann::json& j, const char* key, std::int64_t 
     throw HostConfigError(where + "/" + key + range + " (got " + v.dump() + ")");
   return x;
 }
+
+// Mark ids of surveys and initial marks: small non-negative integers; the bound only keeps a
+// typo (or 1e300) from becoming an id.
+constexpr std::int64_t kMaxMarkIds = 1'000'000;
 
 std::int64_t ms_to_ns(double ms) {
   return static_cast<std::int64_t>(std::llround(ms * 1e6));
@@ -139,8 +147,12 @@ void finish_host_config(HostConfig& c, const std::vector<int>& camera_ids,
   }
 }
 
-void load_host_config(const std::string& path, HostConfig& c) {
-  const nlohmann::json j = read_json(path);
+void load_host_config(const std::string& path, HostConfig& config) {
+  parse_host_config(read_text(path), path, config);
+}
+
+void parse_host_config(const std::string& json_text, const std::string& path, HostConfig& c) {
+  const nlohmann::json j = parse_json(json_text, path);
   if (!j.is_object()) throw HostConfigError(path + ": top level must be an object");
   if (j.contains("udp")) {
     const auto& u = j["udp"];
@@ -193,9 +205,15 @@ void load_host_config(const std::string& path, HostConfig& c) {
     c.processor.store_id =
         static_cast<std::uint8_t>(get_integer(p, "store_id", c.processor.store_id, 0, 254, w));
     get(p, "coverage_factor", c.processor.coverage_factor, w);
-    get(p, "min_cameras_per_mark", c.processor.min_cameras_per_mark, w);
-    get(p, "min_pose_marks", c.processor.min_pose_marks, w);
-    get(p, "reference_camera_id", c.processor.reference_camera_id, w);
+    // Integers through get_integer: nlohmann's get<int> of 1e300 is an out-of-range cast (UB).
+    auto& pc = c.processor;
+    pc.min_cameras_per_mark =
+        static_cast<int>(get_integer(p, "min_cameras_per_mark", pc.min_cameras_per_mark, 1,
+                                     static_cast<std::int64_t>(ingest::kMaxAlignerCameras), w));
+    pc.min_pose_marks =
+        static_cast<int>(get_integer(p, "min_pose_marks", pc.min_pose_marks, 3, 1024, w));
+    pc.reference_camera_id =
+        static_cast<int>(get_integer(p, "reference_camera_id", pc.reference_camera_id, -1, 254, w));
     get(p, "rigid_false_alarm_probability", c.processor.rigid_false_alarm_probability, w);
     get(p, "max_pose_rotation_sigma_rad", c.processor.max_pose_rotation_sigma_rad, w);
     if (!(c.processor.max_pose_rotation_sigma_rad > 0))
@@ -242,20 +260,32 @@ void load_host_config(const std::string& path, HostConfig& c) {
   if (j.contains("chapter10")) {
     const auto& o = j["chapter10"];
     const std::string w = path + ": /chapter10";
-    get(o, "max_messages_per_packet", c.ch10.max_messages_per_packet, w);
+    c.ch10.max_messages_per_packet = static_cast<int>(
+        get_integer(o, "max_messages_per_packet", c.ch10.max_messages_per_packet, 1, 65535, w));
     get(o, "data_checksum", c.ch10.data_checksum, w);
     get(o, "test_point", c.ch10.test_point, w);
   }
 }
 
 std::map<int, geometry::Vec3> load_initial_marks(const std::string& path) {
-  const nlohmann::json j = read_json(path);
+  return parse_initial_marks(read_text(path), path);
+}
+
+std::map<int, geometry::Vec3> parse_initial_marks(const std::string& json_text,
+                                                  const std::string& path) {
+  const nlohmann::json j = parse_json(json_text, path);
   std::map<int, geometry::Vec3> out;
   try {
-    for (const auto& m : j.at("marks")) {
+    const auto& marks = j.at("marks");
+    if (!marks.is_array()) throw HostConfigError(path + ": /marks must be an array");
+    for (const auto& m : marks) {
+      if (!m.is_object()) throw HostConfigError(path + ": /marks: entries must be objects");
+      if (!m.contains("id")) throw HostConfigError(path + ": /marks: every entry needs an id");
+      const int id = static_cast<int>(get_integer(m, "id", 0, 0, kMaxMarkIds, path + ": /marks"));
       const auto p = m.at("p_w_m").get<std::vector<double>>();
       if (p.size() != 3) throw HostConfigError(path + ": /marks/p_w_m needs 3 values");
-      out[m.at("id").get<int>()] = geometry::Vec3(p[0], p[1], p[2]);
+      if (!out.emplace(id, geometry::Vec3(p[0], p[1], p[2])).second)
+        throw HostConfigError(path + ": /marks/id: duplicate mark id " + std::to_string(id));
     }
   } catch (const nlohmann::json::exception& e) {
     throw HostConfigError(path + ": /marks: " + e.what());

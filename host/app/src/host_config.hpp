@@ -52,6 +52,8 @@ struct HostConfig {
 
 /// Applies the JSON file's values onto `config` (fields not in the file keep their value).
 void load_host_config(const std::string& path, HostConfig& config);
+/// The same from JSON text; `origin` (the file name) starts every error message.
+void parse_host_config(const std::string& json_text, const std::string& origin, HostConfig& config);
 /// Sets the aligner's wait from milliseconds: finite, in (0, 60000]; `where` names the source.
 void set_max_wait_ms(HostConfig& config, double max_wait_ms, const std::string& where);
 /// Parses a --udp-source value "UNIT@a.b.c.d".
@@ -63,5 +65,7 @@ void finish_host_config(HostConfig& config, const std::vector<int>& camera_ids,
                         const std::vector<int>& unit_ids);
 /// Reads {"marks": [{"id": 0, "p_w_m": [x, y, z]}, ...]}.
 std::map<int, geometry::Vec3> load_initial_marks(const std::string& path);
+std::map<int, geometry::Vec3> parse_initial_marks(const std::string& json_text,
+                                                  const std::string& origin);
 
 }  // namespace storetrack::hostapp

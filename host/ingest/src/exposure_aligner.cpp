@@ -271,7 +271,11 @@ void ExposureAligner::quarantine(int cam, const msg::MarkObservations& obs, std:
   const auto target = exposure_at_time(pipeline::exposure_mid_tai_ns(obs));
   std::optional<std::int64_t> implied;
   if (target) implied = *target - unwrapped;
-  if (implied && cs.holding && cs.held_offset == implied) {
+  // Two different exposures, in time order: a duplicated datagram held twice proves nothing.
+  const bool follows_held =
+      cs.holding && obs.trigger_seq != cs.held.trigger_seq &&
+      pipeline::exposure_mid_tai_ns(obs) > pipeline::exposure_mid_tai_ns(cs.held);
+  if (implied && follows_held && cs.held_offset == implied) {
     // Two observations in a row agree on where this camera's sequence now sits (a restarted
     // unit, a re-numbered trigger): re-learn the offset and place both.
     cs.offset = *implied;
@@ -304,6 +308,9 @@ void ExposureAligner::try_trigger_restart(time::MonotonicNs now) {
     const CameraState& cs = cameras_[i];
     if (!cs.holding || cs.held_offset) continue;
     const time::TaiNs mid = pipeline::exposure_mid_tai_ns(cs.held);
+    // A restarted trigger renumbers, but time goes on: an observation from before the newest
+    // released exposure is a replay (a duplicated or long-delayed datagram), not a restart.
+    if (released_any_ && mid <= newest_released_mid_) continue;
     if (!have_reference) {
       reference = mid;
       have_reference = true;
@@ -467,6 +474,7 @@ void ExposureAligner::release(PendingMap::iterator it, ReleaseReason reason,
   update_grid(key, reference_mid, std::popcount(present));
   released_through_ = released_any_ ? std::max(released_through_, key) : key;
   released_any_ = true;
+  newest_released_mid_ = std::max(newest_released_mid_, reference_mid);
   remember_released(key, present, reference_mid);
   for (std::size_t i = 0; i < config_.camera_ids.size(); ++i)
     if (missing & (1u << i)) ++camera_counters_[i].missing;

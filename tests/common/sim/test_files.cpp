@@ -86,6 +86,21 @@ TEST(SurveyFile, BadFilesNameFileAndField) {
   EXPECT_THROW(read_survey("/nonexistent/survey.json"), SurveyFileError);
 }
 
+// Found by fuzz_survey (tests/host/fuzz): a number too large for a double escaped as
+// nlohmann's out_of_range instead of a SurveyFileError naming the file (the reproducer is the
+// fuzzer's, one digit of a real survey mutated); an id beyond int wrapped onto another mark's.
+TEST(SurveyFile, FuzzFindingsAreErrorsNamingTheFile) {
+  std::string text = format_survey(example_survey());
+  const std::string x = "0.75";
+  text.replace(text.find(x), x.size(), "0.84988e7581190082");
+  expect_survey_error(text, "not valid JSON");
+  nlohmann::json j = nlohmann::json::parse(format_survey(example_survey()));
+  j["marks"][1]["id"] = 4294967396u;  // 2^32 + 100: was read as a duplicate of mark 100
+  expect_survey_error(j.dump(), "range of int");
+  j["marks"][1]["id"] = -2147483649ll;
+  expect_survey_error(j.dump(), "range of int");
+}
+
 std::string scenario_text() {
   std::ifstream in(std::string(STORETRACK_SIM_SCENARIO_DIR) + "/static.json");
   std::stringstream buf;

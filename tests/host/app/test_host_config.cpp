@@ -128,5 +128,48 @@ TEST(HostConfig, UdpSourceOption) {
     EXPECT_THROW(parse_udp_source(bad), HostConfigError) << bad;
 }
 
+// Found by fuzz_host_config / fuzz_initial_marks (tests/host/fuzz): these integers were read with
+// nlohmann's get<int>, so 1e300 was an out-of-range cast (UBSan: "1e+300 is outside the range of
+// representable values of type 'int'") and 2.5 became 2 silently.
+TEST(HostConfig, FuzzFindingsIntegerFieldsRefuseFloats) {
+  struct Field {
+    const char* json_prefix;
+    const char* name;
+    const char* range;
+  };
+  const Field fields[] = {
+      {R"({"processor": {"min_cameras_per_mark": )", "min_cameras_per_mark", "[1, 32]"},
+      {R"({"processor": {"min_pose_marks": )", "min_pose_marks", "[3, 1024]"},
+      {R"({"processor": {"reference_camera_id": )", "reference_camera_id", "[-1, 254]"},
+      {R"({"chapter10": {"max_messages_per_packet": )", "max_messages_per_packet", "[1, 65535]"}};
+  for (const auto& f : fields)
+    for (const char* value : {"1e300", "2.5", "-1e300", "4294967297"})
+      expect_refused(std::string(f.json_prefix) + value + "}}", f.name, f.range);
+}
+
+std::string initial_marks_error(const std::string& json) {
+  ConfigFile f(json);
+  try {
+    load_initial_marks(f.path());
+  } catch (const HostConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(HostConfig, FuzzFindingsInitialMarkIdsAreIntegersAndUnique) {
+  const std::string xyz = R"(, "p_w_m": [1, 2, 3]})";
+  for (const char* id : {"1e300", "2.5", "-1", "4294967296"})
+    EXPECT_NE(initial_marks_error(std::string(R"({"marks": [{"id": )") + id + xyz + "]}")
+                  .find("/marks/id"),
+              std::string::npos)
+        << id;
+  // A second entry with the same id silently replaced the first.
+  EXPECT_NE(initial_marks_error(R"({"marks": [{"id": 4)" + xyz + R"(, {"id": 4)" + xyz + "]}")
+                .find("duplicate mark id 4"),
+            std::string::npos);
+  EXPECT_EQ(initial_marks_error(R"({"marks": [{"id": 4)" + xyz + R"(, {"id": 5)" + xyz + "]}"), "");
+}
+
 }  // namespace
 }  // namespace storetrack::hostapp

@@ -455,5 +455,78 @@ TEST(ExposureAlignerFaults, ArbitraryObservationsKeepEveryBoundAndAreAllCounted)
   EXPECT_EQ(aligner.held(), 0u);
 }
 
+TEST(ExposureAlignerFaults, ReplayedOldObservationIsNotReleasedAgain) {
+  // Found by fuzz_exposure_aligner (tests/host/fuzz), its reproducer: a one-camera rig releases
+  // exposure 0, then exposure 3839 (9.6 s later), then receives exposure 0's observation again
+  // (a duplicated, long-delayed datagram). No exposure or grid slot explains it, and a one-camera
+  // rig is its own majority, so it was taken for a trigger restart and exposure 0 was released a
+  // second time. A restart renumbers the trigger, but time goes on: the replay, older than what
+  // was released, stays quarantined and is counted.
+  AlignerConfig c;
+  c.camera_ids = {10};
+  c.max_wait_ns = 53'568'445'011;
+  c.max_mid_time_spread_ns = 16'777'099;
+  c.max_sequence_lead = 77'011;
+  ExposureAligner aligner(c);
+  constexpr std::int64_t kT0 = 1'699'999'999'995'000'000;
+  msg::MarkObservations first = make_obs(10, 0, kT0);
+  first.exposure_start_mono_ns = -4'000'000;
+  msg::MarkObservations later = make_obs(10, 3839, 1'700'000'009'594'954'784);
+  later.exposure_start_mono_ns = 9'595'954'784;
+  std::vector<pipeline::AlignedExposure> out;
+  aligner.push(first, 1'014'911'018, out);
+  aligner.push(later, 1'029'812'660, out);
+  aligner.push(first, 1'036'789'967, out);
+  aligner.flush(out);
+  ASSERT_EQ(out.size(), 2u);
+  EXPECT_EQ(out[0].trigger_seq, 0u);
+  EXPECT_EQ(out[1].trigger_seq, 3839u);
+  EXPECT_EQ(aligner.counters().sequence_restarts, 0u);
+  EXPECT_EQ(aligner.counters().observations_used, 2u);
+  EXPECT_EQ(aligner.counters().dropped_quarantined, 1u);
+  EXPECT_EQ(aligner.counters().observations_in, 2u + total_dropped(aligner.counters()));
+}
+
+TEST(ExposureAlignerFaults, DuplicatedOldDatagramDoesNotReLearnTheOffset) {
+  // Found by fuzz_exposure_aligner, its reproducer (3-camera rig, max_pending 1): exposure 2 of
+  // camera 10 is released; later exposure 0 of camera 10 arrives twice (a duplicated, delayed
+  // datagram). Held twice with the same implied offset, the pair "agreed" and re-learned the
+  // camera's offset, so a repeat of exposure 2 mapped onto a new exposure and was released a
+  // second time. Two observations confirm a new offset only when they are different exposures
+  // in time order.
+  AlignerConfig c = rig_config(3);
+  c.camera_ids = {10, 13, 16};
+  c.unit_ids = {0, 0, 1};
+  c.max_wait_ns = 19'511'627'776;
+  c.max_mid_time_spread_ns = 294'967'074;
+  c.max_pending = 1;
+  c.max_sequence_lead = 257;
+  ExposureAligner aligner(c);
+  auto obs = [](std::uint32_t seq, std::int64_t tai, std::int64_t mono) {
+    msg::MarkObservations o = make_obs(10, seq, tai);
+    o.unit_id = 0;
+    o.exposure_start_mono_ns = mono;
+    return o;
+  };
+  const auto exposure2 = obs(2, 1'700'000'000'000'730'379, 1'730'379);
+  const auto exposure0 = obs(0, 1'699'999'999'995'000'000, -4'000'000);
+  std::vector<pipeline::AlignedExposure> out;
+  aligner.push(exposure2, 1'032'176'666, out);
+  aligner.push(obs(18, 1'700'000'000'046'777'214, 47'777'214), 1'032'179'519, out);
+  aligner.push(exposure0, 1'063'989'096, out);
+  aligner.push(obs(0, 9'223'372'036'840'489'215, -2'754'817), 1'063'991'655, out);
+  aligner.push(exposure0, 1'063'991'655, out);
+  aligner.push(exposure2, 1'078'509'439, out);
+  aligner.flush(out);
+  int released_exposure2 = 0;
+  for (const auto& e : out)
+    for (const auto& o : e.cameras)
+      released_exposure2 += o.trigger_seq == 2 ? 1 : 0;
+  EXPECT_EQ(released_exposure2, 1);
+  EXPECT_EQ(aligner.counters().sequence_offset_changes, 0u);
+  EXPECT_EQ(aligner.counters().observations_in,
+            aligner.counters().observations_used + total_dropped(aligner.counters()));
+}
+
 }  // namespace
 }  // namespace storetrack::ingest

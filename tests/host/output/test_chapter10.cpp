@@ -267,5 +267,35 @@ TEST(Chapter10, UnwritablePathIsAnError) {
   EXPECT_THROW(ch10read::read_file("/nonexistent-dir/x.ch10"), std::runtime_error);
 }
 
+// Reproducer of the Message F0 over-read (issue 11), minimised from the fuzz_ch10_reader seed
+// tests/host/fuzz/seeds/ch10_reader/f0_odd_length_message.ch10: one F0 packet whose CSDW counts
+// 2 messages, the first of odd length 1 at the very end of the data, without its filler byte.
+// The old decoder stepped `at` past the data and read the second header out of bounds (ASan:
+// heap-buffer-overflow in decode_message_f0).
+TEST(Chapter10Reader, OddLengthMessageAtTheEndIsRefusedNotReadPast) {
+  std::vector<std::uint8_t> file = {
+      0x25, 0xEB, 0x02, 0x00,              // sync, channel 2
+      44,   0,    0,    0,                 // packet length
+      17,   0,    0,    0,                 // data length: CSDW + one 12-byte header + 1 byte
+      0x06, 0x00, 0x00, 0x30,              // version, sequence, flags (no checksum), Message F0
+      0,    0,    0,    0,    0, 0,        // relative time counter
+      0,    0,                             // header checksum (below)
+      2,    0,    0,    0,                 // CSDW: 2 messages
+      0,    0,    0,    0,    0, 0, 0, 0,  // intra-packet time
+      1,    0,    0,    0,                 // intra-packet header: length 1
+      0xAB,                                // the message; its filler byte and message 2 are missing
+      0,    0,    0};                      // packet filler to a multiple of 4
+  std::uint32_t sum = 0;
+  for (std::size_t i = 0; i < 22; i += 2)
+    sum += static_cast<std::uint32_t>(file[i] | (file[i + 1] << 8));
+  file[22] = static_cast<std::uint8_t>(sum);
+  file[23] = static_cast<std::uint8_t>(sum >> 8);
+  const ch10read::File f = ch10read::parse(file);
+  ASSERT_EQ(f.packets.size(), 1u) << f.stop_reason;
+  std::string error;
+  EXPECT_FALSE(ch10read::decode_message_f0(f.packets[0], &error).has_value());
+  EXPECT_EQ(error, "message filler byte past the data");
+}
+
 }  // namespace
 }  // namespace storetrack::output

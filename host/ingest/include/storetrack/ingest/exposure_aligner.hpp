@@ -191,6 +191,7 @@ class ExposureAligner {
   std::int64_t newest_key_ = 0;        // newest exposure index opened
   std::int64_t released_through_ = 0;  // every exposure <= this has been released
   bool released_any_ = false;
+  time::TaiNs newest_released_mid_ = INT64_MIN;  // latest mid-time released: restarts come after
   // The trigger grid, from released exposures: last index and mid-time, and the period.
   std::int64_t grid_key_ = 0;
   time::TaiNs grid_mid_ = 0;
