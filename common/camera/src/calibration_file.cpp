@@ -122,7 +122,9 @@ class Reader {
           fail(path + "/" + std::to_string(r) + "/" + std::to_string(c),
                "covariance is not symmetric");
       }
-    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, N, N>> eig(cov);
+    // The solver at dynamic size: one instantiation for every N, not a fully unrolled one per
+    // N (it was most of this file's compile time, in every build tree and fuzzer).
+    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(Eigen::MatrixXd{cov});
     const double scale = std::max(eig.eigenvalues().cwiseAbs().maxCoeff(), 1e-300);
     if (eig.eigenvalues().minCoeff() < -1e-9 * scale)
       fail(path, "covariance is not positive semi-definite (smallest eigenvalue " +
