@@ -4,8 +4,8 @@
 # messages of both framings (docs/icd.md), and the host's readers (Chapter 10 reader, rig
 # calibration, survey, host config, initial marks, the ExposureAligner on arbitrary decoded
 # observations), seeded with the committed corpora tests/host/fuzz/seeds/<corpus>/
-# (docs/reliability.md, "Fuzzing"). The fuzzers are single-threaded, so they run side by side:
-# N seconds of wall time for all of them. Exits non-zero on any crash, sanitizer report or
+# (docs/reliability.md, "Fuzzing"). The fuzzers are single-threaded, so they run side by side,
+# one per core. Exits non-zero on any crash, sanitizer report or
 # violated property; each fuzzer's log is $B/<fuzzer>.log, a crash's input $B/crash-*.
 #   FUZZ_STEP=build|run tools/fuzz-decoders.sh N   only that half (CI builds in the background
 #                                                  and runs later); default both.
@@ -36,27 +36,43 @@ if [ "$STEP" != run ]; then
 fi
 [ "$STEP" != build ] || exit 0
 
-pids=()
-for f in "${FUZZERS[@]}"; do
-  read -r target corpus max_len <<<"$f"
+# One fuzzer per core at a time (each is single-threaded): every fuzzer gets N seconds of a
+# whole core, and the run takes ceil(fuzzers / cores) x N seconds.
+run_fuzzer() {
+  local target=$1 corpus=$2 max_len=$3 exe seeds
   mkdir -p "$B/corpus-$corpus"
   exe=$(find "$B/tests" -type f -name "$target" | head -1)
   seeds="$B/fuzz-seeds/$corpus"  # generated (wire decoders) or committed (host readers)
   [ -d "tests/host/fuzz/seeds/$corpus" ] && seeds="tests/host/fuzz/seeds/$corpus"
   "$exe" "$B/corpus-$corpus" "$seeds" -max_total_time="$seconds" -max_len="$max_len" \
-    -print_final_stats=1 -artifact_prefix="$B/" >"$B/$target.log" 2>&1 &
-  pids+=($!)
-done
-failed=0
-for i in "${!pids[@]}"; do
-  target=${FUZZERS[$i]%% *}
-  if wait "${pids[$i]}"; then
+    -print_final_stats=1 -artifact_prefix="$B/" >"$B/$target.log" 2>&1
+}
+report() {
+  local target=$1 rc=$2
+  if [ "$rc" -eq 0 ]; then
     echo "== $target: no crash in ${seconds} s"
   else
     echo "== $target: FAILED (log $B/$target.log)"
     failed=1
   fi
   tail -n 12 "$B/$target.log"
+}
+cores=$(nproc)
+failed=0
+for ((first = 0; first < ${#FUZZERS[@]}; first += cores)); do
+  pids=()
+  names=()
+  for f in "${FUZZERS[@]:first:cores}"; do
+    read -r target corpus max_len <<<"$f"
+    run_fuzzer "$target" "$corpus" "$max_len" &
+    pids+=($!)
+    names+=("$target")
+  done
+  for i in "${!pids[@]}"; do
+    rc=0
+    wait "${pids[$i]}" || rc=$?
+    report "${names[$i]}" "$rc"
+  done
 done
 [ "$failed" -eq 0 ] || exit 1
-echo "fuzz-decoders: no crash in ${seconds} s per fuzzer (${#pids[@]} fuzzers)"
+echo "fuzz-decoders: no crash in ${seconds} s per fuzzer (${#FUZZERS[@]} fuzzers, $cores at a time)"
