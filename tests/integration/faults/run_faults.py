@@ -29,7 +29,7 @@ PROXY = os.path.join(ROOT, "tools", "fault-proxy")
 # motion: the exposures keep the scenario's 400 fps time stamps, the units deliver them at
 # 10 fps (--sim-pace-hz). The wait covers units that lag behind the pace on a loaded machine.
 FPS = 10.0
-NEXP = 100
+NEXP = {"loss1": 60, "loss10": 80, "restart": 60, "clock": 60, "flood": 50}[sys.argv[1]] if len(sys.argv) > 1 else 100
 MAX_WAIT_MS = 5000  # as tools/testpoint: units that render slower than their pace
 CASES = {
     # proxy faults per datagram: loss, corrupt, duplicate, reorder; flood datagrams per datagram
@@ -148,9 +148,9 @@ def main():
     time.sleep(0.7)
     fault = {"case": CASE, "fps": FPS, "exposures": NEXP}
     # Unit 3's TAI clock steps forwards by 1 s (400 trigger periods exactly: by time alone a
-    # sequence offset) for exposures 30..49 and back (a backward step) at 50; unit 2's steps
-    # backwards by 0.537 s for 60..79 and forwards at 80. Their monotonic clocks do not step.
-    clock_steps = {3: (30, 50, 1_000_000_000), 2: (60, 80, -537_000_000)}
+    # sequence offset) for exposures 15..26 and back (a backward step) at 27; unit 2's steps
+    # backwards by 0.537 s for 38..49 and forwards at 50. Their monotonic clocks do not step.
+    clock_steps = {3: (15, 27, 1_000_000_000), 2: (38, 50, -537_000_000)}
     units = {}
     for c in range(cams):
         extra = []
@@ -163,7 +163,7 @@ def main():
                                 for c, (a, b, n) in clock_steps.items()}
     if CASE == "restart":
         first_seq = json.load(open(os.path.join(OUT, "scenario.json")))["timing"]["first_trigger_seq"]
-        kill_at, down_s = 30, 1.0  # kill after this exposure, stay down this long
+        kill_at, down_s = 20, 1.0  # kill after this exposure, stay down this long
         while rig_index(first_seq, 3) < kill_at and time.monotonic() - t0 < 60:
             time.sleep(0.05)
         units[3].send_signal(signal.SIGKILL)
