@@ -212,10 +212,15 @@ def check(total, rss, flood_sent, late_sends, marks_per_msg, host_rc):
     ok(s["exposures_processed"] == total and al["exposures_complete"] == total,
        "every exposure complete and processed: %d of %d" % (s["exposures_processed"], total))
     ok(s["outputs"]["inetx_sent"] == total, "one iNET-X packet per exposure (%d)" % s["outputs"]["inetx_sent"])
+    valid_sent = total * CAMERAS
+    ok(udp["datagrams"] + udp["kernel_drops"] == valid_sent + flood_sent,
+       "every datagram received or counted as a kernel drop: %d + %d == %d valid + %d flood"
+       % (udp["datagrams"], udp["kernel_drops"], valid_sent, flood_sent))
     if flood_sent:
-        ok(udp["spoofed_source"] + sum(udp["decode_errors"].values()) == flood_sent,
-           "flood counted: spoofed %d + decode errors %d == sent %d"
-           % (udp["spoofed_source"], sum(udp["decode_errors"].values()), flood_sent))
+        rejected = udp["spoofed_source"] + sum(udp["decode_errors"].values())
+        ok(rejected == udp["datagrams"] - udp["decoded"] and udp["decoded"] <= valid_sent,
+           "flood counted: spoofed %d + decode errors %d; %d valid decoded of %d sent"
+           % (udp["spoofed_source"], sum(udp["decode_errors"].values()), udp["decoded"], valid_sent))
     # Memory: after warm-up (the first third, at least 5 s) VmRSS stays within the limit.
     samples = [(t, r) for t, r in rss if r is not None]
     warm = max(5.0, samples[-1][0] / 3) if samples else 0
