@@ -10,8 +10,13 @@
 namespace storetrack::sim {
 
 SimFrameSource::SimFrameSource(const Simulator& sim, int camera_index, int ring_size,
-                               bool pace_realtime)
-    : sim_(sim), camera_index_(camera_index), pace_(pace_realtime) {
+                               bool pace_realtime, int first_exposure, double pace_hz)
+    : sim_(sim),
+      camera_index_(camera_index),
+      pace_(pace_realtime),
+      first_exposure_(std::max(first_exposure, 0)),
+      next_exposure_(first_exposure_) {
+  pace_hz_ = pace_hz > 0 ? pace_hz : sim.scenario().frame_rate_hz;
   if (camera_index < 0 || camera_index >= sim.num_cameras()) {
     throw std::invalid_argument("SimFrameSource: camera index " + std::to_string(camera_index) +
                                 " out of range");
@@ -59,7 +64,7 @@ int SimFrameSource::acquire(frame::FrameView& frame, int timeout_ms) {
   const int k = next_exposure_;
   if (pace_) {
     const time::MonotonicNs due =
-        start_mono_ns_ + std::llround(k * 1e9 / sim_.scenario().frame_rate_hz);
+        start_mono_ns_ + std::llround((k - first_exposure_) * 1e9 / pace_hz_);
     const time::MonotonicNs now = time::monotonic_now_ns();
     if (due - now > static_cast<std::int64_t>(timeout_ms) * 1'000'000) return -EAGAIN;
     if (due > now) {

@@ -42,6 +42,9 @@ struct Overrides {
   std::vector<unsigned> gpio_lines;
   double rate_hz = 0, pulse_width_us = 0, duration_s = 0, replay_rate = 0;
   long frames = 0;
+  int start_exposure = 0;
+  double sim_pace_hz = 0;
+  std::vector<std::int64_t> tai_step;
   std::vector<std::string> udp, can;
   std::string modbus, stats_json, edges_csv;
   bool realtime = false, no_links = false, no_modbus = false, maintenance = false, verbose = false,
@@ -56,6 +59,16 @@ void add_common(CLI::App* app, Overrides& o) {
   app->add_option("--camera-index", o.camera_index, "sim: camera index in the scenario");
   app->add_option("--seed", o.seed, "sim: random seed");
   app->add_flag("--realtime", o.realtime, "sim: pace frames at the scenario frame rate");
+  app->add_option("--sim-start-exposure", o.start_exposure,
+                  "sim fault: start at this exposure, trigger numbering from 0 (a restarted unit)")
+      ->check(CLI::NonNegativeNumber);
+  app->add_option("--sim-pace-hz", o.sim_pace_hz,
+                  "sim: with --realtime, pace at this rate instead of the scenario's (slow motion)")
+      ->check(CLI::PositiveNumber);
+  app->add_option("--sim-tai-step", o.tai_step,
+                  "sim fault: FROM,TO,NS: TAI clock off by NS for exposures [FROM, TO)")
+      ->delimiter(',')
+      ->expected(3);
   app->add_option("--replay-dir", o.replay_dir, "replay: directory of PGM frames + triggers.csv");
   app->add_option("--replay-rate", o.replay_rate,
                   "replay: frames per second (0: as fast as possible)");
@@ -107,6 +120,15 @@ UnitConfig build_config(CLI::App* app, const Overrides& o) {
   if (given(app, "--camera-index")) c.sim.camera_index = o.camera_index;
   if (given(app, "--seed")) c.sim.seed = o.seed;
   if (o.realtime) c.sim.realtime = true;
+  if (given(app, "--sim-start-exposure")) c.sim.start_exposure = o.start_exposure;
+  if (given(app, "--sim-pace-hz")) c.sim.pace_hz = o.sim_pace_hz;
+  if (o.tai_step.size() == 3) {
+    if (o.tai_step[0] < 0 || o.tai_step[1] <= o.tai_step[0] || o.tai_step[1] > (1 << 30))
+      throw ConfigError("--sim-tai-step: need 0 <= FROM < TO (exposure indices)");
+    c.sim.tai_step_from = static_cast<int>(o.tai_step[0]);
+    c.sim.tai_step_to = static_cast<int>(o.tai_step[1]);
+    c.sim.tai_step_ns = o.tai_step[2];
+  }
   if (given(app, "--replay-dir")) c.replay.directory = o.replay_dir;
   if (given(app, "--replay-rate")) c.replay.rate_hz = o.replay_rate;
   if (o.replay_loop) c.replay.loop = true;

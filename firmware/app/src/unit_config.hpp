@@ -27,6 +27,16 @@ struct SimSourceConfig {
   int camera_index = 0;
   std::uint64_t seed = 1;
   bool realtime = false;
+  /// Fault injection (tests): start at this exposure as a unit (re)started mid-run does; its
+  /// trigger numbering then starts from 0, not from the simulator's sequence.
+  int start_exposure = 0;
+  /// With realtime: pace at this rate [Hz] instead of the scenario's (slow motion); 0: scenario.
+  double pace_hz = 0;
+  /// Fault injection (tests): the unit's TAI clock steps by tai_step_ns for the exposures
+  /// [tai_step_from, tai_step_to) and back after (a PTP step), its monotonic clock does not.
+  int tai_step_from = -1;
+  int tai_step_to = -1;
+  std::int64_t tai_step_ns = 0;
 };
 
 struct ReplaySourceConfig {

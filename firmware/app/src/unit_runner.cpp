@@ -75,8 +75,15 @@ int UnitRunner::setup(std::string& error) {
         tai_from_source_ = true;
         if (config_.trigger.mode == TriggerMode::kSim)
           config_.trigger.rate_hz = scenario.frame_rate_hz;
-        source_ = std::make_unique<sim::SimFrameSource>(*simulator_, config_.sim.camera_index, 4,
-                                                        config_.sim.realtime);
+        sim_first_trigger_seq_ = t0.trigger_seq;
+        if (config_.sim.start_exposure >= simulator_->num_exposures()) {
+          error = "sim start exposure " + std::to_string(config_.sim.start_exposure) +
+                  " outside 0.." + std::to_string(simulator_->num_exposures() - 1);
+          return kExitUsage;
+        }
+        source_ = std::make_unique<sim::SimFrameSource>(
+            *simulator_, config_.sim.camera_index, 4, config_.sim.realtime,
+            config_.sim.start_exposure, config_.sim.pace_hz);
         break;
       }
       case SourceType::kReplay: {
@@ -447,7 +454,8 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
   if (trigger_) {
     if (sim_trigger_) {
       if (!pairer_) {
-        make_pairer(frame.sequence);
+        // A unit started mid-run counts its trigger edges from 0, as a restarted unit does.
+        make_pairer(config_.sim.start_exposure > 0 ? 0u : frame.sequence);
         sim_trigger_->set_origin(frame.timestamp_mono_ns - pairer_config_.latency_ns);
       }
       sim_trigger_->advance_to(frame.timestamp_mono_ns - pairer_config_.latency_ns +
@@ -483,7 +491,7 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
   if (replay_) {
     obs_.exposure_start_tai_ns = replay_->tai_ns() + (start_mono - frame.timestamp_mono_ns);
   } else {
-    obs_.exposure_start_tai_ns = start_mono + tai_minus_mono_ns_;
+    obs_.exposure_start_tai_ns = start_mono + tai_minus_mono_ns_ + sim_tai_step_ns(frame.sequence);
   }
   obs_.exposure_duration_ns =
       frame.exposure_ns != 0 ? frame.exposure_ns : config_.exposure_us * 1000u;
@@ -508,6 +516,13 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
   }
   if (sent_any) frames_dropped_pending_ = false;
   return 0;
+}
+
+std::int64_t UnitRunner::sim_tai_step_ns(std::uint32_t source_sequence) const {
+  if (!simulator_ || config_.sim.tai_step_ns == 0) return 0;
+  const auto k = static_cast<std::int64_t>(source_sequence - sim_first_trigger_seq_);
+  return k >= config_.sim.tai_step_from && k < config_.sim.tai_step_to ? config_.sim.tai_step_ns
+                                                                       : 0;
 }
 
 void UnitRunner::update_shared_counters() {

@@ -89,6 +89,8 @@ class UnitRunner {
   void send_health(time::MonotonicNs now);
   void update_shared_counters();
   void make_pairer(std::uint32_t first_sequence);
+  /// sim fault injection: the TAI step of the exposure with this source sequence number.
+  std::int64_t sim_tai_step_ns(std::uint32_t source_sequence) const;
 
   UnitConfig config_;
   std::string notes_;
@@ -115,6 +117,7 @@ class UnitRunner {
   RunCounters run_{};
   std::int64_t tai_minus_mono_ns_ = 0;
   bool tai_from_source_ = false;  // sim: fixed offset set at setup
+  std::uint32_t sim_first_trigger_seq_ = 0;
   std::uint8_t clock_state_ = 0;
   time::MonotonicNs start_mono_ns_ = 0;
   time::MonotonicNs last_health_ns_ = 0;

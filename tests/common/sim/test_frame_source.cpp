@@ -23,6 +23,26 @@ Scenario short_scenario(int n) {
   return sc;
 }
 
+TEST(SimFrameSource, StartsAtTheFirstExposureAndPacesAtTheGivenRate) {
+  // A unit (re)started mid-run: exposures 3..5 of the scenario with their own time stamps,
+  // delivered at 50 Hz (slow motion) instead of the scenario's 400 Hz.
+  const Simulator sim(short_scenario(6), 3);
+  SimFrameSource src(sim, 0, 2, /*pace_realtime=*/true, /*first_exposure=*/3, /*pace_hz=*/50.0);
+  ASSERT_EQ(src.start(), 0);
+  frame::FrameView f;
+  const time::MonotonicNs t0 = time::monotonic_now_ns();
+  for (int k = 3; k < 6; ++k) {
+    ASSERT_EQ(src.acquire(f, 1000), 0);
+    EXPECT_EQ(f.sequence, sim.scenario().first_trigger_seq + static_cast<std::uint32_t>(k));
+    EXPECT_EQ(f.timestamp_mono_ns, sim.exposure_timing(k, 0).reported_start_mono_ns);
+    ASSERT_EQ(src.release(f), 0);
+  }
+  EXPECT_EQ(src.frames_delivered(), 3);
+  EXPECT_EQ(src.acquire(f, 0), -ENODATA);
+  // Three frames at 50 Hz: the third is due 40 ms after the start (at 400 Hz: 5 ms).
+  EXPECT_GE(time::monotonic_now_ns() - t0, 39'000'000);
+}
+
 TEST(SimFrameSource, DeliversTheSequenceWithTimestampsAndEndsWithNoData) {
   const Simulator sim(short_scenario(5), 3);
   SimFrameSource src(sim, 1, 2);

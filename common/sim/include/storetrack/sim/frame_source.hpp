@@ -20,15 +20,18 @@ namespace storetrack::sim {
 class SimFrameSource : public frame::FrameSource {
  public:
   /// `pace_realtime`: acquire() sleeps so frames come at the scenario frame rate.
+  /// `first_exposure`: the first exposure delivered (a unit started mid-run). `pace_hz` > 0
+  /// paces at that rate instead of the scenario's (slow motion: the time stamps stay the
+  /// scenario's, only the delivery is slower, for machines that cannot render in real time).
   SimFrameSource(const Simulator& sim, int camera_index, int ring_size = 4,
-                 bool pace_realtime = false);
+                 bool pace_realtime = false, int first_exposure = 0, double pace_hz = 0);
   int start() override;
   int stop() override;
   int acquire(frame::FrameView& frame, int timeout_ms) override;
   int release(const frame::FrameView& frame) override;
   const char* name() const override { return name_.c_str(); }
 
-  int frames_delivered() const { return next_exposure_; }
+  int frames_delivered() const { return next_exposure_ - first_exposure_; }
 
  private:
   const Simulator& sim_;
@@ -36,6 +39,8 @@ class SimFrameSource : public frame::FrameSource {
   bool pace_;
   bool started_ = false;
   int width_, height_;
+  int first_exposure_ = 0;
+  double pace_hz_ = 0;
   int next_exposure_ = 0;
   std::vector<std::vector<std::uint8_t>> buffers_;
   std::vector<bool> held_;
