@@ -203,9 +203,12 @@ void ExposureAligner::place(int cam, const msg::MarkObservations& obs, time::Mon
   } else if (released) {
     plausible = released_through_ - key < static_cast<std::int64_t>(kHistory);
     time_agrees = entry && abs_diff(mid, entry->mid) <= config_.max_mid_time_spread_ns;
-  } else if (have_key_ && key > newest_key_) {
-    plausible = key - newest_key_ <= lead_limit();
-    time_agrees = on_grid(key, mid);
+  } else {
+    // A new exposure, anywhere (ahead, in a gap, behind the oldest pending): its time must not
+    // be another exposure's. An offset re-learned since (a restart) maps a replayed datagram
+    // onto a new index; opening it would release that exposure a second time.
+    if (have_key_ && key > newest_key_) plausible = key - newest_key_ <= lead_limit();
+    time_agrees = on_grid(key, mid) && !names_other_exposure();
   }
   // A disagreeing time is a clock fault (the majority judges it at release) when the unit's
   // TAI stepped, or when it names no other exposure; otherwise the sequence is what is wrong.

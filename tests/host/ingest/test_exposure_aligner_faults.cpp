@@ -528,5 +528,47 @@ TEST(ExposureAlignerFaults, DuplicatedOldDatagramDoesNotReLearnTheOffset) {
             aligner.counters().observations_used + total_dropped(aligner.counters()));
 }
 
+TEST(ExposureAlignerFaults, ReplayAfterATriggerRestartIsNotANewExposure) {
+  // Found by fuzz_exposure_aligner (reproducer now in its seeds: aligner_exposure_released_twice):
+  // a 3-camera rig with a wide spread (0.7 s) and a lead of 1. Exposure 0 is pending with
+  // cameras 10 and 13. Cameras 16 and 10 then jump to sequences 1264 and 1519, 3.2 s and 3.8 s
+  // later: too far ahead, both are held, and as a majority of the rig agreeing in time they are a
+  // trigger restart (one new exposure, camera 10's offset becomes 1 - 1519). Then camera 10's
+  // exposure 0 datagram arrives again (duplicated, delayed): through the new offset, sequence 0
+  // names exposure -1518, a new index behind everything, and no time was checked there, so it
+  // was opened and camera 10's exposure 0 released twice. A new exposure whose time is another
+  // exposure's is now quarantined like any sequence that does not fit.
+  AlignerConfig c;
+  c.camera_ids = {10, 13, 16};
+  c.max_wait_ns = 60 * time::kNsPerSecond;
+  c.max_mid_time_spread_ns = 700'000'000;
+  c.max_pending = 5;
+  c.max_sequence_lead = 1;
+  ExposureAligner aligner(c);
+  constexpr std::int64_t kT = 1'700'000'000'000'000'000;
+  const msg::MarkObservations cam10_exposure0 = make_obs(10, 0, kT - 1'100'000);
+  std::vector<pipeline::AlignedExposure> out;
+  std::int64_t now = 1'000'000'000;
+  aligner.push(make_obs(13, 0, kT), now += 5'000'000, out);
+  aligner.push(cam10_exposure0, now += 5'000'000, out);
+  aligner.push(make_obs(16, 1264, kT + 3'155'000'000), now += 5'000'000, out);  // held
+  aligner.push(make_obs(10, 1519, kT + 3'790'000'000), now += 5'000'000, out);  // restart
+  aligner.push(cam10_exposure0, now += 5'000'000, out);                         // the replay
+  aligner.flush(out);
+  int released_cam10_exposure0 = 0;
+  for (const auto& e : out)
+    for (const auto& o : e.cameras)
+      if (o.camera_id == 10 && o.trigger_seq == 0) ++released_cam10_exposure0;
+  EXPECT_EQ(released_cam10_exposure0, 1);
+  ASSERT_EQ(out.size(), 2u);
+  EXPECT_EQ(out[0].cameras.size(), 2u);  // exposure 0: cameras 10 and 13
+  EXPECT_EQ(out[1].cameras.size(), 2u);  // the restarted trigger's first: cameras 10 and 16
+  EXPECT_EQ(aligner.counters().sequence_restarts, 1u);
+  EXPECT_EQ(aligner.counters().observations_used, 4u);
+  EXPECT_EQ(aligner.counters().dropped_quarantined, 1u);  // the replay, counted
+  EXPECT_EQ(aligner.counters().observations_in,
+            aligner.counters().observations_used + total_dropped(aligner.counters()));
+}
+
 }  // namespace
 }  // namespace storetrack::ingest
