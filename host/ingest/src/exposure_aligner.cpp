@@ -311,9 +311,10 @@ void ExposureAligner::try_trigger_restart(time::MonotonicNs now) {
     const CameraState& cs = cameras_[i];
     if (!cs.holding || cs.held_offset) continue;
     const time::TaiNs mid = pipeline::exposure_mid_tai_ns(cs.held);
-    // A restarted trigger renumbers, but time goes on: an observation from before the newest
-    // released exposure is a replay (a duplicated or long-delayed datagram), not a restart.
-    if (released_any_ && mid <= newest_released_mid_) continue;
+    // A restarted trigger renumbers, but time goes on: an observation that started before the
+    // newest released exposure's mid-time is a replay (a duplicated or long-delayed datagram),
+    // not a restart. Its start, not its mid-time: a corrupted duration moves the mid-time.
+    if (released_any_ && cs.held.exposure_start_tai_ns <= newest_released_mid_) continue;
     if (!have_reference) {
       reference = mid;
       have_reference = true;

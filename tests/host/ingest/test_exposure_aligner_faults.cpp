@@ -570,5 +570,40 @@ TEST(ExposureAlignerFaults, ReplayAfterATriggerRestartIsNotANewExposure) {
             aligner.counters().observations_used + total_dropped(aligner.counters()));
 }
 
+TEST(ExposureAlignerFaults, ReplayWithACorruptDurationIsNotATriggerRestart) {
+  // Found by fuzz_exposure_aligner (120 s run after the fix above): a one-camera rig releases
+  // exposure 5000, then the trigger restarts at 100 (1.7 s later, accepted: the rig is its own
+  // majority). Exposure 5000's datagram then arrives again with its duration corrupted to 4 s:
+  // its mid-time (start + duration / 2) is after the newest released exposure, so the replay
+  // guard, judging by mid-time, took it for a second restart and released exposure 5000 again.
+  // A restart's observation must START after the newest released mid-time.
+  AlignerConfig c;
+  c.camera_ids = {10};
+  c.max_mid_time_spread_ns = 100'000'000;
+  c.max_sequence_lead = 1000;
+  ExposureAligner aligner(c);
+  constexpr std::int64_t kT = 1'700'000'000'000'000'000;
+  const msg::MarkObservations exposure5000 = make_obs(10, 5000, kT);
+  msg::MarkObservations replay = exposure5000;
+  replay.exposure_duration_ns = 4'000'000'000;
+  std::vector<pipeline::AlignedExposure> out;
+  std::int64_t now = 1'000'000'000;
+  aligner.push(exposure5000, now += 5'000'000, out);
+  aligner.push(make_obs(10, 100, kT + 1'700'000'000), now += 5'000'000, out);  // restart
+  aligner.push(replay, now += 5'000'000, out);
+  aligner.flush(out);
+  int released_exposure5000 = 0;
+  for (const auto& e : out)
+    for (const auto& o : e.cameras)
+      if (o.trigger_seq == 5000 && o.exposure_start_tai_ns == kT) ++released_exposure5000;
+  EXPECT_EQ(released_exposure5000, 1);
+  EXPECT_EQ(out.size(), 2u);
+  EXPECT_EQ(aligner.counters().sequence_restarts, 1u);
+  EXPECT_EQ(aligner.counters().observations_used, 2u);
+  EXPECT_EQ(aligner.counters().dropped_quarantined, 1u);  // the replay, counted
+  EXPECT_EQ(aligner.counters().observations_in,
+            aligner.counters().observations_used + total_dropped(aligner.counters()));
+}
+
 }  // namespace
 }  // namespace storetrack::ingest
