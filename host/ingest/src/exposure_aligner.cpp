@@ -106,6 +106,11 @@ void ExposureAligner::push(const msg::MarkObservations& obs, time::MonotonicNs n
   }
   ++camera_counters_[static_cast<std::size_t>(cam)].received;
   if (!accept_fields(obs, cam)) return;
+  if (delivered_before(cam, obs)) {
+    ++counters_.dropped_duplicate;
+    ++camera_counters_[static_cast<std::size_t>(cam)].duplicate;
+    return;
+  }
   place(cam, obs, now);
   while (pending_.size() > config_.max_pending)
     release(pending_.begin(), ReleaseReason::kOverflow, out);
@@ -244,8 +249,28 @@ void ExposureAligner::add_to_pending(PendingMap::iterator it, int cam,
   }
   p.cameras.push_back(obs);
   p.present_mask |= bit;
+  remember_delivered(cam, obs);
   const Majority m = majority(p.cameras, it->first);
   p.reference_mid_tai_ns = pipeline::exposure_mid_tai_ns(p.cameras[m.reference]);
+}
+
+bool ExposureAligner::delivered_before(int cam, const msg::MarkObservations& obs) const {
+  // A camera never starts two exposures at one instant: the same sequence and start again is a
+  // repeated datagram, whatever the rest of it (a corrupted duration moves its mid-time by
+  // seconds, out of reach of every check by time).
+  const CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
+  return cs.delivered.count({obs.trigger_seq, obs.exposure_start_tai_ns}) != 0;
+}
+
+void ExposureAligner::remember_delivered(int cam, const msg::MarkObservations& obs) {
+  CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
+  const DeliveredId id{obs.trigger_seq, obs.exposure_start_tai_ns};
+  if (!cs.delivered.insert(id).second) return;
+  cs.delivered_order.push_back(id);
+  if (cs.delivered_order.size() > kRecentDelivered) {
+    cs.delivered.erase(cs.delivered_order.front());
+    cs.delivered_order.pop_front();
+  }
 }
 
 void ExposureAligner::drop_known(std::int64_t key, int cam) {
