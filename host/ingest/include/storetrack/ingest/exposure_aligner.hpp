@@ -21,7 +21,7 @@
 //  - Only configured (camera id, unit id) pairs are accepted; times that could overflow int64
 //    arithmetic are refused. Every observation is either used or counted by its reason, and
 //    every container is bounded (max_pending exposures x rig cameras, one held observation per
-//    camera, a fixed history).
+//    camera, a fixed history, the last 1024 delivered (sequence, start) ids per camera).
 #pragma once
 
 #include <array>
