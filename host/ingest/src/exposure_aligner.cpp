@@ -106,6 +106,11 @@ void ExposureAligner::push(const msg::MarkObservations& obs, time::MonotonicNs n
   }
   ++camera_counters_[static_cast<std::size_t>(cam)].received;
   if (!accept_fields(obs, cam)) return;
+  if (delivered_before(cam, obs)) {
+    ++counters_.dropped_duplicate;
+    ++camera_counters_[static_cast<std::size_t>(cam)].duplicate;
+    return;
+  }
   place(cam, obs, now);
   while (pending_.size() > config_.max_pending)
     release(pending_.begin(), ReleaseReason::kOverflow, out);
@@ -203,9 +208,12 @@ void ExposureAligner::place(int cam, const msg::MarkObservations& obs, time::Mon
   } else if (released) {
     plausible = released_through_ - key < static_cast<std::int64_t>(kHistory);
     time_agrees = entry && abs_diff(mid, entry->mid) <= config_.max_mid_time_spread_ns;
-  } else if (have_key_ && key > newest_key_) {
-    plausible = key - newest_key_ <= lead_limit();
-    time_agrees = on_grid(key, mid);
+  } else {
+    // A new exposure, anywhere (ahead, in a gap, behind the oldest pending): its time must not
+    // be another exposure's. An offset re-learned since (a restart) maps a replayed datagram
+    // onto a new index; opening it would release that exposure a second time.
+    if (have_key_ && key > newest_key_) plausible = key - newest_key_ <= lead_limit();
+    time_agrees = on_grid(key, mid) && !names_other_exposure();
   }
   // A disagreeing time is a clock fault (the majority judges it at release) when the unit's
   // TAI stepped, or when it names no other exposure; otherwise the sequence is what is wrong.
@@ -241,8 +249,28 @@ void ExposureAligner::add_to_pending(PendingMap::iterator it, int cam,
   }
   p.cameras.push_back(obs);
   p.present_mask |= bit;
+  remember_delivered(cam, obs);
   const Majority m = majority(p.cameras, it->first);
   p.reference_mid_tai_ns = pipeline::exposure_mid_tai_ns(p.cameras[m.reference]);
+}
+
+bool ExposureAligner::delivered_before(int cam, const msg::MarkObservations& obs) const {
+  // A camera never starts two exposures at one instant: the same sequence and start again is a
+  // repeated datagram, whatever the rest of it (a corrupted duration moves its mid-time by
+  // seconds, out of reach of every check by time).
+  const CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
+  return cs.delivered.count({obs.trigger_seq, obs.exposure_start_tai_ns}) != 0;
+}
+
+void ExposureAligner::remember_delivered(int cam, const msg::MarkObservations& obs) {
+  CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
+  const DeliveredId id{obs.trigger_seq, obs.exposure_start_tai_ns};
+  if (!cs.delivered.insert(id).second) return;
+  cs.delivered_order.push_back(id);
+  if (cs.delivered_order.size() > kRecentDelivered) {
+    cs.delivered.erase(cs.delivered_order.front());
+    cs.delivered_order.pop_front();
+  }
 }
 
 void ExposureAligner::drop_known(std::int64_t key, int cam) {
@@ -308,9 +336,10 @@ void ExposureAligner::try_trigger_restart(time::MonotonicNs now) {
     const CameraState& cs = cameras_[i];
     if (!cs.holding || cs.held_offset) continue;
     const time::TaiNs mid = pipeline::exposure_mid_tai_ns(cs.held);
-    // A restarted trigger renumbers, but time goes on: an observation from before the newest
-    // released exposure is a replay (a duplicated or long-delayed datagram), not a restart.
-    if (released_any_ && mid <= newest_released_mid_) continue;
+    // A restarted trigger renumbers, but time goes on: an observation that started before the
+    // newest released exposure's mid-time is a replay (a duplicated or long-delayed datagram),
+    // not a restart. Its start, not its mid-time: a corrupted duration moves the mid-time.
+    if (released_any_ && cs.held.exposure_start_tai_ns <= newest_released_mid_) continue;
     if (!have_reference) {
       reference = mid;
       have_reference = true;

@@ -483,7 +483,9 @@ TEST(ExposureAlignerFaults, ReplayedOldObservationIsNotReleasedAgain) {
   EXPECT_EQ(out[1].trigger_seq, 3839u);
   EXPECT_EQ(aligner.counters().sequence_restarts, 0u);
   EXPECT_EQ(aligner.counters().observations_used, 2u);
-  EXPECT_EQ(aligner.counters().dropped_quarantined, 1u);
+  // The bit-identical replay is now known as a duplicate of camera 10's (sequence, start) before
+  // the restart guard sees it; ReplayWithACorruptDurationIsNotATriggerRestart tests that guard.
+  EXPECT_EQ(aligner.counters().dropped_duplicate, 1u);
   EXPECT_EQ(aligner.counters().observations_in, 2u + total_dropped(aligner.counters()));
 }
 
@@ -524,6 +526,127 @@ TEST(ExposureAlignerFaults, DuplicatedOldDatagramDoesNotReLearnTheOffset) {
       released_exposure2 += o.trigger_seq == 2 ? 1 : 0;
   EXPECT_EQ(released_exposure2, 1);
   EXPECT_EQ(aligner.counters().sequence_offset_changes, 0u);
+  EXPECT_EQ(aligner.counters().observations_in,
+            aligner.counters().observations_used + total_dropped(aligner.counters()));
+}
+
+TEST(ExposureAlignerFaults, ReplayAfterATriggerRestartIsNotANewExposure) {
+  // Found by fuzz_exposure_aligner (reproducer now in its seeds: aligner_exposure_released_twice):
+  // a 3-camera rig with a wide spread (0.7 s) and a lead of 1. Exposure 0 is pending with
+  // cameras 10 and 13. Cameras 16 and 10 then jump to sequences 1264 and 1519, 3.2 s and 3.8 s
+  // later: too far ahead, both are held, and as a majority of the rig agreeing in time they are a
+  // trigger restart (one new exposure, camera 10's offset becomes 1 - 1519). Then camera 10's
+  // exposure 0 datagram arrives again (duplicated, delayed): through the new offset, sequence 0
+  // names exposure -1518, a new index behind everything, and no time was checked there, so it
+  // was opened and camera 10's exposure 0 released twice. A new exposure whose time is another
+  // exposure's is now quarantined like any sequence that does not fit. (The replay here is
+  // re-stamped 1 us later: a bit-identical one is caught as a duplicate before any of this, see
+  // RepeatWithACorruptDurationIsADuplicate; this one only its time can give away.)
+  AlignerConfig c;
+  c.camera_ids = {10, 13, 16};
+  c.max_wait_ns = 60 * time::kNsPerSecond;
+  c.max_mid_time_spread_ns = 700'000'000;
+  c.max_pending = 5;
+  c.max_sequence_lead = 1;
+  ExposureAligner aligner(c);
+  constexpr std::int64_t kT = 1'700'000'000'000'000'000;
+  const msg::MarkObservations cam10_exposure0 = make_obs(10, 0, kT - 1'100'000);
+  std::vector<pipeline::AlignedExposure> out;
+  std::int64_t now = 1'000'000'000;
+  aligner.push(make_obs(13, 0, kT), now += 5'000'000, out);
+  aligner.push(cam10_exposure0, now += 5'000'000, out);
+  aligner.push(make_obs(16, 1264, kT + 3'155'000'000), now += 5'000'000, out);  // held
+  aligner.push(make_obs(10, 1519, kT + 3'790'000'000), now += 5'000'000, out);  // restart
+  msg::MarkObservations replay = cam10_exposure0;
+  replay.exposure_start_tai_ns += 1'000;
+  aligner.push(replay, now += 5'000'000, out);
+  aligner.flush(out);
+  int released_cam10_exposure0 = 0;
+  for (const auto& e : out)
+    for (const auto& o : e.cameras)
+      if (o.camera_id == 10 && o.trigger_seq == 0) ++released_cam10_exposure0;
+  EXPECT_EQ(released_cam10_exposure0, 1);
+  ASSERT_EQ(out.size(), 2u);
+  EXPECT_EQ(out[0].cameras.size(), 2u);  // exposure 0: cameras 10 and 13
+  EXPECT_EQ(out[1].cameras.size(), 2u);  // the restarted trigger's first: cameras 10 and 16
+  EXPECT_EQ(aligner.counters().sequence_restarts, 1u);
+  EXPECT_EQ(aligner.counters().observations_used, 4u);
+  EXPECT_EQ(aligner.counters().dropped_quarantined, 1u);  // the replay, counted
+  EXPECT_EQ(aligner.counters().observations_in,
+            aligner.counters().observations_used + total_dropped(aligner.counters()));
+}
+
+TEST(ExposureAlignerFaults, ReplayWithACorruptDurationIsNotATriggerRestart) {
+  // Found by fuzz_exposure_aligner (120 s run after the fix above): a one-camera rig releases
+  // exposure 5000, then the trigger restarts at 100 (1.7 s later, accepted: the rig is its own
+  // majority). Exposure 5000's datagram then arrives again with its duration corrupted to 4 s:
+  // its mid-time (start + duration / 2) is after the newest released exposure, so the replay
+  // guard, judging by mid-time, took it for a second restart and released exposure 5000 again.
+  // A restart's observation must START after the newest released mid-time. (Re-stamped 1 us
+  // later, as above, so that the duplicate check does not catch it first.)
+  AlignerConfig c;
+  c.camera_ids = {10};
+  c.max_mid_time_spread_ns = 100'000'000;
+  c.max_sequence_lead = 1000;
+  ExposureAligner aligner(c);
+  constexpr std::int64_t kT = 1'700'000'000'000'000'000;
+  const msg::MarkObservations exposure5000 = make_obs(10, 5000, kT);
+  msg::MarkObservations replay = exposure5000;
+  replay.exposure_duration_ns = 4'000'000'000;
+  replay.exposure_start_tai_ns += 1'000;
+  std::vector<pipeline::AlignedExposure> out;
+  std::int64_t now = 1'000'000'000;
+  aligner.push(exposure5000, now += 5'000'000, out);
+  aligner.push(make_obs(10, 100, kT + 1'700'000'000), now += 5'000'000, out);  // restart
+  aligner.push(replay, now += 5'000'000, out);
+  aligner.flush(out);
+  int released_exposure5000 = 0;
+  for (const auto& e : out)
+    for (const auto& o : e.cameras)
+      if (o.trigger_seq == 5000) ++released_exposure5000;
+  EXPECT_EQ(released_exposure5000, 1);
+  EXPECT_EQ(out.size(), 2u);
+  EXPECT_EQ(aligner.counters().sequence_restarts, 1u);
+  EXPECT_EQ(aligner.counters().observations_used, 2u);
+  EXPECT_EQ(aligner.counters().dropped_quarantined, 1u);  // the replay, counted
+  EXPECT_EQ(aligner.counters().observations_in,
+            aligner.counters().observations_used + total_dropped(aligner.counters()));
+}
+
+TEST(ExposureAlignerFaults, RepeatWithACorruptDurationIsADuplicate) {
+  // Found by fuzz_exposure_aligner (120 s run after the two fixes above): exposure 255 of camera
+  // 13 is pending; cameras 10 and 13 restart their numbering at 1726 (3.68 s later, a majority
+  // of the 3-camera rig), which moves camera 13's offset to 256 - 1726. Then camera 13's exposure
+  // 255 datagram arrives again with its duration corrupted to 4.28 s: its new offset maps it onto
+  // exposure -1215, behind everything, and its mid-time (2.14 s later than the true one) names
+  // no exposure, so no check by time can recognise it: it was opened and released a second
+  // time. A camera exposes each (sequence, start) once: the repeat is a duplicate.
+  AlignerConfig c;
+  c.camera_ids = {10, 13, 16};
+  c.max_wait_ns = 15 * time::kNsPerSecond;
+  c.max_mid_time_spread_ns = 278'000'000;
+  c.max_sequence_lead = 1;
+  ExposureAligner aligner(c);
+  constexpr std::int64_t kT = 1'700'000'000'000'000'000;
+  const msg::MarkObservations cam13_exposure255 = make_obs(13, 255, kT);
+  msg::MarkObservations repeat = cam13_exposure255;
+  repeat.exposure_duration_ns = 4'278'190'081;
+  std::vector<pipeline::AlignedExposure> out;
+  std::int64_t now = 1'000'000'000;
+  aligner.push(cam13_exposure255, now += 5'000'000, out);
+  aligner.push(make_obs(10, 1726, kT + 3'680'000'000), now += 5'000'000, out);  // held
+  aligner.push(make_obs(13, 1726, kT + 3'680'000'000), now += 5'000'000, out);  // restart
+  aligner.push(repeat, now += 5'000'000, out);
+  aligner.flush(out);
+  int released_cam13_exposure255 = 0;
+  for (const auto& e : out)
+    for (const auto& o : e.cameras)
+      if (o.camera_id == 13 && o.trigger_seq == 255) ++released_cam13_exposure255;
+  EXPECT_EQ(released_cam13_exposure255, 1);
+  EXPECT_EQ(out.size(), 2u);
+  EXPECT_EQ(aligner.counters().sequence_restarts, 1u);
+  EXPECT_EQ(aligner.counters().observations_used, 3u);
+  EXPECT_EQ(aligner.counters().dropped_duplicate, 1u);
   EXPECT_EQ(aligner.counters().observations_in,
             aligner.counters().observations_used + total_dropped(aligner.counters()));
 }

@@ -15,16 +15,22 @@
 //  - An exposure's reference mid-time is the majority of its cameras (the mid-time most of them
 //    agree with, ties broken by the trigger grid), never the first to arrive; the others are
 //    dropped as time mismatches.
+//  - A camera exposes each (trigger sequence, start time) once: a repeat of one it delivered
+//    recently is a duplicate whatever its duration (and so its mid-time) says, even when a
+//    re-learned offset maps it onto another exposure index.
 //  - Only configured (camera id, unit id) pairs are accepted; times that could overflow int64
 //    arithmetic are refused. Every observation is either used or counted by its reason, and
 //    every container is bounded (max_pending exposures x rig cameras, one held observation per
-//    camera, a fixed history).
+//    camera, a fixed history, the last 1024 delivered (sequence, start) ids per camera).
 #pragma once
 
 #include <array>
 #include <cstdint>
+#include <deque>
 #include <map>
 #include <optional>
+#include <set>
+#include <utility>
 #include <vector>
 
 #include "storetrack/msg/messages.hpp"
@@ -133,6 +139,7 @@ class ExposureAligner {
     time::MonotonicNs first_arrival = 0;
     time::TaiNs reference_mid_tai_ns = 0;  // majority mid-time of the cameras so far
   };
+  using DeliveredId = std::pair<std::uint32_t, time::TaiNs>;  // trigger_seq, exposure start
   struct CameraState {
     bool seen = false;
     std::int64_t last_unwrapped = 0;  // unwrapped trigger_seq of the last placed observation
@@ -144,6 +151,9 @@ class ExposureAligner {
     // the unit's TAI stepped (a clock fault), not its sequence.
     bool have_clock_baseline = false;
     std::int64_t tai_minus_mono_ns = 0;
+    // (trigger_seq, start) of its last kRecentDelivered placed observations, oldest first.
+    std::set<DeliveredId> delivered;
+    std::deque<DeliveredId> delivered_order;
   };
   struct Released {
     std::int64_t key = INT64_MIN;
@@ -172,6 +182,8 @@ class ExposureAligner {
                   time::MonotonicNs now);
   void try_trigger_restart(time::MonotonicNs now);
   void drop_held(int cam);
+  bool delivered_before(int cam, const msg::MarkObservations& obs) const;
+  void remember_delivered(int cam, const msg::MarkObservations& obs);
   std::optional<std::int64_t> exposure_at_time(time::TaiNs mid) const;
   std::optional<time::TaiNs> grid_mid(std::int64_t key) const;
   Majority majority(const std::vector<msg::MarkObservations>& cameras, std::int64_t key) const;
@@ -198,7 +210,8 @@ class ExposureAligner {
   std::int64_t grid_period_ns_ = 0;  // 0: not known yet
   int grid_misses_ = 0;              // consecutive lone exposures off the grid
   static constexpr std::size_t kHistory = 1024;
-  static constexpr std::int64_t kRecentReleased = 8;  // searched when re-learning an offset
+  static constexpr std::int64_t kRecentReleased = 8;         // searched when re-learning an offset
+  static constexpr std::size_t kRecentDelivered = kHistory;  // per camera, for duplicates
   std::array<Released, kHistory> history_{};
   std::vector<CameraState> cameras_;
   AlignerCounters counters_;
