@@ -83,6 +83,30 @@ std::array<std::uint8_t, 3> colour(std::uint8_t flags) {
   return {0, 255, 0};
 }
 
+#ifdef STORETRACK_HAVE_PNG
+// libpng reports errors by longjmp back into this frame: it holds no C++ object and reads
+// nothing after the jump that it set after setjmp (GCC's -Wclobbered, at -O1, saw the caller's
+// strings and FILE* live across the setjmp when this was inline there).
+bool write_png_rgb(std::FILE* fp, const std::uint8_t* rgb, int width, int height) {
+  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
+  png_infop info = png ? png_create_info_struct(png) : nullptr;
+  if (png == nullptr || info == nullptr || setjmp(png_jmpbuf(png))) {
+    png_destroy_write_struct(&png, &info);
+    return false;
+  }
+  png_init_io(png, fp);
+  png_set_IHDR(png, info, static_cast<png_uint_32>(width), static_cast<png_uint_32>(height), 8,
+               PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT,
+               PNG_FILTER_TYPE_DEFAULT);
+  png_write_info(png, info);
+  for (int y = 0; y < height; ++y)
+    png_write_row(png, rgb + static_cast<std::size_t>(y) * static_cast<std::size_t>(width) * 3);
+  png_write_end(png, nullptr);
+  png_destroy_write_struct(&png, &info);
+  return true;
+}
+#endif
+
 }  // namespace
 
 std::string flag_letters(std::uint8_t flags) {
@@ -160,24 +184,11 @@ std::string write_overlay(const std::string& stem, const frame::FrameView& f,
     if (error) *error = path + ": " + std::strerror(errno);
     return {};
   }
-  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
-  png_infop info = png ? png_create_info_struct(png) : nullptr;
-  if (png == nullptr || info == nullptr || setjmp(png_jmpbuf(png))) {
-    png_destroy_write_struct(&png, &info);
+  if (!write_png_rgb(fp, canvas.rgb.data(), f.width, f.height)) {
     std::fclose(fp);
     if (error) *error = path + ": libpng write failed";
     return {};
   }
-  png_init_io(png, fp);
-  png_set_IHDR(png, info, static_cast<png_uint_32>(f.width), static_cast<png_uint_32>(f.height), 8,
-               PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT,
-               PNG_FILTER_TYPE_DEFAULT);
-  png_write_info(png, info);
-  for (int y = 0; y < f.height; ++y) {
-    png_write_row(png, &canvas.rgb[static_cast<std::size_t>(y) * f.width * 3]);
-  }
-  png_write_end(png, nullptr);
-  png_destroy_write_struct(&png, &info);
   if (std::fclose(fp) != 0) {
     if (error) *error = path + ": write failed";
     return {};

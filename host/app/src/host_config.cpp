@@ -265,6 +265,12 @@ void parse_host_config(const std::string& json_text, const std::string& path, Ho
     get(o, "data_checksum", c.ch10.data_checksum, w);
     get(o, "test_point", c.ch10.test_point, w);
   }
+  if (j.contains("recording")) {
+    const std::string w = path + ": /recording";
+    c.recording_queue_items = static_cast<std::size_t>(get_integer(
+        j["recording"], "queue_items", static_cast<std::int64_t>(c.recording_queue_items), 1,
+        4096, w));
+  }
 }
 
 std::map<int, geometry::Vec3> load_initial_marks(const std::string& path) {

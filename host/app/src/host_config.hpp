@@ -48,6 +48,9 @@ struct HostConfig {
   std::string inetx_destination;
   std::uint32_t inetx_stream_id = 0x53540001;
   output::Chapter10Config ch10;
+  // the recording thread's queue: at most this many exposures waiting for the files, 1..4096
+  // (~10 s at 400 exposures/s); beyond it a sample is counted as dropped, never blocks the loop
+  std::size_t recording_queue_items = 4096;
 };
 
 /// Applies the JSON file's values onto `config` (fields not in the file keep their value).

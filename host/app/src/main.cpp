@@ -219,7 +219,7 @@ int main(int argc, char** argv) {
   if (const int rc = open_inputs(cfg, udp, cans); rc != 0) return rc;
   st::output::InetxSender inetx;
   bool inetx_open = false;
-  st::hostapp::RecordingWriter recording;
+  st::hostapp::RecordingWriter recording(cfg.recording_queue_items);
   if (const int rc = open_sinks(cfg, inetx, inetx_open, recording); rc != 0) return rc;
   recording.start();
 

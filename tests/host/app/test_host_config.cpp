@@ -173,3 +173,14 @@ TEST(HostConfig, FuzzFindingsInitialMarkIdsAreIntegersAndUnique) {
 
 }  // namespace
 }  // namespace storetrack::hostapp
+
+TEST(HostConfig, RecordingQueueBoundIsChecked) {
+  for (const char* v : {"0", "-1", "4097", "2.5", "\"16\""})
+    expect_refused(std::string(R"({"recording": {"queue_items": )") + v + "}}", "queue_items",
+                   "[1, 4096]");
+  HostConfig c;
+  ASSERT_EQ(load(R"({"recording": {"queue_items": 16}})", &c), "");
+  EXPECT_EQ(c.recording_queue_items, 16u);
+  HostConfig defaults;
+  EXPECT_EQ(defaults.recording_queue_items, 4096u);  // RecordingWriter::kQueueItems
+}

@@ -51,7 +51,7 @@ PY
 LISTENER=$!
 PIDS=""
 trap 'for p in ${HOST_PID:-} $PIDS $LISTENER; do kill -9 "$p" 2>/dev/null || true; done' EXIT
-echo '{"aligner": {"max_wait_ms": 200}}' >"$OUT/host.json"
+echo '{"aligner": {"max_wait_ms": 200}, "recording": {"queue_items": 16}}' >"$OUT/host.json"
 start_host() {  # $1 = run index
   "$HOST" --calibration "$OUT/sim/rig_calibrated.json" --pylon-survey "$OUT/sim/survey_pylon.json" \
     --store-survey "$OUT/sim/survey_store.json" --initial-marks "$OUT/initial_marks.json" \
