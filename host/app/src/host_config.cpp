@@ -267,9 +267,9 @@ void parse_host_config(const std::string& json_text, const std::string& path, Ho
   }
   if (j.contains("recording")) {
     const std::string w = path + ": /recording";
-    c.recording_queue_items = static_cast<std::size_t>(get_integer(
-        j["recording"], "queue_items", static_cast<std::int64_t>(c.recording_queue_items), 1,
-        4096, w));
+    c.recording_queue_items = static_cast<std::size_t>(
+        get_integer(j["recording"], "queue_items",
+                    static_cast<std::int64_t>(c.recording_queue_items), 1, 4096, w));
   }
 }
 
