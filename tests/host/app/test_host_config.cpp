@@ -171,9 +171,6 @@ TEST(HostConfig, FuzzFindingsInitialMarkIdsAreIntegersAndUnique) {
   EXPECT_EQ(initial_marks_error(R"({"marks": [{"id": 4)" + xyz + R"(, {"id": 5)" + xyz + "]}"), "");
 }
 
-}  // namespace
-}  // namespace storetrack::hostapp
-
 TEST(HostConfig, RecordingQueueBoundIsChecked) {
   for (const char* v : {"0", "-1", "4097", "2.5", "\"16\""})
     expect_refused(std::string(R"({"recording": {"queue_items": )") + v + "}}", "queue_items",
@@ -184,3 +181,6 @@ TEST(HostConfig, RecordingQueueBoundIsChecked) {
   HostConfig defaults;
   EXPECT_EQ(defaults.recording_queue_items, 4096u);  // RecordingWriter::kQueueItems
 }
+
+}  // namespace
+}  // namespace storetrack::hostapp
