@@ -211,16 +211,14 @@ if part.sum() > 0 and full.sum() > 0:
 
     p_low = binom_cdf(k_in, m, p0)
     p_high = 1.0 - binom_cdf(k_in - 1, m, p0) if k_in > 0 else 1.0
-    # Independence holds for the centroid noise, not for the calibration error, which one
-    # camera subset shares: only where cameras go missing at random (the loss cases) are the
-    # partial samples spread over many subsets and exposures. A fault that removes one camera
-    # for a block of consecutive exposures (clock, restart) gives ONE draw per block: there the
-    # coverage is printed, not tested (tools/testpoint --draws pools draws for that).
-    if case in ("loss1", "loss10"):
-        check_cov = check
-    else:
-        def check_cov(cond, what):
-            print("info " + what + " (one calibration draw per block: not a test)")
+    # NOT a test, in any case: the partial samples are not Binomial(m, p0). All samples of a
+    # run share ONE calibration draw, and a camera subset weighs that draw's errors differently
+    # from the full rig, so an honest partial uncertainty can cover 56 % in one run and 100 % in
+    # another (seen: 18/32 against 88.9 % complete, then 21/30 against 85 %, same code). The
+    # coverage with a camera missing needs many calibration draws pooled (tools/testpoint
+    # --draws, or the honesty Monte Carlo with a camera removed): open, docs/reliability.md.
+    def check_cov(cond, what):
+        print("NOT ASSERTED " + what + " (one calibration draw: no binomial applies; open)")
     check_cov(p_low >= 1e-3 and p_high >= 1e-3,
           "k=2 coverage with a camera missing %d/%d = %.1f %% vs complete %.1f %% (n=%d): "
           "P(X<=k)=%.3g, P(X>=k)=%.3g, both >= 0.001"
