@@ -4,43 +4,24 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
-#include <cstdlib>
-#include <new>
+#include <memory>
 #include <random>
 #include <vector>
 
 #include "latency.hpp"
-
-namespace {
-std::atomic<bool> g_counting{false};
-std::atomic<long> g_allocations{0};
-}  // namespace
-
-void* operator new(std::size_t n) {
-  if (g_counting) ++g_allocations;
-  if (void* p = std::malloc(n ? n : 1)) return p;
-  throw std::bad_alloc();
-}
-void operator delete(void* p) noexcept {
-  std::free(p);
-}
-void operator delete(void* p, std::size_t) noexcept {
-  std::free(p);
-}
+#include "storetrack/testing/counting_allocator.hpp"
 
 namespace storetrack::hostapp {
 namespace {
 
 TEST(LatencyStats, MemoryIsFixedOverAMillionExposures) {
   auto stats = std::make_unique<LatencyStats>();
-  g_allocations = 0;
-  g_counting = true;
+  const long before = storetrack::testing::allocation_count();
   for (int i = 0; i < 1'000'000; ++i)
     stats->add(100'000 + (i % 5000) * 37);
-  g_counting = false;
-  EXPECT_EQ(g_allocations.load(), 0) << "add() allocated: memory grows with the run";
+  EXPECT_EQ(storetrack::testing::allocation_count() - before, 0)
+      << "add() allocated: memory grows with the run";
   EXPECT_EQ(stats->count(), 1'000'000u);
   EXPECT_LE(sizeof(LatencyStats), 32u * 1024u);
 }
