@@ -29,6 +29,20 @@ AXES_POS = ["x", "y", "z"]
 AXES_ATT = ["yaw", "pitch", "roll"]
 
 
+class Checks:
+    """The verdicts of a test script against truth: check(cond, what) prints "ok" or "FAIL" and
+    what was checked, and keeps the failed ones (the script exits non-zero when there are any)."""
+
+    def __init__(self):
+        self.failures = []
+
+    def __call__(self, cond, what):
+        print(("ok   " if cond else "FAIL ") + what)
+        if not cond:
+            self.failures.append(what)
+        return bool(cond)
+
+
 def read_csv(path):
     """Columns as numpy arrays keyed by the column name without its ' [unit]' suffix."""
     if not os.path.exists(path):

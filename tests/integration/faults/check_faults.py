@@ -21,15 +21,10 @@ import numpy as np
 
 root, out = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.join(root, "host", "report"))
-from storetrack_report import read_csv  # noqa: E402
+from storetrack_report import Checks, read_csv  # noqa: E402
 
-failures = []
-
-
-def check(cond, what):
-    print(("ok   " if cond else "FAIL ") + what)
-    if not cond:
-        failures.append(what)
+check = Checks()
+failures = check.failures
 
 
 def load(name):

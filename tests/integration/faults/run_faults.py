@@ -13,7 +13,6 @@ Loopback only; every process is bounded in time and killed at exit.
 """
 import json
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -23,6 +22,8 @@ CASE, SIM, UNIT, HOST, ROOT, OUT = sys.argv[1:7]
 PY = "/usr/bin/python3"
 HERE = os.path.dirname(os.path.abspath(__file__))
 PROXY = os.path.join(ROOT, "tools", "fault-proxy")
+sys.path.insert(0, os.path.join(ROOT, "tools"))
+import sim_setup  # noqa: E402
 
 # The units render (about 24 ms of CPU per 1920 x 1024 frame: 2 M noise draws) and centroid
 # full frames; four of them at 400 fps would need about 40 cores, so the fault runs are slow
@@ -82,15 +83,8 @@ def setup():
     subprocess.run([SIM, "--scenario", os.path.join(OUT, "scenario.json"), "--seed", "7", "--out",
                     os.path.join(OUT, "sim"), "--mode", "observations"], check=True,
                    stdout=subprocess.DEVNULL)
-    import csv
-    rng, marks, first = random.Random(12345), [], None
-    for row in csv.DictReader(open(os.path.join(OUT, "sim", "truth_marks.csv"), newline="")):
-        first = first or row["trigger_seq"]
-        if row["trigger_seq"] != first:
-            break
-        marks.append({"id": int(row["mark_id"]),
-                      "p_w_m": [float(row[k]) + rng.gauss(0, 1e-3) for k in ("x_w_m", "y_w_m", "z_w_m")]})
-    json.dump({"marks": marks}, open(os.path.join(OUT, "initial_marks.json"), "w"))
+    sim_setup.write_initial_marks(os.path.join(os.path.join(OUT, "sim"), "truth_marks.csv"),
+                                  os.path.join(OUT, "initial_marks.json"))
     return len(s["cameras"])
 
 

@@ -44,6 +44,10 @@ ap.add_argument("--max-wait-ms", type=float, default=500,
                      "the wait keeps such a stall from turning into drops (production: 10 ms)")
 ap.add_argument("--rss-growth-limit-kib", type=float, default=1024)
 a = ap.parse_args()
+sys.path.insert(0, os.path.join(a.root, "tools"))
+sys.path.insert(0, os.path.join(a.root, "host", "report"))
+import sim_setup  # noqa: E402
+from storetrack_report import Checks  # noqa: E402
 if not 5 <= a.seconds <= 3600:
     sys.exit("run_soak.py: --seconds must be 5..3600")
 FPS, CAMERAS, UNITS = 400.0, 8, 4
@@ -114,15 +118,8 @@ def main():
     sim_dir = os.path.join(OUT, "sim")
     subprocess.run([a.sim, "--scenario", os.path.join(OUT, "scenario.json"), "--seed", "3", "--out",
                     sim_dir, "--mode", "observations"], check=True, stdout=subprocess.DEVNULL)
-    import csv
-    rng, marks, first = random.Random(12345), [], None
-    for row in csv.DictReader(open(os.path.join(sim_dir, "truth_marks.csv"), newline="")):
-        first = first or row["trigger_seq"]
-        if row["trigger_seq"] != first:
-            break
-        marks.append({"id": int(row["mark_id"]),
-                      "p_w_m": [float(row[k]) + rng.gauss(0, 1e-3) for k in ("x_w_m", "y_w_m", "z_w_m")]})
-    json.dump({"marks": marks}, open(os.path.join(OUT, "initial_marks.json"), "w"))
+    sim_setup.write_initial_marks(os.path.join(sim_dir, "truth_marks.csv"),
+                                  os.path.join(OUT, "initial_marks.json"))
     groups = read_observations(os.path.join(sim_dir, "observations.udp"))
     if len(groups) < 10 or any(len(g) != CAMERAS for g in groups):
         sys.exit("run_soak.py: expected %d observations per exposure from the simulator" % CAMERAS)
@@ -194,12 +191,8 @@ def main():
 def check(total, rss, flood_sent, late_sends, marks_per_msg, host_rc):
     s = json.load(open(os.path.join(OUT, "stats.json")))
     al, udp = s["aligner"], s["udp"]
-    failures = []
-
-    def ok(cond, what):
-        print(("ok   " if cond else "FAIL ") + what)
-        if not cond:
-            failures.append(what)
+    ok = Checks()
+    failures = ok.failures
 
     ok(host_rc == 0, "host exited 0")
     host_drops = {"kernel_drops": udp["kernel_drops"], "receive_errors": udp["receive_errors"],

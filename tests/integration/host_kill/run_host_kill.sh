@@ -20,16 +20,7 @@ s["timing"]["num_exposures"] = int(sys.argv[3])
 json.dump(s, open(sys.argv[2], "w"))
 PY
 "$SIM" --scenario "$OUT/scenario.json" --seed 3 --out "$OUT/sim" --mode observations >/dev/null
-/usr/bin/python3 - "$OUT/sim/truth_marks.csv" "$OUT/initial_marks.json" <<'PY'
-import csv, json, sys
-marks, first = [], None
-for row in csv.DictReader(open(sys.argv[1], newline="")):
-    first = first or row["trigger_seq"]
-    if row["trigger_seq"] != first:
-        break
-    marks.append({"id": int(row["mark_id"]), "p_w_m": [float(row[k]) for k in ("x_w_m", "y_w_m", "z_w_m")]})
-json.dump({"marks": marks}, open(sys.argv[2], "w"))
-PY
+/usr/bin/python3 "$ROOT/tools/sim_setup.py" --initial-marks "$OUT/sim/truth_marks.csv" "$OUT/initial_marks.json" 0
 # iNET-X listener: run i sends to PORT+1+i; one line "run trigger_seq" per packet.
 /usr/bin/python3 - "$PORT" "$(( KILLS + 1 ))" "$OUT/inetx_seqs.txt" <<'PY' &
 import select, socket, struct, sys, time

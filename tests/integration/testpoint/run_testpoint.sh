@@ -19,17 +19,7 @@ json.dump(s, open(sys.argv[2], "w"))
 PY
 "$SIM" --scenario "$OUT/scenario.json" --seed 7 --out "$OUT/sim" --mode observations >/dev/null
 # Initial mark positions as an installation survey would give them (exposure 0, 1 mm noise).
-/usr/bin/python3 - "$OUT/sim/truth_marks.csv" "$OUT/initial_marks.json" <<'PY'
-import csv, json, random, sys
-rng, marks, first = random.Random(12345), [], None
-for row in csv.DictReader(open(sys.argv[1], newline="")):
-    first = first or row["trigger_seq"]
-    if row["trigger_seq"] != first:
-        break
-    marks.append({"id": int(row["mark_id"]),
-                  "p_w_m": [float(row[k]) + rng.gauss(0, 1e-3) for k in ("x_w_m", "y_w_m", "z_w_m")]})
-json.dump({"marks": marks}, open(sys.argv[2], "w"))
-PY
+/usr/bin/python3 "$ROOT/tools/sim_setup.py" --initial-marks "$OUT/sim/truth_marks.csv" "$OUT/initial_marks.json"
 STORE_SURVEY="$OUT/sim/survey_store.json"
 "$HOST" --calibration "$OUT/sim/rig_calibrated.json" --pylon-survey "$OUT/sim/survey_pylon.json" \
   --store-survey "$STORE_SURVEY" --initial-marks "$OUT/initial_marks.json" \

@@ -15,7 +15,7 @@ vcan_up vcan0
 # all 100 would cost a minute under TCG.
 "$SIM" --scenario "$SCEN" --seed 1 --exposures 1 --out $T/sim > $T/sim.out 2>&1 ||
   { cat $T/sim.out; fail "storetrack-sim"; }
-python3 "$RIG_GUEST/sim_setup.py" "$SCEN" $T/sim $T/setup || fail "setup extraction (sim_setup.py)"
+python3 "$RIG_GUEST/../../../tools/sim_setup.py" "$SCEN" $T/sim $T/setup || fail "setup extraction (sim_setup.py)"
 # The unit below runs as unit 1: the calibration must say so (the host drops observations whose
 # unit id is not their camera's calibrated one, as spoofed).
 python3 - $T/setup/rig_calibration.json <<'PY' || fail "calibration unit id"

@@ -39,5 +39,5 @@ s["timing"]["first_trigger_seq"] = 0
 json.dump(s, open(sys.argv[2], "w"), indent=1)
 PY
 "$SIM" --scenario "$OUT/scenario.json" --seed 7 --mode frames --out "$OUT/sim"
-python3 "$HERE/sim_setup.py" "$OUT/scenario.json" "$OUT/sim" "$OUT/setup"
+python3 "$HERE/../../../tools/sim_setup.py" "$OUT/scenario.json" "$OUT/sim" "$OUT/setup"
 touch "$OUT/ok"

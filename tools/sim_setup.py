@@ -1,0 +1,78 @@
+#!/usr/bin/env python3
+"""What the host needs from a storetrack-sim run (--out SIM_DIR): the one extraction that
+tools/testpoint, the integration tests and the VM rig's tests all use.
+
+  sim_setup.py SCENARIO.json SIM_DIR SETUP_DIR
+      SETUP_DIR gets rig_calibration.json (the calibrated rig: truth + calibration errors),
+      pylon_survey.json and store_survey.json (surveys with survey errors; the pendulum board
+      stands in for the store), initial_marks.json and setup.json (exposures, frame rate,
+      camera/unit ids).
+  sim_setup.py --initial-marks TRUTH_MARKS.csv OUT.json [SIGMA_M]
+      only initial_marks.json.
+
+initial_marks.json holds the marks at the first exposure plus Gaussian survey noise, SIGMA_M per
+axis (default 1 mm, seeded: the same file for the same simulator run), as the installation survey
+would give them.
+"""
+import csv
+import json
+import os
+import random
+import shutil
+import sys
+
+SURVEY_SIGMA_M = 1e-3
+SURVEY_SEED = 12345
+
+
+def initial_marks(truth_marks_csv, sigma_m=SURVEY_SIGMA_M):
+    """The marks of the first exposure in truth_marks.csv, each axis + N(0, sigma_m^2)."""
+    rng = random.Random(SURVEY_SEED)
+    marks, first = [], None
+    with open(truth_marks_csv, newline="") as f:
+        for row in csv.DictReader(f):
+            if first is None:
+                first = row["trigger_seq"]
+            if row["trigger_seq"] != first:
+                break
+            marks.append({"id": int(row["mark_id"]),
+                          "p_w_m": [float(row[k]) + (rng.gauss(0.0, sigma_m) if sigma_m else 0.0)
+                                    for k in ("x_w_m", "y_w_m", "z_w_m")]})
+    if not marks:
+        sys.exit("sim_setup.py: no marks in " + truth_marks_csv)
+    return {"marks": marks}
+
+
+def write_initial_marks(truth_marks_csv, out_json, sigma_m=SURVEY_SIGMA_M):
+    with open(out_json, "w") as f:
+        json.dump(initial_marks(truth_marks_csv, sigma_m), f, indent=1)
+
+
+def write_setup(scenario_json, sim, setup):
+    scenario = json.load(open(scenario_json))
+    os.makedirs(setup, exist_ok=True)
+    shutil.copy(os.path.join(sim, "rig_calibrated.json"), os.path.join(setup, "rig_calibration.json"))
+    shutil.copy(os.path.join(sim, "survey_pylon.json"), os.path.join(setup, "pylon_survey.json"))
+    body = next(n for n in ("store", "pendulum")
+                if os.path.exists(os.path.join(sim, f"survey_{n}.json")))
+    shutil.copy(os.path.join(sim, f"survey_{body}.json"), os.path.join(setup, "store_survey.json"))
+    write_initial_marks(os.path.join(sim, "truth_marks.csv"), os.path.join(setup, "initial_marks.json"))
+    cams = [{"camera_id": c["camera_id"], "unit_id": c["unit_id"]} for c in scenario["cameras"]]
+    with open(os.path.join(setup, "setup.json"), "w") as f:
+        json.dump({"num_exposures": scenario["timing"]["num_exposures"],
+                   "frame_rate_hz": scenario["timing"]["frame_rate_hz"], "cameras": cams}, f, indent=1)
+
+
+def main(argv):
+    if len(argv) in (3, 4) and argv[0] == "--initial-marks":
+        write_initial_marks(argv[1], argv[2], float(argv[3]) if len(argv) == 4 else SURVEY_SIGMA_M)
+        return 0
+    if len(argv) == 3 and not argv[0].startswith("-"):
+        write_setup(*argv)
+        return 0
+    print(__doc__.strip(), file=sys.stderr)
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
