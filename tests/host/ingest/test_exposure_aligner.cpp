@@ -1,6 +1,7 @@
 // ExposureAligner under injected faults: loss, duplicates, reordering, a dead camera, clock
 // jumps, sequence wrap and restart, overflow. Every test checks the released exposures against
 // what was injected (the truth), and that every dropped observation is counted with its reason.
+#include "observation_maker.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/time/saturating.hpp"
 
@@ -14,23 +15,11 @@
 namespace storetrack::ingest {
 namespace {
 
-constexpr std::int64_t kPeriodNs = 2'500'000;  // 400 fps
-constexpr std::int64_t kT0Tai = 1'800'000'000'000'000'000;
+using test::kPeriodNs;
+using test::kT0Tai;
 
 msg::MarkObservations make_obs(int camera_id, std::uint32_t seq, std::int64_t start_tai) {
-  msg::MarkObservations o{};
-  o.unit_id = static_cast<std::uint8_t>(camera_id / 2);
-  o.camera_id = static_cast<std::uint8_t>(camera_id);
-  o.trigger_seq = seq;
-  o.exposure_start_tai_ns = start_tai;
-  o.exposure_start_mono_ns =
-      time::saturating_sub_ns(start_tai, 7 * time::kNsPerSecond);  // a consistent unit clock
-  o.exposure_duration_ns = 500'000;
-  o.clock_state = 2;
-  o.mark_count = 1;
-  o.marks[0].x_px = static_cast<float>(camera_id);
-  o.marks[0].y_px = static_cast<float>(seq % 1000);
-  return o;
+  return test::make_observation(camera_id / 2, camera_id, seq, start_tai);
 }
 
 AlignerConfig config4() {

@@ -10,28 +10,20 @@
 #include <random>
 #include <vector>
 
+#include "observation_maker.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/time/saturating.hpp"
 
 namespace storetrack::ingest {
 namespace {
 
-constexpr std::int64_t kPeriodNs = 2'500'000;  // 400 fps
-constexpr std::int64_t kT0Tai = 1'800'000'000'000'000'000;
 constexpr std::uint32_t kSeq0 = 5000;  // the rig's trigger sequence of exposure 0
 
+using test::kPeriodNs;
+using test::kT0Tai;
+
 msg::MarkObservations make_obs(int camera_id, std::uint32_t seq, std::int64_t start_tai) {
-  msg::MarkObservations o{};
-  o.unit_id = static_cast<std::uint8_t>((camera_id - 10) / 2);
-  o.camera_id = static_cast<std::uint8_t>(camera_id);
-  o.trigger_seq = seq;
-  o.exposure_start_tai_ns = start_tai;
-  o.exposure_start_mono_ns =
-      time::saturating_sub_ns(start_tai, 7 * time::kNsPerSecond);  // a consistent unit clock
-  o.exposure_duration_ns = 500'000;
-  o.clock_state = 2;
-  o.mark_count = 1;
-  return o;
+  return test::make_observation((camera_id - 10) / 2, camera_id, seq, start_tai);
 }
 
 AlignerConfig rig_config(int cameras) {
