@@ -1,7 +1,7 @@
 // ExposureAligner under injected faults: loss, duplicates, reordering, a dead camera, clock
 // jumps, sequence wrap and restart, overflow. Every test checks the released exposures against
 // what was injected (the truth), and that every dropped observation is counted with its reason.
-#include "observation_maker.hpp"
+#include "aligner_test_support.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/time/saturating.hpp"
 
@@ -17,6 +17,7 @@ namespace {
 
 using test::kPeriodNs;
 using test::kT0Tai;
+using test::total_dropped;
 
 msg::MarkObservations make_obs(int camera_id, std::uint32_t seq, std::int64_t start_tai) {
   return test::make_observation(camera_id / 2, camera_id, seq, start_tai);
@@ -27,12 +28,6 @@ AlignerConfig config4() {
   c.camera_ids = {10, 11, 12, 13};
   c.max_wait_ns = 10'000'000;
   return c;
-}
-
-std::uint64_t total_dropped(const AlignerCounters& c) {
-  return c.dropped_unknown_camera + c.dropped_spoofed + c.dropped_invalid +
-         c.dropped_time_out_of_range + c.dropped_duplicate + c.dropped_late +
-         c.dropped_time_mismatch + c.dropped_quarantined + c.dropped_too_few_cameras;
 }
 
 TEST(ExposureAligner, CompleteExposuresReleaseImmediatelyInOrder) {

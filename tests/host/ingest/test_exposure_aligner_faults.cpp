@@ -10,7 +10,7 @@
 #include <random>
 #include <vector>
 
-#include "observation_maker.hpp"
+#include "aligner_test_support.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/time/saturating.hpp"
 
@@ -21,6 +21,7 @@ constexpr std::uint32_t kSeq0 = 5000;  // the rig's trigger sequence of exposure
 
 using test::kPeriodNs;
 using test::kT0Tai;
+using test::total_dropped;
 
 msg::MarkObservations make_obs(int camera_id, std::uint32_t seq, std::int64_t start_tai) {
   return test::make_observation((camera_id - 10) / 2, camera_id, seq, start_tai);
@@ -34,12 +35,6 @@ AlignerConfig rig_config(int cameras) {
   }
   c.max_wait_ns = 10'000'000;
   return c;
-}
-
-std::uint64_t total_dropped(const AlignerCounters& c) {
-  return c.dropped_unknown_camera + c.dropped_spoofed + c.dropped_invalid +
-         c.dropped_time_out_of_range + c.dropped_duplicate + c.dropped_late +
-         c.dropped_time_mismatch + c.dropped_quarantined + c.dropped_too_few_cameras;
 }
 
 // What each camera sends for exposure k (the truth), and hooks to inject a fault.
@@ -512,14 +507,9 @@ TEST(ExposureAlignerFaults, DuplicatedOldDatagramDoesNotReLearnTheOffset) {
   aligner.push(exposure0, 1'063'991'655, out);
   aligner.push(exposure2, 1'078'509'439, out);
   aligner.flush(out);
-  int released_exposure2 = 0;
-  for (const auto& e : out)
-    for (const auto& o : e.cameras)
-      released_exposure2 += o.trigger_seq == 2 ? 1 : 0;
-  EXPECT_EQ(released_exposure2, 1);
+  EXPECT_EQ(test::times_released(out, 2), 1);
   EXPECT_EQ(aligner.counters().sequence_offset_changes, 0u);
-  EXPECT_EQ(aligner.counters().observations_in,
-            aligner.counters().observations_used + total_dropped(aligner.counters()));
+  test::expect_every_observation_accounted(aligner.counters());
 }
 
 TEST(ExposureAlignerFaults, ReplayAfterATriggerRestartIsNotANewExposure) {
@@ -553,19 +543,14 @@ TEST(ExposureAlignerFaults, ReplayAfterATriggerRestartIsNotANewExposure) {
   replay.exposure_start_tai_ns += 1'000;
   aligner.push(replay, now += 5'000'000, out);
   aligner.flush(out);
-  int released_cam10_exposure0 = 0;
-  for (const auto& e : out)
-    for (const auto& o : e.cameras)
-      if (o.camera_id == 10 && o.trigger_seq == 0) ++released_cam10_exposure0;
-  EXPECT_EQ(released_cam10_exposure0, 1);
+  EXPECT_EQ(test::times_released(out, 0, 10), 1);
   ASSERT_EQ(out.size(), 2u);
   EXPECT_EQ(out[0].cameras.size(), 2u);  // exposure 0: cameras 10 and 13
   EXPECT_EQ(out[1].cameras.size(), 2u);  // the restarted trigger's first: cameras 10 and 16
   EXPECT_EQ(aligner.counters().sequence_restarts, 1u);
   EXPECT_EQ(aligner.counters().observations_used, 4u);
   EXPECT_EQ(aligner.counters().dropped_quarantined, 1u);  // the replay, counted
-  EXPECT_EQ(aligner.counters().observations_in,
-            aligner.counters().observations_used + total_dropped(aligner.counters()));
+  test::expect_every_observation_accounted(aligner.counters());
 }
 
 TEST(ExposureAlignerFaults, ReplayWithACorruptDurationIsNotATriggerRestart) {
@@ -592,17 +577,12 @@ TEST(ExposureAlignerFaults, ReplayWithACorruptDurationIsNotATriggerRestart) {
   aligner.push(make_obs(10, 100, kT + 1'700'000'000), now += 5'000'000, out);  // restart
   aligner.push(replay, now += 5'000'000, out);
   aligner.flush(out);
-  int released_exposure5000 = 0;
-  for (const auto& e : out)
-    for (const auto& o : e.cameras)
-      if (o.trigger_seq == 5000) ++released_exposure5000;
-  EXPECT_EQ(released_exposure5000, 1);
+  EXPECT_EQ(test::times_released(out, 5000), 1);
   EXPECT_EQ(out.size(), 2u);
   EXPECT_EQ(aligner.counters().sequence_restarts, 1u);
   EXPECT_EQ(aligner.counters().observations_used, 2u);
   EXPECT_EQ(aligner.counters().dropped_quarantined, 1u);  // the replay, counted
-  EXPECT_EQ(aligner.counters().observations_in,
-            aligner.counters().observations_used + total_dropped(aligner.counters()));
+  test::expect_every_observation_accounted(aligner.counters());
 }
 
 TEST(ExposureAlignerFaults, RepeatWithACorruptDurationIsADuplicate) {
@@ -630,17 +610,12 @@ TEST(ExposureAlignerFaults, RepeatWithACorruptDurationIsADuplicate) {
   aligner.push(make_obs(13, 1726, kT + 3'680'000'000), now += 5'000'000, out);  // restart
   aligner.push(repeat, now += 5'000'000, out);
   aligner.flush(out);
-  int released_cam13_exposure255 = 0;
-  for (const auto& e : out)
-    for (const auto& o : e.cameras)
-      if (o.camera_id == 13 && o.trigger_seq == 255) ++released_cam13_exposure255;
-  EXPECT_EQ(released_cam13_exposure255, 1);
+  EXPECT_EQ(test::times_released(out, 255, 13), 1);
   EXPECT_EQ(out.size(), 2u);
   EXPECT_EQ(aligner.counters().sequence_restarts, 1u);
   EXPECT_EQ(aligner.counters().observations_used, 3u);
   EXPECT_EQ(aligner.counters().dropped_duplicate, 1u);
-  EXPECT_EQ(aligner.counters().observations_in,
-            aligner.counters().observations_used + total_dropped(aligner.counters()));
+  test::expect_every_observation_accounted(aligner.counters());
 }
 
 }  // namespace
