@@ -43,7 +43,8 @@ CASES = {
 if CASE not in CASES:
     sys.exit("run_faults.py: unknown case '%s' (%s)" % (CASE, "|".join(CASES)))
 
-PORT = 46000 + 10 * list(CASES).index(CASE) + os.getpid() % 50 * 100
+# Below the ephemeral range (32768-60999), so that no client socket of the run can hold it.
+PORT = 26000 + 10 * list(CASES).index(CASE) + os.getpid() % 50 * 100
 PROXY_PORT = PORT + 2
 os.makedirs(OUT, exist_ok=True)
 for f in os.listdir(OUT):

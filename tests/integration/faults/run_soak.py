@@ -53,7 +53,8 @@ if not 5 <= a.seconds <= 3600:
 FPS, CAMERAS, UNITS = 400.0, 8, 4
 OUT = a.out
 os.makedirs(OUT, exist_ok=True)
-PORT = 44000 + os.getpid() % 900 * 2
+# Below the ephemeral range (32768-60999), so that no client socket of the run can hold it.
+PORT = 20000 + os.getpid() % 900 * 2
 HDR = 12
 
 

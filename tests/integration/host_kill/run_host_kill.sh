@@ -12,7 +12,7 @@ set -euo pipefail
 SIM="$1"; UNIT="$2"; HOST="$3"; CHECK="$4"; ROOT="$5"; OUT="$6"
 NEXP=400 KILLS=3
 rm -rf "$OUT"; mkdir -p "$OUT/sim"
-PORT=$(( 46000 + $$ % 1000 ))
+PORT=$(( 24000 + $$ % 1000 ))  # below the ephemeral ports (32768-60999)
 /usr/bin/python3 - "$ROOT/common/sim/scenarios/static.json" "$OUT/scenario.json" "$NEXP" <<'PY'
 import json, sys
 s = json.load(open(sys.argv[1]))

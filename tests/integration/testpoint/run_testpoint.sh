@@ -10,7 +10,7 @@ set -euo pipefail
 SIM="$1"; UNIT="$2"; HOST="$3"; ROOT="$4"; OUT="$5"
 NEXP=220
 rm -rf "$OUT"; mkdir -p "$OUT/sim"
-PORT=$(( 45000 + $$ % 1000 ))
+PORT=$(( 22000 + $$ % 1000 ))  # below the ephemeral ports (32768-60999)
 /usr/bin/python3 - "$ROOT/common/sim/scenarios/store_separation.json" "$OUT/scenario.json" "$NEXP" <<'PY'
 import json, sys
 s = json.load(open(sys.argv[1]))
