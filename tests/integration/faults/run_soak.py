@@ -10,8 +10,9 @@ foreign datagrams per valid one) from the same sender.
 
 Checked: zero drops caused by the host (kernel socket drops, late, overflow, partial or missing
 exposures: the sender delivers every camera of every exposure), the host's resident memory
-(VmRSS, sampled every 0.5 s) flat after warm-up, p99 latency recorded (and asserted against
-the budget when --p99-budget-us is given).
+(VmRSS, sampled every 0.5 s) flat after warm-up (a growth bound; a slope bound, in bytes per
+exposure, over 120 s or more), p99 latency recorded (and asserted against the budget when
+--p99-budget-us is given).
 
 Usage: run_soak.py SIM HOST ROOT OUT [--seconds S] [--flood N] [--p99-budget-us US]
   CI: --seconds 30; the documented 10-minute soak: --seconds 600 (or STORETRACK_SOAK_SECONDS).
@@ -43,6 +44,8 @@ ap.add_argument("--max-wait-ms", type=float, default=500,
                 help="aligner wait: on a shared machine the host is descheduled for up to ~200 ms; "
                      "the wait keeps such a stall from turning into drops (production: 10 ms)")
 ap.add_argument("--rss-growth-limit-kib", type=float, default=1024)
+ap.add_argument("--rss-slope-limit-bytes-per-exposure", type=float, default=1.0,
+                help="least-squares VmRSS growth after warm-up, asserted over >= 120 s")
 a = ap.parse_args()
 sys.path.insert(0, os.path.join(a.root, "tools"))
 sys.path.insert(0, os.path.join(a.root, "host", "report"))
@@ -189,6 +192,20 @@ def main():
     return check(total, rss, flood_sent, late_sends, marks_per_msg, host.returncode)
 
 
+def rss_slope_bytes_per_exposure(samples):
+    """Least-squares slope of VmRSS [KiB] against time [s], as bytes per exposure at FPS."""
+    if len(samples) < 3:
+        return None
+    t = [x for x, _ in samples]
+    r = [y for _, y in samples]
+    tm, rm = sum(t) / len(t), sum(r) / len(r)
+    stt = sum((x - tm) ** 2 for x in t)
+    if stt <= 0:
+        return None
+    kib_per_s = sum((x - tm) * (y - rm) for x, y in zip(t, r)) / stt
+    return kib_per_s * 1024.0 / FPS
+
+
 def check(total, rss, flood_sent, late_sends, marks_per_msg, host_rc):
     s = json.load(open(os.path.join(OUT, "stats.json")))
     al, udp = s["aligner"], s["udp"]
@@ -227,6 +244,19 @@ def check(total, rss, flood_sent, late_sends, marks_per_msg, host_rc):
     ok(growth is not None and growth <= a.rss_growth_limit_kib,
        "VmRSS flat after %.0f s warm-up: %s KiB at warm-up end, max %s KiB, growth %s KiB <= %.0f KiB"
        % (warm, after[0] if after else "?", max(after) if after else "?", growth, a.rss_growth_limit_kib))
+    # A slow leak (the old per-exposure latency vectors: 24 bytes an exposure, 9.4 KiB/s) stays
+    # under the growth limit for minutes: the least-squares slope of VmRSS after warm-up, in bytes
+    # per exposure, catches it. malloc grows the heap in steps of about 132 KiB, so a short
+    # window sees a step as a slope (one step in 17 s: 19 bytes an exposure): it is asserted only
+    # over 120 s or more (the 10-minute soak), printed otherwise.
+    slope = rss_slope_bytes_per_exposure([(t, r) for t, r in samples if t >= warm])
+    window = samples[-1][0] - warm if samples else 0.0
+    what = ("VmRSS slope after warm-up %s bytes/exposure over %.0f s <= %.2f"
+            % ("?" if slope is None else "%.3f" % slope, window, a.rss_slope_limit_bytes_per_exposure))
+    if window >= 120:
+        ok(slope is not None and slope <= a.rss_slope_limit_bytes_per_exposure, what)
+    else:
+        print("     not asserted (window < 120 s): " + what)
     lat = s["latency"]["last_observation_to_inetx_complete_exposures"]
     print("     latency last observation -> iNET-X: p50 %.0f us, p99 %.0f us, max %.0f us (%d exposures)"
           % (lat["p50_us"], lat["p99_us"], lat["max_us"], lat["count"]))
@@ -238,7 +268,7 @@ def check(total, rss, flood_sent, late_sends, marks_per_msg, host_rc):
                "marks_per_message_max": max(marks_per_msg), "flood_sent": flood_sent,
                "valid_samples": s["valid_samples"], "host_drops": host_drops, "latency": lat,
                "processing": s["latency"]["processing_per_exposure"], "rss_kib": samples,
-               "rss_growth_after_warmup_kib": growth, "sender_late": late_sends, "failures": failures}
+               "rss_growth_after_warmup_kib": growth, "rss_slope_bytes_per_exposure": slope, "sender_late": late_sends, "failures": failures}
     json.dump(summary, open(os.path.join(OUT, "soak.json"), "w"), indent=1)
     print("     marks per message mean %.1f (max %d); valid samples %d of %d"
           % (summary["marks_per_message_mean"], summary["marks_per_message_max"], s["valid_samples"], total))
