@@ -127,6 +127,13 @@ int open_inputs(const HostConfig& cfg, st::ingest::UdpReceiver& udp,
                    cfg.udp_group.c_str(), std::strerror(-rc));
       return rc == -EINVAL ? 2 : 1;
     }
+    const auto& uc = udp.counters();
+    if (uc.receive_buffer_bytes < uc.receive_buffer_requested_bytes)
+      spdlog::warn(
+          "storetrack-host: UDP receive buffer {} KiB, not the {} KiB asked for (capped by "
+          "net.core.rmem_max; raise it, or run with CAP_NET_ADMIN): bursts may be dropped "
+          "(counted as udp.kernel_drops)",
+          uc.receive_buffer_bytes / 1024, uc.receive_buffer_requested_bytes / 1024);
     for (const auto& src : cfg.udp_sources)
       udp.allow_source(src.unit_id, src.address);  // checked by finish_host_config
     if (cfg.udp_sources.empty())

@@ -24,6 +24,8 @@ nlohmann::json udp_stats_json(const ingest::UdpReceiver& udp) {
           {"spoofed_source", uc.spoofed_source},
           {"kernel_drops", uc.kernel_drops},
           {"budget_exhausted", uc.budget_exhausted},
+          {"receive_buffer_requested_bytes", uc.receive_buffer_requested_bytes},
+          {"receive_buffer_bytes", uc.receive_buffer_bytes},
           {"decode_errors", decode_counters_json(uc.decode_errors)}};
 }
 

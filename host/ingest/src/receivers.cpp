@@ -3,6 +3,7 @@
 #include <arpa/inet.h>
 #include <linux/can.h>
 #include <linux/can/raw.h>
+#include <linux/sock_diag.h>
 #include <net/if.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
@@ -52,6 +53,34 @@ void enable_drop_count(int fd) {
   setsockopt(fd, SOL_SOCKET, SO_RXQ_OVFL, &one, sizeof one);
 }
 
+// The same cumulative drop count (sk_drops) read from the socket itself (SO_MEMINFO's
+// SK_MEMINFO_DROPS): SO_RXQ_OVFL reports it only with the next datagram received, so drops at
+// the end of a burst stayed uncounted until (or unless) another datagram came.
+void read_drop_count(int fd, std::uint64_t& kernel_drops) {
+  std::array<std::uint32_t, SK_MEMINFO_VARS> meminfo{};
+  socklen_t len = sizeof meminfo;
+  if (getsockopt(fd, SOL_SOCKET, SO_MEMINFO, meminfo.data(), &len) != 0) return;
+  if (len >= (SK_MEMINFO_DROPS + 1) * sizeof(std::uint32_t))
+    kernel_drops = std::max<std::uint64_t>(kernel_drops, meminfo[SK_MEMINFO_DROPS]);
+}
+
+// The receive buffer the kernel grants: SO_RCVBUF is capped at net.core.rmem_max without an
+// error, so a host asking for 4 MiB may get 208 KiB and drop bursts. Where the process may
+// (CAP_NET_ADMIN), SO_RCVBUFFORCE goes past the cap. Returns the usable bytes (the kernel
+// reports twice the payload figure it accounts, see socket(7)).
+int set_receive_buffer(int fd, int bytes) {
+  setsockopt(fd, SOL_SOCKET, SO_RCVBUF, &bytes, sizeof bytes);
+  int granted = 0;
+  socklen_t len = sizeof granted;
+  getsockopt(fd, SOL_SOCKET, SO_RCVBUF, &granted, &len);
+  if (granted / 2 < bytes &&
+      setsockopt(fd, SOL_SOCKET, SO_RCVBUFFORCE, &bytes, sizeof bytes) == 0) {
+    len = sizeof granted;
+    getsockopt(fd, SOL_SOCKET, SO_RCVBUF, &granted, &len);
+  }
+  return granted / 2;
+}
+
 }  // namespace
 
 UdpReceiver::~UdpReceiver() {
@@ -67,12 +96,22 @@ int UdpReceiver::open(const std::string& bind_address, std::uint16_t port,
   addr.sin_port = htons(port);
   const std::string bind_to = bind_address.empty() ? "0.0.0.0" : bind_address;
   if (inet_pton(AF_INET, bind_to.c_str(), &addr.sin_addr) != 1) return -EINVAL;
+  // A socket bound to a unicast address never sees datagrams sent to a group: with a group, the
+  // socket binds the group address (only its datagrams arrive) and `bind_address` names the
+  // interface to join on, unless `interface_address` does.
+  in_addr group{};
+  if (!multicast_group.empty()) {
+    if (inet_pton(AF_INET, multicast_group.c_str(), &group) != 1) return -EINVAL;
+    addr.sin_addr = group;
+  }
   fd_ = ::socket(AF_INET, SOCK_DGRAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
   if (fd_ < 0) return -errno;
   const int one = 1;
   setsockopt(fd_, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
   // A large buffer absorbs bursts (all cameras of one exposure arrive together).
-  setsockopt(fd_, SOL_SOCKET, SO_RCVBUF, &receive_buffer_bytes, sizeof receive_buffer_bytes);
+  counters_.receive_buffer_requested_bytes = static_cast<std::uint64_t>(receive_buffer_bytes);
+  counters_.receive_buffer_bytes =
+      static_cast<std::uint64_t>(set_receive_buffer(fd_, receive_buffer_bytes));
   enable_drop_count(fd_);
   if (::bind(fd_, reinterpret_cast<const sockaddr*>(&addr), sizeof addr) != 0) {
     const int e = errno;
@@ -81,11 +120,8 @@ int UdpReceiver::open(const std::string& bind_address, std::uint16_t port,
   }
   if (!multicast_group.empty()) {
     ip_mreq mreq{};
-    if (inet_pton(AF_INET, multicast_group.c_str(), &mreq.imr_multiaddr) != 1) {
-      close();
-      return -EINVAL;
-    }
-    const std::string ifa = interface_address.empty() ? "0.0.0.0" : interface_address;
+    mreq.imr_multiaddr = group;
+    const std::string ifa = !interface_address.empty() ? interface_address : bind_to;
     if (inet_pton(AF_INET, ifa.c_str(), &mreq.imr_interface) != 1) {
       close();
       return -EINVAL;
@@ -168,6 +204,7 @@ int UdpReceiver::receive(const MessageHandler& handler, int max_datagrams) {
     handler(message);
   }
   if (read >= max_datagrams) ++counters_.budget_exhausted;
+  read_drop_count(fd_, counters_.kernel_drops);
   return decoded;
 }
 
@@ -234,6 +271,7 @@ int CanFdReceiver::receive(const MessageHandler& handler, int max_frames) {
     }
   }
   if (read >= max_frames) ++counters_.budget_exhausted;
+  read_drop_count(fd_, counters_.kernel_drops);
   return decoded;
 }
 

@@ -109,6 +109,37 @@ TEST(UdpReceiver, BadAddressesAreErrorsNotCrashes) {
   EXPECT_EQ(can.open("no_such_can_if"), -ENODEV);
 }
 
+// Sends one observation to `group`:`port` out of the loopback interface.
+void send_to_group(const char* group, std::uint16_t port, std::uint32_t seq) {
+  const int fd = socket(AF_INET, SOCK_DGRAM, 0);
+  in_addr ifa{};
+  inet_pton(AF_INET, "127.0.0.1", &ifa);
+  setsockopt(fd, IPPROTO_IP, IP_MULTICAST_IF, &ifa, sizeof ifa);
+  sockaddr_in dst{};
+  dst.sin_family = AF_INET;
+  dst.sin_port = htons(port);
+  inet_pton(AF_INET, group, &dst.sin_addr);
+  std::array<std::uint8_t, msg::kMaxDatagramBytes> buf{};
+  const int n = msg::encode_datagram(observation(seq), buf, 0);
+  sendto(fd, buf.data(), static_cast<std::size_t>(n), 0, reinterpret_cast<sockaddr*>(&dst),
+         sizeof dst);
+  close(fd);
+}
+
+TEST(UdpReceiver, MulticastWithTheInterfaceAsBindAddressReceivesTheGroup) {
+  // `--udp-bind 127.0.0.1 --udp-group G` (the host's configuration for a multicast FTI network):
+  // a socket bound to the unicast address never sees the group's datagrams (before: nothing
+  // arrived, silently). Now the socket binds the group and joins it on the bind address.
+  UdpReceiver rx;
+  const int rc = rx.open("127.0.0.1", 0, "239.255.42.98");
+  ASSERT_EQ(rc, 0) << "multicast join on loopback failed: " << rc;
+  send_to_group("239.255.42.98", rx.port(), 7);
+  std::vector<msg::MarkObservations> got;
+  drain(rx, got, 1);
+  ASSERT_EQ(got.size(), 1u);
+  EXPECT_EQ(got[0].trigger_seq, 7u);
+}
+
 TEST(UdpReceiver, JoinsMulticastGroupOnLoopback) {
   UdpReceiver rx;
   const int rc = rx.open("0.0.0.0", 0, "239.255.42.99", "127.0.0.1");
@@ -182,6 +213,36 @@ TEST(UdpReceiver, ReceiveReadsAtMostItsBoundPerCall) {
   EXPECT_EQ(rx.receive(count), 10);
   EXPECT_EQ(delivered, sent);
   EXPECT_EQ(rx.counters().budget_exhausted, 2u);
+}
+
+TEST(UdpReceiver, KernelDropsAtTheEndOfABurstAreCountedWithoutALaterDatagram) {
+  // SO_RXQ_OVFL reports drops only with the next datagram received: the last burst before a
+  // quiet link (a unit that stopped, the end of a run) left its drops uncounted (before: 0).
+  UdpReceiver rx;
+  ASSERT_EQ(rx.open("127.0.0.1", 0, "", "", 8192), 0);
+  Sender tx(rx.port());
+  const int sent = 400;
+  send_observations(tx, 0, sent);
+  int delivered = 0;
+  for (int calls = 0; calls < 20; ++calls)
+    rx.receive([&](const msg::AnyMessage&) { ++delivered; });
+  EXPECT_GT(rx.counters().kernel_drops, 0u);
+  EXPECT_EQ(static_cast<std::uint64_t>(delivered) + rx.counters().kernel_drops,
+            static_cast<std::uint64_t>(sent));
+}
+
+TEST(UdpReceiver, ReportsTheReceiveBufferTheKernelGranted) {
+  // SO_RCVBUF is capped at net.core.rmem_max silently: the granted size is read back (and
+  // forced past the cap where the process may), so the host can say what it got.
+  UdpReceiver rx;
+  ASSERT_EQ(rx.open("127.0.0.1", 0, "", "", 64 << 20), 0);
+  const auto& c = rx.counters();
+  EXPECT_EQ(c.receive_buffer_requested_bytes, 64u << 20);
+  int granted = 0;
+  socklen_t len = sizeof granted;
+  ASSERT_EQ(getsockopt(rx.fd(), SOL_SOCKET, SO_RCVBUF, &granted, &len), 0);
+  EXPECT_EQ(c.receive_buffer_bytes, static_cast<std::uint64_t>(granted / 2));
+  EXPECT_GT(c.receive_buffer_bytes, 0u);
 }
 
 TEST(UdpReceiver, KernelDropsOfAFullSocketBufferAreCounted) {

@@ -3,8 +3,8 @@
 // which reads at most a fixed number of datagrams/frames (so a flood cannot starve alignment
 // and processing: the rest waits in the socket for the next call), decodes them and hands
 // complete messages to a callback. Datagrams the kernel dropped because the socket buffer was
-// full are counted (SO_RXQ_OVFL). Decoding lives in common/msg; these classes only move bytes,
-// filter senders and count.
+// full are counted (SO_RXQ_OVFL, SO_MEMINFO). Decoding lives in common/msg; these classes only move
+// bytes, filter senders and count.
 #pragma once
 
 #include <cstdint>
@@ -36,6 +36,8 @@ struct UdpReceiverCounters {
   std::uint64_t spoofed_source = 0;     ///< valid datagram, (unit id, source address) not allowed
   std::uint64_t kernel_drops = 0;       ///< dropped by the kernel: socket buffer full
   std::uint64_t budget_exhausted = 0;   ///< receive() calls that stopped at the per-call bound
+  std::uint64_t receive_buffer_requested_bytes = 0;  ///< socket receive buffer asked for
+  std::uint64_t receive_buffer_bytes = 0;            ///< granted (capped by net.core.rmem_max)
 };
 
 class UdpReceiver {
@@ -45,8 +47,9 @@ class UdpReceiver {
   UdpReceiver(const UdpReceiver&) = delete;
   UdpReceiver& operator=(const UdpReceiver&) = delete;
 
-  /// Binds `bind_address:port` (0.0.0.0 for all); joins `multicast_group` on the interface
-  /// with address `interface_address` when the group is given. Returns 0 or -errno.
+  /// Binds `bind_address:port` (0.0.0.0 for all). With `multicast_group`, binds the group's
+  /// address instead and joins it on the interface with address `interface_address` (default:
+  /// `bind_address`). The receive buffer granted is in counters(). Returns 0 or -errno.
   int open(const std::string& bind_address, std::uint16_t port,
            const std::string& multicast_group = "", const std::string& interface_address = "",
            int receive_buffer_bytes = 4 << 20);
