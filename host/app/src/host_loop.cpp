@@ -17,7 +17,6 @@ void HostLoop::on_message(const msg::AnyMessage& m) {
   if (const auto* obs = std::get_if<msg::MarkObservations>(&m)) {
     if (t_first_input_ == 0) t_first_input_ = now_;
     t_last_input_ = now_;
-    last_arrival_[obs->trigger_seq] = now_;
     p_.aligner.push(*obs, now_, ready_);
   } else if (const auto* h = std::get_if<msg::UnitHealth>(&m)) {
     ++totals_.health_messages;
@@ -38,10 +37,12 @@ void HostLoop::process(const pipeline::AlignedExposure& e) {
   if (p_.inetx) p_.inetx->send(s);
   const time::MonotonicNs t_sent = time::monotonic_now_ns();
   totals_.latency_processing.add(t_sent - t0);
-  if (auto it = last_arrival_.find(e.trigger_seq); it != last_arrival_.end()) {
-    totals_.latency_all.add(t_sent - it->second);
-    if (e.missing_camera_mask == 0) totals_.latency_complete.add(t_sent - it->second);
-    last_arrival_.erase(it);
+  // From the exposure's last observation in (the aligner's clock, this loop's now_) to sent:
+  // keyed by the exposure itself, so a unit renumbering its exposures cannot mix them up.
+  if (e.last_arrival_mono_ns > 0) {
+    const time::MonotonicNs latency = t_sent - e.last_arrival_mono_ns;
+    totals_.latency_all.add(latency);
+    if (e.missing_camera_mask == 0) totals_.latency_complete.add(latency);
   }
   if (!p_.recording.has_files()) return;
   RecordingItem item;
@@ -58,10 +59,6 @@ void HostLoop::process_ready() {
   for (const auto& e : ready_)
     process(e);
   ready_.clear();
-  if (last_arrival_.size() > kMaxTrackedArrivals) {  // stale entries of dropped exposures
-    totals_.arrivals_forgotten += last_arrival_.size();
-    last_arrival_.clear();
-  }
 }
 
 int HostLoop::run(const LoopLimits& limits, const std::atomic<bool>& stop) {

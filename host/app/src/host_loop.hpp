@@ -7,7 +7,6 @@
 #include <cstdint>
 #include <map>
 #include <memory>
-#include <unordered_map>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -34,7 +33,6 @@ struct LoopTotals {
   std::uint64_t exposures = 0, valid_samples = 0, health_messages = 0;
   std::map<int, nlohmann::json> unit_health;  // keyed by the 8-bit unit id: <= 256 entries
   LatencyStats latency_complete, latency_all, latency_processing;
-  std::uint64_t arrivals_forgotten = 0;  // arrival times of exposures that never came out
 };
 
 /// The parts the loop drives; all owned by main.
@@ -50,8 +48,6 @@ struct LoopParts {
 
 class HostLoop {
  public:
-  /// Arrival times kept for the latency of exposures still pending in the aligner.
-  static constexpr std::size_t kMaxTrackedArrivals = 4096;
   explicit HostLoop(const LoopParts& parts) : p_(parts) {}
   /// Runs until `stop`, a limit, or a poll() failure; returns the exit code (0 or 1).
   int run(const LoopLimits& limits, const std::atomic<bool>& stop);
@@ -65,7 +61,6 @@ class HostLoop {
   LoopParts p_;
   LoopTotals totals_;
   std::vector<pipeline::AlignedExposure> ready_;
-  std::unordered_map<std::uint32_t, time::MonotonicNs> last_arrival_;
   time::MonotonicNs now_ = 0, t_first_input_ = 0, t_last_input_ = 0;
 };
 

@@ -208,8 +208,7 @@ nlohmann::json host_stats_json(const StatsSources& s) {
   stats["latency"] = {
       {"last_observation_to_inetx_complete_exposures", t.latency_complete.to_json()},
       {"last_observation_to_inetx_all_exposures", t.latency_all.to_json()},
-      {"processing_per_exposure", t.latency_processing.to_json()},
-      {"arrivals_forgotten", t.arrivals_forgotten}};
+      {"processing_per_exposure", t.latency_processing.to_json()}};
   stats["unit_health_messages"] = t.health_messages;
   nlohmann::json health = nlohmann::json::object();
   for (const auto& [unit, h] : t.unit_health)

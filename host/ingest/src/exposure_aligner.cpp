@@ -235,11 +235,11 @@ void ExposureAligner::place(int cam, const msg::MarkObservations& obs, time::Mon
     newest_key_ = have_key_ ? std::max(newest_key_, key) : key;
     have_key_ = true;
   }
-  add_to_pending(it, cam, obs);
+  add_to_pending(it, cam, obs, now);
 }
 
 void ExposureAligner::add_to_pending(PendingMap::iterator it, int cam,
-                                     const msg::MarkObservations& obs) {
+                                     const msg::MarkObservations& obs, time::MonotonicNs now) {
   Pending& p = it->second;
   const std::uint32_t bit = 1u << cam;
   if (p.present_mask & bit) {
@@ -249,6 +249,7 @@ void ExposureAligner::add_to_pending(PendingMap::iterator it, int cam,
   }
   p.cameras.push_back(obs);
   p.present_mask |= bit;
+  p.last_arrival = std::max(p.last_arrival, now);
   remember_delivered(cam, obs);
   const Majority m = majority(p.cameras, it->first);
   p.reference_mid_tai_ns = pipeline::exposure_mid_tai_ns(p.cameras[m.reference]);
@@ -478,6 +479,7 @@ void ExposureAligner::release(PendingMap::iterator it, ReleaseReason reason,
   Pending& p = it->second;
   const Majority m = majority(p.cameras, key);
   const time::TaiNs reference_mid = pipeline::exposure_mid_tai_ns(p.cameras[m.reference]);
+  const time::MonotonicNs last_arrival = p.last_arrival;
   std::vector<msg::MarkObservations> kept;
   kept.reserve(p.cameras.size());
   std::uint32_t present = 0;
@@ -526,6 +528,7 @@ void ExposureAligner::release(PendingMap::iterator it, ReleaseReason reason,
   e.trigger_seq = majority_sequence(kept);
   e.missing_camera_mask = missing;
   e.closed_by_timeout = missing != 0;
+  e.last_arrival_mono_ns = last_arrival;
   time::TaiNs earliest_start = INT64_MAX;
   for (const auto& o : kept) {
     if (o.exposure_start_tai_ns < earliest_start) {

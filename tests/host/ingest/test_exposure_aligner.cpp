@@ -30,6 +30,19 @@ AlignerConfig config4() {
   return c;
 }
 
+TEST(ExposureAligner, ReleasedExposureCarriesItsLastArrivalTime) {
+  // The host's latency starts at the exposure's last observation in. It was looked up by the
+  // camera's trigger_seq in a map of the host loop: wrong for a camera whose numbering has an
+  // offset (a restarted unit), and never erased for observations the aligner dropped.
+  ExposureAligner aligner(config4());
+  std::vector<pipeline::AlignedExposure> out;
+  const std::int64_t arrivals[4] = {1'000, 4'000, 2'500, 3'000};
+  for (int c = 0; c < 4; ++c)
+    aligner.push(make_obs(10 + c, 7, kT0Tai + c * 1000), arrivals[c], out);
+  ASSERT_EQ(out.size(), 1u);
+  EXPECT_EQ(out[0].last_arrival_mono_ns, 4'000);
+}
+
 TEST(ExposureAligner, CompleteExposuresReleaseImmediatelyInOrder) {
   ExposureAligner aligner(config4());
   std::vector<pipeline::AlignedExposure> out;

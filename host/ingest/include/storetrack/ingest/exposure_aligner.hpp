@@ -137,6 +137,7 @@ class ExposureAligner {
     std::vector<msg::MarkObservations> cameras;  // at most one per rig camera
     std::uint32_t present_mask = 0;
     time::MonotonicNs first_arrival = 0;
+    time::MonotonicNs last_arrival = 0;
     time::TaiNs reference_mid_tai_ns = 0;  // majority mid-time of the cameras so far
   };
   using DeliveredId = std::pair<std::uint32_t, time::TaiNs>;  // trigger_seq, exposure start
@@ -176,7 +177,8 @@ class ExposureAligner {
   std::int64_t match_tolerance() const;
   bool clock_stepped(const CameraState& cs, const msg::MarkObservations& obs) const;
   std::uint32_t majority_sequence(const std::vector<msg::MarkObservations>& kept) const;
-  void add_to_pending(PendingMap::iterator it, int cam, const msg::MarkObservations& obs);
+  void add_to_pending(PendingMap::iterator it, int cam, const msg::MarkObservations& obs,
+                      time::MonotonicNs now);
   void drop_known(std::int64_t key, int cam);
   void quarantine(int cam, const msg::MarkObservations& obs, std::int64_t unwrapped,
                   time::MonotonicNs now);

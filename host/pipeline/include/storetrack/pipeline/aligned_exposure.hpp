@@ -26,6 +26,9 @@ struct AlignedExposure {
   time::TaiNs exposure_mid_tai_ns = std::numeric_limits<time::TaiNs>::min();
   /// True when the aligner closed the exposure on its deadline rather than on completeness.
   bool closed_by_timeout = false;
+  /// Host monotonic time at which the last of its observations reached the aligner (the start
+  /// of the host's latency, docs/performance.md); 0 when not made by the aligner.
+  time::MonotonicNs last_arrival_mono_ns = 0;
 };
 
 /// Exposure mid-point of one camera's observations (docs/conventions.md, "Time").
