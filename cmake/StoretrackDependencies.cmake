@@ -31,8 +31,9 @@ else()
   find_package(CLI11 QUIET)
 endif()
 
-# storetrack_test(NAME name SOURCES ... LIBS ... [LABELS ...]): a GoogleTest executable,
-# registered with ctest (one ctest entry per executable keeps the 2-core CI quick).
+# storetrack_test(NAME name SOURCES ... LIBS ... [LABELS ...] [TIMEOUT s] [COST s]): a
+# GoogleTest executable, registered with ctest (one ctest entry per executable keeps the 2-core
+# CI quick). COST: its seconds in the sanitizer tree, for ctest's ordering.
 #
 # Every one of them reuses ONE precompiled header (GoogleTest, Eigen, the standard library:
 # storetrack_test_pch below), parsed once per tree instead of once per test source
@@ -60,7 +61,7 @@ function(storetrack_test_pch)
     <optional> <random> <span> <sstream> <string> <vector>)
 endfunction()
 function(storetrack_test)
-  cmake_parse_arguments(T "" "NAME;TIMEOUT" "SOURCES;LIBS;LABELS" ${ARGN})
+  cmake_parse_arguments(T "" "NAME;TIMEOUT;COST" "SOURCES;LIBS;LABELS" ${ARGN})
   add_executable(${T_NAME} ${T_SOURCES})
   target_link_libraries(${T_NAME} PRIVATE ${T_LIBS} GTest::gtest GTest::gtest_main storetrack_warnings)
   if(STORETRACK_TEST_PCH)
@@ -81,4 +82,9 @@ function(storetrack_test)
     math(EXPR T_TIMEOUT "${T_TIMEOUT} * 8")
   endif()
   set_tests_properties(${T_NAME} PROPERTIES TIMEOUT ${T_TIMEOUT} LABELS "${T_LABELS}")
+  if(T_COST)
+    # ctest -j starts the costliest first; a fresh tree has no timing history (Testing/), so
+    # without it the longest tests started last and ran alone at the end.
+    set_tests_properties(${T_NAME} PROPERTIES COST ${T_COST})
+  endif()
 endfunction()

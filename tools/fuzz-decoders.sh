@@ -7,8 +7,11 @@
 # (docs/reliability.md, "Fuzzing"). The fuzzers are single-threaded, so they run side by side,
 # one per core. Exits non-zero on any crash, sanitizer report or
 # violated property; each fuzzer's log is $B/<fuzzer>.log, a crash's input $B/crash-*.
-#   FUZZ_STEP=build|run tools/fuzz-decoders.sh N   only that half (CI builds in the background
-#                                                  and runs later); default both.
+#   FUZZ_STEP=build|run tools/fuzz-decoders.sh N   only that half (CI builds them in the
+#                                                  sanitizer tree, tools/sanitize-tests.sh, and
+#                                                  runs them with STORETRACK_FUZZ_BUILD_DIR
+#                                                  there); default both.
+#   tools/fuzz-decoders.sh --list                  the fuzzer targets, one per line.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds=${1:-30}
@@ -26,15 +29,20 @@ FUZZERS=(
   "fuzz_initial_marks initial_marks 8192"
   "fuzz_exposure_aligner exposure_aligner 4096"
 )
+if [ "$seconds" = --list ]; then
+  for f in "${FUZZERS[@]}"; do echo "${f%% *}"; done
+  exit 0
+fi
+[[ "$seconds" =~ ^[0-9]+$ ]] && [ "$seconds" -ge 1 ] || { echo "fuzz-decoders: N must be seconds >= 1" >&2; exit 2; }
 if [ "$STEP" != run ]; then
   cmake -S . -B "$B" -G Ninja -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
     -DSTORETRACK_FUZZERS=ON -DSTORETRACK_BENCHMARKS=OFF >/dev/null
   targets=()
   for f in "${FUZZERS[@]}"; do targets+=("${f%% *}"); done
   ninja -C "$B" "${targets[@]}"
-  python3 tests/common/msg/fuzz_seeds/make_seeds.py "$B/fuzz-seeds"
 fi
 [ "$STEP" != build ] || exit 0
+python3 tests/common/msg/fuzz_seeds/make_seeds.py "$B/fuzz-seeds"
 
 # One fuzzer per core at a time (each is single-threaded): every fuzzer gets N seconds of a
 # whole core, and the run takes ceil(fuzzers / cores) x N seconds.

@@ -324,7 +324,6 @@ TEST(MsgCanFd, MalformedFramesGetTypedErrorsAndCounters) {
       "index beyond count", [](CanFdFrame& f) { f.data[2] = 0x53; }, DecodeError::kBadLength);
   with(
       "too many fragments", [](CanFdFrame& f) { f.data[2] = 0x0F; }, DecodeError::kBadLength);
-  CanReassemblyCounters expected_counters;
   CanFdReassembler reassembler;
   for (const Case& c : cases) {
     std::optional<AnyMessage> done;
