@@ -4,8 +4,8 @@
 // (Bar-Shalom, Li, Kirubarajan, "Estimation with Applications to Tracking and Navigation",
 // 2001, sec. 5.4); the multi-view test is the reprojection chi-square of the Gauss-Newton
 // triangulation (Hartley & Zisserman, "Multiple View Geometry", 2nd ed., ch. 12), which for two
-// views is the epipolar constraint with its uncertainty. The layout fit is Umeyama's
-// absolute orientation (IEEE TPAMI 13(4), 1991) via Eigen::umeyama.
+// views is the epipolar constraint with its uncertainty (host/triangulate). The layout fit is the
+// absolute orientation of host/pose (Umeyama, IEEE TPAMI 13(4), 1991).
 #include "storetrack/match/mark_matcher.hpp"
 
 #include <algorithm>
@@ -14,10 +14,12 @@
 #include <stdexcept>
 #include <unordered_map>
 
-#include <Eigen/Cholesky>
-#include <Eigen/Geometry>
-#include <Eigen/LU>
 #include <Eigen/SVD>
+
+#include "storetrack/pose/body_pose.hpp"
+#include "storetrack/triangulate/triangulate.hpp"
+#include "storetrack/uncertainty/spd_inverse.hpp"
+#include "storetrack/uncertainty/statistics.hpp"
 
 namespace storetrack::match {
 
@@ -32,37 +34,6 @@ namespace {
 
 constexpr int kMaxDof = 2 * 64;
 
-/// Regularised lower incomplete gamma P(a, x) (series for x < a + 1, else Lentz continued
-/// fraction; Numerical Recipes 3rd ed., sec. 6.2).
-double regularized_gamma_p(double a, double x) {
-  if (x <= 0) return 0;
-  const double log_prefactor = a * std::log(x) - x - std::lgamma(a);
-  if (x < a + 1) {
-    double term = 1 / a, sum = term;
-    for (int n = 1; n < 1000; ++n) {
-      term *= x / (a + n);
-      sum += term;
-      if (std::abs(term) < std::abs(sum) * 1e-16) break;
-    }
-    return sum * std::exp(log_prefactor);
-  }
-  const double tiny = 1e-300;
-  double b = x + 1 - a, c = 1 / tiny, d = 1 / b, h = d;
-  for (int i = 1; i < 1000; ++i) {
-    const double an = -i * (i - a);
-    b += 2;
-    d = an * d + b;
-    if (std::abs(d) < tiny) d = tiny;
-    c = b + an / c;
-    if (std::abs(c) < tiny) c = tiny;
-    d = 1 / d;
-    const double delta = d * c;
-    h *= delta;
-    if (std::abs(delta - 1) < 1e-16) break;
-  }
-  return 1 - std::exp(log_prefactor) * h;
-}
-
 /// d p_w / d(left perturbation of T_w_b) for a body point p_b: [-[R p_b]x, I].
 Eigen::Matrix<double, 3, 6> point_pose_jacobian(const Transform& T_w_b, const Vec3& p_b) {
   Eigen::Matrix<double, 3, 6> G;
@@ -71,33 +42,27 @@ Eigen::Matrix<double, 3, 6> point_pose_jacobian(const Transform& T_w_b, const Ve
   return G;
 }
 
-/// Inverse of a 6x6 SPD matrix from its Cholesky factor, one column at a time: the matrix
-/// right-hand side would go through Eigen's blocked GEMM path, slower at this size.
-Mat6 spd_inverse(const Eigen::LLT<Mat6>& llt) {
-  Mat6 out;
-  for (int i = 0; i < 6; ++i)
-    out.col(i) = llt.solve(geometry::Vec6::Unit(i));
-  return out;
+/// Body-frame points spread in at least two directions: the second singular value of the centred
+/// points is above `min_spread` times the first (else the rotation about their line is free).
+bool layout_well_spread(std::span<const Vec3> q_b, double min_spread) {
+  Eigen::Matrix3Xd centred(3, static_cast<Eigen::Index>(q_b.size()));
+  Vec3 mean = Vec3::Zero();
+  for (const Vec3& q : q_b)
+    mean += q;
+  mean /= static_cast<double>(q_b.size());
+  for (size_t i = 0; i < q_b.size(); ++i)
+    centred.col(static_cast<Eigen::Index>(i)) = q_b[i] - mean;
+  const Vec3 sv = Eigen::JacobiSVD<Eigen::Matrix3Xd>(centred).singularValues();
+  return sv[1] > min_spread * sv[0];
 }
 
 enum class ObsState : std::uint8_t { kUnassigned, kAssigned, kAmbiguous, kUngated };
 
 }  // namespace
 
-double chi_square_quantile(int dof, double probability) {
-  if (dof < 1 || !(probability > 0) || !(probability < 1))
-    throw std::invalid_argument("chi_square_quantile: dof >= 1 and 0 < probability < 1");
-  double lo = 0, hi = 10.0 * dof + 100;
-  for (int i = 0; i < 200; ++i) {
-    const double mid = 0.5 * (lo + hi);
-    (regularized_gamma_p(0.5 * dof, 0.5 * mid) < probability ? lo : hi) = mid;
-  }
-  return 0.5 * (lo + hi);
-}
-
-bool fit_body_pose(const sim::RigidBodySurvey& body, const std::map<int, Vec3>& p_w_by_id,
+bool fit_body_pose(const survey::RigidBodySurvey& body, const std::map<int, Vec3>& p_w_by_id,
                    double sigma_m, Transform& T_w_b, Mat6& covariance) {
-  std::vector<const sim::SurveyedMark*> used;
+  std::vector<const survey::SurveyedMark*> used;
   std::vector<Vec3> p_w;
   for (const auto& m : body.marks)
     if (const auto it = p_w_by_id.find(m.id); it != p_w_by_id.end()) {
@@ -106,23 +71,19 @@ bool fit_body_pose(const sim::RigidBodySurvey& body, const std::map<int, Vec3>& 
     }
   const int n = static_cast<int>(used.size());
   if (n < 3) return false;
-  Eigen::Matrix3Xd src(3, n), dst(3, n);
-  for (int i = 0; i < n; ++i) {
-    src.col(i) = used[i]->p_body;
-    dst.col(i) = p_w[i];
-  }
-  const Eigen::Matrix3Xd centred = src.colwise() - src.rowwise().mean();
-  const Vec3 sv = Eigen::JacobiSVD<Eigen::Matrix3Xd>(centred).singularValues();
-  if (!(sv[1] > 0.1 * sv[0])) return false;  // collinear: rotation about the line undefined
-  T_w_b = Transform(Eigen::umeyama(src, dst, false));
+  std::vector<Vec3> q_b(static_cast<size_t>(n));
+  for (int i = 0; i < n; ++i)
+    q_b[static_cast<size_t>(i)] = used[i]->p_body;
+  if (!layout_well_spread(q_b, 0.1)) return false;  // collinear: rotation about the line undefined
+  const std::vector<double> equal_weights(static_cast<size_t>(n), 1.0);
+  if (!pose::absolute_orientation(q_b, p_w, equal_weights, T_w_b)) return false;
   Mat6 info = Mat6::Zero();
   for (int i = 0; i < n; ++i) {
     const double var = sigma_m * sigma_m + used[i]->sigma_m * used[i]->sigma_m;
     const auto G = point_pose_jacobian(T_w_b, used[i]->p_body);
     info += G.transpose() * G / var;
   }
-  covariance = info.inverse();
-  return covariance.allFinite();
+  return uncertainty::inverse_spd<6>(info, covariance);
 }
 
 const char* to_string(PredictionSource source) {
@@ -205,7 +166,9 @@ struct MarkMatcher::Work {
   std::vector<CalCache> cal_cache;
   std::vector<Cand> cand;
   std::vector<int> free_obs, mark_hits, mark_hit, obs_hits, obs_hit;
-  std::vector<Tri> tri;      ///< per mark
+  std::vector<Tri> tri;                             ///< per mark
+  std::vector<triangulate::Observation> tri_views;  ///< triangulation scratch
+  triangulate::Result tri_result;
   std::vector<bool> fitted;  ///< per body
   std::vector<Transform> T_w_b;
   std::vector<Mat6> cov_b;
@@ -232,7 +195,7 @@ MarkMatcher::WorkBuffers& MarkMatcher::WorkBuffers::operator=(WorkBuffers&&) noe
 MarkMatcher::WorkBuffers::~WorkBuffers() = default;
 
 MarkMatcher::MarkMatcher(const camera::RigCalibration& rig,
-                         std::vector<sim::RigidBodySurvey> bodies, const MatcherConfig& config)
+                         std::vector<survey::RigidBodySurvey> bodies, const MatcherConfig& config)
     : rig_(rig), bodies_(std::move(bodies)), config_(config) {
   if (!(config_.gate_probability > 0 && config_.gate_probability < 1))
     throw std::invalid_argument("MatcherConfig.gate_probability must be in (0, 1)");
@@ -252,7 +215,8 @@ MarkMatcher::MarkMatcher(const camera::RigCalibration& rig,
   compute_calibration_bounds();
   chi2_gate_.assign(kMaxDof + 1, 0.0);
   for (int dof = 1; dof <= kMaxDof; ++dof)
-    chi2_gate_[dof] = chi_square_quantile(dof, config_.gate_probability);
+    chi2_gate_[dof] = uncertainty::chi_square_quantile(
+        uncertainty::Probability(config_.gate_probability), uncertainty::DegreesOfFreedom(dof));
 }
 
 void MarkMatcher::compute_calibration_bounds() {
@@ -522,10 +486,16 @@ void MarkMatcher::gate_and_assign(Work& w) const {
       }
       const int i = obs_hit[k];
       if (obs_hits[k] == 1 && mark_hits[i] == 1) {
+        // S_cal is positive semidefinite and sigma > 0: the sum is positive definite unless the
+        // calibration covariance is corrupt; such an observation is left ungated.
+        if (!uncertainty::inverse_spd<2>(
+                Mat2(cand[i].S_cal + ob.sigma * ob.sigma * Mat2::Identity()), ob.W)) {
+          ob.state = ObsState::kUngated;
+          continue;
+        }
         ob.state = ObsState::kAssigned;
         ob.mark = cand[i].mark;
         ob.S_cal = cand[i].S_cal;
-        ob.W = (ob.S_cal + ob.sigma * ob.sigma * Mat2::Identity()).inverse();
         w.assigned[cand[i].mark].push_back(free_obs[k]);
         w.dirty[cand[i].mark] = true;
       } else {
@@ -558,48 +528,36 @@ double MarkMatcher::calibration_bound(int slot, double z_cam) const {
   return bd.a + bd.b / (z_cam * z_cam);
 }
 
-bool MarkMatcher::triangulate(const Work& w, const std::vector<int>& obs, const Vec3& initial,
-                              Vec3& p_w, Mat3& cov_w, double& chi2) const {
-  const int n = static_cast<int>(obs.size());
-  if (n < 2) return false;
-  // Gauss-Newton on the reprojection error in raw pixels, started at the mark's prediction
-  // (inside its gate, i.e. close), with the pixel covariance sigma^2 I + calibration part (the
-  // latter evaluated at the prediction during gating: it varies negligibly over the gate).
-  p_w = initial;
-  Mat3 H = Mat3::Zero();
-  constexpr int kMaxIterations = 6;
-  for (int iter = 0;; ++iter) {
-    H.setZero();
-    Vec3 g = Vec3::Zero();
-    chi2 = 0;
-    for (int o : obs) {
-      const auto& ob = w.obs[o];
-      const auto& cal = rig_.cameras[ob.slot];
-      const Mat3 R_c_w = cal.T_c_w.linear();
-      Eigen::Matrix<double, 2, 3> J_cam;
-      const auto px = cal.model.project(R_c_w * p_w + cal.T_c_w.translation(), &J_cam);
-      if (!px) return false;
-      const Eigen::Matrix<double, 2, 3> J = J_cam * R_c_w;
-      const Vec2 r = ob.raw - *px;
-      chi2 += r.dot(ob.W * r);
-      const Eigen::Matrix<double, 3, 2> JtW = J.transpose() * ob.W;
-      H += JtW * J;
-      g += JtW * r;
-    }
-    if (iter == kMaxIterations) break;  // chi2 and H evaluated at the final point
-    const Vec3 step = H.ldlt().solve(g);
-    if (!step.allFinite()) return false;
-    p_w += step;
-    // Converged: after a step below 1 mm from inside the gate the Gauss-Newton model is exact
-    // to order |step|^2 / depth (< 1 um at >= 1 m): its minimum chi2 - g^T step is the chi2 at
-    // the new point, and H (the information) is unchanged to that order.
-    if (step.squaredNorm() < 1e-6) {
-      chi2 = std::max(0.0, chi2 - g.dot(step));
-      break;
-    }
+bool MarkMatcher::triangulate(Work& w, const std::vector<int>& obs, const Vec3& initial, Vec3& p_w,
+                              Mat3& cov_w, double& chi2) const {
+  if (obs.size() < 2) return false;
+  // host/triangulate's Gauss-Newton on the raw-pixel reprojection error, started at the mark's
+  // prediction (inside its gate, i.e. close), weighted by each observation's full information
+  // (sigma^2 I + calibration part, the latter evaluated at the prediction during gating: it
+  // varies negligibly over the gate). Its chi2 is the multi-view consistency statistic.
+  auto& views = w.tri_views;
+  views.clear();
+  for (int o : obs) {
+    const auto& ob = w.obs[o];
+    const auto& cal = rig_.cameras[ob.slot];
+    triangulate::Observation v;
+    v.model = &cal.model;
+    v.T_c_w = cal.T_c_w;
+    v.pixel_px = ob.raw;
+    v.sigma_px = ob.sigma;
+    v.information_px = ob.W;
+    views.push_back(v);
   }
-  cov_w = H.inverse();
-  return cov_w.allFinite() && std::isfinite(chi2);
+  triangulate::Options options;
+  options.initial_p_w = initial;
+  options.calibration_jacobians = false;  // the matcher needs the point and its covariance only
+  options.max_iterations = 6;
+  options.step_tolerance_m = 1e-6;  // 1 um: far below any mark's uncertainty
+  if (!triangulate::triangulate(views, options, w.tri_result)) return false;
+  p_w = w.tri_result.p_w;
+  cov_w = w.tri_result.cov_centroid;
+  chi2 = w.tri_result.chi2;
+  return std::isfinite(chi2);
 }
 
 void MarkMatcher::verify_views(Work& w) const {
@@ -665,11 +623,10 @@ bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& me
   // y^T (G Ppp G^T + R)^-1 y = y^T W y - g^T Info^-1 g (matrix inversion lemma) at the prediction.
   const BodyTrack& pred = w.body[b].pred;
   const Mat6 Ppp = pred.P.topLeftCorner<6, 6>();
-  const Eigen::LLT<Mat6> prior(Ppp);
-  if (prior.info() != Eigen::Success) return false;
-  const Mat6 Ppp_inv = spd_inverse(prior);
+  Mat6 Ppp_inv;
+  if (!uncertainty::inverse_spd<6>(Ppp, Ppp_inv)) return false;
   geometry::Vec6 delta = geometry::Vec6::Zero();
-  Mat6 info;
+  Mat6 info, Ppp_post;
   for (int iter = 0; iter < 2; ++iter) {
     const Transform T = geometry::perturb_left(pred.T_w_b, delta);
     info = Ppp_inv;
@@ -677,7 +634,9 @@ bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& me
     double yWy = 0;
     for (int m : members) {
       const double s = marks_[m].survey_sigma_m;
-      const Mat3 W = (w.tri[m].cov + s * s * Mat3::Identity()).inverse();
+      Mat3 W;
+      if (!uncertainty::inverse_spd<3>(Mat3(w.tri[m].cov + s * s * Mat3::Identity()), W))
+        return false;
       const Vec3 y = w.tri[m].p - T * marks_[m].p_body;
       const auto G = point_pose_jacobian(T, marks_[m].p_body);
       const Eigen::Matrix<double, 6, 3> GtW = G.transpose() * W;
@@ -685,14 +644,12 @@ bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& me
       g.noalias() += GtW * y;
       yWy += y.dot(W * y);
     }
-    const Eigen::LLT<Mat6> solver(info);
-    if (solver.info() != Eigen::Success) return false;
-    const geometry::Vec6 step = solver.solve(g);
+    if (!uncertainty::inverse_spd<6>(info, Ppp_post)) return false;
+    const geometry::Vec6 step = Ppp_post * g;
     if (!step.allFinite()) return false;
     if (iter == 0) nis = yWy - g.dot(step);
     delta += step;
   }
-  const Mat6 Ppp_post = spd_inverse(Eigen::LLT<Mat6>(info));
   const Mat6 L = pred.P.bottomLeftCorner<6, 6>() * Ppp_inv;  // rates | pose gain
   post = pred;
   post.T_w_b = geometry::perturb_left(pred.T_w_b, delta);
@@ -773,38 +730,40 @@ void MarkMatcher::verify_layouts(Work& w) const {
     }
     // Fit and test; on failure remove the unique culprit (>= 4 marks) and try again.
     while (static_cast<int>(members.size()) >= std::max(3, config_.min_layout_marks)) {
-      auto fit = [&](const std::vector<int>& set, Transform& T, Mat6& cov, double& chi2) {
+      // Fit (false: no pose or no covariance, i.e. nothing to test) and chi-square test.
+      auto fit = [&](const std::vector<int>& set, Transform& T, Mat6& cov, bool& consistent) {
         const int n = static_cast<int>(set.size());
-        Eigen::Matrix3Xd src(3, n), dst(3, n);
+        std::vector<Vec3> q_b(set.size()), p_w(set.size());
         for (int i = 0; i < n; ++i) {
-          src.col(i) = marks_[set[i]].p_body;
-          dst.col(i) = w.tri[set[i]].p;
+          q_b[i] = marks_[set[i]].p_body;
+          p_w[i] = w.tri[set[i]].p;
         }
-        T = Transform(Eigen::umeyama(src, dst, false));
+        const std::vector<double> equal_weights(set.size(), 1.0);
+        if (!pose::absolute_orientation(q_b, p_w, equal_weights, T)) return false;
         Mat6 info = Mat6::Zero();
-        chi2 = 0;
+        double chi2 = 0;
         for (int i = 0; i < n; ++i) {
           const double s = marks_[set[i]].survey_sigma_m;
-          const Mat3 C = w.tri[set[i]].cov + s * s * Mat3::Identity();
-          const Mat3 W = C.inverse();
+          Mat3 W;
+          if (!uncertainty::inverse_spd<3>(Mat3(w.tri[set[i]].cov + s * s * Mat3::Identity()), W))
+            return false;
           const Vec3 e = w.tri[set[i]].p - T * marks_[set[i]].p_body;
           chi2 += e.dot(W * e);
           const auto G = point_pose_jacobian(T, marks_[set[i]].p_body);
           info += G.transpose() * W * G;
         }
-        cov = info.inverse();
-        return chi2 <= chi2_gate_[3 * n - 6];
+        if (!uncertainty::inverse_spd<6>(info, cov)) return false;
+        consistent = chi2 <= chi2_gate_[3 * n - 6];
+        return true;
       };
       // A layout whose marks are (nearly) collinear leaves the rotation about that line
       // undetermined: Umeyama then returns an arbitrary roll that passes the chi-square test.
       // Such a fit neither verifies ids nor predicts the other marks.
       auto well_posed = [&](const std::vector<int>& set, const Mat6& cov) {
-        Eigen::Matrix3Xd src(3, set.size());
+        std::vector<Vec3> q_b(set.size());
         for (size_t i = 0; i < set.size(); ++i)
-          src.col(i) = marks_[set[i]].p_body;
-        const Eigen::Matrix3Xd centred = src.colwise() - src.rowwise().mean();
-        const Vec3 sv = Eigen::JacobiSVD<Eigen::Matrix3Xd>(centred).singularValues();
-        if (!(sv[1] > config_.min_layout_spread * sv[0])) return false;
+          q_b[i] = marks_[set[i]].p_body;
+        if (!layout_well_spread(q_b, config_.min_layout_spread)) return false;
         const double rot_var = cov.topLeftCorner<3, 3>().diagonal().maxCoeff();
         const double trans_var = cov.bottomRightCorner<3, 3>().diagonal().maxCoeff();
         return cov.allFinite() && std::sqrt(rot_var) <= config_.max_layout_rotation_sigma_rad &&
@@ -812,9 +771,9 @@ void MarkMatcher::verify_layouts(Work& w) const {
       };
       Transform T;
       Mat6 cov;
-      double chi2 = 0;
-      const bool consistent = fit(members, T, cov, chi2);
-      if (!well_posed(members, cov)) break;  // cannot check: ids rest on their predictions
+      bool consistent = false;
+      // Cannot check: ids rest on their predictions.
+      if (!fit(members, T, cov, consistent) || !well_posed(members, cov)) break;
       if (consistent) {
         w.fitted[b] = true;
         w.T_w_b[b] = T;
@@ -824,8 +783,8 @@ void MarkMatcher::verify_layouts(Work& w) const {
       reject_unique_culprit(members, 4, [&](const std::vector<int>& rest) {
         Transform T2;
         Mat6 cov2;
-        double c2 = 0;
-        return fit(rest, T2, cov2, c2) && well_posed(rest, cov2);
+        bool consistent2 = false;
+        return fit(rest, T2, cov2, consistent2) && consistent2 && well_posed(rest, cov2);
       });
     }
     // Unverifiable single-view or untriangulated assignments of an unfitted body stay as they

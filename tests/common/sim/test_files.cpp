@@ -10,8 +10,8 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include "storetrack/sim/body.hpp"
 #include "storetrack/sim/scenario.hpp"
+#include "storetrack/survey/survey.hpp"
 
 namespace storetrack::sim {
 namespace {
