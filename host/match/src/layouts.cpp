@@ -88,8 +88,16 @@ bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& me
       g.noalias() += GtW * y;
       yWy += y.dot(W * y);
     }
-    if (!uncertainty::inverse_spd<6>(info, Ppp_post)) return false;
-    const geometry::Vec6 step = Ppp_post * g;
+    // The last iteration's information is inverted for the posterior; the first only solved.
+    geometry::Vec6 step;
+    if (iter == 0) {
+      const Eigen::LLT<Mat6> solver(info);
+      if (solver.info() != Eigen::Success) return false;
+      step = solver.solve(g);
+    } else {
+      if (!uncertainty::inverse_spd<6>(info, Ppp_post)) return false;
+      step = Ppp_post * g;
+    }
     if (!step.allFinite()) return false;
     if (iter == 0) nis = yWy - g.dot(step);
     delta += step;
@@ -177,13 +185,15 @@ void MarkMatcher::verify_layouts(Work& w) const {
       // Fit (false: no pose or no covariance, i.e. nothing to test) and chi-square test.
       auto fit = [&](const std::vector<int>& set, Transform& T, Mat6& cov, bool& consistent) {
         const int n = static_cast<int>(set.size());
-        std::vector<Vec3> q_b(set.size()), p_w(set.size());
+        auto &q_b = w.layout_q_b, &p_w = w.layout_p_w;
+        q_b.resize(set.size());
+        p_w.resize(set.size());
         for (int i = 0; i < n; ++i) {
           q_b[i] = marks_[set[i]].p_body;
           p_w[i] = w.tri[set[i]].p;
         }
-        const std::vector<double> equal_weights(set.size(), 1.0);
-        if (!pose::absolute_orientation(q_b, p_w, equal_weights, T)) return false;
+        w.layout_weights.assign(set.size(), 1.0);
+        if (!pose::absolute_orientation(q_b, p_w, w.layout_weights, T)) return false;
         Mat6 info = Mat6::Zero();
         double chi2 = 0;
         for (int i = 0; i < n; ++i) {
@@ -201,10 +211,11 @@ void MarkMatcher::verify_layouts(Work& w) const {
         return true;
       };
       // A layout whose marks are (nearly) collinear leaves the rotation about that line
-      // undetermined: Umeyama then returns an arbitrary roll that passes the chi-square test.
-      // Such a fit neither verifies ids nor predicts the other marks.
+      // undetermined: absolute orientation then returns an arbitrary roll that passes the
+      // chi-square test. Such a fit neither verifies ids nor predicts the other marks.
       auto well_posed = [&](const std::vector<int>& set, const Mat6& cov) {
-        std::vector<Vec3> q_b(set.size());
+        auto& q_b = w.layout_q_b;
+        q_b.resize(set.size());
         for (size_t i = 0; i < set.size(); ++i)
           q_b[i] = marks_[set[i]].p_body;
         if (!layout_well_spread(q_b, config_.min_layout_spread)) return false;

@@ -93,6 +93,8 @@ struct MarkMatcher::Work {
   std::vector<Tri> tri;                             ///< per mark
   std::vector<triangulate::Observation> tri_views;  ///< triangulation scratch
   triangulate::Result tri_result;
+  std::vector<Vec3> layout_q_b, layout_p_w;  ///< layout fit scratch
+  std::vector<double> layout_weights;
   std::vector<bool> fitted;  ///< per body
   std::vector<Transform> T_w_b;
   std::vector<Mat6> cov_b;

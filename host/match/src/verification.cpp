@@ -31,7 +31,11 @@ bool MarkMatcher::triangulate(Work& w, const std::vector<int>& obs, const Vec3& 
   options.initial_p_w = initial;
   options.calibration_jacobians = false;  // the matcher needs the point and its covariance only
   options.max_iterations = 6;
-  options.step_tolerance_m = 1e-6;  // 1 um: far below any mark's uncertainty
+  // Gauss-Newton converges quadratically from inside the gate: after a step s the remaining error
+  // is ~ s^2 / depth, so stopping on a 1 mm step leaves ~1 um at >= 1 m depth (marks' sigma is
+  // >= 50 um); chi2 and the covariance are then evaluated at the returned point, not
+  // extrapolated from the previous one.
+  options.step_tolerance_m = 1e-3;
   if (!triangulate::triangulate(views, options, w.tri_result)) return false;
   p_w = w.tri_result.p_w;
   cov_w = w.tri_result.cov_centroid;

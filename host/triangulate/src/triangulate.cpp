@@ -48,10 +48,12 @@ std::optional<Vec3> triangulate_linear(std::span<const Observation> observations
 
 namespace {
 
-/// The observation's pixel weight: its information matrix, else sigma_px^-2 I.
-geometry::Mat2 information(const Observation& obs) {
-  if (obs.information_px) return *obs.information_px;
-  return geometry::Mat2::Identity() / (obs.sigma_px * obs.sigma_px);
+/// J^T W with the observation's pixel weight W: its information matrix, else sigma_px^-2 I
+/// (a scalar product: the common case stays as cheap as before the matrix option).
+Eigen::Matrix<double, 3, 2> weighted_transpose(const Observation& obs,
+                                               const Eigen::Matrix<double, 2, 3>& J) {
+  if (obs.information_px) return J.transpose() * *obs.information_px;
+  return J.transpose() / (obs.sigma_px * obs.sigma_px);
 }
 
 bool refine(std::span<const Observation> observations, const Options& options, Vec3 X,
@@ -69,7 +71,7 @@ bool refine(std::span<const Observation> observations, const Options& options, V
       const auto u = obs.model->project(p_cam, &J_cam);
       if (!u) return false;
       const Eigen::Matrix<double, 2, 3> J = J_cam * R;
-      const Eigen::Matrix<double, 3, 2> JtW = J.transpose() * information(obs);
+      const Eigen::Matrix<double, 3, 2> JtW = weighted_transpose(obs, J);
       H.noalias() += JtW * J;
       g.noalias() += JtW * (obs.pixel_px - *u);
     }
@@ -101,9 +103,10 @@ bool refine(std::span<const Observation> observations, const Options& options, V
     }
     if (!u) return false;
     out.residual_px[i] = obs.pixel_px - *u;
-    const geometry::Mat2 W = information(obs);
-    out.chi2 += out.residual_px[i].dot(W * out.residual_px[i]);
-    out.gain[i].noalias() = out.jacobians[i].d_point_world.transpose() * W;  // J^T W for now
+    out.gain[i] = weighted_transpose(obs, out.jacobians[i].d_point_world);  // J^T W for now
+    out.chi2 += obs.information_px
+                    ? out.residual_px[i].dot(*obs.information_px * out.residual_px[i])
+                    : out.residual_px[i].squaredNorm() / (obs.sigma_px * obs.sigma_px);
     H.noalias() += out.gain[i] * out.jacobians[i].d_point_world;
   }
   if (!uncertainty::inverse_spd<3>(H, out.cov_centroid)) return false;
