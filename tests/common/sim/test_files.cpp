@@ -16,6 +16,14 @@
 namespace storetrack::sim {
 namespace {
 
+// The survey files are common/survey's (read by the host and written by the simulator).
+using survey::format_survey;
+using survey::parse_survey;
+using survey::read_survey;
+using survey::RigidBodySurvey;
+using survey::SurveyFileError;
+using survey::write_survey;
+
 std::string temp_path(const std::string& name) {
   return (std::filesystem::temp_directory_path() /
           ("storetrack_sim_" + std::to_string(::getpid()) + "_" + name))
