@@ -20,7 +20,7 @@
 
 namespace {
 
-namespace sim = storetrack::sim;
+namespace survey = storetrack::survey;
 
 void check_valid(const survey::RigidBodySurvey& s) {
   if (s.name.empty() || s.marks.empty()) std::abort();
