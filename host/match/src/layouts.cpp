@@ -6,7 +6,7 @@
 #include <cmath>
 #include <span>
 
-#include <Eigen/SVD>
+#include <Eigen/Eigenvalues>
 
 #include "storetrack/pose/body_pose.hpp"
 #include "storetrack/uncertainty/spd_inverse.hpp"
@@ -17,16 +17,18 @@ namespace {
 
 /// Body-frame points spread in at least two directions: the second singular value of the centred
 /// points is above `min_spread` times the first (else the rotation about their line is free).
+/// The singular values are the square roots of the eigenvalues of the 3x3 scatter matrix.
 bool layout_well_spread(std::span<const Vec3> q_b, double min_spread) {
-  Eigen::Matrix3Xd centred(3, static_cast<Eigen::Index>(q_b.size()));
   Vec3 mean = Vec3::Zero();
   for (const Vec3& q : q_b)
     mean += q;
   mean /= static_cast<double>(q_b.size());
-  for (size_t i = 0; i < q_b.size(); ++i)
-    centred.col(static_cast<Eigen::Index>(i)) = q_b[i] - mean;
-  const Vec3 sv = Eigen::JacobiSVD<Eigen::Matrix3Xd>(centred).singularValues();
-  return sv[1] > min_spread * sv[0];
+  Mat3 scatter = Mat3::Zero();
+  for (const Vec3& q : q_b)
+    scatter.noalias() += (q - mean) * (q - mean).transpose();
+  const Vec3 ev = Eigen::SelfAdjointEigenSolver<Mat3>(scatter, Eigen::EigenvaluesOnly)
+                      .eigenvalues();  // ascending
+  return ev[1] > min_spread * min_spread * ev[2];
 }
 
 }  // namespace
