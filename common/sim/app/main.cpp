@@ -123,12 +123,12 @@ int main(int argc, char** argv) {
     const sim::Simulator simulator(scenario, seed);
     camera::write_rig_calibration(simulator.true_rig(), out_dir + "/rig_true.json");
     camera::write_rig_calibration(simulator.calibrated_rig(), out_dir + "/rig_calibrated.json");
-    for (const sim::RigidBodySurvey& s : simulator.surveys()) {
-      sim::write_survey(s, out_dir + "/survey_" + s.name + ".json");
+    for (const survey::RigidBodySurvey& s : simulator.surveys()) {
+      survey::write_survey(s, out_dir + "/survey_" + s.name + ".json");
     }
-    sim::write_survey(simulator.true_pylon(), out_dir + "/true_survey_pylon.json");
+    survey::write_survey(simulator.true_pylon(), out_dir + "/true_survey_pylon.json");
     if (scenario.has_store()) {
-      sim::write_survey(simulator.true_store(), out_dir + "/true_survey_store.json");
+      survey::write_survey(simulator.true_store(), out_dir + "/true_survey_store.json");
     }
     sim::write_truth_csv(simulator, out_dir + "/truth_poses.csv", out_dir + "/truth_marks.csv");
     if (mode == "frames") {

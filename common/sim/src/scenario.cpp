@@ -100,10 +100,10 @@ class Reader {
     return T;
   }
 
-  RigidBodySurvey survey(const json& v, const std::string& path) const {
+  survey::RigidBodySurvey survey(const json& v, const std::string& path) const {
     try {
-      return parse_survey(v.dump(), origin_ + ": " + path);
-    } catch (const SurveyFileError& e) {
+      return survey::parse_survey(v.dump(), origin_ + ": " + path);
+    } catch (const survey::SurveyFileError& e) {
       throw ScenarioError(e.what());
     }
   }

@@ -135,9 +135,9 @@ Simulator::Simulator(const Scenario& scenario, std::uint64_t seed)
     vibration_phase_.push_back(uniform(rng));
 
   // Surveys as measured: truth + N(0, sigma_m) per axis.
-  const auto survey = [&](const RigidBodySurvey& truth) {
-    RigidBodySurvey s = truth;
-    for (SurveyedMark& m : s.marks) {
+  const auto survey = [&](const survey::RigidBodySurvey& truth) {
+    survey::RigidBodySurvey s = truth;
+    for (survey::SurveyedMark& m : s.marks) {
       for (int a = 0; a < 3; ++a)
         m.p_body[a] += m.sigma_m * normal(rng);
     }
@@ -176,7 +176,7 @@ Simulator::Simulator(const Scenario& scenario, std::uint64_t seed)
       T.linear().col(2) = x.cross(y);
       T.translation() = a;
       poses.push_back(T);
-      RigidBodySurvey bar;
+      survey::RigidBodySurvey bar;
       bar.name = "scale_bar_" + std::to_string(j);
       bar.frame = 'b';
       bar.mark_diameter_m = L.mark_diameter_m;
@@ -191,7 +191,7 @@ Simulator::Simulator(const Scenario& scenario, std::uint64_t seed)
     }
   }
   for (std::size_t b = 0; b < bodies_.size(); ++b) {
-    for (const SurveyedMark& m : bodies_[b].survey->marks)
+    for (const survey::SurveyedMark& m : bodies_[b].survey->marks)
       marks_.push_back({m.id, b, m.p_body});
   }
   std::sort(marks_.begin(), marks_.end(),
@@ -205,11 +205,11 @@ Simulator::Simulator(const Scenario& scenario, std::uint64_t seed)
   }
 }
 
-std::vector<RigidBodySurvey> Simulator::surveys() const {
-  std::vector<RigidBodySurvey> out{pylon_surveyed_};
+std::vector<survey::RigidBodySurvey> Simulator::surveys() const {
+  std::vector<survey::RigidBodySurvey> out{pylon_surveyed_};
   if (sc_.has_store()) out.push_back(store_surveyed_);
   if (sc_.kind == ScenarioKind::kPendulum) out.push_back(pendulum_surveyed_);
-  for (const RigidBodySurvey& b : bars_surveyed_)
+  for (const survey::RigidBodySurvey& b : bars_surveyed_)
     out.push_back(b);
   return out;
 }

@@ -31,7 +31,7 @@
 #include "storetrack/output/inetx.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/pipeline/pose_tracker.hpp"
-#include "storetrack/sim/body.hpp"
+#include "storetrack/survey/survey.hpp"
 #include "storetrack/time/time.hpp"
 
 namespace st = storetrack;
@@ -46,7 +46,7 @@ void on_signal(int) {
 
 struct InputFiles {
   st::camera::RigCalibration rig;
-  st::sim::RigidBodySurvey pylon, store;
+  st::survey::RigidBodySurvey pylon, store;
 };
 
 // Reads the input files and applies the options onto the configuration; 0 or exit code 2.
@@ -55,8 +55,8 @@ int load_inputs(st::hostapp::HostOptions& o, InputFiles& in) {
   try {
     if (!o.config_path.empty()) st::hostapp::load_host_config(o.config_path, cfg);
     in.rig = st::camera::read_rig_calibration(o.calibration_path);
-    in.pylon = st::sim::read_survey(o.pylon_path);
-    in.store = st::sim::read_survey(o.store_path);
+    in.pylon = st::survey::read_survey(o.pylon_path);
+    in.store = st::survey::read_survey(o.store_path);
     if (!o.initial_marks_path.empty())
       cfg.initial_marks_w = st::hostapp::load_initial_marks(o.initial_marks_path);
   } catch (const std::exception& e) {

@@ -150,8 +150,8 @@ struct ExposureProcessor::Exclusions {
 };
 
 ExposureProcessor::ExposureProcessor(const camera::RigCalibration& rig,
-                                     const sim::RigidBodySurvey& pylon,
-                                     const sim::RigidBodySurvey& store,
+                                     const survey::RigidBodySurvey& pylon,
+                                     const survey::RigidBodySurvey& store,
                                      const ProcessorConfig& config)
     : rig_(rig),
       pylon_(pylon),
@@ -182,7 +182,7 @@ ExposureProcessor::ExposureProcessor(const camera::RigCalibration& rig,
        slot_of_camera_id_[static_cast<size_t>(config_.reference_camera_id)] < 0))
     throw std::invalid_argument("ExposureProcessor: reference_camera_id not in the rig");
   for (const auto* survey : {&pylon_, &store_})
-    for (const sim::SurveyedMark& m : survey->marks)
+    for (const survey::SurveyedMark& m : survey->marks)
       if (m.id < 0 || m.id > config_.max_mark_id || !(m.sigma_m >= 0))
         throw std::invalid_argument("ExposureProcessor: survey '" + survey->name +
                                     "' has a mark id out of range or a negative sigma");
@@ -327,8 +327,8 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
 
 void ExposureProcessor::solve(const Prepared& prep,
                               const std::vector<camera::CalibratedCamera>& cameras,
-                              const sim::RigidBodySurvey& pylon_survey,
-                              const sim::RigidBodySurvey& store_survey, bool with_uncertainty,
+                              const survey::RigidBodySurvey& pylon_survey,
+                              const survey::RigidBodySurvey& store_survey, bool with_uncertainty,
                               const Exclusions* fixed_exclusions, ExposureResult& out,
                               ProcessorCounters& counters) const {
   const int nz = factors_.num_factors();
@@ -452,7 +452,7 @@ void ExposureProcessor::solve(const Prepared& prep,
     std::vector<rigid::MarkEstimate> est(idx.size());
     for (size_t k = 0; k < idx.size(); ++k) {
       const MarkResult& m = out.marks[idx[k]];
-      const sim::SurveyedMark* s = (body == 'p' ? pylon_survey : store_survey).find(m.id);
+      const survey::SurveyedMark* s = (body == 'p' ? pylon_survey : store_survey).find(m.id);
       est[k].id = m.id;
       est[k].p_body = s->p_body;
       est[k].survey_sigma_m = s->sigma_m;
@@ -473,7 +473,7 @@ void ExposureProcessor::solve(const Prepared& prep,
   // Body poses.
   auto fit = [&](char body) {
     BodySolution sol;
-    const sim::RigidBodySurvey& survey = body == 'p' ? pylon_survey : store_survey;
+    const survey::RigidBodySurvey& survey = body == 'p' ? pylon_survey : store_survey;
     std::vector<size_t> idx;
     for (size_t i : body_marks(body))
       if (!out.marks[i].excluded) idx.push_back(i);
@@ -483,7 +483,7 @@ void ExposureProcessor::solve(const Prepared& prep,
     std::vector<double> sigma(idx.size());
     for (size_t k = 0; k < idx.size(); ++k) {
       const MarkResult& m = out.marks[idx[k]];
-      const sim::SurveyedMark* s = survey.find(m.id);
+      const survey::SurveyedMark* s = survey.find(m.id);
       q[k] = s->p_body;
       p[k] = m.p_w;
       // Monte Carlo draws reuse the nominal weights, so that every draw runs the same
@@ -673,9 +673,9 @@ MonteCarloResult ExposureProcessor::monte_carlo(const AlignedExposure& exposure,
       for (Prepared::Obs& o : m.obs)
         o.pixel_px += Vec2(normal(rng), normal(rng)) * o.sigma_px;
     // Survey errors: the body-frame coordinates are drawn too.
-    sim::RigidBodySurvey pylon = pylon_, store = store_;
+    survey::RigidBodySurvey pylon = pylon_, store = store_;
     for (auto* survey : {&pylon, &store})
-      for (sim::SurveyedMark& sm : survey->marks)
+      for (survey::SurveyedMark& sm : survey->marks)
         sm.p_body += Vec3(normal(rng), normal(rng), normal(rng)) * sm.sigma_m;
     ExposureResult r;
     solve(p, cams, pylon, store, false, &excl, r, scratch);

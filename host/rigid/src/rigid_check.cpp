@@ -30,7 +30,9 @@ double pair_threshold(double alpha, size_t pairs) {
   next = (next + 1) % cache.size();
   e.alpha = alpha;
   e.pairs = pairs;
-  e.threshold = uncertainty::chi_square_quantile(1.0 - alpha / static_cast<double>(pairs), 1.0);
+  e.threshold = uncertainty::chi_square_quantile(
+      uncertainty::Probability(1.0 - alpha / static_cast<double>(pairs)),
+      uncertainty::DegreesOfFreedom(1));
   return e.threshold;
 }
 

@@ -48,6 +48,14 @@ std::optional<Vec3> triangulate_linear(std::span<const Observation> observations
 
 namespace {
 
+/// J^T W with the observation's pixel weight W: its information matrix, else sigma_px^-2 I
+/// (a scalar product: the common case stays as cheap as before the matrix option).
+Eigen::Matrix<double, 3, 2> weighted_transpose(const Observation& obs,
+                                               const Eigen::Matrix<double, 2, 3>& J) {
+  if (obs.information_px) return J.transpose() * *obs.information_px;
+  return J.transpose() / (obs.sigma_px * obs.sigma_px);
+}
+
 bool refine(std::span<const Observation> observations, const Options& options, Vec3 X,
             Result& out) {
   const size_t n = observations.size();
@@ -63,9 +71,9 @@ bool refine(std::span<const Observation> observations, const Options& options, V
       const auto u = obs.model->project(p_cam, &J_cam);
       if (!u) return false;
       const Eigen::Matrix<double, 2, 3> J = J_cam * R;
-      const double w = 1.0 / (obs.sigma_px * obs.sigma_px);
-      H.noalias() += w * J.transpose() * J;
-      g.noalias() += w * J.transpose() * (obs.pixel_px - *u);
+      const Eigen::Matrix<double, 3, 2> JtW = weighted_transpose(obs, J);
+      H.noalias() += JtW * J;
+      g.noalias() += JtW * (obs.pixel_px - *u);
     }
     // H is symmetric positive definite unless the rays are degenerate (then this fails).
     Mat3 H_inv;
@@ -95,15 +103,15 @@ bool refine(std::span<const Observation> observations, const Options& options, V
     }
     if (!u) return false;
     out.residual_px[i] = obs.pixel_px - *u;
-    const double w = 1.0 / (obs.sigma_px * obs.sigma_px);
-    out.chi2 += w * out.residual_px[i].squaredNorm();
-    H.noalias() += w * out.jacobians[i].d_point_world.transpose() * out.jacobians[i].d_point_world;
+    out.gain[i] = weighted_transpose(obs, out.jacobians[i].d_point_world);  // J^T W for now
+    out.chi2 += obs.information_px
+                    ? out.residual_px[i].dot(*obs.information_px * out.residual_px[i])
+                    : out.residual_px[i].squaredNorm() / (obs.sigma_px * obs.sigma_px);
+    H.noalias() += out.gain[i] * out.jacobians[i].d_point_world;
   }
   if (!uncertainty::inverse_spd<3>(H, out.cov_centroid)) return false;
-  for (size_t i = 0; i < n; ++i) {
-    const double w = 1.0 / (observations[i].sigma_px * observations[i].sigma_px);
-    out.gain[i].noalias() = out.cov_centroid * out.jacobians[i].d_point_world.transpose() * w;
-  }
+  for (size_t i = 0; i < n; ++i)
+    out.gain[i] = out.cov_centroid * out.gain[i];
   out.p_w = X;
   out.iterations = it;
   return out.p_w.allFinite() && out.cov_centroid.allFinite();

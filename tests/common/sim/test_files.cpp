@@ -10,11 +10,19 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include "storetrack/sim/body.hpp"
 #include "storetrack/sim/scenario.hpp"
+#include "storetrack/survey/survey.hpp"
 
 namespace storetrack::sim {
 namespace {
+
+// The survey files are common/survey's (read by the host and written by the simulator).
+using survey::format_survey;
+using survey::parse_survey;
+using survey::read_survey;
+using survey::RigidBodySurvey;
+using survey::SurveyFileError;
+using survey::write_survey;
 
 std::string temp_path(const std::string& name) {
   return (std::filesystem::temp_directory_path() /

@@ -210,8 +210,8 @@ TEST(Simulator, SurveyErrorsFollowTheStatedSigma) {
   int n = 0;
   for (std::uint64_t seed = 1; seed <= 40; ++seed) {
     const Simulator sim(sc, seed);
-    for (const SurveyedMark& m : sim.store_survey().marks) {
-      const SurveyedMark* t = sim.true_store().find(m.id);
+    for (const survey::SurveyedMark& m : sim.store_survey().marks) {
+      const survey::SurveyedMark* t = sim.true_store().find(m.id);
       ASSERT_NE(t, nullptr);
       chi2 += (m.p_body - t->p_body).squaredNorm() / (t->sigma_m * t->sigma_m);
       n += 3;
@@ -414,7 +414,7 @@ TEST(Simulator, PendulumTruthPoseCarriesItsMarks) {
         max_angle_rad, Eigen::AngleAxisd(first.linear().transpose() * tr.T_p_s.linear()).angle());
     int checked = 0;
     for (const MarkTruth& m : tr.marks) {
-      for (const SurveyedMark& s : sc.pendulum.marks) {
+      for (const survey::SurveyedMark& s : sc.pendulum.marks) {
         if (s.id != m.id) continue;
         max_err_m = std::max(max_err_m, (tr.T_w_p * tr.T_p_s * s.p_body - m.p_w).norm());
         ++checked;

@@ -1,4 +1,4 @@
-// libFuzzer target: the mark survey reader (common/sim parse_survey, read by storetrack-host for
+// libFuzzer target: the mark survey reader (common/survey parse_survey, read by storetrack-host for
 // the pylon and store surveys) on arbitrary text. Properties checked (abort when violated),
 // beyond "no crash, no UB":
 //  - a refusal is a SurveyFileError naming the origin; no other exception escapes (a JSON number
@@ -16,13 +16,13 @@
 
 #include <nlohmann/json.hpp>
 
-#include "storetrack/sim/body.hpp"
+#include "storetrack/survey/survey.hpp"
 
 namespace {
 
-namespace sim = storetrack::sim;
+namespace survey = storetrack::survey;
 
-void check_valid(const sim::RigidBodySurvey& s) {
+void check_valid(const survey::RigidBodySurvey& s) {
   if (s.name.empty() || s.marks.empty()) std::abort();
   if (!(s.mark_diameter_m > 0) || !std::isfinite(s.mark_diameter_m)) std::abort();
   std::set<int> ids;
@@ -33,7 +33,7 @@ void check_valid(const sim::RigidBodySurvey& s) {
 }
 
 // The ids as the file wrote them, read independently of the reader's conversion.
-void check_ids_as_written(const sim::RigidBodySurvey& s, const std::string& text) {
+void check_ids_as_written(const survey::RigidBodySurvey& s, const std::string& text) {
   const auto root = nlohmann::json::parse(text);
   const auto& marks = root.at("marks");
   if (marks.size() != s.marks.size()) std::abort();
@@ -47,11 +47,11 @@ void check_ids_as_written(const sim::RigidBodySurvey& s, const std::string& text
   }
 }
 
-void check_round_trip(const sim::RigidBodySurvey& s) {
-  sim::RigidBodySurvey again;
+void check_round_trip(const survey::RigidBodySurvey& s) {
+  survey::RigidBodySurvey again;
   try {
-    again = sim::parse_survey(sim::format_survey(s), "round trip");
-  } catch (const sim::SurveyFileError&) {
+    again = survey::parse_survey(survey::format_survey(s), "round trip");
+  } catch (const survey::SurveyFileError&) {
     std::abort();  // the writer wrote what the reader refuses
   }
   if (again.name != s.name || again.frame != s.frame) std::abort();
@@ -68,10 +68,10 @@ void check_round_trip(const sim::RigidBodySurvey& s) {
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   const std::string text(reinterpret_cast<const char*>(data), size);
-  sim::RigidBodySurvey survey;
+  survey::RigidBodySurvey survey;
   try {
-    survey = sim::parse_survey(text, "fuzz.json");
-  } catch (const sim::SurveyFileError& e) {
+    survey = survey::parse_survey(text, "fuzz.json");
+  } catch (const survey::SurveyFileError& e) {
     if (std::string(e.what()).rfind("fuzz.json: ", 0) != 0) std::abort();
     return 0;
   }

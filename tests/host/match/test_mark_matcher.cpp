@@ -162,7 +162,7 @@ Scene make_setup(const std::string& scenario, std::uint64_t prior_seed, double p
   s.sim = &shared_simulator(scenario);
   const bool has_store = s.sim->scenario().has_store();
   const bool has_pendulum = !s.sim->pendulum_survey().marks.empty();
-  std::vector<sim::RigidBodySurvey> bodies{s.sim->pylon_survey()};
+  std::vector<survey::RigidBodySurvey> bodies{s.sim->pylon_survey()};
   if (has_store) bodies.push_back(s.sim->store_survey());
   if (has_pendulum) bodies.push_back(s.sim->pendulum_survey());
   s.matcher = std::make_unique<MarkMatcher>(s.sim->calibrated_rig(), bodies, config);
@@ -189,16 +189,6 @@ std::vector<int> all_cameras(const sim::Simulator& sim) {
   for (int i = 0; i < sim.num_cameras(); ++i)
     v[i] = i;
   return v;
-}
-
-TEST(ChiSquare, QuantilesMatchTables) {
-  // NIST/SEMATECH e-Handbook, table 1.3.6.7.4.
-  EXPECT_NEAR(chi_square_quantile(1, 0.95), 3.841, 1e-3);
-  EXPECT_NEAR(chi_square_quantile(2, 0.99), 9.210, 1e-3);
-  EXPECT_NEAR(chi_square_quantile(3, 0.999), 16.266, 1e-3);
-  EXPECT_NEAR(chi_square_quantile(10, 0.95), 18.307, 1e-3);
-  EXPECT_NEAR(chi_square_quantile(2, 0.9999), -2 * std::log(1e-4), 1e-6);  // exact for dof 2
-  EXPECT_THROW(chi_square_quantile(0, 0.5), std::invalid_argument);
 }
 
 TEST(MarkMatcher, StoreSeparationAllIdsCorrect) {
@@ -385,8 +375,8 @@ TEST(MarkMatcher, AmbiguousLayoutIsRejected) {
       }
     }
   ASSERT_GE(victim, 0);
-  sim::RigidBodySurvey store = sim.store_survey();
-  const sim::SurveyedMark* real = store.find(victim);
+  survey::RigidBodySurvey store = sim.store_survey();
+  const survey::SurveyedMark* real = store.find(victim);
   ASSERT_NE(real, nullptr);
   const geometry::Vec3 p_w = T_w_s * real->p_body;
   const geometry::Vec3 centre_w = rig.cameras[cv].T_c_w.inverse().translation();
@@ -526,7 +516,7 @@ TEST(MarkMatcher, BadInputIsCounted) {
 }
 
 TEST(MarkMatcher, DuplicateMarkIdsRejected) {
-  sim::RigidBodySurvey a, b;
+  survey::RigidBodySurvey a, b;
   a.name = "a";
   b.name = "b";
   a.marks.push_back({5, geometry::Vec3::Zero(), 0});

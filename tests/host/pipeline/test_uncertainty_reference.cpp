@@ -135,7 +135,7 @@ TEST(UncertaintyReference, FastPathMatchesDenseReference) {
       DenseSens6 d_theta;
       Mat6 cov_centroid = Mat6::Zero(), cov_survey = Mat6::Zero();
     };
-    auto body = [&](char which, const sim::RigidBodySurvey& survey) {
+    auto body = [&](char which, const survey::RigidBodySurvey& survey) {
       std::vector<Vec3> q, p;
       std::vector<Mat3> cov;
       std::vector<double> sigma;

@@ -63,7 +63,8 @@ std::vector<MarkEstimate> draw(const Scene& s, std::mt19937_64& rng, double surv
 TEST(RigidCheck, PairStatisticIsChiSquareOne) {
   std::mt19937_64 rng(1);
   const Scene s = make_scene(rng, 16, 20);
-  const double q95 = uncertainty::chi_square_quantile(0.95, 1);
+  const double q95 = uncertainty::chi_square_quantile(uncertainty::Probability(0.95),
+                                                      uncertainty::DegreesOfFreedom(1));
   int over = 0, total = 0;
   for (int trial = 0; trial < 400; ++trial) {
     const auto marks = draw(s, rng, 2e-4);

@@ -85,11 +85,8 @@ TEST(Triangulate, CentroidCovarianceIsHonest) {
     EXPECT_NEAR(acc.coverage(a), 0.9545, 0.012);
 }
 
-TEST(Triangulate, GainMatchesFiniteDifferences) {
-  const auto rig = test::synthetic_rig();
-  std::mt19937_64 rng(3);
-  const Vec3 p(0.2, 0.1, 2.2);
-  auto obs = observe(rig, p, 0.1, &rng);
+/// dp_w/d(pixel) of the solution against central differences of the whole triangulation.
+void expect_gain_matches_finite_differences(const std::vector<Observation>& obs) {
   Result r;
   ASSERT_TRUE(triangulate(obs, Options{}, r));
   const double h = 1e-4;
@@ -107,6 +104,69 @@ TEST(Triangulate, GainMatchesFiniteDifferences) {
       EXPECT_LT((fd - r.gain[i].col(a)).norm(), 2e-3 * fd.norm() + 1e-9) << i << " " << a;
     }
   }
+}
+
+TEST(Triangulate, GainMatchesFiniteDifferences) {
+  const auto rig = test::synthetic_rig();
+  std::mt19937_64 rng(3);
+  const Vec3 p(0.2, 0.1, 2.2);
+  expect_gain_matches_finite_differences(observe(rig, p, 0.1, &rng));
+}
+
+/// Correlated, per camera different pixel covariances (as the matcher's centroid plus
+/// calibration part): the weight is the full 2x2 information matrix.
+std::vector<geometry::Mat2> pixel_covariances(size_t n) {
+  std::vector<geometry::Mat2> C(n);
+  for (size_t i = 0; i < n; ++i) {
+    const double a = 0.05 + 0.04 * static_cast<double>(i), b = 0.2 - 0.03 * static_cast<double>(i);
+    const double rho = i % 2 ? 0.7 : -0.5;
+    C[i] << a * a, rho * a * b, rho * a * b, b * b;
+  }
+  return C;
+}
+
+TEST(Triangulate, FullInformationMatrixCovarianceIsHonest) {
+  // Noise drawn with covariance C_k, weight C_k^-1: the estimate's scatter must match
+  // cov_centroid (NEES 3) and chi2 must follow chi-square with 2n - 3 dof (mean 2n - 3).
+  const auto rig = test::synthetic_rig();
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> u(-0.4, 0.4);
+  std::normal_distribution<double> n01(0, 1);
+  const auto C = pixel_covariances(rig.cameras.size());
+  uncertainty::ConsistencyAccumulator<3> acc;
+  double chi2_sum = 0, dof_sum = 0;
+  for (int trial = 0; trial < 4000; ++trial) {
+    const Vec3 p(u(rng), u(rng), 2.0 + u(rng));
+    auto obs = observe(rig, p, 0.1, nullptr);
+    const size_t n = 2 + static_cast<size_t>(trial % 3);
+    for (size_t i = 0; i < obs.size(); ++i) {
+      const geometry::Mat2 L = C[i].llt().matrixL();
+      obs[i].pixel_px += L * Vec2(n01(rng), n01(rng));
+      obs[i].information_px = C[i].inverse();
+      obs[i].sigma_px = 1e3;  // must be ignored when the information matrix is set
+    }
+    Result r;
+    ASSERT_TRUE(triangulate(std::span(obs.data(), n), Options{}, r));
+    acc.add(r.p_w - p, r.cov_centroid);
+    chi2_sum += r.chi2;
+    dof_sum += 2.0 * static_cast<double>(n) - 3;
+  }
+  EXPECT_NEAR(acc.mean_nees(), 3.0, 0.15);
+  for (int a = 0; a < 3; ++a)
+    EXPECT_NEAR(acc.coverage(a), 0.9545, 0.012);
+  // chi2 sum over trials: mean dof_sum, variance 2 dof_sum; 5 sigma.
+  EXPECT_NEAR(chi2_sum, dof_sum, 5 * std::sqrt(2 * dof_sum));
+}
+
+TEST(Triangulate, FullInformationGainMatchesFiniteDifferences) {
+  const auto rig = test::synthetic_rig();
+  std::mt19937_64 rng(6);
+  const Vec3 p(-0.1, 0.2, 2.3);
+  auto obs = observe(rig, p, 0.1, &rng);
+  const auto C = pixel_covariances(obs.size());
+  for (size_t i = 0; i < obs.size(); ++i)
+    obs[i].information_px = C[i].inverse();
+  expect_gain_matches_finite_differences(obs);
 }
 
 TEST(Triangulate, CalibrationSensitivityMatchesFiniteDifferences) {

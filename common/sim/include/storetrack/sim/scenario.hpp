@@ -11,8 +11,8 @@
 
 #include "storetrack/camera/camera_model.hpp"
 #include "storetrack/geometry/transform.hpp"
-#include "storetrack/sim/body.hpp"
 #include "storetrack/sim/render.hpp"
+#include "storetrack/survey/survey.hpp"
 #include "storetrack/time/time.hpp"
 
 namespace storetrack::sim {
@@ -133,9 +133,9 @@ struct Scenario {
   CalibrationErrorModel calibration;
   std::vector<VibrationMode> vibration;
   MarkOptics optics;
-  RigidBodySurvey pylon;     ///< TRUE body coordinates; sigma_m drives survey errors
-  RigidBodySurvey store;     ///< (store separation and static scenarios)
-  RigidBodySurvey pendulum;  ///< (pendulum scenario)
+  survey::RigidBodySurvey pylon;     ///< TRUE body coordinates; sigma_m drives survey errors
+  survey::RigidBodySurvey store;     ///< (store separation and static scenarios)
+  survey::RigidBodySurvey pendulum;  ///< (pendulum scenario)
   StoreShape store_shape;
   SeparationMotion separation;
   PendulumMotion pendulum_motion;

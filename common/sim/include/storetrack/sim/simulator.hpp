@@ -21,10 +21,10 @@
 
 #include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/msg/messages.hpp"
-#include "storetrack/sim/body.hpp"
 #include "storetrack/sim/render.hpp"
 #include "storetrack/sim/scenario.hpp"
 #include "storetrack/sim/trajectory.hpp"
+#include "storetrack/survey/survey.hpp"
 
 namespace storetrack::sim {
 
@@ -95,15 +95,15 @@ class Simulator {
   camera::RigCalibration calibrated_rig() const { return calibrated_rig_; }
 
   /// Surveys as measured (truth + survey errors drawn with each mark's sigma_m).
-  const RigidBodySurvey& pylon_survey() const { return pylon_surveyed_; }
-  const RigidBodySurvey& store_survey() const { return store_surveyed_; }
-  const RigidBodySurvey& pendulum_survey() const { return pendulum_surveyed_; }
-  const std::vector<RigidBodySurvey>& scale_bar_surveys() const { return bars_surveyed_; }
+  const survey::RigidBodySurvey& pylon_survey() const { return pylon_surveyed_; }
+  const survey::RigidBodySurvey& store_survey() const { return store_surveyed_; }
+  const survey::RigidBodySurvey& pendulum_survey() const { return pendulum_surveyed_; }
+  const std::vector<survey::RigidBodySurvey>& scale_bar_surveys() const { return bars_surveyed_; }
   /// All surveys (as measured) present in this scenario.
-  std::vector<RigidBodySurvey> surveys() const;
+  std::vector<survey::RigidBodySurvey> surveys() const;
   /// True body coordinates.
-  const RigidBodySurvey& true_pylon() const { return sc_.pylon; }
-  const RigidBodySurvey& true_store() const { return sc_.store; }
+  const survey::RigidBodySurvey& true_pylon() const { return sc_.pylon; }
+  const survey::RigidBodySurvey& true_store() const { return sc_.store; }
 
   time::TaiNs trigger_tai_ns(int k) const;
   ExposureTiming exposure_timing(int k, int camera_index) const;
@@ -139,8 +139,8 @@ class Simulator {
 
  private:
   struct Body {
-    const RigidBodySurvey* survey = nullptr;  // true coordinates
-    int kind = 0;                             // 0 pylon, 1 store, 2 pendulum, 3 scale bar
+    const survey::RigidBodySurvey* survey = nullptr;  // true coordinates
+    int kind = 0;                                     // 0 pylon, 1 store, 2 pendulum, 3 scale bar
     geometry::Transform T_p_b = geometry::Transform::Identity();  // static bodies
   };
   struct MarkRef {
@@ -164,8 +164,8 @@ class Simulator {
   std::vector<double> vibration_phase_;
   std::vector<double> unit_ptp_offset_ns_;
   camera::RigCalibration true_rig_, calibrated_rig_;
-  RigidBodySurvey pylon_surveyed_, store_surveyed_, pendulum_surveyed_;
-  std::vector<RigidBodySurvey> bars_true_, bars_surveyed_;
+  survey::RigidBodySurvey pylon_surveyed_, store_surveyed_, pendulum_surveyed_;
+  std::vector<survey::RigidBodySurvey> bars_true_, bars_surveyed_;
   std::vector<Body> bodies_;
   std::vector<MarkRef> marks_;
   std::vector<int> mark_ids_;

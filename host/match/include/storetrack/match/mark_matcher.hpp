@@ -38,7 +38,7 @@
 #include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/geometry/transform.hpp"
 #include "storetrack/msg/messages.hpp"
-#include "storetrack/sim/body.hpp"
+#include "storetrack/survey/survey.hpp"
 #include "storetrack/time/time.hpp"
 
 namespace storetrack::match {
@@ -167,7 +167,7 @@ class MarkMatcher {
  public:
   /// `bodies`: surveys of the rigid bodies whose marks are to be identified (pylon, store, ...).
   /// Mark ids must be unique across bodies (std::invalid_argument otherwise).
-  MarkMatcher(const camera::RigCalibration& rig, std::vector<sim::RigidBodySurvey> bodies,
+  MarkMatcher(const camera::RigCalibration& rig, std::vector<survey::RigidBodySurvey> bodies,
               const MatcherConfig& config = {});
 
   /// Prior pose T_w_b of a body and its 6x6 covariance (left perturbation, rx ry rz tx ty tz)
@@ -184,7 +184,7 @@ class MarkMatcher {
   void reset_tracking();
 
   const MatchCounters& counters() const { return counters_; }
-  const std::vector<sim::RigidBodySurvey>& bodies() const { return bodies_; }
+  const std::vector<survey::RigidBodySurvey>& bodies() const { return bodies_; }
   const MatcherConfig& config() const { return config_; }
 
  private:
@@ -242,12 +242,12 @@ class MarkMatcher {
   void verify_layouts(Work& w) const;
   bool filter_update(const Work& w, int b, const std::vector<int>& members, BodyTrack& post,
                      double& nis) const;
-  bool triangulate(const Work& w, const std::vector<int>& obs, const geometry::Vec3& initial,
+  bool triangulate(Work& w, const std::vector<int>& obs, const geometry::Vec3& initial,
                    geometry::Vec3& p_w, geometry::Mat3& cov_w, double& chi2) const;
   void update_tracks(const Work& w, double t_s);
 
   camera::RigCalibration rig_;
-  std::vector<sim::RigidBodySurvey> bodies_;
+  std::vector<survey::RigidBodySurvey> bodies_;
   MatcherConfig config_;
   std::vector<MarkInfo> marks_;  ///< all marks of all bodies
   std::vector<MarkTrack> mark_tracks_;
@@ -262,14 +262,12 @@ class MarkMatcher {
 };
 
 /// Pose T_w_b of a body from the world positions of some of its marks (e.g. the installation
-/// survey's initial mark positions, for set_prior_pose) by Umeyama's absolute orientation, and
+/// survey's initial mark positions, for set_prior_pose) by absolute orientation (host/pose), and
 /// its 6x6 covariance (left perturbation) for positions of standard uncertainty `sigma_m` per
 /// axis (plus each mark's survey sigma). Ids not in the survey are ignored. Returns false with
 /// fewer than 3 of the body's marks or nearly collinear ones (no defined pose).
-bool fit_body_pose(const sim::RigidBodySurvey& body, const std::map<int, geometry::Vec3>& p_w_by_id,
-                   double sigma_m, geometry::Transform& T_w_b, geometry::Mat6& covariance);
-
-/// Chi-square quantile: x with P(chi2_dof <= x) = probability (dof >= 1).
-double chi_square_quantile(int dof, double probability);
+bool fit_body_pose(const survey::RigidBodySurvey& body,
+                   const std::map<int, geometry::Vec3>& p_w_by_id, double sigma_m,
+                   geometry::Transform& T_w_b, geometry::Mat6& covariance);
 
 }  // namespace storetrack::match

@@ -20,7 +20,7 @@
 #include "storetrack/msg/messages.hpp"
 #include "storetrack/pipeline/aligned_exposure.hpp"
 #include "storetrack/rigid/rigid_check.hpp"
-#include "storetrack/sim/body.hpp"
+#include "storetrack/survey/survey.hpp"
 #include "storetrack/uncertainty/calibration_factors.hpp"
 #include "storetrack/uncertainty/sources.hpp"
 
@@ -151,8 +151,8 @@ struct ProcessorCounters {
 
 class ExposureProcessor {
  public:
-  ExposureProcessor(const camera::RigCalibration& rig, const sim::RigidBodySurvey& pylon,
-                    const sim::RigidBodySurvey& store, const ProcessorConfig& config);
+  ExposureProcessor(const camera::RigCalibration& rig, const survey::RigidBodySurvey& pylon,
+                    const survey::RigidBodySurvey& store, const ProcessorConfig& config);
 
   /// Identifies the marks with the MarkMatcher (host/match: prediction gates, epipolar and
   /// layout checks; set its prior poses through matcher() for acquisition), then processes.
@@ -182,14 +182,15 @@ class ExposureProcessor {
   Prepared prepare(const AlignedExposure& exposure, const MarkIds& ids,
                    ProcessorCounters& counters) const;
   void solve(const Prepared& prep, const std::vector<camera::CalibratedCamera>& cameras,
-             const sim::RigidBodySurvey& pylon_survey, const sim::RigidBodySurvey& store_survey,
-             bool with_uncertainty, const Exclusions* fixed_exclusions, ExposureResult& out,
+             const survey::RigidBodySurvey& pylon_survey,
+             const survey::RigidBodySurvey& store_survey, bool with_uncertainty,
+             const Exclusions* fixed_exclusions, ExposureResult& out,
              ProcessorCounters& counters) const;
   void fill_sample(const AlignedExposure& exposure, const Prepared& prep,
                    ExposureResult& out) const;
 
   camera::RigCalibration rig_;
-  sim::RigidBodySurvey pylon_, store_;
+  survey::RigidBodySurvey pylon_, store_;
   ProcessorConfig config_;
   uncertainty::CalibrationFactors factors_;
   std::vector<int> slot_of_camera_id_;  ///< camera_id -> index in rig_.cameras, -1 if unknown

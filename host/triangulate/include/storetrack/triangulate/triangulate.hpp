@@ -25,6 +25,9 @@ struct Observation {
   geometry::Transform T_c_w = geometry::Transform::Identity();
   geometry::Vec2 pixel_px = geometry::Vec2::Zero();
   double sigma_px = 0.1;  ///< centroid standard uncertainty per axis
+  /// Full pixel information matrix (inverse covariance, e.g. centroid plus calibration part)
+  /// replacing sigma_px^-2 I in the refinement, chi2, covariance and gains when set.
+  std::optional<geometry::Mat2> information_px;
   /// Known motion of the mark between the reference time and this camera's exposure
   /// (velocity * time offset), world frame: the camera saw p_w + displacement_w.
   geometry::Vec3 displacement_w = geometry::Vec3::Zero();

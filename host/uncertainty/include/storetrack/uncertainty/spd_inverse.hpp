@@ -1,5 +1,5 @@
 // Inverse of a small fixed-size symmetric positive definite matrix (normal matrices, mark
-// covariances): 3x3 by cofactors, larger through the Cholesky factor H = L L^T:
+// covariances): 2x2 and 3x3 in closed form, larger through the Cholesky factor H = L L^T:
 // H^-1 = L^-T L^-1, with L^-1 by forward substitution in fixed-size loops. Eigen's
 // llt.solve(Identity) routes a matrix right-hand side through the blocked triangular solver, whose
 // set-up dominates for 3x3 and 6x6 matrices on the per-exposure path (docs/performance.md, "Host
@@ -15,6 +15,16 @@ namespace storetrack::uncertainty {
 /// Returns false (out untouched) when H is not numerically positive definite.
 template <int N>
 bool inverse_spd(const Eigen::Matrix<double, N, N>& H, Eigen::Matrix<double, N, N>& out) {
+  if constexpr (N == 2) {
+    // 2x2 (pixel covariances): positive definite iff H00 > 0 and det > 0; inverse in closed form.
+    const double det = H(0, 0) * H(1, 1) - H(0, 1) * H(1, 0);
+    if (!(H(0, 0) > 0) || !(det > 0)) return false;
+    Eigen::Matrix<double, 2, 2> inv;
+    inv << H(1, 1) / det, -H(0, 1) / det, -H(1, 0) / det, H(0, 0) / det;
+    if (!inv.allFinite()) return false;
+    out = inv;
+    return true;
+  }
   if constexpr (N == 3) {
     // 3x3: positive definite by Sylvester's criterion (leading minors > 0), inverse by
     // cofactors (closed form, a few dozen operations).

@@ -12,10 +12,25 @@
 
 namespace storetrack::uncertainty {
 
-/// Quantile of the chi-square distribution: P(X <= q) = probability for `dof` degrees of freedom.
-double chi_square_quantile(double probability, double dof);
+/// A probability in (0, 1). Explicit so that a bare double cannot stand in for it.
+struct Probability {
+  constexpr explicit Probability(double p) : value(p) {}
+  double value;
+};
+
+/// Degrees of freedom of a chi-square distribution (>= 1). Explicit, and only from an integer:
+/// a probability (a double) cannot be passed where the degrees of freedom are expected.
+struct DegreesOfFreedom {
+  constexpr explicit DegreesOfFreedom(int dof) : value(dof) {}
+  DegreesOfFreedom(double) = delete;
+  int value;
+};
+
+/// Quantile of the chi-square distribution: q with P(X <= q) = p for `dof` degrees of freedom.
+/// Throws std::invalid_argument unless 0 < p < 1 and dof >= 1.
+double chi_square_quantile(Probability p, DegreesOfFreedom dof);
 /// Survival function P(X > x).
-double chi_square_survival(double x, double dof);
+double chi_square_survival(double x, DegreesOfFreedom dof);
 
 /// Accumulates coverage per axis (|error_i| <= k sqrt(C_ii)) and NEES = e^T C^-1 e.
 template <int N>

@@ -15,7 +15,7 @@
 
 #include "storetrack/geometry/transform.hpp"
 
-namespace storetrack::sim {
+namespace storetrack::survey {
 
 struct SurveyedMark {
   int id = 0;
@@ -46,4 +46,4 @@ std::string format_survey(const RigidBodySurvey& survey);
 /// Writes the survey; throws SurveyFileError when the file cannot be written.
 void write_survey(const RigidBodySurvey& survey, const std::string& path);
 
-}  // namespace storetrack::sim
+}  // namespace storetrack::survey

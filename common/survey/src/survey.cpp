@@ -1,4 +1,4 @@
-#include "storetrack/sim/body.hpp"
+#include "storetrack/survey/survey.hpp"
 
 #include <cmath>
 #include <fstream>
@@ -8,7 +8,7 @@
 
 #include <nlohmann/json.hpp>
 
-namespace storetrack::sim {
+namespace storetrack::survey {
 namespace {
 
 using nlohmann::json;
@@ -129,4 +129,4 @@ void write_survey(const RigidBodySurvey& survey, const std::string& path) {
   if (!out) throw SurveyFileError(path + ": write failed");
 }
 
-}  // namespace storetrack::sim
+}  // namespace storetrack::survey

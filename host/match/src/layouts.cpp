@@ -1,0 +1,252 @@
+// Layout check per body: the pose filter's Kalman update (tracked bodies) or an absolute
+// orientation fit (host/pose; Umeyama, IEEE TPAMI 13(4), 1991) with its chi-square test.
+#include "matcher_work.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <span>
+
+#include <Eigen/Eigenvalues>
+
+#include "storetrack/pose/body_pose.hpp"
+#include "storetrack/uncertainty/spd_inverse.hpp"
+
+namespace storetrack::match {
+
+namespace {
+
+/// Body-frame points spread in at least two directions: the second singular value of the centred
+/// points is above `min_spread` times the first (else the rotation about their line is free).
+/// The singular values are the square roots of the eigenvalues of the 3x3 scatter matrix.
+bool layout_well_spread(std::span<const Vec3> q_b, double min_spread) {
+  Vec3 mean = Vec3::Zero();
+  for (const Vec3& q : q_b)
+    mean += q;
+  mean /= static_cast<double>(q_b.size());
+  Mat3 scatter = Mat3::Zero();
+  for (const Vec3& q : q_b)
+    scatter.noalias() += (q - mean) * (q - mean).transpose();
+  const Vec3 ev = Eigen::SelfAdjointEigenSolver<Mat3>(scatter, Eigen::EigenvaluesOnly)
+                      .eigenvalues();  // ascending
+  return ev[1] > min_spread * min_spread * ev[2];
+}
+
+}  // namespace
+
+bool fit_body_pose(const survey::RigidBodySurvey& body, const std::map<int, Vec3>& p_w_by_id,
+                   double sigma_m, Transform& T_w_b, Mat6& covariance) {
+  std::vector<const survey::SurveyedMark*> used;
+  std::vector<Vec3> p_w;
+  for (const auto& m : body.marks)
+    if (const auto it = p_w_by_id.find(m.id); it != p_w_by_id.end()) {
+      used.push_back(&m);
+      p_w.push_back(it->second);
+    }
+  const int n = static_cast<int>(used.size());
+  if (n < 3) return false;
+  std::vector<Vec3> q_b(static_cast<size_t>(n));
+  for (int i = 0; i < n; ++i)
+    q_b[static_cast<size_t>(i)] = used[i]->p_body;
+  if (!layout_well_spread(q_b, 0.1)) return false;  // collinear: rotation about the line undefined
+  const std::vector<double> equal_weights(static_cast<size_t>(n), 1.0);
+  if (!pose::absolute_orientation(q_b, p_w, equal_weights, T_w_b)) return false;
+  Mat6 info = Mat6::Zero();
+  for (int i = 0; i < n; ++i) {
+    const double var = sigma_m * sigma_m + used[i]->sigma_m * used[i]->sigma_m;
+    const auto G = point_pose_jacobian(T_w_b, used[i]->p_body);
+    info += G.transpose() * G / var;
+  }
+  return uncertainty::inverse_spd<6>(info, covariance);
+}
+
+bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& members,
+                                BodyTrack& post, double& nis) const {
+  // Extended Kalman filter update (Bar-Shalom et al. 2001, sec. 5.2 and 10.3). The marks
+  // measure the pose only, so the pose is updated in information form on its 6x6 block,
+  // Info = Ppp^-1 + sum G^T W G, with one relinearisation (iterated EKF, sec. 10.3.2), and the
+  // rates follow through their correlation with the pose (L = Prp Ppp^-1, exact for a
+  // measurement of a sub-state). The normalised innovation squared
+  // y^T (G Ppp G^T + R)^-1 y = y^T W y - g^T Info^-1 g (matrix inversion lemma) at the prediction.
+  const BodyTrack& pred = w.body[b].pred;
+  const Mat6 Ppp = pred.P.topLeftCorner<6, 6>();
+  Mat6 Ppp_inv;
+  if (!uncertainty::inverse_spd<6>(Ppp, Ppp_inv)) return false;
+  geometry::Vec6 delta = geometry::Vec6::Zero();
+  Mat6 info, Ppp_post;
+  for (int iter = 0; iter < 2; ++iter) {
+    const Transform T = geometry::perturb_left(pred.T_w_b, delta);
+    info = Ppp_inv;
+    geometry::Vec6 g = -Ppp_inv * delta;
+    double yWy = 0;
+    for (int m : members) {
+      const double s = marks_[m].survey_sigma_m;
+      Mat3 W;
+      if (!uncertainty::inverse_spd<3>(Mat3(w.tri[m].cov + s * s * Mat3::Identity()), W))
+        return false;
+      const Vec3 y = w.tri[m].p - T * marks_[m].p_body;
+      const auto G = point_pose_jacobian(T, marks_[m].p_body);
+      const Eigen::Matrix<double, 6, 3> GtW = G.transpose() * W;
+      info.noalias() += GtW * G;
+      g.noalias() += GtW * y;
+      yWy += y.dot(W * y);
+    }
+    // The last iteration's information is inverted for the posterior; the first only solved.
+    geometry::Vec6 step;
+    if (iter == 0) {
+      const Eigen::LLT<Mat6> solver(info);
+      if (solver.info() != Eigen::Success) return false;
+      step = solver.solve(g);
+    } else {
+      if (!uncertainty::inverse_spd<6>(info, Ppp_post)) return false;
+      step = Ppp_post * g;
+    }
+    if (!step.allFinite()) return false;
+    if (iter == 0) nis = yWy - g.dot(step);
+    delta += step;
+  }
+  const Mat6 L = pred.P.bottomLeftCorner<6, 6>() * Ppp_inv;  // rates | pose gain
+  post = pred;
+  post.T_w_b = geometry::perturb_left(pred.T_w_b, delta);
+  const geometry::Vec6 d_rates = L * delta;
+  post.omega_w += d_rates.head<3>();
+  post.v_w += d_rates.tail<3>();
+  post.P.topLeftCorner<6, 6>() = 0.5 * (Ppp_post + Ppp_post.transpose());
+  post.P.bottomLeftCorner<6, 6>() = L * post.P.topLeftCorner<6, 6>();
+  post.P.topRightCorner<6, 6>() = post.P.bottomLeftCorner<6, 6>().transpose();
+  const Mat6 Prr = pred.P.bottomRightCorner<6, 6>() - L * pred.P.topRightCorner<6, 6>() +
+                   L * post.P.topLeftCorner<6, 6>() * L.transpose();
+  post.P.bottomRightCorner<6, 6>() = 0.5 * (Prr + Prr.transpose());
+  return post.P.allFinite() && std::isfinite(nis);
+}
+
+void MarkMatcher::verify_layouts(Work& w) const {
+  // Marks whose ids their body's layout does not confirm lose their observations (left for the
+  // next gating pass) and leave the body's member list.
+  // The layout test failed: when leaving out exactly one member makes it pass (only tried with
+  // at least min_members), that member's id is rejected; otherwise the wrong id cannot be told
+  // and none of this body's ids is trusted.
+  const auto reject_unique_culprit = [&w](std::vector<int>& members, size_t min_members,
+                                          const auto& passes_without) {
+    int culprit = -1, passing = 0;
+    if (members.size() >= min_members) {
+      for (size_t k = 0; k < members.size(); ++k) {
+        std::vector<int> rest = members;
+        rest.erase(rest.begin() + static_cast<long>(k));
+        if (passes_without(rest)) {
+          ++passing;
+          culprit = static_cast<int>(k);
+        }
+      }
+    }
+    const std::vector<int> drop =
+        passing == 1 ? std::vector<int>{members[static_cast<size_t>(culprit)]} : members;
+    for (int m : drop) {
+      for (int o : w.assigned[m]) {
+        w.obs[o].state = ObsState::kUngated;
+        w.obs[o].mark = -1;
+      }
+      w.assigned[m].clear();
+      w.tri[m] = {};
+      ++w.counts.layout_rejected;
+      members.erase(std::find(members.begin(), members.end(), m));
+    }
+  };
+  for (int b = 0; b < static_cast<int>(bodies_.size()); ++b) {
+    w.fitted[b] = false;
+    w.body[b].updated = false;
+    std::vector<int> members;
+    for (int m = 0; m < static_cast<int>(marks_.size()); ++m)
+      if (marks_[m].body == b && w.tri[m].valid) members.push_back(m);
+    if (w.body[b].predicted) {
+      // Tracked body: Kalman update of its pose filter with the triangulated marks; the
+      // normalised innovation squared (dof 3n) is the layout test. Works with any number of
+      // marks, collinear ones included (the filter carries the unobserved roll).
+      while (!members.empty()) {
+        BodyTrack post;
+        double nis = 0;
+        if (filter_update(w, b, members, post, nis) &&
+            nis <= chi2_gate_[std::min(kMaxDof, 3 * static_cast<int>(members.size()))]) {
+          w.body[b].updated = true;
+          w.body[b].post = post;
+          w.fitted[b] = true;
+          w.T_w_b[b] = post.T_w_b;
+          w.cov_b[b] = post.P.topLeftCorner<6, 6>();
+          break;
+        }
+        reject_unique_culprit(members, 2, [&](const std::vector<int>& rest) {
+          BodyTrack post_rest;
+          double nis_rest = 0;
+          return filter_update(w, b, rest, post_rest, nis_rest) &&
+                 nis_rest <= chi2_gate_[std::min(kMaxDof, 3 * static_cast<int>(rest.size()))];
+        });
+      }
+      continue;
+    }
+    // Fit and test; on failure remove the unique culprit (>= 4 marks) and try again.
+    while (static_cast<int>(members.size()) >= std::max(3, config_.min_layout_marks)) {
+      // Fit (false: no pose or no covariance, i.e. nothing to test) and chi-square test.
+      auto fit = [&](const std::vector<int>& set, Transform& T, Mat6& cov, bool& consistent) {
+        const int n = static_cast<int>(set.size());
+        auto &q_b = w.layout_q_b, &p_w = w.layout_p_w;
+        q_b.resize(set.size());
+        p_w.resize(set.size());
+        for (int i = 0; i < n; ++i) {
+          q_b[i] = marks_[set[i]].p_body;
+          p_w[i] = w.tri[set[i]].p;
+        }
+        w.layout_weights.assign(set.size(), 1.0);
+        if (!pose::absolute_orientation(q_b, p_w, w.layout_weights, T)) return false;
+        Mat6 info = Mat6::Zero();
+        double chi2 = 0;
+        for (int i = 0; i < n; ++i) {
+          const double s = marks_[set[i]].survey_sigma_m;
+          Mat3 W;
+          if (!uncertainty::inverse_spd<3>(Mat3(w.tri[set[i]].cov + s * s * Mat3::Identity()), W))
+            return false;
+          const Vec3 e = w.tri[set[i]].p - T * marks_[set[i]].p_body;
+          chi2 += e.dot(W * e);
+          const auto G = point_pose_jacobian(T, marks_[set[i]].p_body);
+          info += G.transpose() * W * G;
+        }
+        if (!uncertainty::inverse_spd<6>(info, cov)) return false;
+        consistent = chi2 <= chi2_gate_[3 * n - 6];
+        return true;
+      };
+      // A layout whose marks are (nearly) collinear leaves the rotation about that line
+      // undetermined: absolute orientation then returns an arbitrary roll that passes the
+      // chi-square test. Such a fit neither verifies ids nor predicts the other marks.
+      auto well_posed = [&](const std::vector<int>& set, const Mat6& cov) {
+        auto& q_b = w.layout_q_b;
+        q_b.resize(set.size());
+        for (size_t i = 0; i < set.size(); ++i)
+          q_b[i] = marks_[set[i]].p_body;
+        if (!layout_well_spread(q_b, config_.min_layout_spread)) return false;
+        const double rot_var = cov.topLeftCorner<3, 3>().diagonal().maxCoeff();
+        const double trans_var = cov.bottomRightCorner<3, 3>().diagonal().maxCoeff();
+        return cov.allFinite() && std::sqrt(rot_var) <= config_.max_layout_rotation_sigma_rad &&
+               std::sqrt(trans_var) <= config_.max_layout_translation_sigma_m;
+      };
+      Transform T;
+      Mat6 cov;
+      bool consistent = false;
+      // Cannot check: ids rest on their predictions.
+      if (!fit(members, T, cov, consistent) || !well_posed(members, cov)) break;
+      if (consistent) {
+        w.fitted[b] = true;
+        w.T_w_b[b] = T;
+        w.cov_b[b] = cov;
+        break;
+      }
+      reject_unique_culprit(members, 4, [&](const std::vector<int>& rest) {
+        Transform T2;
+        Mat6 cov2;
+        bool consistent2 = false;
+        return fit(rest, T2, cov2, consistent2) && consistent2 && well_posed(rest, cov2);
+      });
+    }
+    // Unverifiable single-view or untriangulated assignments of an unfitted body stay as they
+    // are (their ids rest on the prediction alone, see MatcherConfig::single_view_*).
+  }
+}
+
+}  // namespace storetrack::match

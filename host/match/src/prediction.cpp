@@ -1,0 +1,115 @@
+// Prediction of every mark at the exposure time: from its own track, its body's pose filter
+// (Bar-Shalom et al. 2001, sec. 6.3.3) or the prior pose (acquisition).
+#include "matcher_work.hpp"
+
+#include "storetrack/geometry/transform.hpp"
+
+namespace storetrack::match {
+
+void MarkMatcher::predict(Work& w, double t_s) const {
+  const double floor2 = config_.min_prediction_sigma_m * config_.min_prediction_sigma_m;
+  // Body poses first: the constant-velocity pose filter extrapolated to t_s (Bar-Shalom et
+  // al. 2001, sec. 6.3.3, discrete white-noise acceleration, per axis for translation and
+  // rotation), else the prior pose (acquisition).
+  std::vector<Transform> body_T(bodies_.size());
+  std::vector<Mat6> body_cov(bodies_.size());
+  std::vector<PredictionSource> body_src(bodies_.size(), PredictionSource::kNone);
+  w.body.assign(bodies_.size(), {});
+  for (size_t b = 0; b < bodies_.size(); ++b) {
+    const BodyTrack& bt = body_tracks_[b];
+    const double dt = t_s - bt.t_s;
+    if (bt.valid && dt >= 0 && dt <= config_.body_track_max_gap_s) {
+      BodyTrack p = bt;
+      p.t_s = t_s;
+      p.T_w_b.linear() = geometry::rotation_from_rotvec(bt.omega_w * dt) * bt.T_w_b.linear();
+      p.T_w_b.translation() = bt.T_w_b.translation() + bt.v_w * dt;
+      // F = [I dt*I; 0 I] over (pose, rates): F P F^T by 6x6 blocks.
+      const Mat6 Ppp = bt.P.topLeftCorner<6, 6>(), Ppr = bt.P.topRightCorner<6, 6>(),
+                 Prr = bt.P.bottomRightCorner<6, 6>();
+      p.P.topLeftCorner<6, 6>() = Ppp + dt * (Ppr + Ppr.transpose()) + dt * dt * Prr;
+      p.P.topRightCorner<6, 6>() = Ppr + dt * Prr;
+      p.P.bottomLeftCorner<6, 6>() = p.P.topRightCorner<6, 6>().transpose();
+      Mat12 Q = Mat12::Zero();
+      const double qa =
+          config_.max_angular_acceleration_radps2 * config_.max_angular_acceleration_radps2;
+      const double ql = config_.max_acceleration_mps2 * config_.max_acceleration_mps2;
+      const double d2 = dt * dt, d3 = d2 * dt, d4 = d3 * dt;
+      for (int i = 0; i < 3; ++i) {
+        Q(i, i) = qa * d4 / 4;
+        Q(i, 6 + i) = Q(6 + i, i) = qa * d3 / 2;
+        Q(6 + i, 6 + i) = qa * d2;
+        Q(3 + i, 3 + i) = ql * d4 / 4;
+        Q(3 + i, 9 + i) = Q(9 + i, 3 + i) = ql * d3 / 2;
+        Q(9 + i, 9 + i) = ql * d2;
+      }
+      p.P += Q;
+      w.body[b].predicted = true;
+      w.body[b].pred = p;
+      body_T[b] = p.T_w_b;
+      body_cov[b] = p.P.topLeftCorner<6, 6>();
+      body_src[b] = PredictionSource::kBodyTrack;
+    } else if (priors_[b].valid) {
+      // Acquisition: the prior pose is the filter's prediction (at rest, rates with their
+      // a-priori spread), so even one or two marks, or a collinear row, start the track; the
+      // innovation test then checks the marks against the prior and the survey together.
+      BodyTrack p;
+      p.valid = true;
+      p.t_s = t_s;
+      p.T_w_b = priors_[b].T_w_b;
+      p.P.topLeftCorner<6, 6>() = priors_[b].cov;
+      const double wr = config_.max_angular_speed_radps, vr = config_.max_speed_mps;
+      p.P.block<3, 3>(6, 6) = wr * wr * Mat3::Identity();
+      p.P.block<3, 3>(9, 9) = vr * vr * Mat3::Identity();
+      w.body[b].predicted = true;
+      w.body[b].pred = p;
+      body_T[b] = priors_[b].T_w_b;
+      body_cov[b] = priors_[b].cov;
+      body_src[b] = PredictionSource::kPrior;
+    }
+  }
+
+  w.pred.assign(marks_.size(), {});
+  for (size_t m = 0; m < marks_.size(); ++m) {
+    const MarkInfo& info = marks_[m];
+    const MarkTrack& mt = mark_tracks_[m];
+    const int last = mt.count - 1;
+    const int b = info.body;
+    // Candidates: the mark's own track and its body's pose. The one with the smaller
+    // covariance wins: a fresh mark track beats a body extrapolation, but a mark that has been
+    // hidden for a while (its track covariance grows with the gap) is predicted from its body,
+    // so its gate does not swallow its neighbours' observations.
+    Work::Pred from_track, from_body;
+    if (mt.count > 0 && t_s - mt.t_s[last] <= config_.track_max_gap_s) {
+      const double dt = t_s - mt.t_s[last];
+      const double accel = 0.5 * config_.max_acceleration_mps2 * dt * dt;
+      if (mt.count == 2 && mt.t_s[1] > mt.t_s[0]) {
+        const double r = dt / (mt.t_s[1] - mt.t_s[0]);
+        from_track.p = mt.p_w[1] + r * (mt.p_w[1] - mt.p_w[0]);
+        from_track.cov = (1 + r) * (1 + r) * mt.cov_w[1] + r * r * mt.cov_w[0] +
+                         (accel * accel + floor2) * Mat3::Identity();
+      } else {
+        const double v = config_.max_speed_mps * dt;
+        from_track.p = mt.p_w[last];
+        from_track.cov = mt.cov_w[last] + (v * v + accel * accel + floor2) * Mat3::Identity();
+      }
+      from_track.source = PredictionSource::kMarkTrack;
+      from_track.valid = true;
+    }
+    if (body_src[b] != PredictionSource::kNone) {
+      const auto G = point_pose_jacobian(body_T[b], info.p_body);
+      from_body.p = body_T[b] * info.p_body;
+      from_body.cov = G * body_cov[b] * G.transpose() +
+                      (info.survey_sigma_m * info.survey_sigma_m + floor2) * Mat3::Identity();
+      from_body.source = body_src[b];
+      from_body.valid = true;
+    }
+    auto& pr = w.pred[m];
+    if (from_track.valid && (!from_body.valid || from_track.cov.trace() <= from_body.cov.trace()))
+      pr = from_track;
+    else
+      pr = from_body;
+    if (pr.valid && pr.source == PredictionSource::kPrior) w.acquired = true;
+  }
+}
+
+}  // namespace storetrack::match
