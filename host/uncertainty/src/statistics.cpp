@@ -2,6 +2,7 @@
 
 #include <stdexcept>
 
+#include <boost/math/distributions/binomial.hpp>
 #include <boost/math/distributions/chi_squared.hpp>
 
 namespace storetrack::uncertainty {
@@ -17,6 +18,20 @@ double chi_square_survival(double x, DegreesOfFreedom dof) {
   if (!(x > 0)) return 1.0;
   return boost::math::cdf(
       boost::math::complement(boost::math::chi_squared_distribution<double>(dof.value), x));
+}
+
+CountInterval binomial_interval(std::int64_t trials, double p, double alpha_per_side) {
+  if (trials < 1 || !(p > 0 && p < 1) || !(alpha_per_side > 0 && alpha_per_side < 0.5))
+    throw std::invalid_argument("binomial_interval: need trials >= 1, 0 < p < 1, 0 < alpha < 0.5");
+  const boost::math::binomial_distribution<double> d(static_cast<double>(trials), p);
+  CountInterval out{0, trials};
+  // Exact cumulative sums (a count of trials): no quantile rounding policy to reason about.
+  while (out.low < trials && boost::math::cdf(d, static_cast<double>(out.low)) <= alpha_per_side)
+    ++out.low;  // P(X < low + 1) = cdf(low) <= alpha: low + 1 is still acceptable as a bound
+  while (out.high > 0 && boost::math::cdf(boost::math::complement(
+                             d, static_cast<double>(out.high - 1))) <= alpha_per_side)
+    --out.high;  // P(X > high - 1) <= alpha
+  return out;
 }
 
 }  // namespace storetrack::uncertainty

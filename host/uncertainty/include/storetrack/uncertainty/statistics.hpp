@@ -32,6 +32,13 @@ double chi_square_quantile(Probability p, DegreesOfFreedom dof);
 /// Survival function P(X > x).
 double chi_square_survival(double x, DegreesOfFreedom dof);
 
+/// Acceptance interval of a count X ~ Binomial(trials, p): the largest `low` and smallest `high`
+/// with P(X < low) <= alpha_per_side and P(X > high) <= alpha_per_side.
+struct CountInterval {
+  std::int64_t low = 0, high = 0;
+};
+CountInterval binomial_interval(std::int64_t trials, double p, double alpha_per_side);
+
 /// Accumulates coverage per axis (|error_i| <= k sqrt(C_ii)) and NEES = e^T C^-1 e.
 template <int N>
 class ConsistencyAccumulator {
