@@ -144,19 +144,7 @@ TEST(UdpReceiver, JoinsMulticastGroupOnLoopback) {
   UdpReceiver rx;
   const int rc = rx.open("0.0.0.0", 0, "239.255.42.99", "127.0.0.1");
   if (rc != 0) GTEST_SKIP() << "multicast join on loopback not possible here: " << rc;
-  const int fd = socket(AF_INET, SOCK_DGRAM, 0);
-  in_addr ifa{};
-  inet_pton(AF_INET, "127.0.0.1", &ifa);
-  setsockopt(fd, IPPROTO_IP, IP_MULTICAST_IF, &ifa, sizeof ifa);
-  sockaddr_in dst{};
-  dst.sin_family = AF_INET;
-  dst.sin_port = htons(rx.port());
-  inet_pton(AF_INET, "239.255.42.99", &dst.sin_addr);
-  std::array<std::uint8_t, msg::kMaxDatagramBytes> buf{};
-  const int n = msg::encode_datagram(observation(1), buf, 0);
-  sendto(fd, buf.data(), static_cast<std::size_t>(n), 0, reinterpret_cast<sockaddr*>(&dst),
-         sizeof dst);
-  close(fd);
+  send_to_group("239.255.42.99", rx.port(), 1);
   std::vector<msg::MarkObservations> got;
   drain(rx, got, 1);
   if (got.empty()) GTEST_SKIP() << "no multicast route on loopback in this sandbox";
