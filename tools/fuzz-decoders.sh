@@ -11,7 +11,6 @@
 #                                                  sanitizer tree, tools/sanitize-tests.sh, and
 #                                                  runs them with STORETRACK_FUZZ_BUILD_DIR
 #                                                  there); default both.
-#   tools/fuzz-decoders.sh --list                  the fuzzer targets, one per line.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds=${1:-30}
@@ -29,10 +28,6 @@ FUZZERS=(
   "fuzz_initial_marks initial_marks 8192"
   "fuzz_exposure_aligner exposure_aligner 4096"
 )
-if [ "$seconds" = --list ]; then
-  for f in "${FUZZERS[@]}"; do echo "${f%% *}"; done
-  exit 0
-fi
 [[ "$seconds" =~ ^[0-9]+$ ]] && [ "$seconds" -ge 1 ] || { echo "fuzz-decoders: N must be seconds >= 1" >&2; exit 2; }
 if [ "$STEP" != run ]; then
   cmake -S . -B "$B" -G Ninja -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
