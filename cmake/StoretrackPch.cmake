@@ -6,7 +6,8 @@
 #
 # storetrack_apply_pch() runs after every folder is added and gives the header to each library
 # and executable that compiles with the project's flags (links storetrack_warnings: GCC refuses a
-# header built with other flags, -Winvalid-pch, an error in CI) and sets none of its own
+# header built with other flags, -Winvalid-pch, an error in CI) and sets none of its own beyond
+# the tree's (the sanitizer tree's flags are every target's, so it gets the header too)
 # (firmware/centroid's -fopenmp-simd, the fuzzers' instrumentation, -fPIC for code that goes
 # into a shared object): those, and the tests (their own header), compile as before.
 option(STORETRACK_PCH "Precompile Eigen + nlohmann-json once for the libraries and programs" ON)
@@ -28,13 +29,19 @@ function(storetrack_pch_wanted target out)
      OR target MATCHES "_pch$")
     return()
   endif()
-  foreach(property PRECOMPILE_HEADERS PRECOMPILE_HEADERS_REUSE_FROM COMPILE_OPTIONS
-                   POSITION_INDEPENDENT_CODE)
+  foreach(property PRECOMPILE_HEADERS PRECOMPILE_HEADERS_REUSE_FROM POSITION_INDEPENDENT_CODE)
     get_target_property(value ${target} ${property})
     if(value)
       return()
     endif()
   endforeach()
+  # Options every target inherits from the top directory (the sanitizer flags) are the
+  # header's own too; only a target's own options set it apart.
+  get_target_property(options ${target} COMPILE_OPTIONS)
+  get_directory_property(tree_options DIRECTORY ${PROJECT_SOURCE_DIR} COMPILE_OPTIONS)
+  if(options AND NOT "${options}" STREQUAL "${tree_options}")
+    return()
+  endif()
   get_target_property(links ${target} LINK_LIBRARIES)
   if(NOT "storetrack_warnings" IN_LIST links)
     return()

@@ -21,3 +21,12 @@ if(STORETRACK_SANITIZE)
     add_compile_options("$<$<CONFIG:Release,RelWithDebInfo,MinSizeRel>:-Wno-pass-failed>")
   endif()
 endif()
+
+# A program no test of the sanitizer tree runs (a bench tool; what the VM rig boots comes from
+# the Release tree): left out of that tree's default target, so its stage does not compile it.
+# `ninja <name>` there still builds it.
+function(storetrack_not_in_sanitizer_stage target)
+  if(STORETRACK_SANITIZE)
+    set_target_properties(${target} PROPERTIES EXCLUDE_FROM_ALL ON)
+  endif()
+endfunction()

@@ -9,8 +9,9 @@
 #include <set>
 #include <sstream>
 
-#include <Eigen/Eigenvalues>
 #include <nlohmann/json.hpp>
+
+#include "storetrack/geometry/symmetric_eigen.hpp"
 
 namespace storetrack::camera {
 
@@ -122,13 +123,12 @@ class Reader {
           fail(path + "/" + std::to_string(r) + "/" + std::to_string(c),
                "covariance is not symmetric");
       }
-    // The solver at dynamic size: one instantiation for every N, not a fully unrolled one per
-    // N (it was most of this file's compile time, in every build tree and fuzzer).
-    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(Eigen::MatrixXd{cov});
-    const double scale = std::max(eig.eigenvalues().cwiseAbs().maxCoeff(), 1e-300);
-    if (eig.eigenvalues().minCoeff() < -1e-9 * scale)
+    const Eigen::VectorXd eigenvalues =
+        geometry::symmetric_eigen(Eigen::MatrixXd{cov}, /*with_vectors=*/false).values;
+    const double scale = std::max(eigenvalues.cwiseAbs().maxCoeff(), 1e-300);
+    if (eigenvalues.minCoeff() < -1e-9 * scale)
       fail(path, "covariance is not positive semi-definite (smallest eigenvalue " +
-                     std::to_string(eig.eigenvalues().minCoeff()) + ")");
+                     std::to_string(eigenvalues.minCoeff()) + ")");
     return cov;
   }
 

@@ -3,7 +3,7 @@
 #include <cmath>
 #include <stdexcept>
 
-#include <Eigen/Eigenvalues>
+#include "storetrack/geometry/symmetric_eigen.hpp"
 
 namespace storetrack::uncertainty {
 namespace {
@@ -12,8 +12,8 @@ namespace {
 Eigen::MatrixXd sqrt_factor(const Eigen::MatrixXd& cov, double relative_floor) {
   if (!cov.allFinite()) throw std::invalid_argument("calibration covariance is not finite");
   const Eigen::MatrixXd sym = 0.5 * (cov + cov.transpose());
-  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(sym);
-  const Eigen::VectorXd& lambda = eig.eigenvalues();
+  const geometry::SymmetricEigen eig = geometry::symmetric_eigen(sym);
+  const Eigen::VectorXd& lambda = eig.values;
   const double largest = lambda.size() > 0 ? lambda.maxCoeff() : 0.0;
   if (largest <= 0) return Eigen::MatrixXd(cov.rows(), 0);
   if (lambda.minCoeff() < -1e-9 * largest)
@@ -23,7 +23,7 @@ Eigen::MatrixXd sqrt_factor(const Eigen::MatrixXd& cov, double relative_floor) {
     if (lambda(i) > relative_floor * largest) kept.push_back(i);
   Eigen::MatrixXd F(cov.rows(), static_cast<int>(kept.size()));
   for (size_t j = 0; j < kept.size(); ++j)
-    F.col(static_cast<int>(j)) = eig.eigenvectors().col(kept[j]) * std::sqrt(lambda(kept[j]));
+    F.col(static_cast<int>(j)) = eig.vectors.col(kept[j]) * std::sqrt(lambda(kept[j]));
   return F;
 }
 
