@@ -22,6 +22,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <random>
@@ -67,6 +68,8 @@ struct Subset {
   uncertainty::ConsistencyAccumulator<3> store_position;
   uncertainty::ConsistencyAccumulator<3> store_attitude;
   int no_mark = 0, no_pose = 0;  ///< draws left out (counted, printed)
+  /// Observations the processor did not use (border-cut or merged blobs; counted, printed).
+  std::uint64_t rejected_by_flags = 0;
 };
 
 std::vector<Subset> single_camera_removed(int num_cameras) {
@@ -158,6 +161,7 @@ void run_draws(const std::string& scenario_name, int draws, std::vector<Subset>&
         const test::SimExposure in = without_cameras(f, s.removed_mask, rig);
         r = proc.process(in.exposure, in.ids);
       }
+      s.rejected_by_flags += proc.counters().rejected_by_flags;
       score(sim, r, pick, s);
     }
   }
@@ -206,8 +210,10 @@ void run_and_expect(std::vector<Subset> subsets, int release_draws) {
       "k=2 coverage %.2f %%, alpha %.3g per side\n",
       STORETRACK_HONESTY_SCENE, draws, 100 * kCoverageK2, kAlphaPerSide);
   for (const Subset& s : subsets) {
-    std::printf("  %s: left out %d draws without a mark, %d without a store pose\n", s.name.c_str(),
-                s.no_mark, s.no_pose);
+    std::printf(
+        "  %s: left out %d draws without a mark, %d without a store pose; %llu border-cut or "
+        "merged observations not used\n",
+        s.name.c_str(), s.no_mark, s.no_pose, static_cast<unsigned long long>(s.rejected_by_flags));
     // Too few samples for a binomial test of coverage (the store outside the subset's view in
     // most draws, e.g. after separation): counted, not scored.
     if (s.store_position.count() < kMinScoredSamples) {
