@@ -16,8 +16,8 @@
 // collinear for a pose. SingleCameraRemoved: 800 draws in CI (~41 s CPU in Release), full form
 // STORETRACK_HONESTY_DRAWS=4000. TwoCamerasLeft: its full form, 4000 draws (~125 s CPU), also in
 // CI: at 800 and 1500 draws the marks' y coverage of cameras 1+2 sits just above its bound
-// (over-coverage, open, docs/uncertainty.md), and only the full form resolves the attitude
-// NEES defect it guards. STORETRACK_HONESTY_DRAWS sets both; the bounds are derived for the
+// (over-coverage, open, docs/uncertainty.md), and the full form resolves the attitude NEES
+// defect it guards most surely. STORETRACK_HONESTY_DRAWS sets both; the bounds are derived for the
 // samples each subset has.
 #include <algorithm>
 #include <array>
