@@ -13,11 +13,16 @@
 // verdicts are correlated with each other, not within one subset.
 //
 // The static scene cannot be used: without any one camera its store marks are too few or
-// collinear for a pose. CI form: 800 draws (~41 s CPU in Release); full form:
-// STORETRACK_HONESTY_DRAWS=4000 (docs/uncertainty.md).
+// collinear for a pose. SingleCameraRemoved: 800 draws in CI (~41 s CPU in Release), full form
+// STORETRACK_HONESTY_DRAWS=4000. TwoCamerasLeft: its full form, 4000 draws (~125 s CPU), also in
+// CI: at 800 and 1500 draws the marks' y coverage of cameras 1+2 sits just above its bound
+// (over-coverage, open, docs/uncertainty.md), and the full form resolves the attitude NEES
+// defect it guards most surely. STORETRACK_HONESTY_DRAWS sets both; the bounds are derived for the
+// samples each subset has.
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <random>
@@ -44,11 +49,12 @@ constexpr int kMinScoredSamples = 150;
 // term), the second, at a random instant of the scenario, is evaluated.
 constexpr int kExposuresPerDraw = 2;
 
-int draws_from_environment() {
+int draws_from_environment(int release_draws) {
 #ifdef STORETRACK_SANITIZE
   int draws = 150;  // ASan/UBSan ~10x slower
+  (void)release_draws;
 #else
-  int draws = 800;
+  int draws = release_draws;
 #endif
   if (const char* env = std::getenv("STORETRACK_HONESTY_DRAWS")) draws = std::atoi(env);
   return std::max(draws, 50);
@@ -62,6 +68,8 @@ struct Subset {
   uncertainty::ConsistencyAccumulator<3> store_position;
   uncertainty::ConsistencyAccumulator<3> store_attitude;
   int no_mark = 0, no_pose = 0;  ///< draws left out (counted, printed)
+  /// Observations the processor did not use (border-cut or merged blobs; counted, printed).
+  std::uint64_t rejected_by_flags = 0;
 };
 
 std::vector<Subset> single_camera_removed(int num_cameras) {
@@ -153,6 +161,7 @@ void run_draws(const std::string& scenario_name, int draws, std::vector<Subset>&
         const test::SimExposure in = without_cameras(f, s.removed_mask, rig);
         r = proc.process(in.exposure, in.ids);
       }
+      s.rejected_by_flags += proc.counters().rejected_by_flags;
       score(sim, r, pick, s);
     }
   }
@@ -193,16 +202,18 @@ void expect_consistent(const std::string& subset, const char* what,
   EXPECT_LE(acc.mean_nees(), b.nees_high) << subset << ", " << what;
 }
 
-void run_and_expect(std::vector<Subset> subsets) {
-  const int draws = draws_from_environment();
+void run_and_expect(std::vector<Subset> subsets, int release_draws) {
+  const int draws = draws_from_environment(release_draws);
   run_draws(STORETRACK_HONESTY_SCENE, draws, subsets);
   std::printf(
       "scene %s: %d independent calibration draws, one sample per draw and quantity; "
       "k=2 coverage %.2f %%, alpha %.3g per side\n",
       STORETRACK_HONESTY_SCENE, draws, 100 * kCoverageK2, kAlphaPerSide);
   for (const Subset& s : subsets) {
-    std::printf("  %s: left out %d draws without a mark, %d without a store pose\n", s.name.c_str(),
-                s.no_mark, s.no_pose);
+    std::printf(
+        "  %s: left out %d draws without a mark, %d without a store pose; %llu border-cut or "
+        "merged observations not used\n",
+        s.name.c_str(), s.no_mark, s.no_pose, static_cast<unsigned long long>(s.rejected_by_flags));
     // Too few samples for a binomial test of coverage (the store outside the subset's view in
     // most draws, e.g. after separation): counted, not scored.
     if (s.store_position.count() < kMinScoredSamples) {
@@ -219,15 +230,15 @@ void run_and_expect(std::vector<Subset> subsets) {
 
 // A camera lost (issue 11): the case of the network-fault runs.
 TEST(UncertaintyHonestyMissingCamera, SingleCameraRemoved) {
-  run_and_expect(single_camera_removed(4));
+  run_and_expect(single_camera_removed(4), 800);
 }
 
-// Two cameras left: the smallest rig that still triangulates. DISABLED (not in CI): it FAILS on
-// the store attitude's mean NEES (4000 draws: cameras 1+3 3.48, 2+3 3.21 against upper bounds
-// 3.27 / 3.15, coverage within bounds), an open finding of issue 11 (docs/uncertainty.md), and
-// it would add ~45 s CPU. Run it with --gtest_also_run_disabled_tests.
-TEST(UncertaintyHonestyMissingCamera, DISABLED_TwoCamerasLeft) {
-  run_and_expect(two_cameras_left(4));
+// Two cameras left: the smallest rig that still triangulates. Before the processor rejected
+// border-cut blobs given with ids (ExposureProcessor.BorderCutBlobIsNotUsedEvenWithGivenIds),
+// the full form FAILED on the store attitude's mean NEES (cameras 1+3 3.48, 2+3 3.21 against
+// upper bounds 3.27 / 3.15): the cut blobs' inward-pulled centroids (docs/uncertainty.md).
+TEST(UncertaintyHonestyMissingCamera, TwoCamerasLeft) {
+  run_and_expect(two_cameras_left(4), 4000);
 }
 
 }  // namespace

@@ -43,8 +43,13 @@ struct ProcessorConfig {
   int reference_camera_id = -1;                 ///< -1: the first camera of the RigCalibration
   double rigid_false_alarm_probability = 1e-3;  ///< per body and exposure (intact body)
   double tracking_max_gap_s = 0.05;             ///< older previous positions give no velocity
-  std::uint8_t rejected_mark_flags = 0;         ///< msg::mark_flags bits whose marks are not used
-  int max_mark_id = 1023;                       ///< ids above are counted as bad input
+  /// msg::mark_flags bits whose observations are not used (counted in rejected_by_flags), also
+  /// when the ids come from outside the matcher (process(exposure, ids)): the matcher's policy.
+  /// A border blob's centroid is pulled inwards by up to a radius, a bias its sigma_px does not
+  /// state; with two cameras left it passes the epipolar and rigid-body checks and made the
+  /// store attitude's stated uncertainty too small (issue 11, docs/uncertainty.md).
+  std::uint8_t rejected_mark_flags = match::MatcherConfig{}.rejected_mark_flags;
+  int max_mark_id = 1023;  ///< ids above are counted as bad input
   /// Quantisation step of the wire's pixel coordinates (1/256 px); its variance step^2/12 is
   /// added to each centroid's.
   double pixel_quantisation_px = 1.0 / 256.0;
