@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <map>
 #include <string>
 
@@ -17,6 +18,10 @@ namespace {
 
 constexpr int kMinPointsPerView = 4;  // a homography needs 4 points
 constexpr int kMaxRejectionRounds = 10;
+// Floor on the largest angle between two board planes. Zhang (2000, sec. 5.1, "performance
+// w.r.t. the orientation of the model plane") finds the calibration degrading fast as the planes
+// approach parallel and best near 45 degrees; below 5 degrees it is not worth attempting.
+constexpr double kMinBoardAngleDeg = 5.0;
 
 std::vector<BoardView> camera_views(const ObservationSet& set, int camera) {
   std::map<int, BoardView> by_frame;
@@ -79,6 +84,33 @@ std::vector<std::vector<char>> inliers(const std::vector<std::vector<Eigen::Vect
     for (size_t k = 0; k < r[i].size(); ++k)
       used[i][k] = r[i][k].squaredNorm() <= gate * robust_sigma * robust_sigma;
   return used;
+}
+
+/// Refuses views whose boards are all (nearly) parallel. Then every view gives the same two
+/// constraints on K (parallel planes share their circular points, imaged by h1 +- i h2 ~
+/// K (r1 +- i r2)), so a 2-parameter family of cameras fits equally well, and in every member
+/// of the family the boards are parallel: the test on the fitted poses holds whichever member
+/// the solver found.
+void check_board_orientations(const std::vector<BoardView>& views, const RefinementState& state) {
+  std::vector<geometry::Vec3> normals;
+  for (const PoseVector& pose : state.poses)
+    normals.push_back(geometry::rotation_from_rotvec(pose.head<3>()).col(2));
+  double widest_deg = 0;
+  for (size_t a = 0; a < normals.size(); ++a)
+    for (size_t c = a + 1; c < normals.size(); ++c)
+      widest_deg = std::max(widest_deg,
+                            std::acos(std::clamp(std::abs(normals[a].dot(normals[c])), 0.0, 1.0)));
+  widest_deg *= 180 / M_PI;
+  if (widest_deg >= kMinBoardAngleDeg) return;
+  char angle[32];
+  std::snprintf(angle, sizeof angle, "%.1f", widest_deg);
+  throw CalibrationError("degenerate views: the " + std::to_string(views.size()) +
+                         " boards are (nearly) parallel to each other (largest angle between two "
+                         "board planes " +
+                         angle +
+                         " deg, need >= 5), so the focal length and principal point "
+                         "are not determined: tilt the board by 20-45 degrees about different "
+                         "axes between views");
 }
 
 IntrinsicResult summarise(const std::vector<BoardView>& views,
@@ -154,7 +186,13 @@ IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
   std::vector<std::vector<char>> used = inliers(weighted_residuals(views, map, state), 0);
   int iterations = 0;
   for (int round = 0; round < kMaxRejectionRounds; ++round) {
-    iterations += refine_intrinsics(views, used, map, state);
+    try {
+      iterations += refine_intrinsics(views, used, map, state);
+    } catch (const CalibrationError&) {
+      check_board_orientations(views, state);
+      throw;
+    }
+    check_board_orientations(views, state);
     auto next = inliers(weighted_residuals(views, map, state), options.outlier_false_alarm);
     if (next == used) break;
     used = std::move(next);

@@ -8,7 +8,10 @@
 // (centred, scaled by the mean image side) so that V's columns are commensurate.
 #include "zhang_initialisation.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <optional>
 #include <string>
 
 #include <Eigen/SVD>
@@ -50,17 +53,14 @@ Eigen::MatrixXd conic_basis(const IntrinsicOptions& options) {
   return P;
 }
 
-Mat3 intrinsic_matrix_from_conic(const Vec6& b_in) {
+std::optional<Mat3> intrinsic_matrix_from_conic(const Vec6& b_in) {
   // Zhang's Appendix B with B12 = 0 (skew 0); b is defined up to sign: take B11 > 0.
   const Vec6 b = b_in[0] < 0 ? Vec6(-b_in) : b_in;
   const double B11 = b[0], B22 = b[2], B13 = b[3], B23 = b[4], B33 = b[5];
   const double v0 = -B11 * B23 / (B11 * B22);
   const double lambda = B33 - (B13 * B13 + v0 * (-B11 * B23)) / B11;
   const double alpha2 = lambda / B11, beta2 = lambda * B11 / (B11 * B22);
-  if (!(B11 > 0) || !(B22 > 0) || !(alpha2 > 0) || !(beta2 > 0))
-    throw CalibrationError(
-        "the closed-form (Zhang) solution has no real focal length: the board views do not "
-        "determine the camera (too little board tilt, or too few views)");
+  if (!(B11 > 0) || !(B22 > 0) || !(alpha2 > 0) || !(beta2 > 0)) return std::nullopt;
   const double u0 = -B13 * alpha2 / lambda;
   Mat3 K;
   K << std::sqrt(alpha2), 0, u0, 0, std::sqrt(beta2), v0, 0, 0, 1;
@@ -97,6 +97,21 @@ Mat3 similarity_normaliser(const std::vector<Eigen::Vector2d>& pts) {
   Mat3 T;
   T << s, 0, -s * mean.x(), 0, s, -s * mean.y(), 0, 0, 1;
   return T;
+}
+
+/// A centred camera with a 53 degree horizontal field of view: the start of last resort.
+Mat3 nominal_camera(const ImageSize& size) {
+  const double f = 0.5 * (size.width + size.height);
+  Mat3 K;
+  K << f, 0, 0.5 * (size.width - 1), 0, f, 0.5 * (size.height - 1), 0, 0, 1;
+  return K;
+}
+
+/// K (conditioned coordinates) from the null vector of V P; nullopt if it is not a real camera.
+std::optional<Mat3> closed_form_camera(const Eigen::MatrixXd& V, const IntrinsicOptions& options) {
+  const Eigen::MatrixXd P = conic_basis(options);
+  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(V * P, Eigen::ComputeThinV);
+  return intrinsic_matrix_from_conic(P * svd.matrixV().col(P.cols() - 1));
 }
 
 }  // namespace
@@ -142,30 +157,25 @@ ZhangStart zhang_initialisation(const std::vector<BoardView>& views, const Image
     V.row(r) = conic_row(Hc, 0, 1).transpose();
     V.row(r + 1) = (conic_row(Hc, 0, 0) - conic_row(Hc, 1, 1)).transpose();
   }
-  const Eigen::MatrixXd P = conic_basis(options);
-  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(V * P, Eigen::ComputeThinV);
-  const auto& sv = svd.singularValues();
-  const Eigen::Index m = P.cols();
 
+  // Strong distortion or weak tilt can leave the general solution without a real focal length;
+  // then the principal point at the centre and fx = a fy (one unknown, like OpenCV's
+  // initCameraMatrix2D), then a nominal camera. LM starts from there; degenerate views are
+  // refused after it (intrinsic_calibration.cpp, check_board_orientations).
   ZhangStart out;
-  // The null space of V P must be one-dimensional: b is fixed up to scale. With all boards
-  // parallel every view gives the same two constraints (the homographies share the plane's
-  // circular points), so the rank stays 2 and a second singular value falls to the noise level.
-  // The bound is on the conditioned matrix (unit-norm homographies, unit image side), where
-  // well-tilted views give ratios of 1e-2 or more and parallel views ~1e-4 at 0.5 px noise
-  // (docs/calibration.md, "Degenerate views").
-  out.conditioning = sv[m - 2] / sv[0];
-  constexpr double kMinConditioning = 2e-3;
-  if (m >= 2 && !(out.conditioning >= kMinConditioning))
-    throw CalibrationError(
-        "degenerate views: the " + std::to_string(views.size()) +
-        " board poses do not determine the focal length and principal point (constraint "
-        "conditioning " +
-        std::to_string(out.conditioning) +
-        "); the boards are (nearly) parallel to each other: tilt the board by 20-45 degrees "
-        "about different axes between views");
-  const Vec6 b = P * svd.matrixV().col(m - 1);
-  const Mat3 K = N.inverse() * intrinsic_matrix_from_conic(b);
+  IntrinsicOptions centred = options;
+  centred.fix_principal_point = true;
+  centred.fix_aspect_ratio = true;
+  if (!options.fix_aspect_ratio) centred.aspect_ratio = 1;
+  Mat3 K = nominal_camera(size);
+  out.method = "nominal camera (closed forms failed)";
+  if (const auto general = closed_form_camera(V, options)) {
+    K = N.inverse() * *general;
+    out.method = "Zhang closed form";
+  } else if (const auto simple = closed_form_camera(V, centred)) {
+    K = N.inverse() * *simple;
+    out.method = "Zhang closed form, centred principal point";
+  }
 
   camera::Intrinsics& in = out.intrinsics;
   in.width = size.width;

@@ -12,10 +12,10 @@ namespace storetrack::calib {
 struct ZhangStart {
   camera::Intrinsics intrinsics;           ///< skew and distortion 0
   std::vector<geometry::Transform> T_c_b;  ///< per view, board -> camera
-  double conditioning = 0;  ///< sigma_{m-1} / sigma_1 of the constraint matrix (see .cpp)
+  const char* method = "";                 ///< which closed form gave the start
 };
 
-/// Throws CalibrationError when the views do not determine K (e.g. all boards parallel).
+/// Always gives a start (see the fallbacks in the .cpp); degenerate views are refused later.
 ZhangStart zhang_initialisation(const std::vector<BoardView>& views, const ImageSize& size,
                                 const IntrinsicOptions& options);
 
