@@ -3,9 +3,9 @@
 // Each view's homography H = [h1 h2 h3] ~ K [r1 r2 t] gives two linear constraints on the image
 // of the absolute conic B = K^-T K^-1: h1^T B h2 = 0 and h1^T B h1 = h2^T B h2. The project's
 // model has zero skew, and the options may tie fx to fy or fix the principal point, so B is
-// written as b = P z over the free unknowns z only, and z is the right singular vector of the
-// smallest singular value of V P (V: 2 rows per view). The pixels are first conditioned
-// (centred, scaled by the mean image side) so that V's columns are commensurate.
+// written as b = P z over the free unknowns z only, and z is the unit vector minimising |V P z|
+// (V: 2 rows per view), the eigenvector of the smallest eigenvalue of (V P)^T (V P). The pixels are
+// first conditioned (centred, scaled by the mean image side) so that V's columns are commensurate.
 #include "zhang_initialisation.hpp"
 
 #include <algorithm>
@@ -14,7 +14,7 @@
 #include <optional>
 #include <string>
 
-#include <Eigen/SVD>
+#include <Eigen/Eigenvalues>
 
 namespace storetrack::calib {
 namespace {
@@ -71,16 +71,16 @@ geometry::Transform pose_from_homography(const Mat3& K_inv, const Mat3& H) {
   const Eigen::Vector3d a1 = K_inv * H.col(0), a2 = K_inv * H.col(1), a3 = K_inv * H.col(2);
   double scale = 2.0 / (a1.norm() + a2.norm());
   if ((scale * a3).z() < 0) scale = -scale;  // the board is in front of the camera
+  // Nearest rotation to [a1 a2 a1 x a2] (Zhang, Appendix C). For two columns the polar factor
+  // is the symmetric orthogonalisation about their bisector, so no SVD is needed.
+  const Eigen::Vector3d u = (scale * a1).normalized(), v = (scale * a2).normalized();
+  const Eigen::Vector3d bisector = (u + v).normalized(), split = (u - v).normalized();
   Mat3 R;
-  R.col(0) = scale * a1;
-  R.col(1) = scale * a2;
+  R.col(0) = (bisector + split) / std::sqrt(2.0);
+  R.col(1) = (bisector - split) / std::sqrt(2.0);
   R.col(2) = R.col(0).cross(R.col(1));
-  // Nearest rotation (Zhang, Appendix C): R = U V^T.
-  const Eigen::JacobiSVD<Mat3> svd(R, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  Mat3 D = Mat3::Identity();
-  D(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0 ? -1 : 1;
   geometry::Transform T = geometry::Transform::Identity();
-  T.linear() = svd.matrixU() * D * svd.matrixV().transpose();
+  T.linear() = R;
   T.translation() = scale * a3;
   return T;
 }
@@ -110,8 +110,11 @@ Mat3 nominal_camera(const ImageSize& size) {
 /// K (conditioned coordinates) from the null vector of V P; nullopt if it is not a real camera.
 std::optional<Mat3> closed_form_camera(const Eigen::MatrixXd& V, const IntrinsicOptions& options) {
   const Eigen::MatrixXd P = conic_basis(options);
-  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(V * P, Eigen::ComputeThinV);
-  return intrinsic_matrix_from_conic(P * svd.matrixV().col(P.cols() - 1));
+  // Null vector of V P = eigenvector of the smallest eigenvalue of (V P)^T (V P) (at most 5 x 5;
+  // the eigen solver compiles far quicker than a dynamic-size SVD).
+  const Eigen::MatrixXd VP = V * P;
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(VP.transpose() * VP);
+  return intrinsic_matrix_from_conic(P * eig.eigenvectors().col(0));
 }
 
 }  // namespace
@@ -123,16 +126,20 @@ Mat3 board_homography(const BoardView& view) {
     image.push_back(o->pixel);
   }
   const Mat3 Tb = similarity_normaliser(board), Ti = similarity_normaliser(image);
-  Eigen::MatrixXd A(2 * static_cast<Eigen::Index>(board.size()), 9);
+  // h = eigenvector of the smallest eigenvalue of A^T A (A: the DLT rows). Squaring the
+  // condition number is harmless on normalised coordinates and keeps everything 9 x 9.
+  using Row = Eigen::Matrix<double, 1, 9>;
+  Eigen::Matrix<double, 9, 9> AtA = Eigen::Matrix<double, 9, 9>::Zero();
   for (size_t k = 0; k < board.size(); ++k) {
     const Eigen::Vector3d X = Tb * board[k].homogeneous();
     const Eigen::Vector3d x = Ti * image[k].homogeneous();
-    const auto r = static_cast<Eigen::Index>(2 * k);
-    A.row(r) << X.transpose(), 0, 0, 0, -x.x() * X.transpose();
-    A.row(r + 1) << 0, 0, 0, X.transpose(), -x.y() * X.transpose();
+    Row a, b;
+    a << X.transpose(), 0, 0, 0, -x.x() * X.transpose();
+    b << 0, 0, 0, X.transpose(), -x.y() * X.transpose();
+    AtA.noalias() += a.transpose() * a + b.transpose() * b;
   }
-  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(A, Eigen::ComputeFullV);
-  const Eigen::Matrix<double, 9, 1> h = svd.matrixV().col(8);
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(AtA);  // one instantiation
+  const Eigen::Matrix<double, 9, 1> h = eig.eigenvectors().col(0);
   Mat3 Hn;
   Hn << h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8];
   const Mat3 H = Ti.inverse() * Hn * Tb;
