@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <fstream>
 #include <sstream>
 
 #include "calib_commands.hpp"
@@ -91,6 +92,42 @@ TEST(ChessboardImages, DetectCommandReportsAndRefusesEmptyResult) {
   EXPECT_EQ(calibapp::run_detect(args, out, err), 2);
   EXPECT_NE(err.str().find("rejected " + args.images[0] + ": unreadable"), std::string::npos);
   EXPECT_FALSE(std::filesystem::exists(args.output));
+}
+
+TEST(ChessboardImages, ProgramDetectsAndCalibratesEndToEnd) {
+  const auto dir = std::filesystem::temp_directory_path() / "storetrack_calib_e2e";
+  std::filesystem::create_directories(dir);
+  calibapp::DetectArgs detect;
+  detect.images = left_images();
+  detect.output = (dir / "obs.csv").string();
+  std::ostringstream out, err;
+  ASSERT_EQ(calibapp::run_detect(detect, out, err), 0) << err.str();
+  EXPECT_NE(out.str().find("13 of 13 images used, 0 rejected, 702 corners"), std::string::npos)
+      << out.str();
+
+  calibapp::IntrinsicArgs intrinsic;
+  intrinsic.observations = detect.output;
+  intrinsic.options.fix_aspect_ratio = true;
+  intrinsic.output = (dir / "calib.json").string();
+  intrinsic.residuals_csv = (dir / "residuals.csv").string();
+  ASSERT_EQ(calibapp::run_intrinsic(intrinsic, out, err), 0) << err.str();
+  // Default outlier gate: the first corner column of left02.jpg (2-6 px off) goes.
+  EXPECT_NE(out.str().find("rejected as outliers"), std::string::npos);
+  const camera::RigCalibration rig = camera::read_rig_calibration(intrinsic.output);
+  ASSERT_EQ(rig.cameras.size(), 1u);
+  EXPECT_EQ(rig.cameras[0].model.intrinsics().width, 640);
+  EXPECT_GT(rig.cameras[0].intrinsic_covariance(0, 0), 0);
+
+  // Bad input: exit 2, the message names the file, line and field.
+  std::ofstream(dir / "bad.csv") << "camera,frame,point_id,board_x_m,board_y_m,board_z_m,"
+                                    "image_x_px,image_y_px\n0,0,0,0,0,0,1.5,oops\n";
+  intrinsic.observations = (dir / "bad.csv").string();
+  std::ostringstream err2;
+  EXPECT_EQ(calibapp::run_intrinsic(intrinsic, out, err2), 2);
+  EXPECT_NE(err2.str().find("bad.csv:2: image_y_px: expected a number, got 'oops'"),
+            std::string::npos)
+      << err2.str();
+  std::filesystem::remove_all(dir);
 }
 
 }  // namespace

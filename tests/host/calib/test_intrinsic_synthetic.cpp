@@ -128,6 +128,40 @@ TEST(IntrinsicSynthetic, GrossOutliersRejectedAndCounted) {
   EXPECT_LT(std::abs(r.residual_sigma_px - 0.3), 0.03);
 }
 
+TEST(IntrinsicSynthetic, StatedSigmasWeightTheFit) {
+  // With the true sigma in the CSV column the weighted residual scale is ~1 (dof s^2 ~
+  // chi-square(dof)), and the covariance is the same as without (it is scaled by the fit).
+  std::mt19937_64 rng(11), rng_copy(11);
+  ObservationSet weighted = synthetic_set(15, 0.3, rng);
+  const ObservationSet plain = synthetic_set(15, 0.3, rng_copy);
+  for (Observation& o : weighted.observations)
+    o.sigma_px = 0.3;
+  const IntrinsicResult w = calibrate_intrinsics(weighted, 0, IntrinsicOptions{});
+  const IntrinsicResult u = calibrate_intrinsics(plain, 0, IntrinsicOptions{});
+  const int dof = 2 * w.points_used - w.free_parameters;
+  const double chi2 = dof * w.residual_sigma_px * w.residual_sigma_px;
+  EXPECT_GT(chi2, chi_square_quantile(Probability(0.0005), DegreesOfFreedom(dof)));
+  EXPECT_LT(chi2, chi_square_quantile(Probability(0.9995), DegreesOfFreedom(dof)));
+  EXPECT_NEAR(w.intrinsics.fx, u.intrinsics.fx, 1e-6);
+  EXPECT_NEAR(w.covariance(0, 0), u.covariance(0, 0), 1e-6 * u.covariance(0, 0));
+}
+
+TEST(Geometry, So3LeftJacobianMatchesFiniteDifferences) {
+  // Exp(w + d) = Exp(J_l(w) d) Exp(w): compare J_l d with Log(Exp(w + d) Exp(w)^-1) / |d|.
+  for (const geometry::Vec3& w :
+       {geometry::Vec3(0.3, -1.2, 0.7), geometry::Vec3(1e-8, 0, 2e-8), geometry::Vec3(0, 3.0, 0)}) {
+    const geometry::Mat3 J = geometry::so3_left_jacobian(w);
+    for (int axis = 0; axis < 3; ++axis) {
+      const double h = 1e-6;
+      const geometry::Vec3 d = h * geometry::Vec3::Unit(axis);
+      const geometry::Mat3 dR =
+          geometry::rotation_from_rotvec(w + d) * geometry::rotation_from_rotvec(w).transpose();
+      const geometry::Vec3 numeric = geometry::rotvec_from_rotation(dR) / h;
+      EXPECT_LT((numeric - J.col(axis)).norm(), 1e-6) << "w " << w.transpose() << " axis " << axis;
+    }
+  }
+}
+
 std::string calibration_error(const ObservationSet& set) {
   try {
     calibrate_intrinsics(set, 0, IntrinsicOptions{});

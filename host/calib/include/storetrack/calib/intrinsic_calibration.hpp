@@ -55,9 +55,12 @@ struct IntrinsicResult {
   std::vector<ViewResult> views;
   std::vector<PointResidual> residuals;
   int points_used = 0, points_rejected = 0;
-  int free_parameters = 0;       ///< intrinsic + 6 per view
-  double rms_px = 0;             ///< sqrt(SSR / N) over used points, as cv::calibrateCamera's RMS
-  double residual_sigma_px = 0;  ///< sqrt(SSR / (2N - p)), scales the covariance
+  int free_parameters = 0;  ///< intrinsic + 6 per view
+  double rms_px = 0;        ///< sqrt(SSR / N) over used points, as cv::calibrateCamera's RMS
+  /// sqrt(SSR_w / (2N - p)) over residuals weighted by 1 / sigma_px (1 when the CSV gives no
+  /// sigma): per-axis pixels without sigmas, a ratio (~1 when the sigmas are right) with them.
+  /// Its square scales the covariance.
+  double residual_sigma_px = 0;
   int iterations = 0;
 };
 
