@@ -23,7 +23,8 @@ constexpr int kMaxRejectionRounds = 10;
 // approach parallel and best near 45 degrees; below 5 degrees it is not worth attempting.
 constexpr double kMinBoardAngleDeg = 5.0;
 
-std::vector<BoardView> camera_views(const ObservationSet& set, int camera) {
+std::vector<BoardView> camera_views(const ObservationSet& set, int camera,
+                                    std::vector<int>& frames_skipped) {
   std::map<int, BoardView> by_frame;
   for (const Observation& o : set.observations) {
     if (o.camera != camera) continue;
@@ -38,7 +39,10 @@ std::vector<BoardView> camera_views(const ObservationSet& set, int camera) {
   }
   std::vector<BoardView> views;
   for (auto& [frame, view] : by_frame)
-    if (static_cast<int>(view.points.size()) >= kMinPointsPerView) views.push_back(view);
+    if (static_cast<int>(view.points.size()) >= kMinPointsPerView)
+      views.push_back(view);
+    else
+      frames_skipped.push_back(frame);
   return views;
 }
 
@@ -169,7 +173,8 @@ IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
   if (size == set.image_sizes.end())
     throw CalibrationError(who + "image size unknown (the CSV needs a '# image_size," +
                            std::to_string(camera) + ",W,H' line, or give --image-size)");
-  const std::vector<BoardView> views = camera_views(set, camera);
+  std::vector<int> frames_skipped;
+  const std::vector<BoardView> views = camera_views(set, camera, frames_skipped);
   if (static_cast<int>(views.size()) < std::max(options.min_views, 2))
     throw CalibrationError(who + "too few views: " + std::to_string(views.size()) +
                            " board poses with >= 4 points, need at least " +
@@ -199,6 +204,7 @@ IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
   }
   IntrinsicResult out = summarise(views, used, map, state);
   out.iterations = iterations;
+  out.frames_skipped = frames_skipped;
   return out;
 }
 

@@ -171,6 +171,17 @@ std::string calibration_error(const ObservationSet& set) {
   return "(accepted)";
 }
 
+TEST(IntrinsicSynthetic, ViewWithTooFewPointsSkippedAndNamed) {
+  std::mt19937_64 rng(5);
+  ObservationSet set = synthetic_set(6, 0.3, rng);
+  Observation lone = set.observations.front();
+  lone.frame = 99;
+  set.observations.push_back(lone);
+  const IntrinsicResult r = calibrate_intrinsics(set, 0, IntrinsicOptions{});
+  EXPECT_EQ(r.views.size(), 6u);
+  EXPECT_EQ(r.frames_skipped, std::vector<int>{99});
+}
+
 TEST(IntrinsicSynthetic, TooFewViewsRefused) {
   std::mt19937_64 rng(1);
   EXPECT_EQ(calibration_error(synthetic_set(2, 0.3, rng)),

@@ -142,6 +142,8 @@ int run_intrinsic(const IntrinsicArgs& args, std::ostream& out, std::ostream& er
   out << "intrinsic: camera " << args.camera << ", " << result.views.size() << " views, "
       << result.points_used << " points used, " << result.points_rejected
       << " rejected as outliers\n";
+  for (int frame : result.frames_skipped)
+    err << "skipped frame " << frame << ": fewer than 4 points of camera " << args.camera << "\n";
   print_intrinsics(result, out);
   out << "  RMS reprojection error " << fixed(result.rms_px, 4) << " px (residual sigma "
       << fixed(result.residual_sigma_px, 4) << " px per axis, " << result.free_parameters

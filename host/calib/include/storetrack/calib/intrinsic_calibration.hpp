@@ -54,6 +54,7 @@ struct IntrinsicResult {
   camera::IntrinsicCovariance covariance = camera::IntrinsicCovariance::Zero();
   std::vector<ViewResult> views;
   std::vector<PointResidual> residuals;
+  std::vector<int> frames_skipped;  ///< frames with fewer than 4 points (no homography): unused
   int points_used = 0, points_rejected = 0;
   int free_parameters = 0;  ///< intrinsic + 6 per view
   double rms_px = 0;        ///< sqrt(SSR / N) over used points, as cv::calibrateCamera's RMS
