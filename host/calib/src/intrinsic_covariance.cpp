@@ -23,9 +23,11 @@ FitCovariance fit_covariance(const std::vector<BoardView>& views,
                              double residual_variance) {
   const int p = map.size();
   const camera::CameraModel model(map.intrinsics(state.z.data()));
-  const auto& M = map.jacobian();
-  // Free intrinsics padded to the fixed size kN (padding rows/columns stay zero), so the
-  // tree's fixed-size SPD inverse applies.
+  // Free intrinsics padded to the fixed size kN (padding columns of M are zero, so the padding
+  // rows/columns of A and B stay zero): fixed-size products throughout (quicker to compile than
+  // mixed dynamic ones) and the tree's fixed-size SPD inverse applies.
+  MatN M = MatN::Zero();
+  M.leftCols(p) = map.jacobian();
   MatN A = MatN::Zero();
   std::vector<ViewBlocks> blocks(views.size());
   for (size_t i = 0; i < views.size(); ++i) {
@@ -37,8 +39,7 @@ FitCovariance fit_covariance(const std::vector<BoardView>& views,
       camera::ProjectionJacobians J;
       if (!model.project_world(T_c_b, o.p_board, &J)) continue;
       const double w = 1.0 / o.sigma_px.value_or(1.0);
-      Eigen::Matrix<double, 2, kN> Jz = Eigen::Matrix<double, 2, kN>::Zero();
-      Jz.leftCols(p) = w * J.d_intrinsics * M;
+      const Eigen::Matrix<double, 2, kN> Jz = w * J.d_intrinsics * M;
       const Eigen::Matrix<double, 2, 6> Jp = w * J.d_pose;
       A.noalias() += Jz.transpose() * Jz;
       blocks[i].B.noalias() += Jz.transpose() * Jp;
@@ -59,9 +60,11 @@ FitCovariance fit_covariance(const std::vector<BoardView>& views,
     throw CalibrationError(
         "the normal matrix is singular: the views do not determine the free intrinsics "
         "(fix parameters or add tilted views)");
-  const Eigen::MatrixXd C_z = residual_variance * S_inv.topLeftCorner(p, p);
+  MatN C_z = residual_variance * S_inv;
+  C_z.rightCols(kN - p).setZero();
+  C_z.bottomRows(kN - p).setZero();
   FitCovariance out;
-  out.intrinsics = map.jacobian() * C_z * map.jacobian().transpose();
+  out.intrinsics = M * C_z * M.transpose();
   for (const ViewBlocks& b : blocks) {
     const Eigen::Matrix<double, kN, 6> SB = S_inv * b.B * b.D_inv;
     out.poses.push_back(residual_variance * (b.D_inv + b.D_inv * b.B.transpose() * SB));
