@@ -169,6 +169,9 @@ IntrinsicResult summarise(const std::vector<BoardView>& views,
 IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
                                      const IntrinsicOptions& options) {
   const std::string who = "camera " + std::to_string(camera) + ": ";
+  if (std::none_of(set.observations.begin(), set.observations.end(),
+                   [camera](const Observation& o) { return o.camera == camera; }))
+    throw CalibrationError(who + "no observations of this camera");
   const auto size = set.image_sizes.find(camera);
   if (size == set.image_sizes.end())
     throw CalibrationError(who + "image size unknown (the CSV needs a '# image_size," +

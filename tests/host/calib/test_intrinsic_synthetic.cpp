@@ -201,6 +201,12 @@ TEST(IntrinsicSynthetic, MissingImageSizeAndNonPlanarBoardRefused) {
   ObservationSet set = synthetic_set(5, 0.3, rng);
   set.image_sizes.clear();
   EXPECT_NE(calibration_error(set).find("image size unknown"), std::string::npos);
+  try {
+    calibrate_intrinsics(set, 4, IntrinsicOptions{});
+    ADD_FAILURE() << "camera 4 accepted";
+  } catch (const CalibrationError& e) {
+    EXPECT_EQ(std::string(e.what()), "camera 4: no observations of this camera");
+  }
   set = synthetic_set(5, 0.3, rng);
   set.observations[10].p_board.z() = 0.01;
   EXPECT_NE(calibration_error(set).find("needs a planar board"), std::string::npos);
