@@ -43,6 +43,18 @@ inline Vec3 rotvec_from_rotation(const Mat3& R) {
   return aa.axis() * aa.angle();
 }
 
+/// Left Jacobian of SO(3) at rotation vector w: Exp(w + d) = Exp(J_l(w) d) Exp(w) to first order
+/// (Barfoot, "State Estimation for Robotics", 2017, eq. 7.77). Turns a derivative with respect
+/// to a left perturbation (below) into one with respect to the rotation vector itself.
+inline Mat3 so3_left_jacobian(const Vec3& w) {
+  const double theta = w.norm();
+  const Mat3 W = skew(w);
+  if (theta < 1e-6) return Mat3::Identity() + 0.5 * W + (1.0 / 6.0) * W * W;
+  const double t2 = theta * theta;
+  return Mat3::Identity() + (1 - std::cos(theta)) / t2 * W +
+         (theta - std::sin(theta)) / (t2 * theta) * W * W;
+}
+
 /// Small-perturbation convention used for every 6x6 pose covariance in storetrack:
 /// T_true = exp([delta_rot, delta_trans]) applied on the LEFT, i.e.
 ///   R_true = Exp(delta_rot) * R,  t_true = t + delta_trans,

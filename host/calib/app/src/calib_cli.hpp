@@ -1,0 +1,40 @@
+// storetrack-calib command line: one subcommand per calibration step (docs/calibration.md).
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "storetrack/calib/chessboard_detection.hpp"
+#include "storetrack/calib/intrinsic_calibration.hpp"
+
+namespace storetrack::calibapp {
+
+struct DetectArgs {
+  std::string board = "chessboard";
+  calib::ChessboardSpec chessboard;
+  int camera = 0;
+  std::vector<std::string> images;
+  std::string output;
+};
+
+struct IntrinsicArgs {
+  std::string observations;
+  int camera = 0;
+  int unit_id = 0;
+  std::string image_size;  ///< "WxH"; overrides the CSV's "# image_size" line
+  calib::IntrinsicOptions options;
+  bool no_outlier_rejection = false;
+  std::string output;
+  std::string residuals_csv;
+};
+
+struct CalibCommand {
+  enum class Kind { kNone, kDetect, kIntrinsic } kind = Kind::kNone;
+  DetectArgs detect;
+  IntrinsicArgs intrinsic;
+};
+
+/// Returns -1 to run `command`, else the exit code (0 after --help, 2 on a bad argument).
+int parse_calib_command(int argc, char** argv, CalibCommand& command);
+
+}  // namespace storetrack::calibapp

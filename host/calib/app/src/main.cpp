@@ -1,0 +1,23 @@
+// storetrack-calib: camera calibration with covariance (docs/calibration.md). Subcommands:
+//   detect     images -> observation CSV          (calib_commands.cpp, run_detect)
+//   intrinsic  observation CSV -> calibration JSON (calib_commands.cpp, run_intrinsic)
+// Exit codes: 0 ok, 1 runtime failure (writing files), 2 bad arguments or input.
+#include <iostream>
+
+#include "calib_cli.hpp"
+#include "calib_commands.hpp"
+
+int main(int argc, char** argv) {
+  namespace app = storetrack::calibapp;
+  app::CalibCommand command;
+  if (const int rc = app::parse_calib_command(argc, argv, command); rc >= 0) return rc;
+  switch (command.kind) {
+    case app::CalibCommand::Kind::kDetect:
+      return app::run_detect(command.detect, std::cout, std::cerr);
+    case app::CalibCommand::Kind::kIntrinsic:
+      return app::run_intrinsic(command.intrinsic, std::cout, std::cerr);
+    case app::CalibCommand::Kind::kNone:
+      break;
+  }
+  return 2;
+}

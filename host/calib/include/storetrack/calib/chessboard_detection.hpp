@@ -1,0 +1,33 @@
+// Chessboard corners from images (OpenCV findChessboardCorners + cornerSubPix). OpenCV stays in
+// the implementation: this header only names files and observations.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "storetrack/calib/observations.hpp"
+
+namespace storetrack::calib {
+
+struct ChessboardSpec {
+  int cols = 9, rows = 6;  ///< inner corners per row / per column
+  double square_m = 0.025;
+};
+
+struct RejectedImage {
+  std::string path;
+  std::string reason;
+};
+
+struct DetectionResult {
+  ObservationSet set;
+  int images_used = 0;
+  std::vector<RejectedImage> rejected;  ///< every image not used, with why
+};
+
+/// Frame index = position of the image in `image_paths` (so a rejected image keeps its index
+/// and the frames of two cameras' image lists stay aligned).
+DetectionResult detect_chessboards(const std::vector<std::string>& image_paths,
+                                   const ChessboardSpec& board, int camera);
+
+}  // namespace storetrack::calib

@@ -1,0 +1,72 @@
+// Single-camera intrinsic calibration: Zhang's closed form, then Levenberg-Marquardt (Ceres) of
+// the project's camera model (common/camera), outlier rejection and the parameter covariance
+// (docs/calibration.md, "Method").
+#pragma once
+
+#include <stdexcept>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "storetrack/calib/observations.hpp"
+#include "storetrack/camera/camera_model.hpp"
+
+namespace storetrack::calib {
+
+/// Thrown when the observations cannot determine the camera (too few views, degenerate views).
+class CalibrationError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/// Which parameters are estimated; like cv::calibrateCamera's flags. Fixed ones keep their
+/// initial value (0 for distortion) and get variance 0 in the covariance.
+struct IntrinsicOptions {
+  bool fix_aspect_ratio = false;  ///< fx = aspect_ratio * fy (CALIB_FIX_ASPECT_RATIO)
+  double aspect_ratio = 1.0;
+  bool fix_principal_point = false;  ///< cx, cy at the image centre (CALIB_FIX_PRINCIPAL_POINT)
+  bool zero_tangential = false;      ///< p1 = p2 = 0 (CALIB_ZERO_TANGENT_DIST)
+  bool fix_k1 = false, fix_k2 = false, fix_k3 = false;
+  bool rational = false;  ///< estimate k4..k6 (CALIB_RATIONAL_MODEL); else they are 0
+  /// Outlier rejection: a point whose squared residual, over the robust residual variance,
+  /// exceeds the chi-square (2 dof) quantile at 1 - false_alarm / N is rejected and the fit
+  /// repeated. false_alarm = probability of rejecting any point of a clean set; 0 disables.
+  double outlier_false_alarm = 0.01;
+  int min_views = 3;
+};
+
+struct PointResidual {
+  int frame = 0, point_id = 0;
+  Eigen::Vector2d residual_px = Eigen::Vector2d::Zero();  ///< observed - projected
+  bool rejected = false;
+};
+
+struct ViewResult {
+  int frame = 0;
+  geometry::Transform T_c_b = geometry::Transform::Identity();  ///< board -> camera
+  geometry::Mat6 pose_covariance = geometry::Mat6::Zero();      ///< left perturbation of T_c_b
+  int points_used = 0, points_rejected = 0;
+  double rms_px = 0;  ///< over the view's used points, per point: sqrt(mean |r|^2)
+};
+
+struct IntrinsicResult {
+  camera::Intrinsics intrinsics;
+  camera::IntrinsicCovariance covariance = camera::IntrinsicCovariance::Zero();
+  std::vector<ViewResult> views;
+  std::vector<PointResidual> residuals;
+  std::vector<int> frames_skipped;  ///< frames with fewer than 4 points (no homography): unused
+  int points_used = 0, points_rejected = 0;
+  int free_parameters = 0;  ///< intrinsic + 6 per view
+  double rms_px = 0;        ///< sqrt(SSR / N) over used points, as cv::calibrateCamera's RMS
+  /// sqrt(SSR_w / (2N - p)) over residuals weighted by 1 / sigma_px (1 when the CSV gives no
+  /// sigma): per-axis pixels without sigmas, a ratio (~1 when the sigmas are right) with them.
+  /// Its square scales the covariance.
+  double residual_sigma_px = 0;
+  int iterations = 0;
+};
+
+/// Calibrates `camera` from its observations (planar board, z = 0). Throws CalibrationError.
+IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
+                                     const IntrinsicOptions& options);
+
+}  // namespace storetrack::calib

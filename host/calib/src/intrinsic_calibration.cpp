@@ -1,0 +1,214 @@
+// calibrate_intrinsics: gather one camera's views, Zhang start, LM, outlier rejection (repeat
+// until the rejected set is stable), residuals and covariance (docs/calibration.md, "Method").
+#include "storetrack/calib/intrinsic_calibration.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <string>
+
+#include "intrinsic_covariance.hpp"
+#include "intrinsic_refinement.hpp"
+#include "storetrack/uncertainty/statistics.hpp"
+#include "zhang_initialisation.hpp"
+
+namespace storetrack::calib {
+namespace {
+
+constexpr int kMinPointsPerView = 4;  // a homography needs 4 points
+constexpr int kMaxRejectionRounds = 10;
+// Floor on the largest angle between two board planes. Zhang (2000, sec. 5.1, "performance
+// w.r.t. the orientation of the model plane") finds the calibration degrading fast as the planes
+// approach parallel and best near 45 degrees; below 5 degrees it is not worth attempting.
+constexpr double kMinBoardAngleDeg = 5.0;
+
+std::vector<BoardView> camera_views(const ObservationSet& set, int camera,
+                                    std::vector<int>& frames_skipped) {
+  std::map<int, BoardView> by_frame;
+  for (const Observation& o : set.observations) {
+    if (o.camera != camera) continue;
+    if (std::abs(o.p_board.z()) > 1e-9)
+      throw CalibrationError("camera " + std::to_string(camera) + " frame " +
+                             std::to_string(o.frame) + " point " + std::to_string(o.point_id) +
+                             ": board z = " + std::to_string(o.p_board.z()) +
+                             " m; the intrinsic calibration needs a planar board (z = 0)");
+    BoardView& v = by_frame[o.frame];
+    v.frame = o.frame;
+    v.points.push_back(&o);
+  }
+  std::vector<BoardView> views;
+  for (auto& [frame, view] : by_frame)
+    if (static_cast<int>(view.points.size()) >= kMinPointsPerView)
+      views.push_back(view);
+    else
+      frames_skipped.push_back(frame);
+  return views;
+}
+
+/// Weighted residuals (projected - observed) / sigma of every point, current parameters.
+std::vector<std::vector<Eigen::Vector2d>> weighted_residuals(const std::vector<BoardView>& views,
+                                                             const IntrinsicParameterMap& map,
+                                                             const RefinementState& state) {
+  const camera::CameraModel model(map.intrinsics(state.z.data()));
+  std::vector<std::vector<Eigen::Vector2d>> out(views.size());
+  for (size_t i = 0; i < views.size(); ++i) {
+    const auto T = geometry::make_transform(state.poses[i].head<3>(), state.poses[i].tail<3>());
+    for (const Observation* o : views[i].points) {
+      const auto pixel = model.project_world(T, o->p_board);
+      const double w = 1.0 / o->sigma_px.value_or(1.0);
+      out[i].push_back(pixel ? Eigen::Vector2d(w * (*pixel - o->pixel))
+                             : Eigen::Vector2d::Constant(INFINITY));
+    }
+  }
+  return out;
+}
+
+/// Rejection by the chi-square (2 dof) gate at 1 - false_alarm / N, on residuals scaled by a
+/// robust sigma (1.4826 x median absolute residual component), so outliers do not widen it.
+std::vector<std::vector<char>> inliers(const std::vector<std::vector<Eigen::Vector2d>>& r,
+                                       double false_alarm) {
+  std::vector<std::vector<char>> used(r.size());
+  std::vector<double> components;
+  for (size_t i = 0; i < r.size(); ++i) {
+    used[i].assign(r[i].size(), 1);
+    for (const auto& e : r[i]) {
+      components.push_back(std::abs(e.x()));
+      components.push_back(std::abs(e.y()));
+    }
+  }
+  if (!(false_alarm > 0)) return used;
+  const auto mid = components.begin() + static_cast<std::ptrdiff_t>(components.size() / 2);
+  std::nth_element(components.begin(), mid, components.end());
+  const double robust_sigma = 1.4826 * *mid;
+  const auto points = static_cast<double>(components.size() / 2);
+  const double gate = uncertainty::chi_square_quantile(
+      uncertainty::Probability(1 - false_alarm / points), uncertainty::DegreesOfFreedom(2));
+  for (size_t i = 0; i < r.size(); ++i)
+    for (size_t k = 0; k < r[i].size(); ++k)
+      used[i][k] = r[i][k].squaredNorm() <= gate * robust_sigma * robust_sigma;
+  return used;
+}
+
+/// Refuses views whose boards are all (nearly) parallel. Then every view gives the same two
+/// constraints on K (parallel planes share their circular points, imaged by h1 +- i h2 ~
+/// K (r1 +- i r2)), so a 2-parameter family of cameras fits equally well, and in every member
+/// of the family the boards are parallel: the test on the fitted poses holds whichever member
+/// the solver found.
+void check_board_orientations(const std::vector<BoardView>& views, const RefinementState& state) {
+  std::vector<geometry::Vec3> normals;
+  for (const PoseVector& pose : state.poses)
+    normals.push_back(geometry::rotation_from_rotvec(pose.head<3>()).col(2));
+  double widest_deg = 0;
+  for (size_t a = 0; a < normals.size(); ++a)
+    for (size_t c = a + 1; c < normals.size(); ++c)
+      widest_deg = std::max(widest_deg,
+                            std::acos(std::clamp(std::abs(normals[a].dot(normals[c])), 0.0, 1.0)));
+  widest_deg *= 180 / M_PI;
+  if (widest_deg >= kMinBoardAngleDeg) return;
+  char angle[32];
+  std::snprintf(angle, sizeof angle, "%.1f", widest_deg);
+  throw CalibrationError("degenerate views: the " + std::to_string(views.size()) +
+                         " boards are (nearly) parallel to each other (largest angle between two "
+                         "board planes " +
+                         angle +
+                         " deg, need >= 5), so the focal length and principal point "
+                         "are not determined: tilt the board by 20-45 degrees about different "
+                         "axes between views");
+}
+
+IntrinsicResult summarise(const std::vector<BoardView>& views,
+                          const std::vector<std::vector<char>>& used,
+                          const IntrinsicParameterMap& map, const RefinementState& state) {
+  IntrinsicResult out;
+  out.intrinsics = map.intrinsics(state.z.data());
+  const auto weighted = weighted_residuals(views, map, state);
+  double chi2 = 0, ssr_px = 0;
+  for (size_t i = 0; i < views.size(); ++i) {
+    ViewResult v;
+    v.frame = views[i].frame;
+    v.T_c_b = geometry::make_transform(state.poses[i].head<3>(), state.poses[i].tail<3>());
+    double view_ssr = 0;
+    for (size_t k = 0; k < views[i].points.size(); ++k) {
+      const Observation& o = *views[i].points[k];
+      const Eigen::Vector2d r_px = -weighted[i][k] * o.sigma_px.value_or(1.0);
+      out.residuals.push_back({v.frame, o.point_id, r_px, !used[i][k]});
+      if (!used[i][k]) {
+        ++v.points_rejected;
+        continue;
+      }
+      ++v.points_used;
+      view_ssr += r_px.squaredNorm();
+      chi2 += weighted[i][k].squaredNorm();
+    }
+    v.rms_px = v.points_used ? std::sqrt(view_ssr / v.points_used) : 0;
+    ssr_px += view_ssr;
+    out.points_used += v.points_used;
+    out.points_rejected += v.points_rejected;
+    out.views.push_back(v);
+  }
+  out.free_parameters = map.size() + 6 * static_cast<int>(views.size());
+  const int dof = 2 * out.points_used - out.free_parameters;
+  if (dof <= 0)
+    throw CalibrationError(std::to_string(out.points_used) + " points give " +
+                           std::to_string(2 * out.points_used) + " residuals for " +
+                           std::to_string(out.free_parameters) +
+                           " parameters: add views or points");
+  out.rms_px = std::sqrt(ssr_px / out.points_used);
+  const double variance = chi2 / dof;
+  out.residual_sigma_px = std::sqrt(variance);
+  const FitCovariance cov = fit_covariance(views, used, map, state, variance);
+  out.covariance = cov.intrinsics;
+  for (size_t i = 0; i < out.views.size(); ++i)
+    out.views[i].pose_covariance = cov.poses[i];
+  return out;
+}
+
+}  // namespace
+
+IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
+                                     const IntrinsicOptions& options) {
+  const std::string who = "camera " + std::to_string(camera) + ": ";
+  if (std::none_of(set.observations.begin(), set.observations.end(),
+                   [camera](const Observation& o) { return o.camera == camera; }))
+    throw CalibrationError(who + "no observations of this camera");
+  const auto size = set.image_sizes.find(camera);
+  if (size == set.image_sizes.end())
+    throw CalibrationError(who + "image size unknown (the CSV needs a '# image_size," +
+                           std::to_string(camera) + ",W,H' line, or give --image-size)");
+  std::vector<int> frames_skipped;
+  const std::vector<BoardView> views = camera_views(set, camera, frames_skipped);
+  if (static_cast<int>(views.size()) < std::max(options.min_views, 2))
+    throw CalibrationError(who + "too few views: " + std::to_string(views.size()) +
+                           " board poses with >= 4 points, need at least " +
+                           std::to_string(std::max(options.min_views, 2)));
+
+  const ZhangStart start = zhang_initialisation(views, size->second, options);
+  const IntrinsicParameterMap map(options, start.intrinsics);
+  RefinementState state{map.free_values(start.intrinsics), {}};
+  for (const auto& T : start.T_c_b) {
+    PoseVector pose;
+    pose << geometry::rotvec_from_rotation(T.linear()), T.translation();
+    state.poses.push_back(pose);
+  }
+  std::vector<std::vector<char>> used = inliers(weighted_residuals(views, map, state), 0);
+  int iterations = 0;
+  for (int round = 0; round < kMaxRejectionRounds; ++round) {
+    try {
+      iterations += refine_intrinsics(views, used, map, state);
+    } catch (const CalibrationError&) {
+      check_board_orientations(views, state);
+      throw;
+    }
+    check_board_orientations(views, state);
+    auto next = inliers(weighted_residuals(views, map, state), options.outlier_false_alarm);
+    if (next == used) break;
+    used = std::move(next);
+  }
+  IntrinsicResult out = summarise(views, used, map, state);
+  out.iterations = iterations;
+  out.frames_skipped = frames_skipped;
+  return out;
+}
+
+}  // namespace storetrack::calib

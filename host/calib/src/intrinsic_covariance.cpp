@@ -1,0 +1,75 @@
+#include "intrinsic_covariance.hpp"
+
+#include "storetrack/uncertainty/spd_inverse.hpp"
+
+namespace storetrack::calib {
+namespace {
+
+constexpr int kN = camera::kNumIntrinsics;
+using MatN = Eigen::Matrix<double, kN, kN>;
+using MatN6 = Eigen::Matrix<double, kN, 6>;
+
+struct ViewBlocks {
+  geometry::Mat6 D = geometry::Mat6::Zero();  ///< pose-pose
+  MatN6 B = MatN6::Zero();                    ///< intrinsics-pose
+  geometry::Mat6 D_inv;
+};
+
+}  // namespace
+
+FitCovariance fit_covariance(const std::vector<BoardView>& views,
+                             const std::vector<std::vector<char>>& used,
+                             const IntrinsicParameterMap& map, const RefinementState& state,
+                             double residual_variance) {
+  const int p = map.size();
+  const camera::CameraModel model(map.intrinsics(state.z.data()));
+  // Free intrinsics padded to the fixed size kN (padding columns of M are zero, so the padding
+  // rows/columns of A and B stay zero): fixed-size products throughout (quicker to compile than
+  // mixed dynamic ones) and the tree's fixed-size SPD inverse applies.
+  MatN M = MatN::Zero();
+  M.leftCols(p) = map.jacobian();
+  MatN A = MatN::Zero();
+  std::vector<ViewBlocks> blocks(views.size());
+  for (size_t i = 0; i < views.size(); ++i) {
+    const geometry::Transform T_c_b =
+        geometry::make_transform(state.poses[i].head<3>(), state.poses[i].tail<3>());
+    for (size_t k = 0; k < views[i].points.size(); ++k) {
+      if (!used[i][k]) continue;
+      const Observation& o = *views[i].points[k];
+      camera::ProjectionJacobians J;
+      if (!model.project_world(T_c_b, o.p_board, &J)) continue;
+      const double w = 1.0 / o.sigma_px.value_or(1.0);
+      const Eigen::Matrix<double, 2, kN> Jz = w * J.d_intrinsics * M;
+      const Eigen::Matrix<double, 2, 6> Jp = w * J.d_pose;
+      A.noalias() += Jz.transpose() * Jz;
+      blocks[i].B.noalias() += Jz.transpose() * Jp;
+      blocks[i].D.noalias() += Jp.transpose() * Jp;
+    }
+  }
+  MatN S = A;
+  for (size_t i = 0; i < views.size(); ++i) {
+    if (!uncertainty::inverse_spd<6>(blocks[i].D, blocks[i].D_inv))
+      throw CalibrationError("view " + std::to_string(views[i].frame) +
+                             ": its board pose is not determined by its points");
+    S.noalias() -= blocks[i].B * blocks[i].D_inv * blocks[i].B.transpose();
+  }
+  for (int j = p; j < kN; ++j)
+    S(j, j) = 1;  // padding: decoupled unit block, dropped below
+  MatN S_inv;
+  if (!uncertainty::inverse_spd<kN>(S, S_inv))
+    throw CalibrationError(
+        "the normal matrix is singular: the views do not determine the free intrinsics "
+        "(fix parameters or add tilted views)");
+  MatN C_z = residual_variance * S_inv;
+  C_z.rightCols(kN - p).setZero();
+  C_z.bottomRows(kN - p).setZero();
+  FitCovariance out;
+  out.intrinsics = M * C_z * M.transpose();
+  for (const ViewBlocks& b : blocks) {
+    const Eigen::Matrix<double, kN, 6> SB = S_inv * b.B * b.D_inv;
+    out.poses.push_back(residual_variance * (b.D_inv + b.D_inv * b.B.transpose() * SB));
+  }
+  return out;
+}
+
+}  // namespace storetrack::calib

@@ -1,0 +1,55 @@
+#include "intrinsic_parameters.hpp"
+
+namespace storetrack::calib {
+namespace {
+// Packed indices (common/camera/camera_model.hpp).
+enum Packed : int { kFx, kFy, kCx, kCy, kSkew, kK1, kK2, kP1, kP2, kK3, kK4, kK5, kK6 };
+}  // namespace
+
+IntrinsicParameterMap::IntrinsicParameterMap(const IntrinsicOptions& o,
+                                             const camera::Intrinsics& start)
+    : base_(camera::pack(start)), width_(start.width), height_(start.height) {
+  std::vector<int> free;
+  if (!o.fix_aspect_ratio) free.push_back(kFx);
+  free.push_back(kFy);
+  if (!o.fix_principal_point) {
+    free.push_back(kCx);
+    free.push_back(kCy);
+  }
+  // skew: the model has it, cv::calibrateCamera does not estimate it; fixed at its start (0).
+  if (!o.fix_k1) free.push_back(kK1);
+  if (!o.fix_k2) free.push_back(kK2);
+  if (!o.zero_tangential) {
+    free.push_back(kP1);
+    free.push_back(kP2);
+  }
+  if (!o.fix_k3) free.push_back(kK3);
+  if (o.rational)
+    for (int k : {kK4, kK5, kK6})
+      free.push_back(k);
+  lead_ = free;
+  M_.setZero(camera::kNumIntrinsics, static_cast<Eigen::Index>(free.size()));
+  for (size_t j = 0; j < free.size(); ++j) {
+    M_(free[j], static_cast<Eigen::Index>(j)) = 1;
+    base_[free[j]] = 0;
+  }
+  if (o.fix_aspect_ratio) {
+    M_(kFx, 0) = o.aspect_ratio;  // column 0 is fy
+    base_[kFx] = 0;
+  }
+}
+
+camera::Intrinsics IntrinsicParameterMap::intrinsics(const double* z) const {
+  const Eigen::Map<const Eigen::VectorXd> zv(z, size());
+  return camera::unpack(base_ + M_ * zv, width_, height_);
+}
+
+Eigen::VectorXd IntrinsicParameterMap::free_values(const camera::Intrinsics& in) const {
+  const camera::IntrinsicVector packed = camera::pack(in);
+  Eigen::VectorXd z(size());
+  for (int j = 0; j < size(); ++j)
+    z[j] = packed[lead_[static_cast<size_t>(j)]];
+  return z;
+}
+
+}  // namespace storetrack::calib

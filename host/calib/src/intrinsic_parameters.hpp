@@ -1,0 +1,32 @@
+// The free intrinsic parameters z of a fit and their map to the packed 13-vector of
+// common/camera: packed = base + M z. Fixed parameters live in `base`; a tied aspect ratio is a
+// column of M with two entries (fx = a * fy), so the covariance maps back exactly: M C_z M^T.
+#pragma once
+
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "storetrack/calib/intrinsic_calibration.hpp"
+
+namespace storetrack::calib {
+
+class IntrinsicParameterMap {
+ public:
+  IntrinsicParameterMap(const IntrinsicOptions& options, const camera::Intrinsics& start);
+
+  int size() const { return static_cast<int>(lead_.size()); }
+  const Eigen::Matrix<double, camera::kNumIntrinsics, Eigen::Dynamic>& jacobian() const {
+    return M_;
+  }
+  camera::Intrinsics intrinsics(const double* z) const;
+  Eigen::VectorXd free_values(const camera::Intrinsics& in) const;
+
+ private:
+  Eigen::Matrix<double, camera::kNumIntrinsics, Eigen::Dynamic> M_;
+  camera::IntrinsicVector base_;
+  std::vector<int> lead_;  ///< packed index whose value z_j is
+  int width_, height_;
+};
+
+}  // namespace storetrack::calib

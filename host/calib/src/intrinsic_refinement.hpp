@@ -1,0 +1,28 @@
+// Levenberg-Marquardt of the free intrinsics and every view's pose (Ceres; the only translation
+// unit that includes Ceres, to keep the build quick).
+#pragma once
+
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "board_views.hpp"
+#include "intrinsic_parameters.hpp"
+
+namespace storetrack::calib {
+
+/// Pose of view i as (rotation vector of R_c_b [rad], t_c_b [m]).
+using PoseVector = Eigen::Matrix<double, 6, 1>;
+
+struct RefinementState {
+  Eigen::VectorXd z;              ///< free intrinsics (IntrinsicParameterMap)
+  std::vector<PoseVector> poses;  ///< one per view
+};
+
+/// used[i][k]: point k of view i takes part (outlier rejection clears it). Returns the number
+/// of LM iterations; throws CalibrationError if the solver fails.
+int refine_intrinsics(const std::vector<BoardView>& views,
+                      const std::vector<std::vector<char>>& used, const IntrinsicParameterMap& map,
+                      RefinementState& state);
+
+}  // namespace storetrack::calib

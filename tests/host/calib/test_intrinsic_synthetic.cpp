@@ -1,0 +1,216 @@
+// Intrinsic calibration against synthetic truth: board points projected through a known camera
+// (common/camera) with Gaussian noise of known sigma. The recovered parameters must agree with
+// the truth within their stated covariance (NEES, chi-square bounds), and the refusals (too few
+// views, parallel boards) must name the problem.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "storetrack/calib/intrinsic_calibration.hpp"
+#include "storetrack/uncertainty/statistics.hpp"
+
+namespace storetrack::calib {
+namespace {
+
+using uncertainty::chi_square_quantile;
+using uncertainty::DegreesOfFreedom;
+using uncertainty::Probability;
+
+camera::Intrinsics truth_camera() {
+  camera::Intrinsics in;  // the project's nominal sensor, values like docs/calibration-file.md
+  in.fx = 1450.3;
+  in.fy = 1448.7;
+  in.cx = 962.1;
+  in.cy = 508.4;
+  in.dist = {-0.21, 0.09, 0.0004, -0.0003, -0.02, 0, 0, 0};
+  return in;
+}
+
+constexpr int kCols = 10, kRows = 7;
+constexpr double kSquare = 0.05;  // SisTrO's board: 10 x 7 corners, 50 mm
+
+/// T_c_b of view i: the board 1.1-1.9 m away, spread over the image, tilted 20-40 degrees about
+/// an axis that turns from view to view. parallel = every board with the same orientation.
+geometry::Transform board_pose(int i, bool parallel) {
+  const double turn = parallel ? 0.7 : 2.39996 * i;  // golden angle: axes spread evenly
+  const double tilt = parallel ? 0.5 : (20 + 20 * ((i * 7) % 11) / 10.0) * M_PI / 180;
+  const geometry::Vec3 axis(std::cos(turn), std::sin(turn), 0);
+  const geometry::Mat3 R =
+      Eigen::AngleAxisd(tilt, axis).toRotationMatrix() *
+      Eigen::AngleAxisd(parallel ? 0 : 0.3 * i, geometry::Vec3::UnitZ()).toRotationMatrix();
+  const double z = 1.1 + 0.8 * ((i * 5) % 9) / 8.0;
+  const geometry::Vec3 centre_cam(0.45 * z * std::cos(1.3 * i), 0.25 * z * std::sin(1.7 * i), z);
+  const geometry::Vec3 centre_board(0.5 * (kCols - 1) * kSquare, 0.5 * (kRows - 1) * kSquare, 0);
+  geometry::Transform T = geometry::Transform::Identity();
+  T.linear() = R;
+  T.translation() = centre_cam - R * centre_board;
+  return T;
+}
+
+ObservationSet synthetic_set(int views, double sigma_px, std::mt19937_64& rng,
+                             bool parallel = false) {
+  const camera::CameraModel model(truth_camera());
+  std::normal_distribution<double> noise(0, sigma_px);
+  ObservationSet set;
+  set.image_sizes[0] = {1920, 1024};
+  for (int i = 0; i < views; ++i) {
+    const geometry::Transform T_c_b = board_pose(i, parallel);
+    for (int id = 0; id < kCols * kRows; ++id) {
+      Observation o;
+      o.frame = i;
+      o.point_id = id;
+      o.p_board = {(id % kCols) * kSquare, (id / kCols) * kSquare, 0};
+      const auto pixel = model.project_world(T_c_b, o.p_board);
+      if (!pixel || pixel->x() < 0 || pixel->y() < 0 || pixel->x() > 1919 || pixel->y() > 1023)
+        continue;
+      o.pixel = *pixel + geometry::Vec2(noise(rng), noise(rng));
+      set.observations.push_back(o);
+    }
+  }
+  return set;
+}
+
+/// The 9 estimated parameters (5-coefficient model, skew fixed) in the packed vector.
+constexpr std::array<int, 9> kFree = {0, 1, 2, 3, 5, 6, 7, 8, 9};
+
+double nees(const IntrinsicResult& r) {
+  const camera::IntrinsicVector e = camera::pack(r.intrinsics) - camera::pack(truth_camera());
+  Eigen::Matrix<double, 9, 1> e9;
+  Eigen::Matrix<double, 9, 9> C9;
+  for (int a = 0; a < 9; ++a) {
+    e9[a] = e[kFree[a]];
+    for (int b = 0; b < 9; ++b)
+      C9(a, b) = r.covariance(kFree[a], kFree[b]);
+  }
+  return e9.dot(C9.ldlt().solve(e9));
+}
+
+TEST(IntrinsicSynthetic, ParametersAgreeWithTruthWithinTheirCovariance) {
+  // Sum of M independent NEES values ~ chi-square(9 M) when the covariance is honest (the
+  // residual variance is estimated from ~2000 degrees of freedom: a < 1 % effect on the scale).
+  // Two-sided 99.9 % interval, so a correct implementation fails 1 run in 1000 seeds.
+  constexpr int kTrials = 25, kViews = 15;
+  constexpr double kSigma = 0.3;
+  std::mt19937_64 rng(20261202);
+  double nees_sum = 0;
+  int rejected = 0;
+  for (int t = 0; t < kTrials; ++t) {
+    const ObservationSet set = synthetic_set(kViews, kSigma, rng);
+    const IntrinsicResult r = calibrate_intrinsics(set, 0, IntrinsicOptions{});
+    nees_sum += nees(r);
+    rejected += r.points_rejected;
+    // The residual sigma estimates the noise: dof s^2 / sigma^2 ~ chi-square(dof).
+    const int dof = 2 * r.points_used - r.free_parameters;
+    const double ratio = dof * std::pow(r.residual_sigma_px / kSigma, 2);
+    EXPECT_GT(ratio, chi_square_quantile(Probability(0.0005), DegreesOfFreedom(dof)));
+    EXPECT_LT(ratio, chi_square_quantile(Probability(0.9995), DegreesOfFreedom(dof)));
+  }
+  const DegreesOfFreedom dof(9 * kTrials);
+  std::printf("mean NEES over %d calibrations: %.3f (dimension 9)\n", kTrials, nees_sum / kTrials);
+  EXPECT_GT(nees_sum, chi_square_quantile(Probability(0.0005), dof));
+  EXPECT_LT(nees_sum, chi_square_quantile(Probability(0.9995), dof));
+  // The outlier gate's false alarm is 1 % per clean calibration: over 25 at most a few points.
+  EXPECT_LE(rejected, 3);
+}
+
+TEST(IntrinsicSynthetic, GrossOutliersRejectedAndCounted) {
+  std::mt19937_64 rng(7);
+  ObservationSet set = synthetic_set(15, 0.3, rng);
+  const std::array<size_t, 8> bad = {3, 101, 222, 350, 480, 613, 777, 901};
+  for (size_t k = 0; k < bad.size(); ++k)  // 4 to 25 px: a mis-detected corner
+    set.observations[bad[k]].pixel += geometry::Vec2(4.0 + 3 * k, -2.0 - k);
+  const IntrinsicResult r = calibrate_intrinsics(set, 0, IntrinsicOptions{});
+  EXPECT_EQ(r.points_rejected, static_cast<int>(bad.size()));
+  for (size_t k : bad)
+    EXPECT_TRUE(r.residuals[k].rejected) << "observation " << k;
+  EXPECT_LT(nees(r), chi_square_quantile(Probability(0.999), DegreesOfFreedom(9)));
+  EXPECT_LT(std::abs(r.residual_sigma_px - 0.3), 0.03);
+}
+
+TEST(IntrinsicSynthetic, StatedSigmasWeightTheFit) {
+  // With the true sigma in the CSV column the weighted residual scale is ~1 (dof s^2 ~
+  // chi-square(dof)), and the covariance is the same as without (it is scaled by the fit).
+  std::mt19937_64 rng(11), rng_copy(11);
+  ObservationSet weighted = synthetic_set(15, 0.3, rng);
+  const ObservationSet plain = synthetic_set(15, 0.3, rng_copy);
+  for (Observation& o : weighted.observations)
+    o.sigma_px = 0.3;
+  const IntrinsicResult w = calibrate_intrinsics(weighted, 0, IntrinsicOptions{});
+  const IntrinsicResult u = calibrate_intrinsics(plain, 0, IntrinsicOptions{});
+  const int dof = 2 * w.points_used - w.free_parameters;
+  const double chi2 = dof * w.residual_sigma_px * w.residual_sigma_px;
+  EXPECT_GT(chi2, chi_square_quantile(Probability(0.0005), DegreesOfFreedom(dof)));
+  EXPECT_LT(chi2, chi_square_quantile(Probability(0.9995), DegreesOfFreedom(dof)));
+  EXPECT_NEAR(w.intrinsics.fx, u.intrinsics.fx, 1e-6);
+  EXPECT_NEAR(w.covariance(0, 0), u.covariance(0, 0), 1e-6 * u.covariance(0, 0));
+}
+
+TEST(Geometry, So3LeftJacobianMatchesFiniteDifferences) {
+  // Exp(w + d) = Exp(J_l(w) d) Exp(w): compare J_l d with Log(Exp(w + d) Exp(w)^-1) / |d|.
+  for (const geometry::Vec3& w :
+       {geometry::Vec3(0.3, -1.2, 0.7), geometry::Vec3(1e-8, 0, 2e-8), geometry::Vec3(0, 3.0, 0)}) {
+    const geometry::Mat3 J = geometry::so3_left_jacobian(w);
+    for (int axis = 0; axis < 3; ++axis) {
+      const double h = 1e-6;
+      const geometry::Vec3 d = h * geometry::Vec3::Unit(axis);
+      const geometry::Mat3 dR =
+          geometry::rotation_from_rotvec(w + d) * geometry::rotation_from_rotvec(w).transpose();
+      const geometry::Vec3 numeric = geometry::rotvec_from_rotation(dR) / h;
+      EXPECT_LT((numeric - J.col(axis)).norm(), 1e-6) << "w " << w.transpose() << " axis " << axis;
+    }
+  }
+}
+
+std::string calibration_error(const ObservationSet& set) {
+  try {
+    calibrate_intrinsics(set, 0, IntrinsicOptions{});
+  } catch (const CalibrationError& e) {
+    return e.what();
+  }
+  return "(accepted)";
+}
+
+TEST(IntrinsicSynthetic, ViewWithTooFewPointsSkippedAndNamed) {
+  std::mt19937_64 rng(5);
+  ObservationSet set = synthetic_set(6, 0.3, rng);
+  Observation lone = set.observations.front();
+  lone.frame = 99;
+  set.observations.push_back(lone);
+  const IntrinsicResult r = calibrate_intrinsics(set, 0, IntrinsicOptions{});
+  EXPECT_EQ(r.views.size(), 6u);
+  EXPECT_EQ(r.frames_skipped, std::vector<int>{99});
+}
+
+TEST(IntrinsicSynthetic, TooFewViewsRefused) {
+  std::mt19937_64 rng(1);
+  EXPECT_EQ(calibration_error(synthetic_set(2, 0.3, rng)),
+            "camera 0: too few views: 2 board poses with >= 4 points, need at least 3");
+}
+
+TEST(IntrinsicSynthetic, ParallelBoardsRefusedAsDegenerate) {
+  std::mt19937_64 rng(2);
+  const std::string error = calibration_error(synthetic_set(12, 0.3, rng, /*parallel=*/true));
+  std::printf("%s\n", error.c_str());
+  EXPECT_NE(error.find("degenerate views"), std::string::npos) << error;
+  EXPECT_NE(error.find("parallel"), std::string::npos) << error;
+}
+
+TEST(IntrinsicSynthetic, MissingImageSizeAndNonPlanarBoardRefused) {
+  std::mt19937_64 rng(3);
+  ObservationSet set = synthetic_set(5, 0.3, rng);
+  set.image_sizes.clear();
+  EXPECT_NE(calibration_error(set).find("image size unknown"), std::string::npos);
+  try {
+    calibrate_intrinsics(set, 4, IntrinsicOptions{});
+    ADD_FAILURE() << "camera 4 accepted";
+  } catch (const CalibrationError& e) {
+    EXPECT_EQ(std::string(e.what()), "camera 4: no observations of this camera");
+  }
+  set = synthetic_set(5, 0.3, rng);
+  set.observations[10].p_board.z() = 0.01;
+  EXPECT_NE(calibration_error(set).find("needs a planar board"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace storetrack::calib
