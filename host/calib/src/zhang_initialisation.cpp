@@ -14,7 +14,7 @@
 #include <optional>
 #include <string>
 
-#include <Eigen/Eigenvalues>
+#include "storetrack/geometry/symmetric_eigen.hpp"
 
 namespace storetrack::calib {
 namespace {
@@ -113,8 +113,8 @@ std::optional<Mat3> closed_form_camera(const Eigen::MatrixXd& V, const Intrinsic
   // Null vector of V P = eigenvector of the smallest eigenvalue of (V P)^T (V P) (at most 5 x 5;
   // the eigen solver compiles far quicker than a dynamic-size SVD).
   const Eigen::MatrixXd VP = V * P;
-  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(VP.transpose() * VP);
-  return intrinsic_matrix_from_conic(P * eig.eigenvectors().col(0));
+  const Eigen::MatrixXd normal = VP.transpose() * VP;
+  return intrinsic_matrix_from_conic(P * geometry::symmetric_eigen(normal).vectors.col(0));
 }
 
 }  // namespace
@@ -138,8 +138,7 @@ Mat3 board_homography(const BoardView& view) {
     b << 0, 0, 0, X.transpose(), -x.y() * X.transpose();
     AtA.noalias() += a.transpose() * a + b.transpose() * b;
   }
-  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(AtA);  // one instantiation
-  const Eigen::Matrix<double, 9, 1> h = eig.eigenvectors().col(0);
+  const Eigen::Matrix<double, 9, 1> h = geometry::symmetric_eigen(AtA).vectors.col(0);
   Mat3 Hn;
   Hn << h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8];
   const Mat3 H = Ti.inverse() * Hn * Tb;
