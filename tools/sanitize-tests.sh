@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# The ASan + UBSan stage: builds the sanitizer tree (clang, RelWithDebInfo at -O1 -g1, warnings
-# as errors, no benchmarks; the libFuzzer targets in the same tree) and runs its tests.
+# The ASan + UBSan stage: builds the sanitizer tree (clang, RelWithDebInfo at -O1 -g1, the tests'
+# own sources at -O0, warnings as errors, no benchmarks, not the bench programs and VM-rig drivers
+# no test here runs; the libFuzzer targets in the same tree) and runs its tests.
 # Not the VM rig (it boots the Release programs), and not the fault, soak and kill -9 runs:
 # system tests of several real processes against wall-clock pacing and waits, which the
 # instrumented programs (3-10x slower) cannot keep on 2 cores; they run in the Release stage, and
