@@ -50,6 +50,8 @@ option(STORETRACK_TEST_PCH "Precompile GoogleTest + Eigen once for all test exec
 # -O1): the code under test is in the libraries, still -O1, and a test source compiles in about
 # half the time (clang ASan + UBSan, tests/host/pose/test_body_pose.cpp: 49 s -> 28 s of CPU).
 # ASan and UBSan see at least as much at -O0. The tests' PCH gets the same, so that it matches.
+# A test marked LONG_RUNNING (its own code loops: Monte Carlo draws, image synthesis) stays at
+# -O1, without the shared PCH: at -O0 test_uncertainty_honesty_static ran over 6 min, not 80 s.
 function(storetrack_sanitizer_test_flags target)
   if(STORETRACK_SANITIZE)
     target_compile_options(${target} PRIVATE "$<$<CONFIG:Release,RelWithDebInfo,MinSizeRel>:-O0>")
@@ -72,13 +74,17 @@ function(storetrack_test_pch)
     <optional> <random> <span> <sstream> <string> <vector>)
 endfunction()
 function(storetrack_test)
-  cmake_parse_arguments(T "" "NAME;TIMEOUT;COST" "SOURCES;LIBS;LABELS" ${ARGN})
+  cmake_parse_arguments(T "LONG_RUNNING" "NAME;TIMEOUT;COST" "SOURCES;LIBS;LABELS" ${ARGN})
   add_executable(${T_NAME} ${T_SOURCES})
   target_link_libraries(${T_NAME} PRIVATE ${T_LIBS} GTest::gtest GTest::gtest_main storetrack_warnings)
-  storetrack_sanitizer_test_flags(${T_NAME})
-  if(STORETRACK_TEST_PCH)
-    storetrack_test_pch()
-    target_precompile_headers(${T_NAME} REUSE_FROM storetrack_test_pch)
+  if(T_LONG_RUNNING AND STORETRACK_SANITIZE)
+    # the tree's -O1; not the shared PCH, which is -O0 there
+  else()
+    storetrack_sanitizer_test_flags(${T_NAME})
+    if(STORETRACK_TEST_PCH)
+      storetrack_test_pch()
+      target_precompile_headers(${T_NAME} REUSE_FROM storetrack_test_pch)
+    endif()
   endif()
   if(STORETRACK_TESTS_NOT_BUILT AND T_NAME MATCHES "${STORETRACK_TESTS_NOT_BUILT}")
     set_target_properties(${T_NAME} PROPERTIES EXCLUDE_FROM_ALL TRUE)
