@@ -6,10 +6,11 @@
 #
 # storetrack_apply_pch() runs after every folder is added and gives the header to each library
 # and executable that compiles with the project's flags (links storetrack_warnings: GCC refuses a
-# header built with other flags, -Winvalid-pch, an error in CI) and sets none of its own beyond
-# the tree's (the sanitizer tree's flags are every target's, so it gets the header too)
+# header built with other flags, -Winvalid-pch, an error in CI) and sets none of its own
 # (firmware/centroid's -fopenmp-simd, the fuzzers' instrumentation, -fPIC for code that goes
-# into a shared object): those, and the tests (their own header), compile as before.
+# into a shared object): those, and the tests (their own header), compile as before. Options
+# every target inherits from the top directory are the header's too: the sanitizer tree's
+# -fsanitize flags once kept all of its targets from it (0 of 34).
 option(STORETRACK_PCH "Precompile Eigen + nlohmann-json once for the libraries and programs" ON)
 
 function(storetrack_collect_targets out dir)

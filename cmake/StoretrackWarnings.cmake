@@ -23,8 +23,8 @@ if(STORETRACK_SANITIZE)
 endif()
 
 # A program no test of the sanitizer tree runs (a bench tool, the VM rig's drivers: the rig and
-# the kill -9 run boot the Release tree's programs): left out of that tree's default target, so its stage does not compile it.
-# `ninja <name>` there still builds it.
+# the kill -9 run boot the Release tree's programs): left out of that tree's default target, so
+# its stage does not compile it (150 s of CPU). `ninja <name>` there still builds it.
 function(storetrack_not_in_sanitizer_stage target)
   if(STORETRACK_SANITIZE)
     set_target_properties(${target} PROPERTIES EXCLUDE_FROM_ALL ON)
