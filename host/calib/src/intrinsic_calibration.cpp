@@ -53,10 +53,10 @@ std::vector<std::vector<Eigen::Vector2d>> weighted_residuals(const std::vector<B
   const camera::CameraModel model(map.intrinsics(state.z.data()));
   std::vector<std::vector<Eigen::Vector2d>> out(views.size());
   for (size_t i = 0; i < views.size(); ++i) {
-    const auto T = geometry::make_transform(state.poses[i].head<3>(), state.poses[i].tail<3>());
+    const auto T = pose_transform(state.poses[i]);
     for (const Observation* o : views[i].points) {
       const auto pixel = model.project_world(T, o->p_board);
-      const double w = 1.0 / o->sigma_px.value_or(1.0);
+      const double w = 1.0 / o->weighting_sigma_px();
       out[i].push_back(pixel ? Eigen::Vector2d(w * (*pixel - o->pixel))
                              : Eigen::Vector2d::Constant(INFINITY));
     }
@@ -127,11 +127,11 @@ IntrinsicResult summarise(const std::vector<BoardView>& views,
   for (size_t i = 0; i < views.size(); ++i) {
     ViewResult v;
     v.frame = views[i].frame;
-    v.T_c_b = geometry::make_transform(state.poses[i].head<3>(), state.poses[i].tail<3>());
+    v.T_c_b = pose_transform(state.poses[i]);
     double view_ssr = 0;
     for (size_t k = 0; k < views[i].points.size(); ++k) {
       const Observation& o = *views[i].points[k];
-      const Eigen::Vector2d r_px = -weighted[i][k] * o.sigma_px.value_or(1.0);
+      const Eigen::Vector2d r_px = -weighted[i][k] * o.weighting_sigma_px();
       out.residuals.push_back({v.frame, o.point_id, r_px, !used[i][k]});
       if (!used[i][k]) {
         ++v.points_rejected;

@@ -31,14 +31,13 @@ FitCovariance fit_covariance(const std::vector<BoardView>& views,
   MatN A = MatN::Zero();
   std::vector<ViewBlocks> blocks(views.size());
   for (size_t i = 0; i < views.size(); ++i) {
-    const geometry::Transform T_c_b =
-        geometry::make_transform(state.poses[i].head<3>(), state.poses[i].tail<3>());
+    const geometry::Transform T_c_b = pose_transform(state.poses[i]);
     for (size_t k = 0; k < views[i].points.size(); ++k) {
       if (!used[i][k]) continue;
       const Observation& o = *views[i].points[k];
       camera::ProjectionJacobians J;
       if (!model.project_world(T_c_b, o.p_board, &J)) continue;
-      const double w = 1.0 / o.sigma_px.value_or(1.0);
+      const double w = 1.0 / o.weighting_sigma_px();
       const Eigen::Matrix<double, 2, kN> Jz = w * J.d_intrinsics * M;
       const Eigen::Matrix<double, 2, 6> Jp = w * J.d_pose;
       A.noalias() += Jz.transpose() * Jz;

@@ -14,7 +14,7 @@ namespace {
 class ReprojectionCost final : public ceres::CostFunction {
  public:
   ReprojectionCost(const Observation& obs, const IntrinsicParameterMap& map)
-      : obs_(obs), map_(map), weight_(1.0 / obs.sigma_px.value_or(1.0)) {
+      : obs_(obs), map_(map), weight_(1.0 / obs.weighting_sigma_px()) {
     set_num_residuals(2);
     mutable_parameter_block_sizes()->push_back(map.size());
     mutable_parameter_block_sizes()->push_back(6);
@@ -24,7 +24,7 @@ class ReprojectionCost final : public ceres::CostFunction {
                 double** jacobians) const override {
     const camera::CameraModel model(map_.intrinsics(parameters[0]));
     const Eigen::Map<const PoseVector> pose(parameters[1]);
-    const geometry::Transform T_c_b = geometry::make_transform(pose.head<3>(), pose.tail<3>());
+    const geometry::Transform T_c_b = pose_transform(pose);
     camera::ProjectionJacobians J;
     const auto pixel = model.project_world(T_c_b, obs_.p_board, jacobians ? &J : nullptr);
     if (!pixel) return false;  // behind the camera: LM shortens the step

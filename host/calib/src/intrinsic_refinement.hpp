@@ -8,11 +8,17 @@
 
 #include "board_views.hpp"
 #include "intrinsic_parameters.hpp"
+#include "storetrack/geometry/transform.hpp"
 
 namespace storetrack::calib {
 
 /// Pose of view i as (rotation vector of R_c_b [rad], t_c_b [m]).
 using PoseVector = Eigen::Matrix<double, 6, 1>;
+
+/// T_c_b of a view's pose vector (the one place that reads its layout).
+inline geometry::Transform pose_transform(const PoseVector& pose) {
+  return geometry::make_transform(pose.head<3>(), pose.tail<3>());
+}
 
 struct RefinementState {
   Eigen::VectorXd z;              ///< free intrinsics (IntrinsicParameterMap)

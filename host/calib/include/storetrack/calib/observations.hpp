@@ -27,6 +27,10 @@ struct Observation {
   Eigen::Vector3d p_board = Eigen::Vector3d::Zero();  ///< board point in the board frame [m]
   Eigen::Vector2d pixel = Eigen::Vector2d::Zero();    ///< image point [px], conventions.md
   std::optional<double> sigma_px;                     ///< per-axis standard uncertainty [px]
+
+  /// The sigma the fit weighs the point with: the stated one, else 1 px (then the residual
+  /// variance, estimated from the fit, scales the covariance).
+  double weighting_sigma_px() const { return sigma_px.value_or(1.0); }
 };
 
 struct ImageSize {
