@@ -39,6 +39,9 @@ double disc_radius(const Spot& s) {
 double normal_cdf(double z) {
   return 0.5 * std::erfc(-z * M_SQRT1_2);
 }
+double normal_pdf(double z) {
+  return std::exp(-0.5 * z * z) * (0.5 * M_2_SQRTPI * M_SQRT1_2);
+}
 
 void grow(std::vector<double>& v, std::size_t n) {
   if (v.size() < n) v.resize(n);
@@ -84,6 +87,11 @@ PixelBox spot_box(const Spot& spot, int width, int height) {
 }
 
 void SpotRenderer::evaluate(const Spot& spot, const PixelBox& box, double* out) {
+  evaluate(spot, box, out, nullptr, nullptr);
+}
+
+void SpotRenderer::evaluate(const Spot& spot, const PixelBox& box, double* out, double* d_out_dx,
+                            double* d_out_dy) {
   if (box.empty()) return;
   const double sigma = effective_sigma(spot);
   const double h = grid_step(spot);
@@ -97,7 +105,7 @@ void SpotRenderer::evaluate(const Spot& spot, const PixelBox& box, double* out) 
 
   // Anti-aliased area weights: coverage averaged over radii spread across one grid step, which
   // approximates the fraction of each h x h cell inside the (swept) disc. They depend only on
-  // the shape, not on the position: cached for repeated evaluations (Fisher information).
+  // the shape, not on the position: cached for repeated evaluations.
   if (!(weights_valid_ && cached_r_ == r && cached_h_ == h && cached_bx_ == spot.blur_dx_px &&
         cached_by_ == spot.blur_dy_px)) {
     grow(weights_, static_cast<std::size_t>(rows) * cols);
@@ -126,41 +134,68 @@ void SpotRenderer::evaluate(const Spot& spot, const PixelBox& box, double* out) 
   RowMap W(weights_.data(), rows, cols);
   const double total = cached_total_;
   const int bw = box.width(), bh = box.height();
+  const bool gradient = d_out_dx != nullptr && d_out_dy != nullptr;
   RowMap out_map(out, bh, bw);
   if (total <= 0) {
     out_map.setZero();
+    if (gradient) {
+      RowMap(d_out_dx, bh, bw).setZero();
+      RowMap(d_out_dy, bh, bw).setZero();
+    }
     return;
   }
 
   // Pixel-integrated 1-D Gaussians for each grid column / row. Grid column i sits at
   // x + (i - na) h and pixel edge c at x0 - 0.5 + c; with h = 1/m their difference lies on the
   // lattice (base + q h), q = c m - i + na, so one erfc per lattice point serves all columns.
+  // E(i, c) = Phi(u(c + 1)) - Phi(u(c)) with u = (edge - x - offset) / sigma, so its derivative
+  // with respect to the spot centre x is -(phi(u(c + 1)) - phi(u(c))) / sigma: exact, from the
+  // same lattice (the Gaussian density phi instead of its integral Phi).
   const int m = grid_steps_per_px(spot);
-  const auto fill = [&](double base, int n_grid, int half, int n_px, std::vector<double>& cdf,
-                        RowMap& E) {
+  const auto fill = [&](double base, int n_grid, int half, int n_px, RowMap& E, RowMap* dE) {
     const int n_lattice = n_px * m + n_grid;
-    grow(cdf, static_cast<std::size_t>(n_lattice));
+    grow(cdf_, static_cast<std::size_t>(n_lattice));
+    if (dE != nullptr) grow(pdf_, static_cast<std::size_t>(n_lattice));
     for (int q = 0; q < n_lattice; ++q) {
-      cdf[static_cast<std::size_t>(q)] = normal_cdf((base + (q - (n_grid - 1 - half)) * h) / sigma);
+      const double u = (base + (q - (n_grid - 1 - half)) * h) / sigma;
+      cdf_[static_cast<std::size_t>(q)] = normal_cdf(u);
+      if (dE != nullptr) pdf_[static_cast<std::size_t>(q)] = normal_pdf(u) / sigma;
     }
     // Lattice index of (c, i): c m - i + half + (n_grid - 1 - half) = c m + n_grid - 1 - i.
     for (int i = 0; i < n_grid; ++i) {
-      const double* f = cdf.data() + (n_grid - 1 - i);
+      const double* f = cdf_.data() + (n_grid - 1 - i);
       for (int c = 0; c < n_px; ++c)
         E(i, c) = f[(c + 1) * m] - f[c * m];
+      if (dE == nullptr) continue;
+      const double* g = pdf_.data() + (n_grid - 1 - i);
+      for (int c = 0; c < n_px; ++c)
+        (*dE)(i, c) = g[c * m] - g[(c + 1) * m];
     }
   };
-  grow(ex_, static_cast<std::size_t>(cols) * bw);
-  grow(ey_, static_cast<std::size_t>(rows) * bh);
-  RowMap Ex(ex_.data(), cols, bw);
-  RowMap Ey(ey_.data(), rows, bh);
-  fill(box.x0 - 0.5 - spot.x_px, cols, na, bw, cdf_, Ex);
-  fill(box.y0 - 0.5 - spot.y_px, rows, nb, bh, cdf_, Ey);
-  grow(tmp_, static_cast<std::size_t>(rows) * bw);
+  const std::size_t n_ex = static_cast<std::size_t>(cols) * bw;
+  const std::size_t n_ey = static_cast<std::size_t>(rows) * bh;
+  const std::size_t n_t = static_cast<std::size_t>(rows) * bw;
+  grow(ex_, gradient ? 2 * n_ex : n_ex);
+  grow(ey_, gradient ? 2 * n_ey : n_ey);
+  grow(tmp_, gradient ? 2 * n_t : n_t);
+  RowMap Ex(ex_.data(), cols, bw), dEx(ex_.data() + n_ex, cols, gradient ? bw : 0);
+  RowMap Ey(ey_.data(), rows, bh), dEy(ey_.data() + n_ey, rows, gradient ? bh : 0);
+  fill(box.x0 - 0.5 - spot.x_px, cols, na, bw, Ex, gradient ? &dEx : nullptr);
+  fill(box.y0 - 0.5 - spot.y_px, rows, nb, bh, Ey, gradient ? &dEy : nullptr);
+  const double scale = spot.flux_e / total;
   RowMap T(tmp_.data(), rows, bw);
   T.noalias() = W * Ex;
   out_map.noalias() = Ey.transpose() * T;
-  out_map *= spot.flux_e / total;
+  out_map *= scale;
+  if (!gradient) return;
+  // image = Ey^T W Ex: d/dx = Ey^T (W dEx), d/dy = dEy^T (W Ex).
+  RowMap dT(tmp_.data() + n_t, rows, bw);
+  dT.noalias() = W * dEx;
+  RowMap dx_map(d_out_dx, bh, bw), dy_map(d_out_dy, bh, bw);
+  dx_map.noalias() = Ey.transpose() * dT;
+  dx_map *= scale;
+  dy_map.noalias() = dEy.transpose() * T;
+  dy_map *= scale;
 }
 
 void SpotRenderer::add_expected(const Spot& spot, float* electrons, int width, int height,
@@ -348,28 +383,14 @@ void SpotRenderer::render_noise_free(std::span<const Spot> spots, const SensorMo
 SpotStatistics SpotRenderer::statistics(const Spot& spot, const SensorModel& sensor, int width,
                                         int height) {
   SpotStatistics st;
-  PixelBox box = spot_box(spot, width, height);
+  const PixelBox box = spot_box(spot, width, height);
   if (box.empty()) return st;
-  box.x0 = std::max(0, box.x0 - 1);
-  box.y0 = std::max(0, box.y0 - 1);
-  box.x1 = std::min(width, box.x1 + 1);
-  box.y1 = std::min(height, box.y1 + 1);
   const std::size_t n = static_cast<std::size_t>(box.width()) * box.height();
-  // Five evaluations: centre, +-dx, +-dy (central differences for the Fisher information).
-  grow(stats_, 5 * n);
+  // The expected image and its exact derivatives with respect to the spot centre (Fisher
+  // information).
+  grow(stats_, 3 * n);
   double* buf = stats_.data();
-  constexpr double kDelta = 0.01;
-  Spot s = spot;
-  evaluate(s, box, buf);
-  s.x_px = spot.x_px + kDelta;
-  evaluate(s, box, buf + n);
-  s.x_px = spot.x_px - kDelta;
-  evaluate(s, box, buf + 2 * n);
-  s.x_px = spot.x_px;
-  s.y_px = spot.y_px + kDelta;
-  evaluate(s, box, buf + 3 * n);
-  s.y_px = spot.y_px - kDelta;
-  evaluate(s, box, buf + 4 * n);
+  evaluate(spot, box, buf, buf + n, buf + 2 * n);
   // Per-pixel variance in e^2: shot (background + signal), read, quantisation (EMVA 1288).
   const double quant_var = sensor.gain_e_per_dn * sensor.gain_e_per_dn / 12.0;
   double fxx = 0, fxy = 0, fyy = 0, sum = 0, peak = 0, mx = 0, my = 0;
@@ -377,8 +398,8 @@ SpotStatistics SpotRenderer::statistics(const Spot& spot, const SensorModel& sen
     const double mu = buf[i];
     const double var = std::max(sensor.background_e, 0.0) + mu +
                        sensor.read_noise_e * sensor.read_noise_e + quant_var;
-    const double dx = (buf[n + i] - buf[2 * n + i]) / (2 * kDelta);
-    const double dy = (buf[3 * n + i] - buf[4 * n + i]) / (2 * kDelta);
+    const double dx = buf[n + i];
+    const double dy = buf[2 * n + i];
     fxx += dx * dx / var;
     fxy += dx * dy / var;
     fyy += dy * dy / var;

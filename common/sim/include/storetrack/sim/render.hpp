@@ -95,6 +95,10 @@ class SpotRenderer {
 
   /// Expected signal electrons of one spot on an explicit box (row-major, box.width() per row).
   void evaluate(const Spot& spot, const PixelBox& box, double* out);
+  /// The same, with its exact derivatives with respect to the spot centre (x_px, y_px) [e-/px]
+  /// in d_out_dx and d_out_dy (same layout; both or neither).
+  void evaluate(const Spot& spot, const PixelBox& box, double* out, double* d_out_dx,
+                double* d_out_dy);
 
  private:
   template <typename Pixel>
@@ -103,7 +107,7 @@ class SpotRenderer {
   void prepare_signal(std::span<const Spot> spots, int width, int height);
   void build_background_table(const SensorModel& sensor);
 
-  std::vector<double> weights_, ex_, ey_, tmp_, box_, stats_, cdf_;
+  std::vector<double> weights_, ex_, ey_, tmp_, box_, stats_, cdf_, pdf_;
   // Shape key of the cached weights_ (disc radius, grid step, blur vector).
   bool weights_valid_ = false;
   double cached_r_ = 0, cached_h_ = 0, cached_bx_ = 0, cached_by_ = 0, cached_total_ = 0;
