@@ -100,14 +100,14 @@ std::vector<geometry::Transform> link_to_reference(const std::vector<CameraStart
     for (size_t a = 0; a < cams.size(); ++a)
       if (a != b)
         counts += (counts.empty() ? "" : ", ") + std::string("camera ") +
-                  std::to_string(cams[a].id) + ": " + std::to_string(common_views(cams[a], cams[b]));
-    throw CalibrationError("camera " + std::to_string(cams[b].id) +
-                           ": never seen together with the reference camera " +
-                           std::to_string(cams[0].id) +
-                           ", directly or through another camera (views in common, >= 4 points "
-                           "each: " +
-                           counts + "; need >= " + std::to_string(min_common) +
-                           " with a linked camera)");
+                  std::to_string(cams[a].id) + ": " +
+                  std::to_string(common_views(cams[a], cams[b]));
+    throw CalibrationError(
+        "camera " + std::to_string(cams[b].id) +
+        ": never seen together with the reference camera " + std::to_string(cams[0].id) +
+        ", directly or through another camera (views in common, >= 4 points "
+        "each: " +
+        counts + "; need >= " + std::to_string(min_common) + " with a linked camera)");
   }
   return T_c_r;
 }
@@ -256,13 +256,14 @@ RigResult summarise(const RigProblem& p, const std::vector<std::vector<char>>& u
     const auto at = static_cast<Eigen::Index>(kRigBlockSize * c);
     cam.intrinsic_covariance =
         out.joint_covariance.block<camera::kNumIntrinsics, camera::kNumIntrinsics>(at, at);
-    cam.extrinsic_covariance = out.joint_covariance.block<6, 6>(at + camera::kNumIntrinsics,
-                                                                at + camera::kNumIntrinsics);
+    cam.extrinsic_covariance =
+        out.joint_covariance.block<6, 6>(at + camera::kNumIntrinsics, at + camera::kNumIntrinsics);
     const geometry::Vec3 t = cam.T_c_r.translation();
     cam.baseline_m = t.norm();
     if (cam.baseline_m > 0) {
       const geometry::Vec3 u = t / cam.baseline_m;  // d|t|/dt
-      cam.baseline_sigma_m = std::sqrt(u.dot(cam.extrinsic_covariance.bottomRightCorner<3, 3>() * u));
+      cam.baseline_sigma_m =
+          std::sqrt(u.dot(cam.extrinsic_covariance.bottomRightCorner<3, 3>() * u));
     }
   }
   return out;
@@ -275,8 +276,9 @@ RigResult calibrate_rig(const ObservationSet& set, const RigOptions& options) {
   if (cams.empty() || cams[0].id != 0)
     throw CalibrationError("camera 0 (the reference camera) has no observations");
   if (cams.size() < 2)
-    throw CalibrationError("a rig calibration needs observations of at least 2 cameras; the "
-                           "observations have camera 0 only");
+    throw CalibrationError(
+        "a rig calibration needs observations of at least 2 cameras; the "
+        "observations have camera 0 only");
   for (CameraStart& c : cams) {
     c.intrinsic = calibrate_intrinsics(set, c.id, options.intrinsic);  // names the camera
     for (const ViewResult& v : c.intrinsic.views)

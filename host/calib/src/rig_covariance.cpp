@@ -45,7 +45,8 @@ Eigen::MatrixXd rig_covariance(const std::vector<RigView>& views,
     const auto ci = static_cast<size_t>(c);
     const camera::CameraModel model(maps[ci].intrinsics(state.z[ci].data()));
     const geometry::Transform T_c_r = pose_transform(state.T_c_r[ci]);
-    const geometry::Transform T_r_b = pose_transform(state.T_r_b[static_cast<size_t>(views[i].board)]);
+    const geometry::Transform T_r_b =
+        pose_transform(state.T_r_b[static_cast<size_t>(views[i].board)]);
     geometry::Mat6 d_cb_d_cr, d_cb_d_rb;
     geometry::composition_jacobians(T_c_r, T_r_b, d_cb_d_cr, d_cb_d_rb);
     BoardBlocks& board = blocks[static_cast<size_t>(views[i].board)];

@@ -19,9 +19,9 @@ struct RigView {
 };
 
 struct RigState {
-  std::vector<Eigen::VectorXd> z;   ///< per camera: free intrinsics (its IntrinsicParameterMap)
-  std::vector<PoseVector> T_c_r;    ///< per camera; [0] is the identity and stays fixed
-  std::vector<PoseVector> T_r_b;    ///< per board pose
+  std::vector<Eigen::VectorXd> z;  ///< per camera: free intrinsics (its IntrinsicParameterMap)
+  std::vector<PoseVector> T_c_r;   ///< per camera; [0] is the identity and stays fixed
+  std::vector<PoseVector> T_r_b;   ///< per board pose
 };
 
 /// T_c_b of a rig view at the current state.

@@ -60,7 +60,8 @@ void write_residual_rows(const std::vector<calib::PointResidual>& residuals, int
       << general(p.residual_px.y()) << ',' << (p.rejected ? 1 : 0) << '\n';
 }
 
-constexpr const char* kResidualHeader = "camera,frame,point_id,residual_x_px,residual_y_px,rejected\n";
+constexpr const char* kResidualHeader =
+    "camera,frame,point_id,residual_x_px,residual_y_px,rejected\n";
 
 void write_residuals(const calib::IntrinsicResult& r, int camera, const std::string& path) {
   std::ofstream f(path, std::ios::trunc);
@@ -195,8 +196,7 @@ calib::ObservationSet merge_observation_files(const std::vector<std::string>& pa
       if (!fresh)
         throw calib::ObservationFileError(path + ": camera " + std::to_string(o.camera) +
                                           " frame " + std::to_string(o.frame) + " point " +
-                                          std::to_string(o.point_id) + " is also in " +
-                                          at->second);
+                                          std::to_string(o.point_id) + " is also in " + at->second);
       merged.observations.push_back(o);
     }
     for (const auto& [camera, size] : one.image_sizes) {
@@ -319,9 +319,8 @@ int run_rig(const RigArgs& args, std::ostream& out, std::ostream& err) {
       char eq = 0;
       calib::ImageSize size;
       const auto split = given.find('=');
-      if (split == std::string::npos ||
-          std::sscanf(given.c_str(), "%d%c", &camera, &eq) != 2 || eq != '=' || camera < 0 ||
-          camera > 255 || !parse_size(given.substr(split + 1), size)) {
+      if (split == std::string::npos || std::sscanf(given.c_str(), "%d%c", &camera, &eq) != 2 ||
+          eq != '=' || camera < 0 || camera > 255 || !parse_size(given.substr(split + 1), size)) {
         err << "error: --image-size: expected CAMERA=WxH, got '" << given << "'\n";
         return 2;
       }

@@ -40,21 +40,21 @@ struct RigCameraResult {
   std::vector<RigViewResult> views;
   std::vector<PointResidual> residuals;  ///< observed - projected, rejected points flagged
   int points_used = 0, points_rejected = 0;
-  double rms_px = 0;         ///< sqrt(SSR / N) over this camera's used points
-  double start_rms_px = 0;   ///< its own intrinsic calibration's (the start; a lower bound)
+  double rms_px = 0;        ///< sqrt(SSR / N) over this camera's used points
+  double start_rms_px = 0;  ///< its own intrinsic calibration's (the start; a lower bound)
   int common_views_with_reference = 0;
 };
 
 struct RigResult {
-  std::vector<RigCameraResult> cameras;  ///< ascending camera id; cameras[0] is the reference
-  std::vector<int> frames;               ///< board poses estimated (frames seen by any camera)
+  std::vector<RigCameraResult> cameras;    ///< ascending camera id; cameras[0] is the reference
+  std::vector<int> frames;                 ///< board poses estimated (frames seen by any camera)
   std::vector<geometry::Transform> T_r_b;  ///< per frame, board -> reference camera
   /// kRigBlockSize * cameras x the same: s^2 (J^T W J)^-1 over all intrinsics and extrinsics,
   /// board poses eliminated exactly (Schur complement), fixed parameters 0.
   Eigen::MatrixXd joint_covariance;
   int points_used = 0, points_rejected = 0;
-  int free_parameters = 0;  ///< free intrinsics + 6 per non-reference camera + 6 per frame
-  double rms_px = 0;        ///< over all cameras' used points
+  int free_parameters = 0;       ///< free intrinsics + 6 per non-reference camera + 6 per frame
+  double rms_px = 0;             ///< over all cameras' used points
   double residual_sigma_px = 0;  ///< sqrt(SSR_w / (2N - p)); its square scales the covariance
   int iterations = 0;
 };
