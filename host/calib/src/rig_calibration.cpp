@@ -205,6 +205,7 @@ RigResult summarise(const RigProblem& p, const std::vector<std::vector<char>>& u
     cam.intrinsics = p.maps[c].intrinsics(p.state.z[c].data());
     cam.T_c_r = pose_transform(p.state.T_c_r[c]);
     cam.start_rms_px = cams[c].intrinsic.rms_px;
+    cam.frames_skipped = cams[c].intrinsic.frames_skipped;
     cam.common_views_with_reference = common_views(cams[0], cams[c]);
     std::vector<size_t> which;
     for (size_t i = 0; i < p.views.size(); ++i)

@@ -10,6 +10,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "calib_cli.hpp"
 #include "calib_commands.hpp"
 #include "storetrack/calib/chessboard_detection.hpp"
 #include "storetrack/calib/rig_calibration.hpp"
@@ -106,6 +107,31 @@ TEST(RigStereoImages, ProgramWritesARigCalibrationFile) {
   // Cross-camera terms exist (shared board poses): fx of camera 0 with fx of camera 1.
   EXPECT_NE(joint[0][kRigBlockSize].get<double>(), 0.0);
   EXPECT_EQ(joint[0][0].get<double>(), rig.cameras[0].intrinsic_covariance(0, 0));
+
+  // The command line reaches the same arguments.
+  const std::string left_csv = (dir / "left.csv").string(),
+                    right_csv = (dir / "right.csv").string();
+  std::vector<std::string> argv_text = {"storetrack-calib",
+                                        "rig",
+                                        left_csv,
+                                        right_csv,
+                                        "-o",
+                                        args.output,
+                                        "--no-outlier-rejection",
+                                        "--min-common-views",
+                                        "5",
+                                        "--image-size",
+                                        "1=640x480"};
+  std::vector<char*> argv;
+  for (std::string& a : argv_text)
+    argv.push_back(a.data());
+  calibapp::CalibCommand command;
+  ASSERT_EQ(calibapp::parse_calib_command(static_cast<int>(argv.size()), argv.data(), command), -1);
+  EXPECT_EQ(command.kind, calibapp::CalibCommand::Kind::kRig);
+  EXPECT_EQ(command.rig.observations, (std::vector<std::string>{left_csv, right_csv}));
+  EXPECT_EQ(command.rig.options.intrinsic.outlier_false_alarm, 0);
+  EXPECT_EQ(command.rig.options.min_common_views, 5);
+  EXPECT_EQ(command.rig.image_sizes, std::vector<std::string>{"1=640x480"});
 
   // The same (camera, frame, point) in two files: refused, both files named.
   args.observations = {(dir / "left.csv").string(), (dir / "left.csv").string()};

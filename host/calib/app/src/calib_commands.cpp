@@ -334,8 +334,11 @@ int run_rig(const RigArgs& args, std::ostream& out, std::ostream& err) {
   out << "rig: " << result.cameras.size() << " cameras, " << result.frames.size()
       << " board poses, " << result.points_used << " points used, " << result.points_rejected
       << " rejected as outliers\n";
-  for (const auto& c : result.cameras)
+  for (const auto& c : result.cameras) {
+    for (int frame : c.frames_skipped)
+      err << "skipped frame " << frame << ": fewer than 4 points of camera " << c.camera_id << "\n";
     print_rig_camera(c, out);
+  }
   out << "RMS reprojection error " << fixed(result.rms_px, 4) << " px (residual sigma "
       << fixed(result.residual_sigma_px, 4) << " px per axis, " << result.free_parameters
       << " parameters, " << result.iterations << " LM iterations)\n";
