@@ -50,8 +50,8 @@ std::vector<CameraStart> group_by_camera(const ObservationSet& set) {
 
 int common_views(const CameraStart& a, const CameraStart& b) {
   int n = 0;
-  for (const auto& [frame, pose] : a.T_c_b)
-    n += b.T_c_b.count(frame) ? 1 : 0;
+  for (const auto& [frame, view] : a.views)
+    n += b.views.count(frame) ? 1 : 0;
   return n;
 }
 
@@ -75,11 +75,15 @@ geometry::Transform relative_pose(const CameraStart& a, const CameraStart& b) {
   return T_b_a;
 }
 
-/// T_c_r of every camera by a breadth-first walk from the reference over pairs with at least
-/// min_common views; a camera the walk does not reach is refused, with its common-view counts.
-std::vector<geometry::Transform> link_to_reference(const std::vector<CameraStart>& cams,
-                                                   int min_common) {
-  std::vector<geometry::Transform> T_c_r(cams.size(), geometry::Transform::Identity());
+struct Link {
+  size_t camera = 0, from = 0;  ///< camera's relative pose comes from `from`'s, linked before
+};
+
+/// A breadth-first walk from the reference over camera pairs with at least min_common views, in
+/// the order the extrinsics are then initialised. A camera the walk does not reach is refused,
+/// with its common-view counts; before any fit, so the refusal is immediate.
+std::vector<Link> link_to_reference(const std::vector<CameraStart>& cams, int min_common) {
+  std::vector<Link> order;
   std::vector<char> linked(cams.size(), 0);
   linked[0] = 1;
   std::queue<size_t> next;
@@ -89,7 +93,7 @@ std::vector<geometry::Transform> link_to_reference(const std::vector<CameraStart
     next.pop();
     for (size_t b = 0; b < cams.size(); ++b) {
       if (linked[b] || common_views(cams[a], cams[b]) < min_common) continue;
-      T_c_r[b] = relative_pose(cams[a], cams[b]) * T_c_r[a];
+      order.push_back({b, a});
       linked[b] = 1;
       next.push(b);
     }
@@ -109,6 +113,15 @@ std::vector<geometry::Transform> link_to_reference(const std::vector<CameraStart
         "each: " +
         counts + "; need >= " + std::to_string(min_common) + " with a linked camera)");
   }
+  return order;
+}
+
+/// T_c_r of every camera, chaining the relative poses along the links.
+std::vector<geometry::Transform> extrinsics_start(const std::vector<CameraStart>& cams,
+                                                  const std::vector<Link>& order) {
+  std::vector<geometry::Transform> T_c_r(cams.size(), geometry::Transform::Identity());
+  for (const Link& l : order)
+    T_c_r[l.camera] = relative_pose(cams[l.from], cams[l.camera]) * T_c_r[l.from];
   return T_c_r;
 }
 
@@ -182,7 +195,8 @@ RigProblem build_problem(const std::vector<CameraStart>& cams,
       const int board = board_of_frame.at(frame);
       p.views.push_back({static_cast<int>(c), board, cams[c].views.at(frame)});
       // The board pose from the lowest camera that saw it (the reference when it did).
-      if (board_set[static_cast<size_t>(board)]++) continue;
+      if (board_set[static_cast<size_t>(board)]) continue;
+      board_set[static_cast<size_t>(board)] = 1;
       p.state.T_r_b[static_cast<size_t>(board)] = pose_vector(T_c_r[c].inverse() * T_c_b);
     }
   }
@@ -280,12 +294,13 @@ RigResult calibrate_rig(const ObservationSet& set, const RigOptions& options) {
     throw CalibrationError(
         "a rig calibration needs observations of at least 2 cameras; the "
         "observations have camera 0 only");
+  const std::vector<Link> order = link_to_reference(cams, std::max(options.min_common_views, 1));
   for (CameraStart& c : cams) {
     c.intrinsic = calibrate_intrinsics(set, c.id, options.intrinsic);  // names the camera
     for (const ViewResult& v : c.intrinsic.views)
       c.T_c_b[v.frame] = v.T_c_b;
   }
-  const auto T_c_r = link_to_reference(cams, std::max(options.min_common_views, 1));
+  const auto T_c_r = extrinsics_start(cams, order);
   RigProblem p = build_problem(cams, T_c_r, options.intrinsic);
 
   std::vector<std::vector<char>> used = gate_per_camera(p.views, p.maps, p.state, 0);

@@ -19,6 +19,45 @@ struct BoardBlocks {
   Eigen::MatrixXd B;                          ///< x-board
 };
 
+/// One view's sums J^T J over its used points, by parameter block: z = the camera's padded
+/// intrinsics, e = its extrinsic, b = the board pose (all perturbations left).
+struct ViewBlocks {
+  Eigen::Matrix<double, kN, kN> zz = Eigen::Matrix<double, kN, kN>::Zero();
+  Eigen::Matrix<double, kN, 6> ze = Eigen::Matrix<double, kN, 6>::Zero();
+  Eigen::Matrix<double, kN, 6> zb = Eigen::Matrix<double, kN, 6>::Zero();
+  geometry::Mat6 ee = geometry::Mat6::Zero(), eb = geometry::Mat6::Zero(),
+                 bb = geometry::Mat6::Zero();
+};
+
+ViewBlocks view_blocks(const RigView& view, const std::vector<char>& used,
+                       const IntrinsicParameterMap& map, const Eigen::Matrix<double, kN, kN>& M,
+                       const RigState& state) {
+  const auto ci = static_cast<size_t>(view.camera);
+  const camera::CameraModel model(map.intrinsics(state.z[ci].data()));
+  const geometry::Transform T_c_r = pose_transform(state.T_c_r[ci]);
+  const geometry::Transform T_r_b = pose_transform(state.T_r_b[static_cast<size_t>(view.board)]);
+  geometry::Mat6 d_cb_d_cr, d_cb_d_rb;
+  geometry::composition_jacobians(T_c_r, T_r_b, d_cb_d_cr, d_cb_d_rb);
+  ViewBlocks v;
+  for (size_t k = 0; k < view.view.points.size(); ++k) {
+    if (!used[k]) continue;
+    const Observation& o = *view.view.points[k];
+    camera::ProjectionJacobians J;
+    if (!model.project_world(T_c_r * T_r_b, o.p_board, &J)) continue;
+    const double w = 1.0 / o.weighting_sigma_px();
+    const Eigen::Matrix<double, 2, kN> Jz = w * J.d_intrinsics * M;
+    const Eigen::Matrix<double, 2, 6> Je = w * J.d_pose * d_cb_d_cr;
+    const Eigen::Matrix<double, 2, 6> Jb = w * J.d_pose * d_cb_d_rb;
+    v.zz.noalias() += Jz.transpose() * Jz;
+    v.ze.noalias() += Jz.transpose() * Je;
+    v.zb.noalias() += Jz.transpose() * Jb;
+    v.ee.noalias() += Je.transpose() * Je;
+    v.eb.noalias() += Je.transpose() * Jb;
+    v.bb.noalias() += Jb.transpose() * Jb;
+  }
+  return v;
+}
+
 }  // namespace
 
 Eigen::MatrixXd rig_covariance(const std::vector<RigView>& views,
@@ -42,28 +81,19 @@ Eigen::MatrixXd rig_covariance(const std::vector<RigView>& views,
     b.B = Eigen::MatrixXd::Zero(n, 6);
   for (size_t i = 0; i < views.size(); ++i) {
     const int c = views[i].camera;
-    const auto ci = static_cast<size_t>(c);
-    const camera::CameraModel model(maps[ci].intrinsics(state.z[ci].data()));
-    const geometry::Transform T_c_r = pose_transform(state.T_c_r[ci]);
-    const geometry::Transform T_r_b =
-        pose_transform(state.T_r_b[static_cast<size_t>(views[i].board)]);
-    geometry::Mat6 d_cb_d_cr, d_cb_d_rb;
-    geometry::composition_jacobians(T_c_r, T_r_b, d_cb_d_cr, d_cb_d_rb);
+    const ViewBlocks v = view_blocks(views[i], used[i], maps[static_cast<size_t>(c)],
+                                     M[static_cast<size_t>(c)], state);
+    // Scatter once per view (fixed-size sums per point above, not n x n updates per point).
     BoardBlocks& board = blocks[static_cast<size_t>(views[i].board)];
-    for (size_t k = 0; k < views[i].view.points.size(); ++k) {
-      if (!used[i][k]) continue;
-      const Observation& o = *views[i].view.points[k];
-      camera::ProjectionJacobians J;
-      if (!model.project_world(T_c_r * T_r_b, o.p_board, &J)) continue;
-      const double w = 1.0 / o.weighting_sigma_px();
-      Eigen::Matrix<double, 2, Eigen::Dynamic> Jx = Eigen::MatrixXd::Zero(2, n);
-      Jx.middleCols<kN>(kN * c) = w * J.d_intrinsics * M[ci];
-      if (c > 0) Jx.middleCols<6>(extrinsic_index(c)) = w * J.d_pose * d_cb_d_cr;
-      const Eigen::Matrix<double, 2, 6> Jb = w * J.d_pose * d_cb_d_rb;
-      A.noalias() += Jx.transpose() * Jx;
-      board.B.noalias() += Jx.transpose() * Jb;
-      board.D.noalias() += Jb.transpose() * Jb;
-    }
+    A.block<kN, kN>(kN * c, kN * c) += v.zz;
+    board.B.block<kN, 6>(kN * c, 0) += v.zb;
+    board.D += v.bb;
+    if (c == 0) continue;
+    const int e = extrinsic_index(c);
+    A.block<kN, 6>(kN * c, e) += v.ze;
+    A.block<6, kN>(e, kN * c) += v.ze.transpose();
+    A.block<6, 6>(e, e) += v.ee;
+    board.B.block<6, 6>(e, 0) += v.eb;
   }
   Eigen::MatrixXd S = A;
   for (int f = 0; f < boards; ++f) {

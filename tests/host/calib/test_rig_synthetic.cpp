@@ -134,7 +134,12 @@ TEST(RigSynthetic, ParametersAgreeWithTruthWithinTheirJointCovariance) {
   // M independent calibrations: the sum of their NEES ~ chi-square(d M) when the covariance is
   // honest (the residual variance comes from ~5000 degrees of freedom: < 1 % on the scale).
   // Two-sided 99.9 % intervals: a correct implementation fails 1 seed in 1000.
-  constexpr int kTrials = 30, kFrames = 12;
+#ifdef STORETRACK_SANITIZE
+  constexpr int kTrials = 2;  // ASan + UBSan: ~100x slower; the same test, less power
+#else
+  constexpr int kTrials = 30;
+#endif
+  constexpr int kFrames = 12;
   constexpr double kSigma = 0.3;
   std::mt19937_64 rng(20261203);
   const std::vector<int> extrinsic = estimated_indices(true), all = estimated_indices(false);
@@ -168,7 +173,7 @@ TEST(RigSynthetic, ParametersAgreeWithTruthWithinTheirJointCovariance) {
             chi_square_quantile(Probability(0.9995), DegreesOfFreedom(d_ext * kTrials)));
   EXPECT_GT(nees_all, chi_square_quantile(Probability(0.0005), DegreesOfFreedom(d_all * kTrials)));
   EXPECT_LT(nees_all, chi_square_quantile(Probability(0.9995), DegreesOfFreedom(d_all * kTrials)));
-  // 1 % false alarm per camera and calibration, 90 gates: ~0.9 expected, P(> 5) < 0.1 %.
+  // 1 % false alarm per camera and calibration, <= 90 gates: <= 0.9 expected, P(> 5) < 0.1 %.
   EXPECT_LE(rejected, 5);
 }
 
