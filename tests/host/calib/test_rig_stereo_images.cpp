@@ -37,13 +37,19 @@ constexpr double kOpenCvLeftRms = 0.40877, kOpenCvRightRms = 0.45872;  // each c
 constexpr double kOpenCvStereoFixedIntrinsicsRms = 0.44785;  // stereoCalibrate, intrinsics fixed
 constexpr double kSolverSlackPx = 0.0005;  // rounding of REFERENCE.md's values, convergence
 
-ObservationSet stereo_set() {
+ObservationSet detect_stereo_set() {
   const ChessboardSpec board{9, 6, 0.025};
   ObservationSet set = detect_chessboards(images("left"), board, 0).set;
   const ObservationSet right = detect_chessboards(images("right"), board, 1).set;
   set.observations.insert(set.observations.end(), right.observations.begin(),
                           right.observations.end());
   set.image_sizes[1] = right.image_sizes.at(1);
+  return set;
+}
+
+/// Detected once for both tests (26 images: a few seconds under the sanitizers).
+const ObservationSet& stereo_set() {
+  static const ObservationSet set = detect_stereo_set();
   return set;
 }
 
