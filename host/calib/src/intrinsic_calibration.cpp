@@ -10,7 +10,7 @@
 
 #include "intrinsic_covariance.hpp"
 #include "intrinsic_refinement.hpp"
-#include "storetrack/uncertainty/statistics.hpp"
+#include "outlier_gate.hpp"
 #include "zhang_initialisation.hpp"
 
 namespace storetrack::calib {
@@ -62,32 +62,6 @@ std::vector<std::vector<Eigen::Vector2d>> weighted_residuals(const std::vector<B
     }
   }
   return out;
-}
-
-/// Rejection by the chi-square (2 dof) gate at 1 - false_alarm / N, on residuals scaled by a
-/// robust sigma (1.4826 x median absolute residual component), so outliers do not widen it.
-std::vector<std::vector<char>> inliers(const std::vector<std::vector<Eigen::Vector2d>>& r,
-                                       double false_alarm) {
-  std::vector<std::vector<char>> used(r.size());
-  std::vector<double> components;
-  for (size_t i = 0; i < r.size(); ++i) {
-    used[i].assign(r[i].size(), 1);
-    for (const auto& e : r[i]) {
-      components.push_back(std::abs(e.x()));
-      components.push_back(std::abs(e.y()));
-    }
-  }
-  if (!(false_alarm > 0)) return used;
-  const auto mid = components.begin() + static_cast<std::ptrdiff_t>(components.size() / 2);
-  std::nth_element(components.begin(), mid, components.end());
-  const double robust_sigma = 1.4826 * *mid;
-  const auto points = static_cast<double>(components.size() / 2);
-  const double gate = uncertainty::chi_square_quantile(
-      uncertainty::Probability(1 - false_alarm / points), uncertainty::DegreesOfFreedom(2));
-  for (size_t i = 0; i < r.size(); ++i)
-    for (size_t k = 0; k < r[i].size(); ++k)
-      used[i][k] = r[i][k].squaredNorm() <= gate * robust_sigma * robust_sigma;
-  return used;
 }
 
 /// Refuses views whose boards are all (nearly) parallel. Then every view gives the same two
@@ -191,7 +165,7 @@ IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
     pose << geometry::rotvec_from_rotation(T.linear()), T.translation();
     state.poses.push_back(pose);
   }
-  std::vector<std::vector<char>> used = inliers(weighted_residuals(views, map, state), 0);
+  std::vector<std::vector<char>> used = outlier_gate(weighted_residuals(views, map, state), 0);
   int iterations = 0;
   for (int round = 0; round < kMaxRejectionRounds; ++round) {
     try {
@@ -201,7 +175,7 @@ IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
       throw;
     }
     check_board_orientations(views, state);
-    auto next = inliers(weighted_residuals(views, map, state), options.outlier_false_alarm);
+    auto next = outlier_gate(weighted_residuals(views, map, state), options.outlier_false_alarm);
     if (next == used) break;
     used = std::move(next);
   }

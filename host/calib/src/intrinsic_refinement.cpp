@@ -2,6 +2,7 @@
 // differences): no second, templated copy of the camera model is needed for Ceres, and the
 // solver needs no automatic differentiation (cheaper to compile and to run).
 #include "intrinsic_refinement.hpp"
+#include "rig_refinement.hpp"
 
 #include <ceres/ceres.h>
 
@@ -9,6 +10,16 @@
 
 namespace storetrack::calib {
 namespace {
+
+/// d residual / d pose vector (rotation vector, translation) from the derivative with respect to
+/// the pose's left perturbation: the rotation part chains through d(perturbation)/d(rotvec) = J_l.
+void pose_vector_jacobian(const Eigen::Matrix<double, 2, 6>& d_left, const double* pose,
+                          double weight, double* out) {
+  Eigen::Map<Eigen::Matrix<double, 2, 6, Eigen::RowMajor>> J(out);
+  J.leftCols<3>() = weight * d_left.leftCols<3>() *
+                    geometry::so3_left_jacobian(Eigen::Map<const geometry::Vec3>(pose));
+  J.rightCols<3>() = weight * d_left.rightCols<3>();
+}
 
 /// Residual (projected - observed) / sigma of one board point; blocks: z, pose (rotvec, t).
 class ReprojectionCost final : public ceres::CostFunction {
@@ -36,13 +47,7 @@ class ReprojectionCost final : public ceres::CostFunction {
                                                                                map_.size());
       Jz = weight_ * J.d_intrinsics * map_.jacobian();
     }
-    if (jacobians[1]) {
-      Eigen::Map<Eigen::Matrix<double, 2, 6, Eigen::RowMajor>> Jp(jacobians[1]);
-      // d_pose is over the left perturbation; chain through d(perturbation)/d(rotvec) = J_l.
-      Jp.leftCols<3>() =
-          weight_ * J.d_pose.leftCols<3>() * geometry::so3_left_jacobian(pose.head<3>());
-      Jp.rightCols<3>() = weight_ * J.d_pose.rightCols<3>();
-    }
+    if (jacobians[1]) pose_vector_jacobian(J.d_pose, parameters[1], weight_, jacobians[1]);
     return true;
   }
 
@@ -51,6 +56,67 @@ class ReprojectionCost final : public ceres::CostFunction {
   const IntrinsicParameterMap& map_;
   double weight_;
 };
+
+/// The same residual for a camera other than the reference: T_c_b = T_c_r T_r_b; blocks z,
+/// T_c_r, T_r_b (each pose a rotation vector and translation). The reference camera's points
+/// use ReprojectionCost with T_r_b as the pose (T_c_r = identity).
+class RigReprojectionCost final : public ceres::CostFunction {
+ public:
+  RigReprojectionCost(const Observation& obs, const IntrinsicParameterMap& map)
+      : obs_(obs), map_(map), weight_(1.0 / obs.weighting_sigma_px()) {
+    set_num_residuals(2);
+    mutable_parameter_block_sizes()->push_back(map.size());
+    mutable_parameter_block_sizes()->push_back(6);
+    mutable_parameter_block_sizes()->push_back(6);
+  }
+
+  bool Evaluate(double const* const* parameters, double* residuals,
+                double** jacobians) const override {
+    const camera::CameraModel model(map_.intrinsics(parameters[0]));
+    const geometry::Transform T_c_r = pose_transform(Eigen::Map<const PoseVector>(parameters[1]));
+    const geometry::Transform T_r_b = pose_transform(Eigen::Map<const PoseVector>(parameters[2]));
+    camera::ProjectionJacobians J;
+    const auto pixel = model.project_world(T_c_r * T_r_b, obs_.p_board, jacobians ? &J : nullptr);
+    if (!pixel) return false;
+    Eigen::Map<Eigen::Vector2d> r(residuals);
+    r = weight_ * (*pixel - obs_.pixel);
+    if (!jacobians) return true;
+    if (jacobians[0]) {
+      Eigen::Map<Eigen::Matrix<double, 2, Eigen::Dynamic, Eigen::RowMajor>> Jz(jacobians[0], 2,
+                                                                               map_.size());
+      Jz = weight_ * J.d_intrinsics * map_.jacobian();
+    }
+    geometry::Mat6 d_cb_d_cr, d_cb_d_rb;
+    geometry::composition_jacobians(T_c_r, T_r_b, d_cb_d_cr, d_cb_d_rb);
+    if (jacobians[1])
+      pose_vector_jacobian(J.d_pose * d_cb_d_cr, parameters[1], weight_, jacobians[1]);
+    if (jacobians[2])
+      pose_vector_jacobian(J.d_pose * d_cb_d_rb, parameters[2], weight_, jacobians[2]);
+    return true;
+  }
+
+ private:
+  const Observation& obs_;
+  const IntrinsicParameterMap& map_;
+  double weight_;
+};
+
+int solve(ceres::Problem& problem, ceres::ParameterBlockOrdering* ordering) {
+  ceres::Solver::Options options;
+  options.linear_solver_type = ceres::DENSE_SCHUR;
+  options.linear_solver_ordering.reset(ordering);
+  options.max_num_iterations = 200;
+  options.function_tolerance = 1e-12;
+  options.parameter_tolerance = 1e-12;
+  options.gradient_tolerance = 1e-14;
+  options.num_threads = 1;
+  options.logging_type = ceres::SILENT;
+  ceres::Solver::Summary summary;
+  ceres::Solve(options, &problem, &summary);
+  if (!summary.IsSolutionUsable())
+    throw CalibrationError("Levenberg-Marquardt failed: " + summary.message);
+  return static_cast<int>(summary.iterations.size());
+}
 
 }  // namespace
 
@@ -69,21 +135,37 @@ int refine_intrinsics(const std::vector<BoardView>& views,
       ordering->AddElementToGroup(state.poses[i].data(), 0);  // eliminated first (Schur)
   }
   ordering->AddElementToGroup(state.z.data(), 1);
+  return solve(problem, ordering);
+}
 
-  ceres::Solver::Options options;
-  options.linear_solver_type = ceres::DENSE_SCHUR;
-  options.linear_solver_ordering.reset(ordering);
-  options.max_num_iterations = 200;
-  options.function_tolerance = 1e-12;
-  options.parameter_tolerance = 1e-12;
-  options.gradient_tolerance = 1e-14;
-  options.num_threads = 1;
-  options.logging_type = ceres::SILENT;
-  ceres::Solver::Summary summary;
-  ceres::Solve(options, &problem, &summary);
-  if (!summary.IsSolutionUsable())
-    throw CalibrationError("Levenberg-Marquardt failed: " + summary.message);
-  return static_cast<int>(summary.iterations.size());
+int refine_rig(const std::vector<RigView>& views, const std::vector<std::vector<char>>& used,
+               const std::vector<IntrinsicParameterMap>& maps, RigState& state) {
+  ceres::Problem problem;
+  auto* ordering = new ceres::ParameterBlockOrdering;  // owned by the solver options
+  for (size_t i = 0; i < views.size(); ++i) {
+    const auto camera = static_cast<size_t>(views[i].camera);
+    double* board = state.T_r_b[static_cast<size_t>(views[i].board)].data();
+    for (size_t k = 0; k < views[i].view.points.size(); ++k) {
+      if (!used[i][k]) continue;
+      const Observation& o = *views[i].view.points[k];
+      if (camera == 0)
+        problem.AddResidualBlock(new ReprojectionCost(o, maps[0]), nullptr, state.z[0].data(),
+                                 board);
+      else
+        problem.AddResidualBlock(new RigReprojectionCost(o, maps[camera]), nullptr,
+                                 state.z[camera].data(), state.T_c_r[camera].data(), board);
+    }
+  }
+  for (PoseVector& board : state.T_r_b)
+    if (problem.HasParameterBlock(board.data()))
+      ordering->AddElementToGroup(board.data(), 0);  // eliminated first (Schur)
+  for (size_t c = 0; c < state.z.size(); ++c) {
+    if (problem.HasParameterBlock(state.z[c].data()))
+      ordering->AddElementToGroup(state.z[c].data(), 1);
+    if (c > 0 && problem.HasParameterBlock(state.T_c_r[c].data()))
+      ordering->AddElementToGroup(state.T_c_r[c].data(), 1);
+  }
+  return solve(problem, ordering);
 }
 
 }  // namespace storetrack::calib

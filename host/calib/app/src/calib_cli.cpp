@@ -18,16 +18,8 @@ void add_detect(CLI::App& app, DetectArgs& a) {
   sub->add_option("-o,--output", a.output, "Observation CSV to write")->required();
 }
 
-void add_intrinsic(CLI::App& app, IntrinsicArgs& a) {
-  CLI::App* sub = app.add_subcommand("intrinsic", "One camera's intrinsics with covariance");
-  calib::IntrinsicOptions& o = a.options;
-  sub->add_option("observations", a.observations, "Observation CSV")
-      ->required()
-      ->check(CLI::ExistingFile);
-  sub->add_option("--camera", a.camera, "Camera to calibrate")->check(CLI::Range(0, 255));
-  sub->add_option("--unit", a.unit_id, "Unit id written to the calibration file")
-      ->check(CLI::Range(0, 255));
-  sub->add_option("--image-size", a.image_size, "WxH, when the CSV has no image_size line");
+/// The model flags and outlier gate, shared by intrinsic and rig.
+void add_model_options(CLI::App* sub, calib::IntrinsicOptions& o, bool& no_outlier_rejection) {
   sub->add_flag("--fix-aspect-ratio", o.fix_aspect_ratio, "fx = aspect * fy (OpenCV's flag)");
   sub->add_option("--aspect-ratio", o.aspect_ratio, "fx / fy with --fix-aspect-ratio")
       ->check(CLI::PositiveNumber);
@@ -40,9 +32,39 @@ void add_intrinsic(CLI::App& app, IntrinsicArgs& a) {
   sub->add_option("--outlier-false-alarm", o.outlier_false_alarm,
                   "Probability of rejecting any point of a clean set")
       ->check(CLI::Range(0.0, 0.5));
-  sub->add_flag("--no-outlier-rejection", a.no_outlier_rejection, "Keep every point");
-  sub->add_option("--min-views", o.min_views, "Fewest board poses accepted")
+  sub->add_flag("--no-outlier-rejection", no_outlier_rejection, "Keep every point");
+  sub->add_option("--min-views", o.min_views, "Fewest board poses accepted (per camera)")
       ->check(CLI::Range(2, 100000));
+}
+
+void add_intrinsic(CLI::App& app, IntrinsicArgs& a) {
+  CLI::App* sub = app.add_subcommand("intrinsic", "One camera's intrinsics with covariance");
+  sub->add_option("observations", a.observations, "Observation CSV")
+      ->required()
+      ->check(CLI::ExistingFile);
+  sub->add_option("--camera", a.camera, "Camera to calibrate")->check(CLI::Range(0, 255));
+  sub->add_option("--unit", a.unit_id, "Unit id written to the calibration file")
+      ->check(CLI::Range(0, 255));
+  sub->add_option("--image-size", a.image_size, "WxH, when the CSV has no image_size line");
+  add_model_options(sub, a.options, a.no_outlier_rejection);
+  sub->add_option("-o,--output", a.output, "Rig calibration JSON to write")->required();
+  sub->add_option("--residuals", a.residuals_csv, "Per-point residual CSV to write");
+}
+
+void add_rig(CLI::App& app, RigArgs& a) {
+  CLI::App* sub = app.add_subcommand(
+      "rig", "All cameras jointly (bundle adjustment, camera 0 = reference) with covariance");
+  sub->add_option("observations", a.observations, "Observation CSVs (merged)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  sub->add_option("--unit", a.unit_id, "Unit id written to the calibration file")
+      ->check(CLI::Range(0, 255));
+  sub->add_option("--image-size", a.image_sizes,
+                  "CAMERA=WxH, when a CSV has no image_size line (repeatable)");
+  add_model_options(sub, a.options.intrinsic, a.no_outlier_rejection);
+  sub->add_option("--min-common-views", a.options.min_common_views,
+                  "Fewest frames two cameras must share to be linked")
+      ->check(CLI::Range(1, 100000));
   sub->add_option("-o,--output", a.output, "Rig calibration JSON to write")->required();
   sub->add_option("--residuals", a.residuals_csv, "Per-point residual CSV to write");
 }
@@ -54,6 +76,7 @@ int parse_calib_command(int argc, char** argv, CalibCommand& command) {
   app.require_subcommand(1);
   add_detect(app, command.detect);
   add_intrinsic(app, command.intrinsic);
+  add_rig(app, command.rig);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -64,6 +87,10 @@ int parse_calib_command(int argc, char** argv, CalibCommand& command) {
   if (app.got_subcommand("intrinsic")) {
     command.kind = CalibCommand::Kind::kIntrinsic;
     if (command.intrinsic.no_outlier_rejection) command.intrinsic.options.outlier_false_alarm = 0;
+  }
+  if (app.got_subcommand("rig")) {
+    command.kind = CalibCommand::Kind::kRig;
+    if (command.rig.no_outlier_rejection) command.rig.options.intrinsic.outlier_false_alarm = 0;
   }
   return -1;
 }

@@ -6,6 +6,7 @@
 
 #include "storetrack/calib/chessboard_detection.hpp"
 #include "storetrack/calib/intrinsic_calibration.hpp"
+#include "storetrack/calib/rig_calibration.hpp"
 
 namespace storetrack::calibapp {
 
@@ -28,10 +29,21 @@ struct IntrinsicArgs {
   std::string residuals_csv;
 };
 
+struct RigArgs {
+  std::vector<std::string> observations;  ///< CSVs, merged (e.g. one per camera from detect)
+  std::vector<std::string> image_sizes;   ///< "CAMERA=WxH", when a CSV has no image_size line
+  int unit_id = 0;
+  calib::RigOptions options;
+  bool no_outlier_rejection = false;
+  std::string output;
+  std::string residuals_csv;
+};
+
 struct CalibCommand {
-  enum class Kind { kNone, kDetect, kIntrinsic } kind = Kind::kNone;
+  enum class Kind { kNone, kDetect, kIntrinsic, kRig } kind = Kind::kNone;
   DetectArgs detect;
   IntrinsicArgs intrinsic;
+  RigArgs rig;
 };
 
 /// Returns -1 to run `command`, else the exit code (0 after --help, 2 on a bad argument).

@@ -3,6 +3,9 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <map>
+#include <sstream>
+#include <tuple>
 
 #include <nlohmann/json.hpp>
 
@@ -33,13 +36,14 @@ bool parse_size(const std::string& text, calib::ImageSize& size) {
   return true;
 }
 
-void print_intrinsics(const calib::IntrinsicResult& r, std::ostream& out) {
-  const camera::IntrinsicVector v = camera::pack(r.intrinsics);
+void print_intrinsics(const camera::Intrinsics& intrinsics,
+                      const camera::IntrinsicCovariance& covariance, std::ostream& out) {
+  const camera::IntrinsicVector v = camera::pack(intrinsics);
   static const char* const names[] = {"fx", "fy", "cx", "cy", "skew", "k1", "k2",
                                       "p1", "p2", "k3", "k4", "k5",   "k6"};
   static const char* const units[] = {"px", "px", "px", "px", "px", "", "", "", "", "", "", "", ""};
   for (int i = 0; i < camera::kNumIntrinsics; ++i) {
-    const double sigma = std::sqrt(std::max(0.0, r.covariance(i, i)));
+    const double sigma = std::sqrt(std::max(0.0, covariance(i, i)));
     out << "  " << names[i] << " = " << general(v[i]);
     if (sigma > 0)
       out << " +/- " << general(sigma);
@@ -49,13 +53,39 @@ void print_intrinsics(const calib::IntrinsicResult& r, std::ostream& out) {
   }
 }
 
-void write_residuals(const calib::IntrinsicResult& r, int camera, const std::string& path) {
-  std::ofstream f(path, std::ios::trunc);
-  f << "camera,frame,point_id,residual_x_px,residual_y_px,rejected\n";
-  for (const auto& p : r.residuals)
+void write_residual_rows(const std::vector<calib::PointResidual>& residuals, int camera,
+                         std::ostream& f) {
+  for (const auto& p : residuals)
     f << camera << ',' << p.frame << ',' << p.point_id << ',' << general(p.residual_px.x()) << ','
       << general(p.residual_px.y()) << ',' << (p.rejected ? 1 : 0) << '\n';
+}
+
+constexpr const char* kResidualHeader =
+    "camera,frame,point_id,residual_x_px,residual_y_px,rejected\n";
+
+void write_residuals(const calib::IntrinsicResult& r, int camera, const std::string& path) {
+  std::ofstream f(path, std::ios::trunc);
+  f << kResidualHeader;
+  write_residual_rows(r.residuals, camera, f);
   if (!f.flush()) throw std::runtime_error(path + ": write failed");
+}
+
+void write_file(const std::string& path, const std::string& text) {
+  std::ofstream f(path, std::ios::trunc);
+  f << text;
+  if (!f.flush()) throw std::runtime_error(path + ": write failed");
+}
+
+nlohmann::json flags_json(const calib::IntrinsicOptions& options) {
+  return {{"fix_aspect_ratio", options.fix_aspect_ratio},
+          {"aspect_ratio", options.aspect_ratio},
+          {"fix_principal_point", options.fix_principal_point},
+          {"zero_tangential", options.zero_tangential},
+          {"fix_k1", options.fix_k1},
+          {"fix_k2", options.fix_k2},
+          {"fix_k3", options.fix_k3},
+          {"rational", options.rational},
+          {"outlier_false_alarm", options.outlier_false_alarm}};
 }
 
 }  // namespace
@@ -104,15 +134,7 @@ std::string intrinsic_calibration_json(const calib::IntrinsicResult& r, int came
       {"extrinsics",
        "NOT calibrated: T_c_w is a placeholder (identity, zero covariance) until the rig and "
        "register steps; do not fly with it"},
-      {"flags",
-       {{"fix_aspect_ratio", options.fix_aspect_ratio},
-        {"aspect_ratio", options.aspect_ratio},
-        {"fix_principal_point", options.fix_principal_point},
-        {"zero_tangential", options.zero_tangential},
-        {"fix_k1", options.fix_k1},
-        {"fix_k2", options.fix_k2},
-        {"fix_k3", options.fix_k3},
-        {"rational", options.rational}}},
+      {"flags", flags_json(options)},
       {"rms_px", r.rms_px},
       {"residual_sigma_px", r.residual_sigma_px},
       {"points_used", r.points_used},
@@ -144,7 +166,7 @@ int run_intrinsic(const IntrinsicArgs& args, std::ostream& out, std::ostream& er
       << " rejected as outliers\n";
   for (int frame : result.frames_skipped)
     err << "skipped frame " << frame << ": fewer than 4 points of camera " << args.camera << "\n";
-  print_intrinsics(result, out);
+  print_intrinsics(result.intrinsics, result.covariance, out);
   out << "  RMS reprojection error " << fixed(result.rms_px, 4) << " px (residual sigma "
       << fixed(result.residual_sigma_px, 4) << " px per axis, " << result.free_parameters
       << " parameters, " << result.iterations << " LM iterations)\n  per view RMS [px]:";
@@ -156,6 +178,179 @@ int run_intrinsic(const IntrinsicArgs& args, std::ostream& out, std::ostream& er
     f << intrinsic_calibration_json(result, args.camera, args.unit_id, args.options);
     if (!f.flush()) throw std::runtime_error(args.output + ": write failed");
     if (!args.residuals_csv.empty()) write_residuals(result, args.camera, args.residuals_csv);
+  } catch (const std::exception& e) {
+    err << "error: " << e.what() << "\n";
+    return 1;
+  }
+  out << "wrote " << args.output << "\n";
+  return 0;
+}
+
+calib::ObservationSet merge_observation_files(const std::vector<std::string>& paths) {
+  calib::ObservationSet merged;
+  std::map<std::tuple<int, int, int>, std::string> origin;  // (camera, frame, point) -> file
+  for (const std::string& path : paths) {
+    calib::ObservationSet one = calib::read_observations_csv(path);
+    for (const calib::Observation& o : one.observations) {
+      const auto [at, fresh] = origin.emplace(std::tuple(o.camera, o.frame, o.point_id), path);
+      if (!fresh)
+        throw calib::ObservationFileError(path + ": camera " + std::to_string(o.camera) +
+                                          " frame " + std::to_string(o.frame) + " point " +
+                                          std::to_string(o.point_id) + " is also in " + at->second);
+      merged.observations.push_back(o);
+    }
+    for (const auto& [camera, size] : one.image_sizes) {
+      const auto [at, fresh] = merged.image_sizes.emplace(camera, size);
+      if (!fresh && (at->second.width != size.width || at->second.height != size.height))
+        throw calib::ObservationFileError(path + ": image_size of camera " +
+                                          std::to_string(camera) + " differs from an earlier file");
+    }
+    merged.frame_sources.merge(one.frame_sources);  // informative only; first one kept
+  }
+  return merged;
+}
+
+namespace {
+
+void print_rig_camera(const calib::RigCameraResult& c, std::ostream& out) {
+  out << "camera " << c.camera_id << (c.camera_id == 0 ? " (reference, S_r)" : "") << ": "
+      << c.views.size() << " views, " << c.points_used << " points used, " << c.points_rejected
+      << " rejected as outliers, RMS " << fixed(c.rms_px, 4) << " px (own intrinsic fit "
+      << fixed(c.start_rms_px, 4) << " px)\n";
+  print_intrinsics(c.intrinsics, c.intrinsic_covariance, out);
+  if (c.camera_id != 0) {
+    const geometry::Vec3 r = geometry::rotvec_from_rotation(c.T_c_r.linear()) * 180 / M_PI;
+    const geometry::Vec3 t = c.T_c_r.translation() * 1000;
+    const auto sd = [&](int i) { return std::sqrt(std::max(0.0, c.extrinsic_covariance(i, i))); };
+    out << "  T_c_r rotation vector [deg]:";
+    for (int i = 0; i < 3; ++i)
+      out << ' ' << fixed(r[i], 4) << " +/- " << fixed(sd(i) * 180 / M_PI, 4);
+    out << "\n  T_c_r translation [mm]:";
+    for (int i = 0; i < 3; ++i)
+      out << ' ' << fixed(t[i], 3) << " +/- " << fixed(sd(3 + i) * 1000, 3);
+    out << "\n  baseline |T| = " << fixed(c.baseline_m * 1000, 3) << " +/- "
+        << fixed(c.baseline_sigma_m * 1000, 3) << " mm (" << c.common_views_with_reference
+        << " views in common with camera 0)\n";
+  }
+  out << "  per view RMS [px]:";
+  for (const auto& v : c.views)
+    out << ' ' << v.frame << ':' << fixed(v.rms_px, 3);
+  out << "\n";
+}
+
+nlohmann::json matrix_json(const Eigen::MatrixXd& m) {
+  nlohmann::json rows = nlohmann::json::array();
+  for (Eigen::Index i = 0; i < m.rows(); ++i) {
+    nlohmann::json row = nlohmann::json::array();
+    for (Eigen::Index j = 0; j < m.cols(); ++j)
+      row.push_back(m(i, j));
+    rows.push_back(row);
+  }
+  return rows;
+}
+
+}  // namespace
+
+std::string rig_calibration_json(const calib::RigResult& r, int unit_id,
+                                 const calib::RigOptions& options) {
+  camera::RigCalibration rig;
+  for (const calib::RigCameraResult& c : r.cameras) {
+    camera::CalibratedCamera cam;
+    cam.camera_id = c.camera_id;
+    cam.unit_id = unit_id;
+    cam.model = camera::CameraModel(c.intrinsics);
+    cam.intrinsic_covariance = c.intrinsic_covariance;
+    cam.T_c_w = c.T_c_r;  // world = S_r until the register step
+    cam.extrinsic_covariance = c.extrinsic_covariance;
+    rig.cameras.push_back(cam);
+  }
+  nlohmann::json doc = nlohmann::json::parse(camera::format_rig_calibration(rig));
+  for (size_t i = 0; i < r.cameras.size(); ++i) {
+    const calib::RigCameraResult& c = r.cameras[i];
+    nlohmann::json views = nlohmann::json::array();
+    for (const auto& v : c.views)
+      views.push_back({{"frame", v.frame},
+                       {"rms_px", v.rms_px},
+                       {"points_used", v.points_used},
+                       {"points_rejected", v.points_rejected}});
+    doc["cameras"][i]["comment"] = {{"produced_by", "storetrack-calib rig"},
+                                    {"rms_px", c.rms_px},
+                                    {"intrinsic_fit_rms_px", c.start_rms_px},
+                                    {"baseline_m", c.baseline_m},
+                                    {"baseline_sigma_m", c.baseline_sigma_m},
+                                    {"common_views_with_reference", c.common_views_with_reference},
+                                    {"points_used", c.points_used},
+                                    {"points_rejected", c.points_rejected},
+                                    {"views", views}};
+  }
+  nlohmann::json ids = nlohmann::json::array();
+  for (const auto& c : r.cameras)
+    ids.push_back(c.camera_id);
+  doc["comment"] = {
+      {"produced_by", "storetrack-calib rig"},
+      {"extrinsics",
+       "T_c_w is T_c_r: the world frame is the reference camera's (camera 0, S_r) until the "
+       "register step; the extrinsic covariances are relative to S_r (camera 0's is zero by "
+       "definition)"},
+      {"flags", flags_json(options.intrinsic)},
+      {"min_common_views", options.min_common_views},
+      {"rms_px", r.rms_px},
+      {"residual_sigma_px", r.residual_sigma_px},
+      {"points_used", r.points_used},
+      {"points_rejected", r.points_rejected},
+      {"free_parameters", r.free_parameters},
+      {"frames", r.frames},
+      {"joint_covariance",
+       {{"layout",
+         "per camera in camera_ids order: the 13 packed intrinsics (fx fy cx cy skew k1 k2 p1 "
+         "p2 k3 k4 k5 k6), then the left perturbation of T_c_r (rx ry rz [rad] tx ty tz [m]); "
+         "board poses marginalised"},
+        {"camera_ids", ids},
+        {"matrix", matrix_json(r.joint_covariance)}}}};
+  return doc.dump(2) + "\n";
+}
+
+int run_rig(const RigArgs& args, std::ostream& out, std::ostream& err) {
+  calib::RigResult result;
+  try {
+    calib::ObservationSet set = merge_observation_files(args.observations);
+    for (const std::string& given : args.image_sizes) {
+      int camera = -1;
+      char eq = 0;
+      calib::ImageSize size;
+      const auto split = given.find('=');
+      if (split == std::string::npos || std::sscanf(given.c_str(), "%d%c", &camera, &eq) != 2 ||
+          eq != '=' || camera < 0 || camera > 255 || !parse_size(given.substr(split + 1), size)) {
+        err << "error: --image-size: expected CAMERA=WxH, got '" << given << "'\n";
+        return 2;
+      }
+      set.image_sizes[camera] = size;
+    }
+    result = calib::calibrate_rig(set, args.options);
+  } catch (const std::exception& e) {  // ObservationFileError, CalibrationError
+    err << "error: " << e.what() << "\n";
+    return 2;
+  }
+  out << "rig: " << result.cameras.size() << " cameras, " << result.frames.size()
+      << " board poses, " << result.points_used << " points used, " << result.points_rejected
+      << " rejected as outliers\n";
+  for (const auto& c : result.cameras) {
+    for (int frame : c.frames_skipped)
+      err << "skipped frame " << frame << ": fewer than 4 points of camera " << c.camera_id << "\n";
+    print_rig_camera(c, out);
+  }
+  out << "RMS reprojection error " << fixed(result.rms_px, 4) << " px (residual sigma "
+      << fixed(result.residual_sigma_px, 4) << " px per axis, " << result.free_parameters
+      << " parameters, " << result.iterations << " LM iterations)\n";
+  try {
+    write_file(args.output, rig_calibration_json(result, args.unit_id, args.options));
+    if (!args.residuals_csv.empty()) {
+      std::ostringstream rows;
+      rows << kResidualHeader;
+      for (const auto& c : result.cameras)
+        write_residual_rows(c.residuals, c.camera_id, rows);
+      write_file(args.residuals_csv, rows.str());
+    }
   } catch (const std::exception& e) {
     err << "error: " << e.what() << "\n";
     return 1;

@@ -11,6 +11,18 @@ namespace storetrack::calibapp {
 
 int run_detect(const DetectArgs& args, std::ostream& out, std::ostream& err);
 int run_intrinsic(const IntrinsicArgs& args, std::ostream& out, std::ostream& err);
+int run_rig(const RigArgs& args, std::ostream& out, std::ostream& err);
+
+/// Observation CSVs as one set (e.g. one per camera from `detect`). Throws ObservationFileError
+/// naming both files when a (camera, frame, point) or a camera's image size appears twice
+/// differently.
+calib::ObservationSet merge_observation_files(const std::vector<std::string>& paths);
+
+/// The rig calibration file (docs/calibration-file.md, version 1: a block per camera) of a rig
+/// fit, T_c_w = T_c_r (world = S_r until the register step). The joint covariance of all
+/// cameras (cross-camera terms included) and the fit summary go in the top-level "comment".
+std::string rig_calibration_json(const calib::RigResult& result, int unit_id,
+                                 const calib::RigOptions& options);
 
 /// The rig calibration file (docs/calibration-file.md) of one intrinsically calibrated camera;
 /// the fit's summary goes into the camera's "comment" (ignored by readers). T_c_w is the

@@ -1,6 +1,7 @@
 // storetrack-calib: camera calibration with covariance (docs/calibration.md). Subcommands:
 //   detect     images -> observation CSV          (calib_commands.cpp, run_detect)
 //   intrinsic  observation CSV -> calibration JSON (calib_commands.cpp, run_intrinsic)
+//   rig        observation CSVs -> calibration JSON of all cameras (calib_commands.cpp, run_rig)
 // Exit codes: 0 ok, 1 runtime failure (writing files), 2 bad arguments or input.
 #include <iostream>
 
@@ -16,6 +17,8 @@ int main(int argc, char** argv) {
       return app::run_detect(command.detect, std::cout, std::cerr);
     case app::CalibCommand::Kind::kIntrinsic:
       return app::run_intrinsic(command.intrinsic, std::cout, std::cerr);
+    case app::CalibCommand::Kind::kRig:
+      return app::run_rig(command.rig, std::cout, std::cerr);
     case app::CalibCommand::Kind::kNone:
       break;
   }

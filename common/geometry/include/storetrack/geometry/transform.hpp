@@ -66,6 +66,19 @@ inline Transform perturb_left(const Transform& T_a_b, const Vec6& delta) {
   return out;
 }
 
+/// Jacobians of the composition T_a_c = T_a_b T_b_c w.r.t. left perturbations (perturb_left) of
+/// its factors: xi_ac = d_ac_d_ab xi_ab + d_ac_d_bc xi_bc (first order). With R_a_b <- Exp(phi)
+/// R_a_b, t_a_b <- t_a_b + rho: phi_ac = phi, rho_ac = rho - [R_a_b t_b_c]x phi; with R_b_c <-
+/// Exp(phi) R_b_c, t_b_c <- t_b_c + rho: phi_ac = R_a_b phi, rho_ac = R_a_b rho.
+inline void composition_jacobians(const Transform& T_a_b, const Transform& T_b_c, Mat6& d_ac_d_ab,
+                                  Mat6& d_ac_d_bc) {
+  d_ac_d_ab.setIdentity();
+  d_ac_d_ab.bottomLeftCorner<3, 3>() = -skew(T_a_b.linear() * T_b_c.translation());
+  d_ac_d_bc.setZero();
+  d_ac_d_bc.topLeftCorner<3, 3>() = T_a_b.linear();
+  d_ac_d_bc.bottomRightCorner<3, 3>() = T_a_b.linear();
+}
+
 /// Builds T_a_b from a rotation vector (rad) and translation (m).
 inline Transform make_transform(const Vec3& rotvec, const Vec3& translation) {
   Transform T = Transform::Identity();

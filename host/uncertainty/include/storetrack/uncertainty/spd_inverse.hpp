@@ -12,7 +12,8 @@
 
 namespace storetrack::uncertainty {
 
-/// Returns false (out untouched) when H is not numerically positive definite.
+/// Returns false (out untouched) when H is not numerically positive definite. N may be
+/// Eigen::Dynamic (joint calibration normal matrices, whose size depends on the rig).
 template <int N>
 bool inverse_spd(const Eigen::Matrix<double, N, N>& H, Eigen::Matrix<double, N, N>& out) {
   if constexpr (N == 2) {
@@ -42,10 +43,11 @@ bool inverse_spd(const Eigen::Matrix<double, N, N>& H, Eigen::Matrix<double, N, 
   const Eigen::LLT<Eigen::Matrix<double, N, N>> llt(H);
   if (llt.info() != Eigen::Success) return false;
   const Eigen::Matrix<double, N, N> L = llt.matrixL();
-  Eigen::Matrix<double, N, N> L_inv = Eigen::Matrix<double, N, N>::Zero();
-  for (int j = 0; j < N; ++j) {
+  const int n = static_cast<int>(H.rows());  // = N when fixed: the loops keep constant bounds
+  Eigen::Matrix<double, N, N> L_inv = Eigen::Matrix<double, N, N>::Zero(n, n);
+  for (int j = 0; j < (N == Eigen::Dynamic ? n : N); ++j) {
     L_inv(j, j) = 1.0 / L(j, j);
-    for (int i = j + 1; i < N; ++i) {
+    for (int i = j + 1; i < (N == Eigen::Dynamic ? n : N); ++i) {
       double s = 0;
       for (int k = j; k < i; ++k)
         s -= L(i, k) * L_inv(k, j);
