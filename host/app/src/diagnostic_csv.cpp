@@ -93,8 +93,7 @@ int CsvFile::close() {
   // fclose flushes the buffer: a full disk shows here.
   const int rc = std::fclose(file_) == 0 ? 0 : -errno;
   file_ = nullptr;
-  if (rc != 0) ++errors_;
-  return rc;
+  return rc;  // counted by the caller as a close error, apart from the write errors
 }
 
 }  // namespace storetrack::hostapp

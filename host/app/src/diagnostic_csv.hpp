@@ -35,9 +35,10 @@ class CsvFile {
   bool is_open() const { return file_ != nullptr; }
   /// Writes `rows` (whole lines); 0 or -errno, errors counted.
   int write(const std::string& rows);
+  /// 0 or -errno (fclose flushes the buffered rows, so a full disk may show only here).
   int close();
   std::uint64_t bytes_written() const { return bytes_; }
-  std::uint64_t write_errors() const { return errors_; }
+  std::uint64_t write_errors() const { return errors_; }  ///< failed write() calls only
 
  private:
   std::FILE* file_ = nullptr;

@@ -151,126 +151,132 @@ void load_host_config(const std::string& path, HostConfig& config) {
   parse_host_config(read_text(path), path, config);
 }
 
+namespace {
+
+// One function per section of the configuration file; each reads only its own object.
+
+void parse_udp_sources(const nlohmann::json& sources, const std::string& w, HostConfig& c) {
+  // [{"unit_id": 0, "address": "10.0.0.10"}, ...]: the only senders accepted.
+  if (!sources.is_array()) throw HostConfigError(w + "/sources must be an array");
+  c.udp_sources.clear();
+  for (const auto& s : sources) {
+    if (!s.is_object()) throw HostConfigError(w + "/sources: entries must be objects");
+    UdpSource src;
+    src.unit_id = static_cast<int>(get_integer(s, "unit_id", -1, 0, 254, w + "/sources"));
+    get(s, "address", src.address, w + "/sources");
+    if (src.unit_id < 0 || src.address.empty())
+      throw HostConfigError(w + "/sources: every entry needs unit_id and address");
+    check_address(src.address, w + "/sources/address");
+    c.udp_sources.push_back(src);
+  }
+}
+
+void parse_udp(const nlohmann::json& u, const std::string& w, HostConfig& c) {
+  get(u, "bind", c.udp_bind, w);
+  c.udp_port = static_cast<int>(get_integer(u, "port", c.udp_port, 0, 65535, w));
+  get(u, "group", c.udp_group, w);
+  get(u, "interface", c.udp_interface, w);
+  if (u.contains("sources")) parse_udp_sources(u["sources"], w, c);
+}
+
+void parse_aligner(const nlohmann::json& a, const std::string& w, ingest::AlignerConfig& al) {
+  const double wait_ms = get_number(a, "max_wait_ms", static_cast<double>(al.max_wait_ns) * 1e-6, 0,
+                                    true, static_cast<double>(ingest::kMaxAlignerWaitNs) * 1e-6, w);
+  al.max_wait_ns = ms_to_ns(wait_ms);
+  const double spread_ms =
+      get_number(a, "max_mid_time_spread_ms", static_cast<double>(al.max_mid_time_spread_ns) * 1e-6,
+                 0, false, static_cast<double>(ingest::kMaxMidTimeSpreadNs) * 1e-6, w);
+  al.max_mid_time_spread_ns = ms_to_ns(spread_ms);
+  al.max_pending = static_cast<std::size_t>(
+      get_integer(a, "max_pending", static_cast<std::int64_t>(al.max_pending), 1,
+                  static_cast<std::int64_t>(ingest::kMaxAlignerPending), w));
+  al.min_cameras =
+      static_cast<int>(get_integer(a, "min_cameras", al.min_cameras, 1,
+                                   static_cast<std::int64_t>(ingest::kMaxAlignerCameras), w));
+  al.max_sequence_lead = static_cast<std::uint32_t>(
+      get_integer(a, "max_sequence_lead", al.max_sequence_lead, 1, ingest::kMaxSequenceLead, w));
+}
+
+void parse_processor(const nlohmann::json& p, const std::string& w, HostConfig& c) {
+  auto& pc = c.processor;
+  pc.store_id = static_cast<std::uint8_t>(get_integer(p, "store_id", pc.store_id, 0, 254, w));
+  get(p, "coverage_factor", pc.coverage_factor, w);
+  // Integers through get_integer: nlohmann's get<int> of 1e300 is an out-of-range cast (UB).
+  pc.min_cameras_per_mark =
+      static_cast<int>(get_integer(p, "min_cameras_per_mark", pc.min_cameras_per_mark, 1,
+                                   static_cast<std::int64_t>(ingest::kMaxAlignerCameras), w));
+  pc.min_pose_marks =
+      static_cast<int>(get_integer(p, "min_pose_marks", pc.min_pose_marks, 3, 1024, w));
+  pc.reference_camera_id =
+      static_cast<int>(get_integer(p, "reference_camera_id", pc.reference_camera_id, -1, 254, w));
+  get(p, "rigid_false_alarm_probability", pc.rigid_false_alarm_probability, w);
+  get(p, "max_pose_rotation_sigma_rad", pc.max_pose_rotation_sigma_rad, w);
+  if (!(pc.max_pose_rotation_sigma_rad > 0))
+    throw HostConfigError(w + "/max_pose_rotation_sigma_rad must be > 0");
+}
+
+// Extrapolation of T_p_s over short gaps (host/pipeline PoseTracker, docs/uncertainty.md).
+void parse_pose_tracker(const nlohmann::json& t, const std::string& w, HostConfig& c) {
+  auto& pt = c.pose_tracker;
+  get(t, "max_gap_s", pt.max_gap_s, w);
+  get(t, "max_velocity_baseline_s", pt.max_velocity_baseline_s, w);
+  get(t, "accel_sigma_m_s2", pt.accel_sigma_m_s2, w);
+  get(t, "angular_accel_sigma_rad_s2", pt.angular_accel_sigma_rad_s2, w);
+  if (!(pt.max_gap_s >= 0) || !(pt.max_velocity_baseline_s > 0) || !(pt.accel_sigma_m_s2 > 0) ||
+      !(pt.angular_accel_sigma_rad_s2 > 0))
+    throw HostConfigError(w + ": max_gap_s must be >= 0 (0: never extrapolate), the others > 0");
+}
+
+// Mark identification (host/match MarkMatcher, docs/matching.md).
+void parse_identifier(const nlohmann::json& i, const std::string& w, HostConfig& c) {
+  for (const char* removed : {"gate_px", "ambiguity_ratio", "max_track_age_s"})
+    if (i.contains(removed))
+      throw HostConfigError(w + "/" + removed +
+                            ": no longer exists (the MarkMatcher gates by chi-square: "
+                            "gate_probability, track_max_gap_s, body_track_max_gap_s)");
+  auto& m = c.processor.matcher;
+  get(i, "gate_probability", m.gate_probability, w);
+  if (!(m.gate_probability > 0 && m.gate_probability < 1))
+    throw HostConfigError(w + "/gate_probability must be in (0, 1)");
+  get(i, "max_acceleration_mps2", m.max_acceleration_mps2, w);
+  get(i, "max_angular_acceleration_radps2", m.max_angular_acceleration_radps2, w);
+  get(i, "max_speed_mps", m.max_speed_mps, w);
+  get(i, "max_angular_speed_radps", m.max_angular_speed_radps, w);
+  get(i, "track_max_gap_s", m.track_max_gap_s, w);
+  get(i, "body_track_max_gap_s", m.body_track_max_gap_s, w);
+  get(i, "keep_single_view", m.keep_single_view, w);
+  get(i, "use_calibration_covariance", m.use_calibration_covariance, w);
+  get(i, "initial_marks_sigma_m", c.initial_marks_sigma_m, w);
+  if (!(c.initial_marks_sigma_m > 0))
+    throw HostConfigError(w + "/initial_marks_sigma_m must be > 0");
+}
+
+void parse_chapter10(const nlohmann::json& o, const std::string& w, HostConfig& c) {
+  c.ch10.max_messages_per_packet = static_cast<int>(
+      get_integer(o, "max_messages_per_packet", c.ch10.max_messages_per_packet, 1, 65535, w));
+  get(o, "data_checksum", c.ch10.data_checksum, w);
+  get(o, "test_point", c.ch10.test_point, w);
+}
+
+void parse_recording(const nlohmann::json& r, const std::string& w, HostConfig& c) {
+  c.recording_queue_items = static_cast<std::size_t>(get_integer(
+      r, "queue_items", static_cast<std::int64_t>(c.recording_queue_items), 1, 4096, w));
+}
+
+}  // namespace
+
 void parse_host_config(const std::string& json_text, const std::string& path, HostConfig& c) {
   const nlohmann::json j = parse_json(json_text, path);
   if (!j.is_object()) throw HostConfigError(path + ": top level must be an object");
-  if (j.contains("udp")) {
-    const auto& u = j["udp"];
-    const std::string w = path + ": /udp";
-    get(u, "bind", c.udp_bind, w);
-    c.udp_port = static_cast<int>(get_integer(u, "port", c.udp_port, 0, 65535, w));
-    get(u, "group", c.udp_group, w);
-    get(u, "interface", c.udp_interface, w);
-    if (u.contains("sources")) {
-      // [{"unit_id": 0, "address": "10.0.0.10"}, ...]: the only senders accepted.
-      if (!u["sources"].is_array()) throw HostConfigError(w + "/sources must be an array");
-      c.udp_sources.clear();
-      for (const auto& s : u["sources"]) {
-        if (!s.is_object()) throw HostConfigError(w + "/sources: entries must be objects");
-        UdpSource src;
-        src.unit_id = static_cast<int>(get_integer(s, "unit_id", -1, 0, 254, w + "/sources"));
-        get(s, "address", src.address, w + "/sources");
-        if (src.unit_id < 0 || src.address.empty())
-          throw HostConfigError(w + "/sources: every entry needs unit_id and address");
-        check_address(src.address, w + "/sources/address");
-        c.udp_sources.push_back(src);
-      }
-    }
-  }
+  const std::string at = path + ": /";
+  if (j.contains("udp")) parse_udp(j["udp"], at + "udp", c);
   get(j, "can_interfaces", c.can_interfaces, path + ": ");
-  if (j.contains("aligner")) {
-    const auto& a = j["aligner"];
-    const std::string w = path + ": /aligner";
-    auto& al = c.aligner;
-    const double wait_ms =
-        get_number(a, "max_wait_ms", static_cast<double>(al.max_wait_ns) * 1e-6, 0, true,
-                   static_cast<double>(ingest::kMaxAlignerWaitNs) * 1e-6, w);
-    al.max_wait_ns = ms_to_ns(wait_ms);
-    const double spread_ms = get_number(
-        a, "max_mid_time_spread_ms", static_cast<double>(al.max_mid_time_spread_ns) * 1e-6, 0,
-        false, static_cast<double>(ingest::kMaxMidTimeSpreadNs) * 1e-6, w);
-    al.max_mid_time_spread_ns = ms_to_ns(spread_ms);
-    al.max_pending = static_cast<std::size_t>(
-        get_integer(a, "max_pending", static_cast<std::int64_t>(al.max_pending), 1,
-                    static_cast<std::int64_t>(ingest::kMaxAlignerPending), w));
-    al.min_cameras =
-        static_cast<int>(get_integer(a, "min_cameras", al.min_cameras, 1,
-                                     static_cast<std::int64_t>(ingest::kMaxAlignerCameras), w));
-    al.max_sequence_lead = static_cast<std::uint32_t>(
-        get_integer(a, "max_sequence_lead", al.max_sequence_lead, 1, ingest::kMaxSequenceLead, w));
-  }
-  if (j.contains("processor")) {
-    const auto& p = j["processor"];
-    const std::string w = path + ": /processor";
-    c.processor.store_id =
-        static_cast<std::uint8_t>(get_integer(p, "store_id", c.processor.store_id, 0, 254, w));
-    get(p, "coverage_factor", c.processor.coverage_factor, w);
-    // Integers through get_integer: nlohmann's get<int> of 1e300 is an out-of-range cast (UB).
-    auto& pc = c.processor;
-    pc.min_cameras_per_mark =
-        static_cast<int>(get_integer(p, "min_cameras_per_mark", pc.min_cameras_per_mark, 1,
-                                     static_cast<std::int64_t>(ingest::kMaxAlignerCameras), w));
-    pc.min_pose_marks =
-        static_cast<int>(get_integer(p, "min_pose_marks", pc.min_pose_marks, 3, 1024, w));
-    pc.reference_camera_id =
-        static_cast<int>(get_integer(p, "reference_camera_id", pc.reference_camera_id, -1, 254, w));
-    get(p, "rigid_false_alarm_probability", c.processor.rigid_false_alarm_probability, w);
-    get(p, "max_pose_rotation_sigma_rad", c.processor.max_pose_rotation_sigma_rad, w);
-    if (!(c.processor.max_pose_rotation_sigma_rad > 0))
-      throw HostConfigError(w + "/max_pose_rotation_sigma_rad must be > 0");
-  }
-  if (j.contains("pose_tracker")) {
-    // Extrapolation of T_p_s over short gaps (host/pipeline PoseTracker, docs/uncertainty.md).
-    const auto& t = j["pose_tracker"];
-    const std::string w = path + ": /pose_tracker";
-    auto& pt = c.pose_tracker;
-    get(t, "max_gap_s", pt.max_gap_s, w);
-    get(t, "max_velocity_baseline_s", pt.max_velocity_baseline_s, w);
-    get(t, "accel_sigma_m_s2", pt.accel_sigma_m_s2, w);
-    get(t, "angular_accel_sigma_rad_s2", pt.angular_accel_sigma_rad_s2, w);
-    if (!(pt.max_gap_s >= 0) || !(pt.max_velocity_baseline_s > 0) || !(pt.accel_sigma_m_s2 > 0) ||
-        !(pt.angular_accel_sigma_rad_s2 > 0))
-      throw HostConfigError(w + ": max_gap_s must be >= 0 (0: never extrapolate), the others > 0");
-  }
-  if (j.contains("identifier")) {
-    // Mark identification (host/match MarkMatcher, docs/matching.md).
-    const auto& i = j["identifier"];
-    const std::string w = path + ": /identifier";
-    for (const char* removed : {"gate_px", "ambiguity_ratio", "max_track_age_s"})
-      if (i.contains(removed))
-        throw HostConfigError(w + "/" + removed +
-                              ": no longer exists (the MarkMatcher gates by chi-square: "
-                              "gate_probability, track_max_gap_s, body_track_max_gap_s)");
-    auto& m = c.processor.matcher;
-    get(i, "gate_probability", m.gate_probability, w);
-    if (!(m.gate_probability > 0 && m.gate_probability < 1))
-      throw HostConfigError(w + "/gate_probability must be in (0, 1)");
-    get(i, "max_acceleration_mps2", m.max_acceleration_mps2, w);
-    get(i, "max_angular_acceleration_radps2", m.max_angular_acceleration_radps2, w);
-    get(i, "max_speed_mps", m.max_speed_mps, w);
-    get(i, "max_angular_speed_radps", m.max_angular_speed_radps, w);
-    get(i, "track_max_gap_s", m.track_max_gap_s, w);
-    get(i, "body_track_max_gap_s", m.body_track_max_gap_s, w);
-    get(i, "keep_single_view", m.keep_single_view, w);
-    get(i, "use_calibration_covariance", m.use_calibration_covariance, w);
-    get(i, "initial_marks_sigma_m", c.initial_marks_sigma_m, w);
-    if (!(c.initial_marks_sigma_m > 0))
-      throw HostConfigError(w + "/initial_marks_sigma_m must be > 0");
-  }
-  if (j.contains("chapter10")) {
-    const auto& o = j["chapter10"];
-    const std::string w = path + ": /chapter10";
-    c.ch10.max_messages_per_packet = static_cast<int>(
-        get_integer(o, "max_messages_per_packet", c.ch10.max_messages_per_packet, 1, 65535, w));
-    get(o, "data_checksum", c.ch10.data_checksum, w);
-    get(o, "test_point", c.ch10.test_point, w);
-  }
-  if (j.contains("recording")) {
-    const std::string w = path + ": /recording";
-    c.recording_queue_items = static_cast<std::size_t>(
-        get_integer(j["recording"], "queue_items",
-                    static_cast<std::int64_t>(c.recording_queue_items), 1, 4096, w));
-  }
+  if (j.contains("aligner")) parse_aligner(j["aligner"], at + "aligner", c.aligner);
+  if (j.contains("processor")) parse_processor(j["processor"], at + "processor", c);
+  if (j.contains("pose_tracker")) parse_pose_tracker(j["pose_tracker"], at + "pose_tracker", c);
+  if (j.contains("identifier")) parse_identifier(j["identifier"], at + "identifier", c);
+  if (j.contains("chapter10")) parse_chapter10(j["chapter10"], at + "chapter10", c);
+  if (j.contains("recording")) parse_recording(j["recording"], at + "recording", c);
 }
 
 std::map<int, geometry::Vec3> load_initial_marks(const std::string& path) {

@@ -254,6 +254,6 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "storetrack-host: cannot write '%s'\n", options.stats_json_path.c_str());
     exit_code = 1;
   }
-  if (recording.error_count() > 0) exit_code = 1;
+  if (recording.had_errors()) exit_code = 1;
   return exit_code;
 }

@@ -88,14 +88,14 @@ void RecordingWriter::run() {
 // Runs on the writer thread only; its counters are merged under the lock.
 void RecordingWriter::write(const RecordingItem& item) {
   RecordingCounters d;
-  if (ch10_open_ && ch10_.write(item.sample) != 0) ++d.ch10_write_errors;
+  if (ch10_open_ && ch10_.write(item.sample) != 0) ++d.ch10_sample_write_errors;
   if (csv_open_ && csv_.write(item.sample) != 0) ++d.csv_write_errors;
   if (marks_.is_open() && !item.marks_rows.empty() && marks_.write(item.marks_rows) != 0)
     ++d.marks_csv_write_errors;
   if (rigid_.is_open() && !item.rigid_rows.empty() && rigid_.write(item.rigid_rows) != 0)
     ++d.rigid_csv_write_errors;
   std::lock_guard<std::mutex> lock(mutex_);
-  counters_.ch10_write_errors += d.ch10_write_errors;
+  counters_.ch10_sample_write_errors += d.ch10_sample_write_errors;
   counters_.csv_write_errors += d.csv_write_errors;
   counters_.marks_csv_write_errors += d.marks_csv_write_errors;
   counters_.rigid_csv_write_errors += d.rigid_csv_write_errors;
@@ -110,13 +110,15 @@ void RecordingWriter::stop() {
   }
   cv_.notify_one();
   if (thread_.joinable()) thread_.join();
-  std::uint64_t close_errors = 0;
-  if (ch10_open_ && ch10_.close() != 0) ++close_errors;
-  if (csv_open_ && csv_.close() != 0) ++close_errors;
-  if (marks_.close() != 0) ++close_errors;
-  if (rigid_.close() != 0) ++close_errors;
+  // The Chapter 10 writer counts its own close errors (ch10().counters().close_errors).
+  if (ch10_open_) ch10_.close();
+  const bool csv_failed = csv_open_ && csv_.close() != 0;
+  const bool marks_failed = marks_.close() != 0;
+  const bool rigid_failed = rigid_.close() != 0;
   std::lock_guard<std::mutex> lock(mutex_);
-  counters_.close_errors += close_errors;
+  counters_.csv_close_errors += csv_failed ? 1 : 0;
+  counters_.marks_csv_close_errors += marks_failed ? 1 : 0;
+  counters_.rigid_csv_close_errors += rigid_failed ? 1 : 0;
   counters_.csv_rows = csv_.rows_written();
 }
 
@@ -125,12 +127,24 @@ RecordingCounters RecordingWriter::counters() const {
   return counters_;
 }
 
-std::uint64_t RecordingWriter::error_count() const {
+bool RecordingWriter::had_errors() const {
   const RecordingCounters c = counters();
-  return c.items_dropped_queue_full + c.ch10_write_errors + c.csv_write_errors +
-         c.marks_csv_write_errors + c.rigid_csv_write_errors + c.close_errors +
-         ch10_.counters().write_errors + ch10_.counters().sync_errors +
-         ch10_.counters().messages_dropped;
+  const output::Chapter10Counters& cc = ch10_.counters();
+  const std::uint64_t losses[] = {c.items_dropped_queue_full,
+                                  c.ch10_sample_write_errors,
+                                  c.csv_write_errors,
+                                  c.csv_close_errors,
+                                  c.marks_csv_write_errors,
+                                  c.marks_csv_close_errors,
+                                  c.rigid_csv_write_errors,
+                                  c.rigid_csv_close_errors,
+                                  cc.write_errors,
+                                  cc.sync_errors,
+                                  cc.close_errors,
+                                  cc.messages_dropped};
+  for (std::uint64_t n : losses)
+    if (n != 0) return true;
+  return false;
 }
 
 }  // namespace storetrack::hostapp

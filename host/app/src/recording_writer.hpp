@@ -27,17 +27,22 @@ struct RecordingItem {
   std::string rigid_rows;  ///< formatted --rigid-csv rows
 };
 
+// One counter per file and kind of failure: a full disk under the marks CSV never shows as an
+// FTI CSV or Chapter 10 error. The Chapter 10 file's packet-level counters (write, sync, close,
+// truncation) are its writer's own: ch10().counters().
 struct RecordingCounters {
   std::uint64_t items_queued = 0;
   std::uint64_t items_dropped_queue_full = 0;  ///< never reached any file
   std::uint64_t queue_max_items = 0;
   std::uint64_t queue_max_text_bytes = 0;
-  std::uint64_t ch10_write_errors = 0;  ///< samples whose Chapter 10 write() reported an error
+  std::uint64_t ch10_sample_write_errors = 0;  ///< samples whose Chapter 10 write() failed
   std::uint64_t csv_rows = 0;
-  std::uint64_t csv_write_errors = 0;
+  std::uint64_t csv_write_errors = 0;  ///< --csv (FTI samples) rows not written
+  std::uint64_t csv_close_errors = 0;  ///< --csv close (last buffered rows) failed
   std::uint64_t marks_csv_write_errors = 0;
+  std::uint64_t marks_csv_close_errors = 0;
   std::uint64_t rigid_csv_write_errors = 0;
-  std::uint64_t close_errors = 0;
+  std::uint64_t rigid_csv_close_errors = 0;
 };
 
 class RecordingWriter {
@@ -67,9 +72,9 @@ class RecordingWriter {
 
   // Read after stop().
   RecordingCounters counters() const;
-  /// Samples or rows lost or not known to be on disk: queue drops, write and close errors of
-  /// every file (the exit status is 1 when this is not 0).
-  std::uint64_t error_count() const;
+  /// True when any sample or row is lost or not known to be on disk: queue drops, write, sync
+  /// and close errors of any file (the exit status is then 1; the counters say which).
+  bool had_errors() const;
   const output::Chapter10Writer& ch10() const { return ch10_; }
   bool ch10_open() const { return ch10_open_; }
   /// The CSV files created (numbered names when the requested ones existed), "" when off.

@@ -167,11 +167,41 @@ nlohmann::json recording_stats_json(const RecordingWriter& recording,
            {{"csv", recording.csv_path()},
             {"marks_csv", recording.marks_csv_path()},
             {"rigid_csv", recording.rigid_csv_path()}}},
+          {"ch10_sample_write_errors", rc.ch10_sample_write_errors},
           {"csv_rows", rc.csv_rows},
           {"csv_write_errors", rc.csv_write_errors},
+          {"csv_close_errors", rc.csv_close_errors},
           {"marks_csv_write_errors", rc.marks_csv_write_errors},
+          {"marks_csv_close_errors", rc.marks_csv_close_errors},
           {"rigid_csv_write_errors", rc.rigid_csv_write_errors},
-          {"close_errors", rc.close_errors}};
+          {"rigid_csv_close_errors", rc.rigid_csv_close_errors}};
+}
+
+nlohmann::json outputs_stats_json(const output::InetxSender& inetx,
+                                  const RecordingWriter& recording) {
+  const auto& cc = recording.ch10().counters();
+  const RecordingCounters rc = recording.counters();
+  // One key per output and kind of failure (docs/fti-output.md, "Counters"); the details are
+  // under "recording".
+  return {{"inetx_sent", inetx.counters().packets_sent},
+          {"inetx_send_errors", inetx.counters().send_errors},
+          {"ch10_packets", cc.packets_written},
+          {"ch10_messages", cc.messages_written},
+          {"ch10_time_packets", cc.time_packets},
+          {"ch10_bytes", cc.bytes_written},
+          {"ch10_write_errors", cc.write_errors},
+          {"ch10_sync_errors", cc.sync_errors},
+          {"ch10_close_errors", cc.close_errors},
+          {"ch10_messages_dropped", cc.messages_dropped},
+          {"csv_rows", rc.csv_rows},
+          {"csv_write_errors", rc.csv_write_errors},
+          {"csv_close_errors", rc.csv_close_errors},
+          {"marks_csv_write_errors", rc.marks_csv_write_errors},
+          {"marks_csv_close_errors", rc.marks_csv_close_errors},
+          {"rigid_csv_write_errors", rc.rigid_csv_write_errors},
+          {"rigid_csv_close_errors", rc.rigid_csv_close_errors},
+          {"file_queue_dropped", rc.items_dropped_queue_full},
+          {"file_queue_max_depth", rc.queue_max_items}};
 }
 
 nlohmann::json host_stats_json(const StatsSources& s) {
@@ -189,20 +219,7 @@ nlohmann::json host_stats_json(const StatsSources& s) {
   stats["pose_tracker"] = {{"solved", tc.solved},
                            {"extrapolated", tc.extrapolated},
                            {"not_extrapolated", tc.not_extrapolated}};
-  const auto& cc = s.recording.ch10().counters();
-  const RecordingCounters rc = s.recording.counters();
-  // "outputs" keeps its keys (tools read them); the details are under "recording".
-  stats["outputs"] = {{"inetx_sent", s.inetx.counters().packets_sent},
-                      {"inetx_send_errors", s.inetx.counters().send_errors},
-                      {"ch10_packets", cc.packets_written},
-                      {"ch10_messages", cc.messages_written},
-                      {"ch10_time_packets", cc.time_packets},
-                      {"ch10_bytes", cc.bytes_written},
-                      {"ch10_write_errors", cc.write_errors},
-                      {"ch10_sync_errors", cc.sync_errors},
-                      {"csv_rows", rc.csv_rows},
-                      {"write_errors", s.recording.error_count()},
-                      {"file_queue_max_depth", rc.queue_max_items}};
+  stats["outputs"] = outputs_stats_json(s.inetx, s.recording);
   stats["recording"] = recording_stats_json(s.recording, s.cfg.ch10_path);
   const LoopTotals& t = s.totals;
   stats["latency"] = {
@@ -255,6 +272,15 @@ void print_summary(const StatsSources& s) {
                 cc.messages_dropped + s.recording.counters().items_dropped_queue_full,
                 cc.write_errors, cc.sync_errors);
   }
+  const RecordingCounters rc = s.recording.counters();
+  if (!s.recording.csv_path().empty() || s.recording.wants_marks_rows() ||
+      !s.recording.rigid_csv_path().empty())
+    std::printf("  CSV write / close errors: fti %" PRIu64 " / %" PRIu64 ", marks %" PRIu64
+                " / %" PRIu64 ", rigid %" PRIu64 " / %" PRIu64 "\n",
+                rc.csv_write_errors, rc.csv_close_errors, rc.marks_csv_write_errors,
+                rc.marks_csv_close_errors, rc.rigid_csv_write_errors, rc.rigid_csv_close_errors);
+  std::printf("  iNET-X: %" PRIu64 " sent, %" PRIu64 " send errors\n",
+              s.inetx.counters().packets_sent, s.inetx.counters().send_errors);
   std::printf(
       "  latency last obs -> iNET-X p50 %.0f us, p99 %.0f us, max %.0f us (%zu complete "
       "exposures)\n",

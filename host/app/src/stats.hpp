@@ -38,6 +38,9 @@ nlohmann::json host_stats_json(const StatsSources& s);
 /// Chapter 10 counters, the files written and the recording queue (stats "recording").
 nlohmann::json recording_stats_json(const RecordingWriter& recording,
                                     const std::string& requested_ch10_path);
+/// One counter per output and kind of failure (stats "outputs"; tools read these keys).
+nlohmann::json outputs_stats_json(const output::InetxSender& inetx,
+                                  const RecordingWriter& recording);
 void print_summary(const StatsSources& s);
 /// Writes `stats` to `path`; false when it could not.
 bool write_stats_json(const nlohmann::json& stats, const std::string& path);

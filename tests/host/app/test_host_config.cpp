@@ -182,5 +182,54 @@ TEST(HostConfig, RecordingQueueBoundIsChecked) {
   EXPECT_EQ(defaults.recording_queue_items, 4096u);  // RecordingWriter::kQueueItems
 }
 
+TEST(HostConfig, EverySectionNamesTheKeyOfABadValue) {
+  // Paths through each section's reader that the range tests above do not reach: a wrong JSON
+  // type, a value outside a (0, x) bound, a removed key, a malformed list. The message names the
+  // section and the key, so the user can find the line.
+  struct Case {
+    const char* json;
+    const char* key;
+  };
+  const Case cases[] = {
+      {R"([1, 2])", "top level must be an object"},
+      {R"({"udp": {"group": 5}})", "/udp/group"},
+      {R"({"udp": {"sources": {"unit_id": 1}}})", "/udp/sources must be an array"},
+      {R"({"udp": {"sources": [7]}})", "/udp/sources: entries must be objects"},
+      {R"({"udp": {"sources": [{"unit_id": 1}]}})", "/udp/sources: every entry needs"},
+      {R"({"can_interfaces": "can0"})", "can_interfaces"},
+      {R"({"processor": {"coverage_factor": "two"}})", "/processor/coverage_factor"},
+      {R"({"processor": {"store_id": 255}})", "/processor/store_id"},
+      {R"({"processor": {"max_pose_rotation_sigma_rad": 0}})",
+       "/processor/max_pose_rotation_sigma_rad"},
+      {R"({"pose_tracker": {"max_gap_s": -1}})", "/pose_tracker: max_gap_s"},
+      {R"({"pose_tracker": {"accel_sigma_m_s2": "x"}})", "/pose_tracker/accel_sigma_m_s2"},
+      {R"({"identifier": {"gate_px": 3}})", "/identifier/gate_px: no longer exists"},
+      {R"({"identifier": {"gate_probability": 1}})", "/identifier/gate_probability"},
+      {R"({"identifier": {"keep_single_view": 3}})", "/identifier/keep_single_view"},
+      {R"({"identifier": {"initial_marks_sigma_m": 0}})", "/identifier/initial_marks_sigma_m"},
+      {R"({"chapter10": {"data_checksum": "yes"}})", "/chapter10/data_checksum"},
+      {R"({"chapter10": {"test_point": 12}})", "/chapter10/test_point"},
+  };
+  for (const Case& k : cases) {
+    const std::string msg = load(k.json);
+    EXPECT_NE(msg.find(k.key), std::string::npos) << k.json << " -> '" << msg << "'";
+  }
+  // Each section's good values still load (the split readers apply them).
+  HostConfig c;
+  ASSERT_EQ(load(R"({"processor": {"coverage_factor": 3, "store_id": 9},
+                     "pose_tracker": {"max_gap_s": 0.05},
+                     "identifier": {"gate_probability": 0.999, "initial_marks_sigma_m": 0.01},
+                     "chapter10": {"test_point": "TP-7", "data_checksum": true}})",
+                 &c),
+            "");
+  EXPECT_EQ(c.processor.coverage_factor, 3);
+  EXPECT_EQ(c.processor.store_id, 9);
+  EXPECT_EQ(c.pose_tracker.max_gap_s, 0.05);
+  EXPECT_EQ(c.processor.matcher.gate_probability, 0.999);
+  EXPECT_EQ(c.initial_marks_sigma_m, 0.01);
+  EXPECT_EQ(c.ch10.test_point, "TP-7");
+  EXPECT_TRUE(c.ch10.data_checksum);
+}
+
 }  // namespace
 }  // namespace storetrack::hostapp

@@ -5,8 +5,12 @@
 // dropped, and once the "disk" moves again every held item reaches every file.
 #include <fcntl.h>
 #include <gtest/gtest.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <unistd.h>
+
+#include <csignal>
 
 #include <chrono>
 #include <filesystem>
@@ -14,6 +18,7 @@
 #include <thread>
 
 #include "recording_writer.hpp"
+#include "stats.hpp"
 #include "storetrack/output/chapter10_reader.hpp"
 
 namespace storetrack::hostapp {
@@ -28,12 +33,20 @@ fs::path fresh_dir(const std::string& name) {
   return d;
 }
 
+// One text line of n - 1 copies of c (built in place: GCC 12 at -O3 warns falsely,
+// -Warray-bounds, on std::string(n, c) + "\n" once inlined into a larger caller).
+std::string text_line(std::size_t n, char c) {
+  std::string line(n, c);
+  line.back() = '\n';
+  return line;
+}
+
 RecordingItem item(std::uint32_t k) {
   RecordingItem it;
   it.sample.trigger_seq = k;
   it.sample.store_id = 1;
   it.sample.exposure_mid_tai_ns = 1'900'000'000'000'000'000LL + k * 2'500'000LL;
-  it.marks_rows = std::string(1000, 'm') + "\n";  // 1 kB per exposure: the pipe fills at 64
+  it.marks_rows = text_line(1001, 'm');  // 1 kB per exposure: the pipe fills at 64
   return it;
 }
 
@@ -104,8 +117,108 @@ TEST(RecordingWriter, CsvWriteErrorsAreCounted) {
   }
   w.stop();
   const RecordingCounters c = w.counters();
-  EXPECT_GT(c.rigid_csv_write_errors + c.close_errors, 0u);
-  EXPECT_GT(w.error_count(), 0u);
+  EXPECT_GT(c.rigid_csv_write_errors + c.rigid_csv_close_errors, 0u);
+  EXPECT_TRUE(w.had_errors());
+}
+
+// Which output a test puts on a failing disk; the others stay healthy.
+enum class FailingOutput { kChapter10, kFtiCsv, kMarksCsv, kRigidCsv };
+
+// Records 300 exposures to all four files, `failing` on a disk that refuses writes (a CSV on
+// /dev/full, ENOSPC; the Chapter 10 file under a 20 kB RLIMIT_FSIZE, EFBIG), the healthy CSVs on
+// /dev/null (never limited) and a healthy Chapter 10 file in `dir`. Runs in a child process so
+// the file-size limit stays there; returns {"recording": ..., "outputs": ...} of the stats.
+nlohmann::json record_with_one_failing_output(FailingOutput failing, const fs::path& dir) {
+  int pipefd[2];
+  if (::pipe(pipefd) != 0) return {};
+  const pid_t child = ::fork();
+  if (child == 0) {
+    ::close(pipefd[0]);
+    if (failing == FailingOutput::kChapter10) {
+      std::signal(SIGXFSZ, SIG_IGN);  // write() then fails with EFBIG instead of killing us
+      const rlimit limit{20'000, 20'000};
+      if (::setrlimit(RLIMIT_FSIZE, &limit) != 0) _exit(3);
+    }
+    const auto path_for = [&](FailingOutput o) {
+      return failing == o ? std::string("/dev/full") : std::string("/dev/null");
+    };
+    RecordingWriter w;
+    output::Chapter10Config ch10;
+    ch10.sync = output::Chapter10Sync::kNone;
+    if (w.open_ch10((dir / "out.ch10").string(), ch10) != 0 ||
+        w.open_csv(path_for(FailingOutput::kFtiCsv)) != 0 ||
+        w.open_marks_csv(path_for(FailingOutput::kMarksCsv)) != 0 ||
+        w.open_rigid_csv(path_for(FailingOutput::kRigidCsv)) != 0)
+      _exit(4);
+    w.start();
+    for (std::uint32_t k = 0; k < 300; ++k) {
+      RecordingItem it = item(k);
+      it.rigid_rows = text_line(4001, 'r');
+      w.push(std::move(it));
+    }
+    w.stop();
+    output::InetxSender no_inetx;
+    const std::string text = nlohmann::json{{"recording", recording_stats_json(w, "out.ch10")},
+                                            {"outputs", outputs_stats_json(no_inetx, w)}}
+                                 .dump();
+    (void)!::write(pipefd[1], text.data(), text.size());
+    _exit(0);
+  }
+  ::close(pipefd[1]);
+  std::string text;
+  char buf[4096];
+  for (ssize_t n; (n = ::read(pipefd[0], buf, sizeof buf)) > 0;)
+    text.append(buf, static_cast<std::size_t>(n));
+  ::close(pipefd[0]);
+  int status = 0;
+  ::waitpid(child, &status, 0);
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << "writer child failed";
+  return nlohmann::json::parse(text, nullptr, false);
+}
+
+TEST(RecordingWriter, EachOutputsFailuresMoveOnlyItsOwnCounters) {
+  // The old code reported one "write_errors" summing every file's failures (and one shared
+  // "close_errors"): a full disk under the rigid-body CSV read the same as a lost Chapter 10
+  // recording. Each output on a failing disk in turn: its counters move, no other output's do.
+  if (!fs::exists("/dev/full") || !fs::exists("/dev/null")) GTEST_SKIP() << "no /dev/full";
+  const char* const csv_keys[][2] = {{"csv_write_errors", "csv_close_errors"},
+                                     {"marks_csv_write_errors", "marks_csv_close_errors"},
+                                     {"rigid_csv_write_errors", "rigid_csv_close_errors"}};
+  const std::pair<FailingOutput, int> cases[] = {{FailingOutput::kChapter10, -1},
+                                                 {FailingOutput::kFtiCsv, 0},
+                                                 {FailingOutput::kMarksCsv, 1},
+                                                 {FailingOutput::kRigidCsv, 2}};
+  for (const auto& [failing, failing_csv] : cases) {
+    const fs::path dir = fresh_dir("st_recording_one_failing");
+    const nlohmann::json s = record_with_one_failing_output(failing, dir);
+    ASSERT_TRUE(s.is_object()) << "no stats from the writer child";
+    const nlohmann::json& r = s.at("recording");
+    const nlohmann::json& o = s.at("outputs");
+    SCOPED_TRACE("failing csv " + std::to_string(failing_csv) + ": " + o.dump());
+    EXPECT_FALSE(o.contains("write_errors")) << "the summed counter is gone";
+    for (int k = 0; k < 3; ++k) {
+      const std::uint64_t writes = r.at(csv_keys[k][0]), closes = r.at(csv_keys[k][1]);
+      EXPECT_EQ(o.at(csv_keys[k][0]), writes);
+      EXPECT_EQ(o.at(csv_keys[k][1]), closes);
+      if (k == failing_csv)
+        EXPECT_GT(writes, 0u) << csv_keys[k][0];
+      else
+        EXPECT_EQ(writes + closes, 0u) << csv_keys[k][0] << " moved for another file's failure";
+    }
+    const std::uint64_t ch10_writes = o.at("ch10_write_errors");
+    EXPECT_EQ(r.at("chapter10").at("write_errors"), ch10_writes);
+    if (failing == FailingOutput::kChapter10) {
+      EXPECT_GT(ch10_writes, 0u);
+    } else {
+      EXPECT_EQ(ch10_writes, 0u);
+      EXPECT_EQ(o.at("ch10_close_errors"), 0u);
+      EXPECT_EQ(o.at("ch10_messages_dropped"), 0u);
+      EXPECT_EQ(r.at("ch10_sample_write_errors"), 0u);
+    }
+    EXPECT_EQ(o.at("file_queue_dropped"), 0u);
+    EXPECT_EQ(o.at("inetx_send_errors"), 0u);
+    fs::remove_all(dir);
+  }
 }
 
 TEST(RecordingWriter, RestartNeverOverwritesTheCsvFiles) {
@@ -120,7 +233,7 @@ TEST(RecordingWriter, RestartNeverOverwritesTheCsvFiles) {
     for (std::uint32_t k = first; k < first + n; ++k)
       w.push(item(k));
     w.stop();
-    EXPECT_EQ(w.error_count(), 0u);
+    EXPECT_FALSE(w.had_errors());
     return std::make_pair(w.csv_path(), w.marks_csv_path());
   };
   const auto lines = [](const fs::path& p) {
