@@ -50,8 +50,12 @@ option(STORETRACK_TEST_PCH "Precompile GoogleTest + Eigen once for all test exec
 # -O1): the code under test is in the libraries, still -O1, and a test source compiles in about
 # half the time (clang ASan + UBSan, tests/host/pose/test_body_pose.cpp: 49 s -> 28 s of CPU).
 # ASan and UBSan see at least as much at -O0. The tests' PCH gets the same, so that it matches.
-# A test marked LONG_RUNNING (its own code loops: Monte Carlo draws, image synthesis) stays at
-# -O1, without the shared PCH: at -O0 test_uncertainty_honesty_static ran over 6 min, not 80 s.
+# A test marked LONG_RUNNING (its own code loops: Monte Carlo draws, image synthesis, synthetic
+# calibrations) stays at -O1, without the shared PCH: at -O0 test_uncertainty_honesty_static ran
+# over 6 min, not 80 s. Not only the test's own code: the linker keeps one copy of each inline
+# function (Eigen's products), often the -O0 test object's, so the library's loops ran at -O0
+# too (test_calib under ASan: 140 s at -O0, 17 s at -O1). A PCH of their own at -O1 was tried:
+# no gain (test_calib's sources spend their time in code generation, not parsing).
 function(storetrack_sanitizer_test_flags target)
   if(STORETRACK_SANITIZE)
     target_compile_options(${target} PRIVATE "$<$<CONFIG:Release,RelWithDebInfo,MinSizeRel>:-O0>")
