@@ -132,6 +132,17 @@ nlohmann::json processor_stats_json(const pipeline::ExposureProcessor& processor
           {"degenerate_geometry", pc.degenerate_geometry}};
 }
 
+// The three CSVs' rows and failures, the same keys under "recording" and in "outputs".
+nlohmann::json csv_counters_json(const RecordingCounters& rc) {
+  return {{"csv_rows", rc.csv_rows},
+          {"csv_write_errors", rc.csv_write_errors},
+          {"csv_close_errors", rc.csv_close_errors},
+          {"marks_csv_write_errors", rc.marks_csv_write_errors},
+          {"marks_csv_close_errors", rc.marks_csv_close_errors},
+          {"rigid_csv_write_errors", rc.rigid_csv_write_errors},
+          {"rigid_csv_close_errors", rc.rigid_csv_close_errors}};
+}
+
 }  // namespace
 
 nlohmann::json recording_stats_json(const RecordingWriter& recording,
@@ -155,26 +166,21 @@ nlohmann::json recording_stats_json(const RecordingWriter& recording,
                          {"directory_sync_errors", cc.directory_sync_errors},
                          {"open_errors", cc.open_errors},
                          {"samples_out_of_order", cc.samples_out_of_order}};
-  return {{"queue",
-           {{"max_items", RecordingWriter::kQueueItems},
-            {"max_text_bytes", RecordingWriter::kQueueTextBytes},
-            {"items_queued", rc.items_queued},
-            {"items_dropped_queue_full", rc.items_dropped_queue_full},
-            {"max_depth_items", rc.queue_max_items},
-            {"max_depth_text_bytes", rc.queue_max_text_bytes}}},
-          {"chapter10", ch10},
-          {"csv_files",
-           {{"csv", recording.csv_path()},
-            {"marks_csv", recording.marks_csv_path()},
-            {"rigid_csv", recording.rigid_csv_path()}}},
-          {"ch10_sample_write_errors", rc.ch10_sample_write_errors},
-          {"csv_rows", rc.csv_rows},
-          {"csv_write_errors", rc.csv_write_errors},
-          {"csv_close_errors", rc.csv_close_errors},
-          {"marks_csv_write_errors", rc.marks_csv_write_errors},
-          {"marks_csv_close_errors", rc.marks_csv_close_errors},
-          {"rigid_csv_write_errors", rc.rigid_csv_write_errors},
-          {"rigid_csv_close_errors", rc.rigid_csv_close_errors}};
+  nlohmann::json out = {{"queue",
+                         {{"max_items", RecordingWriter::kQueueItems},
+                          {"max_text_bytes", RecordingWriter::kQueueTextBytes},
+                          {"items_queued", rc.items_queued},
+                          {"items_dropped_queue_full", rc.items_dropped_queue_full},
+                          {"max_depth_items", rc.queue_max_items},
+                          {"max_depth_text_bytes", rc.queue_max_text_bytes}}},
+                        {"chapter10", ch10},
+                        {"csv_files",
+                         {{"csv", recording.csv_path()},
+                          {"marks_csv", recording.marks_csv_path()},
+                          {"rigid_csv", recording.rigid_csv_path()}}},
+                        {"ch10_sample_write_errors", rc.ch10_sample_write_errors}};
+  out.update(csv_counters_json(rc));
+  return out;
 }
 
 nlohmann::json outputs_stats_json(const output::InetxSender& inetx,
@@ -183,25 +189,20 @@ nlohmann::json outputs_stats_json(const output::InetxSender& inetx,
   const RecordingCounters rc = recording.counters();
   // One key per output and kind of failure (docs/fti-output.md, "Counters"); the details are
   // under "recording".
-  return {{"inetx_sent", inetx.counters().packets_sent},
-          {"inetx_send_errors", inetx.counters().send_errors},
-          {"ch10_packets", cc.packets_written},
-          {"ch10_messages", cc.messages_written},
-          {"ch10_time_packets", cc.time_packets},
-          {"ch10_bytes", cc.bytes_written},
-          {"ch10_write_errors", cc.write_errors},
-          {"ch10_sync_errors", cc.sync_errors},
-          {"ch10_close_errors", cc.close_errors},
-          {"ch10_messages_dropped", cc.messages_dropped},
-          {"csv_rows", rc.csv_rows},
-          {"csv_write_errors", rc.csv_write_errors},
-          {"csv_close_errors", rc.csv_close_errors},
-          {"marks_csv_write_errors", rc.marks_csv_write_errors},
-          {"marks_csv_close_errors", rc.marks_csv_close_errors},
-          {"rigid_csv_write_errors", rc.rigid_csv_write_errors},
-          {"rigid_csv_close_errors", rc.rigid_csv_close_errors},
-          {"file_queue_dropped", rc.items_dropped_queue_full},
-          {"file_queue_max_depth", rc.queue_max_items}};
+  nlohmann::json out = {{"inetx_sent", inetx.counters().packets_sent},
+                        {"inetx_send_errors", inetx.counters().send_errors},
+                        {"ch10_packets", cc.packets_written},
+                        {"ch10_messages", cc.messages_written},
+                        {"ch10_time_packets", cc.time_packets},
+                        {"ch10_bytes", cc.bytes_written},
+                        {"ch10_write_errors", cc.write_errors},
+                        {"ch10_sync_errors", cc.sync_errors},
+                        {"ch10_close_errors", cc.close_errors},
+                        {"ch10_messages_dropped", cc.messages_dropped},
+                        {"file_queue_dropped", rc.items_dropped_queue_full},
+                        {"file_queue_max_depth", rc.queue_max_items}};
+  out.update(csv_counters_json(rc));
+  return out;
 }
 
 nlohmann::json host_stats_json(const StatsSources& s) {

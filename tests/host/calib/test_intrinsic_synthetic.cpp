@@ -9,6 +9,7 @@
 
 #include "storetrack/calib/intrinsic_calibration.hpp"
 #include "storetrack/uncertainty/statistics.hpp"
+#include "synthetic_board.hpp"
 
 namespace storetrack::calib {
 namespace {
@@ -27,8 +28,9 @@ camera::Intrinsics truth_camera() {
   return in;
 }
 
-constexpr int kCols = 10, kRows = 7;
-constexpr double kSquare = 0.05;  // SisTrO's board: 10 x 7 corners, 50 mm
+using test::kCols;
+using test::kRows;
+using test::kSquare;
 
 /// T_c_b of view i: the board 1.1-1.9 m away, spread over the image, tilted 20-40 degrees about
 /// an axis that turns from view to view. parallel = every board with the same orientation.
@@ -56,17 +58,7 @@ ObservationSet synthetic_set(int views, double sigma_px, std::mt19937_64& rng,
   set.image_sizes[0] = {1920, 1024};
   for (int i = 0; i < views; ++i) {
     const geometry::Transform T_c_b = board_pose(i, parallel);
-    for (int id = 0; id < kCols * kRows; ++id) {
-      Observation o;
-      o.frame = i;
-      o.point_id = id;
-      o.p_board = {(id % kCols) * kSquare, (id / kCols) * kSquare, 0};
-      const auto pixel = model.project_world(T_c_b, o.p_board);
-      if (!pixel || pixel->x() < 0 || pixel->y() < 0 || pixel->x() > 1919 || pixel->y() > 1023)
-        continue;
-      o.pixel = *pixel + geometry::Vec2(noise(rng), noise(rng));
-      set.observations.push_back(o);
-    }
+    test::add_board_view(model, T_c_b, 0, i, noise, rng, set);
   }
   return set;
 }

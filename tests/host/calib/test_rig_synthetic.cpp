@@ -11,6 +11,7 @@
 #include "storetrack/calib/rig_calibration.hpp"
 #include "storetrack/uncertainty/spd_inverse.hpp"
 #include "storetrack/uncertainty/statistics.hpp"
+#include "synthetic_board.hpp"
 
 namespace storetrack::calib {
 namespace {
@@ -19,8 +20,9 @@ using uncertainty::chi_square_quantile;
 using uncertainty::DegreesOfFreedom;
 using uncertainty::Probability;
 
-constexpr int kCols = 10, kRows = 7;
-constexpr double kSquare = 0.05;
+using test::kCols;
+using test::kRows;
+using test::kSquare;
 constexpr int kCameras = 3;
 
 camera::Intrinsics truth_camera(int c) {
@@ -69,18 +71,7 @@ ObservationSet synthetic_rig(int frames, double sigma_px, std::mt19937_64& rng) 
     const camera::CameraModel model(truth_camera(c));
     for (int i = 0; i < frames; ++i) {
       const geometry::Transform T_c_b = truth_T_c_r(c) * board_pose(i);
-      for (int id = 0; id < kCols * kRows; ++id) {
-        Observation o;
-        o.camera = c;
-        o.frame = i;
-        o.point_id = id;
-        o.p_board = {(id % kCols) * kSquare, (id / kCols) * kSquare, 0};
-        const auto pixel = model.project_world(T_c_b, o.p_board);
-        if (!pixel || pixel->x() < 0 || pixel->y() < 0 || pixel->x() > 1919 || pixel->y() > 1023)
-          continue;
-        o.pixel = *pixel + geometry::Vec2(noise(rng), noise(rng));
-        set.observations.push_back(o);
-      }
+      test::add_board_view(model, T_c_b, c, i, noise, rng, set);
     }
   }
   return set;
