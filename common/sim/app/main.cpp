@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-#include <CLI/CLI.hpp>
+#include "storetrack/cli/command_line.hpp"
 
 #include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/msg/udp_codec.hpp"
@@ -72,33 +72,28 @@ void write_observations(const sim::Simulator& sim, const std::string& dir) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"storetrack-sim: scene simulator (frames, observations, truth, rig calibration)"};
+  storetrack::cli::Command app{
+      "storetrack-sim: scene simulator (frames, observations, truth, rig calibration)"};
   std::string scenario_arg = "store_separation";
   int cameras = 0;
   std::uint64_t seed = 1;
   std::string out_dir;
   std::string mode = "observations";
   int exposures = 0;
-  app.add_option("--scenario", scenario_arg,
-                 "Scenario JSON file, or a built-in name (store_separation, pendulum, static, "
-                 "scale_bars)")
-      ->capture_default_str();
-  app.add_option("--cameras", cameras, "Use the first N cameras of the scenario (2..4; 0: all)")
-      ->check(CLI::Range(0, 8));
-  app.add_option("--seed", seed, "Random seed (noise, calibration and survey errors)")
-      ->capture_default_str();
-  app.add_option("--out", out_dir, "Output directory (created)")->required();
-  app.add_option("--mode", mode, "frames: PGM images + triggers.csv; observations: fast mode")
-      ->check(CLI::IsMember({"frames", "observations"}))
-      ->capture_default_str();
-  app.add_option("--exposures", exposures, "Limit the number of exposures (0: scenario's)")
-      ->check(CLI::Range(0, 1000000));
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    const int rc = app.exit(e);
-    return rc == 0 ? 0 : 2;
-  }
+  app.option("--scenario", scenario_arg,
+             "Scenario JSON file, or a built-in name (store_separation, pendulum, static, "
+             "scale_bars)")
+      .show_default();
+  app.option("--cameras", cameras, "Use the first N cameras of the scenario (2..4; 0: all)")
+      .range(0, 8);
+  app.option("--seed", seed, "Random seed (noise, calibration and survey errors)").show_default();
+  app.option("--out", out_dir, "Output directory (created)").required();
+  app.option("--mode", mode, "frames: PGM images + triggers.csv; observations: fast mode")
+      .one_of({"frames", "observations"})
+      .show_default();
+  app.option("--exposures", exposures, "Limit the number of exposures (0: scenario's)")
+      .range(0, 1000000);
+  if (const int rc = app.parse(argc, argv); rc >= 0) return rc;
 
   sim::Scenario scenario;
   try {

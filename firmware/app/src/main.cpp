@@ -6,7 +6,6 @@
 //   storetrack-unit print-config [--config FILE] [overrides...]
 //
 // Exit codes: 0 ok, 1 runtime error, 2 usage/configuration error, 3 start failure.
-#include <CLI/CLI.hpp>
 #include <atomic>
 #include <csignal>
 #include <cstdio>
@@ -15,6 +14,7 @@
 #include <iostream>
 #include <string>
 #include <vector>
+#include "storetrack/cli/command_line.hpp"
 
 #include "snapshot.hpp"
 #include "storetrack/health/register_map.hpp"
@@ -25,6 +25,7 @@ namespace {
 
 using namespace storetrack;
 using namespace storetrack::unit;
+namespace cli = storetrack::cli;
 
 std::atomic<bool> g_stop{false};
 
@@ -49,68 +50,65 @@ struct Overrides {
   std::string modbus, stats_json, edges_csv;
   bool realtime = false, no_links = false, no_modbus = false, maintenance = false, verbose = false,
        replay_loop = false, triggered_only = false;
-  std::vector<CLI::Option*> opts;
 };
 
-void add_common(CLI::App* app, Overrides& o) {
-  app->add_option("-c,--config", o.config_file, "JSON configuration file (docs/unit-config.md)");
-  app->add_option("--source", o.source, "Frame source: sim | replay | v4l2 | none (trigger only)");
-  app->add_option("--scenario", o.scenario, "sim: scenario JSON file");
-  app->add_option("--camera-index", o.camera_index, "sim: camera index in the scenario");
-  app->add_option("--seed", o.seed, "sim: random seed");
-  app->add_flag("--realtime", o.realtime, "sim: pace frames at the scenario frame rate");
-  app->add_option("--sim-start-exposure", o.start_exposure,
-                  "sim fault: start at this exposure, trigger numbering from 0 (a restarted unit)")
-      ->check(CLI::NonNegativeNumber);
-  app->add_option("--sim-pace-hz", o.sim_pace_hz,
-                  "sim: with --realtime, pace at this rate instead of the scenario's (slow motion)")
-      ->check(CLI::PositiveNumber);
-  app->add_option("--sim-tai-step", o.tai_step,
-                  "sim fault: FROM,TO,NS: TAI clock off by NS for exposures [FROM, TO)")
-      ->delimiter(',')
-      ->expected(3);
-  app->add_option("--replay-dir", o.replay_dir, "replay: directory of PGM frames + triggers.csv");
-  app->add_option("--replay-rate", o.replay_rate,
-                  "replay: frames per second (0: as fast as possible)");
-  app->add_flag("--replay-loop", o.replay_loop, "replay: start again at the end");
-  app->add_option("--device", o.device, "v4l2: device node, e.g. /dev/video0");
-  app->add_option("--width", o.width, "v4l2: requested width [px]");
-  app->add_option("--height", o.height, "v4l2: requested height [px]");
-  app->add_option("--input", o.input, "v4l2: VIDIOC_S_INPUT index (vivid loopback: 2)");
-  app->add_option("--trigger", o.trigger, "Trigger: none | sim | gpio-master | gpio-slave");
-  app->add_option("--gpio-chip", o.gpio_chip, "GPIO chip (path, name or label)");
-  app->add_option("--gpio-lines", o.gpio_lines, "gpio-master: output line offsets")->delimiter(',');
-  app->add_option("--gpio-line", o.gpio_line, "gpio-slave: input line offset");
-  app->add_option("--rate-hz", o.rate_hz, "Trigger rate [Hz] (master: generated; slave: expected)");
-  app->add_option("--pulse-width-us", o.pulse_width_us, "gpio-master: pulse width [us]");
-  app->add_option("--latency-ns", o.latency_ns, "Expected frame time stamp - trigger edge [ns]");
-  app->add_option("--edges-csv", o.edges_csv, "Write every trigger edge to this CSV file");
-  app->add_flag("--triggered-only", o.triggered_only,
-                "Send only frames a trigger edge claims; frames without marks claim none "
-                "(free-running source standing in for a triggered camera)");
-  app->add_option("--unit-id", o.unit_id, "Unit id in messages (0..254)");
-  app->add_option("--camera-id", o.camera_id, "Camera id in messages (0..254)");
-  app->add_option("--threshold-dn", o.threshold, "Centroid threshold above background (0: auto)");
-  app->add_option("--roi", o.roi, "Search region x y width height [px]")->expected(4);
-  app->add_option("--clock-state", o.clock_state,
-                  "auto | free-running | locking | locked | holdover");
-  app->add_option("--udp", o.udp, "UDP destination address:port (repeatable; replaces config)");
-  app->add_option("--can", o.can, "CAN FD interface (repeatable; replaces config)");
-  app->add_flag("--no-links", o.no_links, "Send nothing (bench, benchmarks)");
-  app->add_option("--modbus", o.modbus, "Modbus TCP listen address:port");
-  app->add_flag("--no-modbus", o.no_modbus, "Do not start the Modbus server");
-  app->add_flag("--maintenance", o.maintenance, "Allow Modbus configuration writes");
-  app->add_option("--frames", o.frames, "Stop after N frames (source none: N edges); 0 = no limit");
-  app->add_option("--duration-s", o.duration_s, "Stop after this many seconds; 0 = no limit");
-  app->add_option("--stats-json", o.stats_json, "Write run statistics as JSON here at exit");
-  app->add_flag("-v,--verbose", o.verbose, "Print notes and health to stderr");
+void add_common(cli::Command* app, Overrides& o) {
+  app->option("-c,--config", o.config_file, "JSON configuration file (docs/unit-config.md)");
+  app->option("--source", o.source, "Frame source: sim | replay | v4l2 | none (trigger only)");
+  app->option("--scenario", o.scenario, "sim: scenario JSON file");
+  app->option("--camera-index", o.camera_index, "sim: camera index in the scenario");
+  app->option("--seed", o.seed, "sim: random seed");
+  app->flag("--realtime", o.realtime, "sim: pace frames at the scenario frame rate");
+  app->option("--sim-start-exposure", o.start_exposure,
+              "sim fault: start at this exposure, trigger numbering from 0 (a restarted unit)")
+      .non_negative();
+  app->option("--sim-pace-hz", o.sim_pace_hz,
+              "sim: with --realtime, pace at this rate instead of the scenario's (slow motion)")
+      .positive();
+  app->option("--sim-tai-step", o.tai_step,
+              "sim fault: FROM,TO,NS: TAI clock off by NS for exposures [FROM, TO)")
+      .delimiter(',')
+      .expected(3);
+  app->option("--replay-dir", o.replay_dir, "replay: directory of PGM frames + triggers.csv");
+  app->option("--replay-rate", o.replay_rate, "replay: frames per second (0: as fast as possible)");
+  app->flag("--replay-loop", o.replay_loop, "replay: start again at the end");
+  app->option("--device", o.device, "v4l2: device node, e.g. /dev/video0");
+  app->option("--width", o.width, "v4l2: requested width [px]");
+  app->option("--height", o.height, "v4l2: requested height [px]");
+  app->option("--input", o.input, "v4l2: VIDIOC_S_INPUT index (vivid loopback: 2)");
+  app->option("--trigger", o.trigger, "Trigger: none | sim | gpio-master | gpio-slave");
+  app->option("--gpio-chip", o.gpio_chip, "GPIO chip (path, name or label)");
+  app->option("--gpio-lines", o.gpio_lines, "gpio-master: output line offsets").delimiter(',');
+  app->option("--gpio-line", o.gpio_line, "gpio-slave: input line offset");
+  app->option("--rate-hz", o.rate_hz, "Trigger rate [Hz] (master: generated; slave: expected)");
+  app->option("--pulse-width-us", o.pulse_width_us, "gpio-master: pulse width [us]");
+  app->option("--latency-ns", o.latency_ns, "Expected frame time stamp - trigger edge [ns]");
+  app->option("--edges-csv", o.edges_csv, "Write every trigger edge to this CSV file");
+  app->flag("--triggered-only", o.triggered_only,
+            "Send only frames a trigger edge claims; frames without marks claim none "
+            "(free-running source standing in for a triggered camera)");
+  app->option("--unit-id", o.unit_id, "Unit id in messages (0..254)");
+  app->option("--camera-id", o.camera_id, "Camera id in messages (0..254)");
+  app->option("--threshold-dn", o.threshold, "Centroid threshold above background (0: auto)");
+  app->option("--roi", o.roi, "Search region x y width height [px]").expected(4);
+  app->option("--clock-state", o.clock_state, "auto | free-running | locking | locked | holdover");
+  app->option("--udp", o.udp, "UDP destination address:port (repeatable; replaces config)");
+  app->option("--can", o.can, "CAN FD interface (repeatable; replaces config)");
+  app->flag("--no-links", o.no_links, "Send nothing (bench, benchmarks)");
+  app->option("--modbus", o.modbus, "Modbus TCP listen address:port");
+  app->flag("--no-modbus", o.no_modbus, "Do not start the Modbus server");
+  app->flag("--maintenance", o.maintenance, "Allow Modbus configuration writes");
+  app->option("--frames", o.frames, "Stop after N frames (source none: N edges); 0 = no limit");
+  app->option("--duration-s", o.duration_s, "Stop after this many seconds; 0 = no limit");
+  app->option("--stats-json", o.stats_json, "Write run statistics as JSON here at exit");
+  app->flag("-v,--verbose", o.verbose, "Print notes and health to stderr");
 }
 
-bool given(CLI::App* app, const char* name) {
-  return app->count(name) > 0;
+bool given(cli::Command* app, const char* name) {
+  return app->given(name);
 }
 
-UnitConfig build_config(CLI::App* app, const Overrides& o) {
+UnitConfig build_config(cli::Command* app, const Overrides& o) {
   UnitConfig c;
   c.unit_id = -1;  // "from the scenario" for the simulator, else 0
   c.camera_id = -1;
@@ -221,7 +219,7 @@ int write_stats(const UnitRunner& runner, const std::string& path, const std::st
   return 0;
 }
 
-int do_run(CLI::App* cmd, const Overrides& o) {
+int do_run(cli::Command* cmd, const Overrides& o) {
   UnitConfig config;
   try {
     config = build_config(cmd, o);
@@ -249,7 +247,7 @@ int do_run(CLI::App* cmd, const Overrides& o) {
   return code;
 }
 
-int do_snapshot(CLI::App* cmd, const Overrides& o, const std::string& out_stem, int skip) {
+int do_snapshot(cli::Command* cmd, const Overrides& o, const std::string& out_stem, int skip) {
   UnitConfig config;
   try {
     config = build_config(cmd, o);
@@ -295,26 +293,23 @@ int do_snapshot(CLI::App* cmd, const Overrides& o, const std::string& out_stem, 
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"storetrack-unit: camera unit (trigger, capture, centroid, CAN FD / UDP, Modbus)"};
+  storetrack::cli::Command app{
+      "storetrack-unit: camera unit (trigger, capture, centroid, CAN FD / UDP, Modbus)"};
   app.require_subcommand(1);
   Overrides run_o, snap_o, print_o;
-  CLI::App* run = app.add_subcommand("run", "Capture, centroid and stream observations");
+  cli::Command* run = &app.subcommand("run", "Capture, centroid and stream observations");
   add_common(run, run_o);
-  CLI::App* snap = app.add_subcommand("snapshot", "Bench aid: one frame with marks overlaid");
+  cli::Command* snap = &app.subcommand("snapshot", "Bench aid: one frame with marks overlaid");
   add_common(snap, snap_o);
   std::string out_stem = "snapshot";
   int skip = 0;
-  snap->add_option("-o,--out", out_stem, "Output path without extension (.png/.pgm and .txt)");
-  snap->add_option("--skip", skip, "Frames to skip before the snapshot");
-  CLI::App* doc = app.add_subcommand("modbus-doc", "Print docs/modbus.md from the register table");
-  CLI::App* print = app.add_subcommand("print-config", "Print the effective configuration as JSON");
+  snap->option("-o,--out", out_stem, "Output path without extension (.png/.pgm and .txt)");
+  snap->option("--skip", skip, "Frames to skip before the snapshot");
+  cli::Command* doc = &app.subcommand("modbus-doc", "Print docs/modbus.md from the register table");
+  cli::Command* print =
+      &app.subcommand("print-config", "Print the effective configuration as JSON");
   add_common(print, print_o);
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    const int rc = app.exit(e);
-    return rc == 0 ? kExitOk : kExitUsage;
-  }
+  if (const int rc = app.parse(argc, argv); rc >= 0) return rc == 0 ? kExitOk : kExitUsage;
   if (doc->parsed()) {
     std::fputs(health::render_register_map_markdown().c_str(), stdout);
     return kExitOk;

@@ -16,7 +16,6 @@ extern "C" {  // sep.h has no C++ guard
 #include <sep.h>
 }
 
-#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -28,6 +27,7 @@ extern "C" {  // sep.h has no C++ guard
 #include <random>
 #include <string>
 #include <vector>
+#include "storetrack/cli/command_line.hpp"
 
 #include "centroid_eval.hpp"
 #include "storetrack/centroid/centroider.hpp"
@@ -88,23 +88,23 @@ Blob weighted_moments(const cv::Mat& image, const cv::Rect& box, double backgrou
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"storetrack centroiding benchmark (one core, simulated 1920x1024 frames)"};
+  storetrack::cli::Command app{
+      "storetrack centroiding benchmark (one core, simulated 1920x1024 frames)"};
   int frames_per_set = 8;
   double min_time_s = 1.0;
   double psf_sigma = 1.5, disc = 0.0, flux = 20000;
   int pad = 2;
   std::uint64_t seed = 1;
   std::vector<int> mark_counts = {16, 64};
-  app.add_option("--frames", frames_per_set, "distinct frames per mark count")
-      ->check(CLI::Range(1, 256));
-  app.add_option("--min-time", min_time_s, "minimum timing per method and mark count [s]");
-  app.add_option("--sigma", psf_sigma, "PSF sigma [px]");
-  app.add_option("--disc", disc, "disc diameter [px]");
-  app.add_option("--flux", flux, "flux per mark [e-]");
-  app.add_option("--pad", pad, "padding of the findContours boxes [px]");
-  app.add_option("--marks", mark_counts, "mark counts per frame");
-  app.add_option("--seed", seed, "random seed");
-  CLI11_PARSE(app, argc, argv);
+  app.option("--frames", frames_per_set, "distinct frames per mark count").range(1, 256);
+  app.option("--min-time", min_time_s, "minimum timing per method and mark count [s]");
+  app.option("--sigma", psf_sigma, "PSF sigma [px]");
+  app.option("--disc", disc, "disc diameter [px]");
+  app.option("--flux", flux, "flux per mark [e-]");
+  app.option("--pad", pad, "padding of the findContours boxes [px]");
+  app.option("--marks", mark_counts, "mark counts per frame");
+  app.option("--seed", seed, "random seed");
+  if (const int rc = app.parse(argc, argv); rc >= 0) return rc;
 
   // One core: pin the process and keep OpenCV single-threaded.
   cpu_set_t cpus;

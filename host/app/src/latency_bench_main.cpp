@@ -13,7 +13,6 @@
 #include <time.h>
 #include <unistd.h>
 
-#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -24,6 +23,7 @@
 #include <string>
 #include <thread>
 #include <vector>
+#include "storetrack/cli/command_line.hpp"
 
 #include "storetrack/msg/udp_codec.hpp"
 
@@ -48,35 +48,27 @@ double percentile(std::vector<std::int64_t> v, double q) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"storetrack-host-latency-bench: last observation -> iNET-X packet, p99"};
+  storetrack::cli::Command app{
+      "storetrack-host-latency-bench: last observation -> iNET-X packet, p99"};
   std::string host_bin, setup_dir, replay, json_out;
   double fps = 400, seconds = 10;
   int port = 47300, inetx_port = 47301;
-  app.add_option("--host", host_bin, "storetrack-host executable")
-      ->required()
-      ->check(CLI::ExistingFile);
-  app.add_option("--setup", setup_dir,
-                 "Directory with rig_calibration.json, pylon_survey.json, "
-                 "store_survey.json, initial_marks.json")
-      ->required()
-      ->check(CLI::ExistingDirectory);
-  app.add_option("--replay", replay, "storetrack-sim observations.udp")
-      ->required()
-      ->check(CLI::ExistingFile);
-  app.add_option("--fps", fps, "Exposure rate")->check(CLI::PositiveNumber);
-  app.add_option("--seconds", seconds, "Duration of the measurement")->check(CLI::PositiveNumber);
-  app.add_option("--port", port, "UDP port of the host's input");
-  app.add_option("--inetx-port", inetx_port, "UDP port the host sends iNET-X to");
-  app.add_option("--json", json_out, "Write the results as JSON");
+  app.option("--host", host_bin, "storetrack-host executable").required().existing_file();
+  app.option("--setup", setup_dir,
+             "Directory with rig_calibration.json, pylon_survey.json, "
+             "store_survey.json, initial_marks.json")
+      .required()
+      .existing_directory();
+  app.option("--replay", replay, "storetrack-sim observations.udp").required().existing_file();
+  app.option("--fps", fps, "Exposure rate").positive();
+  app.option("--seconds", seconds, "Duration of the measurement").positive();
+  app.option("--port", port, "UDP port of the host's input");
+  app.option("--inetx-port", inetx_port, "UDP port the host sends iNET-X to");
+  app.option("--json", json_out, "Write the results as JSON");
   std::string ch10_path;
-  app.add_option("--ch10", ch10_path,
-                 "Let the host also write this Chapter 10 file (fdatasync per packet) and a CSV");
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    const int rc = app.exit(e);
-    return rc == 0 ? 0 : 2;
-  }
+  app.option("--ch10", ch10_path,
+             "Let the host also write this Chapter 10 file (fdatasync per packet) and a CSV");
+  if (const int rc = app.parse(argc, argv); rc >= 0) return rc;
 
   // Observations grouped by exposure, in file order.
   std::vector<std::vector<st::msg::MarkObservations>> exposures;

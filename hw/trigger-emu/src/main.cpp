@@ -5,7 +5,6 @@
 #include <sched.h>
 #include <sys/mman.h>
 
-#include <CLI/CLI.hpp>
 #include <atomic>
 #include <csignal>
 #include <cstdio>
@@ -16,6 +15,7 @@
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
+#include "storetrack/cli/command_line.hpp"
 
 #include "storetrack/time/time.hpp"
 #include "storetrack/trigger_emu/line_driver.hpp"
@@ -39,7 +39,7 @@ bool ends_with(const std::string& s, const std::string& suffix) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{
+  storetrack::cli::Command app{
       "storetrack-trigger-emu: bench camera-trigger emulator (libgpiod / gpio-sim).\n"
       "Plays --count nominal pulses at --rate-hz with scripted faults and logs what it sent."};
   std::string chip;
@@ -63,40 +63,38 @@ int main(int argc, char** argv) {
   bool dry_run = false;
   int rt_priority = 0;
 
-  app.add_option("-c,--chip", chip, "GPIO chip: name (gpiochip0), path, label or number");
-  app.add_option("-l,--lines", lines, "line offsets, all pulsed together")->delimiter(',');
-  app.add_option("-b,--backend", backend,
-                 "gpiod: request the lines as outputs (real wiring); sim-pull: drive a gpio-sim "
-                 "chip's lines from outside through sysfs sim_gpioN/pull (the unit reads them)")
-      ->check(CLI::IsMember({"gpiod", "sim-pull"}));
-  app.add_option("--sim-sysfs", sim_sysfs,
-                 "sim-pull: the chip's sysfs directory (default /sys/bus/gpio/devices/<chip>)");
-  app.add_option("-r,--rate-hz", config.rate_hz, "nominal trigger rate")->capture_default_str();
-  app.add_option("-w,--width-us", width_us, "pulse width")->capture_default_str();
-  app.add_option("-j,--jitter-us", jitter_us, "rising edges uniform in +-jitter of nominal")
-      ->capture_default_str();
-  app.add_option("-n,--count", config.count, "nominal pulses")->capture_default_str();
-  app.add_option("--seed", config.seed, "jitter random seed")->capture_default_str();
-  app.add_option("--missing", missing, "nominal pulse indices not sent")->delimiter(',');
-  app.add_option("--double", doubles, "indices followed by one extra pulse")->delimiter(',');
-  app.add_option("--double-gap-us", double_gap_us, "rise-to-rise gap of a double (0: 2 x width)");
-  app.add_option("--burst", bursts, "indices followed by --burst-count extra pulses")
-      ->delimiter(',');
-  app.add_option("--burst-count", burst_count, "extra pulses per burst")->capture_default_str();
-  app.add_option("--burst-gap-us", burst_gap_us, "rise-to-rise gap in a burst (0: 2 x width)");
-  app.add_option("--script", script_path,
-                 "JSON fault script {\"faults\":[{\"kind\":\"burst\",\"at\":9,\"count\":4,"
-                 "\"gap_us\":300}]}")
-      ->check(CLI::ExistingFile);
-  app.add_option("--log", log_path, "write what was sent (CLOCK_MONOTONIC ns) to this file");
-  app.add_option("--log-format", log_format, "csv, json or auto (by file extension)")
-      ->check(CLI::IsMember({"auto", "csv", "json"}));
-  app.add_option("--start-delay-ms", start_delay_ms, "wait before the first pulse")
-      ->capture_default_str();
-  app.add_flag("--active-low", active_low, "asserted = electrically low");
-  app.add_option("--rt-priority", rt_priority, "SCHED_FIFO priority (needs CAP_SYS_NICE); 0 off");
-  app.add_flag("--dry-run", dry_run, "print the schedule, touch no GPIO");
-  CLI11_PARSE(app, argc, argv);
+  app.option("-c,--chip", chip, "GPIO chip: name (gpiochip0), path, label or number");
+  app.option("-l,--lines", lines, "line offsets, all pulsed together").delimiter(',');
+  app.option("-b,--backend", backend,
+             "gpiod: request the lines as outputs (real wiring); sim-pull: drive a gpio-sim "
+             "chip's lines from outside through sysfs sim_gpioN/pull (the unit reads them)")
+      .one_of({"gpiod", "sim-pull"});
+  app.option("--sim-sysfs", sim_sysfs,
+             "sim-pull: the chip's sysfs directory (default /sys/bus/gpio/devices/<chip>)");
+  app.option("-r,--rate-hz", config.rate_hz, "nominal trigger rate").show_default();
+  app.option("-w,--width-us", width_us, "pulse width").show_default();
+  app.option("-j,--jitter-us", jitter_us, "rising edges uniform in +-jitter of nominal")
+      .show_default();
+  app.option("-n,--count", config.count, "nominal pulses").show_default();
+  app.option("--seed", config.seed, "jitter random seed").show_default();
+  app.option("--missing", missing, "nominal pulse indices not sent").delimiter(',');
+  app.option("--double", doubles, "indices followed by one extra pulse").delimiter(',');
+  app.option("--double-gap-us", double_gap_us, "rise-to-rise gap of a double (0: 2 x width)");
+  app.option("--burst", bursts, "indices followed by --burst-count extra pulses").delimiter(',');
+  app.option("--burst-count", burst_count, "extra pulses per burst").show_default();
+  app.option("--burst-gap-us", burst_gap_us, "rise-to-rise gap in a burst (0: 2 x width)");
+  app.option("--script", script_path,
+             "JSON fault script {\"faults\":[{\"kind\":\"burst\",\"at\":9,\"count\":4,"
+             "\"gap_us\":300}]}")
+      .existing_file();
+  app.option("--log", log_path, "write what was sent (CLOCK_MONOTONIC ns) to this file");
+  app.option("--log-format", log_format, "csv, json or auto (by file extension)")
+      .one_of({"auto", "csv", "json"});
+  app.option("--start-delay-ms", start_delay_ms, "wait before the first pulse").show_default();
+  app.flag("--active-low", active_low, "asserted = electrically low");
+  app.option("--rt-priority", rt_priority, "SCHED_FIFO priority (needs CAP_SYS_NICE); 0 off");
+  app.flag("--dry-run", dry_run, "print the schedule, touch no GPIO");
+  if (const int rc = app.parse(argc, argv); rc >= 0) return rc;
 
   try {
     config.pulse_width_ns = static_cast<std::int64_t>(width_us * 1e3);

@@ -25,7 +25,6 @@
 #include <sys/mman.h>
 #include <unistd.h>
 
-#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cerrno>
 #include <cstdint>
@@ -34,6 +33,7 @@
 #include <ctime>
 #include <string>
 #include <vector>
+#include "storetrack/cli/command_line.hpp"
 
 #include "storetrack/sim/frame_source.hpp"
 
@@ -210,24 +210,24 @@ std::string frame_path(const std::string& dir, int k) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"rig_camera_emu: triggered camera stand-in (GPIO edge -> frame into vivid output)"};
+  storetrack::cli::Command app{
+      "rig_camera_emu: triggered camera stand-in (GPIO edge -> frame into vivid output)"};
   std::string chip_name;
   unsigned line_offset = 0;
   std::vector<std::string> devices, frame_dirs;
   int count = 0, copies = 2, buffers = 16;
   double timeout_s = 10;
   std::string log_path;
-  app.add_option("--chip", chip_name, "GPIO chip (name, path or label)")->required();
-  app.add_option("--line", line_offset, "Input line offset (rising edges = triggers)")->required();
-  app.add_option("--device", devices, "vivid output device, one per camera")->required();
-  app.add_option("--frames", frame_dirs, "Directory of frame_NNNNNN.pgm, one per --device")
-      ->required();
-  app.add_option("--count", count, "Edges to serve (frames 0..count-1)")->required();
-  app.add_option("--copies", copies, "Output buffers queued per frame")->check(CLI::Range(1, 3));
-  app.add_option("--buffers", buffers, "Output buffers per device")->check(CLI::Range(4, 32));
-  app.add_option("--timeout-s", timeout_s, "Give up after this long without an edge");
-  app.add_option("--log", log_path, "CSV: edge,t_edge_mono_ns,frame,t_queued_mono_ns");
-  CLI11_PARSE(app, argc, argv);
+  app.option("--chip", chip_name, "GPIO chip (name, path or label)").required();
+  app.option("--line", line_offset, "Input line offset (rising edges = triggers)").required();
+  app.option("--device", devices, "vivid output device, one per camera").required();
+  app.option("--frames", frame_dirs, "Directory of frame_NNNNNN.pgm, one per --device").required();
+  app.option("--count", count, "Edges to serve (frames 0..count-1)").required();
+  app.option("--copies", copies, "Output buffers queued per frame").range(1, 3);
+  app.option("--buffers", buffers, "Output buffers per device").range(4, 32);
+  app.option("--timeout-s", timeout_s, "Give up after this long without an edge");
+  app.option("--log", log_path, "CSV: edge,t_edge_mono_ns,frame,t_queued_mono_ns");
+  if (const int rc = app.parse(argc, argv); rc >= 0) return rc;
   if (devices.size() != frame_dirs.size()) {
     std::fprintf(stderr, "rig_camera_emu: give one --frames per --device\n");
     return 2;
