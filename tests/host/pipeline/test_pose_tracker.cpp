@@ -10,6 +10,7 @@
 
 #include <gtest/gtest.h>
 
+#include "honesty_bounds.hpp"
 #include "sim_exposure.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/pipeline/pose_tracker.hpp"
@@ -23,10 +24,8 @@ using Vec6 = Eigen::Matrix<double, 6, 1>;
 
 #ifdef STORETRACK_SANITIZE
 constexpr int kSeeds = 60;  // ASan/UBSan ~10x slower: a smoke run, coverage standard error ~3 %
-constexpr double kMinCoverage = 0.90;
 #else
 constexpr int kSeeds = 200;  // seeds are the effective sample (own calibration each): s.e. 1.5 %
-constexpr double kMinCoverage = 0.93;
 #endif
 constexpr int kSolvedBefore = 3;  // exposures with all marks before the store marks vanish
 constexpr int kHidden = 10;       // 25 ms at 400 fps: longer than the 20 ms gap
@@ -152,14 +151,25 @@ TEST(PoseTracker, ExtrapolatesHonestlyWithinTheGapAndStopsAfterIt) {
   // times jitter by ~1 us, which may move the 8th just past the gap).
   EXPECT_GE(extrapolated, kSeeds * 7);
   EXPECT_GE(invalid_after_gap, kSeeds * 2);
-  // Coverage over seeds (each seed has its own calibration and survey errors): the k = 2
-  // intervals must contain the truth at least 93 % of the time on every axis, also one frame
-  // ahead, where the process noise is small and the propagated calibration/centroid
-  // correlations between the two tracked poses decide.
+  // Coverage over seeds (each seed has its own calibration and survey errors). The seeds are
+  // the independent samples (the samples of one seed share its calibration), so the binomial
+  // band of kSeeds, the widest the correlation allows, is the acceptance (honesty_bounds.hpp).
+  // One frame ahead the process noise is small and the propagated calibration/centroid
+  // correlations between the two tracked poses decide: two-sided, over-coverage is as wrong as
+  // under-coverage. Over the whole gap the configured process noise dominates; the product's
+  // default is a stated margin for any test point's accelerations (docs/uncertainty.md), above
+  // this scenario's, so there only the lower side is a requirement.
+  const test::HonestyBounds band = test::derived_bounds(kSeeds, 3);
+  std::printf("  acceptance (%d seeds): coverage [%.4f, %.4f]\n", kSeeds, band.coverage_low,
+              band.coverage_high);
   for (int a = 0; a < 3; ++a) {
-    EXPECT_GE(position.coverage(a), kMinCoverage) << "position axis " << a;
-    EXPECT_GE(attitude.coverage(a), kMinCoverage) << "attitude axis " << a;
-    EXPECT_GE(position_short.coverage(a), kMinCoverage) << "position 1 frame ahead, axis " << a;
+    EXPECT_GE(position.coverage(a), band.coverage_low) << "position axis " << a;
+    EXPECT_GE(attitude.coverage(a), band.coverage_low) << "attitude axis " << a;
+    for (const auto& [what, acc] : {std::pair{"position 1 frame ahead", &position_short},
+                                    std::pair{"attitude 1 frame ahead", &attitude_short}}) {
+      EXPECT_GE(acc->coverage(a), band.coverage_low) << what << ", axis " << a;
+      EXPECT_LE(acc->coverage(a), band.coverage_high) << what << ", axis " << a;
+    }
   }
 }
 
