@@ -140,13 +140,47 @@ def mark_errors(marks, truth_marks):
     return out
 
 
+def binomial_acceptance(n, p=0.954499736, alpha_per_side=0.025):
+    """Acceptance interval [low, high] / n of a count X ~ Binomial(n, p): the largest low and
+    smallest high with P(X < low) <= alpha and P(X > high) <= alpha (the host's
+    uncertainty::binomial_interval, here for the report)."""
+    pmf = [math.exp(math.lgamma(n + 1) - math.lgamma(k + 1) - math.lgamma(n - k + 1) +
+                    k * math.log(p) + (n - k) * math.log1p(-p)) for k in range(n + 1)]
+    low, acc = 0, 0.0
+    while low <= n and acc + pmf[low] <= alpha_per_side:
+        acc += pmf[low]
+        low += 1
+    high, acc = n, 0.0
+    while high >= 0 and acc + pmf[high] <= alpha_per_side:
+        acc += pmf[high]
+        high -= 1
+    return low / n, high / n
+
+
+def cluster_bootstrap_interval(inside, draw, resamples=2000, seed=1):
+    """95 % percentile interval of the pooled coverage, resampling whole draws with replacement:
+    the samples of one draw share its calibration errors, so the draws, not the samples, are
+    the independent units."""
+    draws = np.unique(draw)
+    per_draw = [inside[draw == d] for d in draws]
+    sums = np.array([x.sum() for x in per_draw], dtype=float)
+    counts = np.array([len(x) for x in per_draw], dtype=float)
+    rng = np.random.default_rng(seed)
+    pick = rng.integers(0, len(draws), size=(resamples, len(draws)))
+    cov = sums[pick].sum(axis=1) / counts[pick].sum(axis=1)
+    return np.percentile(cov, 2.5), np.percentile(cov, 97.5)
+
+
 def pooled_coverage(run_dirs):
     """Coverage of the k = 2 intervals pooled over runs with different simulator seeds, i.e.
     different draws of the calibration and survey errors. Within one run those errors are ONE
     draw shared by every sample, so one run's coverage is one sample of it; only the pool over
-    draws checks the stated uncertainty (JCGM 101 style). Returns (rows, draws used)."""
-    pose = {a: ([], []) for a in AXES_POS + AXES_ATT}
-    mk = [[] for _ in range(6)]
+    draws checks the stated uncertainty (JCGM 101 style). Each row carries the 95 % bootstrap
+    interval of its pooled coverage over draws, and the interval an honest instrument's pooled
+    coverage falls in with 95 % probability when each draw contributes one sample (binomial,
+    n = draws: the widest the within-draw correlation allows). Returns (rows, draws used)."""
+    pose = {a: ([], [], []) for a in AXES_POS + AXES_ATT}
+    mk = [[] for _ in range(9)]
     used = 0
     for d in run_dirs:
         fti = read_csv(os.path.join(d, "fti.csv"))
@@ -154,29 +188,37 @@ def pooled_coverage(run_dirs):
         if fti is None or truth is None or len(fti.get("trigger_seq", [])) == 0:
             print("report: %s: no samples or no truth, left out of the pool" % d, file=sys.stderr)
             continue
-        used += 1
         err = store_pose_errors(fti, truth)
         if err is not None:
             for a in AXES_POS + AXES_ATT:
                 m = np.isfinite(err[a])
                 pose[a][0].extend(err[a][m])
                 pose[a][1].extend(fti["u_" + a][m])
+                pose[a][2].extend([used] * int(m.sum()))
         me = mark_errors(read_csv(os.path.join(d, "marks.csv")),
                          read_csv(os.path.join(d, "sim", "truth_marks.csv")))
         for i in range(6):
             mk[i].extend(me[i])
+        for i in range(3):
+            mk[6 + i].extend([used] * len(me[i]))
+        used += 1
     rows = []
-    series = [("store " + a, "mm" if a in AXES_POS else "deg", pose[a][0], pose[a][1])
+    series = [("store " + a, "mm" if a in AXES_POS else "deg", pose[a][0], pose[a][1], pose[a][2])
               for a in AXES_POS + AXES_ATT]
-    series += [("mark %s_w" % a, "mm", mk[i], mk[3 + i]) for i, a in enumerate("xyz")]
-    for name, unit, e, u in series:
+    series += [("mark %s_w" % a, "mm", mk[i], mk[3 + i], mk[6 + i]) for i, a in enumerate("xyz")]
+    honest = binomial_acceptance(used) if used > 0 else (float("nan"), float("nan"))
+    for name, unit, e, u, draw in series:
         if not e:
             continue
-        e, u = np.array(e), np.array(u)
+        e, u, draw = np.array(e), np.array(u), np.array(draw)
         scale = 1e3 if unit == "mm" else 180 / math.pi
         z = e / u
+        inside = np.abs(z) <= K
+        lo, hi = cluster_bootstrap_interval(inside, draw)
         rows.append((name, unit, len(e), "%.4f" % np.sqrt(np.mean((e * scale) ** 2)),
-                     "%.4f" % np.mean(u * scale), "%.1f" % (100.0 * np.mean(np.abs(z) <= K)),
+                     "%.4f" % np.mean(u * scale), "%.1f" % (100.0 * np.mean(inside)),
+                     "%.1f .. %.1f" % (100.0 * lo, 100.0 * hi),
+                     "%.1f .. %.1f" % (100.0 * honest[0], 100.0 * honest[1]),
                      "%.2f" % np.sqrt(np.mean(z * z))))
     return rows, used
 
@@ -431,12 +473,15 @@ def main():
     if cov_table or mark_table:
         print("(" + one_draw_note + ")")
     pool_headers = ["quantity", "unit", "samples", "RMS error", "mean u", "inside k=2 [%]",
+                    "95 % CI [%] (bootstrap over draws)", "honest range [%] (binomial, n = draws)",
                     "RMS error/u"]
     pool_table, pool_draws = [], 0
     if args.pool_runs:
         pool_table, pool_draws = pooled_coverage([args.run] + args.pool_runs)
         print("\nPooled over %d calibration draws (seeds): coverage should be about 95 %%, "
-              "RMS error/u about 1" % pool_draws)
+              "RMS error/u about 1. 95 %% CI: percentile interval of the pooled coverage over 2000 "
+              "resamples of whole draws; honest range: where an honest instrument's pooled "
+              "coverage falls with 95 %% probability (Binomial(draws, 95.45 %%))" % pool_draws)
         print(fmt_table(pool_table, pool_headers))
 
     with open(os.path.join(args.out, "index.html"), "w") as f:
