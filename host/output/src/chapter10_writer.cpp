@@ -151,7 +151,7 @@ int Chapter10Writer::open(const std::string& path, const Chapter10Config& config
   failed_reopen_utc_s_ = INT64_MIN;
   const int rc = create_file(config_.existing == Chapter10Existing::kNumberNewFile ? 0 : -1);
   if (rc != 0) return rc;
-  if (const int r = write_file_header(); r != 0) {
+  if (const int r = write_file_header(true); r != 0) {
     abandon_file();
     return r;
   }
@@ -188,8 +188,9 @@ int Chapter10Writer::create_file(int number) {
 }
 
 // TMATS first; a continuation file also repeats the current time packet so its RTCs map to
-// absolute time without the previous file.
-int Chapter10Writer::write_file_header() {
+// absolute time without the previous file. Not when the packet it continues with is itself the
+// next second's time packet: the file would start with a second it holds no sample of.
+int Chapter10Writer::write_file_header(bool repeat_time_packet) {
   // Computer-Generated Data Format 1 (setup record): CSDW bit 9 SRCC = 0, bit 8 format = 0
   // (ASCII TMATS), bits 7-0 Chapter 10 version.
   std::vector<std::uint8_t> body;
@@ -198,7 +199,7 @@ int Chapter10Writer::write_file_header() {
   body.insert(body.end(), tmats.begin(), tmats.end());
   bool written = false;
   if (int rc = append(build_packet(0, kTypeTmats, 0, body), written); rc != 0) return rc;
-  if (last_time_packet_utc_s_ == INT64_MIN) return 0;
+  if (!repeat_time_packet || last_time_packet_utc_s_ == INT64_MIN) return 0;
   const std::int64_t s = last_time_packet_utc_s_;
   const time::TaiNs tai = (s + time::kTaiMinusUtcSeconds) * time::kNsPerSecond;
   if (int rc = append(build_packet(config_.time_channel_id, kTypeTimeF1, rtc_of(tai), time_body(s)),
@@ -209,12 +210,12 @@ int Chapter10Writer::write_file_header() {
   return 0;
 }
 
-int Chapter10Writer::start_continuation_file() {
+int Chapter10Writer::start_continuation_file(bool repeat_time_packet) {
   if (current_utc_s_ == failed_reopen_utc_s_) return -EAGAIN;  // one failed try per second
   int rc = create_file(next_number_);
   if (rc == 0) {
     ++counters_.continuation_files;
-    rc = write_file_header();
+    rc = write_file_header(repeat_time_packet);
     if (rc != 0) abandon_file();
   } else {
     ++counters_.open_errors;
@@ -329,7 +330,7 @@ int Chapter10Writer::write_packet(std::uint16_t channel_id, std::uint8_t data_ty
     if (rc != 0) abandon_file();  // after an fdatasync error the file is not trusted either
   }
   if (!written) {
-    if (const int r = start_continuation_file(); r != 0) {
+    if (const int r = start_continuation_file(data_type != kTypeTimeF1); r != 0) {
       if (rc == 0) rc = -EIO;  // no usable file since an earlier failure
     } else if (const int r2 = append(packet, written); r2 != 0) {
       abandon_file();

@@ -302,6 +302,36 @@ TEST(Chapter10Recording, FdatasyncErrorIsReportedAndTheRecordingMovesToANewFile)
   fs::remove_all(dir);
 }
 
+// UTC seconds of a file's time packets, in file order.
+std::vector<std::int64_t> time_packet_seconds(const fs::path& path) {
+  std::vector<std::int64_t> seconds;
+  for (const auto& p : ch10read::read_file(path.string()).packets)
+    if (p.data_type == 0x11)
+      if (const auto t = ch10read::decode_time_f1(p)) seconds.push_back(t->utc_epoch_seconds);
+  return seconds;
+}
+
+TEST(Chapter10Recording, ContinuationAtTheNextSecondsTimePacketStartsWithThatSecond) {
+  // Samples from 12:00:00.6 at 400 Hz, 5 per packet: writes 1 TMATS, 2 time (12:00:00), 3-34
+  // the 32 packets of that second's 160 samples; write 35, the time packet of 12:00:01, fails.
+  // The continuation file must hold one time packet, 12:00:01, before its samples (before: it
+  // repeated 12:00:00, a second with no sample in it, then 12:00:01).
+  const fs::path dir = fresh_dir("st_ch10_time_order");
+  const auto all = samples(300);
+  const Recorded r = record(dir / "out.ch10", all, {.write_fail_at = 35});
+  ASSERT_EQ(r.files.size(), 2u);
+  EXPECT_EQ(time_packet_seconds(r.files[0]), std::vector<std::int64_t>{kUtc0});
+  EXPECT_EQ(time_packet_seconds(r.files[1]), std::vector<std::int64_t>{kUtc0 + 1});
+  std::vector<std::uint32_t> recorded;
+  for (const auto& f : r.files) {
+    const auto seqs = read_whole_file(f);
+    recorded.insert(recorded.end(), seqs.begin(), seqs.end());
+  }
+  EXPECT_EQ(recorded, seqs_of(all));
+  EXPECT_EQ(read_whole_file(r.files[0]).size(), 160u);
+  fs::remove_all(dir);
+}
+
 TEST(Chapter10Recording, CloseErrorIsReported) {
   const fs::path dir = fresh_dir("st_ch10_close");
   const Recorded r = record(dir / "out.ch10", samples(50), {.close_fails = true});

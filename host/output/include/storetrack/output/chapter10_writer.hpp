@@ -134,9 +134,9 @@ class Chapter10Writer {
   int append(const std::vector<std::uint8_t>& packet, bool& written);
   std::vector<std::uint8_t> time_body(std::int64_t utc_second) const;
   int write_time_packet(std::int64_t utc_second);
-  int write_file_header();
+  int write_file_header(bool repeat_time_packet);
   int create_file(int number);
-  int start_continuation_file();
+  int start_continuation_file(bool repeat_time_packet);
   void abandon_file();
   int close_file();
   std::string tmats_text() const;
