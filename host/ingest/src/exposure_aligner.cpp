@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <bit>
 #include <climits>
+#include <iterator>
 #include <stdexcept>
 #include <string>
 
@@ -156,9 +157,11 @@ std::optional<std::int64_t> ExposureAligner::exposure_at_time(time::TaiNs mid) c
 }
 
 std::int64_t ExposureAligner::lead_limit() const {
+  // Exposures the wait can span: further ahead, an exposure times out before the other cameras
+  // reach it. Before the period is measured, the fastest trigger is assumed.
   const auto configured = static_cast<std::int64_t>(config_.max_sequence_lead);
-  if (grid_period_ns_ <= 0) return configured;
-  return std::max<std::int64_t>(1, std::min(configured, config_.max_wait_ns / grid_period_ns_));
+  const std::int64_t period = grid_period_ns_ > 0 ? grid_period_ns_ : kFastestTriggerPeriodNs;
+  return std::max<std::int64_t>(1, std::min(configured, config_.max_wait_ns / period));
 }
 
 bool ExposureAligner::on_grid(std::int64_t key, time::TaiNs mid) const {
@@ -229,6 +232,7 @@ void ExposureAligner::place(int cam, const msg::MarkObservations& obs, time::Mon
     return;
   }
   if (it == pending_.end()) {
+    if (have_key_ && newest_key_ - key > lead_limit()) evict_lone_exposures_ahead_of(key);
     it = pending_.try_emplace(key).first;
     it->second.first_arrival = now;
     it->second.cameras.reserve(config_.camera_ids.size());
@@ -272,6 +276,30 @@ void ExposureAligner::remember_delivered(int cam, const msg::MarkObservations& o
     cs.delivered.erase(cs.delivered_order.front());
     cs.delivered_order.pop_front();
   }
+}
+
+// A fitting observation more than the lead window behind the newest exposure: newer exposures
+// that hold one camera only were opened by a sequence nothing could judge yet (the first
+// datagram of a run, forged or glitched far ahead). They are taken back, counted as
+// quarantined, so their timeout cannot release past the exposures the rig is exposing.
+void ExposureAligner::evict_lone_exposures_ahead_of(std::int64_t key) {
+  while (!pending_.empty()) {
+    const auto last = std::prev(pending_.end());
+    if (last->first - key <= lead_limit() || std::popcount(last->second.present_mask) != 1) break;
+    const auto cam = static_cast<std::size_t>(std::countr_zero(last->second.present_mask));
+    // Not delivered after all: the camera's true observation of that exposure is still to come.
+    CameraState& cs = cameras_[cam];
+    const msg::MarkObservations& o = last->second.cameras.front();
+    const DeliveredId id{o.trigger_seq, o.exposure_start_tai_ns};
+    if (cs.delivered.erase(id) != 0)
+      cs.delivered_order.erase(std::find(cs.delivered_order.begin(), cs.delivered_order.end(), id));
+    ++counters_.dropped_quarantined;
+    ++camera_counters_[cam].quarantined;
+    pending_.erase(last);
+  }
+  newest_key_ = key;
+  if (!pending_.empty()) newest_key_ = std::max(newest_key_, std::prev(pending_.end())->first);
+  if (released_any_) newest_key_ = std::max(newest_key_, released_through_);
 }
 
 void ExposureAligner::drop_known(std::int64_t key, int cam) {

@@ -133,6 +133,38 @@ TEST(ExposureAlignerFaults, OneFarAheadSequenceDropsNoOtherCamera) {
   }
 }
 
+TEST(ExposureAlignerFaults, FarAheadSequenceBeforeTheGridIsKnownDropsNoOtherCamera) {
+  // The same forged datagram before the aligner knows the trigger period: as the very first
+  // datagram of the run (nothing to compare it with), and after the first exposure (one
+  // exposure known, no period yet). The lead limit from max_wait / period does not exist yet.
+  // Before: the forged exposure opened (at 0, before the others) or was accepted (at 1: lead
+  // limit 100 000 without a period), and its timeout released past the rig's exposures: 103 of
+  // 200 exposures complete, 387 of 800 observations used.
+  for (const int at : {0, 1, 2}) {
+    for (const std::int64_t lead : {100, 999}) {
+      Scenario s;
+      s.inject = [lead, at](int k, ExposureAligner& a, std::int64_t now,
+                            std::vector<pipeline::AlignedExposure>& out) {
+        if (k != at) return;
+        a.push(make_obs(11, kSeq0 + static_cast<std::uint32_t>(k + lead),
+                        kT0Tai + (k + lead) * kPeriodNs),
+               now, out);
+      };
+      ExposureAligner aligner(rig_config(4));
+      const auto out = run(s, aligner);
+      int complete = 0;
+      for (const auto& e : out)
+        if (e.missing_camera_mask == 0) ++complete;
+      EXPECT_EQ(complete, 200) << "at " << at << " lead " << lead;
+      expect_consistent(out, s);
+      const auto& c = aligner.counters();
+      EXPECT_EQ(c.dropped_late, 0u) << "at " << at << " lead " << lead;
+      EXPECT_EQ(c.observations_used, 800u) << "at " << at << " lead " << lead;
+      EXPECT_EQ(c.observations_in, c.observations_used + total_dropped(c));
+    }
+  }
+}
+
 TEST(ExposureAlignerFaults, CameraAheadWithinTheWaitIsAligned) {
   // Camera 13's observations reach the host 3 exposures (7.5 ms) before the others', inside the
   // 10 ms wait: legitimate lead, aligned with nothing lost (not quarantined).

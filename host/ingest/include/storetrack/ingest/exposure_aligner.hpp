@@ -45,6 +45,9 @@ inline constexpr time::MonotonicNs kMaxAlignerWaitNs = 60 * time::kNsPerSecond;
 inline constexpr std::int64_t kMaxMidTimeSpreadNs = time::kNsPerSecond;
 inline constexpr std::size_t kMaxAlignerPending = 4096;
 inline constexpr std::uint32_t kMaxSequenceLead = 100'000;
+/// The fastest trigger the aligner assumes before it has measured the period (1000 fps): until
+/// then the lead is limited to max_wait / this, the most exposures the wait can span.
+inline constexpr time::MonotonicNs kFastestTriggerPeriodNs = 1'000'000;
 /// Exposure start times outside [0, kMaxExposureStartTaiNs] are refused: 2^62 ns is year 2116,
 /// and within this range every sum and difference of two times fits int64.
 inline constexpr time::TaiNs kMaxExposureStartTaiNs = std::int64_t{1} << 62;
@@ -180,6 +183,7 @@ class ExposureAligner {
   void add_to_pending(PendingMap::iterator it, int cam, const msg::MarkObservations& obs,
                       time::MonotonicNs now);
   void drop_known(std::int64_t key, int cam);
+  void evict_lone_exposures_ahead_of(std::int64_t key);
   void quarantine(int cam, const msg::MarkObservations& obs, std::int64_t unwrapped,
                   time::MonotonicNs now);
   void try_trigger_restart(time::MonotonicNs now);
