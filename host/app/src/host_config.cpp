@@ -176,6 +176,7 @@ void parse_udp(const nlohmann::json& u, const std::string& w, HostConfig& c) {
   c.udp_port = static_cast<int>(get_integer(u, "port", c.udp_port, 0, 65535, w));
   get(u, "group", c.udp_group, w);
   get(u, "interface", c.udp_interface, w);
+  get(u, "kernel_filter", c.udp_kernel_filter, w);
   if (u.contains("sources")) parse_udp_sources(u["sources"], w, c);
 }
 

@@ -32,6 +32,9 @@ struct HostConfig {
   std::string udp_bind;  // required with UDP: the FTI interface's address (0.0.0.0 explicitly)
   int udp_port = 47100;  // 0: no UDP
   std::vector<UdpSource> udp_sources;  // empty: any sender (warned)
+  // with udp_sources: other senders' datagrams are refused in the kernel (a socket filter), so a
+  // flood cannot take the socket buffer from valid datagrams (docs/reliability.md)
+  bool udp_kernel_filter = true;
   std::string udp_group;
   std::string udp_interface;
   std::vector<std::string> can_interfaces;

@@ -27,6 +27,9 @@ int parse_host_options(int argc, char** argv, HostOptions& o) {
              "Local address to bind (required with UDP; 0.0.0.0: every interface)");
   app.option("--udp-source", o.udp_sources,
              "UNIT@a.b.c.d: accept unit UNIT's datagrams from this address only (repeat)");
+  app.flag("--no-udp-kernel-filter", o.no_udp_kernel_filter,
+           "Check --udp-source in the host only, not also in the kernel (every datagram is read "
+           "and counted by cause; a flood can then fill the socket buffer)");
   app.option("--udp-group", cfg.udp_group, "Multicast group to join");
   app.option("--udp-interface", cfg.udp_interface, "Interface address for the multicast join");
   app.option("--can", cfg.can_interfaces, "SocketCAN interface(s) to receive CAN FD on");

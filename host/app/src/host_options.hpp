@@ -14,6 +14,7 @@ struct HostOptions {
   std::string calibration_path, pylon_path, store_path, config_path, initial_marks_path;
   std::string stats_json_path, ch10_sync = "every", ch10_existing = "number", log_level = "info";
   std::vector<std::string> udp_sources;  // UNIT@a.b.c.d, parsed by load_inputs
+  bool no_udp_kernel_filter = false;
   double max_wait_ms = 0;
   int min_cameras = 0;
   LoopLimits limits;

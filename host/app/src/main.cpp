@@ -77,6 +77,7 @@ int load_inputs(st::hostapp::HostOptions& o, InputFiles& in) {
     if (o.min_cameras > 0) cfg.aligner.min_cameras = o.min_cameras;
     for (const auto& text : o.udp_sources)
       cfg.udp_sources.push_back(st::hostapp::parse_udp_source(text));
+    if (o.no_udp_kernel_filter) cfg.udp_kernel_filter = false;
     std::vector<int> camera_ids, unit_ids;
     for (const auto& c : in.rig.cameras) {
       camera_ids.push_back(c.camera_id);
@@ -139,6 +140,12 @@ int open_inputs(const HostConfig& cfg, st::ingest::UdpReceiver& udp,
     if (cfg.udp_sources.empty())
       spdlog::warn(
           "storetrack-host: no udp.sources configured: datagrams from any sender accepted");
+    else if (cfg.udp_kernel_filter)
+      if (const int frc = udp.install_kernel_filter(); frc != 0)
+        spdlog::warn(
+            "storetrack-host: kernel source filter not installed ({}): other senders' datagrams "
+            "are refused by the host only",
+            std::strerror(-frc));
   }
   for (const auto& ifname : cfg.can_interfaces) {
     auto rx = std::make_unique<st::ingest::CanFdReceiver>();

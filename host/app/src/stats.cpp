@@ -26,6 +26,7 @@ nlohmann::json udp_stats_json(const ingest::UdpReceiver& udp) {
           {"budget_exhausted", uc.budget_exhausted},
           {"receive_buffer_requested_bytes", uc.receive_buffer_requested_bytes},
           {"receive_buffer_bytes", uc.receive_buffer_bytes},
+          {"kernel_filter_sources", uc.kernel_filter_sources},
           {"decode_errors", decode_counters_json(uc.decode_errors)}};
 }
 

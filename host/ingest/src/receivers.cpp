@@ -3,6 +3,7 @@
 #include <arpa/inet.h>
 #include <linux/can.h>
 #include <linux/can/raw.h>
+#include <linux/filter.h>
 #include <linux/sock_diag.h>
 #include <net/if.h>
 #include <netinet/in.h>
@@ -81,6 +82,17 @@ int set_receive_buffer(int fd, int bytes) {
   return granted / 2;
 }
 
+// Classic BPF on a UDP socket sees the datagram from its UDP header (8 bytes; the payload
+// follows) and the IP header at SKF_NET_OFF; loads are big-endian (network order).
+constexpr std::uint32_t kUdpHeaderBytes = 8;
+
+sock_filter statement(std::uint16_t code, std::uint32_t k) {
+  return sock_filter{code, 0, 0, k};
+}
+sock_filter jump_if_equal(std::uint32_t k, std::uint8_t skip_if_true, std::uint8_t skip_if_false) {
+  return sock_filter{BPF_JMP | BPF_JEQ | BPF_K, skip_if_true, skip_if_false, k};
+}
+
 }  // namespace
 
 UdpReceiver::~UdpReceiver() {
@@ -155,6 +167,34 @@ bool UdpReceiver::source_allowed(std::uint8_t unit_id, std::uint32_t address) co
   return std::any_of(allowed_.begin(), allowed_.end(), [&](const AllowedSource& s) {
     return s.unit_id == unit_id && s.address == address;
   });
+}
+
+int UdpReceiver::install_kernel_filter() {
+  if (fd_ < 0) return -EBADF;
+  if (allowed_.empty()) return -EINVAL;
+  if (allowed_.size() > kMaxKernelFilteredSources) return -E2BIG;
+  constexpr std::uint32_t kAccept = 0xFFFFFFFF, kDrop = 0;
+  std::vector<sock_filter> program = {
+      statement(BPF_LD | BPF_H | BPF_ABS, kUdpHeaderBytes + 0),  // the datagram's magic
+      jump_if_equal(msg::kUdpMagic, 1, 0),
+      statement(BPF_RET | BPF_K, kDrop),
+      statement(BPF_LD | BPF_B | BPF_ABS, kUdpHeaderBytes + 5),  // unit id
+      statement(BPF_MISC | BPF_TAX, 0),
+  };
+  // One block per allowed source; every jump stays inside its block (jump offsets are 8 bits).
+  for (const AllowedSource& s : allowed_) {
+    program.push_back(statement(BPF_LD | BPF_W | BPF_ABS,
+                                static_cast<std::uint32_t>(SKF_NET_OFF) + 12));  // IPv4 source
+    program.push_back(jump_if_equal(ntohl(s.address), 0, 3));
+    program.push_back(statement(BPF_MISC | BPF_TXA, 0));
+    program.push_back(jump_if_equal(s.unit_id, 0, 1));
+    program.push_back(statement(BPF_RET | BPF_K, kAccept));
+  }
+  program.push_back(statement(BPF_RET | BPF_K, kDrop));
+  const sock_fprog fprog{static_cast<unsigned short>(program.size()), program.data()};
+  if (setsockopt(fd_, SOL_SOCKET, SO_ATTACH_FILTER, &fprog, sizeof fprog) != 0) return -errno;
+  counters_.kernel_filter_sources = allowed_.size();
+  return 0;
 }
 
 int UdpReceiver::receive(const MessageHandler& handler, int max_datagrams) {

@@ -182,6 +182,91 @@ TEST(UdpReceiver, OnlyConfiguredUnitAndSourceCombinationsAreDelivered) {
   EXPECT_EQ(rx.counters().datagram_seq_gaps, 0u) << "the forger's counter disturbed the gaps";
 }
 
+void send_garbage(Sender& tx, int count, std::uint32_t seed) {
+  std::array<std::uint8_t, 600> junk{};
+  for (int i = 0; i < count; ++i) {
+    for (auto& b : junk)
+      b = static_cast<std::uint8_t>((seed = seed * 1664525u + 1013904223u) >> 24);
+    if (i % 3 == 0) {  // valid-looking start: the storetrack magic, an unallowed unit, junk
+      junk[0] = msg::kUdpMagic >> 8;
+      junk[1] = msg::kUdpMagic & 0xFF;
+      junk[5] = 200;
+    }
+    tx.send(std::span<const std::uint8_t>(junk.data(), 4 + (seed >> 8) % (junk.size() - 4)));
+  }
+}
+
+void send_foreign_unit(Sender& tx, int count) {
+  std::array<std::uint8_t, msg::kMaxDatagramBytes> buf{};
+  for (int k = 0; k < count; ++k) {
+    msg::MarkObservations o = observation(static_cast<std::uint32_t>(k));
+    o.unit_id = 9;  // nobody configured unit 9; a valid datagram otherwise
+    const int n = msg::encode_datagram(o, buf, static_cast<std::uint32_t>(k));
+    ASSERT_GT(n, 0);
+    tx.send(std::span<const std::uint8_t>(buf.data(), static_cast<std::size_t>(n)));
+  }
+}
+
+TEST(UdpReceiver, KernelFilterAdmitsOnlyAllowedUnitAndSourceCombinations) {
+  // Unit 1 is allowed from 127.0.0.2 only. Forged (unit 1 from .3), foreign-unit (unit 9 from
+  // .2) and garbage datagrams (a third with the magic) never reach the socket buffer: the
+  // kernel counts them as drops, the host reads only the genuine ones.
+  UdpReceiver rx;
+  EXPECT_EQ(rx.install_kernel_filter(), -EBADF);
+  ASSERT_EQ(rx.open("127.0.0.1", 0), 0);
+  EXPECT_EQ(rx.install_kernel_filter(), -EINVAL) << "no allowed source: nothing to filter by";
+  ASSERT_EQ(rx.allow_source(1, "127.0.0.2"), 0);
+  ASSERT_EQ(rx.install_kernel_filter(), 0);
+  EXPECT_EQ(rx.counters().kernel_filter_sources, 1u);
+  Sender genuine(rx.port(), "127.0.0.2");
+  Sender forger(rx.port(), "127.0.0.3");
+  send_observations(genuine, 0, 10);
+  send_observations(forger, 1000, 7);
+  send_foreign_unit(genuine, 5);
+  send_garbage(genuine, 30, 7);
+  std::vector<msg::MarkObservations> got;
+  drain(rx, got, 10);
+  ASSERT_EQ(got.size(), 10u);
+  for (const auto& o : got)
+    EXPECT_LT(o.trigger_seq, 10u) << "a forged datagram was delivered";
+  const auto& c = rx.counters();
+  EXPECT_EQ(c.datagrams, 10u) << "only the genuine datagrams were queued";
+  EXPECT_EQ(c.kernel_drops, 7u + 5u + 30u) << "every refused datagram counted by the kernel";
+  EXPECT_EQ(c.spoofed_source, 0u);
+  EXPECT_EQ(c.datagram_seq_gaps, 0u);
+}
+
+// Valid datagrams delivered when `flood` garbage datagrams arrive around each of them while
+// the host does not read (a descheduled host), into a 128 KiB socket buffer.
+int valid_delivered_under_flood(bool kernel_filter, int valid, int flood) {
+  UdpReceiver rx;
+  EXPECT_EQ(rx.open("127.0.0.1", 0, "", "", 128 << 10), 0);
+  EXPECT_EQ(rx.allow_source(1, "127.0.0.1"), 0);
+  if (kernel_filter) {
+    EXPECT_EQ(rx.install_kernel_filter(), 0);
+  }
+  Sender tx(rx.port());
+  for (int k = 0; k < valid; ++k) {
+    send_garbage(tx, flood, static_cast<std::uint32_t>(k));
+    send_observations(tx, static_cast<std::uint32_t>(k), 1);
+  }
+  int delivered = 0;
+  for (int calls = 0; calls < 100; ++calls)
+    rx.receive([&](const msg::AnyMessage&) { ++delivered; });
+  const auto& c = rx.counters();
+  EXPECT_EQ(c.datagrams + c.kernel_drops, static_cast<std::uint64_t>(valid * (flood + 1)))
+      << "every datagram received or counted";
+  return delivered;
+}
+
+TEST(UdpReceiver, KernelFilterKeepsTheSocketBufferForValidDatagramsUnderAFlood) {
+  // 40 valid datagrams, each behind 10 garbage ones (a 10x flood), nobody reading: without
+  // the filter the garbage fills the buffer and valid datagrams are dropped with it; with the
+  // filter all 40 fit (40 x ~1.3 KiB of buffer accounting < 128 KiB).
+  EXPECT_LT(valid_delivered_under_flood(false, 40, 10), 40) << "the flood must overflow the buffer";
+  EXPECT_EQ(valid_delivered_under_flood(true, 40, 10), 40);
+}
+
 TEST(UdpReceiver, ReceiveReadsAtMostItsBoundPerCall) {
   // A flood waiting in the socket: one call reads kMaxDatagramsPerReceive and returns, so the
   // caller's loop gets to align and process; the rest is read by the next calls, none lost.

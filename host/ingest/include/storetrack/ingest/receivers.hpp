@@ -7,6 +7,7 @@
 // bytes, filter senders and count.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <functional>
 #include <string>
@@ -23,6 +24,9 @@ using MessageHandler = std::function<void(const msg::AnyMessage&)>;
 /// Most datagrams one UdpReceiver::receive() call reads: 256 is 80 ms of the nominal 8 cameras
 /// x 400 fps and 8 ms of a 10x flood, so one loop turn never holds alignment longer than that.
 inline constexpr int kMaxDatagramsPerReceive = 256;
+/// Most (unit id, source address) combinations the kernel filter carries: 5 classic-BPF
+/// instructions each within the kernel's 4096 (BPF_MAXINSNS).
+inline constexpr std::size_t kMaxKernelFilteredSources = 800;
 /// Most frames one CanFdReceiver::receive() call reads (a MarkObservations is up to 9 frames).
 inline constexpr int kMaxCanFramesPerReceive = 1024;
 
@@ -38,6 +42,8 @@ struct UdpReceiverCounters {
   std::uint64_t budget_exhausted = 0;   ///< receive() calls that stopped at the per-call bound
   std::uint64_t receive_buffer_requested_bytes = 0;  ///< socket receive buffer asked for
   std::uint64_t receive_buffer_bytes = 0;            ///< granted (capped by net.core.rmem_max)
+  /// Allowed sources in the kernel filter (0: no filter; then every datagram reaches the host).
+  std::uint64_t kernel_filter_sources = 0;
 };
 
 class UdpReceiver {
@@ -58,6 +64,16 @@ class UdpReceiver {
   /// is allowed, every other (unit id, source address) combination is counted as spoofed and
   /// dropped. Returns 0 or -EINVAL.
   int allow_source(int unit_id, const std::string& address);
+  /// Moves the source check into the kernel: a classic BPF socket filter (SO_ATTACH_FILTER)
+  /// lets only datagrams with the storetrack magic from an allowed (unit id, IPv4 source)
+  /// into the socket buffer, so a flood of garbage or foreign-unit traffic is dropped before it
+  /// takes buffer space (and the host's time) from valid datagrams. The kernel counts what it
+  /// refuses with its buffer-full drops (`kernel_drops`); valid datagrams lost are then the
+  /// senders' counter gaps (`datagram_seq_gaps`), and `spoofed_source` / decode errors count
+  /// only what passed the filter (a forger copying an allowed unit id and address: the CRC and
+  /// the aligner still check it). Call after allow_source(). Returns 0, -EINVAL with no allowed
+  /// source, -E2BIG past kMaxKernelFilteredSources, or -errno of setsockopt.
+  int install_kernel_filter();
   /// Reads until the socket is empty or `max_datagrams` were read; returns messages decoded or
   /// -errno.
   int receive(const MessageHandler& handler, int max_datagrams = kMaxDatagramsPerReceive);
