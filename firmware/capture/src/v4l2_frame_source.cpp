@@ -147,6 +147,12 @@ int V4L2FrameSource::start() {
       stop();
       return rc;
     }
+    if (buf.length < frame_bytes()) {  // a frame would be read past the buffer's end
+      fail(-EINVAL, "buffer " + std::to_string(i) + " is " + std::to_string(buf.length) +
+                        " bytes, a frame of the format needs " + std::to_string(frame_bytes()));
+      stop();
+      return -EINVAL;
+    }
     void* p = mmap(nullptr, buf.length, PROT_READ | PROT_WRITE, MAP_SHARED, fd_, buf.m.offset);
     if (p == MAP_FAILED) {
       const int rc = -errno;
@@ -159,7 +165,7 @@ int V4L2FrameSource::start() {
     if (format_.conversion != Conversion::kNone) {
       buffers_[i].luma.assign(static_cast<std::size_t>(format_.width * format_.height), 0);
     }
-    if (int rc = ops_(fd_, VIDIOC_QBUF, &buf); rc < 0) {
+    if (int rc = queue(buf); rc < 0) {
       fail(rc, "VIDIOC_QBUF " + std::to_string(i));
       stop();
       return rc;
@@ -191,6 +197,7 @@ int V4L2FrameSource::stop() {
     streaming_ = false;
   }
   unmap_all();
+  queued_ = 0;
   v4l2_requestbuffers req{};  // count 0 frees the driver's buffers
   req.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
   req.memory = V4L2_MEMORY_MMAP;
@@ -200,8 +207,55 @@ int V4L2FrameSource::stop() {
   return 0;
 }
 
+std::size_t V4L2FrameSource::frame_bytes() const {
+  return static_cast<std::size_t>(format_.bytes_per_line) *
+         static_cast<std::size_t>(std::max(format_.height, 0));
+}
+
+int V4L2FrameSource::note_fault(const char* what, int rc) {
+  fault_ = what;
+  fault_errno_ = -rc;
+  return rc;
+}
+
+int V4L2FrameSource::queue(v4l2_buffer& buf) {
+  const int rc = ops_(fd_, VIDIOC_QBUF, &buf);
+  if (rc == 0) ++queued_;
+  return rc;
+}
+
+// A dequeued buffer whose frame is not usable goes back to the driver at once; the frame is lost
+// (counted under `reason`), the caller gets -EBADMSG and keeps control (no loop here).
+int V4L2FrameSource::give_back(v4l2_buffer& buf, std::atomic<std::uint64_t>& reason) {
+  reason.fetch_add(1, std::memory_order_relaxed);
+  buf.bytesused = 0;
+  if (const int rc = queue(buf); rc < 0) {
+    requeue_errors_.fetch_add(1, std::memory_order_relaxed);
+    note_fault("VIDIOC_QBUF of a bad frame's buffer failed", rc);
+  }
+  return -EBADMSG;
+}
+
+// Forward gaps of the driver's sequence are dropped frames; a sequence that goes backwards (the
+// driver restarted its count: a reopened stream, a reset sensor) is counted as a reset, never as
+// ~2^32 drops.
+void V4L2FrameSource::count_sequence(std::uint32_t sequence) {
+  if (have_sequence_) {
+    const auto gap = static_cast<std::int32_t>(sequence - last_sequence_ - 1);
+    if (gap > 0)
+      dropped_.fetch_add(static_cast<std::uint64_t>(gap), std::memory_order_relaxed);
+    else if (gap < 0)
+      sequence_resets_.fetch_add(1, std::memory_order_relaxed);
+  }
+  have_sequence_ = true;
+  last_sequence_ = sequence;
+}
+
 int V4L2FrameSource::acquire(frame::FrameView& frame, int timeout_ms) {
   if (!streaming_) return -ENOTCONN;
+  if (queued_ == 0) {  // every buffer lost to failed VIDIOC_QBUFs: nothing can ever arrive
+    return note_fault("no buffer left in the driver's queue (VIDIOC_QBUF failures)", -EIO);
+  }
   for (;;) {
     pollfd pfd{fd_, POLLIN, 0};
     int n;
@@ -214,61 +268,62 @@ int V4L2FrameSource::acquire(frame::FrameView& frame, int timeout_ms) {
       return -EAGAIN;
     }
     if (pfd.revents & (POLLERR | POLLHUP | POLLNVAL)) {
-      error_ = config_.device + ": poll reported an error (device gone or streaming stopped)";
-      return -EIO;
+      return note_fault("poll reported an error (device gone or streaming stopped)", -EIO);
     }
     v4l2_buffer buf{};
     buf.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
     buf.memory = V4L2_MEMORY_MMAP;
     const int rc = ops_(fd_, VIDIOC_DQBUF, &buf);
-    if (rc == -EAGAIN) continue;
-    if (rc < 0) return rc;
-    if (buf.index >= buffers_.size()) return -EIO;
-    if (buf.flags & V4L2_BUF_FLAG_ERROR) {  // corrupted frame: give it back, count, wait again
-      error_buffers_.fetch_add(1, std::memory_order_relaxed);
-      ops_(fd_, VIDIOC_QBUF, &buf);
-      continue;
+    if (rc == -EAGAIN) continue;  // poll said readable, the buffer went elsewhere: wait again
+    if (rc < 0) {
+      note_fault("VIDIOC_DQBUF failed", rc);
+      return -EIO;
     }
-    if (have_sequence_ && buf.sequence != last_sequence_ + 1) {
-      dropped_.fetch_add(buf.sequence - last_sequence_ - 1, std::memory_order_relaxed);
-    }
-    have_sequence_ = true;
-    last_sequence_ = buf.sequence;
+    --queued_;
+    if (buf.index >= buffers_.size())  // a driver bug: no buffer of ours to give back
+      return note_fault("VIDIOC_DQBUF returned a buffer index outside the ring", -EIO);
+    if (buf.flags & V4L2_BUF_FLAG_ERROR) return give_back(buf, error_buffers_);
+    // bytesused 0: drivers that do not fill it; else the whole image must be there.
+    if (buf.bytesused != 0 && buf.bytesused < frame_bytes()) return give_back(buf, short_buffers_);
+    count_sequence(buf.sequence);
     frames_.fetch_add(1, std::memory_order_relaxed);
-
-    time::MonotonicNs ts;
-    if ((buf.flags & V4L2_BUF_FLAG_TIMESTAMP_MASK) == V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC) {
-      ts = static_cast<time::MonotonicNs>(buf.timestamp.tv_sec) * time::kNsPerSecond +
-           static_cast<time::MonotonicNs>(buf.timestamp.tv_usec) * 1000;
-    } else {
-      ts = time::monotonic_now_ns();  // driver gives no monotonic stamp: DQBUF time
-    }
-    Buffer& b = buffers_[buf.index];
-    frame.width = format_.width;
-    frame.height = format_.height;
-    frame.format = format_.pixel_format;
-    frame.bits_per_pixel = format_.bits_per_pixel;
-    frame.sequence = buf.sequence;
-    frame.timestamp_mono_ns = ts - config_.timestamp_to_exposure_start_ns;
-    frame.exposure_ns = config_.exposure_ns;
-    frame.buffer_index = static_cast<int>(buf.index);
-    const auto* src = static_cast<const std::uint8_t*>(b.data);
-    if (format_.conversion == Conversion::kNone) {
-      frame.pixels = src;
-      frame.stride_bytes = format_.bytes_per_line;
-    } else {
-      const int first = format_.conversion == Conversion::kLumaYuyv ? 0 : 1;
-      for (int y = 0; y < format_.height; ++y) {
-        const std::uint8_t* row = src + static_cast<std::ptrdiff_t>(y) * format_.bytes_per_line;
-        std::uint8_t* dst = b.luma.data() + static_cast<std::ptrdiff_t>(y) * format_.width;
-        for (int x = 0; x < format_.width; ++x)
-          dst[x] = row[2 * x + first];
-      }
-      frame.pixels = b.luma.data();
-      frame.stride_bytes = format_.width;
-    }
+    fill_view(buf, frame);
     return 0;
   }
+}
+
+void V4L2FrameSource::fill_view(const v4l2_buffer& buf, frame::FrameView& frame) {
+  time::MonotonicNs ts;
+  if ((buf.flags & V4L2_BUF_FLAG_TIMESTAMP_MASK) == V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC) {
+    ts = static_cast<time::MonotonicNs>(buf.timestamp.tv_sec) * time::kNsPerSecond +
+         static_cast<time::MonotonicNs>(buf.timestamp.tv_usec) * 1000;
+  } else {
+    ts = time::monotonic_now_ns();  // driver gives no monotonic stamp: DQBUF time
+  }
+  Buffer& b = buffers_[buf.index];
+  frame.width = format_.width;
+  frame.height = format_.height;
+  frame.format = format_.pixel_format;
+  frame.bits_per_pixel = format_.bits_per_pixel;
+  frame.sequence = buf.sequence;
+  frame.timestamp_mono_ns = ts - config_.timestamp_to_exposure_start_ns;
+  frame.exposure_ns = config_.exposure_ns;
+  frame.buffer_index = static_cast<int>(buf.index);
+  const auto* src = static_cast<const std::uint8_t*>(b.data);
+  if (format_.conversion == Conversion::kNone) {
+    frame.pixels = src;
+    frame.stride_bytes = format_.bytes_per_line;
+    return;
+  }
+  const int first = format_.conversion == Conversion::kLumaYuyv ? 0 : 1;
+  for (int y = 0; y < format_.height; ++y) {
+    const std::uint8_t* row = src + static_cast<std::ptrdiff_t>(y) * format_.bytes_per_line;
+    std::uint8_t* dst = b.luma.data() + static_cast<std::ptrdiff_t>(y) * format_.width;
+    for (int x = 0; x < format_.width; ++x)
+      dst[x] = row[2 * x + first];
+  }
+  frame.pixels = b.luma.data();
+  frame.stride_bytes = format_.width;
 }
 
 int V4L2FrameSource::release(const frame::FrameView& frame) {
@@ -280,7 +335,12 @@ int V4L2FrameSource::release(const frame::FrameView& frame) {
   buf.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
   buf.memory = V4L2_MEMORY_MMAP;
   buf.index = static_cast<std::uint32_t>(frame.buffer_index);
-  return ops_(fd_, VIDIOC_QBUF, &buf);
+  const int rc = queue(buf);
+  if (rc < 0) {  // the buffer is out of the ring until the stream is restarted
+    requeue_errors_.fetch_add(1, std::memory_order_relaxed);
+    note_fault("VIDIOC_QBUF of a released buffer failed", rc);
+  }
+  return rc;
 }
 
 V4L2Stats V4L2FrameSource::stats() const {
@@ -288,6 +348,9 @@ V4L2Stats V4L2FrameSource::stats() const {
   s.frames = frames_.load();
   s.dropped = dropped_.load();
   s.error_buffers = error_buffers_.load();
+  s.short_buffers = short_buffers_.load();
+  s.requeue_errors = requeue_errors_.load();
+  s.sequence_resets = sequence_resets_.load();
   s.timeouts = timeouts_.load();
   return s;
 }

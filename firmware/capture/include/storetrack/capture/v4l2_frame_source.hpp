@@ -7,7 +7,11 @@
 // packed YUV, in which case the luma is extracted into a buffer allocated at start().
 // release(): VIDIOC_QBUF. Buffer sequence gaps are counted as dropped frames.
 //
-// Errors are -errno; error() says which device and what failed.
+// Errors are -errno; error() says which device and what failed. A frame the driver flagged
+// V4L2_BUF_FLAG_ERROR, or shorter than the format's image, is given back and acquire() returns
+// -EBADMSG (one lost frame; the caller goes on). A device that is gone (POLLERR/POLLHUP, a
+// failed VIDIOC_DQBUF, every buffer lost to failed VIDIOC_QBUFs) returns -EIO and stays so until
+// stop() + start() reopen it (the unit does that with a backoff, firmware/app).
 #pragma once
 
 #include <atomic>
@@ -18,6 +22,8 @@
 #include "storetrack/capture/v4l2_format.hpp"
 #include "storetrack/capture/xioctl.hpp"
 #include "storetrack/frame/frame_source.hpp"
+
+struct v4l2_buffer;
 
 namespace storetrack::capture {
 
@@ -45,8 +51,11 @@ struct V4L2Config {
 
 struct V4L2Stats {
   std::uint64_t frames = 0;
-  std::uint64_t dropped = 0;        ///< sequence gaps
-  std::uint64_t error_buffers = 0;  ///< buffers flagged V4L2_BUF_FLAG_ERROR (requeued)
+  std::uint64_t dropped = 0;          ///< sequence gaps
+  std::uint64_t error_buffers = 0;    ///< buffers flagged V4L2_BUF_FLAG_ERROR (requeued)
+  std::uint64_t short_buffers = 0;    ///< bytesused below the format's image size (requeued)
+  std::uint64_t requeue_errors = 0;   ///< VIDIOC_QBUF failed: that buffer is out of the ring
+  std::uint64_t sequence_resets = 0;  ///< driver sequence went backwards (not counted as drops)
   std::uint64_t timeouts = 0;
 };
 
@@ -63,7 +72,11 @@ class V4L2FrameSource final : public frame::FrameSource {
   int release(const frame::FrameView& frame) override;
   const char* name() const override { return config_.device.c_str(); }
 
+  /// Why start() or set_control() failed.
   const std::string& error() const { return error_; }
+  /// The last fault while streaming (a static text, set without allocating) and its errno.
+  const char* last_fault() const { return fault_; }
+  int last_fault_errno() const { return fault_errno_; }
   /// Notes from start(): size adjusted, conversion in use, missing optional controls.
   const std::string& notes() const { return notes_; }
   const FormatChoice& format() const { return format_; }
@@ -80,6 +93,12 @@ class V4L2FrameSource final : public frame::FrameSource {
   int fail(int rc, const std::string& what);
   int find_control(const std::string& name, std::uint32_t& id);
   void unmap_all();
+  int note_fault(const char* what, int rc);
+  int queue(v4l2_buffer& buf);
+  int give_back(v4l2_buffer& buf, std::atomic<std::uint64_t>& reason);
+  void count_sequence(std::uint32_t sequence);
+  void fill_view(const v4l2_buffer& buf, frame::FrameView& frame);
+  std::size_t frame_bytes() const;
 
   V4L2Config config_;
   IoctlOps ops_;
@@ -94,7 +113,13 @@ class V4L2FrameSource final : public frame::FrameSource {
   std::atomic<std::uint64_t> frames_{0};
   std::atomic<std::uint64_t> dropped_{0};
   std::atomic<std::uint64_t> error_buffers_{0};
+  std::atomic<std::uint64_t> short_buffers_{0};
+  std::atomic<std::uint64_t> requeue_errors_{0};
+  std::atomic<std::uint64_t> sequence_resets_{0};
   std::atomic<std::uint64_t> timeouts_{0};
+  const char* fault_ = "";
+  int fault_errno_ = 0;
+  std::size_t queued_ = 0;  // buffers the driver holds; 0 while streaming: nothing can arrive
 };
 
 }  // namespace storetrack::capture
