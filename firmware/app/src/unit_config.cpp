@@ -82,6 +82,22 @@ const char* to_string(TriggerMode m) {
   return "?";
 }
 
+namespace {
+
+void parse_camera(const json& x, const std::string& w, UnitConfig& c) {
+  allow_only(x, w, {"reopen_first_ms", "reopen_max_ms", "faults"});
+  get(x, "reopen_first_ms", c.camera_reopen_first_ms, w);
+  get(x, "reopen_max_ms", c.camera_reopen_max_ms, w);
+  if (!x.contains("faults")) return;
+  const json& f = x["faults"];
+  allow_only(f, w + ".faults", {"disconnect_after_frames", "failed_reopens", "corrupt_frames"});
+  get(f, "disconnect_after_frames", c.camera_faults.disconnect_after_frames, w + ".faults");
+  get(f, "failed_reopens", c.camera_faults.failed_reopens, w + ".faults");
+  get(f, "corrupt_frames", c.camera_faults.corrupt_frames, w + ".faults");
+}
+
+}  // namespace
+
 void parse_config_json(const std::string& text, const std::string& origin, UnitConfig& c) {
   json j;
   try {
@@ -92,7 +108,7 @@ void parse_config_json(const std::string& text, const std::string& origin, UnitC
   const std::string w = origin;
   allow_only(j, w,
              {"unit_id", "camera_id", "source", "trigger", "centroid", "roi", "links", "health",
-              "modbus", "clock_state", "exposure_us", "run"});
+              "modbus", "clock_state", "exposure_us", "camera", "run"});
   get(j, "unit_id", c.unit_id, w);
   get(j, "camera_id", c.camera_id, w);
   get(j, "clock_state", c.clock_state, w);
@@ -248,6 +264,7 @@ void parse_config_json(const std::string& text, const std::string& origin, UnitC
     get(x, "port", c.modbus_port, w + ".modbus");
     get(x, "maintenance", c.maintenance, w + ".modbus");
   }
+  if (j.contains("camera")) parse_camera(j["camera"], w + ".camera", c);
   if (j.contains("run")) {
     const json& x = j["run"];
     allow_only(x, w + ".run", {"frames", "duration_s", "stats_json", "max_consecutive_errors"});
@@ -308,6 +325,13 @@ void validate(const UnitConfig& c) {
     throw ConfigError("roi values must be >= 0");
   }
   if (c.health_period_ms < 10) throw ConfigError("health.period_ms must be >= 10");
+  if (c.camera_reopen_first_ms < 1 || c.camera_reopen_first_ms > 60000 ||
+      c.camera_reopen_max_ms < c.camera_reopen_first_ms || c.camera_reopen_max_ms > 60000)
+    throw ConfigError(
+        "camera.reopen_first_ms must be in [1, 60000] and camera.reopen_max_ms in "
+        "[reopen_first_ms, 60000]");
+  if (c.camera_faults.failed_reopens < 0 || c.camera_faults.failed_reopens > 1000)
+    throw ConfigError("camera.faults.failed_reopens must be in [0, 1000]");
   if (c.modbus_port < 0 || c.modbus_port > 65535) throw ConfigError("modbus.port out of range");
   if (c.frames < 0 || c.duration_s < 0) throw ConfigError("frames and duration_s must be >= 0");
   static const std::set<std::string> states = {"auto", "free-running", "locking", "locked",
@@ -395,6 +419,12 @@ std::string to_json(const UnitConfig& c) {
                  {"address", c.modbus_address},
                  {"port", c.modbus_port},
                  {"maintenance", c.maintenance}};
+  j["camera"] = {{"reopen_first_ms", c.camera_reopen_first_ms},
+                 {"reopen_max_ms", c.camera_reopen_max_ms},
+                 {"faults",
+                  {{"disconnect_after_frames", c.camera_faults.disconnect_after_frames},
+                   {"failed_reopens", c.camera_faults.failed_reopens},
+                   {"corrupt_frames", c.camera_faults.corrupt_frames}}}};
   j["run"] = {{"frames", c.frames},
               {"duration_s", c.duration_s},
               {"stats_json", c.stats_json},

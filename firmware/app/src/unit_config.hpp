@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "storetrack/capture/fault_injecting_frame_source.hpp"
 #include "storetrack/capture/v4l2_frame_source.hpp"
 #include "storetrack/centroid/centroider.hpp"
 #include "storetrack/link/canfd_link.hpp"
@@ -93,6 +94,11 @@ struct UnitConfig {
   bool maintenance = false;
   std::string clock_state = "auto";  ///< auto | free-running | locking | locked | holdover
   std::uint32_t exposure_us = 1000;
+  // camera recovery: a device that is gone is reopened after reopen_first_ms, then at doubling
+  // intervals up to reopen_max_ms, while the trigger keeps running (docs/reliability.md)
+  int camera_reopen_first_ms = 50;
+  int camera_reopen_max_ms = 2000;
+  capture::CameraFaultPlan camera_faults;  ///< injected camera faults (tests, demos)
   // run control
   long frames = 0;         ///< stop after this many frames (0: until the source ends / signal)
   double duration_s = 0;   ///< stop after this long (0: no limit)

@@ -7,6 +7,7 @@
 #include <ctime>
 #include <nlohmann/json.hpp>
 
+#include "storetrack/capture/fault_injecting_frame_source.hpp"
 #include "storetrack/capture/replay_frame_source.hpp"
 #include "storetrack/capture/v4l2_frame_source.hpp"
 #include "storetrack/link/canfd_link.hpp"
@@ -117,6 +118,18 @@ int UnitRunner::setup(std::string& error) {
   }
   if (config_.unit_id < 0) config_.unit_id = 0;
   if (config_.camera_id < 0) config_.camera_id = 0;
+  if (source_ && !config_.camera_faults.empty()) {
+    capture::CameraFaultPlan plan = config_.camera_faults;
+    const double rate_hz =
+        config_.source == SourceType::kSim && config_.sim.realtime && config_.sim.pace_hz > 0
+            ? config_.sim.pace_hz
+            : config_.trigger.rate_hz;
+    plan.frame_period_ns = rate_hz > 0 ? std::llround(1e9 / rate_hz) : 0;
+    auto f = std::make_unique<capture::FaultInjectingFrameSource>(std::move(source_), plan);
+    faults_ = f.get();
+    source_ = std::move(f);
+  }
+  camera_backoff_ns_ = std::int64_t{config_.camera_reopen_first_ms} * 1'000'000;
   if (source_) {
     const int rc = source_->start();
     if (rc < 0) {
@@ -578,6 +591,11 @@ void UnitRunner::send_health(time::MonotonicNs now) {
     l->send(h);
   ++run_.health_sent;
   last_health_ns_ = now;
+  // A camera fault is latched until one report carried it; it clears once the camera is back.
+  if (!camera_down_ && camera_error_reported_)
+    counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kCameraError),
+                               std::memory_order_relaxed);
+  camera_error_reported_ = true;
 }
 
 int UnitRunner::run_trigger_only(const std::atomic<bool>& stop) {
@@ -602,42 +620,97 @@ int UnitRunner::run_trigger_only(const std::atomic<bool>& stop) {
   return kExitOk;
 }
 
+// The camera is gone (V4L2: POLLERR/POLLHUP, a failed VIDIOC_DQBUF, every buffer lost): the
+// device is closed and reopened later with a backoff. The trigger keeps running (a gpio master
+// drives the whole rig's exposures) and health keeps going out with the camera-error bit set.
+void UnitRunner::camera_failed(int rc, time::MonotonicNs now) {
+  ++run_.source_errors;
+  ++run_.camera_failures;
+  counters_.status.fetch_or(msg::unit_status::kCameraError, std::memory_order_relaxed);
+  camera_error_reported_ = false;
+  std::fprintf(stderr, "storetrack-unit: camera %s failed (%s%s%s); reopening in %lld ms\n",
+               source_->name(), std::strerror(-rc), v4l2_ ? ": " : "",
+               v4l2_ ? v4l2_->last_fault() : "",
+               static_cast<long long>(camera_backoff_ns_ / 1'000'000));
+  source_->stop();
+  camera_down_ = true;
+  camera_down_since_ns_ = now;
+  camera_next_reopen_ns_ = now + camera_backoff_ns_;
+}
+
+void UnitRunner::service_camera_recovery(time::MonotonicNs now) {
+  if (now < camera_next_reopen_ns_) {
+    // Wait for the next try without spinning: edges (gpio slave or master) are still drained.
+    const auto wait_ms = static_cast<int>(
+        std::clamp<std::int64_t>((camera_next_reopen_ns_ - now) / 1'000'000, 1, 10));
+    if (trigger_ && !sim_trigger_) {
+      drain_edges(wait_ms);
+    } else {
+      const timespec ts{0, wait_ms * 1'000'000L};
+      nanosleep(&ts, nullptr);
+    }
+    return;
+  }
+  const int rc = source_->start();
+  const time::MonotonicNs max_backoff = std::int64_t{config_.camera_reopen_max_ms} * 1'000'000;
+  if (rc < 0) {
+    ++run_.camera_reopen_failures;
+    camera_backoff_ns_ = std::min(max_backoff, camera_backoff_ns_ * 2);
+    camera_next_reopen_ns_ = now + camera_backoff_ns_;
+    return;
+  }
+  camera_down_ = false;
+  ++run_.camera_reopens;
+  run_.camera_down_s += static_cast<double>(now - camera_down_since_ns_) * 1e-9;
+  camera_backoff_ns_ = std::int64_t{config_.camera_reopen_first_ms} * 1'000'000;
+  std::fprintf(stderr, "storetrack-unit: camera %s back after %.3f s\n", source_->name(),
+               static_cast<double>(now - camera_down_since_ns_) * 1e-9);
+}
+
 int UnitRunner::run(const std::atomic<bool>& stop) {
   if (!source_) return run_trigger_only(stop);
   const time::MonotonicNs deadline =
       config_.duration_s > 0 ? start_mono_ns_ + static_cast<std::int64_t>(config_.duration_s * 1e9)
                              : 0;
+  // Consecutive frames whose processing failed (centroiding, encoding): a unit that cannot
+  // process any frame stops. Camera faults never count here: they are recovered from.
   int consecutive_errors = 0;
   int exit_code = kExitOk;
   while (!stop.load(std::memory_order_relaxed)) {
     apply_config_changes();
-    frame::FrameView frame;
-    const int rc = source_->acquire(frame, 100);
-    const time::MonotonicNs now = time::monotonic_now_ns();
-    if (rc == 0) {
-      consecutive_errors = 0;
-      const int prc = process_frame(frame);
-      source_->release(frame);
-      if (prc < 0 && ++consecutive_errors > config_.max_consecutive_errors) {
-        exit_code = kExitRuntimeError;
-        break;
+    if (camera_down_) {
+      service_camera_recovery(time::monotonic_now_ns());
+    } else {
+      frame::FrameView frame;
+      const int rc = source_->acquire(frame, 100);
+      if (rc == 0) {
+        const int prc = process_frame(frame);
+        if (source_->release(frame) < 0) ++run_.release_errors;
+        consecutive_errors = prc < 0 ? consecutive_errors + 1 : 0;
+        if (consecutive_errors > config_.max_consecutive_errors) {
+          exit_code = kExitRuntimeError;
+          break;
+        }
+      } else if (rc == -ENODATA) {
+        break;  // finite source (sim, replay) ended
+      } else if (rc == -EBADMSG) {
+        ++run_.frames_corrupt;  // one frame lost, given back by the source
+        counters_.status.fetch_or(msg::unit_status::kCameraError, std::memory_order_relaxed);
+        camera_error_reported_ = false;
+      } else if (rc != -EAGAIN) {
+        camera_failed(rc, time::monotonic_now_ns());
       }
-    } else if (rc == -ENODATA) {
-      break;  // finite source (sim, replay) ended
-    } else if (rc != -EAGAIN) {
-      ++run_.source_errors;
-      counters_.status.fetch_or(msg::unit_status::kCameraError, std::memory_order_relaxed);
-      if (++consecutive_errors > config_.max_consecutive_errors) {
-        exit_code = kExitRuntimeError;
-        break;
-      }
+      if (trigger_ && !sim_trigger_ && rc == -EAGAIN) drain_edges(0);
     }
-    if (trigger_ && !sim_trigger_ && rc == -EAGAIN) drain_edges(0);
+    const time::MonotonicNs now = time::monotonic_now_ns();
     if (now - last_health_ns_ >= std::int64_t{config_.health_period_ms} * 1'000'000)
       send_health(now);
     if (config_.frames > 0 && static_cast<long>(run_.frames) >= config_.frames) break;
     if (deadline != 0 && now >= deadline) break;
   }
+  if (camera_down_)
+    run_.camera_down_s +=
+        static_cast<double>(time::monotonic_now_ns() - camera_down_since_ns_) * 1e-9;
   counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kCapturing));
   send_health(time::monotonic_now_ns());  // final report with the closing counters
   return exit_code;
@@ -696,6 +769,27 @@ std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code
   j["frames_processed"] = run_.frames_processed;
   j["frames_dropped"] = counters_.frames_dropped.load();
   j["source_errors"] = run_.source_errors;
+  j["camera"] = {{"failures", run_.camera_failures},
+                 {"reopens", run_.camera_reopens},
+                 {"reopen_failures", run_.camera_reopen_failures},
+                 {"down_s", run_.camera_down_s},
+                 {"frames_corrupt", run_.frames_corrupt},
+                 {"release_errors", run_.release_errors}};
+  if (v4l2_) {
+    const capture::V4L2Stats v = v4l2_->stats();
+    j["camera"]["v4l2"] = {{"error_buffers", v.error_buffers},
+                           {"short_buffers", v.short_buffers},
+                           {"requeue_errors", v.requeue_errors},
+                           {"sequence_resets", v.sequence_resets},
+                           {"timeouts", v.timeouts}};
+  }
+  if (faults_) {
+    const capture::CameraFaultCounters& f = faults_->counters();
+    j["camera"]["injected"] = {{"disconnects", f.disconnects},
+                               {"failed_reopens", f.failed_reopens},
+                               {"corrupted", f.corrupted},
+                               {"frames_lost_disconnected", f.frames_lost_disconnected}};
+  }
   j["centroid_errors"] = run_.centroid_errors;
   j["marks_total"] = run_.marks;
   j["marks_per_frame_mean"] = run_.frames_processed ? static_cast<double>(run_.marks) /

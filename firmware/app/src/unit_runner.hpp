@@ -29,6 +29,7 @@ class Simulator;
 namespace storetrack::capture {
 class V4L2FrameSource;
 class ReplayFrameSource;
+class FaultInjectingFrameSource;
 }  // namespace storetrack::capture
 namespace storetrack::trigger {
 class SimTriggerLine;
@@ -52,6 +53,12 @@ struct RunCounters {
   std::uint64_t edges = 0;
   std::uint64_t skipped_no_marks = 0;     ///< triggered_only: frames without marks, not paired
   std::uint64_t skipped_untriggered = 0;  ///< triggered_only: frames no edge claimed, not sent
+  std::uint64_t frames_corrupt = 0;       ///< frames the camera gave back as bad (-EBADMSG)
+  std::uint64_t release_errors = 0;       ///< a frame could not be given back to the source
+  std::uint64_t camera_failures = 0;      ///< the device was gone (POLLERR, DQBUF, no buffer)
+  std::uint64_t camera_reopens = 0;       ///< ... and came back after a reopen
+  std::uint64_t camera_reopen_failures = 0;
+  double camera_down_s = 0;               ///< time without a camera, in all
   double centroid_us_sum = 0;
   double centroid_us_max = 0;
 };
@@ -82,6 +89,8 @@ class UnitRunner {
 
  private:
   int process_frame(const frame::FrameView& frame);
+  void camera_failed(int rc, time::MonotonicNs now);
+  void service_camera_recovery(time::MonotonicNs now);
   int run_trigger_only(const std::atomic<bool>& stop);
   int drain_edges(int timeout_ms);
   bool edge_in_window(time::MonotonicNs t_frame_ns, bool consume);
@@ -98,6 +107,14 @@ class UnitRunner {
   std::unique_ptr<frame::FrameSource> source_;
   capture::V4L2FrameSource* v4l2_ = nullptr;      // = source_ when v4l2
   capture::ReplayFrameSource* replay_ = nullptr;  // = source_ when replay
+  capture::FaultInjectingFrameSource* faults_ = nullptr;  // wraps the source when configured
+  // camera recovery: while down, no acquire(); start() is retried at doubling intervals
+  bool camera_down_ = false;
+  time::MonotonicNs camera_down_since_ns_ = 0;
+  time::MonotonicNs camera_next_reopen_ns_ = 0;
+  time::MonotonicNs camera_backoff_ns_ = 0;
+  bool camera_error_reported_ = true;  // the camera-error status bit stays set until a health
+                                       // report carried it
   std::unique_ptr<trigger::TriggerLine> trigger_;
   trigger::SimTriggerLine* sim_trigger_ = nullptr;  // = trigger_ when sim
   std::optional<trigger::TriggerFramePairer> pairer_;
