@@ -164,6 +164,8 @@ int UnitRunner::setup(std::string& error) {
   store_.set(HoldingField::kRoiWidth, static_cast<std::uint16_t>(config_.roi_width));
   store_.set(HoldingField::kRoiHeight, static_cast<std::uint16_t>(config_.roi_height));
   seen_generation_ = store_.generation();
+  store_.lock_identity();  // ids change only at a restart (docs/modbus.md)
+  store_.set_limits({width, height});
 
   // --- centroider ------------------------------------------------------------------------------
   frame_width_ = width;
@@ -340,8 +342,11 @@ void UnitRunner::apply_config_changes() {
   if (gen == seen_generation_) return;
   seen_generation_ = gen;
   using health::HoldingField;
-  // Maintenance-mode reconfiguration: may allocate (rare, operator-driven, not per frame).
-  const int threshold = store_.get(HoldingField::kThresholdDn);
+  // Maintenance-mode reconfiguration: may allocate (rare, operator-driven, not per frame). One
+  // snapshot: a multi-register write (rate and pulse width, the search region) is seen whole.
+  const health::ConfigStore::Values v = store_.snapshot();
+  const auto get = [&v](HoldingField f) { return v[static_cast<std::size_t>(f)]; };
+  const int threshold = get(HoldingField::kThresholdDn);
   if (centroid_ && threshold != centroid_->config().threshold_dn) {
     centroid::CentroidConfig cc = centroid_->config();
     cc.threshold_dn = threshold;
@@ -350,46 +355,65 @@ void UnitRunner::apply_config_changes() {
       centroid_ = std::move(fresh);
       config_.centroid = cc;
     } catch (const std::exception&) {
-      // the table's range check makes this unreachable; keep the old centroider
+      ++run_.config_apply_errors;  // the table's range check makes this unreachable
     }
   }
-  const std::uint32_t exposure_us = store_.get(HoldingField::kExposureUs);
+  const std::uint32_t exposure_us = get(HoldingField::kExposureUs);
   if (exposure_us != config_.exposure_us) {
     config_.exposure_us = exposure_us;
-    if (v4l2_ && !config_.v4l2.exposure_control.empty()) {
-      v4l2_->set_control(config_.v4l2.exposure_control,
-                         static_cast<std::int32_t>(
-                             std::lround(exposure_us / config_.v4l2.exposure_control_unit_us)));
+    if (v4l2_ && !config_.v4l2.exposure_control.empty() &&
+        v4l2_->set_control(config_.v4l2.exposure_control,
+                           static_cast<std::int32_t>(std::lround(
+                               exposure_us / config_.v4l2.exposure_control_unit_us))) < 0) {
+      ++run_.config_apply_errors;
+      std::fprintf(stderr, "storetrack-unit: exposure %u us not applied: %s\n", exposure_us,
+                   v4l2_->error().c_str());
     }
   }
-  const double rate = store_.get(HoldingField::kTriggerRateHz);
-  const std::int64_t width_ns = std::int64_t{store_.get(HoldingField::kPulseWidthUs)} * 1000;
-  if (rate != config_.trigger.rate_hz || width_ns != config_.trigger.pulse_width_ns) {
-    config_.trigger.rate_hz = rate;
-    config_.trigger.pulse_width_ns = width_ns;
-    const auto period = static_cast<std::int64_t>(std::llround(1e9 / rate));
-    pairer_config_.period_ns = period;
-    pairer_config_.match_tolerance_ns = period / 4;
-    pairer_config_.edge_phase_tolerance_ns = period / 4;
-    if (pairer_) make_pairer(pairer_config_.first_sequence);
-    if (config_.trigger.mode == TriggerMode::kGpioMaster && trigger_) {
-      trigger_->stop();
-      trigger::GpioMasterConfig mc;
-      mc.chip = config_.trigger.chip;
-      mc.lines = config_.trigger.lines;
-      mc.rate_hz = rate;
-      mc.pulse_width_ns = width_ns;
-      mc.active_low = config_.trigger.active_low;
-      auto t = std::make_unique<trigger::GpioMasterTrigger>(mc);
-      if (t->start() == 0) trigger_ = std::move(t);
+  apply_trigger_change(get(HoldingField::kTriggerRateHz),
+                       std::int64_t{get(HoldingField::kPulseWidthUs)} * 1000);
+  config_.roi_x = get(HoldingField::kRoiX);
+  config_.roi_y = get(HoldingField::kRoiY);
+  config_.roi_width = get(HoldingField::kRoiWidth);
+  config_.roi_height = get(HoldingField::kRoiHeight);
+}
+
+// A new trigger rate or pulse width. On a gpio master the generator is restarted with it; if
+// the new one does not start, the old one is started again (the rig must keep its trigger) and
+// the change is counted as not applied.
+void UnitRunner::apply_trigger_change(double rate_hz, std::int64_t width_ns) {
+  if (rate_hz == config_.trigger.rate_hz && width_ns == config_.trigger.pulse_width_ns) return;
+  if (config_.trigger.mode == TriggerMode::kGpioMaster && trigger_) {
+    trigger::GpioMasterConfig mc;
+    mc.chip = config_.trigger.chip;
+    mc.lines = config_.trigger.lines;
+    mc.active_low = config_.trigger.active_low;
+    mc.rate_hz = rate_hz;
+    mc.pulse_width_ns = width_ns;
+    if (trigger::validate(mc, nullptr) < 0) {
+      ++run_.config_apply_errors;
+      return;
     }
+    trigger_->stop();
+    auto fresh = std::make_unique<trigger::GpioMasterTrigger>(mc);
+    if (fresh->start() != 0) {
+      ++run_.config_apply_errors;
+      std::fprintf(stderr,
+                   "storetrack-unit: trigger %.0f Hz / %lld ns not started (%s); "
+                   "the previous trigger goes on\n",
+                   rate_hz, static_cast<long long>(width_ns), fresh->error().c_str());
+      if (trigger_->start() != 0) ++run_.trigger_restart_failures;
+      return;
+    }
+    trigger_ = std::move(fresh);
   }
-  config_.roi_x = store_.get(HoldingField::kRoiX);
-  config_.roi_y = store_.get(HoldingField::kRoiY);
-  config_.roi_width = store_.get(HoldingField::kRoiWidth);
-  config_.roi_height = store_.get(HoldingField::kRoiHeight);
-  config_.unit_id = store_.get(HoldingField::kUnitId);
-  config_.camera_id = store_.get(HoldingField::kCameraId);
+  config_.trigger.rate_hz = rate_hz;
+  config_.trigger.pulse_width_ns = width_ns;
+  const auto period = static_cast<std::int64_t>(std::llround(1e9 / rate_hz));
+  pairer_config_.period_ns = period;
+  pairer_config_.match_tolerance_ns = period / 4;
+  pairer_config_.edge_phase_tolerance_ns = period / 4;
+  if (pairer_) make_pairer(pairer_config_.first_sequence);
 }
 
 int UnitRunner::process_frame(const frame::FrameView& frame) {
@@ -871,8 +895,15 @@ std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code
                    {"refused_write_locked", ms.refused_write_locked},
                    {"refused_value", ms.refused_value},
                    {"malformed", ms.malformed},
-                   {"writes_accepted", ms.writes_accepted}};
+                   {"writes_accepted", ms.writes_accepted},
+                   {"refused_identity", ms.refused_identity},
+                   {"connections", ms.connections},
+                   {"evicted", ms.evicted},
+                   {"timeouts", ms.timeouts},
+                   {"idle_closed", ms.idle_closed}};
   }
+  j["config_apply_errors"] = run_.config_apply_errors;
+  j["trigger_restart_failures"] = run_.trigger_restart_failures;
   return j.dump(2) + "\n";
 }
 

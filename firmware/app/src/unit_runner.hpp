@@ -58,7 +58,9 @@ struct RunCounters {
   std::uint64_t camera_failures = 0;      ///< the device was gone (POLLERR, DQBUF, no buffer)
   std::uint64_t camera_reopens = 0;       ///< ... and came back after a reopen
   std::uint64_t camera_reopen_failures = 0;
-  double camera_down_s = 0;               ///< time without a camera, in all
+  double camera_down_s = 0;                    ///< time without a camera, in all
+  std::uint64_t config_apply_errors = 0;       ///< Modbus changes the unit could not apply
+  std::uint64_t trigger_restart_failures = 0;  ///< ... and the previous trigger not restarted
   double centroid_us_sum = 0;
   double centroid_us_max = 0;
 };
@@ -95,6 +97,7 @@ class UnitRunner {
   int drain_edges(int timeout_ms);
   bool edge_in_window(time::MonotonicNs t_frame_ns, bool consume);
   void apply_config_changes();
+  void apply_trigger_change(double rate_hz, std::int64_t width_ns);
   void send_health(time::MonotonicNs now);
   void update_shared_counters();
   void make_pairer(std::uint32_t first_sequence);
@@ -105,8 +108,8 @@ class UnitRunner {
   std::string notes_;
   std::unique_ptr<sim::Simulator> simulator_;
   std::unique_ptr<frame::FrameSource> source_;
-  capture::V4L2FrameSource* v4l2_ = nullptr;      // = source_ when v4l2
-  capture::ReplayFrameSource* replay_ = nullptr;  // = source_ when replay
+  capture::V4L2FrameSource* v4l2_ = nullptr;              // = source_ when v4l2
+  capture::ReplayFrameSource* replay_ = nullptr;          // = source_ when replay
   capture::FaultInjectingFrameSource* faults_ = nullptr;  // wraps the source when configured
   // camera recovery: while down, no acquire(); start() is retried at doubling intervals
   bool camera_down_ = false;

@@ -88,8 +88,23 @@ std::string check_register_map() {
   return {};
 }
 
+namespace {
+
+// The search region inside the frame (a region outside it gave 0 marks, silently).
+bool roi_fits(std::span<const std::uint16_t> after, const HoldingLimits& limits) {
+  const auto fits = [](int origin, int size, int frame) {
+    return frame <= 0 || (origin < frame && origin + size <= frame);
+  };
+  const auto v = [&](HoldingField f) { return int{after[holding_def(f).address]}; };
+  return fits(v(HoldingField::kRoiX), v(HoldingField::kRoiWidth), limits.frame_width) &&
+         fits(v(HoldingField::kRoiY), v(HoldingField::kRoiHeight), limits.frame_height);
+}
+
+}  // namespace
+
 int validate_holding_write(std::span<const std::uint16_t> current, std::uint16_t address,
-                           std::span<const std::uint16_t> values, std::string* why) {
+                           std::span<const std::uint16_t> values, std::string* why,
+                           const HoldingLimits& limits) {
   const int n = register_count(RegisterKind::kHolding);
   if (values.empty() || address + values.size() > static_cast<std::size_t>(n) ||
       current.size() < static_cast<std::size_t>(n)) {
@@ -125,6 +140,12 @@ int validate_holding_write(std::span<const std::uint16_t> current, std::uint16_t
     if (why != nullptr) *why = "exposure_us must be shorter than the trigger period";
     return -EINVAL;
   }
+  if (!roi_fits(after, limits)) {
+    if (why != nullptr)
+      *why = "the search region must lie inside the " + std::to_string(limits.frame_width) + " x " +
+             std::to_string(limits.frame_height) + " frame";
+    return -EINVAL;
+  }
   return 0;
 }
 
@@ -152,11 +173,20 @@ std::string render_register_map_markdown() {
      << "| 0x03 ILLEGAL DATA VALUE | a value outside its range, a broken cross-register rule, or a "
         "malformed write request |\n"
      << "| 0x04 SERVER DEVICE FAILURE | a write while the unit is NOT in maintenance mode "
-        "(`--maintenance` / `\"modbus\": {\"maintenance\": true}`) |\n\n"
+        "(`--maintenance` / `\"modbus\": {\"maintenance\": true}`) |\n"
+     << "| 0x06 SERVER DEVICE BUSY | a write that changes `unit_id` or `camera_id` while the unit "
+        "runs: the identity changes only when the unit restarts with it in its configuration |"
+        "\n\n"
      << "Maintenance mode is set only from the unit's command line or configuration file, never\n"
      << "over Modbus. Cross-register rules: `pulse_width_us * trigger_rate_hz < 900000`,\n"
-     << "`exposure_us * trigger_rate_hz < 1000000`. Malformed or truncated requests close that\n"
-     << "client's connection; the server keeps serving the others.\n\n";
+     << "`exposure_us * trigger_rate_hz < 1000000`; the search region (`roi_*`) inside the\n"
+     << "frame. A write is checked whole and applied whole: the capture loop never sees half of a\n"
+     << "multi-register write. A trigger change the generator cannot start leaves the previous\n"
+     << "trigger running (stats `config_apply_errors`). Malformed or truncated requests close\n"
+     << "that client's connection; the server keeps serving the others. Requests are read\n"
+     << "without blocking: a slow client holds nobody else; a request not complete within 1 s,\n"
+     << "or a connection quiet for 60 s, is closed; when all 4 connections are taken, the\n"
+     << "quietest one makes room for a new client.\n\n";
   for (RegisterKind kind : {RegisterKind::kInput, RegisterKind::kHolding}) {
     const bool input = kind == RegisterKind::kInput;
     md << (input ? "## Input registers (0x04, health)\n\n"

@@ -22,16 +22,43 @@ void ConfigStore::read_all(std::span<std::uint16_t> out) const {
   }
 }
 
+ConfigStore::Values ConfigStore::snapshot() const {
+  Values out{};
+  for (;;) {
+    const std::uint32_t before = sequence_.load(std::memory_order_acquire);
+    if (before & 1u) continue;  // a write is being stored
+    for (std::size_t i = 0; i < kHoldingCount; ++i)
+      out[i] = values_[i].load(std::memory_order_relaxed);
+    std::atomic_thread_fence(std::memory_order_acquire);
+    if (sequence_.load(std::memory_order_relaxed) == before) return out;
+  }
+}
+
 int ConfigStore::write(std::uint16_t address, std::span<const std::uint16_t> values,
                        std::string* why) {
   std::array<std::uint16_t, kHoldingCount> current{};
   read_all(current);
-  if (int rc = validate_holding_write(current, address, values, why); rc < 0) return rc;
+  if (int rc = validate_holding_write(current, address, values, why, limits_); rc < 0) return rc;
+  if (identity_locked_.load(std::memory_order_relaxed)) {
+    for (std::size_t i = 0; i < values.size(); ++i) {
+      const RegisterDef* d =
+          find_register(RegisterKind::kHolding, static_cast<std::uint16_t>(address + i));
+      const auto f = static_cast<HoldingField>(d->field);
+      if ((f == HoldingField::kUnitId || f == HoldingField::kCameraId) &&
+          values[i] != current[d->address]) {
+        if (why != nullptr) *why = std::string(d->name) + " changes only at a restart";
+        return -EBUSY;
+      }
+    }
+  }
+  sequence_.fetch_add(1, std::memory_order_relaxed);  // odd: readers retry
+  std::atomic_thread_fence(std::memory_order_release);
   for (std::size_t i = 0; i < values.size(); ++i) {
     const RegisterDef* d =
         find_register(RegisterKind::kHolding, static_cast<std::uint16_t>(address + i));
     values_[d->field].store(values[i], std::memory_order_relaxed);
   }
+  sequence_.fetch_add(1, std::memory_order_release);  // even: whole again
   generation_.fetch_add(1, std::memory_order_release);
   return 0;
 }

@@ -9,11 +9,14 @@
 #include <unistd.h>
 
 #include <array>
+#include <atomic>
 #include <cerrno>
+#include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <random>
 #include <sstream>
+#include <thread>
 #include <vector>
 
 #include "storetrack/health/modbus_server.hpp"
@@ -212,6 +215,117 @@ TEST_F(ModbusTest, SurvivesMalformedRawRequests) {
     EXPECT_LE(hold[static_cast<std::size_t>(a)], d->max);
   }
   EXPECT_GT(server->stats().malformed, 0u);
+}
+
+TEST_F(ModbusTest, IdleClientsInEverySlotDoNotLockOutANewOne) {
+  // Four connections that never send anything hold every slot. Before: the fifth client was
+  // closed at accept, so nobody could read the unit's health until one of them left.
+  start(false);
+  std::vector<int> idle;
+  for (int k = 0; k < 4; ++k)
+    idle.push_back(raw_connect(server->bound_port()));
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  Client c(server->bound_port());
+  std::uint16_t r[2];
+  EXPECT_EQ(modbus_read_input_registers(c.ctx, 0, 2, r), 2) << modbus_strerror(errno);
+  EXPECT_GE(server->stats().evicted, 1u);
+  for (int s : idle)
+    close(s);
+}
+
+TEST_F(ModbusTest, SlowClientHoldsNobodyElse) {
+  // A client sends a valid 12-byte request one byte every 120 ms. Before: libmodbus read the
+  // rest of its request with a 0.5 s byte timeout, the one server thread waiting on it, so
+  // every other client waited up to 0.5 s a byte. Now each other request is answered at once,
+  // and the slow request is closed when it is not whole after request_timeout_ms (1 s).
+  start(false);
+  std::atomic<bool> done{false};
+  std::thread slow([&] {
+    const int s = raw_connect(server->bound_port());
+    const std::uint8_t req[] = {0, 1, 0, 0, 0, 6, 0xFF, 0x04, 0, 0, 0, 2};
+    for (std::uint8_t b : req) {
+      if (send(s, &b, 1, MSG_NOSIGNAL) != 1) break;
+      std::this_thread::sleep_for(std::chrono::milliseconds(120));
+    }
+    close(s);
+    done = true;
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  Client c(server->bound_port());
+  double worst_ms = 0;
+  for (int k = 0; k < 10; ++k) {
+    const auto t0 = std::chrono::steady_clock::now();
+    std::uint16_t r[2];
+    EXPECT_EQ(modbus_read_input_registers(c.ctx, 0, 2, r), 2) << modbus_strerror(errno);
+    worst_ms = std::max(
+        worst_ms,
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  slow.join();
+  EXPECT_LT(worst_ms, 100.0) << "another client's request waited";
+  EXPECT_EQ(server->stats().timeouts, 1u);
+}
+
+TEST_F(ModbusTest, IdentityWritesAreRefusedWhileRunning) {
+  // Before: a camera_id written mid-run renamed the camera in its messages at once, and the
+  // host applied another camera's calibration to it.
+  store.lock_identity();
+  start(true);
+  Client c(server->bound_port());
+  const auto cam = holding_def(HoldingField::kCameraId).address;
+  EXPECT_EQ(modbus_write_register(c.ctx, cam, 42), -1);
+  EXPECT_EQ(errno, EMBXSBUSY);
+  EXPECT_EQ(store.get(HoldingField::kCameraId), 0);
+  // The same value (a configuration tool writing the whole block back) is no change.
+  const std::uint16_t ids[3] = {0, 0, 1500};
+  EXPECT_EQ(modbus_write_registers(c.ctx, 0, 3, ids), 3) << modbus_strerror(errno);
+  EXPECT_EQ(store.get(HoldingField::kExposureUs), 1500);
+  EXPECT_EQ(server->stats().refused_identity, 1u);
+}
+
+TEST_F(ModbusTest, SearchRegionOutsideTheFrameIsRefused) {
+  // Before: any region inside the table's 0..4096 was taken: a region past the sensor gave 0
+  // marks, silently.
+  store.set_limits({640, 480});
+  start(true);
+  Client c(server->bound_port());
+  const auto x = holding_def(HoldingField::kRoiX).address;
+  const std::uint16_t past[4] = {600, 0, 100, 0};  // x, y, width, height
+  EXPECT_EQ(modbus_write_registers(c.ctx, x, 4, past), -1);
+  EXPECT_EQ(errno, EMBXILVAL);
+  EXPECT_EQ(modbus_write_register(c.ctx, x, 640), -1) << "x at the frame's width";
+  const std::uint16_t inside[4] = {600, 400, 40, 80};
+  EXPECT_EQ(modbus_write_registers(c.ctx, x, 4, inside), 4) << modbus_strerror(errno);
+  EXPECT_EQ(store.get(HoldingField::kRoiHeight), 80);
+}
+
+TEST(ConfigStore, MultiRegisterWriteIsSeenWhole) {
+  // One thread writes (rate, width) pairs (100 Hz, 100 us) and (400 Hz, 2000 us), another
+  // takes snapshots: every snapshot holds one of the written pairs, never a mix (400 Hz with
+  // 100 us, or 100 Hz with 2000 us), which reading field by field can give.
+  ConfigStore store;
+  const auto rate = holding_def(HoldingField::kTriggerRateHz).address;
+  std::atomic<bool> stop{false};
+  std::thread writer([&] {
+    const std::uint16_t a[2] = {400, 2000}, b[2] = {100, 100};
+    for (int k = 0; !stop.load(); ++k)
+      ASSERT_EQ(store.write(rate, std::span<const std::uint16_t>(k % 2 ? b : a, 2), nullptr), 0);
+  });
+  while (store.generation() < 2)
+    std::this_thread::yield();
+  long torn = 0, seen = 0;
+  for (int k = 0; k < 200'000; ++k) {
+    const ConfigStore::Values v = store.snapshot();
+    const auto r = v[static_cast<std::size_t>(HoldingField::kTriggerRateHz)];
+    const auto w = v[static_cast<std::size_t>(HoldingField::kPulseWidthUs)];
+    torn += !((r == 400 && w == 2000) || (r == 100 && w == 100));
+    seen += r == 400;
+  }
+  stop = true;
+  writer.join();
+  EXPECT_EQ(torn, 0);
+  EXPECT_GT(seen, 0) << "the writer ran during the reads";
 }
 
 TEST(RegisterMap, TableIsConsistent) {

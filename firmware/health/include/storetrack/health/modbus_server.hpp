@@ -4,13 +4,19 @@
 // (refreshed before every request), holding registers from the ConfigStore. Function codes
 // other than 0x03/0x04/0x06/0x10 are refused with ILLEGAL FUNCTION before libmodbus sees them;
 // writes outside maintenance mode get SERVER DEVICE FAILURE; writes are range-checked against
-// the table (ILLEGAL DATA VALUE). Malformed requests close that client's connection only.
+// the table (ILLEGAL DATA VALUE), whole and at once (a multi-register write is applied
+// completely or not at all); identity writes while running get SERVER DEVICE BUSY. Requests are
+// read without blocking and answered when whole: a slow client never holds another; a request
+// not completed within request_timeout_ms, or a client quiet for idle_timeout_ms, is closed;
+// when every slot is taken, the quietest client makes room for a new one. Malformed requests
+// close that client's connection only. Every refusal is counted.
 #pragma once
 
 #include <atomic>
 #include <cstdint>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "storetrack/health/unit_state.hpp"
 
@@ -21,6 +27,8 @@ struct ModbusServerConfig {
   int port = 1502;                    ///< 0: any free port (tests), see bound_port()
   bool maintenance = false;           ///< allow configuration writes
   int max_clients = 4;
+  int request_timeout_ms = 1000;  ///< a request's bytes must all arrive within this
+  int idle_timeout_ms = 60'000;   ///< a connection quiet for this long is closed
 };
 
 struct ModbusServerStats {
@@ -31,6 +39,10 @@ struct ModbusServerStats {
   std::uint64_t malformed = 0;
   std::uint64_t writes_accepted = 0;
   std::uint64_t connections = 0;
+  std::uint64_t refused_identity = 0;  ///< unit/camera id writes while running
+  std::uint64_t evicted = 0;           ///< quietest client closed to admit a new one
+  std::uint64_t timeouts = 0;          ///< requests not completed in time
+  std::uint64_t idle_closed = 0;       ///< connections closed for idleness
 };
 
 class ModbusHealthServer {
@@ -49,8 +61,14 @@ class ModbusHealthServer {
   bool maintenance() const { return config_.maintenance; }
 
  private:
+  struct Client;
   void run();
-  void handle(int client_fd);
+  void accept_client(std::vector<Client>& clients, std::int64_t now);
+  bool expired(const Client& c, std::int64_t now);
+  bool read_client(Client& c, std::int64_t now);
+  void handle_request(const std::uint8_t* query, int length);
+  void handle_read(const std::uint8_t* query, int length, std::uint8_t fc);
+  void handle_write(const std::uint8_t* query, int length, std::uint8_t fc);
 
   ModbusServerConfig config_;
   const UnitCounters& counters_;
@@ -64,7 +82,8 @@ class ModbusHealthServer {
   std::thread thread_;
   std::atomic<bool> running_{false};
   std::atomic<std::uint64_t> requests_{0}, refused_function_{0}, refused_write_locked_{0},
-      refused_value_{0}, malformed_{0}, writes_accepted_{0}, connections_{0};
+      refused_value_{0}, malformed_{0}, writes_accepted_{0}, connections_{0}, refused_identity_{0},
+      evicted_{0}, timeouts_{0}, idle_closed_{0};
 };
 
 }  // namespace storetrack::health

@@ -124,8 +124,15 @@ std::string check_register_map();
 /// cross-register rules, given the current holding values. Returns 0 (all accepted),
 /// -EFAULT (address outside the map: ILLEGAL DATA ADDRESS) or -EINVAL (value out of range:
 /// ILLEGAL DATA VALUE); *why says which register.
+/// What the table alone cannot know: the frame the search region must fit (0: not checked).
+struct HoldingLimits {
+  int frame_width = 0;
+  int frame_height = 0;
+};
+
 int validate_holding_write(std::span<const std::uint16_t> current, std::uint16_t address,
-                           std::span<const std::uint16_t> values, std::string* why = nullptr);
+                           std::span<const std::uint16_t> values, std::string* why = nullptr,
+                           const HoldingLimits& limits = {});
 
 /// docs/modbus.md, generated from the table.
 std::string render_register_map_markdown();

@@ -44,10 +44,23 @@ struct UnitCounters {
 inline constexpr std::size_t kHoldingCount = static_cast<std::size_t>(HoldingField::kCount);
 
 /// The holding-register configuration. Written by the Modbus server (maintenance mode) or at
-/// start from the config file; the capture loop polls generation() and re-reads on change.
+/// start from the config file; the capture loop polls generation() and takes a snapshot() on
+/// change. Invariant: a write is validated whole (its cross-register rules against the values
+/// it leaves) and seen whole: snapshot() never returns half of a multi-register write (a
+/// sequence lock; one writer, the Modbus thread).
 class ConfigStore {
  public:
+  using Values = std::array<std::uint16_t, kHoldingCount>;  ///< indexed by HoldingField
+
   ConfigStore();
+  /// A consistent copy of every value.
+  Values snapshot() const;
+  /// From now on a write that changes unit_id or camera_id is refused with -EBUSY: the unit's
+  /// identity changes only when it restarts with it in its configuration (the host would apply
+  /// another camera's calibration to a renamed one mid-run).
+  void lock_identity() { identity_locked_.store(true, std::memory_order_relaxed); }
+  /// A search region written must fit this frame.
+  void set_limits(const HoldingLimits& limits) { limits_ = limits; }
   std::uint16_t get(HoldingField f) const {
     return values_[static_cast<std::size_t>(f)].load(std::memory_order_relaxed);
   }
@@ -58,13 +71,17 @@ class ConfigStore {
   /// Copies the values in address order.
   void read_all(std::span<std::uint16_t> out) const;
   /// Validated write from the Modbus server: 0, -EFAULT or -EINVAL (see
-  /// validate_holding_write); on success bumps the generation.
+  /// validate_holding_write), -EBUSY for an identity change once locked; on success bumps the
+  /// generation.
   int write(std::uint16_t address, std::span<const std::uint16_t> values, std::string* why);
   std::uint32_t generation() const { return generation_.load(std::memory_order_acquire); }
 
  private:
   std::array<std::atomic<std::uint16_t>, kHoldingCount> values_{};
   std::atomic<std::uint32_t> generation_{0};
+  std::atomic<std::uint32_t> sequence_{0};  // odd while a write is being stored
+  std::atomic<bool> identity_locked_{false};
+  HoldingLimits limits_;  // set before the Modbus thread starts
 };
 
 /// Fills the input registers (address order of the table) from the counters.
