@@ -16,6 +16,7 @@
 #include <thread>
 #include <vector>
 
+#include "fake_ptp4l.hpp"
 #include "ptp4l_captures.hpp"
 #include "storetrack/clock/clock_monitor.hpp"
 #include "storetrack/clock/ptp4l_client.hpp"
@@ -23,83 +24,10 @@
 namespace storetrack::clock {
 namespace {
 
-using Datagram = std::vector<std::uint8_t>;
-using Responder = std::function<std::vector<Datagram>(const Datagram& request)>;
-
-std::uint16_t managementId(const Datagram& request) {
-  return static_cast<std::uint16_t>(request[52] << 8 | request[53]);
-}
-
-Datagram with_sequence(Datagram reply, const Datagram& request) {
-  reply[30] = request[30];  // sequenceId, header offset 30 (IEEE 1588-2008 13.3.1)
-  reply[31] = request[31];
-  return reply;
-}
-
-/// ptp4l's answers for a slave of a present master: UNCALIBRATED, offset 616 ns.
-std::vector<Datagram> ptp4l_answers(const Datagram& request) {
-  switch (managementId(request)) {
-    case 0x2004:
-      return {with_sequence(test::from_hex(test::kSlavePortDataSetUncalibrated), request)};
-    case 0xC000:
-      return {with_sequence(test::from_hex(test::kSlaveTimeStatusNp), request)};
-    case 0x2003:
-      return {with_sequence(test::from_hex(test::kSlaveTimePropertiesDataSet), request)};
-  }
-  return {};
-}
-
-class FakePtp4l {
- public:
-  FakePtp4l(const std::string& path, Responder responder) : responder_(std::move(responder)) {
-    fd_ = ::socket(AF_UNIX, SOCK_DGRAM, 0);
-    sockaddr_un a{};
-    a.sun_family = AF_UNIX;
-    std::snprintf(a.sun_path, sizeof a.sun_path, "%s", path.c_str());
-    if (::bind(fd_, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) std::abort();
-    thread_ = std::thread([this] { serve(); });
-  }
-  ~FakePtp4l() {
-    stop_ = true;
-    thread_.join();
-    ::close(fd_);
-  }
-  void set_responder(Responder r) {
-    std::lock_guard<std::mutex> lock(mutex_);
-    responder_ = std::move(r);
-  }
-  int requests() const { return requests_.load(); }
-
- private:
-  void serve() {
-    while (!stop_) {
-      pollfd p{fd_, POLLIN, 0};
-      if (::poll(&p, 1, 20) <= 0) continue;
-      Datagram request(1500);
-      sockaddr_un from{};
-      socklen_t from_length = sizeof from;
-      const ssize_t n = ::recvfrom(fd_, request.data(), request.size(), 0,
-                                   reinterpret_cast<sockaddr*>(&from), &from_length);
-      if (n < 54) continue;
-      request.resize(static_cast<std::size_t>(n));
-      ++requests_;
-      std::vector<Datagram> replies;
-      {
-        std::lock_guard<std::mutex> lock(mutex_);
-        replies = responder_(request);
-      }
-      for (const Datagram& r : replies)
-        ::sendto(fd_, r.data(), r.size(), 0, reinterpret_cast<sockaddr*>(&from), from_length);
-    }
-  }
-
-  int fd_ = -1;
-  std::mutex mutex_;
-  Responder responder_;
-  std::atomic<bool> stop_{false};
-  std::atomic<int> requests_{0};
-  std::thread thread_;
-};
+using test::Datagram;
+using test::FakePtp4l;
+using test::ptp4l_answers;
+using test::with_sequence;
 
 class Ptp4lClientTest : public ::testing::Test {
  protected:
