@@ -37,9 +37,10 @@ void get(const json& j, const char* key, T& out, const std::string& where) {
 }
 
 void parse_ptp4l(const json& x, const std::string& w, clock::ClockMonitorConfig& c) {
-  allow_only(x, w,
-             {"uds_path", "client_dir", "reply_timeout_ms", "domain_number", "lock_threshold_ns",
-              "lock_polls", "holdover_s", "measure_only", "require_time_traceable"});
+  allow_only(
+      x, w,
+      {"uds_path", "client_dir", "reply_timeout_ms", "domain_number", "lock_threshold_ns",
+       "lock_polls", "holdover_s", "offset_max_age_s", "measure_only", "require_time_traceable"});
   get(x, "uds_path", c.ptp4l.uds_path, w);
   get(x, "client_dir", c.ptp4l.client_dir, w);
   get(x, "reply_timeout_ms", c.ptp4l.reply_timeout_ms, w);
@@ -55,6 +56,13 @@ void parse_ptp4l(const json& x, const std::string& w, clock::ClockMonitorConfig&
     if (!(holdover_s >= 0 && holdover_s <= 3600))
       throw ConfigError(w + ".holdover_s must be in [0, 3600]");
     c.lock.holdover_ns = static_cast<std::int64_t>(holdover_s * 1e9);
+  }
+  if (x.contains("offset_max_age_s")) {
+    double age_s = 0;
+    get(x, "offset_max_age_s", age_s, w);
+    if (!(age_s >= 0.1 && age_s <= 60))
+      throw ConfigError(w + ".offset_max_age_s must be in [0.1, 60]");
+    c.lock.offset_max_age_ns = static_cast<std::int64_t>(age_s * 1e9);
   }
   get(x, "measure_only", c.lock.measure_only, w);
   get(x, "require_time_traceable", c.lock.require_time_traceable, w);
@@ -441,6 +449,7 @@ std::string to_json(const UnitConfig& c) {
                 {"lock_threshold_ns", p.lock.lock_threshold_ns},
                 {"lock_polls", p.lock.lock_polls},
                 {"holdover_s", static_cast<double>(p.lock.holdover_ns) / 1e9},
+                {"offset_max_age_s", static_cast<double>(p.lock.offset_max_age_ns) / 1e9},
                 {"measure_only", p.lock.measure_only},
                 {"require_time_traceable", p.lock.require_time_traceable}};
   j["modbus"] = {{"enabled", c.modbus_enabled},

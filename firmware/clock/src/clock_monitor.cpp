@@ -62,6 +62,7 @@ PtpPoll ClockMonitor::query() {
   if (have_status) {
     poll.gm_present = status.gm_present;
     poll.master_offset_ns = status.master_offset_ns;
+    poll.ingress_time_ns = status.ingress_time_ns;
   }
   poll.time_traceable = have_properties && properties.time_traceable();
   std::lock_guard<std::mutex> lock(stats_mutex_);

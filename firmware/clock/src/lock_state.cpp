@@ -22,6 +22,14 @@ bool LockStateMachine::servo_ok(const PtpPoll& poll) const {
          (thresholds_.measure_only && poll.port_state == PortState::kUncalibrated);
 }
 
+bool LockStateMachine::measured(const PtpPoll& poll, time::MonotonicNs now_ns) {
+  if (poll.ingress_time_ns != last_ingress_time_ns_) {
+    last_ingress_time_ns_ = poll.ingress_time_ns;
+    ingress_changed_ns_ = now_ns;
+  }
+  return poll.ingress_time_ns != 0 && now_ns - ingress_changed_ns_ < thresholds_.offset_max_age_ns;
+}
+
 time::ClockState LockStateMachine::on_master_lost(time::MonotonicNs now_ns) {
   using time::ClockState;
   switch (state_) {
@@ -42,6 +50,7 @@ time::ClockState LockStateMachine::on_master_lost(time::MonotonicNs now_ns) {
 time::ClockState LockStateMachine::update(const PtpPoll& poll, time::MonotonicNs now_ns) {
   using time::ClockState;
   if (!tracking(poll)) {
+    measured(poll, now_ns);  // keeps the ingress_time history
     consecutive_within_ = 0;
     offset_ns_ = kOffsetUnknown;
     state_ = on_master_lost(now_ns);
@@ -51,7 +60,7 @@ time::ClockState LockStateMachine::update(const PtpPoll& poll, time::MonotonicNs
   // llabs of INT64_MIN is undefined: compare the two signs separately.
   const bool small = poll.master_offset_ns <= thresholds_.lock_threshold_ns &&
                      poll.master_offset_ns >= -thresholds_.lock_threshold_ns;
-  if (servo_ok(poll) && small) {
+  if (measured(poll, now_ns) && servo_ok(poll) && small) {
     if (consecutive_within_ < thresholds_.lock_polls) ++consecutive_within_;
     state_ =
         consecutive_within_ >= thresholds_.lock_polls ? ClockState::kLocked : ClockState::kLocking;

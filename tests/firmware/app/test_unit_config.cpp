@@ -65,7 +65,7 @@ TEST(UnitConfig, Ptp4lClockSection) {
   parse_config_json(R"({"source": {"type": "none"}, "trigger": {"mode": "gpio-slave"},
       "clock_state": "ptp4l", "ptp4l": {"uds_path": "/run/ptp4l-eth1",
       "client_dir": "/tmp", "reply_timeout_ms": 20, "domain_number": 24,
-      "lock_threshold_ns": 250, "lock_polls": 5, "holdover_s": 2.5, "measure_only": true,
+      "lock_threshold_ns": 250, "lock_polls": 5, "holdover_s": 2.5, "offset_max_age_s": 2, "measure_only": true,
       "require_time_traceable": true}})",
                     "t", c);
   EXPECT_NO_THROW(validate(c));
@@ -77,6 +77,7 @@ TEST(UnitConfig, Ptp4lClockSection) {
   EXPECT_EQ(c.ptp4l.lock.lock_threshold_ns, 250);
   EXPECT_EQ(c.ptp4l.lock.lock_polls, 5);
   EXPECT_EQ(c.ptp4l.lock.holdover_ns, 2'500'000'000);
+  EXPECT_EQ(c.ptp4l.lock.offset_max_age_ns, 2'000'000'000);
   EXPECT_TRUE(c.ptp4l.lock.measure_only);
   EXPECT_TRUE(c.ptp4l.lock.require_time_traceable);
   UnitConfig back;
@@ -90,6 +91,7 @@ TEST(UnitConfig, Ptp4lValuesOutsideTheirRangesAreRefused) {
   EXPECT_THROW(parse_config_json(R"({"ptp4l": {"domain_number": 128}})", "t", c), ConfigError);
   EXPECT_THROW(parse_config_json(R"({"ptp4l": {"holdover_s": -1}})", "t", c), ConfigError);
   EXPECT_THROW(parse_config_json(R"({"ptp4l": {"holdover_s": 3601}})", "t", c), ConfigError);
+  EXPECT_THROW(parse_config_json(R"({"ptp4l": {"offset_max_age_s": 0}})", "t", c), ConfigError);
   auto refused = [](auto change) {
     UnitConfig u;
     u.source = SourceType::kNone;

@@ -39,8 +39,19 @@ inline std::vector<Datagram> ptp4l_answers(const Datagram& request) {
   switch (management_id(request)) {
     case 0x2004:
       return {with_sequence(from_hex(kSlavePortDataSetUncalibrated), request)};
-    case 0xC000:
-      return {with_sequence(from_hex(kSlaveTimeStatusNp), request)};
+    case 0xC000: {
+      // A fresh Sync behind every answer, as a live ptp4l has: ingress_time (data bytes 8..15)
+      // advanced by 125 ms per reply from the captured value.
+      static std::atomic<std::uint64_t> syncs{0};
+      Datagram reply = with_sequence(from_hex(kSlaveTimeStatusNp), request);
+      std::uint64_t ingress = 0;
+      for (int i = 0; i < 8; ++i)
+        ingress = ingress << 8 | reply[54 + 8 + static_cast<std::size_t>(i)];
+      ingress += ++syncs * 125'000'000u;
+      for (int i = 7; i >= 0; --i, ingress >>= 8)
+        reply[54 + 8 + static_cast<std::size_t>(i)] = static_cast<std::uint8_t>(ingress);
+      return {reply};
+    }
     case 0x2003:
       return {with_sequence(from_hex(kSlaveTimePropertiesDataSet), request)};
   }

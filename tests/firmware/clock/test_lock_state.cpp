@@ -11,8 +11,11 @@ namespace {
 using time::ClockState;
 constexpr std::int64_t kS = 1'000'000'000;
 
+/// A poll of ptp4l with a fresh measurement (each call a new Sync's ingress time).
 PtpPoll slave(std::int64_t offset_ns, PortState port = PortState::kSlave) {
+  static std::int64_t ingress_time_ns = 1'796'236'652'230'701'337;
   PtpPoll p;
+  p.ingress_time_ns = ingress_time_ns += 125'000'000;
   p.answered = true;
   p.port_state = port;
   p.gm_present = true;
@@ -161,6 +164,32 @@ TEST(LockState, TraceabilityWhenRequired) {
   for (int i = 5; i < 8; ++i)
     m.update(traceable, i * kS);
   EXPECT_EQ(m.state(), ClockState::kLocked);
+}
+
+TEST(LockState, NoMeasurementYetIsNotAnOffsetOfZero) {
+  // Before its first Sync ptp4l reports master_offset 0 with ingress_time 0.
+  LockStateMachine m(thresholds());
+  PtpPoll first = slave(0, PortState::kUncalibrated);
+  first.ingress_time_ns = 0;
+  for (int i = 0; i < 5; ++i)
+    EXPECT_EQ(m.update(first, i * kS), ClockState::kLocking);
+}
+
+TEST(LockState, AStaleOffsetLeavesLocked) {
+  // The master still announces (port SLAVE) but sends no Sync: ingress_time stops changing.
+  LockThresholds t = thresholds();
+  t.offset_max_age_ns = 3 * kS;
+  LockStateMachine m(t);
+  PtpPoll p;
+  for (int i = 0; i < 3; ++i)
+    m.update(p = slave(0), i * kS);
+  ASSERT_EQ(m.state(), ClockState::kLocked);
+  EXPECT_EQ(m.update(p, 3 * kS), ClockState::kLocked);  // 1 s without a new Sync: fine
+  EXPECT_EQ(m.update(p, 4 * kS), ClockState::kLocked);
+  EXPECT_EQ(m.update(p, 5 * kS), ClockState::kLocking);  // 3 s: stale
+  EXPECT_EQ(m.update(slave(0), 6 * kS), ClockState::kLocking);
+  EXPECT_EQ(m.update(slave(0), 7 * kS), ClockState::kLocking);
+  EXPECT_EQ(m.update(slave(0), 8 * kS), ClockState::kLocked);
 }
 
 TEST(LockState, OffsetSaturatesOneAboveTheUnknownValue) {

@@ -5,7 +5,10 @@
 //               port is SLAVE or UNCALIBRATED, and, if required, the time is traceable
 //   servo ok  = port SLAVE (ptp4l's servo locked); with measure_only also UNCALIBRATED, because a
 //               ptp4l with `free_running 1` never steers its clock, so never leaves UNCALIBRATED
-//   within    = tracking, servo ok and |master offset| <= lock_threshold_ns
+//   measured  = ptp4l has a measurement (ingress_time != 0: before its first Sync, ptp4l
+//               reports offset 0) that is fresh (ingress_time changed within offset_max_age_ns:
+//               a master that still announces but no longer sends Sync leaves it unchanged)
+//   within    = tracking, servo ok, measured and |master offset| <= lock_threshold_ns
 //
 //   LOCKED        after lock_polls consecutive polls within; left on the first poll not within
 //   LOCKING       tracking but not (yet) LOCKED
@@ -29,6 +32,8 @@ struct LockThresholds {
   std::int64_t holdover_ns = 10'000'000'000;  ///< HOLDOVER lasts at most this long (0: none)
   bool measure_only = false;            ///< ptp4l runs free_running: UNCALIBRATED is a measurement
   bool require_time_traceable = false;  ///< LOCKED only to a grandmaster with timeTraceable
+  /// An offset whose Sync (ingress_time) has not changed for this long is stale, not within.
+  std::int64_t offset_max_age_ns = 5'000'000'000;
 };
 
 /// One poll of ptp4l, as the state machine needs it.
@@ -37,7 +42,8 @@ struct PtpPoll {
   PortState port_state = PortState::kUnknown;
   bool gm_present = false;
   std::int64_t master_offset_ns = 0;
-  bool time_traceable = false;  ///< TIME_PROPERTIES_DATA_SET timeTraceable (false if unknown)
+  std::int64_t ingress_time_ns = 0;  ///< of the Sync behind master_offset_ns; 0: none yet
+  bool time_traceable = false;       ///< TIME_PROPERTIES_DATA_SET timeTraceable (false if unknown)
 };
 
 /// INT32_MIN is "unknown" on the wire (UnitHealth, Modbus): known offsets saturate one above it.
@@ -59,6 +65,7 @@ class LockStateMachine {
  private:
   bool tracking(const PtpPoll& poll) const;
   bool servo_ok(const PtpPoll& poll) const;
+  bool measured(const PtpPoll& poll, time::MonotonicNs now_ns);
   time::ClockState on_master_lost(time::MonotonicNs now_ns);
 
   LockThresholds thresholds_;
@@ -66,6 +73,8 @@ class LockStateMachine {
   std::int32_t offset_ns_ = kOffsetUnknown;
   int consecutive_within_ = 0;
   time::MonotonicNs holdover_since_ns_ = 0;
+  std::int64_t last_ingress_time_ns_ = 0;
+  time::MonotonicNs ingress_changed_ns_ = 0;  ///< when ingress_time last changed
 };
 
 }  // namespace storetrack::clock
