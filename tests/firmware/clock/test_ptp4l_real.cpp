@@ -99,8 +99,10 @@ class Ptp4lPair {
     };
     for (const std::string& c : cmds)
       if (run(c) != 0) return "'" + c + "' failed";
-    write_config("master.cfg", "priority1 10\nuds_address " + master_uds() + "\n");
-    write_config("slave.cfg", "slaveOnly 1\nuds_address " + slave_uds() + "\n");
+    const std::string master_uds_path = master_uds();
+    const std::string slave_uds_path = slave_uds();
+    write_config("master.cfg", "priority1 10\nuds_address " + master_uds_path + "\n");
+    write_config("slave.cfg", "slaveOnly 1\nuds_address " + slave_uds_path + "\n");
     return "";
   }
 
@@ -269,7 +271,8 @@ std::string cannot_run() {
   if (std::string(STORETRACK_PTP4L).empty() || ::access(STORETRACK_PTP4L, X_OK) != 0)
     return "ptp4l not installed (apt-get install linuxptp)";
   if (::geteuid() != 0) return "needs root for network namespaces";
-  const std::string probe = "stclkp-" + unique_tag();
+  std::string probe = "stclkp-";  // not literal + string&& (GCC 12 aarch64 -Warray-bounds)
+  probe += unique_tag();
   if (run("ip netns add " + probe) != 0) return "cannot create a network namespace";
   run("ip netns del " + probe);
   return "";
