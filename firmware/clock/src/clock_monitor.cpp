@@ -41,6 +41,9 @@ void ClockMonitor::run() {
     poll_once();
     lock.lock();
     next += period;
+    // A poll that overran its period (a hung ptp4l: three reply timeouts) does not make the
+    // next ones run back to back to catch up.
+    if (next < std::chrono::steady_clock::now()) next = std::chrono::steady_clock::now();
     wake_.wait_until(lock, next, [this] { return stopping_; });
   }
 }

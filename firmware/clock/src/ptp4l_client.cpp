@@ -83,6 +83,8 @@ int Ptp4lClient::open() {
 
 void Ptp4lClient::close() {
   if (fd_ < 0) return;
+  // Not through checked(): close() must not be retried on EINTR (Linux frees the descriptor
+  // anyway; a retry could close one another thread just opened).
   ::close(fd_);
   fd_ = -1;
   checked([&] { return ::unlink(client_path_.c_str()); });
