@@ -48,6 +48,10 @@ struct Overrides {
   std::vector<std::int64_t> tai_step;
   std::vector<std::string> udp, can;
   std::string modbus, stats_json, edges_csv;
+  std::string ptp4l_uds, ptp4l_client_dir;
+  std::int64_t ptp4l_lock_threshold_ns = 0;
+  double ptp4l_holdover_s = 0;
+  bool ptp4l_measure_only = false;
   bool realtime = false, no_links = false, no_modbus = false, maintenance = false, verbose = false,
        replay_loop = false, triggered_only = false;
 };
@@ -91,7 +95,18 @@ void add_common(cli::Command* app, Overrides& o) {
   app->option("--camera-id", o.camera_id, "Camera id in messages (0..254)");
   app->option("--threshold-dn", o.threshold, "Centroid threshold above background (0: auto)");
   app->option("--roi", o.roi, "Search region x y width height [px]").expected(4);
-  app->option("--clock-state", o.clock_state, "auto | free-running | locking | locked | holdover");
+  app->option("--clock-state", o.clock_state,
+              "auto | free-running | locking | locked | holdover | ptp4l (measured)");
+  app->option("--ptp4l-uds", o.ptp4l_uds, "clock ptp4l: ptp4l's uds_address (/var/run/ptp4l)");
+  app->option("--ptp4l-client-dir", o.ptp4l_client_dir,
+              "clock ptp4l: directory for this unit's own socket (/run/storetrack)");
+  app->option("--ptp4l-lock-threshold-ns", o.ptp4l_lock_threshold_ns,
+              "clock ptp4l: |offset from master| for LOCKED [ns]");
+  app->option("--ptp4l-holdover-s", o.ptp4l_holdover_s,
+              "clock ptp4l: HOLDOVER lasts at most this long after the master is lost [s]");
+  app->flag("--ptp4l-measure-only", o.ptp4l_measure_only,
+            "clock ptp4l: ptp4l runs free_running (its port stays UNCALIBRATED): lock on the "
+            "measured offset alone");
   app->option("--udp", o.udp, "UDP destination address:port (repeatable; replaces config)");
   app->option("--can", o.can, "CAN FD interface (repeatable; replaces config)");
   app->flag("--no-links", o.no_links, "Send nothing (bench, benchmarks)");
@@ -155,6 +170,16 @@ UnitConfig build_config(cli::Command* app, const Overrides& o) {
     c.roi_height = o.roi[3];
   }
   if (given(app, "--clock-state")) c.clock_state = o.clock_state;
+  if (given(app, "--ptp4l-uds")) c.ptp4l.ptp4l.uds_path = o.ptp4l_uds;
+  if (given(app, "--ptp4l-client-dir")) c.ptp4l.ptp4l.client_dir = o.ptp4l_client_dir;
+  if (given(app, "--ptp4l-lock-threshold-ns"))
+    c.ptp4l.lock.lock_threshold_ns = o.ptp4l_lock_threshold_ns;
+  if (given(app, "--ptp4l-holdover-s")) {
+    if (!(o.ptp4l_holdover_s >= 0 && o.ptp4l_holdover_s <= 3600))
+      throw ConfigError("--ptp4l-holdover-s must be in [0, 3600]");
+    c.ptp4l.lock.holdover_ns = static_cast<std::int64_t>(o.ptp4l_holdover_s * 1e9);
+  }
+  if (o.ptp4l_measure_only) c.ptp4l.lock.measure_only = true;
   if (given(app, "--udp")) {
     c.udp.clear();
     for (const auto& d : o.udp) {

@@ -36,6 +36,38 @@ void get(const json& j, const char* key, T& out, const std::string& where) {
   }
 }
 
+void parse_ptp4l(const json& x, const std::string& w, clock::ClockMonitorConfig& c) {
+  allow_only(
+      x, w,
+      {"uds_path", "client_dir", "reply_timeout_ms", "domain_number", "lock_threshold_ns",
+       "lock_polls", "holdover_s", "offset_max_age_s", "measure_only", "require_time_traceable"});
+  get(x, "uds_path", c.ptp4l.uds_path, w);
+  get(x, "client_dir", c.ptp4l.client_dir, w);
+  get(x, "reply_timeout_ms", c.ptp4l.reply_timeout_ms, w);
+  int domain = c.ptp4l.domain_number;
+  get(x, "domain_number", domain, w);
+  if (domain < 0 || domain > 127) throw ConfigError(w + ".domain_number must be in [0, 127]");
+  c.ptp4l.domain_number = static_cast<std::uint8_t>(domain);
+  get(x, "lock_threshold_ns", c.lock.lock_threshold_ns, w);
+  get(x, "lock_polls", c.lock.lock_polls, w);
+  if (x.contains("holdover_s")) {
+    double holdover_s = 0;
+    get(x, "holdover_s", holdover_s, w);
+    if (!(holdover_s >= 0 && holdover_s <= 3600))
+      throw ConfigError(w + ".holdover_s must be in [0, 3600]");
+    c.lock.holdover_ns = static_cast<std::int64_t>(holdover_s * 1e9);
+  }
+  if (x.contains("offset_max_age_s")) {
+    double age_s = 0;
+    get(x, "offset_max_age_s", age_s, w);
+    if (!(age_s >= 0.1 && age_s <= 60))
+      throw ConfigError(w + ".offset_max_age_s must be in [0.1, 60]");
+    c.lock.offset_max_age_ns = static_cast<std::int64_t>(age_s * 1e9);
+  }
+  get(x, "measure_only", c.lock.measure_only, w);
+  get(x, "require_time_traceable", c.lock.require_time_traceable, w);
+}
+
 }  // namespace
 
 SourceType parse_source(const std::string& s) {
@@ -108,7 +140,7 @@ void parse_config_json(const std::string& text, const std::string& origin, UnitC
   const std::string w = origin;
   allow_only(j, w,
              {"unit_id", "camera_id", "source", "trigger", "centroid", "roi", "links", "health",
-              "modbus", "clock_state", "exposure_us", "camera", "run"});
+              "modbus", "clock_state", "ptp4l", "exposure_us", "camera", "run"});
   get(j, "unit_id", c.unit_id, w);
   get(j, "camera_id", c.camera_id, w);
   get(j, "clock_state", c.clock_state, w);
@@ -265,6 +297,7 @@ void parse_config_json(const std::string& text, const std::string& origin, UnitC
     get(x, "maintenance", c.maintenance, w + ".modbus");
   }
   if (j.contains("camera")) parse_camera(j["camera"], w + ".camera", c);
+  if (j.contains("ptp4l")) parse_ptp4l(j["ptp4l"], w + ".ptp4l", c.ptp4l);
   if (j.contains("run")) {
     const json& x = j["run"];
     allow_only(x, w + ".run", {"frames", "duration_s", "stats_json", "max_consecutive_errors"});
@@ -282,6 +315,22 @@ void load_config_file(const std::string& path, UnitConfig& config) {
   ss << in.rdbuf();
   parse_config_json(ss.str(), path, config);
 }
+
+namespace {
+
+void validate_ptp4l(const clock::ClockMonitorConfig& p, int health_period_ms) {
+  if (p.ptp4l.uds_path.empty()) throw ConfigError("ptp4l.uds_path must not be empty");
+  if (p.ptp4l.client_dir.empty()) throw ConfigError("ptp4l.client_dir must not be empty");
+  if (p.lock.lock_threshold_ns < 1 || p.lock.lock_threshold_ns > 1'000'000'000)
+    throw ConfigError("ptp4l.lock_threshold_ns must be in [1, 1e9]");
+  if (p.lock.lock_polls < 1 || p.lock.lock_polls > 100)
+    throw ConfigError("ptp4l.lock_polls must be in [1, 100]");
+  // One poll is three requests; all three must fit in the health period that paces them.
+  if (p.ptp4l.reply_timeout_ms < 1 || 3 * p.ptp4l.reply_timeout_ms >= health_period_ms)
+    throw ConfigError("ptp4l.reply_timeout_ms must be >= 1 and 3 x it < health.period_ms");
+}
+
+}  // namespace
 
 void validate(const UnitConfig& c) {
   auto in_range = [](const char* name, long v, long lo, long hi) {
@@ -334,11 +383,12 @@ void validate(const UnitConfig& c) {
     throw ConfigError("camera.faults.failed_reopens must be in [0, 1000]");
   if (c.modbus_port < 0 || c.modbus_port > 65535) throw ConfigError("modbus.port out of range");
   if (c.frames < 0 || c.duration_s < 0) throw ConfigError("frames and duration_s must be >= 0");
-  static const std::set<std::string> states = {"auto", "free-running", "locking", "locked",
-                                               "holdover"};
+  static const std::set<std::string> states = {"auto",   "free-running", "locking",
+                                               "locked", "holdover",     "ptp4l"};
   if (!states.count(c.clock_state)) {
-    throw ConfigError("clock_state must be auto, free-running, locking, locked or holdover");
+    throw ConfigError("clock_state must be auto, free-running, locking, locked, holdover or ptp4l");
   }
+  if (c.clock_state == "ptp4l") validate_ptp4l(c.ptp4l, c.health_period_ms);
 }
 
 std::string to_json(const UnitConfig& c) {
@@ -415,6 +465,17 @@ std::string to_json(const UnitConfig& c) {
                                    {"bytes_per_queued_frame", u.bytes_per_queued_frame}});
   }
   j["health"] = {{"period_ms", c.health_period_ms}};
+  const auto& p = c.ptp4l;
+  j["ptp4l"] = {{"uds_path", p.ptp4l.uds_path},
+                {"client_dir", p.ptp4l.client_dir},
+                {"reply_timeout_ms", p.ptp4l.reply_timeout_ms},
+                {"domain_number", p.ptp4l.domain_number},
+                {"lock_threshold_ns", p.lock.lock_threshold_ns},
+                {"lock_polls", p.lock.lock_polls},
+                {"holdover_s", static_cast<double>(p.lock.holdover_ns) / 1e9},
+                {"offset_max_age_s", static_cast<double>(p.lock.offset_max_age_ns) / 1e9},
+                {"measure_only", p.lock.measure_only},
+                {"require_time_traceable", p.lock.require_time_traceable}};
   j["modbus"] = {{"enabled", c.modbus_enabled},
                  {"address", c.modbus_address},
                  {"port", c.modbus_port},

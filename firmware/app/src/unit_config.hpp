@@ -10,6 +10,7 @@
 #include "storetrack/capture/fault_injecting_frame_source.hpp"
 #include "storetrack/capture/v4l2_frame_source.hpp"
 #include "storetrack/centroid/centroider.hpp"
+#include "storetrack/clock/clock_monitor.hpp"
 #include "storetrack/link/canfd_link.hpp"
 #include "storetrack/link/udp_link.hpp"
 
@@ -92,7 +93,12 @@ struct UnitConfig {
   std::string modbus_address = "127.0.0.1";
   int modbus_port = 1502;
   bool maintenance = false;
-  std::string clock_state = "auto";  ///< auto | free-running | locking | locked | holdover
+  /// auto | free-running | locking | locked | holdover: reported as configured (auto: the
+  /// simulator scenario's, else free-running); ptp4l: measured from ptp4l (the "ptp4l" section)
+  std::string clock_state = "auto";
+  /// clock_state ptp4l: where ptp4l listens and the lock thresholds (docs/deploy.md, "Clock");
+  /// its poll period is health_period_ms.
+  clock::ClockMonitorConfig ptp4l;
   std::uint32_t exposure_us = 1000;
   // camera recovery: a device that is gone is reopened after reopen_first_ms, then at doubling
   // intervals up to reopen_max_ms, while the trigger keeps running (docs/reliability.md)

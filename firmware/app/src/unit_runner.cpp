@@ -259,6 +259,17 @@ int UnitRunner::setup(std::string& error) {
     }
   }
 
+  // --- clock ------------------------------------------------------------------------------------
+  if (config_.clock_state == "ptp4l") {
+    clock::ClockMonitorConfig cc = config_.ptp4l;
+    cc.poll_period_ms = config_.health_period_ms;
+    clock_monitor_ = std::make_unique<clock::ClockMonitor>(cc);
+    if (clock_monitor_->start() < 0) {
+      error = "clock: ptp4l client: " + clock_monitor_->error();
+      return kExitStartFailure;
+    }
+  }
+
   // --- Modbus ----------------------------------------------------------------------------------
   if (config_.modbus_enabled) {
     health::ModbusServerConfig mc;
@@ -277,7 +288,7 @@ int UnitRunner::setup(std::string& error) {
     status |= msg::unit_status::kTriggerMaster;
   }
   counters_.status.store(status);
-  counters_.clock_state.store(clock_state_);
+  update_clock_counters();
   counters_.board_temp_cdeg.store(health::read_board_temp_cdeg());
   last_health_ns_ = time::monotonic_now_ns();
   return kExitOk;
@@ -532,7 +543,9 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
   }
   obs_.exposure_duration_ns =
       frame.exposure_ns != 0 ? frame.exposure_ns : config_.exposure_us * 1000u;
-  obs_.clock_state = clock_state_;
+  // The state when this exposure is processed, a few ms after it: the monitor's resolution is
+  // its poll period (docs/reliability.md, "Clock").
+  obs_.clock_state = current_clock_state();
   obs_.flags = flags;
   obs_.mark_count = static_cast<std::uint8_t>(n);
   const int shift = frame.format == frame::PixelFormat::kMono16 ? frame.bits_per_pixel - 8 : 0;
@@ -586,8 +599,20 @@ void UnitRunner::update_shared_counters() {
   counters_.status.store(status, std::memory_order_relaxed);
 }
 
+std::uint8_t UnitRunner::current_clock_state() const {
+  return clock_monitor_ ? static_cast<std::uint8_t>(clock_monitor_->state()) : clock_state_;
+}
+
+void UnitRunner::update_clock_counters() {
+  clock_state_ = current_clock_state();
+  counters_.clock_state.store(clock_state_, std::memory_order_relaxed);
+  if (clock_monitor_)
+    counters_.ptp_offset_ns.store(clock_monitor_->offset_ns(), std::memory_order_relaxed);
+}
+
 void UnitRunner::send_health(time::MonotonicNs now) {
   update_shared_counters();
+  update_clock_counters();
   if (!tai_from_source_) tai_minus_mono_ns_ = time::tai_now_ns() - time::monotonic_now_ns();
   counters_.board_temp_cdeg.store(health::read_board_temp_cdeg(), std::memory_order_relaxed);
   msg::UnitHealth h{};
@@ -766,6 +791,7 @@ int UnitRunner::grab(int skip, frame::FrameView& frame, std::span<const centroid
 
 void UnitRunner::shutdown() {
   if (modbus_) modbus_->stop();
+  if (clock_monitor_) clock_monitor_->stop();
   if (held_ && source_) {
     source_->release(held_frame_);
     held_ = false;
@@ -869,6 +895,27 @@ std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code
                      {"blobs_too_small", cs.blobs_too_small},
                      {"last_background_dn", cs.last_background_dn},
                      {"last_threshold_dn", cs.last_threshold_dn}};
+  }
+  j["clock"] = {{"source", config_.clock_state == "ptp4l" ? "ptp4l" : "configured"},
+                {"state", static_cast<int>(current_clock_state())},
+                {"ptp_offset_ns", counters_.ptp_offset_ns.load()}};
+  if (clock_monitor_) {
+    const clock::ClockMonitorStats cs = clock_monitor_->stats();
+    j["clock"]["ptp4l"] = {{"polls", cs.polls},
+                           {"answered_polls", cs.answered_polls},
+                           {"transitions", cs.transitions},
+                           {"port_state", clock::to_string(cs.port_state)},
+                           {"gm_present", cs.gm_present},
+                           {"time_traceable", cs.time_traceable},
+                           {"master_offset_ns", cs.master_offset_ns},
+                           {"requests", cs.client.requests},
+                           {"replies", cs.client.replies},
+                           {"timeouts", cs.client.timeouts},
+                           {"send_errors", cs.client.send_errors},
+                           {"malformed", cs.client.malformed},
+                           {"stale", cs.client.stale},
+                           {"error_status", cs.client.error_status},
+                           {"last_errno", cs.client.last_errno}};
   }
   nlohmann::json links = nlohmann::json::array();
   for (const auto& l : links_) {

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "storetrack/centroid/centroider.hpp"
+#include "storetrack/clock/clock_monitor.hpp"
 #include "storetrack/frame/frame_source.hpp"
 #include "storetrack/health/modbus_server.hpp"
 #include "storetrack/health/unit_state.hpp"
@@ -101,6 +102,9 @@ class UnitRunner {
   void send_health(time::MonotonicNs now);
   void update_shared_counters();
   void make_pairer(std::uint32_t first_sequence);
+  /// The clock state now: the monitor's (clock_state ptp4l, one relaxed load) or the configured.
+  std::uint8_t current_clock_state() const;
+  void update_clock_counters();
   /// sim fault injection: the TAI step of the exposure with this source sequence number.
   std::int64_t sim_tai_step_ns(std::uint32_t source_sequence) const;
 
@@ -127,6 +131,7 @@ class UnitRunner {
   health::UnitCounters counters_;
   health::ConfigStore store_;
   std::unique_ptr<health::ModbusHealthServer> modbus_;
+  std::unique_ptr<clock::ClockMonitor> clock_monitor_;  // clock_state ptp4l
   std::uint32_t seen_generation_ = 0;
   int frame_width_ = 0;
   int frame_height_ = 0;

@@ -60,5 +60,56 @@ TEST(UnitConfig, EffectiveConfigRoundTrips) {
   EXPECT_EQ(to_json(back), to_json(c));
 }
 
+TEST(UnitConfig, Ptp4lClockSection) {
+  UnitConfig c;
+  parse_config_json(R"({"source": {"type": "none"}, "trigger": {"mode": "gpio-slave"},
+      "clock_state": "ptp4l", "ptp4l": {"uds_path": "/run/ptp4l-eth1",
+      "client_dir": "/tmp", "reply_timeout_ms": 20, "domain_number": 24,
+      "lock_threshold_ns": 250, "lock_polls": 5, "holdover_s": 2.5, "offset_max_age_s": 2, "measure_only": true,
+      "require_time_traceable": true}})",
+                    "t", c);
+  EXPECT_NO_THROW(validate(c));
+  EXPECT_EQ(c.clock_state, "ptp4l");
+  EXPECT_EQ(c.ptp4l.ptp4l.uds_path, "/run/ptp4l-eth1");
+  EXPECT_EQ(c.ptp4l.ptp4l.client_dir, "/tmp");
+  EXPECT_EQ(c.ptp4l.ptp4l.reply_timeout_ms, 20);
+  EXPECT_EQ(c.ptp4l.ptp4l.domain_number, 24);
+  EXPECT_EQ(c.ptp4l.lock.lock_threshold_ns, 250);
+  EXPECT_EQ(c.ptp4l.lock.lock_polls, 5);
+  EXPECT_EQ(c.ptp4l.lock.holdover_ns, 2'500'000'000);
+  EXPECT_EQ(c.ptp4l.lock.offset_max_age_ns, 2'000'000'000);
+  EXPECT_TRUE(c.ptp4l.lock.measure_only);
+  EXPECT_TRUE(c.ptp4l.lock.require_time_traceable);
+  UnitConfig back;
+  parse_config_json(to_json(c), "round trip", back);
+  EXPECT_EQ(to_json(back), to_json(c));
+}
+
+TEST(UnitConfig, Ptp4lValuesOutsideTheirRangesAreRefused) {
+  UnitConfig c;
+  EXPECT_THROW(parse_config_json(R"({"ptp4l": {"uds": "x"}})", "t", c), ConfigError);
+  EXPECT_THROW(parse_config_json(R"({"ptp4l": {"domain_number": 128}})", "t", c), ConfigError);
+  EXPECT_THROW(parse_config_json(R"({"ptp4l": {"holdover_s": -1}})", "t", c), ConfigError);
+  EXPECT_THROW(parse_config_json(R"({"ptp4l": {"holdover_s": 3601}})", "t", c), ConfigError);
+  EXPECT_THROW(parse_config_json(R"({"ptp4l": {"offset_max_age_s": 0}})", "t", c), ConfigError);
+  auto refused = [](auto change) {
+    UnitConfig u;
+    u.source = SourceType::kNone;
+    u.trigger.mode = TriggerMode::kGpioSlave;
+    u.clock_state = "ptp4l";
+    change(u);
+    EXPECT_THROW(validate(u), ConfigError);
+  };
+  refused([](UnitConfig& u) { u.clock_state = "ptp"; });
+  refused([](UnitConfig& u) { u.ptp4l.lock.lock_threshold_ns = 0; });
+  refused([](UnitConfig& u) { u.ptp4l.lock.lock_threshold_ns = 2'000'000'000; });
+  refused([](UnitConfig& u) { u.ptp4l.lock.lock_polls = 0; });
+  refused([](UnitConfig& u) { u.ptp4l.lock.lock_polls = 101; });
+  refused([](UnitConfig& u) { u.ptp4l.ptp4l.reply_timeout_ms = 0; });
+  refused([](UnitConfig& u) { u.ptp4l.ptp4l.reply_timeout_ms = 334; });  // 3 x 334 > 1000 ms
+  refused([](UnitConfig& u) { u.ptp4l.ptp4l.uds_path.clear(); });
+  refused([](UnitConfig& u) { u.ptp4l.ptp4l.client_dir.clear(); });
+}
+
 }  // namespace
 }  // namespace storetrack::unit

@@ -23,6 +23,7 @@
 #include <modbus/modbus.h>
 #include <thread>
 
+#include "fake_ptp4l.hpp"
 #include "storetrack/health/register_map.hpp"
 #include "storetrack/msg/udp_codec.hpp"
 #include "storetrack/sim/frame_source.hpp"
@@ -396,6 +397,63 @@ TEST(UnitIntegration, CameraDisconnectIsRecoveredWithBackoffAndCorruptFramesAreC
   EXPECT_TRUE(flagged);
   ASSERT_FALSE(r.health.empty());
   EXPECT_EQ(r.health.back().status & msg::unit_status::kCameraError, 0);
+}
+
+// clock_state ptp4l: the state and offset measured from a (fake) ptp4l reach every message and
+// Modbus. ptp4l answers as a free_running slave (UNCALIBRATED, offset 616 ns; measure-only), then
+// falls silent 2.5 s in: LOCKED, then HOLDOVER, then FREE_RUNNING after the 0.5 s holdover.
+TEST(UnitIntegration, ClockStateMeasuredFromPtp4lReachesMessagesAndModbus) {
+  const sim::Scenario sc = sim::load_scenario(kScenario);
+  const sim::Simulator sim(sc, 5);
+  const fs::path dir = fs::temp_directory_path() / ("st_unit_ptp_" + std::to_string(getpid()));
+  sim::write_frame_sequence(sim, 0, dir.string(), 3);
+  clock::test::FakePtp4l ptp4l((dir / "ptp4l").string(), clock::test::ptp4l_answers);
+  const fs::path config = dir / "unit.json";
+  std::ofstream(config) << R"({"health": {"period_ms": 100}, "ptp4l": {"uds_path": ")"
+                        << (dir / "ptp4l").string() << R"(", "client_dir": ")" << dir.string()
+                        << R"(", "reply_timeout_ms": 20, "lock_polls": 3, "holdover_s": 0.5,
+                              "measure_only": true}})";
+  const int port = free_tcp_port();
+  std::uint16_t locked_regs[5] = {};  // input registers 22..26: clock_state .. ptp_offset_ns
+  const Received r = run_unit(
+      {"run", "--config", config.string(), "--source", "replay", "--replay-dir", dir.string(),
+       "--replay-loop", "--replay-rate", "50", "--duration-s", "4.5", "--clock-state", "ptp4l",
+       "--modbus", "127.0.0.1:" + std::to_string(port)},
+      [&] {
+        std::this_thread::sleep_for(std::chrono::milliseconds(2000));
+        modbus_t* ctx = modbus_new_tcp("127.0.0.1", port);
+        for (int i = 0; i < 20 && modbus_connect(ctx) != 0; ++i)
+          std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        modbus_read_input_registers(ctx, health::input_def(health::InputField::kClockState).address,
+                                    5, locked_regs);
+        modbus_close(ctx);
+        modbus_free(ctx);
+        std::this_thread::sleep_for(std::chrono::milliseconds(500));
+        ptp4l.set_responder(
+            [](const clock::test::Datagram&) { return std::vector<clock::test::Datagram>{}; });
+      });
+  fs::remove_all(dir);
+  ASSERT_EQ(r.exit_status, 0);
+  EXPECT_EQ(locked_regs[0], 2);  // LOCKED
+  const auto offset_reg = static_cast<std::int32_t>(
+      static_cast<std::uint32_t>(locked_regs[3]) << 16 | locked_regs[4]);  // register 25, 26
+  EXPECT_EQ(offset_reg, 616);
+  // Observations: the states in order, each once: (FREE_RUNNING, LOCKING,) LOCKED, HOLDOVER,
+  // FREE_RUNNING.
+  std::vector<int> states;
+  for (const auto& o : r.observations)
+    if (states.empty() || states.back() != o.clock_state) states.push_back(o.clock_state);
+  ASSERT_GE(states.size(), 3u);
+  const std::vector<int> tail(states.end() - 3, states.end());
+  EXPECT_EQ(tail, (std::vector<int>{2, 3, 0}))
+      << "observed states in order: " << ::testing::PrintToString(states);
+  bool health_locked_with_offset = false;
+  for (const auto& h : r.health)
+    if (h.clock_state == 2 && h.ptp_offset_ns == 616) health_locked_with_offset = true;
+  EXPECT_TRUE(health_locked_with_offset);
+  ASSERT_FALSE(r.health.empty());
+  EXPECT_EQ(r.health.back().clock_state, 0);
+  EXPECT_EQ(r.health.back().ptp_offset_ns, INT32_MIN);
 }
 
 TEST(UnitIntegration, BadConfigurationExitsWithUsageCode) {

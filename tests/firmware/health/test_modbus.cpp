@@ -314,18 +314,22 @@ TEST(ConfigStore, MultiRegisterWriteIsSeenWhole) {
   });
   while (store.generation() < 2)
     std::this_thread::yield();
-  long torn = 0, seen = 0;
-  for (int k = 0; k < 200'000; ++k) {
+  // Until each written pair was seen 1000 times (the two threads interleaved), at most 5 s.
+  long torn = 0, seen_a = 0, seen_b = 0, reads = 0;
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+  while ((seen_a < 1000 || seen_b < 1000) && std::chrono::steady_clock::now() < until) {
     const ConfigStore::Values v = store.snapshot();
     const auto r = v[static_cast<std::size_t>(HoldingField::kTriggerRateHz)];
     const auto w = v[static_cast<std::size_t>(HoldingField::kPulseWidthUs)];
-    torn += !((r == 400 && w == 2000) || (r == 100 && w == 100));
-    seen += r == 400;
+    seen_a += r == 400 && w == 2000;
+    seen_b += r == 100 && w == 100;
+    ++reads;
   }
+  torn = reads - seen_a - seen_b;
   stop = true;
   writer.join();
-  EXPECT_EQ(torn, 0);
-  EXPECT_GT(seen, 0) << "the writer ran during the reads";
+  EXPECT_EQ(torn, 0) << "of " << reads << " snapshots";
+  EXPECT_GE(std::min(seen_a, seen_b), 1000) << "the writer ran during the reads";
 }
 
 TEST(RegisterMap, TableIsConsistent) {
