@@ -21,6 +21,17 @@ list(APPEND CMAKE_IGNORE_PATH /usr/lib/x86_64-linux-gnu /lib/x86_64-linux-gnu
 set(ENV{PKG_CONFIG_LIBDIR} "/usr/lib/${STORETRACK_CROSS_TRIPLE}/pkgconfig:/usr/share/pkgconfig")
 set(ENV{PKG_CONFIG_PATH} "")
 
-# Run target binaries (tests, gtest discovery) with qemu-user; -L gives the arm64 loader + libc.
+# Run target binaries (tests, gtest discovery) with qemu-user. The loader and libc must come from
+# one glibc build. The arm64 -dev packages pull in multiarch libc6:arm64, whose loader is
+# /lib/ld-linux-aarch64.so.1: use it with no -L. `-L /usr/aarch64-linux-gnu` would take the
+# cross package's older loader (libc6-arm64-cross) while the libraries' search path still finds
+# libc6:arm64's newer libc.so.6 in /lib/aarch64-linux-gnu; that mismatched pair hangs in the
+# first pthread_create (seen with 2.36-8cross1 against 2.36-9+deb12u14). -L only without
+# multiarch libc6:arm64 and libstdc++6:arm64 (tools/install-deps.sh --cross installs both).
 find_program(STORETRACK_QEMU_AARCH64 NAMES qemu-aarch64-static qemu-aarch64 REQUIRED)
-set(CMAKE_CROSSCOMPILING_EMULATOR ${STORETRACK_QEMU_AARCH64} -L /usr/${STORETRACK_CROSS_TRIPLE})
+if(EXISTS /lib/ld-linux-aarch64.so.1 AND EXISTS /lib/${STORETRACK_CROSS_TRIPLE}/libc.so.6
+   AND EXISTS /usr/lib/${STORETRACK_CROSS_TRIPLE}/libstdc++.so.6)
+  set(CMAKE_CROSSCOMPILING_EMULATOR ${STORETRACK_QEMU_AARCH64})
+else()
+  set(CMAKE_CROSSCOMPILING_EMULATOR ${STORETRACK_QEMU_AARCH64} -L /usr/${STORETRACK_CROSS_TRIPLE})
+endif()

@@ -16,7 +16,7 @@ PKGS=(
   python3-matplotlib python3-numpy clang-format clang libclang-rt-14-dev tshark mbpoll python3-pymodbus can-utils v4l-utils
   iproute2 linuxptp
 )
-CROSS_PKGS=(g++-aarch64-linux-gnu qemu-user-static libgpiod-dev:arm64 libmodbus-dev:arm64 libgtest-dev:arm64)
+CROSS_PKGS=(g++-aarch64-linux-gnu qemu-user-static libc6:arm64 libstdc++6:arm64 libgpiod-dev:arm64 libmodbus-dev:arm64 libgtest-dev:arm64)
 RIG_PKGS=(qemu-system-x86 busybox-static cpio kmod xz-utils gcc-12 make libelf1 libssl3 bc flex bison)
 
 want=("${PKGS[@]}")
