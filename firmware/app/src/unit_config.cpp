@@ -198,11 +198,11 @@ void parse_config_json(const std::string& text, const std::string& origin, UnitC
   if (j.contains("trigger")) {
     const json& t = j["trigger"];
     const std::string wt = w + ".trigger";
-    allow_only(
-        t, wt,
-        {"mode", "rate_hz", "pulse_width_us", "chip", "lines", "line", "active_low", "latency_ns",
-         "match_tolerance_ns", "edge_phase_tolerance_ns", "trigger_to_exposure_ns", "sim_jitter_ns",
-         "sim_drop_every", "sim_extra_every", "edges_csv", "triggered_only"});
+    allow_only(t, wt,
+               {"mode", "rate_hz", "pulse_width_us", "chip", "lines", "line", "active_low",
+                "latency_ns", "match_tolerance_ns", "edge_phase_tolerance_ns",
+                "trigger_to_exposure_ns", "sim_jitter_ns", "sim_drop_every", "sim_extra_every",
+                "sim_read_error_every", "edges_csv", "triggered_only"});
     if (t.contains("mode")) c.trigger.mode = parse_trigger_mode(t["mode"].get<std::string>());
     get(t, "rate_hz", c.trigger.rate_hz, wt);
     if (t.contains("pulse_width_us")) {
@@ -220,6 +220,7 @@ void parse_config_json(const std::string& text, const std::string& origin, UnitC
     get(t, "sim_jitter_ns", c.trigger.sim_jitter_ns, wt);
     get(t, "sim_drop_every", c.trigger.sim_drop_every, wt);
     get(t, "sim_extra_every", c.trigger.sim_extra_every, wt);
+    get(t, "sim_read_error_every", c.trigger.sim_read_error_every, wt);
     get(t, "edges_csv", c.trigger.edges_csv, wt);
     get(t, "triggered_only", c.trigger.triggered_only, wt);
   }
@@ -433,6 +434,7 @@ std::string to_json(const UnitConfig& c) {
                   {"trigger_to_exposure_ns", t.trigger_to_exposure_ns},
                   {"sim_jitter_ns", t.sim_jitter_ns},
                   {"sim_drop_every", t.sim_drop_every},
+                  {"sim_read_error_every", t.sim_read_error_every},
                   {"sim_extra_every", t.sim_extra_every},
                   {"edges_csv", t.edges_csv},
                   {"triggered_only", t.triggered_only}};

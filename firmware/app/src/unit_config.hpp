@@ -69,6 +69,7 @@ struct TriggerConfig {
   std::int64_t sim_jitter_ns = 0;
   int sim_drop_every = 0;
   int sim_extra_every = 0;
+  int sim_read_error_every = 0;
   std::string edges_csv;  ///< write every edge (trigger-only runs, bench)
   /// Only frames a trigger edge claims are sent; frames with no marks never claim one. For a
   /// FREE-RUNNING source standing in for a camera in external-trigger mode (vivid on the VM rig,

@@ -203,6 +203,7 @@ int UnitRunner::setup(std::string& error) {
       sc.jitter_ns = config_.trigger.sim_jitter_ns;
       sc.drop_every = config_.trigger.sim_drop_every;
       sc.extra_every = config_.trigger.sim_extra_every;
+      sc.read_error_every = config_.trigger.sim_read_error_every;
       auto t = std::make_unique<trigger::SimTriggerLine>(sc);
       sim_trigger_ = t.get();
       trigger_ = std::move(t);
@@ -294,10 +295,26 @@ int UnitRunner::setup(std::string& error) {
   return kExitOk;
 }
 
+// A trigger line that failed (an edge read, a pulse not driven): counted, flagged in the health
+// status until a report carried it; the line itself retries and requests its lines again.
+void UnitRunner::note_trigger_error(std::uint64_t count) {
+  run_.trigger_errors += count;
+  counters_.status.fetch_or(msg::unit_status::kTriggerError, std::memory_order_relaxed);
+  trigger_error_reported_ = false;
+}
+
+// Reads every pending edge into the pairer. A failed read is counted and retried once at once
+// (a transient error: the edges are still queued, and a frame paired without its own edge would
+// be flagged trigger-missing); a second failure in a row is returned.
 int UnitRunner::drain_edges(int timeout_ms) {
   if (!trigger_ || !pairer_) return 0;
+  int retries_left = 1;
   for (;;) {
     const int n = trigger_->read_edges(edges_, timeout_ms);
+    if (n < 0 && n != -EAGAIN && n != -EINTR) {
+      note_trigger_error();
+      if (retries_left-- > 0) continue;
+    }
     if (n <= 0) return n;
     for (int i = 0; i < n; ++i) {
       const trigger::TriggerEdge& e = edges_[static_cast<std::size_t>(i)];
@@ -612,6 +629,14 @@ void UnitRunner::update_clock_counters() {
 
 void UnitRunner::send_health(time::MonotonicNs now) {
   update_shared_counters();
+  // A gpio master's pulses that could not be driven: its own thread counts them. (A reader's
+  // line errors are its failed reads, already noted by drain_edges().)
+  if (config_.trigger.mode == TriggerMode::kGpioMaster && trigger_) {
+    const std::uint64_t line_errors = trigger_->stats().line_errors;
+    if (line_errors > trigger_line_errors_seen_)
+      note_trigger_error(line_errors - trigger_line_errors_seen_);
+    trigger_line_errors_seen_ = line_errors;
+  }
   update_clock_counters();
   if (!tai_from_source_) tai_minus_mono_ns_ = time::tai_now_ns() - time::monotonic_now_ns();
   counters_.board_temp_cdeg.store(health::read_board_temp_cdeg(), std::memory_order_relaxed);
@@ -645,6 +670,10 @@ void UnitRunner::send_health(time::MonotonicNs now) {
     counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kCameraError),
                                std::memory_order_relaxed);
   camera_error_reported_ = true;
+  if (trigger_error_reported_)
+    counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kTriggerError),
+                               std::memory_order_relaxed);
+  trigger_error_reported_ = true;
 }
 
 int UnitRunner::run_trigger_only(const std::atomic<bool>& stop) {
@@ -654,7 +683,8 @@ int UnitRunner::run_trigger_only(const std::atomic<bool>& stop) {
   while (!stop.load(std::memory_order_relaxed)) {
     apply_config_changes();
     if (const int rc = drain_edges(100); rc < 0 && rc != -EAGAIN && rc != -EINTR) {
-      return kExitRuntimeError;  // the generator thread or the line failed
+      const timespec ts{0, 10'000'000};  // counted; the line retries: do not spin meanwhile
+      nanosleep(&ts, nullptr);
     }
     const trigger::PairerCounters& pc = pairer_->counters();
     counters_.triggers_seen.store(pc.edges_seen, std::memory_order_relaxed);
@@ -873,7 +903,10 @@ std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code
                          {"edges", ts.edges},
                          {"overruns", ts.overruns},
                          {"max_late_ns", ts.max_late_ns},
-                         {"dropped_edges", ts.dropped_edges}};
+                         {"dropped_edges", ts.dropped_edges},
+                         {"line_errors", ts.line_errors},
+                         {"reopens", ts.reopens},
+                         {"errors_reported", run_.trigger_errors}};
   }
   if (v4l2_) {
     const capture::V4L2Stats vs = v4l2_->stats();

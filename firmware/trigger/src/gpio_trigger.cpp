@@ -60,6 +60,13 @@ GpioMasterTrigger::~GpioMasterTrigger() {
 int GpioMasterTrigger::start() {
   if (running_.load()) return 0;
   if (int rc = validate(config_, &error_); rc < 0) return rc;
+  if (int rc = request_lines(); rc < 0) return rc;
+  running_.store(true);
+  thread_ = std::thread([this] { run(); });
+  return 0;
+}
+
+int GpioMasterTrigger::request_lines() {
   chip_ = gpiod_chip_open_lookup(config_.chip.c_str());
   if (chip_ == nullptr) {
     const int err = errno != 0 ? errno : ENODEV;
@@ -73,19 +80,15 @@ int GpioMasterTrigger::start() {
         gpiod_line_request_output_flags(line, config_.consumer.c_str(), flags, 0) < 0) {
       const int err = errno != 0 ? errno : EINVAL;
       error_ = describe(config_.chip, "cannot request output line " + std::to_string(offset), err);
-      stop();
+      release_lines();
       return -err;
     }
     lines_.push_back(line);
   }
-  running_.store(true);
-  thread_ = std::thread([this] { run(); });
   return 0;
 }
 
-int GpioMasterTrigger::stop() {
-  running_.store(false);
-  if (thread_.joinable()) thread_.join();
+void GpioMasterTrigger::release_lines() {
   for (gpiod_line* line : lines_) {
     gpiod_line_set_value(line, 0);
     gpiod_line_release(line);
@@ -95,7 +98,21 @@ int GpioMasterTrigger::stop() {
     gpiod_chip_close(chip_);
     chip_ = nullptr;
   }
-  return thread_error_.load();
+}
+
+int GpioMasterTrigger::stop() {
+  running_.store(false);
+  if (thread_.joinable()) thread_.join();
+  release_lines();
+  return 0;
+}
+
+// Sets every line; false when any could not be set.
+bool GpioMasterTrigger::drive(int value) {
+  bool ok = !lines_.empty();
+  for (gpiod_line* line : lines_)
+    ok = gpiod_line_set_value(line, value) == 0 && ok;
+  return ok;
 }
 
 void GpioMasterTrigger::run() {
@@ -110,6 +127,7 @@ void GpioMasterTrigger::run() {
   const std::int64_t now = time::monotonic_now_ns();
   std::int64_t k = now / period + 2;
   std::uint32_t count = 0;
+  int failed_in_a_row = 0;
   while (running_.load(std::memory_order_relaxed)) {
     const std::int64_t t_k = k * period;
     timespec ts = to_timespec(t_k);
@@ -126,15 +144,23 @@ void GpioMasterTrigger::run() {
       k += skipped;
       continue;
     }
-    bool ok = true;
-    for (gpiod_line* line : lines_)
-      ok = ok && gpiod_line_set_value(line, 1) == 0;
-    const std::int64_t after = time::monotonic_now_ns();
-    if (!ok) {
-      thread_error_.store(-(errno != 0 ? errno : EIO));
-      running_.store(false);
-      break;
+    if (!drive(1)) {
+      // A line that cannot be driven (connector, a GPIO chip gone): this pulse is lost (counted
+      // once), the next ones keep their place on the grid. The generator never stops by itself;
+      // after a run of failures the lines are requested again, once a second (off the frame
+      // path).
+      line_errors_.fetch_add(1, std::memory_order_relaxed);
+      drive(0);  // a line that did take the rising edge must not stay high
+      if (++failed_in_a_row >= kLineErrorsBeforeReopen &&
+          failed_in_a_row % std::max<int>(1, static_cast<int>(1e9 / period)) == 0) {
+        release_lines();
+        if (request_lines() == 0) reopens_.fetch_add(1, std::memory_order_relaxed);
+      }
+      ++k;
+      continue;
     }
+    failed_in_a_row = 0;
+    const std::int64_t after = time::monotonic_now_ns();
     const std::uint64_t w = write_index_.load(std::memory_order_relaxed);
     if (w - read_index_.load(std::memory_order_acquire) >= kRing) {
       dropped_.fetch_add(1, std::memory_order_relaxed);
@@ -148,14 +174,12 @@ void GpioMasterTrigger::run() {
     do {
       rc = clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &off, nullptr);
     } while (rc == EINTR);
-    for (gpiod_line* line : lines_)
-      gpiod_line_set_value(line, 0);
+    drive(0);
     ++k;
   }
 }
 
 int GpioMasterTrigger::read_edges(std::span<TriggerEdge> out, int timeout_ms) {
-  if (int err = thread_error_.load(); err < 0) return err;
   const std::int64_t deadline = time::monotonic_now_ns() + std::int64_t{timeout_ms} * 1'000'000;
   for (;;) {
     const std::uint64_t r = read_index_.load(std::memory_order_relaxed);
@@ -179,6 +203,8 @@ TriggerLineStats GpioMasterTrigger::stats() const {
   s.overruns = overruns_.load();
   s.max_late_ns = max_late_ns_.load();
   s.dropped_edges = dropped_.load();
+  s.line_errors = line_errors_.load();
+  s.reopens = reopens_.load();
   return s;
 }
 
@@ -193,6 +219,11 @@ GpioSlaveTrigger::~GpioSlaveTrigger() {
 
 int GpioSlaveTrigger::start() {
   if (line_ != nullptr) return 0;
+  wanted_ = true;
+  return request_line();
+}
+
+int GpioSlaveTrigger::request_line() {
   chip_ = gpiod_chip_open_lookup(config_.chip.c_str());
   if (chip_ == nullptr) {
     const int err = errno != 0 ? errno : ENODEV;
@@ -208,13 +239,13 @@ int GpioSlaveTrigger::start() {
         describe(config_.chip,
                  "cannot request rising-edge events on line " + std::to_string(config_.line), err);
     line_ = nullptr;
-    stop();
+    release_line();
     return -err;
   }
   return 0;
 }
 
-int GpioSlaveTrigger::stop() {
+void GpioSlaveTrigger::release_line() {
   if (line_ != nullptr) {
     gpiod_line_release(line_);
     line_ = nullptr;
@@ -223,20 +254,53 @@ int GpioSlaveTrigger::stop() {
     gpiod_chip_close(chip_);
     chip_ = nullptr;
   }
+}
+
+int GpioSlaveTrigger::stop() {
+  wanted_ = false;
+  release_line();
+  return 0;
+}
+
+// Waiting for or reading edge events failed: counted and returned; after a run of failures the
+// line is released and requested again (a chip that went away and came back: its old line
+// handle stays dead), at most once a second.
+int GpioSlaveTrigger::line_error() {
+  const int err = errno != 0 ? errno : EIO;
+  ++stats_.line_errors;
+  if (++consecutive_errors_ >= kLineErrorsBeforeReopen) {
+    consecutive_errors_ = 0;
+    release_line();
+    reopen_due_ns_ = time::monotonic_now_ns();
+  }
+  return -err;
+}
+
+int GpioSlaveTrigger::reopen_if_due() {
+  if (!wanted_) return -ENOTCONN;  // never started, or stopped by the caller
+  const std::int64_t now = time::monotonic_now_ns();
+  if (now < reopen_due_ns_) return -ENODEV;
+  reopen_due_ns_ = now + time::kNsPerSecond;
+  if (request_line() != 0) {
+    ++stats_.line_errors;
+    return -ENODEV;
+  }
+  ++stats_.reopens;
   return 0;
 }
 
 int GpioSlaveTrigger::read_edges(std::span<TriggerEdge> out, int timeout_ms) {
-  if (line_ == nullptr) return -ENOTCONN;
+  if (line_ == nullptr) return reopen_if_due();
   if (out.empty()) return 0;
   const timespec timeout = to_timespec(std::int64_t{std::max(timeout_ms, 0)} * 1'000'000);
   const int ready = gpiod_line_event_wait(line_, &timeout);
-  if (ready < 0) return -(errno != 0 ? errno : EIO);
+  if (ready < 0) return line_error();
   if (ready == 0) return 0;
   std::array<gpiod_line_event, 16> events{};
   const unsigned want = static_cast<unsigned>(std::min(out.size(), events.size()));
   const int n = gpiod_line_event_read_multiple(line_, events.data(), want);
-  if (n < 0) return -(errno != 0 ? errno : EIO);
+  if (n < 0) return line_error();
+  consecutive_errors_ = 0;
   int written = 0;
   for (int i = 0; i < n; ++i) {
     if (events[static_cast<std::size_t>(i)].event_type != GPIOD_LINE_EVENT_RISING_EDGE) continue;

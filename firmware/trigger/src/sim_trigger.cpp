@@ -1,6 +1,7 @@
 #include "storetrack/trigger/sim_trigger.hpp"
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
 
 namespace storetrack::trigger {
@@ -43,6 +44,11 @@ void SimTriggerLine::advance_to(time::MonotonicNs t_ns) {
 }
 
 int SimTriggerLine::read_edges(std::span<TriggerEdge> out, int /*timeout_ms*/) {
+  if (config_.read_error_every > 0 &&
+      ++reads_ % static_cast<std::uint64_t>(config_.read_error_every) == 0) {
+    ++stats_.line_errors;
+    return -EIO;  // the queue stays: the next read gets these edges
+  }
   const std::size_t n = std::min(out.size(), count_);
   for (std::size_t i = 0; i < n; ++i) {
     out[i] = queue_[head_];

@@ -250,6 +250,48 @@ TEST(UnitIntegration, InjectedTriggerFaultsAreFlaggedNotMispaired) {
   EXPECT_EQ(r.health.back().triggers_missing, static_cast<std::uint32_t>(frames / 4));
 }
 
+TEST(UnitIntegration, FailedTriggerReadsAreRetriedCountedAndReported) {
+  // Every 3rd read of the trigger line fails with EIO (a GPIO event read can). Before: the
+  // failure was dropped in capture mode (no count, no health bit), and a frame whose edges were
+  // not read in time was paired without its own edge. Now each failure is counted, retried at
+  // once, and UnitHealth carries the trigger_error bit; every frame keeps its own edge.
+  const fs::path cfg =
+      fs::temp_directory_path() / ("st_unit_cfg_rd_" + std::to_string(getpid()) + ".json");
+  const fs::path stats =
+      fs::temp_directory_path() / ("st_unit_stats_rd_" + std::to_string(getpid()) + ".json");
+  std::ofstream(cfg) << R"({"trigger": {"mode": "sim", "sim_read_error_every": 3},
+                           "modbus": {"enabled": false}})";
+  const int frames = 12;
+  const Received r = run_unit({"run", "--config", cfg.string(), "--source", "sim", "--scenario",
+                               kScenario, "--frames", std::to_string(frames), "--threshold-dn",
+                               "30", "--stats-json", stats.string()});
+  fs::remove(cfg);
+  ASSERT_EQ(r.exit_status, 0);
+  ASSERT_EQ(static_cast<int>(r.observations.size()), frames);
+  const sim::Scenario sc = sim::load_scenario(kScenario);
+  for (int k = 0; k < frames; ++k) {
+    const msg::MarkObservations& o = r.observations[static_cast<std::size_t>(k)];
+    EXPECT_EQ(o.trigger_seq, sc.first_trigger_seq + static_cast<std::uint32_t>(k)) << "frame " << k;
+    EXPECT_EQ(o.flags & msg::exposure_flags::kTriggerMissing, 0) << "frame " << k;
+  }
+  ASSERT_FALSE(r.health.empty());
+  EXPECT_EQ(r.health.back().triggers_missing, 0u);
+  const auto flagged = std::count_if(r.health.begin(), r.health.end(), [](const auto& h) {
+    return (h.status & msg::unit_status::kTriggerError) != 0;
+  });
+  EXPECT_GE(flagged, 1) << "no UnitHealth carried the trigger_error bit";
+
+  std::ifstream in(stats);
+  ASSERT_TRUE(in.good());
+  const nlohmann::json j = nlohmann::json::parse(in);
+  fs::remove(stats);
+  // The line's own count of injected failures (truth) against what the unit reported.
+  const std::uint64_t injected = j["trigger_line"]["line_errors"].get<std::uint64_t>();
+  EXPECT_GE(injected, static_cast<std::uint64_t>(frames) / 3);
+  EXPECT_EQ(j["trigger_line"]["errors_reported"].get<std::uint64_t>(), injected);
+  EXPECT_EQ(j["exit_code"].get<int>(), 0);
+}
+
 TEST(UnitIntegration, ReplayedFramesMatchTheSimulator) {
   const sim::Scenario sc = sim::load_scenario(kScenario);
   const sim::Simulator sim(sc, 3);

@@ -63,6 +63,9 @@ class GpioMasterTrigger final : public TriggerLine {
 
  private:
   void run();
+  int request_lines();
+  void release_lines();
+  bool drive(int value);
 
   GpioMasterConfig config_;
   std::string name_;
@@ -80,7 +83,8 @@ class GpioMasterTrigger final : public TriggerLine {
   std::atomic<std::uint64_t> overruns_{0};
   std::atomic<std::int64_t> max_late_ns_{0};
   std::atomic<std::uint64_t> dropped_{0};
-  std::atomic<int> thread_error_{0};
+  std::atomic<std::uint64_t> line_errors_{0};
+  std::atomic<std::uint64_t> reopens_{0};
 };
 
 class GpioSlaveTrigger final : public TriggerLine {
@@ -99,12 +103,19 @@ class GpioSlaveTrigger final : public TriggerLine {
   const std::string& error() const { return error_; }
 
  private:
+  int request_line();
+  void release_line();
+  int line_error();
+  int reopen_if_due();
   GpioSlaveConfig config_;
   std::string name_;
   std::string error_;
   gpiod_chip* chip_ = nullptr;
   gpiod_line* line_ = nullptr;
   std::uint32_t line_count_ = 0;
+  int consecutive_errors_ = 0;
+  bool wanted_ = false;  // start() called and not stop()ped: keep the line requested
+  std::int64_t reopen_due_ns_ = 0;
   TriggerLineStats stats_;
 };
 

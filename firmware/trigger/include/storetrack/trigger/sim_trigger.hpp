@@ -4,7 +4,7 @@
 // Edges fall at t0 + k * period + jitter. advance_to(t) releases every edge up to time t; the
 // capture loop calls it with each frame's expected edge time, so simulated frames and edges
 // live on the same (simulated) clock. Faults can be injected: every Nth edge missing, an extra
-// edge after every Mth edge.
+// edge after every Mth edge, every Kth read failing (as a GPIO event read can).
 #pragma once
 
 #include <array>
@@ -22,6 +22,7 @@ struct SimTriggerConfig {
   int drop_every = 0;                ///< 0: none; else edge k is missing when k % N == N-1
   int extra_every = 0;               ///< 0: none; else an extra edge after k % M == M-1
   std::int64_t extra_offset_ns = 0;  ///< extra edge delay after its edge (0: period / 2)
+  int read_error_every = 0;  ///< 0: none; else every Nth read_edges() fails with -EIO (edges kept)
   std::uint64_t seed = 1;
 };
 
@@ -59,6 +60,7 @@ class SimTriggerLine final : public TriggerLine {
   std::array<TriggerEdge, 256> queue_{};
   std::size_t head_ = 0;
   std::size_t count_ = 0;
+  std::uint64_t reads_ = 0;
   TriggerLineStats stats_;
 };
 

@@ -29,7 +29,16 @@ struct TriggerLineStats {
                                     ///< slave: edge events lost in the kernel queue
   std::int64_t max_late_ns = 0;     ///< master: worst wake-up lateness against the schedule
   std::uint64_t dropped_edges = 0;  ///< edges lost because the reader did not drain in time
+  /// master: a line could not be set (that pulse is lost, the others keep their place on the
+  /// grid; the lines are requested again after kLineErrorsBeforeReopen in a row); slave:
+  /// waiting for or reading edge events failed.
+  std::uint64_t line_errors = 0;
+  std::uint64_t reopens = 0;  ///< lines requested again after errors
 };
+
+/// Consecutive line errors after which a trigger line is released and requested again (a GPIO
+/// chip that went away and came back: its old line handles stay dead).
+inline constexpr int kLineErrorsBeforeReopen = 10;
 
 class TriggerLine {
  public:
