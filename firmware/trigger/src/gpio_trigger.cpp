@@ -276,10 +276,18 @@ int GpioSlaveTrigger::line_error() {
   return -err;
 }
 
-int GpioSlaveTrigger::reopen_if_due() {
+// The line is down: no edges until the next try is due (waiting up to timeout_ms, so that a
+// caller does not spin); a failed try is a line error, counted and returned.
+int GpioSlaveTrigger::reopen_if_due(int timeout_ms) {
   if (!wanted_) return -ENOTCONN;  // never started, or stopped by the caller
   const std::int64_t now = time::monotonic_now_ns();
-  if (now < reopen_due_ns_) return -ENODEV;
+  if (now < reopen_due_ns_) {
+    const std::int64_t wait_ns = std::min<std::int64_t>(
+        reopen_due_ns_ - now, std::int64_t{std::max(timeout_ms, 0)} * 1'000'000);
+    const timespec nap = to_timespec(wait_ns);
+    nanosleep(&nap, nullptr);
+    return 0;
+  }
   reopen_due_ns_ = now + time::kNsPerSecond;
   if (request_line() != 0) {
     ++stats_.line_errors;
@@ -290,7 +298,7 @@ int GpioSlaveTrigger::reopen_if_due() {
 }
 
 int GpioSlaveTrigger::read_edges(std::span<TriggerEdge> out, int timeout_ms) {
-  if (line_ == nullptr) return reopen_if_due();
+  if (line_ == nullptr) return reopen_if_due(timeout_ms);
   if (out.empty()) return 0;
   const timespec timeout = to_timespec(std::int64_t{std::max(timeout_ms, 0)} * 1'000'000);
   const int ready = gpiod_line_event_wait(line_, &timeout);

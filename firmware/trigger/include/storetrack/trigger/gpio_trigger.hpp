@@ -106,7 +106,7 @@ class GpioSlaveTrigger final : public TriggerLine {
   int request_line();
   void release_line();
   int line_error();
-  int reopen_if_due();
+  int reopen_if_due(int timeout_ms);
   GpioSlaveConfig config_;
   std::string name_;
   std::string error_;
