@@ -21,6 +21,11 @@
 namespace storetrack::unit {
 namespace {
 
+/// The Modbus pulse_width_us register's view of a pulse width (docs/modbus.md: 1..5000 us).
+std::uint16_t pulse_width_register(std::int64_t width_ns) {
+  return static_cast<std::uint16_t>(std::clamp<std::int64_t>(width_ns / 1000, 1, 5000));
+}
+
 std::uint8_t parse_clock_state(const std::string& s) {
   if (s == "locking") return static_cast<std::uint8_t>(time::ClockState::kLocking);
   if (s == "locked") return static_cast<std::uint8_t>(time::ClockState::kLocked);
@@ -155,8 +160,7 @@ int UnitRunner::setup(std::string& error) {
   store_.set(HoldingField::kExposureUs, static_cast<std::uint16_t>(config_.exposure_us));
   store_.set(HoldingField::kTriggerRateHz,
              static_cast<std::uint16_t>(std::lround(std::min(config_.trigger.rate_hz, 400.0))));
-  store_.set(HoldingField::kPulseWidthUs, static_cast<std::uint16_t>(std::clamp<std::int64_t>(
-                                              config_.trigger.pulse_width_ns / 1000, 1, 5000)));
+  store_.set(HoldingField::kPulseWidthUs, pulse_width_register(config_.trigger.pulse_width_ns));
   store_.set(HoldingField::kThresholdDn,
              static_cast<std::uint16_t>(std::clamp(config_.centroid.threshold_dn, 0, 65535)));
   store_.set(HoldingField::kRoiX, static_cast<std::uint16_t>(config_.roi_x));
@@ -365,7 +369,25 @@ bool UnitRunner::edge_in_window(time::MonotonicNs t_frame_ns, bool consume) {
   return found;
 }
 
+// A master whose generator could not be started again after a failed change (its GPIO chip
+// away): nothing drives the rig's trigger, so it is tried again once a second until it runs,
+// the trigger_error bit held meanwhile.
+void UnitRunner::retry_stopped_trigger() {
+  if (!trigger_down_) return;
+  const time::MonotonicNs now = time::monotonic_now_ns();
+  if (now < trigger_retry_ns_) return;
+  trigger_retry_ns_ = now + time::kNsPerSecond;
+  if (trigger_->start() != 0) {
+    note_trigger_error();
+    return;
+  }
+  trigger_down_ = false;
+  ++run_.trigger_restarts;
+  std::fprintf(stderr, "storetrack-unit: trigger %s running again\n", trigger_->name());
+}
+
 void UnitRunner::apply_config_changes() {
+  retry_stopped_trigger();
   const std::uint32_t gen = store_.generation();
   if (gen == seen_generation_) return;
   seen_generation_ = gen;
@@ -398,8 +420,13 @@ void UnitRunner::apply_config_changes() {
                    v4l2_->error().c_str());
     }
   }
+  // The width register holds at most 5000 us: while it still shows the configured width (a
+  // longer one clamped), the configured width stands; a rate write must not shorten it.
+  const std::uint16_t width_us = get(HoldingField::kPulseWidthUs);
   apply_trigger_change(get(HoldingField::kTriggerRateHz),
-                       std::int64_t{get(HoldingField::kPulseWidthUs)} * 1000);
+                       width_us == pulse_width_register(config_.trigger.pulse_width_ns)
+                           ? config_.trigger.pulse_width_ns
+                           : std::int64_t{width_us} * 1000);
   config_.roi_x = get(HoldingField::kRoiX);
   config_.roi_y = get(HoldingField::kRoiY);
   config_.roi_width = get(HoldingField::kRoiWidth);
@@ -430,7 +457,12 @@ void UnitRunner::apply_trigger_change(double rate_hz, std::int64_t width_ns) {
                    "storetrack-unit: trigger %.0f Hz / %lld ns not started (%s); "
                    "the previous trigger goes on\n",
                    rate_hz, static_cast<long long>(width_ns), fresh->error().c_str());
-      if (trigger_->start() != 0) ++run_.trigger_restart_failures;
+      if (trigger_->start() != 0) {
+        ++run_.trigger_restart_failures;
+        trigger_down_ = true;  // retried by retry_stopped_trigger() until it runs again
+        trigger_retry_ns_ = time::monotonic_now_ns() + time::kNsPerSecond;
+        note_trigger_error();
+      }
       return;
     }
     trigger_ = std::move(fresh);
@@ -984,6 +1016,7 @@ std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code
   }
   j["config_apply_errors"] = run_.config_apply_errors;
   j["trigger_restart_failures"] = run_.trigger_restart_failures;
+  j["trigger_restarts"] = run_.trigger_restarts;
   return j.dump(2) + "\n";
 }
 

@@ -63,6 +63,7 @@ struct RunCounters {
   std::uint64_t config_apply_errors = 0;       ///< Modbus changes the unit could not apply
   std::uint64_t trigger_errors = 0;            ///< failed edge reads + pulses not driven
   std::uint64_t trigger_restart_failures = 0;  ///< ... and the previous trigger not restarted
+  std::uint64_t trigger_restarts = 0;  ///< a trigger that could not be restarted running again
   double centroid_us_sum = 0;
   double centroid_us_max = 0;
 };
@@ -95,6 +96,7 @@ class UnitRunner {
   int process_frame(const frame::FrameView& frame);
   void camera_failed(int rc, time::MonotonicNs now);
   void note_trigger_error(std::uint64_t count = 1);
+  void retry_stopped_trigger();
   void service_camera_recovery(time::MonotonicNs now);
   int run_trigger_only(const std::atomic<bool>& stop);
   int drain_edges(int timeout_ms);
@@ -125,7 +127,9 @@ class UnitRunner {
   // The camera-error and trigger-error status bits stay set until a health report carried them.
   bool camera_error_reported_ = true;
   bool trigger_error_reported_ = true;
-  std::uint64_t trigger_line_errors_seen_ = 0;  // the master's own line errors, at the last report
+  std::uint64_t trigger_line_errors_seen_ = 0;
+  bool trigger_down_ = false;               // a master not restarted after a failed change: retried
+  time::MonotonicNs trigger_retry_ns_ = 0;  // the master's own line errors, at the last report
   std::unique_ptr<trigger::TriggerLine> trigger_;
   trigger::SimTriggerLine* sim_trigger_ = nullptr;  // = trigger_ when sim
   std::optional<trigger::TriggerFramePairer> pairer_;
