@@ -18,11 +18,12 @@ t0=$(date +%s)
 # scene simulator's tests (common/sim: the host's truth generator, heavy rendering) run natively;
 # under qemu-user they take minutes. test_firmware_unit_integration spawns storetrack-unit as
 # a child process, which needs binfmt_misc for aarch64 on the build host (CI has none); it runs
-# in the native build. test_firmware_health (libmodbus server + client threads on loopback)
-# stalls under qemu-user's emulated sockets/threads; it passes natively and in the VM rig.
+# in the native build. (test_firmware_health, libmodbus server + client threads on loopback, was
+# excluded as stalling under qemu-user: that was the mismatched loader and libc that hung every
+# first pthread_create, cmake/toolchain-aarch64.cmake; it passes under qemu-user in 2.2 s.)
 # The excluded GoogleTest programs are not even built here (STORETRACK_TESTS_NOT_BUILT);
 # CROSS_EXCLUDE='' builds and runs them too.
-exclude=${CROSS_EXCLUDE-^test_sim_|^test_firmware_unit_integration\$|^test_firmware_health\$}
+exclude=${CROSS_EXCLUDE-^test_sim_|^test_firmware_unit_integration\$}
 
 build_tree() {
   tools/install-deps.sh --cross
