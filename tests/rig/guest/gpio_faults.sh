@@ -9,11 +9,9 @@
 # and the unit exited 5; nothing said why.)
 . "$(dirname "$0")/lib.sh"
 need_bin UNIT STORETRACK_BIN_UNIT storetrack-unit
-modprobe gpio-sim || fail "modprobe gpio-sim"
-g=/sys/kernel/config/gpio-sim/faults
-mkdir "$g" "$g/bank0" && echo 2 > "$g/bank0/num_lines" && echo st-trigger-faults > "$g/bank0/label" &&
-  echo 1 > "$g/live" || fail "gpio-sim chip not created"
-chip=$(cat "$g/bank0/chip_name")
+gpiosim_new faults 2 st-trigger-faults
+g=$GS_CFG
+chip=$GS_CHIP
 "$UNIT" run --source none --trigger gpio-master --gpio-chip st-trigger-faults --gpio-lines 0 \
   --rate-hz 10 --pulse-width-us 20000 --duration-s 9 --no-links --no-modbus \
   --edges-csv $T/edges.csv --stats-json $T/unit.json > $T/unit.out 2>&1 & UNITP=$!

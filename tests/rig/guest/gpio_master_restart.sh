@@ -9,10 +9,8 @@
 need_bin UNIT STORETRACK_BIN_UNIT storetrack-unit
 command -v mbpoll >/dev/null || fail "mbpoll missing (tools/install-deps.sh)"
 PORT=15021
-modprobe gpio-sim || fail "modprobe gpio-sim"
-g=/sys/kernel/config/gpio-sim/restart
-mkdir "$g" "$g/bank0" && echo 1 > "$g/bank0/num_lines" && echo st-trigger-restart > "$g/bank0/label" &&
-  echo 1 > "$g/live" || fail "gpio-sim chip not created"
+gpiosim_new restart 1 st-trigger-restart
+g=$GS_CFG
 requested="gpioinfo \$(cat $g/bank0/chip_name) 2>/dev/null | grep -q storetrack-unit"
 "$UNIT" run --source none --trigger gpio-master --gpio-chip st-trigger-restart --gpio-lines 0 \
   --rate-hz 10 --pulse-width-us 20000 --duration-s 10 --no-links --modbus 127.0.0.1:$PORT \

@@ -6,10 +6,8 @@
 # dead line.
 . "$(dirname "$0")/lib.sh"
 need_bin UNIT STORETRACK_BIN_UNIT storetrack-unit
-modprobe gpio-sim || fail "modprobe gpio-sim"
-g=/sys/kernel/config/gpio-sim/slavefaults
-mkdir "$g" "$g/bank0" && echo 1 > "$g/bank0/num_lines" && echo st-slave-faults > "$g/bank0/label" &&
-  echo 1 > "$g/live" || fail "gpio-sim chip not created"
+gpiosim_new slavefaults 1 st-slave-faults
+g=$GS_CFG
 pin() { echo "/sys/devices/platform/$(cat "$g/dev_name")/$(cat "$g/bank0/chip_name")/sim_gpio0/pull"; }
 # pulses SECONDS FILE: rising edges through the pull attribute (at most 10 Hz; a shell under TCG
 # manages a few per second), one line per pulse appended to FILE

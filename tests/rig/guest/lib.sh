@@ -21,12 +21,15 @@ need_bin() {
   [ -x "$p" ] || skip "$3 target exists but $p is missing (build it first)"
   eval "$1=\$p"
 }
-# gpiosim_new NAME NLINES: a live gpio-sim chip; sets GS_CHIP (gpiochipN) and GS_SYS (sysfs dir
-# holding sim_gpioK/{pull,value})
+# gpiosim_new NAME NLINES [LABEL]: a live gpio-sim chip (with LABEL, a program can find it by
+# that label after the chip was taken away and made again); sets GS_CHIP (gpiochipN), GS_SYS
+# (sysfs dir holding sim_gpioK/{pull,value}) and GS_CFG (its configfs dir: `live` 0/1)
 gpiosim_new() {
   modprobe gpio-sim || fail "modprobe gpio-sim"
   g=/sys/kernel/config/gpio-sim/$1
-  mkdir "$g" "$g/bank0" && echo "$2" > "$g/bank0/num_lines" && echo 1 > "$g/live" ||
+  GS_CFG=$g
+  mkdir "$g" "$g/bank0" && echo "$2" > "$g/bank0/num_lines" &&
+    { [ -z "${3:-}" ] || echo "$3" > "$g/bank0/label"; } && echo 1 > "$g/live" ||
     fail "gpio-sim chip $1 not created"
   GS_CHIP=$(cat "$g/bank0/chip_name")
   GS_SYS=/sys/devices/platform/$(cat "$g/dev_name")/$GS_CHIP
