@@ -10,23 +10,23 @@
 //  - a 16-bit frame's pixels fit its significant bits (a pixel above maxval is no P5 file);
 //  - the second acquire (the loop) gives the same pixels, the next sequence number, and a time
 //    stamp one default period later.
-#include <stdlib.h>
-#include <unistd.h>
-
 #include <cerrno>
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
 #include <cstring>
 #include <string>
+#include <string_view>
 #include <vector>
 
+#include "scratch_directory.hpp"
 #include "storetrack/capture/replay_frame_source.hpp"
 
 namespace {
 
 namespace capture = storetrack::capture;
 namespace frame = storetrack::frame;
+namespace fuzz = storetrack::fuzz;
 
 struct NetpbmImage {
   long width = 0, height = 0, maxval = 0;
@@ -81,29 +81,6 @@ bool read_netpbm(const std::uint8_t* p, std::size_t n, long cap, NetpbmImage& im
   return true;
 }
 
-// A directory of its own for the fuzzer's files, removed at exit (the name is never destroyed:
-// the exit handler runs after static destructors).
-const std::string& replay_dir() {
-  static const std::string* const dir = [] {
-    std::string t = (access("/dev/shm", W_OK) == 0 ? "/dev/shm" : "/tmp");
-    t += "/storetrack_fuzz_replay_XXXXXX";
-    if (mkdtemp(t.data()) == nullptr) std::abort();
-    std::atexit([] {
-      unlink((replay_dir() + "/frame.pgm").c_str());
-      rmdir(replay_dir().c_str());
-    });
-    return new std::string(t);
-  }();
-  return *dir;
-}
-
-void write_file(const std::string& path, const std::uint8_t* data, std::size_t size) {
-  std::FILE* f = std::fopen(path.c_str(), "wb");
-  if (f == nullptr) std::abort();
-  if (size > 0 && std::fwrite(data, 1, size, f) != size) std::abort();
-  if (std::fclose(f) != 0) std::abort();
-}
-
 std::uint32_t pixel(const frame::FrameView& f, long i) {
   if (f.format == frame::PixelFormat::kMono8) return f.pixels[i];
   std::uint16_t v;
@@ -114,9 +91,10 @@ std::uint32_t pixel(const frame::FrameView& f, long i) {
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
-  write_file(replay_dir() + "/frame.pgm", data, size);
+  fuzz::ScratchDirectory dir("replay");
+  dir.write("frame.pgm", std::string_view(reinterpret_cast<const char*>(data), size));
   capture::ReplayConfig config;
-  config.directory = replay_dir();
+  config.directory = dir.path();
   config.loop = true;
   capture::ReplayFrameSource source(config);
   if (source.start() != 0) std::abort();  // the file exists: start() never reads it

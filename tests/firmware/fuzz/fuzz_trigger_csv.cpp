@@ -8,9 +8,6 @@
 //    range (trigger_seq and exposure_ns u32, the exposure starts i64 >= 0), and returns those
 //    integers (no "12abc" read as 12, no -1 read as 4294967295, no 4294967296 read as 0);
 //  - the replay gives each record's sequence, exposure and time stamps as written.
-#include <stdlib.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <charconv>
 #include <cstddef>
@@ -22,11 +19,13 @@
 #include <string_view>
 #include <vector>
 
+#include "scratch_directory.hpp"
 #include "storetrack/capture/replay_frame_source.hpp"
 
 namespace {
 
 namespace capture = storetrack::capture;
+namespace fuzz = storetrack::fuzz;
 
 std::vector<std::string_view> split(std::string_view text, char sep) {
   std::vector<std::string_view> out;
@@ -89,35 +88,11 @@ std::optional<std::vector<capture::ReplayRecord>> read_as_documented(std::string
   return out;
 }
 
-// A directory of its own for the fuzzer's files, removed at exit (the name is never destroyed:
-// the exit handler runs after static destructors).
-const std::string& replay_dir() {
-  static const std::string* const dir = [] {
-    std::string t = (access("/dev/shm", W_OK) == 0 ? "/dev/shm" : "/tmp");
-    t += "/storetrack_fuzz_triggers_XXXXXX";
-    if (mkdtemp(t.data()) == nullptr) std::abort();
-    std::atexit([] {
-      unlink((replay_dir() + "/triggers.csv").c_str());
-      unlink((replay_dir() + "/a.pgm").c_str());
-      rmdir(replay_dir().c_str());
-    });
-    return new std::string(t);
-  }();
-  return *dir;
-}
-
-void write_file(const std::string& path, std::string_view bytes) {
-  std::FILE* f = std::fopen(path.c_str(), "wb");
-  if (f == nullptr) std::abort();
-  if (!bytes.empty() && std::fwrite(bytes.data(), 1, bytes.size(), f) != bytes.size()) std::abort();
-  if (std::fclose(f) != 0) std::abort();
-}
-
 // Plays the directory: every record once (at most 64: the index may name a.pgm thousands of
 // times), then the loop's first frame.
-void replay(const std::vector<capture::ReplayRecord>& records) {
+void replay(const std::string& directory, const std::vector<capture::ReplayRecord>& records) {
   capture::ReplayConfig config;
-  config.directory = replay_dir();
+  config.directory = directory;
   config.loop = true;
   capture::ReplayFrameSource source(config);
   if (source.start() != 0) {
@@ -165,12 +140,9 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
         a.exposure_start_tai_ns != b.exposure_start_tai_ns || a.exposure_ns != b.exposure_ns)
       std::abort();
   }
-  write_file(replay_dir() + "/triggers.csv", text);
-  static const bool frame_written = [] {
-    write_file(replay_dir() + "/a.pgm", std::string_view("P5\n2 2\n255\n\x01\x02\x03\x04", 15));
-    return true;
-  }();
-  (void)frame_written;
-  replay(records);
+  fuzz::ScratchDirectory dir("triggers");
+  dir.write("triggers.csv", text);
+  dir.write("a.pgm", std::string_view("P5\n2 2\n255\n\x01\x02\x03\x04", 15));
+  replay(dir.path(), records);
   return 0;
 }
