@@ -3,7 +3,9 @@
 # (default 30): the wire decoders (UDP datagram decoder, CAN FD reassembler), seeded with valid
 # messages of both framings (docs/icd.md), and the host's readers (Chapter 10 reader, rig
 # calibration, survey, host config, initial marks, the ExposureAligner on arbitrary decoded
-# observations), seeded with the committed corpora tests/host/fuzz/seeds/<corpus>/
+# observations) and the unit's (replay PGM files, triggers.csv, the unit configuration, Modbus
+# requests to the live server), seeded with the committed corpora
+# tests/host/fuzz/seeds/<corpus>/ and tests/firmware/fuzz/seeds/<corpus>/
 # (docs/reliability.md, "Fuzzing"). The fuzzers are single-threaded, so they run side by side,
 # one per core. Exits non-zero on any crash, sanitizer report or
 # violated property; each fuzzer's log is $B/<fuzzer>.log, a crash's input $B/crash-*.
@@ -27,6 +29,10 @@ FUZZERS=(
   "fuzz_host_config host_config 8192"
   "fuzz_initial_marks initial_marks 8192"
   "fuzz_exposure_aligner exposure_aligner 4096"
+  "fuzz_replay_pgm replay_pgm 1024"
+  "fuzz_trigger_csv trigger_csv 2048"
+  "fuzz_unit_config unit_config 8192"
+  "fuzz_modbus_request modbus_request 2048"
 )
 [[ "$seconds" =~ ^[0-9]+$ ]] && [ "$seconds" -ge 1 ] || { echo "fuzz-decoders: N must be seconds >= 1" >&2; exit 2; }
 if [ "$STEP" != run ]; then
@@ -45,8 +51,10 @@ run_fuzzer() {
   local target=$1 corpus=$2 max_len=$3 exe seeds
   mkdir -p "$B/corpus-$corpus"
   exe=$(find "$B/tests" -type f -name "$target" | head -1)
-  seeds="$B/fuzz-seeds/$corpus"  # generated (wire decoders) or committed (host readers)
-  [ -d "tests/host/fuzz/seeds/$corpus" ] && seeds="tests/host/fuzz/seeds/$corpus"
+  seeds="$B/fuzz-seeds/$corpus"  # generated (wire decoders) or committed (host, unit readers)
+  for committed in "tests/host/fuzz/seeds/$corpus" "tests/firmware/fuzz/seeds/$corpus"; do
+    [ -d "$committed" ] && seeds="$committed"
+  done
   "$exe" "$B/corpus-$corpus" "$seeds" -max_total_time="$seconds" -max_len="$max_len" \
     -print_final_stats=1 -artifact_prefix="$B/" >"$B/$target.log" 2>&1
 }

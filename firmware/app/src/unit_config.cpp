@@ -1,10 +1,15 @@
 #include "unit_config.hpp"
 
+#include <cmath>
 #include <fstream>
 #include <initializer_list>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <set>
 #include <sstream>
+#include <type_traits>
+#include <utility>
+#include <vector>
 
 #include "storetrack/health/register_map.hpp"
 
@@ -27,13 +32,61 @@ void allow_only(const json& j, const std::string& where, std::initializer_list<c
 }
 
 template <typename T>
-void get(const json& j, const char* key, T& out, const std::string& where) {
-  if (!j.contains(key)) return;
-  try {
-    out = j.at(key).get<T>();
-  } catch (const json::exception& e) {
-    throw ConfigError(where + "." + key + ": " + e.what());
+struct is_vector : std::false_type {};
+template <typename T>
+struct is_vector<std::vector<T>> : std::true_type {};
+
+// The value as T only when it is T's kind and T holds it exactly: nlohmann's get<int>() gave
+// 4294967296 as 0, 1.5 as 1 and -1 (as unsigned) as 4294967295, and a float beyond the
+// integer's range was undefined behaviour.
+template <typename T>
+T exact(const json& v, const std::string& where) {
+  if constexpr (std::is_same_v<T, bool>) {
+    if (!v.is_boolean()) throw ConfigError(where + ": expected true or false, got " + v.dump());
+    return v.get<bool>();
+  } else if constexpr (std::is_integral_v<T>) {
+    using limits = std::numeric_limits<T>;
+    const bool fits = v.is_number_unsigned()
+                          ? std::cmp_less_equal(v.get<std::uint64_t>(), limits::max())
+                          : v.is_number_integer() &&
+                                std::cmp_greater_equal(v.get<std::int64_t>(), limits::min()) &&
+                                std::cmp_less_equal(v.get<std::int64_t>(), limits::max());
+    if (!fits) {
+      throw ConfigError(where + ": expected an integer in [" + std::to_string(limits::min()) +
+                        ", " + std::to_string(limits::max()) + "], got " + v.dump());
+    }
+    return v.get<T>();
+  } else if constexpr (std::is_floating_point_v<T>) {
+    if (!v.is_number()) throw ConfigError(where + ": expected a number, got " + v.dump());
+    return v.get<T>();
+  } else if constexpr (is_vector<T>::value) {
+    if (!v.is_array()) throw ConfigError(where + ": expected an array, got " + v.dump());
+    T out;
+    for (std::size_t i = 0; i < v.size(); ++i)
+      out.push_back(exact<typename T::value_type>(v[i], where + "[" + std::to_string(i) + "]"));
+    return out;
+  } else {
+    static_assert(std::is_same_v<T, std::string>);
+    if (!v.is_string()) throw ConfigError(where + ": expected a string, got " + v.dump());
+    return v.get<std::string>();
   }
+}
+
+template <typename T>
+void get(const json& j, const char* key, T& out, const std::string& where) {
+  if (j.contains(key)) out = exact<T>(j.at(key), where + "." + key);
+}
+
+// A list of objects: an array (an object's values or a number were taken as its elements).
+const json& array_member(const json& j, const char* key, const std::string& where) {
+  const json& a = j.at(key);
+  if (!a.is_array()) throw ConfigError(where + "." + key + ": expected an array, got " + a.dump());
+  return a;
+}
+
+// A duration in seconds held in whole ns (rounded: print-config writes it back in seconds).
+std::int64_t seconds_to_ns(double s) {
+  return std::llround(s * 1e9);
 }
 
 void parse_ptp4l(const json& x, const std::string& w, clock::ClockMonitorConfig& c) {
@@ -55,14 +108,14 @@ void parse_ptp4l(const json& x, const std::string& w, clock::ClockMonitorConfig&
     get(x, "holdover_s", holdover_s, w);
     if (!(holdover_s >= 0 && holdover_s <= 3600))
       throw ConfigError(w + ".holdover_s must be in [0, 3600]");
-    c.lock.holdover_ns = static_cast<std::int64_t>(holdover_s * 1e9);
+    c.lock.holdover_ns = seconds_to_ns(holdover_s);
   }
   if (x.contains("offset_max_age_s")) {
     double age_s = 0;
     get(x, "offset_max_age_s", age_s, w);
     if (!(age_s >= 0.1 && age_s <= 60))
       throw ConfigError(w + ".offset_max_age_s must be in [0.1, 60]");
-    c.lock.offset_max_age_ns = static_cast<std::int64_t>(age_s * 1e9);
+    c.lock.offset_max_age_ns = seconds_to_ns(age_s);
   }
   get(x, "measure_only", c.lock.measure_only, w);
   get(x, "require_time_traceable", c.lock.require_time_traceable, w);
@@ -134,7 +187,7 @@ void parse_config_json(const std::string& text, const std::string& origin, UnitC
   json j;
   try {
     j = json::parse(text);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // parse_error, and out_of_range for 1e400
     throw ConfigError(origin + ": " + e.what());
   }
   const std::string w = origin;
@@ -149,7 +202,11 @@ void parse_config_json(const std::string& text, const std::string& origin, UnitC
     const json& s = j["source"];
     const std::string ws = w + ".source";
     allow_only(s, ws, {"type", "sim", "replay", "v4l2"});
-    if (s.contains("type")) c.source = parse_source(s["type"].get<std::string>());
+    if (s.contains("type")) {
+      std::string type;
+      get(s, "type", type, ws);
+      c.source = parse_source(type);
+    }
     if (s.contains("sim")) {
       const json& x = s["sim"];
       allow_only(x, ws + ".sim", {"scenario", "camera_index", "seed", "realtime"});
@@ -184,7 +241,7 @@ void parse_config_json(const std::string& text, const std::string& origin, UnitC
       get(x, "exposure_control_unit_us", c.v4l2.exposure_control_unit_us, wv);
       if (x.contains("controls")) {
         d.controls.clear();
-        for (const json& cj : x["controls"]) {
+        for (const json& cj : array_member(x, "controls", wv)) {
           allow_only(cj, wv + ".controls[]", {"name", "value", "required"});
           capture::V4L2Control ctl;
           get(cj, "name", ctl.name, wv + ".controls[]");
@@ -203,11 +260,20 @@ void parse_config_json(const std::string& text, const std::string& origin, UnitC
                 "latency_ns", "match_tolerance_ns", "edge_phase_tolerance_ns",
                 "trigger_to_exposure_ns", "sim_jitter_ns", "sim_drop_every", "sim_extra_every",
                 "sim_read_error_every", "edges_csv", "triggered_only"});
-    if (t.contains("mode")) c.trigger.mode = parse_trigger_mode(t["mode"].get<std::string>());
+    if (t.contains("mode")) {
+      std::string mode;
+      get(t, "mode", mode, wt);
+      c.trigger.mode = parse_trigger_mode(mode);
+    }
     get(t, "rate_hz", c.trigger.rate_hz, wt);
     if (t.contains("pulse_width_us")) {
-      c.trigger.pulse_width_ns =
-          static_cast<std::int64_t>(t["pulse_width_us"].get<double>() * 1000);
+      double pulse_width_us = 0;
+      get(t, "pulse_width_us", pulse_width_us, wt);
+      // Held in whole ns (rounded: print-config writes it back in us); validate() checks it
+      // against the period, here only that it is a number of ns at all (1e300 was UB).
+      if (!(std::fabs(pulse_width_us) <= 1e12))
+        throw ConfigError(wt + ".pulse_width_us must be in [-1e12, 1e12]");
+      c.trigger.pulse_width_ns = std::llround(pulse_width_us * 1000);
     }
     get(t, "chip", c.trigger.chip, wt);
     get(t, "lines", c.trigger.lines, wt);
@@ -257,7 +323,7 @@ void parse_config_json(const std::string& text, const std::string& origin, UnitC
     allow_only(x, w + ".links", {"udp", "canfd"});
     if (x.contains("udp")) {
       c.udp.clear();
-      for (const json& u : x["udp"]) {
+      for (const json& u : array_member(x, "udp", w + ".links")) {
         const std::string wu = w + ".links.udp[]";
         allow_only(u, wu,
                    {"destination", "multicast_interface", "multicast_ttl", "multicast_loop",
@@ -274,7 +340,7 @@ void parse_config_json(const std::string& text, const std::string& origin, UnitC
     }
     if (x.contains("canfd")) {
       c.canfd.clear();
-      for (const json& u : x["canfd"]) {
+      for (const json& u : array_member(x, "canfd", w + ".links")) {
         const std::string wu = w + ".links.canfd[]";
         allow_only(u, wu, {"interface", "send_buffer_bytes", "bytes_per_queued_frame"});
         link::CanFdLinkConfig l;

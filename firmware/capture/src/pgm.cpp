@@ -19,8 +19,8 @@ bool next_int(std::span<const std::uint8_t> b, std::size_t& pos, int& value) {
   for (;;) {
     while (pos < b.size() && is_space(b[pos]))
       ++pos;
-    if (pos < b.size() && b[pos] == '#') {
-      while (pos < b.size() && b[pos] != '\n')
+    if (pos < b.size() && b[pos] == '#') {  // to the next CR or LF (netpbm)
+      while (pos < b.size() && b[pos] != '\n' && b[pos] != '\r')
         ++pos;
       continue;
     }

@@ -2,14 +2,17 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <charconv>
 #include <cstring>
 #include <ctime>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 
 #include "storetrack/capture/pgm.hpp"
+#include "storetrack/time/saturating.hpp"
 
 namespace storetrack::capture {
 namespace fs = std::filesystem;
@@ -33,6 +36,15 @@ int column(const std::vector<std::string>& header, std::initializer_list<const c
     }
   }
   return -1;
+}
+
+// The whole field as a decimal integer in [lo, hi]: std::stoul took "12abc" as 12, " -1" as
+// 4294967295 and 4294967296 as 0 after the cast.
+template <typename T>
+bool whole_integer(const std::string& field, T lo, T hi, T& out) {
+  const char* end = field.data() + field.size();
+  const auto [stop, ec] = std::from_chars(field.data(), end, out);
+  return !field.empty() && ec == std::errc() && stop == end && out >= lo && out <= hi;
 }
 
 }  // namespace
@@ -71,14 +83,17 @@ std::vector<ReplayRecord> parse_trigger_csv(const std::string& text) {
     }
     ReplayRecord r;
     r.file = f[static_cast<std::size_t>(c_file)];
-    try {
-      r.trigger_seq = static_cast<std::uint32_t>(std::stoul(f[static_cast<std::size_t>(c_seq)]));
-      r.exposure_start_mono_ns = std::stoll(f[static_cast<std::size_t>(c_mono)]);
-      r.exposure_start_tai_ns = std::stoll(f[static_cast<std::size_t>(c_tai)]);
-      r.exposure_ns = static_cast<std::uint32_t>(std::stoul(f[static_cast<std::size_t>(c_exp)]));
-    } catch (const std::exception&) {
+    const auto field = [&](int c) -> const std::string& { return f[static_cast<std::size_t>(c)]; };
+    // Exposure starts are clock readings (ns since boot, since the TAI epoch): never negative.
+    constexpr std::int64_t kMaxNs = std::numeric_limits<std::int64_t>::max();
+    constexpr std::uint32_t kMaxU32 = std::numeric_limits<std::uint32_t>::max();
+    if (!whole_integer<std::uint32_t>(field(c_seq), 0, kMaxU32, r.trigger_seq) ||
+        !whole_integer<std::int64_t>(field(c_mono), 0, kMaxNs, r.exposure_start_mono_ns) ||
+        !whole_integer<std::int64_t>(field(c_tai), 0, kMaxNs, r.exposure_start_tai_ns) ||
+        !whole_integer<std::uint32_t>(field(c_exp), 0, kMaxU32, r.exposure_ns)) {
       throw std::runtime_error("triggers.csv line " + std::to_string(line_no) +
-                               ": bad number in '" + line + "'");
+                               ": bad number in '" + line +
+                               "' (whole decimal integers; times >= 0)");
     }
     out.push_back(r);
   }
@@ -142,6 +157,8 @@ int ReplayFrameSource::start() {
   file_buffer_.assign(static_cast<std::size_t>(largest), 0);
   pixels_.assign(static_cast<std::size_t>(largest), 0);
   next_ = 0;
+  loops_ = 0;
+  loop_offset_ns_ = 0;
   pace_start_mono_ns_ = time::monotonic_now_ns();
   return 0;
 }
@@ -153,6 +170,12 @@ int ReplayFrameSource::acquire(frame::FrameView& frame, int /*timeout_ms*/) {
     if (!config_.loop) return -ENODATA;
     next_ = 0;
     ++loops_;
+    // Time stamps are anywhere in [0, INT64_MAX] (a file's): the sums saturate, not overflow.
+    const std::int64_t span_ns =
+        time::saturating_add_ns(time::saturating_sub_ns(records_.back().exposure_start_mono_ns,
+                                                        records_.front().exposure_start_mono_ns),
+                                config_.default_period_ns);
+    loop_offset_ns_ = time::saturating_add_ns(loop_offset_ns_, span_ns);
   }
   const std::size_t i = next_++;
   if (config_.rate_hz > 0.0) {  // real-time pacing against the monotonic clock
@@ -177,10 +200,14 @@ int ReplayFrameSource::acquire(frame::FrameView& frame, int /*timeout_ms*/) {
     frame.bits_per_pixel = 8;
     frame.stride_bytes = h.width;
   } else {
+    // A pixel above maxval is no P5 file, and would exceed the frame's significant bits.
+    std::uint32_t brightest = 0;
     for (std::size_t p = 0; p < count; ++p) {  // big-endian on disk -> little-endian
       pixels_[2 * p] = src[2 * p + 1];
       pixels_[2 * p + 1] = src[2 * p];
+      brightest = std::max(brightest, std::uint32_t{src[2 * p]} << 8 | src[2 * p + 1]);
     }
+    if (brightest > static_cast<std::uint32_t>(h.maxval)) return -EINVAL;
     int bits = 9;
     while ((1 << bits) - 1 < h.maxval)
       ++bits;
@@ -193,14 +220,12 @@ int ReplayFrameSource::acquire(frame::FrameView& frame, int /*timeout_ms*/) {
   frame.width = h.width;
   frame.height = h.height;
   // A looped replay continues the sequence and the clock instead of repeating them.
-  const std::int64_t span_ns = records_.back().exposure_start_mono_ns -
-                               records_.front().exposure_start_mono_ns + config_.default_period_ns;
   const std::uint32_t seq_span = records_.back().trigger_seq - records_.front().trigger_seq + 1;
   frame.sequence = r.trigger_seq + static_cast<std::uint32_t>(loops_) * seq_span;
-  frame.timestamp_mono_ns = r.exposure_start_mono_ns + static_cast<std::int64_t>(loops_) * span_ns;
+  frame.timestamp_mono_ns = time::saturating_add_ns(r.exposure_start_mono_ns, loop_offset_ns_);
   frame.exposure_ns = r.exposure_ns;
   frame.buffer_index = static_cast<int>(i);
-  last_tai_ns_ = r.exposure_start_tai_ns + static_cast<std::int64_t>(loops_) * span_ns;
+  last_tai_ns_ = time::saturating_add_ns(r.exposure_start_tai_ns, loop_offset_ns_);
   in_use_ = true;
   return 0;
 }

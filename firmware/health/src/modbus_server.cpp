@@ -217,6 +217,14 @@ void ModbusHealthServer::handle_request(const std::uint8_t* query, int rc) {
     handle_read(query, rc, fc);
   } else if (fc == MODBUS_FC_WRITE_SINGLE_REGISTER || fc == MODBUS_FC_WRITE_MULTIPLE_REGISTERS) {
     handle_write(query, rc, fc);
+  } else if (fc >= 0x80) {
+    // No function has the high bit (it marks exception replies). libmodbus's exception reply
+    // would carry fc + 0x80 cut to 8 bits, e.g. 0x7F: what a client reads as a normal reply
+    // of function 0x7F. The exception reply keeps the bit: the code as sent.
+    refused_function_.fetch_add(1, std::memory_order_relaxed);
+    const std::uint8_t reply[] = {
+        query[0], query[1], 0, 0, 0, 3, query[6], fc, MODBUS_EXCEPTION_ILLEGAL_FUNCTION};
+    send(modbus_get_socket(ctx), reply, sizeof reply, MSG_NOSIGNAL);
   } else {
     refused_function_.fetch_add(1, std::memory_order_relaxed);
     modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
@@ -228,15 +236,19 @@ void ModbusHealthServer::handle_read(const std::uint8_t* query, int rc, std::uin
   modbus_mapping_t* map = as_map(mapping_);
   const int hl = modbus_get_header_length(ctx);
   const auto at = [&](int off) { return query[static_cast<std::size_t>(hl + off)]; };
-  // Checked here so that exceptions are answered at once (libmodbus would sleep+flush).
-  const int address = rc >= hl + 5 ? (at(1) << 8 | at(2)) : -1;
-  const int count = rc >= hl + 5 ? (at(3) << 8 | at(4)) : 0;
+  // Checked here so that exceptions are answered at once (libmodbus would sleep+flush). The
+  // PDU is exactly fc, address, count: another length is "the implied length is incorrect"
+  // (ILLEGAL DATA VALUE, Modbus Application Protocol 1.1b3, section 7).
+  const bool whole = rc == hl + 5;
+  const int address = whole ? (at(1) << 8 | at(2)) : -1;
+  const int count = whole ? (at(3) << 8 | at(4)) : 0;
   const int size =
       fc == MODBUS_FC_READ_HOLDING_REGISTERS ? map->nb_registers : map->nb_input_registers;
   if (address < 0 || count < 1 || count > MODBUS_MAX_READ_REGISTERS) {
     malformed_.fetch_add(1, std::memory_order_relaxed);
     modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE);
   } else if (address + count > size) {
+    refused_value_.fetch_add(1, std::memory_order_relaxed);  // as a write outside the map
     modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
   } else {
     modbus_reply(ctx, query, rc, map);
@@ -251,7 +263,9 @@ void ModbusHealthServer::handle_write(const std::uint8_t* query, int rc, std::ui
   std::size_t count = 0;
   std::uint16_t address = 0;
   bool well_formed = false;
-  if (fc == MODBUS_FC_WRITE_SINGLE_REGISTER && rc >= hl + 5) {
+  // Exactly the PDU the function defines (as for reads): libmodbus echoed a 0x06 request's
+  // trailing bytes in its reply.
+  if (fc == MODBUS_FC_WRITE_SINGLE_REGISTER && rc == hl + 5) {
     address = static_cast<std::uint16_t>(at(1) << 8 | at(2));
     values[0] = static_cast<std::uint16_t>(at(3) << 8 | at(4));
     count = 1;
@@ -261,7 +275,7 @@ void ModbusHealthServer::handle_write(const std::uint8_t* query, int rc, std::ui
     count = static_cast<std::size_t>(at(3) << 8 | at(4));
     const int bytes = at(5);
     well_formed =
-        count >= 1 && count <= 123 && bytes == static_cast<int>(2 * count) && rc >= hl + 6 + bytes;
+        count >= 1 && count <= 123 && bytes == static_cast<int>(2 * count) && rc == hl + 6 + bytes;
     for (std::size_t k = 0; well_formed && k < count; ++k) {
       values[k] = static_cast<std::uint16_t>(at(6 + 2 * static_cast<int>(k)) << 8 |
                                              at(7 + 2 * static_cast<int>(k)));

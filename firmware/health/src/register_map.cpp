@@ -171,7 +171,7 @@ std::string render_register_map_markdown() {
      << "| 0x01 ILLEGAL FUNCTION | function code not in the table above |\n"
      << "| 0x02 ILLEGAL DATA ADDRESS | a register outside the map below |\n"
      << "| 0x03 ILLEGAL DATA VALUE | a value outside its range, a broken cross-register rule, or a "
-        "malformed write request |\n"
+        "malformed request (a quantity out of range, a length that is not the function's) |\n"
      << "| 0x04 SERVER DEVICE FAILURE | a write while the unit is NOT in maintenance mode "
         "(`--maintenance` / `\"modbus\": {\"maintenance\": true}`) |\n"
      << "| 0x06 SERVER DEVICE BUSY | a write that changes `unit_id` or `camera_id` while the unit "

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <string>
+#include <vector>
 
 #include "unit_config.hpp"
 
@@ -109,6 +110,63 @@ TEST(UnitConfig, Ptp4lValuesOutsideTheirRangesAreRefused) {
   refused([](UnitConfig& u) { u.ptp4l.ptp4l.reply_timeout_ms = 334; });  // 3 x 334 > 1000 ms
   refused([](UnitConfig& u) { u.ptp4l.ptp4l.uds_path.clear(); });
   refused([](UnitConfig& u) { u.ptp4l.ptp4l.client_dir.clear(); });
+}
+
+TEST(UnitConfig, NumbersAreReadExactlyOrRefused) {
+  // Found by fuzz_unit_config. Before: camera_id 4294967296 ran as camera 0, 1.5 as 1, a
+  // pulse width of 1e300 us and a float id beyond int were undefined behaviour, and 1e400 or
+  // a number where a string belongs escaped as a JSON exception instead of a ConfigError.
+  // A valid replay configuration around each bad value (so validate() is reached too).
+  const auto replay_with = [](const char* member, const char* trigger_member) {
+    std::string text = "{";
+    text.append(member).append(
+        R"("source": {"type": "replay", "replay": {"directory": "/tmp"}}, )");
+    text.append(R"("trigger": {"mode": "sim", "rate_hz": 100)").append(trigger_member).append("}}");
+    return text;
+  };
+  const std::vector<std::string> bad_configs = {
+      replay_with(R"("camera_id": 4294967296, )", ""),
+      replay_with(R"("unit_id": 1.5, )", ""),
+      replay_with(R"("unit_id": 1e300, )", ""),
+      replay_with(R"("exposure_us": -1, )", ""),
+      replay_with("", R"(, "pulse_width_us": 1e300)"),
+      replay_with("", R"(, "lines": [-1])"),
+      replay_with(R"("run": {"duration_s": 1e400}, )", ""),
+      R"({"source": {"type": 3}})",
+      R"({"trigger": {"mode": true}})",
+      R"({"links": {"udp": {"a": {"destination": "239.1.1.1:5"}}}})",
+      R"({"modbus": {"maintenance": 1}})"};
+  for (const std::string& bad : bad_configs) {
+    UnitConfig c;
+    EXPECT_THROW(
+        {
+          parse_config_json(bad, "t", c);
+          validate(c);
+        },
+        ConfigError)
+        << bad;
+  }
+  UnitConfig valid;
+  EXPECT_NO_THROW(parse_config_json(replay_with("", ""), "t", valid));
+  EXPECT_NO_THROW(validate(valid));
+  UnitConfig c;
+  parse_config_json(R"({"camera_id": 254, "trigger": {"lines": [0, 4294967295]}})", "t", c);
+  EXPECT_EQ(c.camera_id, 254);
+  EXPECT_EQ(c.trigger.lines, (std::vector<unsigned>{0, 4294967295u}));
+}
+
+TEST(UnitConfig, PulseWidthAndDurationsSurvivePrintConfig) {
+  // Found by fuzz_unit_config: 1.001 us was held as 1000 ns (1.001 * 1000 truncated), and
+  // print-config wrote 1 us back; 0.3 s of holdover became 299999999 ns.
+  UnitConfig c;
+  parse_config_json(R"({"trigger": {"pulse_width_us": 1.001}, "ptp4l": {"holdover_s": 0.3}})", "t",
+                    c);
+  EXPECT_EQ(c.trigger.pulse_width_ns, 1001);
+  EXPECT_EQ(c.ptp4l.lock.holdover_ns, 300'000'000);
+  UnitConfig back;
+  parse_config_json(to_json(c), "round trip", back);
+  EXPECT_EQ(back.trigger.pulse_width_ns, 1001);
+  EXPECT_EQ(to_json(back), to_json(c));
 }
 
 }  // namespace

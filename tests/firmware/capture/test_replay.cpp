@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
+#include <span>
 #include <vector>
 
 #include "storetrack/capture/pgm.hpp"
@@ -131,6 +132,89 @@ TEST(Replay, BadInputIsAClearError) {
   PgmHeader h;
   const std::uint8_t truncated[] = {'P', '5', '\n', '4', ' ', '4', '\n', '2', '5', '5', '\n', 1, 2};
   EXPECT_EQ(parse_pgm_header(truncated, h), -EINVAL);
+}
+
+TEST(Replay, TriggerNumbersAreWholeIntegersAsWritten) {
+  // Before: std::stoll/stoul took "5M-P10000000" as 5 (found by fuzz_trigger_csv), "-1" as
+  // trigger 4294967295 and 4294967296 as trigger 0.
+  const std::string header =
+      "file,trigger_seq,exposure_start_mono_ns,exposure_start_tai_ns,exposure_ns\n";
+  for (const char* line :
+       {"a.pgm,101,10000000,5M-P10000000,2000\r\n", "a.pgm,-1,0,0,2000\n",
+        "a.pgm,4294967296,0,0,2000\n", "a.pgm,1,-5,0,2000\n", "a.pgm,1,0,0, 2000\n",
+        "a.pgm,1,0,0,\n", "a.pgm,1,0x10,0,2000\n", "a.pgm,1,9223372036854775808,0,2000\n"}) {
+    EXPECT_THROW(parse_trigger_csv(header + line), std::runtime_error) << line;
+  }
+  const auto extremes =
+      parse_trigger_csv(header + "a.pgm,4294967295,9223372036854775807,0," + "4294967295\n");
+  ASSERT_EQ(extremes.size(), 1u);
+  EXPECT_EQ(extremes[0].trigger_seq, 4294967295u);
+  EXPECT_EQ(extremes[0].exposure_start_mono_ns, INT64_MAX);
+  EXPECT_EQ(extremes[0].exposure_ns, 4294967295u);
+}
+
+TEST(Replay, LoopOfAReplayAtTheEndOfTimeSaturates) {
+  // The loop adds the replay's span to the recorded times: with a time stamp at INT64_MAX the
+  // sum overflowed (undefined behaviour); it stays at INT64_MAX.
+  const fs::path dir = make_dir("st_replay_end_");
+  const std::uint8_t px[4] = {1, 2, 3, 4};
+  frame::FrameView f;
+  f.pixels = px;
+  f.width = 2;
+  f.height = 2;
+  f.stride_bytes = 2;
+  ASSERT_EQ(write_pgm((dir / "a.pgm").string(), f), 0);
+  std::ofstream(dir / "triggers.csv")
+      << "file,trigger_seq,exposure_start_mono_ns,exposure_start_tai_ns,exposure_ns\n"
+      << "a.pgm,1,0,0,1000\na.pgm,2,9223372036854775807,9223372036854775807,1000\n";
+  ReplayConfig config;
+  config.directory = dir.string();
+  config.loop = true;
+  ReplayFrameSource src(config);
+  ASSERT_EQ(src.start(), 0) << src.error();
+  std::vector<std::int64_t> times;
+  for (int k = 0; k < 4; ++k) {
+    frame::FrameView g;
+    ASSERT_EQ(src.acquire(g, 0), 0);
+    times.push_back(g.timestamp_mono_ns);
+    src.release(g);
+  }
+  EXPECT_EQ(times, (std::vector<std::int64_t>{0, INT64_MAX, INT64_MAX, INT64_MAX}));
+  fs::remove_all(dir);
+}
+
+TEST(Replay, SixteenBitPixelAboveMaxvalIsRefused) {
+  // Found by fuzz_replay_pgm: maxval 4095 (12 significant bits) and a pixel 0x3634 = 13876.
+  // Before: the frame said 12 bits and held a 14-bit value; netpbm allows [0, maxval].
+  const fs::path dir = make_dir("st_replay_maxval_");
+  const std::uint8_t file[] = {'P',  '5',  '\n', '4',  ' ',  '3',  '\n', '4',  '0',
+                               '9',  '5',  '\n', 0x00, 0x00, 0x01, 0x2c, 0x02, 0x58,
+                               0x03, 0x84, 0x04, 0xb0, 0x05, 0xdc, 0x07, 0x08, 0x36,
+                               0x34, 0x09, 0x60, 0x0a, 0x8c, 0x0b, 0xb8, 0x0c, 0xe4};
+  std::ofstream(dir / "a.pgm", std::ios::binary)
+      .write(reinterpret_cast<const char*>(file), sizeof file);
+  ReplayConfig config;
+  config.directory = dir.string();
+  ReplayFrameSource src(config);
+  ASSERT_EQ(src.start(), 0) << src.error();
+  frame::FrameView g;
+  EXPECT_EQ(src.acquire(g, 0), -EINVAL);
+  fs::remove_all(dir);
+}
+
+TEST(Replay, HeaderCommentEndsAtACarriageReturn) {
+  // netpbm: a comment runs to the next CR or LF. Found by fuzz_replay_pgm: "P5" "5\r\r2\r\r#\r"
+  // "...1\r\r": width 5, height 2, maxval 1; before, the comment ran to the next LF and took
+  // the maxval with it.
+  const std::string text = "P5 #comment\r3 2 # and another\r255\n\x01\x02\x03\x04\x05\x06";
+  PgmHeader h;
+  ASSERT_EQ(parse_pgm_header(
+                std::span(reinterpret_cast<const std::uint8_t*>(text.data()), text.size()), h),
+            0);
+  EXPECT_EQ(h.width, 3);
+  EXPECT_EQ(h.height, 2);
+  EXPECT_EQ(h.maxval, 255);
+  EXPECT_EQ(h.data_offset, text.size() - 6);
 }
 
 }  // namespace

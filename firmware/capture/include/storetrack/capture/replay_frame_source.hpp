@@ -68,6 +68,7 @@ class ReplayFrameSource final : public frame::FrameSource {
   std::int64_t last_tai_ns_ = 0;
   std::int64_t pace_start_mono_ns_ = 0;
   std::uint64_t loops_ = 0;
+  std::int64_t loop_offset_ns_ = 0;  ///< added to the recorded times: the loops so far
   bool in_use_ = false;
   std::string error_;
 };

@@ -35,7 +35,7 @@ struct ModbusServerStats {
   std::uint64_t requests = 0;
   std::uint64_t refused_function = 0;
   std::uint64_t refused_write_locked = 0;
-  std::uint64_t refused_value = 0;
+  std::uint64_t refused_value = 0;  ///< a register outside the map (read or write), a bad value
   std::uint64_t malformed = 0;
   std::uint64_t writes_accepted = 0;
   std::uint64_t connections = 0;
