@@ -481,6 +481,9 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
   health::UnitCounters::max(counters_.centroid_time_us_max, static_cast<std::uint32_t>(us));
   if (n < 0) {
     ++run_.centroid_errors;
+    health::UnitCounters::add(counters_.centroid_errors);
+    counters_.status.fetch_or(msg::unit_status::kCentroidError, std::memory_order_relaxed);
+    centroid_error_reported_ = false;
     return n;
   }
   const std::uint64_t truncated = centroid_->stats().blobs_truncated;
@@ -645,6 +648,11 @@ void UnitRunner::send_health(time::MonotonicNs now) {
     counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kCameraError),
                                std::memory_order_relaxed);
   camera_error_reported_ = true;
+  // A refused frame is latched likewise: the next report carries it, one after it clears.
+  if (centroid_error_reported_)
+    counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kCentroidError),
+                               std::memory_order_relaxed);
+  centroid_error_reported_ = true;
 }
 
 int UnitRunner::run_trigger_only(const std::atomic<bool>& stop) {
@@ -738,6 +746,9 @@ int UnitRunner::run(const std::atomic<bool>& stop) {
         consecutive_errors = prc < 0 ? consecutive_errors + 1 : 0;
         if (consecutive_errors > config_.max_consecutive_errors) {
           exit_code = kExitRuntimeError;
+          stop_reason_ = "processing errors: " + std::to_string(consecutive_errors) +
+                         " consecutive frames not processed (run.max_consecutive_errors " +
+                         std::to_string(config_.max_consecutive_errors) + ")";
           break;
         }
       } else if (rc == -ENODATA) {

@@ -89,6 +89,8 @@ class UnitRunner {
   const UnitConfig& config() const { return config_; }
   const centroid::CentroidConfig& centroid_config() const { return centroid_->config(); }
   const std::string& notes() const { return notes_; }
+  /// Why run() returned an error exit code, when it knows more than the code says ("" if not).
+  const std::string& stop_reason() const { return stop_reason_; }
 
  private:
   int process_frame(const frame::FrameView& frame);
@@ -159,6 +161,8 @@ class UnitRunner {
   std::size_t unclaimed_count_ = 0;
   bool held_ = false;
   frame::FrameView held_frame_{};
+  bool centroid_error_reported_ = true;  // as camera_error_reported_, for the centroid-error bit
+  std::string stop_reason_;
 };
 
 }  // namespace storetrack::unit

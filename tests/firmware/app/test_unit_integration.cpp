@@ -399,6 +399,131 @@ TEST(UnitIntegration, CameraDisconnectIsRecoveredWithBackoffAndCorruptFramesAreC
   EXPECT_EQ(r.health.back().status & msg::unit_status::kCameraError, 0);
 }
 
+// A frame the centroider refuses: every odd column lit gives 960 runs per row, 983 040 in all,
+// far beyond CentroidConfig::max_runs (65 536): process() returns -EOVERFLOW (a sensor flooded
+// by glare or a broken readout looks like this). The even columns, where the background is
+// sampled, stay dark.
+void overwrite_with_refused_frame(const fs::path& pgm, int width, int height) {
+  std::vector<std::uint8_t> pixels(static_cast<std::size_t>(width) *
+                                   static_cast<std::size_t>(height));
+  for (int y = 0; y < height; ++y)
+    for (int x = 0; x < width; ++x)
+      pixels[static_cast<std::size_t>(y) * static_cast<std::size_t>(width) +
+             static_cast<std::size_t>(x)] = x % 2 == 1 ? 250 : 5;
+  ASSERT_EQ(sim::write_pgm(pgm.string(), pixels.data(), width, height, width), 0);
+}
+
+std::string frame_file(int k) {
+  char name[32];
+  std::snprintf(name, sizeof name, "frame_%06d.pgm", k);
+  return name;
+}
+
+// Frames the centroider refuses are reported while the unit runs: counted in a Modbus input
+// register and flagged in UnitHealth.status (bit 6, centroid_error). Before: they reached only
+// the exit statistics. A looped replay of 10 frames of which frames 3, 4 and 5 are refused.
+TEST(UnitIntegration, CentroidErrorsAreReportedLiveInHealthAndModbus) {
+  const sim::Scenario sc = sim::load_scenario(kScenario);
+  const sim::Simulator sim(sc, 5);
+  const fs::path dir = fs::temp_directory_path() / ("st_unit_centroid_" + std::to_string(getpid()));
+  const int loop_frames = 10;
+  sim::write_frame_sequence(sim, 0, dir.string(), loop_frames);
+  const auto& intr = sc.cameras[0].intrinsics;
+  const std::vector<int> refused = {3, 4, 5};  // 0-based frame indices within the loop
+  for (const int k : refused)
+    overwrite_with_refused_frame(dir / frame_file(k), intr.width, intr.height);
+  const fs::path cfg = dir / "unit.json";
+  std::ofstream(cfg) << R"({"health": {"period_ms": 50}})";
+  const int port = free_tcp_port();
+  // Input registers 0 .. 31 in one request: frames_captured and centroid_errors of one moment.
+  std::vector<std::uint16_t> regs(
+      static_cast<std::size_t>(health::register_count(health::RegisterKind::kInput)), 0);
+  int read_rc = -1;
+  const Received r = run_unit(
+      {"run", "--config", cfg.string(), "--source", "replay", "--replay-dir", dir.string(),
+       "--replay-loop", "--replay-rate", "50", "--duration-s", "2.5", "--modbus",
+       "127.0.0.1:" + std::to_string(port)},
+      [&] {
+        std::this_thread::sleep_for(std::chrono::milliseconds(1000));
+        modbus_t* ctx = modbus_new_tcp("127.0.0.1", port);
+        for (int i = 0; i < 20 && modbus_connect(ctx) != 0; ++i)
+          std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        read_rc = modbus_read_input_registers(ctx, 0, static_cast<int>(regs.size()), regs.data());
+        modbus_close(ctx);
+        modbus_free(ctx);
+      });
+  fs::remove_all(dir);
+  ASSERT_EQ(r.exit_status, 0) << "3 consecutive errors stay below max_consecutive_errors (50)";
+  ASSERT_EQ(read_rc, static_cast<int>(regs.size())) << "input register map too short";
+  const auto reg32 = [&regs](health::InputField f) {
+    const std::uint16_t a = health::input_def(f).address;
+    return static_cast<std::uint32_t>(regs[a]) << 16 | regs[a + 1u];
+  };
+  // Truth: the replay delivers frames in order, so after F frames the refused ones are those of
+  // the complete loops plus those among the first F mod 10. The capture loop may take one more
+  // frame between the two counters' loads.
+  const auto refused_in_first = [&](std::uint32_t f) {
+    std::uint32_t n = f / loop_frames * static_cast<std::uint32_t>(refused.size());
+    for (const int k : refused)
+      if (static_cast<std::uint32_t>(k) < f % loop_frames) ++n;
+    return n;
+  };
+  const std::uint32_t captured = reg32(health::InputField::kFramesCaptured);
+  const std::uint32_t errors = reg32(health::InputField::kCentroidErrors);
+  ASSERT_GT(captured, static_cast<std::uint32_t>(loop_frames)) << "read after the first loop";
+  std::printf("Modbus at %u frames captured: centroid_errors %u (truth %u)\n", captured, errors,
+              refused_in_first(captured));
+  EXPECT_GE(errors, refused_in_first(captured));
+  EXPECT_LE(errors, refused_in_first(captured + 1));
+  // Health: the bit is set in the reports of periods with refused frames, and clear in those of
+  // periods without (a 50 ms period at 50 fps: 2.5 frames; each loop has 7 good frames in a row).
+  int flagged = 0, clear = 0;
+  for (const auto& h : r.health)
+    ((h.status & msg::unit_status::kCentroidError) != 0 ? flagged : clear) += 1;
+  EXPECT_GT(flagged, 0);
+  EXPECT_GT(clear, 0);
+  // Every good frame was sent: observations = captured - refused, at the end.
+  ASSERT_FALSE(r.health.empty());
+  const std::uint32_t final_captured = r.health.back().frames_captured;
+  EXPECT_EQ(r.observations.size(), final_captured - refused_in_first(final_captured));
+}
+
+// max_consecutive_errors ends a run whose frames cannot be processed, counted over frames the
+// centroider refused whatever happens between them (a corrupt frame the camera gave back is
+// neither a success nor a processing error). Every frame refused, max 3, frame 2 corrupt: the
+// 4th refused frame ends the run with exit code 1 and the reason named.
+TEST(UnitIntegration, ConsecutiveCentroidErrorsEndTheRunWithTheirReason) {
+  const sim::Scenario sc = sim::load_scenario(kScenario);
+  const sim::Simulator sim(sc, 5);
+  const fs::path dir =
+      fs::temp_directory_path() / ("st_unit_centroid_exit_" + std::to_string(getpid()));
+  sim::write_frame_sequence(sim, 0, dir.string(), 8);
+  const auto& intr = sc.cameras[0].intrinsics;
+  for (int k = 0; k < 8; ++k)
+    overwrite_with_refused_frame(dir / frame_file(k), intr.width, intr.height);
+  const fs::path cfg = dir / "unit.json";
+  const fs::path stats = dir / "stats.json";
+  std::ofstream(cfg) << R"({"run": {"max_consecutive_errors": 3},
+      "camera": {"faults": {"corrupt_frames": [2]}}, "modbus": {"enabled": false}})";
+  const Received r = run_unit({"run", "--config", cfg.string(), "--source", "replay",
+                               "--replay-dir", dir.string(), "--stats-json", stats.string()});
+  std::ifstream in(stats);
+  const nlohmann::json j = in.good() ? nlohmann::json::parse(in) : nlohmann::json{};
+  fs::remove_all(dir);
+  EXPECT_EQ(r.exit_status, 1);
+  ASSERT_TRUE(j.is_object());
+  EXPECT_EQ(j["exit_code"].get<int>(), 1);
+  EXPECT_NE(j["exit_reason"].get<std::string>().find("4 consecutive frames not processed"),
+            std::string::npos)
+      << j["exit_reason"];
+  EXPECT_EQ(j["centroid_errors"].get<int>(), 4);
+  EXPECT_EQ(j["frames_captured"].get<int>(), 4);
+  EXPECT_EQ(j["camera"]["frames_corrupt"].get<int>(), 1);
+  EXPECT_TRUE(r.observations.empty());
+  ASSERT_FALSE(r.health.empty());
+  EXPECT_NE(r.health.back().status & msg::unit_status::kCentroidError, 0);
+}
+
 // clock_state ptp4l: the state and offset measured from a (fake) ptp4l reach every message and
 // Modbus. ptp4l answers as a free_running slave (UNCALIBRATED, offset 616 ns; measure-only), then
 // falls silent 2.5 s in: LOCKED, then HOLDOVER, then FREE_RUNNING after the 0.5 s holdover.
