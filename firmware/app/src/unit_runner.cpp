@@ -147,6 +147,21 @@ int UnitRunner::setup(std::string& error) {
     }
   }
   if (!tai_from_source_) tai_minus_mono_ns_ = time::tai_now_ns() - time::monotonic_now_ns();
+  // Every pixel centre must be encodable, else each exposure with a mark beyond is lost.
+  if (source_) {
+    namespace word = msg::mark_observation_word;
+    const auto max_width = static_cast<int>(std::floor(word::kXPxMaxValue)) + 1;
+    const auto max_height = static_cast<int>(std::floor(word::kYPxMaxValue)) + 1;
+    if (width > max_width || height > max_height) {
+      char why[256];
+      std::snprintf(why, sizeof why,
+                    "sensor %d x %d px: mark coordinates are encodable only up to %.2f x %.2f px "
+                    "(MarkObservations x_px, y_px), i.e. frames of at most %d x %d px",
+                    width, height, word::kXPxMaxValue, word::kYPxMaxValue, max_width, max_height);
+      error = why;
+      return kExitUsage;
+    }
+  }
 
   // --- holding registers from the configuration ------------------------------------------------
   using health::HoldingField;

@@ -581,6 +581,53 @@ TEST(UnitIntegration, ClockStateMeasuredFromPtp4lReachesMessagesAndModbus) {
   EXPECT_EQ(r.health.back().ptp_offset_ns, INT32_MIN);
 }
 
+// Mark coordinates are encoded up to 2047.49 px (MarkObservation x_px/y_px: 19 bits of 1/256
+// px from -0.5): a wider or taller sensor would lose every exposure with a mark beyond, so the
+// unit refuses it at start (configuration error, exit 2) naming the size and the limit. Before:
+// a 2560 px wide camera ran and dropped those exposures as encode errors.
+TEST(UnitIntegration, SensorBeyondTheEncodableCoordinatesIsRefusedAtStart) {
+  std::ifstream in(kScenario);
+  const nlohmann::json scenario = nlohmann::json::parse(in);
+  const fs::path dir = fs::temp_directory_path() / ("st_unit_width_" + std::to_string(getpid()));
+  fs::create_directories(dir);
+  const auto run_with = [&](int width, int height, nlohmann::json& stats) {
+    nlohmann::json sc = scenario;
+    sc["cameras"][1]["intrinsics"]["width"] = width;
+    sc["cameras"][1]["intrinsics"]["height"] = height;
+    const fs::path file =
+        dir / ("scenario_" + std::to_string(width) + "x" + std::to_string(height) + ".json");
+    std::ofstream(file) << sc.dump();
+    const fs::path stats_file = dir / "stats.json";
+    fs::remove(stats_file);
+    const Received r = run_unit({"run", "--source", "sim", "--scenario", file.string(),
+                                 "--camera-index", "1", "--trigger", "sim", "--frames", "2",
+                                 "--no-modbus", "--stats-json", stats_file.string()});
+    std::ifstream s(stats_file);
+    stats = s.good() ? nlohmann::json::parse(s) : nlohmann::json{};
+    return r;
+  };
+  nlohmann::json stats;
+  const Received wide = run_with(2560, 1024, stats);
+  EXPECT_EQ(wide.exit_status, 2);
+  EXPECT_TRUE(wide.observations.empty());
+  ASSERT_TRUE(stats.is_object());
+  const std::string reason = stats["exit_reason"].get<std::string>();
+  EXPECT_NE(reason.find("2560 x 1024 px"), std::string::npos) << reason;
+  EXPECT_NE(reason.find("2047.49 px"), std::string::npos) << reason;
+  EXPECT_NE(reason.find("2048 x 2048 px"), std::string::npos) << reason;
+  const Received tall = run_with(1920, 2560, stats);
+  EXPECT_EQ(tall.exit_status, 2);
+  ASSERT_TRUE(stats.is_object());
+  EXPECT_NE(stats["exit_reason"].get<std::string>().find("1920 x 2560 px"), std::string::npos);
+  // The brief's 1920 x 1024 sensor and the largest encodable one run.
+  for (const auto& [w, h] : {std::pair{1920, 1024}, std::pair{2048, 2048}}) {
+    const Received ok = run_with(w, h, stats);
+    EXPECT_EQ(ok.exit_status, 0) << w << " x " << h;
+    EXPECT_EQ(ok.observations.size(), 2u) << w << " x " << h;
+  }
+  fs::remove_all(dir);
+}
+
 TEST(UnitIntegration, BadConfigurationExitsWithUsageCode) {
   const Received r = run_unit({"run", "--source", "sim", "--no-modbus"});  // no scenario
   EXPECT_EQ(r.exit_status, 2);
