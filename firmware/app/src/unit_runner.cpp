@@ -304,7 +304,7 @@ int UnitRunner::setup(std::string& error) {
   }
   counters_.status.store(status);
   update_clock_counters();
-  counters_.board_temp_cdeg.store(health::read_board_temp_cdeg());
+  counters_.board_temp_cdeg.store(health::read_board_temp_cdeg(config_.board_temp_root));
   last_health_ns_ = time::monotonic_now_ns();
   return kExitOk;
 }
@@ -632,7 +632,8 @@ void UnitRunner::send_health(time::MonotonicNs now) {
   update_shared_counters();
   update_clock_counters();
   if (!tai_from_source_) tai_minus_mono_ns_ = time::tai_now_ns() - time::monotonic_now_ns();
-  counters_.board_temp_cdeg.store(health::read_board_temp_cdeg(), std::memory_order_relaxed);
+  counters_.board_temp_cdeg.store(health::read_board_temp_cdeg(config_.board_temp_root),
+                                  std::memory_order_relaxed);
   msg::UnitHealth h{};
   h.unit_id = static_cast<std::uint8_t>(config_.unit_id);
   h.clock_state = clock_state_;
