@@ -304,7 +304,9 @@ int UnitRunner::setup(std::string& error) {
   }
   counters_.status.store(status);
   update_clock_counters();
-  counters_.board_temp_cdeg.store(health::read_board_temp_cdeg(config_.board_temp_root));
+  board_temp_ = std::make_unique<health::BoardTemperatureSampler>(
+      config_.board_temp_root, config_.health_period_ms, counters_.board_temp_cdeg);
+  board_temp_->start();
   last_health_ns_ = time::monotonic_now_ns();
   return kExitOk;
 }
@@ -632,8 +634,6 @@ void UnitRunner::send_health(time::MonotonicNs now) {
   update_shared_counters();
   update_clock_counters();
   if (!tai_from_source_) tai_minus_mono_ns_ = time::tai_now_ns() - time::monotonic_now_ns();
-  counters_.board_temp_cdeg.store(health::read_board_temp_cdeg(config_.board_temp_root),
-                                  std::memory_order_relaxed);
   msg::UnitHealth h{};
   h.unit_id = static_cast<std::uint8_t>(config_.unit_id);
   h.clock_state = clock_state_;
@@ -819,6 +819,7 @@ int UnitRunner::grab(int skip, frame::FrameView& frame, std::span<const centroid
 void UnitRunner::shutdown() {
   if (modbus_) modbus_->stop();
   if (clock_monitor_) clock_monitor_->stop();
+  if (board_temp_) board_temp_->stop();
   if (held_ && source_) {
     source_->release(held_frame_);
     held_ = false;

@@ -16,6 +16,7 @@
 #include "storetrack/centroid/centroider.hpp"
 #include "storetrack/clock/clock_monitor.hpp"
 #include "storetrack/frame/frame_source.hpp"
+#include "storetrack/health/board_temperature.hpp"
 #include "storetrack/health/modbus_server.hpp"
 #include "storetrack/health/unit_state.hpp"
 #include "storetrack/link/observation_link.hpp"
@@ -133,7 +134,8 @@ class UnitRunner {
   health::UnitCounters counters_;
   health::ConfigStore store_;
   std::unique_ptr<health::ModbusHealthServer> modbus_;
-  std::unique_ptr<clock::ClockMonitor> clock_monitor_;  // clock_state ptp4l
+  std::unique_ptr<clock::ClockMonitor> clock_monitor_;           // clock_state ptp4l
+  std::unique_ptr<health::BoardTemperatureSampler> board_temp_;  // off the capture loop
   std::uint32_t seen_generation_ = 0;
   int frame_width_ = 0;
   int frame_height_ = 0;

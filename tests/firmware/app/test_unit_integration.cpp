@@ -2,15 +2,20 @@
 // streams MarkObservations over UDP on 127.0.0.1, and a receiver here decodes them with the
 // ICD codec and checks them against the simulator's truth.
 #include <arpa/inet.h>
+#include <fcntl.h>
 #include <gtest/gtest.h>
 #include <poll.h>
 #include <spawn.h>
 #include <sys/socket.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <cmath>
+#include <csignal>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -40,6 +45,7 @@ const std::string kScenario = std::string(STORETRACK_SCENARIO_DIR) + "/static.js
 
 struct Received {
   std::vector<msg::MarkObservations> observations;
+  std::vector<std::int64_t> observation_arrival_ns;  ///< steady clock, at the receiver
   std::vector<msg::UnitHealth> health;
   int decode_errors = 0;
   int exit_status = -1;
@@ -83,6 +89,10 @@ Received run_unit(std::vector<std::string> args, std::function<void()> during = 
                                any) == msg::DecodeError::kNone) {
         if (auto* o = std::get_if<msg::MarkObservations>(&any)) {
           out.observations.push_back(*o);
+          out.observation_arrival_ns.push_back(
+              std::chrono::duration_cast<std::chrono::nanoseconds>(
+                  std::chrono::steady_clock::now().time_since_epoch())
+                  .count());
           if (during && !side.joinable()) side = std::thread(during);
         }
         if (auto* h = std::get_if<msg::UnitHealth>(&any)) out.health.push_back(*h);
@@ -626,6 +636,63 @@ TEST(UnitIntegration, SensorBeyondTheEncodableCoordinatesIsRefusedAtStart) {
     EXPECT_EQ(ok.observations.size(), 2u) << w << " x " << h;
   }
   fs::remove_all(dir);
+}
+
+// The board temperature is read off the frame loop: a thermal sensor whose read blocks for
+// 200 ms (a FIFO in place of thermal_zone0/temp, answered 200 ms after it is opened) must not
+// delay frames. Truth: the simulated camera delivers a frame every 10 ms (100 fps, paced in
+// real time), so observations arrive every 10 ms. Before: the capture loop read the
+// temperature every health period (50 ms) and stalled 200 ms each time.
+TEST(UnitIntegration, SlowBoardTemperatureReadDoesNotDelayFrames) {
+  const fs::path dir = fs::temp_directory_path() / ("st_unit_thermal_" + std::to_string(getpid()));
+  fs::create_directories(dir / "thermal_zone0");
+  const fs::path fifo = dir / "thermal_zone0" / "temp";
+  ASSERT_EQ(mkfifo(fifo.c_str(), 0600), 0);
+  std::signal(SIGPIPE, SIG_IGN);  // the unit may exit while a read is pending: EPIPE, not death
+  std::atomic<bool> done{false};
+  std::atomic<int> reads{0};
+  std::thread sensor([&] {
+    while (!done.load()) {
+      const int fd = open(fifo.c_str(), O_WRONLY | O_CLOEXEC);  // waits for a reader
+      if (fd < 0) break;
+      if (!done.load()) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(200));
+        const char answer[] = "45000\n";  // 45.000 degC
+        if (write(fd, answer, sizeof answer - 1) > 0) ++reads;
+      }
+      close(fd);
+    }
+  });
+  const fs::path cfg = dir / "unit.json";
+  std::ofstream(cfg) << R"({"health": {"period_ms": 50, "board_temp_root": ")" << dir.string()
+                     << R"("}, "modbus": {"enabled": false}})";
+  const int frames = 90;  // of the scenario's 100 exposures
+  const auto t0 = std::chrono::steady_clock::now();
+  const Received r = run_unit({"run", "--config", cfg.string(), "--source", "sim", "--scenario",
+                               kScenario, "--camera-index", "1", "--trigger", "sim", "--realtime",
+                               "--sim-pace-hz", "100", "--frames", std::to_string(frames)});
+  const double run_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  done = true;
+  const int unblock = open(fifo.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);  // frees the writer
+  sensor.join();
+  if (unblock >= 0) close(unblock);
+  fs::remove_all(dir);
+  ASSERT_EQ(r.exit_status, 0);
+  ASSERT_EQ(static_cast<int>(r.observations.size()), frames);
+  std::int64_t max_gap_ns = 0;
+  for (std::size_t i = 1; i < r.observation_arrival_ns.size(); ++i)
+    max_gap_ns =
+        std::max(max_gap_ns, r.observation_arrival_ns[i] - r.observation_arrival_ns[i - 1]);
+  std::printf(
+      "slow thermal read: %d reads of 200 ms, largest gap between observations %.1f ms, "
+      "run %.2f s for %d frames at 100 fps\n",
+      reads.load(), static_cast<double>(max_gap_ns) * 1e-6, run_s, frames);
+  EXPECT_GE(reads.load(), 3) << "the temperature was read while running";
+  EXPECT_LT(max_gap_ns, 100'000'000) << "a frame waited for the temperature read";
+  // The value read reaches the health reports.
+  const bool reported = std::any_of(r.health.begin(), r.health.end(),
+                                    [](const auto& h) { return h.board_temp_cdeg == 4500; });
+  EXPECT_TRUE(reported);
 }
 
 TEST(UnitIntegration, BadConfigurationExitsWithUsageCode) {
