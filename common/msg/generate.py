@@ -162,6 +162,15 @@ def gen_mark_codec(lines, s):
         lines.append("inline constexpr unsigned k%sShift = %d;" % (n, rf["_shift"]))
         lines.append("inline constexpr std::uint64_t k%sMask = 0x%X;" % (n, rf["_mask"]))
         lines.append("inline constexpr std::uint64_t k%sInvalidCode = 0x%X;" % (n, rf["invalid"]))
+        if "scale" in rf and rf.get("encoding", "linear") == "linear":
+            # The values of the lowest and highest valid codes (what pack_mark accepts, to within
+            # half a step): callers check their ranges against these, not against a copy.
+            inv = rf["invalid"]
+            top = rf["_mask"] - 1 if inv == rf["_mask"] else rf["_mask"]
+            bottom = 1 if inv == 0 else 0
+            off, scale = float(rf.get("offset", 0.0)), float(rf["scale"])
+            lines.append("inline constexpr double k%sMinValue = %r;" % (n, off + bottom * scale))
+            lines.append("inline constexpr double k%sMaxValue = %r;" % (n, off + top * scale))
     widths = " + ".join("k%sBits" % snake_to_camel(rf["name"]) for rf in rep["fields"])
     lines.append("static_assert(%s == %d, \"mark word bit widths must fill the word\");" %
                  (widths, rep["packed_bits"]))

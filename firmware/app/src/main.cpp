@@ -263,7 +263,11 @@ int do_run(cli::Command* cmd, const Overrides& o) {
   }
   if (config.verbose && !runner.notes().empty()) std::fputs(runner.notes().c_str(), stderr);
   const int code = runner.run(g_stop);
-  const std::string reason = g_stop.load() ? "signal" : code == kExitOk ? "done" : "runtime error";
+  const std::string reason = g_stop.load()                   ? "signal"
+                             : code == kExitOk               ? "done"
+                             : !runner.stop_reason().empty() ? runner.stop_reason()
+                                                             : "runtime error";
+  if (!runner.stop_reason().empty()) std::fprintf(stderr, "storetrack-unit: %s\n", reason.c_str());
   runner.shutdown();
   if (write_stats(runner, config.stats_json, reason, code) < 0 && code == kExitOk) {
     return kExitRuntimeError;

@@ -352,8 +352,9 @@ void parse_config_json(const std::string& text, const std::string& origin, UnitC
     }
   }
   if (j.contains("health")) {
-    allow_only(j["health"], w + ".health", {"period_ms"});
+    allow_only(j["health"], w + ".health", {"period_ms", "board_temp_root"});
     get(j["health"], "period_ms", c.health_period_ms, w + ".health");
+    get(j["health"], "board_temp_root", c.board_temp_root, w + ".health");
   }
   if (j.contains("modbus")) {
     const json& x = j["modbus"];
@@ -532,7 +533,7 @@ std::string to_json(const UnitConfig& c) {
                                    {"send_buffer_bytes", u.send_buffer_bytes},
                                    {"bytes_per_queued_frame", u.bytes_per_queued_frame}});
   }
-  j["health"] = {{"period_ms", c.health_period_ms}};
+  j["health"] = {{"period_ms", c.health_period_ms}, {"board_temp_root", c.board_temp_root}};
   const auto& p = c.ptp4l;
   j["ptp4l"] = {{"uds_path", p.ptp4l.uds_path},
                 {"client_dir", p.ptp4l.client_dir},

@@ -90,6 +90,8 @@ struct UnitConfig {
   std::vector<link::UdpLinkConfig> udp;
   std::vector<link::CanFdLinkConfig> canfd;
   int health_period_ms = 1000;
+  /// Where the board temperature is read (thermal_zone*/temp); another root for tests.
+  std::string board_temp_root = "/sys/class/thermal";
   bool modbus_enabled = true;
   std::string modbus_address = "127.0.0.1";
   int modbus_port = 1502;

@@ -152,6 +152,21 @@ int UnitRunner::setup(std::string& error) {
     }
   }
   if (!tai_from_source_) tai_minus_mono_ns_ = time::tai_now_ns() - time::monotonic_now_ns();
+  // Every pixel centre must be encodable, else each exposure with a mark beyond is lost.
+  if (source_) {
+    namespace word = msg::mark_observation_word;
+    const auto max_width = static_cast<int>(std::floor(word::kXPxMaxValue)) + 1;
+    const auto max_height = static_cast<int>(std::floor(word::kYPxMaxValue)) + 1;
+    if (width > max_width || height > max_height) {
+      char why[256];
+      std::snprintf(why, sizeof why,
+                    "sensor %d x %d px: mark coordinates are encodable only up to %.2f x %.2f px "
+                    "(MarkObservations x_px, y_px), i.e. frames of at most %d x %d px",
+                    width, height, word::kXPxMaxValue, word::kYPxMaxValue, max_width, max_height);
+      error = why;
+      return kExitUsage;
+    }
+  }
 
   // --- holding registers from the configuration ------------------------------------------------
   using health::HoldingField;
@@ -294,7 +309,9 @@ int UnitRunner::setup(std::string& error) {
   }
   counters_.status.store(status);
   update_clock_counters();
-  counters_.board_temp_cdeg.store(health::read_board_temp_cdeg());
+  board_temp_ = std::make_unique<health::BoardTemperatureSampler>(
+      config_.board_temp_root, config_.health_period_ms, counters_.board_temp_cdeg);
+  board_temp_->start();
   last_health_ns_ = time::monotonic_now_ns();
   return kExitOk;
 }
@@ -530,6 +547,9 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
   health::UnitCounters::max(counters_.centroid_time_us_max, static_cast<std::uint32_t>(us));
   if (n < 0) {
     ++run_.centroid_errors;
+    health::UnitCounters::add(counters_.centroid_errors);
+    counters_.status.fetch_or(msg::unit_status::kCentroidError, std::memory_order_relaxed);
+    centroid_error_reported_ = false;
     return n;
   }
   const std::uint64_t truncated = centroid_->stats().blobs_truncated;
@@ -671,7 +691,6 @@ void UnitRunner::send_health(time::MonotonicNs now) {
   }
   update_clock_counters();
   if (!tai_from_source_) tai_minus_mono_ns_ = time::tai_now_ns() - time::monotonic_now_ns();
-  counters_.board_temp_cdeg.store(health::read_board_temp_cdeg(), std::memory_order_relaxed);
   msg::UnitHealth h{};
   h.unit_id = static_cast<std::uint8_t>(config_.unit_id);
   h.clock_state = clock_state_;
@@ -706,6 +725,11 @@ void UnitRunner::send_health(time::MonotonicNs now) {
     counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kTriggerError),
                                std::memory_order_relaxed);
   trigger_error_reported_ = true;
+  // A refused frame is latched likewise: the next report carries it, one after it clears.
+  if (centroid_error_reported_)
+    counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kCentroidError),
+                               std::memory_order_relaxed);
+  centroid_error_reported_ = true;
 }
 
 int UnitRunner::run_trigger_only(const std::atomic<bool>& stop) {
@@ -800,6 +824,9 @@ int UnitRunner::run(const std::atomic<bool>& stop) {
         consecutive_errors = prc < 0 ? consecutive_errors + 1 : 0;
         if (consecutive_errors > config_.max_consecutive_errors) {
           exit_code = kExitRuntimeError;
+          stop_reason_ = "processing errors: " + std::to_string(consecutive_errors) +
+                         " consecutive frames not processed (run.max_consecutive_errors " +
+                         std::to_string(config_.max_consecutive_errors) + ")";
           break;
         }
       } else if (rc == -ENODATA) {
@@ -854,6 +881,7 @@ int UnitRunner::grab(int skip, frame::FrameView& frame, std::span<const centroid
 void UnitRunner::shutdown() {
   if (modbus_) modbus_->stop();
   if (clock_monitor_) clock_monitor_->stop();
+  if (board_temp_) board_temp_->stop();
   if (held_ && source_) {
     source_->release(held_frame_);
     held_ = false;

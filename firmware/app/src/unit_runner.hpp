@@ -16,6 +16,7 @@
 #include "storetrack/centroid/centroider.hpp"
 #include "storetrack/clock/clock_monitor.hpp"
 #include "storetrack/frame/frame_source.hpp"
+#include "storetrack/health/board_temperature.hpp"
 #include "storetrack/health/modbus_server.hpp"
 #include "storetrack/health/unit_state.hpp"
 #include "storetrack/link/observation_link.hpp"
@@ -91,6 +92,8 @@ class UnitRunner {
   const UnitConfig& config() const { return config_; }
   const centroid::CentroidConfig& centroid_config() const { return centroid_->config(); }
   const std::string& notes() const { return notes_; }
+  /// Why run() returned an error exit code, when it knows more than the code says ("" if not).
+  const std::string& stop_reason() const { return stop_reason_; }
 
  private:
   int process_frame(const frame::FrameView& frame);
@@ -139,7 +142,8 @@ class UnitRunner {
   health::UnitCounters counters_;
   health::ConfigStore store_;
   std::unique_ptr<health::ModbusHealthServer> modbus_;
-  std::unique_ptr<clock::ClockMonitor> clock_monitor_;  // clock_state ptp4l
+  std::unique_ptr<clock::ClockMonitor> clock_monitor_;           // clock_state ptp4l
+  std::unique_ptr<health::BoardTemperatureSampler> board_temp_;  // off the capture loop
   std::uint32_t seen_generation_ = 0;
   int frame_width_ = 0;
   int frame_height_ = 0;
@@ -167,6 +171,8 @@ class UnitRunner {
   std::size_t unclaimed_count_ = 0;
   bool held_ = false;
   frame::FrameView held_frame_{};
+  bool centroid_error_reported_ = true;  // as camera_error_reported_, for the centroid-error bit
+  std::string stop_reason_;
 };
 
 }  // namespace storetrack::unit

@@ -105,6 +105,7 @@ void fill_input_registers(const UnitCounters& c, std::uint32_t uptime_s,
   put(regs, InputField::kMarksLastFrame, c.marks_last_frame.load(std::memory_order_relaxed));
   put(regs, InputField::kFirmwareVersion, kFirmwareVersion);
   put(regs, InputField::kConfigGeneration, config_generation & 0xFFFF);
+  put(regs, InputField::kCentroidErrors, ld(c.centroid_errors));
 }
 
 std::int16_t read_board_temp_cdeg(const std::string& root) {

@@ -2,15 +2,20 @@
 // streams MarkObservations over UDP on 127.0.0.1, and a receiver here decodes them with the
 // ICD codec and checks them against the simulator's truth.
 #include <arpa/inet.h>
+#include <fcntl.h>
 #include <gtest/gtest.h>
 #include <poll.h>
 #include <spawn.h>
 #include <sys/socket.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <cmath>
+#include <csignal>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -40,6 +45,7 @@ const std::string kScenario = std::string(STORETRACK_SCENARIO_DIR) + "/static.js
 
 struct Received {
   std::vector<msg::MarkObservations> observations;
+  std::vector<std::int64_t> observation_arrival_ns;  ///< steady clock, at the receiver
   std::vector<msg::UnitHealth> health;
   int decode_errors = 0;
   int exit_status = -1;
@@ -83,6 +89,10 @@ Received run_unit(std::vector<std::string> args, std::function<void()> during = 
                                any) == msg::DecodeError::kNone) {
         if (auto* o = std::get_if<msg::MarkObservations>(&any)) {
           out.observations.push_back(*o);
+          out.observation_arrival_ns.push_back(
+              std::chrono::duration_cast<std::chrono::nanoseconds>(
+                  std::chrono::steady_clock::now().time_since_epoch())
+                  .count());
           if (during && !side.joinable()) side = std::thread(during);
         }
         if (auto* h = std::get_if<msg::UnitHealth>(&any)) out.health.push_back(*h);
@@ -441,6 +451,131 @@ TEST(UnitIntegration, CameraDisconnectIsRecoveredWithBackoffAndCorruptFramesAreC
   EXPECT_EQ(r.health.back().status & msg::unit_status::kCameraError, 0);
 }
 
+// A frame the centroider refuses: every odd column lit gives 960 runs per row, 983 040 in all,
+// far beyond CentroidConfig::max_runs (65 536): process() returns -EOVERFLOW (a sensor flooded
+// by glare or a broken readout looks like this). The even columns, where the background is
+// sampled, stay dark.
+void overwrite_with_refused_frame(const fs::path& pgm, int width, int height) {
+  std::vector<std::uint8_t> pixels(static_cast<std::size_t>(width) *
+                                   static_cast<std::size_t>(height));
+  for (int y = 0; y < height; ++y)
+    for (int x = 0; x < width; ++x)
+      pixels[static_cast<std::size_t>(y) * static_cast<std::size_t>(width) +
+             static_cast<std::size_t>(x)] = x % 2 == 1 ? 250 : 5;
+  ASSERT_EQ(sim::write_pgm(pgm.string(), pixels.data(), width, height, width), 0);
+}
+
+std::string frame_file(int k) {
+  char name[32];
+  std::snprintf(name, sizeof name, "frame_%06d.pgm", k);
+  return name;
+}
+
+// Frames the centroider refuses are reported while the unit runs: counted in a Modbus input
+// register and flagged in UnitHealth.status (bit 6, centroid_error). Before: they reached only
+// the exit statistics. A looped replay of 10 frames of which frames 3, 4 and 5 are refused.
+TEST(UnitIntegration, CentroidErrorsAreReportedLiveInHealthAndModbus) {
+  const sim::Scenario sc = sim::load_scenario(kScenario);
+  const sim::Simulator sim(sc, 5);
+  const fs::path dir = fs::temp_directory_path() / ("st_unit_centroid_" + std::to_string(getpid()));
+  const int loop_frames = 10;
+  sim::write_frame_sequence(sim, 0, dir.string(), loop_frames);
+  const auto& intr = sc.cameras[0].intrinsics;
+  const std::vector<int> refused = {3, 4, 5};  // 0-based frame indices within the loop
+  for (const int k : refused)
+    overwrite_with_refused_frame(dir / frame_file(k), intr.width, intr.height);
+  const fs::path cfg = dir / "unit.json";
+  std::ofstream(cfg) << R"({"health": {"period_ms": 50}})";
+  const int port = free_tcp_port();
+  // Input registers 0 .. 31 in one request: frames_captured and centroid_errors of one moment.
+  std::vector<std::uint16_t> regs(
+      static_cast<std::size_t>(health::register_count(health::RegisterKind::kInput)), 0);
+  int read_rc = -1;
+  const Received r = run_unit(
+      {"run", "--config", cfg.string(), "--source", "replay", "--replay-dir", dir.string(),
+       "--replay-loop", "--replay-rate", "50", "--duration-s", "2.5", "--modbus",
+       "127.0.0.1:" + std::to_string(port)},
+      [&] {
+        std::this_thread::sleep_for(std::chrono::milliseconds(1000));
+        modbus_t* ctx = modbus_new_tcp("127.0.0.1", port);
+        for (int i = 0; i < 20 && modbus_connect(ctx) != 0; ++i)
+          std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        read_rc = modbus_read_input_registers(ctx, 0, static_cast<int>(regs.size()), regs.data());
+        modbus_close(ctx);
+        modbus_free(ctx);
+      });
+  fs::remove_all(dir);
+  ASSERT_EQ(r.exit_status, 0) << "3 consecutive errors stay below max_consecutive_errors (50)";
+  ASSERT_EQ(read_rc, static_cast<int>(regs.size())) << "input register map too short";
+  const auto reg32 = [&regs](health::InputField f) {
+    const std::uint16_t a = health::input_def(f).address;
+    return static_cast<std::uint32_t>(regs[a]) << 16 | regs[a + 1u];
+  };
+  // Truth: the replay delivers frames in order, so after F frames the refused ones are those of
+  // the complete loops plus those among the first F mod 10. The capture loop may take one more
+  // frame between the two counters' loads.
+  const auto refused_in_first = [&](std::uint32_t f) {
+    std::uint32_t n = f / loop_frames * static_cast<std::uint32_t>(refused.size());
+    for (const int k : refused)
+      if (static_cast<std::uint32_t>(k) < f % loop_frames) ++n;
+    return n;
+  };
+  const std::uint32_t captured = reg32(health::InputField::kFramesCaptured);
+  const std::uint32_t errors = reg32(health::InputField::kCentroidErrors);
+  ASSERT_GT(captured, static_cast<std::uint32_t>(loop_frames)) << "read after the first loop";
+  std::printf("Modbus at %u frames captured: centroid_errors %u (truth %u)\n", captured, errors,
+              refused_in_first(captured));
+  EXPECT_GE(errors, refused_in_first(captured));
+  EXPECT_LE(errors, refused_in_first(captured + 1));
+  // Health: the bit is set in the reports of periods with refused frames, and clear in those of
+  // periods without (a 50 ms period at 50 fps: 2.5 frames; each loop has 7 good frames in a row).
+  int flagged = 0, clear = 0;
+  for (const auto& h : r.health)
+    ((h.status & msg::unit_status::kCentroidError) != 0 ? flagged : clear) += 1;
+  EXPECT_GT(flagged, 0);
+  EXPECT_GT(clear, 0);
+  // Every good frame was sent: observations = captured - refused, at the end.
+  ASSERT_FALSE(r.health.empty());
+  const std::uint32_t final_captured = r.health.back().frames_captured;
+  EXPECT_EQ(r.observations.size(), final_captured - refused_in_first(final_captured));
+}
+
+// max_consecutive_errors ends a run whose frames cannot be processed, counted over frames the
+// centroider refused whatever happens between them (a corrupt frame the camera gave back is
+// neither a success nor a processing error). Every frame refused, max 3, frame 2 corrupt: the
+// 4th refused frame ends the run with exit code 1 and the reason named.
+TEST(UnitIntegration, ConsecutiveCentroidErrorsEndTheRunWithTheirReason) {
+  const sim::Scenario sc = sim::load_scenario(kScenario);
+  const sim::Simulator sim(sc, 5);
+  const fs::path dir =
+      fs::temp_directory_path() / ("st_unit_centroid_exit_" + std::to_string(getpid()));
+  sim::write_frame_sequence(sim, 0, dir.string(), 8);
+  const auto& intr = sc.cameras[0].intrinsics;
+  for (int k = 0; k < 8; ++k)
+    overwrite_with_refused_frame(dir / frame_file(k), intr.width, intr.height);
+  const fs::path cfg = dir / "unit.json";
+  const fs::path stats = dir / "stats.json";
+  std::ofstream(cfg) << R"({"run": {"max_consecutive_errors": 3},
+      "camera": {"faults": {"corrupt_frames": [2]}}, "modbus": {"enabled": false}})";
+  const Received r = run_unit({"run", "--config", cfg.string(), "--source", "replay",
+                               "--replay-dir", dir.string(), "--stats-json", stats.string()});
+  std::ifstream in(stats);
+  const nlohmann::json j = in.good() ? nlohmann::json::parse(in) : nlohmann::json{};
+  fs::remove_all(dir);
+  EXPECT_EQ(r.exit_status, 1);
+  ASSERT_TRUE(j.is_object());
+  EXPECT_EQ(j["exit_code"].get<int>(), 1);
+  EXPECT_NE(j["exit_reason"].get<std::string>().find("4 consecutive frames not processed"),
+            std::string::npos)
+      << j["exit_reason"];
+  EXPECT_EQ(j["centroid_errors"].get<int>(), 4);
+  EXPECT_EQ(j["frames_captured"].get<int>(), 4);
+  EXPECT_EQ(j["camera"]["frames_corrupt"].get<int>(), 1);
+  EXPECT_TRUE(r.observations.empty());
+  ASSERT_FALSE(r.health.empty());
+  EXPECT_NE(r.health.back().status & msg::unit_status::kCentroidError, 0);
+}
+
 // clock_state ptp4l: the state and offset measured from a (fake) ptp4l reach every message and
 // Modbus. ptp4l answers as a free_running slave (UNCALIBRATED, offset 616 ns; measure-only), then
 // falls silent 2.5 s in: LOCKED, then HOLDOVER, then FREE_RUNNING after the 0.5 s holdover.
@@ -496,6 +631,110 @@ TEST(UnitIntegration, ClockStateMeasuredFromPtp4lReachesMessagesAndModbus) {
   ASSERT_FALSE(r.health.empty());
   EXPECT_EQ(r.health.back().clock_state, 0);
   EXPECT_EQ(r.health.back().ptp_offset_ns, INT32_MIN);
+}
+
+// Mark coordinates are encoded up to 2047.49 px (MarkObservation x_px/y_px: 19 bits of 1/256
+// px from -0.5): a wider or taller sensor would lose every exposure with a mark beyond, so the
+// unit refuses it at start (configuration error, exit 2) naming the size and the limit. Before:
+// a 2560 px wide camera ran and dropped those exposures as encode errors.
+TEST(UnitIntegration, SensorBeyondTheEncodableCoordinatesIsRefusedAtStart) {
+  std::ifstream in(kScenario);
+  const nlohmann::json scenario = nlohmann::json::parse(in);
+  const fs::path dir = fs::temp_directory_path() / ("st_unit_width_" + std::to_string(getpid()));
+  fs::create_directories(dir);
+  const auto run_with = [&](int width, int height, nlohmann::json& stats) {
+    nlohmann::json sc = scenario;
+    sc["cameras"][1]["intrinsics"]["width"] = width;
+    sc["cameras"][1]["intrinsics"]["height"] = height;
+    const fs::path file =
+        dir / ("scenario_" + std::to_string(width) + "x" + std::to_string(height) + ".json");
+    std::ofstream(file) << sc.dump();
+    const fs::path stats_file = dir / "stats.json";
+    fs::remove(stats_file);
+    const Received r = run_unit({"run", "--source", "sim", "--scenario", file.string(),
+                                 "--camera-index", "1", "--trigger", "sim", "--frames", "2",
+                                 "--no-modbus", "--stats-json", stats_file.string()});
+    std::ifstream s(stats_file);
+    stats = s.good() ? nlohmann::json::parse(s) : nlohmann::json{};
+    return r;
+  };
+  nlohmann::json stats;
+  const Received wide = run_with(2560, 1024, stats);
+  EXPECT_EQ(wide.exit_status, 2);
+  EXPECT_TRUE(wide.observations.empty());
+  ASSERT_TRUE(stats.is_object());
+  const std::string reason = stats["exit_reason"].get<std::string>();
+  EXPECT_NE(reason.find("2560 x 1024 px"), std::string::npos) << reason;
+  EXPECT_NE(reason.find("2047.49 px"), std::string::npos) << reason;
+  EXPECT_NE(reason.find("2048 x 2048 px"), std::string::npos) << reason;
+  const Received tall = run_with(1920, 2560, stats);
+  EXPECT_EQ(tall.exit_status, 2);
+  ASSERT_TRUE(stats.is_object());
+  EXPECT_NE(stats["exit_reason"].get<std::string>().find("1920 x 2560 px"), std::string::npos);
+  // The brief's 1920 x 1024 sensor and the largest encodable one run.
+  for (const auto& [w, h] : {std::pair{1920, 1024}, std::pair{2048, 2048}}) {
+    const Received ok = run_with(w, h, stats);
+    EXPECT_EQ(ok.exit_status, 0) << w << " x " << h;
+    EXPECT_EQ(ok.observations.size(), 2u) << w << " x " << h;
+  }
+  fs::remove_all(dir);
+}
+
+// The board temperature is read off the frame loop: a thermal sensor whose read blocks for
+// 200 ms (a FIFO in place of thermal_zone0/temp, answered 200 ms after it is opened) must not
+// delay frames. Truth: the simulated camera delivers a frame every 10 ms (100 fps, paced in
+// real time), so observations arrive every 10 ms. Before: the capture loop read the
+// temperature every health period (50 ms) and stalled 200 ms each time.
+TEST(UnitIntegration, SlowBoardTemperatureReadDoesNotDelayFrames) {
+  const fs::path dir = fs::temp_directory_path() / ("st_unit_thermal_" + std::to_string(getpid()));
+  fs::create_directories(dir / "thermal_zone0");
+  const fs::path fifo = dir / "thermal_zone0" / "temp";
+  ASSERT_EQ(mkfifo(fifo.c_str(), 0600), 0);
+  std::signal(SIGPIPE, SIG_IGN);  // the unit may exit while a read is pending: EPIPE, not death
+  std::atomic<bool> done{false};
+  std::atomic<int> reads{0};
+  std::thread sensor([&] {
+    while (!done.load()) {
+      const int fd = open(fifo.c_str(), O_WRONLY | O_CLOEXEC);  // waits for a reader
+      if (fd < 0) break;
+      if (!done.load()) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(200));
+        const char answer[] = "45000\n";  // 45.000 degC
+        if (write(fd, answer, sizeof answer - 1) > 0) ++reads;
+      }
+      close(fd);
+    }
+  });
+  const fs::path cfg = dir / "unit.json";
+  std::ofstream(cfg) << R"({"health": {"period_ms": 50, "board_temp_root": ")" << dir.string()
+                     << R"("}, "modbus": {"enabled": false}})";
+  const int frames = 90;  // of the scenario's 100 exposures
+  const auto t0 = std::chrono::steady_clock::now();
+  const Received r = run_unit({"run", "--config", cfg.string(), "--source", "sim", "--scenario",
+                               kScenario, "--camera-index", "1", "--trigger", "sim", "--realtime",
+                               "--sim-pace-hz", "100", "--frames", std::to_string(frames)});
+  const double run_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  done = true;
+  const int unblock = open(fifo.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);  // frees the writer
+  sensor.join();
+  if (unblock >= 0) close(unblock);
+  fs::remove_all(dir);
+  ASSERT_EQ(r.exit_status, 0);
+  ASSERT_EQ(static_cast<int>(r.observations.size()), frames);
+  std::int64_t max_gap_ns = 0;
+  for (std::size_t i = 1; i < r.observation_arrival_ns.size(); ++i)
+    max_gap_ns =
+        std::max(max_gap_ns, r.observation_arrival_ns[i] - r.observation_arrival_ns[i - 1]);
+  std::printf(
+      "slow thermal read: %d reads of 200 ms, largest gap between observations %.1f ms, "
+      "run %.2f s for %d frames at 100 fps\n",
+      reads.load(), static_cast<double>(max_gap_ns) * 1e-6, run_s, frames);
+  EXPECT_GE(reads.load(), 3) << "the temperature was read while running";
+  EXPECT_LT(max_gap_ns, 100'000'000) << "a frame waited for the temperature read";
+  // The value read reaches the health reports.
+  const bool reported = std::any_of(r.health.begin(), r.health.end(),
+                                    [](const auto& h) { return h.board_temp_cdeg == 4500; });
+  EXPECT_TRUE(reported);
 }
 
 TEST(UnitIntegration, BadConfigurationExitsWithUsageCode) {

@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "modbus_model.hpp"
+#include "storetrack/health/board_temperature.hpp"
 #include "storetrack/health/modbus_server.hpp"
 #include "storetrack/health/register_map.hpp"
 #include "storetrack/health/unit_state.hpp"
@@ -521,6 +522,33 @@ TEST(RegisterMap, BoardTemperatureFromThermalZones) {
   EXPECT_EQ(read_board_temp_cdeg(root.string()), 5225);
   fs::remove_all(root);
   EXPECT_EQ(read_board_temp_cdeg("/nonexistent"), INT16_MIN);
+}
+
+// The sampler publishes what the sensor reads: at start, then once per period (a changed
+// temperature shows within about one period), and stops promptly.
+TEST(BoardTemperatureSampler, PublishesTheSensorReadingEveryPeriod) {
+  namespace fs = std::filesystem;
+  const fs::path root = fs::temp_directory_path() / ("st_sampler_" + std::to_string(getpid()));
+  fs::create_directories(root / "thermal_zone0");
+  std::ofstream(root / "thermal_zone0" / "temp") << "41500\n";
+  std::atomic<std::int16_t> published{INT16_MIN};
+  BoardTemperatureSampler sampler(root.string(), 20, published);
+  const auto wait_for = [&](std::int16_t value) {
+    for (int i = 0; i < 200 && published.load() != value; ++i)
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    return published.load();
+  };
+  sampler.start();
+  EXPECT_EQ(wait_for(4150), 4150);
+  std::ofstream(root / "thermal_zone0" / "temp") << "63010\n";
+  const auto t0 = std::chrono::steady_clock::now();
+  EXPECT_EQ(wait_for(6301), 6301);
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, std::chrono::milliseconds(100));
+  const auto t1 = std::chrono::steady_clock::now();
+  sampler.stop();
+  EXPECT_LT(std::chrono::steady_clock::now() - t1, std::chrono::milliseconds(50));
+  EXPECT_GE(sampler.samples(), 2u);
+  fs::remove_all(root);
 }
 
 }  // namespace

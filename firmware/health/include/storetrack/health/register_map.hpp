@@ -38,6 +38,7 @@ enum class InputField : std::uint8_t {
   kMarksLastFrame,
   kFirmwareVersion,
   kConfigGeneration,
+  kCentroidErrors,
   kCount
 };
 
@@ -88,7 +89,7 @@ inline constexpr RegisterDef kRegisterMap[] = {
   {RegisterKind::kInput, 18, ValueType::kU16, std::uint8_t(InputField::kCanBusOffCount), "can_bus_off_count", "1", 0, 0, 0, "CAN bus-off events (wraps)"},
   {RegisterKind::kInput, 19, ValueType::kU16, std::uint8_t(InputField::kCanErrorFrames), "can_error_frames", "1", 0, 0, 0, "CAN error frames received (wraps)"},
   {RegisterKind::kInput, 20, ValueType::kU16, std::uint8_t(InputField::kCentroidTimeUsMax), "centroid_time_us_max", "us", 0, 0, 0, "Longest centroiding time of one frame in the last health period"},
-  {RegisterKind::kInput, 21, ValueType::kU16, std::uint8_t(InputField::kStatus), "status", "bitfield", 0, 0, 0, "UnitHealth status bits: 0 capturing, 1 maintenance, 2 trigger master, 3 CAN bus-off, 4 camera error"},
+  {RegisterKind::kInput, 21, ValueType::kU16, std::uint8_t(InputField::kStatus), "status", "bitfield", 0, 0, 0, "UnitHealth status bits: 0 capturing, 1 maintenance, 2 trigger master, 3 CAN bus-off, 4 camera error, 5 trigger error, 6 centroid error"},
   {RegisterKind::kInput, 22, ValueType::kU16, std::uint8_t(InputField::kClockState), "clock_state", "enum", 0, 0, 0, "0 free-running, 1 locking, 2 locked, 3 holdover"},
   {RegisterKind::kInput, 23, ValueType::kI16, std::uint8_t(InputField::kBoardTempCdeg), "board_temp_cdeg", "0.01 degC", 0, 0, 0, "Board (SoC) temperature from /sys/class/thermal; -32768 when absent"},
   {RegisterKind::kInput, 24, ValueType::kI16, std::uint8_t(InputField::kSensorTempCdeg), "sensor_temp_cdeg", "0.01 degC", 0, 0, 0, "Image sensor temperature; -32768 when absent"},
@@ -96,6 +97,7 @@ inline constexpr RegisterDef kRegisterMap[] = {
   {RegisterKind::kInput, 27, ValueType::kU16, std::uint8_t(InputField::kMarksLastFrame), "marks_last_frame", "1", 0, 0, 0, "Marks detected in the last frame"},
   {RegisterKind::kInput, 28, ValueType::kU16, std::uint8_t(InputField::kFirmwareVersion), "firmware_version", "major*256+minor", 0, 0, 0, "storetrack-unit version"},
   {RegisterKind::kInput, 29, ValueType::kU16, std::uint8_t(InputField::kConfigGeneration), "config_generation", "1", 0, 0, 0, "Incremented on every accepted configuration write"},
+  {RegisterKind::kInput, 30, ValueType::kU32, std::uint8_t(InputField::kCentroidErrors), "centroid_errors", "1", 0, 0, 0, "Frames the centroider refused (no observation sent; consecutive ones end the run at run.max_consecutive_errors)"},
   {RegisterKind::kHolding, 0, ValueType::kU16, std::uint8_t(HoldingField::kUnitId), "unit_id", "1", 0, 254, 0, "Camera unit id in messages"},
   {RegisterKind::kHolding, 1, ValueType::kU16, std::uint8_t(HoldingField::kCameraId), "camera_id", "1", 0, 254, 0, "Camera id in messages"},
   {RegisterKind::kHolding, 2, ValueType::kU16, std::uint8_t(HoldingField::kExposureUs), "exposure_us", "us", 10, 20000, 1000, "Exposure time (V4L2 exposure control when configured; reported in messages)"},

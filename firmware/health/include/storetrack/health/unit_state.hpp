@@ -23,6 +23,7 @@ struct UnitCounters {
   std::atomic<std::uint64_t> link_tx_dropped{0};
   std::atomic<std::uint64_t> can_bus_off_count{0};
   std::atomic<std::uint64_t> can_error_frames{0};
+  std::atomic<std::uint64_t> centroid_errors{0};       ///< frames the centroider refused
   std::atomic<std::uint32_t> centroid_time_us_max{0};  ///< over the current health period
   std::atomic<std::uint32_t> marks_last_frame{0};
   std::atomic<std::uint16_t> status{0};  ///< msg::unit_status bits
