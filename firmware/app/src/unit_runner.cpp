@@ -426,17 +426,7 @@ void UnitRunner::apply_config_changes() {
     }
   }
   const std::uint32_t exposure_us = get(HoldingField::kExposureUs);
-  if (exposure_us != config_.exposure_us) {
-    config_.exposure_us = exposure_us;
-    if (v4l2_ && !config_.v4l2.exposure_control.empty() &&
-        v4l2_->set_control(config_.v4l2.exposure_control,
-                           static_cast<std::int32_t>(std::lround(
-                               exposure_us / config_.v4l2.exposure_control_unit_us))) < 0) {
-      ++run_.config_apply_errors;
-      std::fprintf(stderr, "storetrack-unit: exposure %u us not applied: %s\n", exposure_us,
-                   v4l2_->error().c_str());
-    }
-  }
+  if (exposure_us != config_.exposure_us) apply_exposure(exposure_us);
   // The width register holds at most 5000 us: while it still shows the configured width (a
   // longer one clamped), the configured width stands; a rate write must not shorten it.
   const std::uint16_t width_us = get(HoldingField::kPulseWidthUs);
@@ -448,6 +438,37 @@ void UnitRunner::apply_config_changes() {
   config_.roi_y = get(HoldingField::kRoiY);
   config_.roi_width = get(HoldingField::kRoiWidth);
   config_.roi_height = get(HoldingField::kRoiHeight);
+}
+
+// A new exposure, written to the camera's exposure control when one is configured. Refused: the
+// change is counted and the camera keeps its exposure. Clamped by the driver (VIDIOC_S_CTRL may
+// take the closest valid value instead of refusing): the unit reports and stamps what the
+// camera does, not what was asked, and the holding register shows it.
+void UnitRunner::apply_exposure(std::uint32_t exposure_us) {
+  if (!v4l2_ || config_.v4l2.exposure_control.empty()) {
+    config_.exposure_us = exposure_us;
+    return;
+  }
+  const double unit_us = config_.v4l2.exposure_control_unit_us;
+  const auto wanted = static_cast<std::int32_t>(std::lround(exposure_us / unit_us));
+  std::int32_t applied = wanted;
+  if (v4l2_->set_control(config_.v4l2.exposure_control, wanted, &applied) < 0) {
+    ++run_.config_apply_errors;
+    std::fprintf(stderr, "storetrack-unit: exposure %u us not applied: %s\n", exposure_us,
+                 v4l2_->error().c_str());
+    store_.set(health::HoldingField::kExposureUs, static_cast<std::uint16_t>(config_.exposure_us));
+    return;
+  }
+  config_.exposure_us = exposure_us;
+  if (applied != wanted) {
+    ++run_.config_apply_errors;
+    config_.exposure_us =
+        static_cast<std::uint32_t>(std::clamp<long>(std::lround(applied * unit_us), 1, 65535));
+    std::fprintf(stderr, "storetrack-unit: exposure %u us clamped by the driver to %u us\n",
+                 exposure_us, config_.exposure_us);
+    store_.set(health::HoldingField::kExposureUs, static_cast<std::uint16_t>(config_.exposure_us));
+  }
+  v4l2_->set_reported_exposure_ns(config_.exposure_us * 1000u);
 }
 
 // A new trigger rate or pulse width. On a gpio master the generator is restarted with it; if

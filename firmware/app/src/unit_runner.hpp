@@ -100,6 +100,7 @@ class UnitRunner {
   void camera_failed(int rc, time::MonotonicNs now);
   void note_trigger_error(std::uint64_t count = 1);
   void retry_stopped_trigger();
+  void apply_exposure(std::uint32_t exposure_us);
   void service_camera_recovery(time::MonotonicNs now);
   int run_trigger_only(const std::atomic<bool>& stop);
   int drain_edges(int timeout_ms);

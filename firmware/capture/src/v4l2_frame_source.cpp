@@ -54,7 +54,8 @@ int V4L2FrameSource::find_control(const std::string& name, std::uint32_t& id) {
   return -ENOENT;
 }
 
-int V4L2FrameSource::set_control(const std::string& name, std::int32_t value) {
+int V4L2FrameSource::set_control(const std::string& name, std::int32_t value,
+                                 std::int32_t* applied) {
   if (fd_ < 0) return -EBADF;
   std::uint32_t id = 0;
   if (int rc = find_control(name, id); rc < 0) return fail(rc, "no control '" + name + "'");
@@ -64,6 +65,7 @@ int V4L2FrameSource::set_control(const std::string& name, std::int32_t value) {
   if (int rc = ops_(fd_, VIDIOC_S_CTRL, &ctrl); rc < 0) {
     return fail(rc, "VIDIOC_S_CTRL '" + name + "' = " + std::to_string(value));
   }
+  if (applied != nullptr) *applied = ctrl.value;
   return 0;
 }
 

@@ -42,11 +42,17 @@ PY
 LISTENER=$!
 PIDS=""
 trap 'for p in ${HOST_PID:-} $PIDS $LISTENER; do kill -9 "$p" 2>/dev/null || true; done' EXIT
+# The killed runs bound their recording queue at 16 (the in-flight bound below). The last run,
+# which ends normally, keeps the default queue: on a loaded CI machine a 16-item queue behind a
+# starved writer thread drops (counted) samples, which is not what this test is about.
 echo '{"aligner": {"max_wait_ms": 200}, "recording": {"queue_items": 16}}' >"$OUT/host.json"
+echo '{"aligner": {"max_wait_ms": 200}}' >"$OUT/host_last.json"
 start_host() {  # $1 = run index
+  local config="$OUT/host.json"
+  [ "$1" -lt "$KILLS" ] || config="$OUT/host_last.json"
   "$HOST" --calibration "$OUT/sim/rig_calibrated.json" --pylon-survey "$OUT/sim/survey_pylon.json" \
     --store-survey "$OUT/sim/survey_store.json" --initial-marks "$OUT/initial_marks.json" \
-    --config "$OUT/host.json" --udp-port "$PORT" --udp-bind 127.0.0.1 --ch10 "$OUT/out.ch10" \
+    --config "$config" --udp-port "$PORT" --udp-bind 127.0.0.1 --ch10 "$OUT/out.ch10" \
     --inetx "127.0.0.1:$(( PORT + 1 + $1 ))" --stats-json "$OUT/stats_run$1.json" \
     --idle-exit-s 3 >"$OUT/host_run$1.log" 2>&1 &
   HOST_PID=$!
@@ -121,8 +127,8 @@ for run, f in enumerate(files):
               % (run, len(s), lost, IN_FLIGHT))
     else:
         check(lost == 0, "last run (ended normally): %d sent, %d lost" % (len(s), lost))
-q = last_stats["recording"]["queue"]["max_depth_items"]
-check(q <= 16, "recording queue depth of the last run %d <= 16" % q)
+d = last_stats["outputs"]["file_queue_dropped"]
+check(d == 0, "last run: %d samples dropped at the recording queue" % d)
 print("%d files checked" % len(files))
 sys.exit(1 if failures else 0)
 PY

@@ -81,8 +81,12 @@ class V4L2FrameSource final : public frame::FrameSource {
   const std::string& notes() const { return notes_; }
   const FormatChoice& format() const { return format_; }
   V4L2Stats stats() const;
-  /// Sets a control by name while streaming (exposure from the Modbus configuration).
-  int set_control(const std::string& name, std::int32_t value);
+  /// Sets a control by name while streaming (exposure from the Modbus configuration). A driver
+  /// may clamp an out-of-range value instead of refusing it (VIDIOC_S_CTRL allows either): the
+  /// value it set is returned in *applied when given.
+  int set_control(const std::string& name, std::int32_t value, std::int32_t* applied = nullptr);
+  /// The exposure the frames report from now on (after the exposure control changed it).
+  void set_reported_exposure_ns(std::uint32_t ns) { config_.exposure_ns = ns; }
 
  private:
   struct Buffer {
