@@ -511,7 +511,11 @@ void UnitRunner::apply_trigger_change(double rate_hz, std::int64_t width_ns) {
   pairer_config_.period_ns = period;
   pairer_config_.match_tolerance_ns = period / 4;
   pairer_config_.edge_phase_tolerance_ns = period / 4;
-  if (pairer_) make_pairer(pairer_config_.first_sequence);
+  // The numbering goes on from the last edge: a rate change must never renumber this unit's
+  // exposures against the others' (before: it restarted at the first sequence).
+  if (pairer_)
+    make_pairer(pairer_->counters().edges_seen > 0 ? pairer_->anchor_sequence() + 1
+                                                   : pairer_config_.first_sequence);
 }
 
 int UnitRunner::process_frame(const frame::FrameView& frame) {

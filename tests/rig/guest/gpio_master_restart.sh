@@ -4,7 +4,8 @@
 # neither can the previous one: the change is counted as not applied, the restart failure is
 # counted, and the unit tries the previous trigger again once a second; when the chip is back the
 # rig's trigger runs again at the old 10 Hz. (Before: the generator stayed stopped for the rest
-# of the run, with nothing but a counter to say so.)
+# of the run, with nothing but a counter to say so.) Written again with the chip back, the change
+# applies, and the exposures' numbering goes on across it (before: it restarted at 0).
 . "$(dirname "$0")/lib.sh"
 need_bin UNIT STORETRACK_BIN_UNIT storetrack-unit
 command -v mbpoll >/dev/null || fail "mbpoll missing (tools/install-deps.sh)"
@@ -13,7 +14,7 @@ gpiosim_new restart 1 st-trigger-restart
 g=$GS_CFG
 requested="gpioinfo \$(cat $g/bank0/chip_name) 2>/dev/null | grep -q storetrack-unit"
 "$UNIT" run --source none --trigger gpio-master --gpio-chip st-trigger-restart --gpio-lines 0 \
-  --rate-hz 10 --pulse-width-us 20000 --duration-s 10 --no-links --modbus 127.0.0.1:$PORT \
+  --rate-hz 10 --pulse-width-us 20000 --duration-s 11 --no-links --modbus 127.0.0.1:$PORT \
   --maintenance --edges-csv $T/edges.csv --stats-json $T/unit.json > $T/unit.out 2>&1 & UNITP=$!
 waitfor "$requested" 400 || fail "unit did not request line 0"
 sleep 1.5
@@ -25,6 +26,9 @@ echo 1 > "$g/live" || fail "gpio-sim: live=1 refused"
 t_back=$(date +%s%N)
 waitfor "$requested" 100 || fail "the trigger was not started again within 5 s of the chip's return"
 echo "trigger running again $(( ($(date +%s%N) - t_back) / 1000000 )) ms after the chip came back"
+# With the chip there, the same change applies: 20 Hz from then on, the numbering going on.
+sleep 1.5
+mbpoll -m tcp -t 4 -0 -r 3 -1 -p $PORT 127.0.0.1 20 > $T/write2 2>&1 || { cat $T/write2; fail "second rate write refused"; }
 wait $UNITP; rc=$?
 tail -5 $T/unit.out
 [ $rc = 0 ] || fail "storetrack-unit exit $rc"
@@ -35,18 +39,26 @@ python3 - "$T/unit.json" "$T/edges.csv" <<'PY' || fail "unit restart counters / 
 import csv, json, statistics, sys
 j = json.load(open(sys.argv[1]))
 print({k: j[k] for k in ("config_apply_errors", "trigger_restart_failures", "trigger_restarts")})
-t = [int(r["t_mono_ns"]) for r in csv.DictReader(open(sys.argv[2]))]
+rows = list(csv.DictReader(open(sys.argv[2])))
+t = [int(r["t_mono_ns"]) for r in rows]
+seq = [int(r["trigger_seq"]) for r in rows]
 gaps = [b - a for a, b in zip(t, t[1:])]
 i = max(range(len(gaps)), key=lambda k: gaps[k])
-after = gaps[i + 1:]
-print(f"{len(t)} edges; outage {gaps[i] / 1e9:.2f} s; {len(after) + 1} edges after it, "
-      f"median interval {statistics.median(after) / 1e6:.1f} ms" if after else "no edges after the outage")
+resumed, last = gaps[i + 1:i + 6], gaps[-10:]
+print(f"{len(t)} edges; outage {gaps[i] / 1e9:.2f} s; median interval of the 5 after it "
+      f"{statistics.median(resumed) / 1e6:.1f} ms, of the last 10 {statistics.median(last) / 1e6:.1f} ms; "
+      f"trigger_seq {seq[0]}..{seq[-1]}")
 err = []
-if j["config_apply_errors"] < 1: err.append("the change that could not start was not counted")
+if j["config_apply_errors"] != 1: err.append(f"{j['config_apply_errors']} changes not applied, expected 1")
 if j["trigger_restart_failures"] != 1: err.append(f"{j['trigger_restart_failures']} restart failures, expected 1")
 if j["trigger_restarts"] != 1: err.append(f"{j['trigger_restarts']} restarts, expected 1")
-if len(after) < 5: err.append("fewer than 6 edges after the chip came back")
-elif not 90e6 <= statistics.median(after) <= 110e6: err.append("the trigger after the outage is not the old 10 Hz")
+if len(resumed) < 5 or not 90e6 <= statistics.median(resumed) <= 110e6:
+    err.append("the trigger after the outage is not the old 10 Hz")
+if not 45e6 <= statistics.median(last) <= 55e6: err.append("the applied change is not 20 Hz")
+# Across the outage and the applied rate change the numbering only goes forwards (before: the
+# applied change restarted it at 0, numbers this unit's earlier exposures already had).
+back = [(a, b) for a, b in zip(seq, seq[1:]) if b <= a]
+if back: err.append(f"trigger_seq went back {len(back)} times, first {back[0][0]} -> {back[0][1]}")
 for e in err: print("FAIL: " + e)
 sys.exit(1 if err else 0)
 PY
