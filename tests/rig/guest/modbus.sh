@@ -5,8 +5,18 @@
 need_bin UNIT STORETRACK_BIN_UNIT storetrack-unit
 command -v mbpoll >/dev/null || fail "mbpoll missing (tools/install-deps.sh)"
 PORT=${MODBUS_PORT:-15020}
+# The static scenario has 100 exposures (0.25 s at 400 fps): a unit rendering them fast enough
+# ended before the second read (seen on a quiet machine). 20 000 keep it running until
+# --duration-s whatever the machine's speed.
+python3 - "$STORETRACK_SOURCE_DIR/common/sim/scenarios/static.json" $T/scenario.json <<'PY' ||
+import json, sys
+s = json.load(open(sys.argv[1]))
+s["timing"]["num_exposures"] = 20000
+json.dump(s, open(sys.argv[2], "w"))
+PY
+  fail "scenario copy"
 run_unit() {  # $1 = extra flag, $2 = stats file
-  "$UNIT" run --source sim --scenario "$STORETRACK_SOURCE_DIR/common/sim/scenarios/static.json" \
+  "$UNIT" run --source sim --scenario $T/scenario.json \
     --realtime --trigger sim --no-links --modbus 127.0.0.1:$PORT \
     --duration-s 25 $1 --stats-json "$2" > "$2.out" 2>&1 &
   UNITP=$!
