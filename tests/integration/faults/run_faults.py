@@ -118,6 +118,11 @@ def start_proxy():
     for k in ("loss", "corrupt", "duplicate", "reorder"):
         args += ["--" + k, str(f.get(k, 0.0))]
     args += ["--flood", str(f.get("flood", 0))]
+    if CASE == "clock":
+        # The stepped camera 3 reaches the host first in every exposure (its step window 15..26
+        # then tests the reference; the old first-arrival reference followed camera 3 and dropped
+        # the three healthy cameras); camera 2, stepped in 38..49, comes second.
+        args += ["--camera-order", "3,2,1,0"]
     return spawn(args, "proxy.log")
 
 
