@@ -9,7 +9,11 @@ counters, from 127.0.0.1 (allowed for units 0..3). Optionally a flood (--flood N
 foreign datagrams per valid one) from the same sender.
 
 Checked: zero drops caused by the host (kernel socket drops, late, overflow, partial or missing
-exposures: the sender delivers every camera of every exposure), the host's resident memory
+exposures: the sender delivers every camera of every exposure). The sender is a Python loop on
+the same shared cores: when it is itself descheduled between two cameras of one exposure for
+longer than the aligner's wait, the host rightly releases that exposure partial. Such exposures
+are recorded by the sender (their send spread) and matched, by trigger sequence, against the
+partial or missing samples of the host's CSV: only those are excused, each one named; the host's resident memory
 (VmRSS, sampled every 0.5 s) flat after warm-up (a growth bound; a slope bound, in bytes per
 exposure, over 120 s or more), p99 latency recorded (and asserted against the budget when
 --p99-budget-us is given).
@@ -58,6 +62,10 @@ if not 5 <= a.seconds <= 3600:
 FPS, CAMERAS, UNITS = 400.0, 8, 4
 OUT = a.out
 os.makedirs(OUT, exist_ok=True)
+CSV = os.path.join(OUT, "fti.csv")
+for stale in [f for f in os.listdir(OUT) if f.startswith("fti.") and f.endswith(".csv")]:
+    os.remove(os.path.join(OUT, stale))  # the host never overwrites: it would number a new file
+CAMERA_MISSING = 1 << 4  # FtiSample status bit 4 (common/msg/schema/fti_sample.yaml)
 # Below the ephemeral range (32768-60999), so that no client socket of the run can hold it.
 PORT = 20000 + os.getpid() % 900 * 2
 HDR = 12
@@ -141,7 +149,8 @@ def main():
                  "--initial-marks", os.path.join(OUT, "initial_marks.json"),
                  "--udp-port", str(PORT), "--udp-bind", "127.0.0.1",
                  "--inetx", "127.0.0.1:%d" % (PORT + 1), "--stats-json", os.path.join(OUT, "stats.json"),
-                 "--idle-exit-s", "1", "--log-level", "warn", "--max-wait-ms", str(a.max_wait_ms)]
+                 "--idle-exit-s", "1", "--log-level", "warn", "--max-wait-ms", str(a.max_wait_ms),
+                 "--csv", CSV]
     for u in range(UNITS):
         host_args += ["--udp-source", "%d@127.0.0.1" % u]
     if a.no_kernel_filter:
@@ -156,6 +165,7 @@ def main():
         dseq = [0] * UNITS
         total = int(a.seconds * FPS)
         rss, flood_sent, late_sends = [], 0, 0
+        split_by_sender = set()  # trigger_seq of exposures whose cameras the sender spread > wait
         frng = random.Random(5)
         t0 = time.monotonic() + 0.05
         t_rss = 0.0
@@ -168,6 +178,7 @@ def main():
                 late_sends += 1  # the sender itself fell behind (counted, not the host's)
             g = groups[k % len(groups)]
             shift = (k // len(groups)) * loop_ns
+            t_first_send = time.monotonic()
             for d in g:
                 u = d[HDR]
                 b = bytearray(d)
@@ -185,6 +196,8 @@ def main():
                     else:
                         tx.sendto(frng.randbytes(frng.randrange(16, 560)), dest)
                     flood_sent += 1
+            if time.monotonic() - t_first_send > a.max_wait_ms * 1e-3:
+                split_by_sender.add((seq0 + k) & 0xFFFFFFFF)
             if now - t_rss >= 0.5:
                 t_rss = now
                 rss.append((now - t0, rss_kib(host.pid)))
@@ -193,7 +206,8 @@ def main():
         if host.poll() is None:
             host.kill()
             host.wait()
-    return check(total, rss, flood_sent, late_sends, marks_per_msg, host.returncode)
+    return check(total, rss, flood_sent, late_sends, marks_per_msg, host.returncode,
+                 seq0, split_by_sender)
 
 
 def rss_slope_bytes_per_exposure(samples):
@@ -210,7 +224,23 @@ def rss_slope_bytes_per_exposure(samples):
     return kib_per_s * 1024.0 / FPS
 
 
-def check(total, rss, flood_sent, late_sends, marks_per_msg, host_rc):
+def incomplete_exposures(total, seq0):
+    """trigger_seq of the exposures the host's CSV has partial (camera_missing) or not at all."""
+    seen, partial = set(), set()
+    with open(CSV) as f:
+        header = f.readline().strip().split(",")
+        i_seq, i_status = header.index("trigger_seq [1]"), header.index("status [bitfield]")
+        for line in f:
+            cols = line.split(",")
+            seq = int(cols[i_seq])
+            seen.add(seq)
+            if int(cols[i_status]) & CAMERA_MISSING:
+                partial.add(seq)
+    expected = {(seq0 + k) & 0xFFFFFFFF for k in range(total)}
+    return partial | (expected - seen)
+
+
+def check(total, rss, flood_sent, late_sends, marks_per_msg, host_rc, seq0, split_by_sender):
     s = json.load(open(os.path.join(OUT, "stats.json")))
     al, udp = s["aligner"], s["udp"]
     ok = Checks()
@@ -231,15 +261,26 @@ def check(total, rss, flood_sent, late_sends, marks_per_msg, host_rc):
         valid_kernel_drops = total * CAMERAS - udp["decoded"]
         print("     kernel filter: %d of %d flood datagrams refused or lost before the socket"
               % (flood_sent - rejected, flood_sent))
+    incomplete = incomplete_exposures(total, seq0)
+    excused = incomplete & split_by_sender
     host_drops = {"valid_datagrams_lost": valid_kernel_drops, "receive_errors": udp["receive_errors"],
-                  "datagram_seq_gaps": udp["datagram_seq_gaps"], "dropped_late": al["dropped_late"],
+                  "datagram_seq_gaps": udp["datagram_seq_gaps"],
                   "dropped_duplicate": al["dropped_duplicate"],
-                  "exposures_partial_timeout": al["exposures_partial_timeout"],
                   "exposures_partial_overflow": al["exposures_partial_overflow"],
-                  "exposures_dropped_too_few_cameras": al["exposures_dropped_too_few_cameras"]}
+                  "exposures_incomplete_not_split_by_sender": len(incomplete - split_by_sender)}
     ok(all(v == 0 for v in host_drops.values()), "zero drops caused by the host: %s" % host_drops)
-    ok(s["exposures_processed"] == total and al["exposures_complete"] == total,
-       "every exposure complete and processed: %d of %d" % (s["exposures_processed"], total))
+    # What the aligner counted for the sender-split exposures stays within them: at most one
+    # partial (or too-few-cameras) release each, and only their cameras dropped as late.
+    split_counts = (al["exposures_partial_timeout"], al["exposures_dropped_too_few_cameras"],
+                    al["dropped_late"])
+    ok(split_counts[0] + split_counts[1] <= len(excused) and split_counts[2] <= CAMERAS * len(excused),
+       "sender-split exposures: %d incomplete in the host (trigger_seq %s), of %d the sender spread "
+       "over more than the %.0f ms wait; aligner: %d partial, %d too few cameras, %d late"
+       % (len(excused), sorted(excused)[:10], len(split_by_sender), a.max_wait_ms, *split_counts))
+    ok(s["exposures_processed"] + split_counts[1] == total
+       and al["exposures_complete"] == total - len(excused),
+       "every exposure processed (%d of %d), complete but the sender-split (%d)"
+       % (s["exposures_processed"], total, al["exposures_complete"]))
     ok(s["outputs"]["inetx_sent"] == total, "one iNET-X packet per exposure (%d)" % s["outputs"]["inetx_sent"])
     valid_sent = total * CAMERAS
     # Socket-buffer drops are counted by the kernel (SO_RXQ_OVFL) with the next datagram
@@ -285,7 +326,9 @@ def check(total, rss, flood_sent, late_sends, marks_per_msg, host_rc):
                "marks_per_message_max": max(marks_per_msg), "flood_sent": flood_sent,
                "valid_samples": s["valid_samples"], "host_drops": host_drops, "latency": lat,
                "processing": s["latency"]["processing_per_exposure"], "rss_kib": samples,
-               "rss_growth_after_warmup_kib": growth, "rss_slope_bytes_per_exposure": slope, "sender_late": late_sends, "failures": failures}
+               "rss_growth_after_warmup_kib": growth, "rss_slope_bytes_per_exposure": slope, "sender_late": late_sends,
+               "sender_split_exposures": len(split_by_sender), "excused_incomplete": sorted(excused),
+               "failures": failures}
     json.dump(summary, open(os.path.join(OUT, "soak.json"), "w"), indent=1)
     print("     marks per message mean %.1f (max %d); valid samples %d of %d"
           % (summary["marks_per_message_mean"], summary["marks_per_message_max"], s["valid_samples"], total))
