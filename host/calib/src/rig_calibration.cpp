@@ -69,7 +69,8 @@ geometry::Transform relative_pose(const CameraStart& a, const CameraStart& b) {
   }
   const std::vector<double> weights(p_a.size(), 1.0);
   geometry::Transform T_b_a = geometry::Transform::Identity();
-  if (!pose::absolute_orientation(p_a, p_b, weights, T_b_a))
+  if (!pose::absolute_orientation(pose::PointsInBody{p_a}, pose::PointsInWorld{p_b}, weights,
+                                  T_b_a))
     throw CalibrationError("cameras " + std::to_string(a.id) + " and " + std::to_string(b.id) +
                            ": their common views do not determine their relative pose");
   return T_b_a;

@@ -49,7 +49,9 @@ bool fit_body_pose(const survey::RigidBodySurvey& body, const std::map<int, Vec3
     q_b[static_cast<size_t>(i)] = used[i]->p_body;
   if (!layout_well_spread(q_b, 0.1)) return false;  // collinear: rotation about the line undefined
   const std::vector<double> equal_weights(static_cast<size_t>(n), 1.0);
-  if (!pose::absolute_orientation(q_b, p_w, equal_weights, T_w_b)) return false;
+  if (!pose::absolute_orientation(pose::PointsInBody{q_b}, pose::PointsInWorld{p_w}, equal_weights,
+                                  T_w_b))
+    return false;
   Mat6 info = Mat6::Zero();
   for (int i = 0; i < n; ++i) {
     const double var = sigma_m * sigma_m + used[i]->sigma_m * used[i]->sigma_m;
@@ -195,7 +197,9 @@ void MarkMatcher::verify_layouts(Work& w) const {
           p_w[i] = w.tri[set[i]].p;
         }
         w.layout_weights.assign(set.size(), 1.0);
-        if (!pose::absolute_orientation(q_b, p_w, w.layout_weights, T)) return false;
+        if (!pose::absolute_orientation(pose::PointsInBody{q_b}, pose::PointsInWorld{p_w},
+                                        w.layout_weights, T))
+          return false;
         Mat6 info = Mat6::Zero();
         double chi2 = 0;
         for (int i = 0; i < n; ++i) {

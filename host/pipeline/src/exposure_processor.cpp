@@ -497,7 +497,7 @@ void ExposureProcessor::solve(const Prepared& prep,
       sigma[k] = s->sigma_m;
     }
     pose::BodyFit bf;
-    if (!pose::fit_body(q, p, cov, sigma, bf)) return sol;
+    if (!pose::fit_body(pose::PointsInBody{q}, pose::PointsInWorld{p}, cov, sigma, bf)) return sol;
     // First-order propagation is only honest while the pose is well determined: a nearly
     // collinear set of marks (one row of the store, three marks of the pendulum's cross) leaves
     // the rotation about their line to the survey noise, and the linearised covariance then

@@ -14,8 +14,9 @@ using geometry::Mat6;
 using geometry::Vec3;
 using geometry::Vec6;
 
-bool absolute_orientation(std::span<const Vec3> q_body, std::span<const Vec3> p_world,
+bool absolute_orientation(PointsInBody q_body_in, PointsInWorld p_world_in,
                           std::span<const double> weights, geometry::Transform& T_w_b) {
+  const std::span<const Vec3> q_body = q_body_in.points, p_world = p_world_in.points;
   const size_t n = q_body.size();
   if (n < 3 || p_world.size() != n || weights.size() != n) return false;
   double wsum = 0;
@@ -43,16 +44,16 @@ bool absolute_orientation(std::span<const Vec3> q_body, std::span<const Vec3> p_
   return true;
 }
 
-bool fit_body(std::span<const Vec3> q_body, std::span<const Vec3> p_world,
-              std::span<const Mat3> cov_w, std::span<const double> survey_sigma_m, BodyFit& out,
-              int max_iterations) {
+bool fit_body(PointsInBody q_body_in, PointsInWorld p_world_in, std::span<const Mat3> cov_w,
+              std::span<const double> survey_sigma_m, BodyFit& out, int max_iterations) {
+  const std::span<const Vec3> q_body = q_body_in.points, p_world = p_world_in.points;
   const size_t n = q_body.size();
   if (n < 3 || p_world.size() != n || cov_w.size() != n || survey_sigma_m.size() != n) return false;
   std::vector<double> weights(n);
   for (size_t i = 0; i < n; ++i)
     weights[i] = 1.0 / (cov_w[i].trace() / 3.0 + survey_sigma_m[i] * survey_sigma_m[i]);
   geometry::Transform T;
-  if (!absolute_orientation(q_body, p_world, weights, T)) return false;
+  if (!absolute_orientation(q_body_in, p_world_in, weights, T)) return false;
 
   // Weights: inverse of each mark's total covariance. Survey errors are isotropic in the body
   // frame, so R sigma^2 I R^T = sigma^2 I.

@@ -150,7 +150,7 @@ TEST(UncertaintyReference, FastPathMatchesDenseReference) {
         used.push_back(i);
       }
       pose::BodyFit fit;
-      EXPECT_TRUE(pose::fit_body(q, p, cov, sigma, fit));
+      EXPECT_TRUE(pose::fit_body(pose::PointsInBody{q}, pose::PointsInWorld{p}, cov, sigma, fit));
       BodyReference b;
       b.T = fit.T_w_b;
       b.d_theta = DenseSens6::Zero(6, n_cam * kPerCamera);

@@ -1,6 +1,8 @@
 // Body pose: absolute orientation and Gauss-Newton fit against known transforms, pose
 // Jacobians (marks, survey, relative pose, yaw/pitch/roll) against finite differences.
 #include <random>
+#include <span>
+#include <type_traits>
 
 #include <gtest/gtest.h>
 
@@ -15,6 +17,19 @@ using geometry::Mat6;
 using geometry::Transform;
 using geometry::Vec3;
 using geometry::Vec6;
+
+// The survey and the measured marks cannot be passed the wrong way round, nor as bare spans.
+using AbsoluteOrientation = bool (*)(PointsInBody, PointsInWorld, std::span<const double>,
+                                     Transform&);
+static_assert(std::is_same_v<decltype(&absolute_orientation), AbsoluteOrientation>);
+static_assert(!std::is_invocable_v<decltype(&absolute_orientation), PointsInWorld, PointsInBody,
+                                   std::span<const double>, Transform&>);
+static_assert(!std::is_invocable_v<decltype(&absolute_orientation), std::span<const Vec3>,
+                                   std::span<const Vec3>, std::span<const double>, Transform&>);
+static_assert(!std::is_convertible_v<std::span<const Vec3>, PointsInBody>);
+static_assert(!std::is_convertible_v<PointsInWorld, PointsInBody>);
+static_assert(!std::is_invocable_v<decltype(&fit_body), PointsInWorld, PointsInBody,
+                                   std::span<const Mat3>, std::span<const double>, BodyFit&, int>);
 
 Vec6 difference(const Transform& a, const Transform& b) {  // a = perturb_left(b, xi)
   Vec6 xi;
@@ -50,11 +65,13 @@ TEST(BodyPose, AbsoluteOrientationRecoversTransform) {
   for (const Vec3& q : b.q)
     p.push_back(kTruth * q);
   Transform T;
-  ASSERT_TRUE(absolute_orientation(b.q, p, std::vector<double>(7, 1.0), T));
+  ASSERT_TRUE(
+      absolute_orientation(PointsInBody{b.q}, PointsInWorld{p}, std::vector<double>(7, 1.0), T));
   EXPECT_LT(difference(T, kTruth).norm(), 1e-12);
   // Collinear marks are refused.
   std::vector<Vec3> line = {Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(2, 0, 0)};
-  EXPECT_FALSE(absolute_orientation(line, line, std::vector<double>(3, 1.0), T));
+  EXPECT_FALSE(absolute_orientation(PointsInBody{line}, PointsInWorld{line},
+                                    std::vector<double>(3, 1.0), T));
 }
 
 TEST(BodyPose, FitCovarianceIsHonest) {
@@ -70,7 +87,7 @@ TEST(BodyPose, FitCovarianceIsHonest) {
       q_meas.push_back(b.q[i] + b.sigma[i] * Vec3(n(rng), n(rng), n(rng)));
     }
     BodyFit fit;
-    ASSERT_TRUE(fit_body(q_meas, p, b.cov, b.sigma, fit));
+    ASSERT_TRUE(fit_body(PointsInBody{q_meas}, PointsInWorld{p}, b.cov, b.sigma, fit));
     Mat6 cov = Mat6::Zero();
     for (size_t i = 0; i < b.q.size(); ++i)
       cov += fit.d_pose_d_point[i] * b.cov[i] * fit.d_pose_d_point[i].transpose() +
@@ -95,7 +112,7 @@ TEST(BodyPose, JacobiansMatchFiniteDifferences) {
   for (size_t i = 0; i < b.q.size(); ++i)
     p.push_back(kTruth * b.q[i] + b.cov[i].llt().matrixL() * Vec3(n(rng), n(rng), n(rng)));
   BodyFit fit;
-  ASSERT_TRUE(fit_body(b.q, p, b.cov, b.sigma, fit, 50));
+  ASSERT_TRUE(fit_body(PointsInBody{b.q}, PointsInWorld{p}, b.cov, b.sigma, fit, 50));
   const double h = 1e-6;
   for (size_t i = 0; i < p.size(); ++i) {
     for (int a = 0; a < 3; ++a) {
@@ -103,15 +120,15 @@ TEST(BodyPose, JacobiansMatchFiniteDifferences) {
       pp[i](a) += h;
       pm[i](a) -= h;
       BodyFit fp, fm;
-      ASSERT_TRUE(fit_body(b.q, pp, b.cov, b.sigma, fp, 50));
-      ASSERT_TRUE(fit_body(b.q, pm, b.cov, b.sigma, fm, 50));
+      ASSERT_TRUE(fit_body(PointsInBody{b.q}, PointsInWorld{pp}, b.cov, b.sigma, fp, 50));
+      ASSERT_TRUE(fit_body(PointsInBody{b.q}, PointsInWorld{pm}, b.cov, b.sigma, fm, 50));
       const Vec6 fd = (difference(fp.T_w_b, fit.T_w_b) - difference(fm.T_w_b, fit.T_w_b)) / (2 * h);
       EXPECT_LT((fd - fit.d_pose_d_point[i].col(a)).norm(), 3e-2 * fd.norm() + 1e-6);
       auto qp = b.q, qm = b.q;
       qp[i](a) += h;
       qm[i](a) -= h;
-      ASSERT_TRUE(fit_body(qp, p, b.cov, b.sigma, fp, 50));
-      ASSERT_TRUE(fit_body(qm, p, b.cov, b.sigma, fm, 50));
+      ASSERT_TRUE(fit_body(PointsInBody{qp}, PointsInWorld{p}, b.cov, b.sigma, fp, 50));
+      ASSERT_TRUE(fit_body(PointsInBody{qm}, PointsInWorld{p}, b.cov, b.sigma, fm, 50));
       const Vec6 fdq =
           (difference(fp.T_w_b, fit.T_w_b) - difference(fm.T_w_b, fit.T_w_b)) / (2 * h);
       EXPECT_LT((fdq - fit.d_pose_d_survey[i].col(a)).norm(), 3e-2 * fdq.norm() + 1e-6);

@@ -19,11 +19,21 @@ namespace storetrack::pose {
 
 using Mat63 = Eigen::Matrix<double, 6, 3>;
 
+/// The marks of one body in its own frame (the survey, q) and the same marks, in the same order,
+/// measured in the world frame (p). Two types, so that a call with the two sets the wrong way
+/// round does not compile (both are spans of Vec3; swapped, the fit returns T_b_w silently).
+/// For a transform between two other frames, T_to_from: the "body" is the frame mapped from.
+struct PointsInBody {
+  std::span<const geometry::Vec3> points;
+};
+struct PointsInWorld {
+  std::span<const geometry::Vec3> points;
+};
+
 /// Weighted absolute orientation: T_w_b minimising sum w_m |p_w,m - T_w_b q_m|^2.
 /// Needs >= 3 non-collinear points; returns false otherwise.
-bool absolute_orientation(std::span<const geometry::Vec3> q_body,
-                          std::span<const geometry::Vec3> p_world, std::span<const double> weights,
-                          geometry::Transform& T_w_b);
+bool absolute_orientation(PointsInBody q_body, PointsInWorld p_world,
+                          std::span<const double> weights, geometry::Transform& T_w_b);
 
 struct BodyFit {
   geometry::Transform T_w_b = geometry::Transform::Identity();
@@ -39,9 +49,8 @@ struct BodyFit {
 
 /// Fits T_w_b to marks with world covariances cov_w (3x3 each, the marks' total marginal
 /// covariance) and isotropic survey sigmas. Returns false with < 3 marks or a singular fit.
-bool fit_body(std::span<const geometry::Vec3> q_body, std::span<const geometry::Vec3> p_world,
-              std::span<const geometry::Mat3> cov_w, std::span<const double> survey_sigma_m,
-              BodyFit& out, int max_iterations = 10);
+bool fit_body(PointsInBody q_body, PointsInWorld p_world, std::span<const geometry::Mat3> cov_w,
+              std::span<const double> survey_sigma_m, BodyFit& out, int max_iterations = 10);
 
 /// Jacobians of T_p_s = T_w_p^-1 T_w_s w.r.t. left perturbations of T_w_p and T_w_s:
 /// xi_ps = A_p xi_p + A_s xi_s (first order).

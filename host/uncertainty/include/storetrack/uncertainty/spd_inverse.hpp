@@ -40,6 +40,8 @@ bool inverse_spd(const Eigen::Matrix<double, N, N>& H, Eigen::Matrix<double, N, 
     out = inv;
     return true;
   }
+  // Eigen's LLT reports success on NaN input (its pivot test `x <= 0` is false for NaN).
+  if (!H.allFinite()) return false;
   const Eigen::LLT<Eigen::Matrix<double, N, N>> llt(H);
   if (llt.info() != Eigen::Success) return false;
   const Eigen::Matrix<double, N, N> L = llt.matrixL();
@@ -54,8 +56,11 @@ bool inverse_spd(const Eigen::Matrix<double, N, N>& H, Eigen::Matrix<double, N, 
       L_inv(i, j) = s / L(i, i);
     }
   }
-  out.noalias() = L_inv.transpose() * L_inv;
-  return out.allFinite();
+  Eigen::Matrix<double, N, N> inv(n, n);
+  inv.noalias() = L_inv.transpose() * L_inv;
+  if (!inv.allFinite()) return false;  // the contract: false leaves out untouched
+  out = inv;
+  return true;
 }
 
 }  // namespace storetrack::uncertainty
