@@ -285,7 +285,7 @@ void ExposureAligner::add_to_pending(PendingMap::iterator it, int cam,
   p.cameras.push_back(obs);
   p.present_mask |= bit;
   p.last_arrival = std::max(p.last_arrival, now);
-  last_push_ = now;  // placed: quarantined or foreign datagrams keep no exposure waiting
+  last_placed_ = now;  // placed: quarantined or foreign datagrams keep no exposure waiting
   remember_delivered(cam, obs);
   const Majority m = majority(p.cameras, it->first);
   p.reference_mid_tai_ns = pipeline::exposure_mid_tai_ns(p.cameras[m.reference]);
@@ -514,7 +514,7 @@ time::MonotonicNs ExposureAligner::deadline_of(std::int64_t key, const Pending& 
   // reading its socket's backlog after a stall has a clock far ahead of the datagrams'.
   const time::MonotonicNs waited = time::saturating_add_ns(p.first_arrival, config_.max_wait_ns);
   if (stream_moved_past(key, p)) return waited;
-  return std::max(waited, time::saturating_add_ns(last_push_, config_.max_wait_ns));
+  return std::max(waited, time::saturating_add_ns(last_placed_, config_.max_wait_ns));
 }
 
 time::MonotonicNs ExposureAligner::next_deadline() const {

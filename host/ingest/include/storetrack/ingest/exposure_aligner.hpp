@@ -20,7 +20,8 @@
 //    needs a time discontinuity: held observations of a majority that lie on the grid at their
 //    own sequence are a gap too.
 //  - An exposure times out when the host waited max_wait for it AND the stream moved on by the
-//    wait (an exposure a lead window newer was opened) or nothing came for max_wait: a host
+//    wait (the newest exposure's mid-time is the wait later, or one a lead window newer was
+//    opened) or nothing was placed for max_wait: a host
 //    that was descheduled and now reads the socket's backlog (its clock jumped, the datagrams
 //    did not) does not release exposures whose cameras are still in the backlog.
 //  - An exposure's reference mid-time is the majority of its cameras (the mid-time most of them
@@ -234,9 +235,9 @@ class ExposureAligner {
   time::TaiNs grid_mid_ = 0;
   std::int64_t grid_period_ns_ = 0;  // 0: not known yet
   int grid_misses_ = 0;              // consecutive lone exposures off the grid
-  // Host time of the last push: an exposure waits past its own deadline while datagrams keep
-  // coming but the stream has not moved on (the backlog of a stalled host being read).
-  time::MonotonicNs last_push_ = INT64_MIN;
+  // Host time of the last observation placed: an exposure waits past its own deadline while
+  // observations keep coming but the stream has not moved on (a stalled host's backlog).
+  time::MonotonicNs last_placed_ = INT64_MIN;
   time::TaiNs newest_mid_ = INT64_MIN;  // majority mid-time of the newest exposure opened
   // Smallest (host arrival - mid-time) of released majority exposures, over the current and the
   // previous window of kHistory releases (so a drift of the host clock against TAI is followed):
