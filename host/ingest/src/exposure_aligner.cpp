@@ -285,11 +285,11 @@ void ExposureAligner::add_to_pending(PendingMap::iterator it, int cam,
   p.cameras.push_back(obs);
   p.present_mask |= bit;
   p.last_arrival = std::max(p.last_arrival, now);
-  last_placed_ = now;  // placed: quarantined or foreign datagrams keep no exposure waiting
+  advance_stream_clock(now);
+  if (p.cameras.size() == 1) p.stream_ns_at_open = stream_ns_;
   remember_delivered(cam, obs);
   const Majority m = majority(p.cameras, it->first);
   p.reference_mid_tai_ns = pipeline::exposure_mid_tai_ns(p.cameras[m.reference]);
-  if (it->first >= newest_key_) newest_mid_ = p.reference_mid_tai_ns;
 }
 
 bool ExposureAligner::delivered_before(int cam, const msg::MarkObservations& obs) const {
@@ -501,26 +501,28 @@ void ExposureAligner::flush(std::vector<pipeline::AlignedExposure>& out) {
     drop_held(static_cast<int>(i));
 }
 
-bool ExposureAligner::stream_moved_past(std::int64_t key, const Pending& p) const {
-  // By the wait in TAI (the newest exposure's majority mid-time), or by the lead window in
-  // sequence (a rig whose clocks do not move).
-  return time::saturating_sub_ns(newest_mid_, p.reference_mid_tai_ns) >= config_.max_wait_ns ||
-         newest_key_ - key >= lead_limit();
+void ExposureAligner::advance_stream_clock(time::MonotonicNs now) {
+  // Host time while observations keep being placed; a silence longer than half the wait (a
+  // stalled host, a paused rig) does not count. Only placed observations: a flood of quarantined
+  // or foreign datagrams keeps no exposure waiting.
+  const time::MonotonicNs gap = time::saturating_sub_ns(now, last_placed_);
+  if (last_placed_ != INT64_MIN && gap > 0 && gap <= config_.max_wait_ns / 2) stream_ns_ += gap;
+  last_placed_ = now;
 }
 
-time::MonotonicNs ExposureAligner::deadline_of(std::int64_t key, const Pending& p) const {
-  // The wait, from the exposure's first arrival, counts once the stream has moved on by the wait
-  // (an exposure the lead window newer was opened) or nothing was placed for the wait: a host
-  // reading its socket's backlog after a stall has a clock far ahead of the datagrams'.
+time::MonotonicNs ExposureAligner::deadline_of(const Pending& p) const {
+  // The wait, from the exposure's first arrival, counts once observations went on being placed
+  // for the wait (the stream clock, without silences) or nothing was placed for the wait: a
+  // host reading its socket's backlog after a stall has a clock far ahead of the datagrams'.
   const time::MonotonicNs waited = time::saturating_add_ns(p.first_arrival, config_.max_wait_ns);
-  if (stream_moved_past(key, p)) return waited;
+  if (stream_ns_ - p.stream_ns_at_open >= config_.max_wait_ns) return waited;
   return std::max(waited, time::saturating_add_ns(last_placed_, config_.max_wait_ns));
 }
 
 time::MonotonicNs ExposureAligner::next_deadline() const {
   time::MonotonicNs earliest = INT64_MAX;
   for (const auto& [key, p] : pending_)
-    earliest = std::min(earliest, deadline_of(key, p));
+    earliest = std::min(earliest, deadline_of(p));
   return earliest;
 }
 
@@ -534,7 +536,7 @@ void ExposureAligner::release_ready(time::MonotonicNs now,
     released_some = false;
     auto newest_expired = pending_.end();
     for (auto it = pending_.begin(); it != pending_.end(); ++it)
-      if (now >= deadline_of(it->first, it->second)) newest_expired = it;
+      if (now >= deadline_of(it->second)) newest_expired = it;
     while (!pending_.empty()) {
       auto it = pending_.begin();
       const bool complete = it->second.present_mask == all_mask_;

@@ -23,6 +23,7 @@ namespace {
 
 using test::kPeriodNs;
 using test::kT0Tai;
+using test::total_dropped;
 
 constexpr int kUnits = 4;
 constexpr int kCameras = 2 * kUnits;
@@ -63,8 +64,9 @@ struct Datagram {
   int k = 0;
 };
 
-// Arrival at the socket: after the exposure's end, 0.8 ms + the unit's 0.15 ms per unit + the
-// camera's 30 us + up to 0.4 ms of jitter: units interleave, and one unit's cameras too.
+// Arrival at the socket: after the exposure's end, 0.8 ms + 0.5 ms per unit + the camera's 30 us
+// + up to 1.5 ms of jitter (0.8-3.8 ms, more than a period): units and cameras interleave, and
+// the next exposure's first datagrams come before this one's last.
 std::vector<Datagram> stream(const BurstCase& bc) {
   std::vector<Datagram> d;
   for (int k = 0; k < bc.exposures; ++k)
@@ -73,8 +75,8 @@ std::vector<Datagram> stream(const BurstCase& bc) {
         return (b.unit < 0 || b.unit == c / 2) && k >= b.first && k < b.first + b.count;
       });
       if (lost) continue;
-      const std::int64_t latency = 800'000 + 150'000 * (c / 2) + 30'000 * (c % 2) +
-                                   static_cast<std::int64_t>(400'000 * hash01(c, k));
+      const std::int64_t latency = 800'000 + 500'000 * (c / 2) + 30'000 * (c % 2) +
+                                   static_cast<std::int64_t>(1'500'000 * hash01(c, k));
       d.push_back({kHostT0 + k * kPeriodNs + 500'000 + latency, c, k});
     }
   std::stable_sort(d.begin(), d.end(),
@@ -249,24 +251,56 @@ TEST(ExposureAlignerBursts, HostStallsReadTheBacklogWithoutLateOrRestarts) {
   // The host is descheduled 50, 120 and 250 ms; then it reads the socket's backlog, 256
   // datagrams per call at one host time, the exposures' wait long expired.
   for (const std::int64_t ms : {50, 120, 250})
-    run_case({"stall " + std::to_string(ms) + " ms", 3000, {}, {{2'001'700'000, ms * 1'000'000}}});
+    run_case({"stall " + std::to_string(ms) + " ms", 3000, {}, {{2'002'600'000, ms * 1'000'000}}});
   // The same with a socket buffer of 300 datagrams (37 exposures): the kernel drops every
   // unit's datagrams after it fills, so the backlog ends in a gap of every unit.
   for (const std::int64_t ms : {50, 120, 250})
     run_case({"stall " + std::to_string(ms) + " ms, 300-datagram buffer",
               3000,
               {},
-              {{2'001'700'000, ms * 1'000'000}},
+              {{2'002'600'000, ms * 1'000'000}},
               300});
   run_case({"stalls and bursts",
             6000,
             {{1, 500, 50}, {-1, 3000, 5}, {2, 4000, 400}},
-            {{1'001'600'000, 200'000'000},
-             {1'501'900'000, 60'000'000},
-             {5'001'300'000, 250'000'000},
-             {9'002'000'000, 100'000'000},
-             {12'001'500'000, 180'000'000}},
+            {{1'002'600'000, 200'000'000},
+             {1'502'600'000, 60'000'000},
+             {5'002'600'000, 250'000'000},
+             {9'002'600'000, 100'000'000},
+             {12'002'600'000, 180'000'000}},
             400});
+}
+
+TEST(ExposureAlignerBursts, SlowMotionReplayIsReleasedByTheHostWait) {
+  // The fault runs deliver the 400 fps scenario at 10 fps (exposure times 2.5 ms apart, host
+  // times 100 ms apart) with a 5 s wait; camera 13 is dead. The wait must be the host's (50
+  // deliveries), not 5 s of exposure time (2000 exposures, longer than the run: every exposure
+  // would wait for the end).
+  AlignerConfig cfg;
+  cfg.camera_ids = {10, 11, 12, 13};
+  cfg.max_wait_ns = 5 * time::kNsPerSecond;
+  cfg.max_pending = 1024;
+  ExposureAligner aligner(cfg);
+  constexpr std::int64_t kDeliveryNs = 100'000'000;
+  std::vector<pipeline::AlignedExposure> out;
+  std::map<std::uint32_t, std::int64_t> first_arrival;
+  std::int64_t worst_delay = 0;
+  std::int64_t now = kHostT0;
+  for (std::uint32_t k = 0; k < 200; ++k, now += kDeliveryNs) {
+    aligner.poll(now, out);
+    const std::size_t before = out.size();
+    first_arrival[kSeq0 + k] = now;
+    for (int c = 0; c < 3; ++c)
+      aligner.push(test::make_observation(0, 10 + c, kSeq0 + k, kT0Tai + k * kPeriodNs), now, out);
+    for (std::size_t i = before; i < out.size(); ++i)
+      worst_delay = std::max(worst_delay, now - first_arrival[out[i].trigger_seq]);
+  }
+  EXPECT_GE(out.size(), 150u) << "released during the run, not at its end";
+  EXPECT_LE(worst_delay, cfg.max_wait_ns + kDeliveryNs);
+  aligner.flush(out);
+  ASSERT_EQ(out.size(), 200u);
+  EXPECT_EQ(aligner.counters().exposures_partial_timeout, 200u);
+  EXPECT_EQ(total_dropped(aligner.counters()), 0u);
 }
 
 }  // namespace

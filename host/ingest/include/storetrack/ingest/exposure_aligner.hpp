@@ -19,9 +19,9 @@
 //    sequence ahead is from the future or off the grid, and stays quarantined. A trigger restart
 //    needs a time discontinuity: held observations of a majority that lie on the grid at their
 //    own sequence are a gap too.
-//  - An exposure times out when the host waited max_wait for it AND the stream moved on by the
-//    wait (the newest exposure's mid-time is the wait later, or one a lead window newer was
-//    opened) or nothing was placed for max_wait: a host
+//  - An exposure times out when the host waited max_wait for it AND observations went on being
+//    placed for max_wait since (host time between placements, silences longer than half the
+//    wait left out) or nothing was placed for max_wait: a host
 //    that was descheduled and now reads the socket's backlog (its clock jumped, the datagrams
 //    did not) does not release exposures whose cameras are still in the backlog.
 //  - An exposure's reference mid-time is the majority of its cameras (the mid-time most of them
@@ -155,6 +155,7 @@ class ExposureAligner {
     time::MonotonicNs last_arrival = 0;
     time::TaiNs reference_mid_tai_ns = 0;  // majority mid-time of the cameras so far
     bool after_gap = false;  // opened past the lead window, judged by grid and arrival time
+    std::int64_t stream_ns_at_open = 0;  // the stream clock when its first camera was placed
   };
   using DeliveredId = std::pair<std::uint32_t, time::TaiNs>;  // trigger_seq, exposure start
   struct CameraState {
@@ -192,8 +193,8 @@ class ExposureAligner {
   bool gap_explained(std::int64_t key, time::TaiNs mid, time::MonotonicNs now) const;
   bool on_grid_over_gap(std::int64_t key, time::TaiNs mid) const;
   bool held_on_grid(int cam) const;
-  bool stream_moved_past(std::int64_t key, const Pending& p) const;
-  time::MonotonicNs deadline_of(std::int64_t key, const Pending& p) const;
+  void advance_stream_clock(time::MonotonicNs now);
+  time::MonotonicNs deadline_of(const Pending& p) const;
   void update_lag_baseline(const Pending& p, time::TaiNs reference_mid, int agreeing_cameras);
   bool on_grid(std::int64_t key, time::TaiNs mid) const;
   std::int64_t lead_limit() const;
@@ -238,7 +239,7 @@ class ExposureAligner {
   // Host time of the last observation placed: an exposure waits past its own deadline while
   // observations keep coming but the stream has not moved on (a stalled host's backlog).
   time::MonotonicNs last_placed_ = INT64_MIN;
-  time::TaiNs newest_mid_ = INT64_MIN;  // majority mid-time of the newest exposure opened
+  std::int64_t stream_ns_ = 0;  // host time while placing, silences left out (monotone)
   // Smallest (host arrival - mid-time) of released majority exposures, over the current and the
   // previous window of kHistory releases (so a drift of the host clock against TAI is followed):
   // a datagram arriving earlier than that, by more than the wait, is from the future.
