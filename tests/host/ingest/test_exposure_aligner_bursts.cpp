@@ -271,6 +271,41 @@ TEST(ExposureAlignerBursts, HostStallsReadTheBacklogWithoutLateOrRestarts) {
             400});
 }
 
+TEST(ExposureAlignerBursts, StragglerBehindAGapDoesNotEvictTheExposureAfterIt) {
+  // Exposures 101-149 of every camera are lost; of exposure 100 only camera 13's datagram got
+  // through, and it arrives late, after camera 10's exposure 150 opened the exposure past the
+  // gap. A fitting observation far behind takes back lone exposures ahead of it (opened by a
+  // sequence nothing could judge); one opened past a gap was judged by the grid and its arrival
+  // time and must stay: camera 10's exposure 150 is used.
+  AlignerConfig cfg;
+  cfg.camera_ids = {10, 11, 12, 13};
+  ExposureAligner aligner(cfg);
+  std::vector<pipeline::AlignedExposure> out;
+  auto obs = [](int camera, int k) {
+    return test::make_observation(0, camera, kSeq0 + static_cast<std::uint32_t>(k),
+                                  kT0Tai + k * kPeriodNs);
+  };
+  auto host_time = [](int k) { return kHostT0 + k * kPeriodNs + 1'000'000; };
+  for (int k = 0; k < 200; ++k) {
+    if (k >= 100 && k < 150) continue;
+    aligner.poll(host_time(k), out);
+    aligner.push(obs(10, k), host_time(k), out);
+    if (k == 150) aligner.push(obs(13, 100), host_time(k) + 10'000, out);  // the straggler
+    for (int c = 11; c < 14; ++c)
+      aligner.push(obs(c, k), host_time(k) + 20'000, out);
+  }
+  aligner.flush(out);
+  ASSERT_EQ(out.size(), 151u);
+  for (const auto& e : out) {
+    const int k = static_cast<int>(e.trigger_seq - kSeq0);
+    EXPECT_EQ(e.missing_camera_mask, k == 100 ? 0b0111u : 0u) << k;
+  }
+  EXPECT_EQ(aligner.counters().dropped_quarantined, 0u);
+  EXPECT_EQ(aligner.counters().sequence_restarts, 0u);
+  EXPECT_EQ(aligner.counters().sequence_offset_changes, 0u);
+  test::expect_every_observation_accounted(aligner.counters());
+}
+
 TEST(ExposureAlignerBursts, SlowMotionReplayIsReleasedByTheHostWait) {
   // The fault runs deliver the 400 fps scenario at 10 fps (exposure times 2.5 ms apart, host
   // times 100 ms apart) with a 5 s wait; camera 13 is dead. The wait must be the host's (50
