@@ -530,22 +530,17 @@ void ExposureAligner::release_ready(time::MonotonicNs now,
                                     std::vector<pipeline::AlignedExposure>& out) {
   // In sequence order: an exposure waits for older ones (each bounded by its own deadline), so
   // the processor's tracking always sees time move forward. A timed-out exposure also releases
-  // everything older than it, whatever their own deadlines. A release can shorten the lead
-  // window (the first period measured) and so make more exposures due: look again.
-  for (bool released_some = true; released_some;) {
-    released_some = false;
-    auto newest_expired = pending_.end();
-    for (auto it = pending_.begin(); it != pending_.end(); ++it)
-      if (now >= deadline_of(it->second)) newest_expired = it;
-    while (!pending_.empty()) {
-      auto it = pending_.begin();
-      const bool complete = it->second.present_mask == all_mask_;
-      const bool forced = newest_expired != pending_.end() && it->first <= newest_expired->first;
-      if (!complete && !forced) break;
-      if (newest_expired == it) newest_expired = pending_.end();
-      release(it, complete ? ReleaseReason::kComplete : ReleaseReason::kTimeout, out);
-      released_some = true;
-    }
+  // everything older than it, whatever their own deadlines (a release moves no deadline).
+  auto newest_expired = pending_.end();
+  for (auto it = pending_.begin(); it != pending_.end(); ++it)
+    if (now >= deadline_of(it->second)) newest_expired = it;
+  while (!pending_.empty()) {
+    auto it = pending_.begin();
+    const bool complete = it->second.present_mask == all_mask_;
+    const bool forced = newest_expired != pending_.end() && it->first <= newest_expired->first;
+    if (!complete && !forced) break;
+    if (newest_expired == it) newest_expired = pending_.end();
+    release(it, complete ? ReleaseReason::kComplete : ReleaseReason::kTimeout, out);
   }
 }
 
