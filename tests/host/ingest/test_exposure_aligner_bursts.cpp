@@ -248,8 +248,9 @@ TEST(ExposureAlignerBursts, BurstLossOfAUnitOrOfEveryUnitIsAGapNotARestart) {
 }
 
 TEST(ExposureAlignerBursts, HostStallsReadTheBacklogWithoutLateOrRestarts) {
-  // The host is descheduled 50, 120 and 250 ms; then it reads the socket's backlog, 256
-  // datagrams per call at one host time, the exposures' wait long expired.
+  // The host is descheduled 50, 120 and 250 ms, each stall beginning while an exposure's
+  // datagrams arrive (3 or 2 of its 8 read); then it reads the socket's backlog, 256 datagrams
+  // per call at one host time, that exposure's wait long expired.
   for (const std::int64_t ms : {50, 120, 250})
     run_case({"stall " + std::to_string(ms) + " ms", 3000, {}, {{2'002'600'000, ms * 1'000'000}}});
   // The same with a socket buffer of 300 datagrams (37 exposures): the kernel drops every
