@@ -164,6 +164,34 @@ std::int64_t ExposureAligner::lead_limit() const {
   return std::max<std::int64_t>(1, std::min(configured, config_.max_wait_ns / period));
 }
 
+bool ExposureAligner::on_grid_over_gap(std::int64_t key, time::TaiNs mid) const {
+  // The period is measured over a few exposures: its error, extrapolated over a gap, grows with
+  // the gap (allowed: 1/64 of a period per exposure), still far below the hundreds of periods a
+  // glitched sequence with the current time is off by.
+  const auto predicted = grid_mid(key);
+  if (!predicted || key <= grid_key_ || key - newest_key_ > config_.max_sequence_lead) return false;
+  const std::int64_t tolerance = match_tolerance() + (key - grid_key_) * (grid_period_ns_ / 64);
+  return abs_diff(mid, *predicted) <= tolerance;
+}
+
+bool ExposureAligner::gap_explained(std::int64_t key, time::TaiNs mid,
+                                    time::MonotonicNs now) const {
+  // A jump ahead past the lead window, as when every camera's datagrams were lost together: its
+  // time lies on the grid at its sequence, and it does not arrive before it could have (a forged
+  // or glitched datagram consistent with a future edge arrives that far early).
+  const time::MonotonicNs baseline = std::min(lag_min_current_, lag_min_previous_);
+  if (baseline == INT64_MAX) return false;
+  return on_grid_over_gap(key, mid) && time::saturating_sub_ns(now, mid) >=
+                                           time::saturating_sub_ns(baseline, config_.max_wait_ns);
+}
+
+bool ExposureAligner::held_on_grid(int cam) const {
+  const CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
+  const std::int64_t key = unwrap(cs, cs.held.trigger_seq) + cs.offset;
+  return have_key_ && key > newest_key_ &&
+         on_grid_over_gap(key, pipeline::exposure_mid_tai_ns(cs.held));
+}
+
 bool ExposureAligner::on_grid(std::int64_t key, time::TaiNs mid) const {
   const auto predicted = grid_mid(key);
   return !predicted || abs_diff(mid, *predicted) <= config_.max_mid_time_spread_ns;
@@ -187,7 +215,8 @@ bool ExposureAligner::clock_stepped(const CameraState& cs, const msg::MarkObserv
   return abs_diff(tai_minus_mono, cs.tai_minus_mono_ns) > match_tolerance();
 }
 
-void ExposureAligner::place(int cam, const msg::MarkObservations& obs, time::MonotonicNs now) {
+void ExposureAligner::place(int cam, const msg::MarkObservations& obs, time::MonotonicNs now,
+                            bool gap_confirmed) {
   CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
   if (!cs.seen) {
     cs.seen = true;
@@ -205,7 +234,7 @@ void ExposureAligner::place(int cam, const msg::MarkObservations& obs, time::Mon
   const Released* entry = released ? released_entry(key) : nullptr;
   // Does the sequence name a place an exposure can be (pending, a released one still in the
   // history, or a new one the others can reach within the wait), and does the time agree?
-  bool plausible = true, time_agrees = true;
+  bool plausible = true, time_agrees = true, opens_gap = false;
   if (it != pending_.end()) {
     time_agrees = abs_diff(mid, it->second.reference_mid_tai_ns) <= config_.max_mid_time_spread_ns;
   } else if (released) {
@@ -215,7 +244,8 @@ void ExposureAligner::place(int cam, const msg::MarkObservations& obs, time::Mon
     // A new exposure, anywhere (ahead, in a gap, behind the oldest pending): its time must not
     // be another exposure's. An offset re-learned since (a restart) maps a replayed datagram
     // onto a new index; opening it would release that exposure a second time.
-    if (have_key_ && key > newest_key_) plausible = key - newest_key_ <= lead_limit();
+    opens_gap = have_key_ && key - newest_key_ > lead_limit();
+    if (opens_gap) plausible = gap_confirmed || gap_explained(key, mid, now);
     time_agrees = on_grid(key, mid) && !names_other_exposure();
   }
   // A disagreeing time is a clock fault (the majority judges it at release) when the unit's
@@ -235,6 +265,7 @@ void ExposureAligner::place(int cam, const msg::MarkObservations& obs, time::Mon
     if (have_key_ && newest_key_ - key > lead_limit()) evict_lone_exposures_ahead_of(key);
     it = pending_.try_emplace(key).first;
     it->second.first_arrival = now;
+    it->second.after_gap = opens_gap;
     it->second.cameras.reserve(config_.camera_ids.size());
     newest_key_ = have_key_ ? std::max(newest_key_, key) : key;
     have_key_ = true;
@@ -254,6 +285,8 @@ void ExposureAligner::add_to_pending(PendingMap::iterator it, int cam,
   p.cameras.push_back(obs);
   p.present_mask |= bit;
   p.last_arrival = std::max(p.last_arrival, now);
+  advance_stream_clock(now);
+  if (p.cameras.size() == 1) p.stream_ns_at_open = stream_ns_;
   remember_delivered(cam, obs);
   const Majority m = majority(p.cameras, it->first);
   p.reference_mid_tai_ns = pipeline::exposure_mid_tai_ns(p.cameras[m.reference]);
@@ -281,11 +314,14 @@ void ExposureAligner::remember_delivered(int cam, const msg::MarkObservations& o
 // A fitting observation more than the lead window behind the newest exposure: newer exposures
 // that hold one camera only were opened by a sequence nothing could judge yet (the first
 // datagram of a run, forged or glitched far ahead). They are taken back, counted as
-// quarantined, so their timeout cannot release past the exposures the rig is exposing.
+// quarantined, so their timeout cannot release past the exposures the rig is exposing. One
+// opened past a gap of every camera was judged (grid and arrival time) and stays.
 void ExposureAligner::evict_lone_exposures_ahead_of(std::int64_t key) {
   while (!pending_.empty()) {
     const auto last = std::prev(pending_.end());
-    if (last->first - key <= lead_limit() || std::popcount(last->second.present_mask) != 1) break;
+    if (last->first - key <= lead_limit() || std::popcount(last->second.present_mask) != 1 ||
+        last->second.after_gap)
+      break;
     const auto cam = static_cast<std::size_t>(std::countr_zero(last->second.present_mask));
     // Not delivered after all: the camera's true observation of that exposure is still to come.
     CameraState& cs = cameras_[cam];
@@ -378,6 +414,18 @@ void ExposureAligner::try_trigger_restart(time::MonotonicNs now) {
   }
   if (agreeing.size() < restart_quorum_ || restarting_) return;
   restarting_ = true;  // placing the held ones may quarantine again: no nested restart
+  // A restart renumbers the trigger: time and sequence no longer agree with the grid. A
+  // majority whose sequences still lie on the grid lost datagrams together: a gap.
+  if (std::all_of(agreeing.begin(), agreeing.end(), [&](int cam) { return held_on_grid(cam); })) {
+    for (const int cam : agreeing) {
+      CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
+      cs.holding = false;
+      const msg::MarkObservations held = cs.held;
+      place(cam, held, now, true);
+    }
+    restarting_ = false;
+    return;
+  }
   ++counters_.sequence_restarts;
   const std::int64_t new_key = newest_key_ + 1;
   grid_period_ns_ = 0;  // a new trigger: learn its period again
@@ -453,10 +501,28 @@ void ExposureAligner::flush(std::vector<pipeline::AlignedExposure>& out) {
     drop_held(static_cast<int>(i));
 }
 
+void ExposureAligner::advance_stream_clock(time::MonotonicNs now) {
+  // Host time while observations keep being placed; a silence longer than half the wait (a
+  // stalled host, a paused rig) does not count. Only placed observations: a flood of quarantined
+  // or foreign datagrams keeps no exposure waiting.
+  const time::MonotonicNs gap = time::saturating_sub_ns(now, last_placed_);
+  if (last_placed_ != INT64_MIN && gap > 0 && gap <= config_.max_wait_ns / 2) stream_ns_ += gap;
+  last_placed_ = now;
+}
+
+time::MonotonicNs ExposureAligner::deadline_of(const Pending& p) const {
+  // The wait, from the exposure's first arrival, counts once observations went on being placed
+  // for the wait (the stream clock, without silences) or nothing was placed for the wait: a
+  // host reading its socket's backlog after a stall has a clock far ahead of the datagrams'.
+  const time::MonotonicNs waited = time::saturating_add_ns(p.first_arrival, config_.max_wait_ns);
+  if (stream_ns_ - p.stream_ns_at_open >= config_.max_wait_ns) return waited;
+  return std::max(waited, time::saturating_add_ns(last_placed_, config_.max_wait_ns));
+}
+
 time::MonotonicNs ExposureAligner::next_deadline() const {
   time::MonotonicNs earliest = INT64_MAX;
   for (const auto& [key, p] : pending_)
-    earliest = std::min(earliest, time::saturating_add_ns(p.first_arrival, config_.max_wait_ns));
+    earliest = std::min(earliest, deadline_of(p));
   return earliest;
 }
 
@@ -464,11 +530,10 @@ void ExposureAligner::release_ready(time::MonotonicNs now,
                                     std::vector<pipeline::AlignedExposure>& out) {
   // In sequence order: an exposure waits for older ones (each bounded by its own deadline), so
   // the processor's tracking always sees time move forward. A timed-out exposure also releases
-  // everything older than it, whatever their own deadlines.
+  // everything older than it, whatever their own deadlines (a release moves no deadline).
   auto newest_expired = pending_.end();
   for (auto it = pending_.begin(); it != pending_.end(); ++it)
-    if (time::saturating_sub_ns(now, it->second.first_arrival) >= config_.max_wait_ns)
-      newest_expired = it;
+    if (now >= deadline_of(it->second)) newest_expired = it;
   while (!pending_.empty()) {
     auto it = pending_.begin();
     const bool complete = it->second.present_mask == all_mask_;
@@ -477,6 +542,17 @@ void ExposureAligner::release_ready(time::MonotonicNs now,
     if (newest_expired == it) newest_expired = pending_.end();
     release(it, complete ? ReleaseReason::kComplete : ReleaseReason::kTimeout, out);
   }
+}
+
+void ExposureAligner::update_lag_baseline(const Pending& p, time::TaiNs reference_mid,
+                                          int agreeing_cameras) {
+  if (static_cast<std::size_t>(agreeing_cameras) < restart_quorum_) return;
+  lag_min_current_ =
+      std::min(lag_min_current_, time::saturating_sub_ns(p.first_arrival, reference_mid));
+  if (++lag_window_releases_ < kHistory) return;
+  lag_min_previous_ = lag_min_current_;
+  lag_min_current_ = INT64_MAX;
+  lag_window_releases_ = 0;
 }
 
 void ExposureAligner::update_grid(std::int64_t key, time::TaiNs mid, int agreeing_cameras) {
@@ -528,6 +604,7 @@ void ExposureAligner::release(PendingMap::iterator it, ReleaseReason reason,
       ++camera_counters_[static_cast<std::size_t>(cam)].time_mismatch;
     }
   }
+  update_lag_baseline(p, reference_mid, std::popcount(present));
   pending_.erase(it);
   const std::uint32_t missing = all_mask_ & ~present;
   update_grid(key, reference_mid, std::popcount(present));

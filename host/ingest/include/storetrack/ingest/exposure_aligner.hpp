@@ -12,6 +12,18 @@
 //    observations in a row agree on the new offset. A restart of the whole trigger is accepted
 //    when a majority of cameras agree on it. When the unit's TAI stepped against its own
 //    monotonic clock, its time is what is wrong: the sequence is kept and the time judged.
+//  - A sequence further ahead than the lead window is a GAP, not a fault, when its time lies on
+//    the trigger grid at that index and it does not come from the future (its host arrival
+//    minus its mid-time is no less than the smallest such lag seen, less the wait): every unit's
+//    datagrams lost together (a full socket buffer) make such jumps. A forged or glitched
+//    sequence ahead is from the future or off the grid, and stays quarantined. A trigger restart
+//    needs a time discontinuity: held observations of a majority that lie on the grid at their
+//    own sequence are a gap too.
+//  - An exposure times out when the host waited max_wait for it AND observations went on being
+//    placed for max_wait since (host time between placements, silences longer than half the
+//    wait left out) or nothing was placed for max_wait: a host
+//    that was descheduled and now reads the socket's backlog (its clock jumped, the datagrams
+//    did not) does not release exposures whose cameras are still in the backlog.
 //  - An exposure's reference mid-time is the majority of its cameras (the mid-time most of them
 //    agree with, ties broken by the trigger grid), never the first to arrive; the others are
 //    dropped as time mismatches.
@@ -142,6 +154,8 @@ class ExposureAligner {
     time::MonotonicNs first_arrival = 0;
     time::MonotonicNs last_arrival = 0;
     time::TaiNs reference_mid_tai_ns = 0;  // majority mid-time of the cameras so far
+    bool after_gap = false;  // opened past the lead window, judged by grid and arrival time
+    std::int64_t stream_ns_at_open = 0;  // the stream clock when its first camera was placed
   };
   using DeliveredId = std::pair<std::uint32_t, time::TaiNs>;  // trigger_seq, exposure start
   struct CameraState {
@@ -174,7 +188,14 @@ class ExposureAligner {
   int camera_index(int camera_id) const;
   bool accept_fields(const msg::MarkObservations& obs, int cam);
   std::int64_t unwrap(const CameraState& cs, std::uint32_t seq) const;
-  void place(int cam, const msg::MarkObservations& obs, time::MonotonicNs now);
+  void place(int cam, const msg::MarkObservations& obs, time::MonotonicNs now,
+             bool gap_confirmed = false);
+  bool gap_explained(std::int64_t key, time::TaiNs mid, time::MonotonicNs now) const;
+  bool on_grid_over_gap(std::int64_t key, time::TaiNs mid) const;
+  bool held_on_grid(int cam) const;
+  void advance_stream_clock(time::MonotonicNs now);
+  time::MonotonicNs deadline_of(const Pending& p) const;
+  void update_lag_baseline(const Pending& p, time::TaiNs reference_mid, int agreeing_cameras);
   bool on_grid(std::int64_t key, time::TaiNs mid) const;
   std::int64_t lead_limit() const;
   std::int64_t match_tolerance() const;
@@ -215,6 +236,16 @@ class ExposureAligner {
   time::TaiNs grid_mid_ = 0;
   std::int64_t grid_period_ns_ = 0;  // 0: not known yet
   int grid_misses_ = 0;              // consecutive lone exposures off the grid
+  // Host time of the last observation placed: an exposure waits past its own deadline while
+  // observations keep coming but the stream has not moved on (a stalled host's backlog).
+  time::MonotonicNs last_placed_ = INT64_MIN;
+  std::int64_t stream_ns_ = 0;  // host time while placing, silences left out (monotone)
+  // Smallest (host arrival - mid-time) of released majority exposures, over the current and the
+  // previous window of kHistory releases (so a drift of the host clock against TAI is followed):
+  // a datagram arriving earlier than that, by more than the wait, is from the future.
+  time::MonotonicNs lag_min_current_ = INT64_MAX;
+  time::MonotonicNs lag_min_previous_ = INT64_MAX;
+  std::size_t lag_window_releases_ = 0;
   static constexpr std::size_t kHistory = 1024;
   static constexpr std::int64_t kRecentReleased = 8;         // searched when re-learning an offset
   static constexpr std::size_t kRecentDelivered = kHistory;  // per camera, for duplicates
