@@ -403,7 +403,10 @@ def main():
 
     # --- uncertainty budget ---------------------------------------------------------------------
     comps = [("centroid", "u_budget_centroid"), ("intrinsic", "u_budget_intrinsic"),
-             ("extrinsic / registration", "u_budget_extrinsic"), ("time sync", "u_budget_sync")]
+             ("extrinsic / registration", "u_budget_extrinsic"), ("time sync", "u_budget_sync"),
+             ("process noise (extrapolated)", "u_budget_process")]
+    # A CSV from before FtiSample v2 has no process column: plot the four it has.
+    comps = [(n, c) for n, c in comps if c in fti]
     fig, axs = plt.subplots(1, 2, figsize=(13, 4), gridspec_kw={"width_ratios": [3, 1]})
     var = np.array([fti[c][valid] ** 2 for _, c in comps]) * 1e6  # mm^2
     axs[0].stackplot(t[valid], var, labels=[n for n, _ in comps], alpha=0.8)
@@ -413,12 +416,18 @@ def main():
     axs[0].set_title("Uncertainty budget of the store position (variances add)")
     share = var.mean(axis=1)
     share = share / share.sum() * 100 if share.sum() > 0 else share
-    axs[1].barh([n for n, _ in comps], share, color=["C0", "C1", "C2", "C3"])
+    axs[1].barh([n for n, _ in comps], share, color=["C%d" % i for i in range(len(comps))])
     axs[1].set_xlabel("share of the variance [%]")
     for i, s in enumerate(share):
         axs[1].text(s, i, " %.1f %%" % s, va="center", fontsize=8)
         summary.append(("budget share: %s" % comps[i][0], "%.1f %%" % s))
     savefig(fig, args.out, "budget.png", figures)
+    if len(comps) == 5 and valid.any():
+        # The five parts are independent sources: their variances add up to u_x^2 + u_y^2 + u_z^2
+        # (to the CSV's 9 digits), extrapolated samples included.
+        total = sum(fti[c][valid] ** 2 for c in ("u_x", "u_y", "u_z")) * 1e6
+        closure = np.max(np.abs(var.sum(axis=0) / total - 1))
+        summary.append(("budget closure: max |sum of parts / total - 1|", "%.1e" % closure))
 
     # --- cameras / marks used -------------------------------------------------------------------
     fig, ax = plt.subplots(figsize=(10, 2.8))

@@ -183,8 +183,24 @@ std::optional<std::string> decode_tmats(const Packet& p) {
   return std::string(p.data.begin() + 4, p.data.end());
 }
 
-std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> b) {
-  if (b.size() < 148) return std::nullopt;
+std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> b, std::string* error) {
+  // Layout version 2 of docs/fti-output.md: 152 bytes. The version is read first so that a block
+  // of another layout is refused by its version, never decoded with this one's offsets.
+  constexpr std::uint16_t kVersion = 2;
+  constexpr std::size_t kBytes = 152;
+  auto fail = [&](std::string why) -> std::optional<FtiBlock> {
+    if (error) *error = std::move(why);
+    return std::nullopt;
+  };
+  if (b.size() < 20)
+    return fail("FTI block of " + std::to_string(b.size()) + " bytes: no version field");
+  const auto version = static_cast<std::uint16_t>(be_u(b, 18, 2));
+  if (version != kVersion)
+    return fail("FTI block version " + std::to_string(version) + ": this reader decodes version " +
+                std::to_string(kVersion) + " only (docs/fti-output.md)");
+  if (b.size() < kBytes)
+    return fail("FTI block version 2 of " + std::to_string(b.size()) + " bytes, needs " +
+                std::to_string(kBytes));
   FtiBlock f;
   f.exposure_mid_tai_ns = static_cast<std::int64_t>(be_u(b, 0, 8));
   f.trigger_seq = static_cast<std::uint32_t>(be_u(b, 8, 4));
@@ -193,16 +209,16 @@ std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> b) {
   f.marks_used = b[14];
   f.pylon_marks_used = b[15];
   f.status = static_cast<std::uint16_t>(be_u(b, 16, 2));
-  f.version = static_cast<std::uint16_t>(be_u(b, 18, 2));
+  f.version = version;
   for (int i = 0; i < 6; ++i) {
     f.pose[i] = be_float(b, 20 + 4 * static_cast<std::size_t>(i));
     f.uncertainty[i] = be_float(b, 44 + 4 * static_cast<std::size_t>(i));
   }
   for (int i = 0; i < 15; ++i)
     f.correlation[i] = be_float(b, 68 + 4 * static_cast<std::size_t>(i));
-  for (int i = 0; i < 4; ++i)
+  for (int i = 0; i < 5; ++i)
     f.budget[i] = be_float(b, 128 + 4 * static_cast<std::size_t>(i));
-  f.coverage_factor = be_float(b, 144);
+  f.coverage_factor = be_float(b, 148);
   return f;
 }
 

@@ -99,7 +99,9 @@ std::string Chapter10Writer::tmats_text() const {
   line("G\\DST-1", "STO");
   line("G\\COM",
        "storetrack host: store pose relative to the pylon with GUM uncertainty; message layout "
-       "docs/fti-output.md (FTI parameter block v1, big-endian, 148 bytes)");
+       "docs/fti-output.md (FTI parameter block v" +
+           std::to_string(kFtiParameterBlockVersion) + ", big-endian, " +
+           std::to_string(kFtiParameterBlockBytes) + " bytes)");
   line("R-1\\ID", "STORETRACK");
   line("R-1\\RID", "STORETRACK-HOST");
   line("R-1\\N", "2");
@@ -410,7 +412,8 @@ int Chapter10Writer::write(const msg::FtiSample& sample) {
                                  (static_cast<std::uint32_t>(sample.store_id & 0x3FFF) << 16) |
                                  (valid ? 0u : 1u << 31));
   const std::size_t at = pending_body_.size();
-  pending_body_.resize(at + kFtiParameterBlockBytes);  // 148: already a multiple of 2
+  static_assert(kFtiParameterBlockBytes % 2 == 0, "Chapter 10 messages need no filler byte");
+  pending_body_.resize(at + kFtiParameterBlockBytes);
   encode_fti_parameter_block(sample, std::span(pending_body_).subspan(at));
   ++pending_messages_;
   if (pending_messages_ >= config_.max_messages_per_packet) {

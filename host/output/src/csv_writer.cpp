@@ -34,7 +34,7 @@ std::vector<std::string> fti_csv_columns() {
     for (int j = i + 1; j < 6; ++j)
       c.push_back(std::string("r_") + names[i] + "_" + names[j] + " [1]");
   for (const char* b : {"u_budget_centroid [m]", "u_budget_intrinsic [m]", "u_budget_extrinsic [m]",
-                        "u_budget_sync [m]", "coverage_factor [1]"})
+                        "u_budget_sync [m]", "u_budget_process [m]", "coverage_factor [1]"})
     c.emplace_back(b);
   return c;
 }
@@ -84,7 +84,7 @@ int FtiCsvWriter::write(const msg::FtiSample& s) {
   for (float v : s.correlation)
     std::fprintf(file_, ",%.6g", static_cast<double>(v));
   const float tail[] = {s.u_budget_centroid_m, s.u_budget_intrinsic_m, s.u_budget_extrinsic_m,
-                        s.u_budget_sync_m, s.coverage_factor};
+                        s.u_budget_sync_m,     s.u_budget_process_m,   s.coverage_factor};
   for (float v : tail)
     std::fprintf(file_, ",%.9g", static_cast<double>(v));
   // Line-buffered: the newline writes the row, so a full disk shows here.

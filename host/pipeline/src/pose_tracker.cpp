@@ -94,13 +94,15 @@ bool PoseTracker::update(ExposureResult& r) {
   }
   // Process noise: with the velocity from differencing over dt, an unmodelled constant
   // acceleration alpha gives the error alpha tau (tau + dt) / 2 at the horizon.
+  // A budget source of its own, so the sample's budget adds up to its total.
   const double lever = 0.5 * tau * (tau + dt);
-  Mat6 process = Mat6::Zero();
+  Mat6& process = by_source[static_cast<size_t>(uncertainty::index(Source::kProcess))];
+  process.setZero();
   process.topLeftCorner<3, 3>() =
       Mat3::Identity() * std::pow(config_.angular_accel_sigma_rad_s2 * lever, 2);
   process.bottomRightCorner<3, 3>() =
       Mat3::Identity() * std::pow(config_.accel_sigma_m_s2 * lever, 2);
-  Mat6 cov = process;
+  Mat6 cov = Mat6::Zero();
   for (const Mat6& c : by_source)
     cov += c;
 

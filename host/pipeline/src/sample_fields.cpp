@@ -59,6 +59,7 @@ void write_pose_fields(const geometry::Vec6& v, const Mat6& cov,
   // The body-mark survey registers the pylon/store frames: reported with the extrinsics.
   s.u_budget_extrinsic_m = std::hypot(rss(Source::kExtrinsic), rss(Source::kSurvey));
   s.u_budget_sync_m = rss(Source::kSync);
+  s.u_budget_process_m = rss(Source::kProcess);  // 0 unless extrapolated (PoseTracker)
 }
 
 void clear_pose_fields(msg::FtiSample& s) {
@@ -66,7 +67,8 @@ void clear_pose_fields(msg::FtiSample& s) {
   s.x_m = s.y_m = s.z_m = s.yaw_rad = s.pitch_rad = s.roll_rad = nan;
   s.u_x_m = s.u_y_m = s.u_z_m = s.u_yaw_rad = s.u_pitch_rad = s.u_roll_rad = nan;
   s.correlation.fill(nan);
-  s.u_budget_centroid_m = s.u_budget_intrinsic_m = s.u_budget_extrinsic_m = s.u_budget_sync_m = nan;
+  s.u_budget_centroid_m = s.u_budget_intrinsic_m = s.u_budget_extrinsic_m = s.u_budget_sync_m =
+      s.u_budget_process_m = nan;
 }
 
 }  // namespace storetrack::pipeline

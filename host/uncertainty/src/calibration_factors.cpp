@@ -62,6 +62,7 @@ CalibrationFactors::CalibrationFactors(const camera::RigCalibration& rig, double
   ranges_[index(Source::kSync)].second = col - ranges_[index(Source::kSync)].first;
   ranges_[index(Source::kCentroid)] = {col, 0};
   ranges_[index(Source::kSurvey)] = {col, 0};
+  ranges_[index(Source::kProcess)] = {col, 0};  // not a calibration factor
   num_factors_ = col;
 }
 

@@ -36,6 +36,8 @@ inline msg::FtiSample make_sample(std::uint32_t k, std::int64_t t0_tai_ns, std::
   s.u_budget_intrinsic_m = 6e-5f;
   s.u_budget_extrinsic_m = 7e-5f;
   s.u_budget_sync_m = 8e-6f;
+  // Extrapolated-like samples carry a process-noise part, measured-like ones 0 (both on the wire).
+  s.u_budget_process_m = (k % 3 == 0) ? 0.0f : 1e-4f * static_cast<float>(1 + k % 7);
   s.coverage_factor = 2.0f;
   s.status = (k % 17 == 0) ? 0 : msg::fti_status::kValid;
   return s;

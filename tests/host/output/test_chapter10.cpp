@@ -119,7 +119,7 @@ void check_file(const ch10read::File& f, const std::vector<msg::FtiSample>& samp
                   static_cast<std::uint64_t>((t_utc_ns - rtc_epoch_utc * 1'000'000'000LL) / 100));
         const auto b = ch10read::decode_fti_block(m.bytes);
         ASSERT_TRUE(b);
-        EXPECT_EQ(b->version, 1);
+        EXPECT_EQ(b->version, 2);
         EXPECT_EQ(b->trigger_seq, s.trigger_seq);
         EXPECT_EQ(b->exposure_mid_tai_ns, s.exposure_mid_tai_ns);
         EXPECT_EQ(b->store_id, s.store_id);
@@ -131,6 +131,7 @@ void check_file(const ch10read::File& f, const std::vector<msg::FtiSample>& samp
         EXPECT_EQ(b->uncertainty[2], s.u_z_m);
         EXPECT_EQ(b->correlation[14], s.correlation[14]);
         EXPECT_EQ(b->budget[3], s.u_budget_sync_m);
+        EXPECT_EQ(b->budget[4], s.u_budget_process_m);
         EXPECT_EQ(b->coverage_factor, 2.0);
       }
     } else {
@@ -243,7 +244,7 @@ TEST(Chapter10, CrashLosesAtMostTheLastPacket) {
   const auto f = ch10read::read_file(path.string());
   EXPECT_GT(f.packets.size(), 50u);
   // At most one partial packet at the end, everything before it intact.
-  EXPECT_GE(f.bytes_in_whole_packets + 24 + 4 + 12 + 148 + 4, fs::file_size(path));
+  EXPECT_GE(f.bytes_in_whole_packets + 24 + 4 + 12 + 152 + 4, fs::file_size(path));
   for (const auto& p : f.packets)
     EXPECT_TRUE(p.data_checksum_ok);
   fs::remove(path);
@@ -265,6 +266,26 @@ TEST(Chapter10, UnwritablePathIsAnError) {
   EXPECT_LT(w.open("/nonexistent-dir/x.ch10", Chapter10Config{}), 0);
   EXPECT_EQ(w.write(msg::FtiSample{}), -EBADF);
   EXPECT_THROW(ch10read::read_file("/nonexistent-dir/x.ch10"), std::runtime_error);
+}
+
+// The reader decodes block version 2 (152 bytes) only: a version-1 block (148 bytes, no
+// u_budget_process) is refused with the version named, never read with version 2's offsets.
+TEST(Chapter10Reader, FtiBlockOfAnotherVersionIsRefusedByName) {
+  std::vector<std::uint8_t> block(148, 0);
+  block[19] = 1;  // block_version 1, big-endian at offset 18
+  std::string error;
+  EXPECT_FALSE(ch10read::decode_fti_block(block, &error).has_value());
+  EXPECT_EQ(error, "FTI block version 1: this reader decodes version 2 only (docs/fti-output.md)");
+  block.resize(152);
+  EXPECT_FALSE(ch10read::decode_fti_block(block, &error).has_value());
+  block[19] = 2;
+  block.resize(150);
+  EXPECT_FALSE(ch10read::decode_fti_block(block, &error).has_value());
+  EXPECT_EQ(error, "FTI block version 2 of 150 bytes, needs 152");
+  block.resize(152);
+  const auto b = ch10read::decode_fti_block(block, &error);
+  ASSERT_TRUE(b.has_value());
+  EXPECT_EQ(b->version, 2);
 }
 
 // Reproducer of the Message F0 over-read (issue 11), minimised from the fuzz_ch10_reader seed

@@ -2,13 +2,18 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <random>
 #include <sstream>
+#include <string>
+#include <vector>
 
 #include "fti_sample_factory.hpp"
+#include "storetrack/output/big_endian.hpp"
 #include "storetrack/output/csv_writer.hpp"
 #include "storetrack/output/inetx.hpp"
 
@@ -20,7 +25,8 @@ TEST(FtiParameterBlock, RoundTripIsBitExact) {
   for (std::uint32_t k = 0; k < 100; ++k) {
     const auto s = testing::make_sample(k, 1'800'000'000'000'000'000, rng);
     std::array<std::uint8_t, kFtiParameterBlockBytes> buf{};
-    ASSERT_EQ(encode_fti_parameter_block(s, buf), 148);
+    ASSERT_EQ(encode_fti_parameter_block(s, buf), 152);
+    EXPECT_EQ(fti_parameter_block_error(buf), "");
     msg::FtiSample d{};
     ASSERT_EQ(decode_fti_parameter_block(buf, d), 0);
     EXPECT_EQ(std::memcmp(&d.correlation, &s.correlation, sizeof s.correlation), 0);
@@ -28,9 +34,36 @@ TEST(FtiParameterBlock, RoundTripIsBitExact) {
     EXPECT_EQ(d.x_m, s.x_m);
     EXPECT_EQ(d.u_roll_rad, s.u_roll_rad);
     EXPECT_EQ(d.status, s.status);
+    EXPECT_EQ(d.u_budget_centroid_m, s.u_budget_centroid_m);
+    EXPECT_EQ(d.u_budget_intrinsic_m, s.u_budget_intrinsic_m);
+    EXPECT_EQ(d.u_budget_extrinsic_m, s.u_budget_extrinsic_m);
+    EXPECT_EQ(d.u_budget_sync_m, s.u_budget_sync_m);
+    EXPECT_EQ(d.u_budget_process_m, s.u_budget_process_m);
+    EXPECT_EQ(d.coverage_factor, s.coverage_factor);
   }
   std::array<std::uint8_t, 100> small{};
   EXPECT_EQ(encode_fti_parameter_block(msg::FtiSample{}, small), -ENOSPC);
+}
+
+// Version 2 added u_budget_process at 144 and moved coverage_factor to 148: a version-1 block
+// (148 bytes) must be refused by its version, never decoded with the new offsets.
+TEST(FtiParameterBlock, OtherVersionsAreRefusedByName) {
+  std::mt19937_64 rng(7);
+  std::array<std::uint8_t, kFtiParameterBlockBytes> buf{};
+  ASSERT_EQ(encode_fti_parameter_block(testing::make_sample(1, 0, rng), buf), 152);
+  EXPECT_EQ(be::get_u16(buf.data() + 18), 2);
+  msg::FtiSample d{};
+  EXPECT_EQ(decode_fti_parameter_block(std::span(buf).first(148), d), -EINVAL);
+  EXPECT_EQ(fti_parameter_block_error(std::span(buf).first(148)),
+            "FTI parameter block version 2 of 148 bytes: needs 152");
+  be::put_u16(buf.data() + 18, 1);
+  for (std::size_t bytes : {std::size_t{148}, std::size_t{152}}) {
+    EXPECT_EQ(decode_fti_parameter_block(std::span(buf).first(bytes), d), -EPROTO);
+    EXPECT_EQ(fti_parameter_block_error(std::span(buf).first(bytes)),
+              "FTI parameter block version 1: this reader decodes only version 2 (152 bytes, "
+              "docs/fti-output.md)");
+  }
+  EXPECT_EQ(decode_fti_parameter_block(std::span(buf).first(19), d), -EINVAL);
 }
 
 TEST(Inetx, HeaderFieldsAreBigEndianAtTheDocumentedOffsets) {
@@ -38,17 +71,17 @@ TEST(Inetx, HeaderFieldsAreBigEndianAtTheDocumentedOffsets) {
   auto s = testing::make_sample(3, 1'800'000'000'123'456'789, rng);
   s.status = 0;  // invalid sample: PIF data-error bit
   std::array<std::uint8_t, kInetxPacketBytes> buf{};
-  ASSERT_EQ(encode_inetx_packet(s, 0xDC000001u, 77, buf), 176);
+  ASSERT_EQ(encode_inetx_packet(s, 0xDC000001u, 77, buf), 180);
   EXPECT_EQ(buf[0], 0x11);  // control word 0x11000000
   EXPECT_EQ(buf[4], 0xDC);  // stream id MSB first
   EXPECT_EQ(buf[11], 77);
-  EXPECT_EQ(buf[15], 176);
+  EXPECT_EQ(buf[15], 180);
   InetxHeader h{};
   ASSERT_EQ(decode_inetx_header(buf, h), 0);
   EXPECT_EQ(h.control_word, kInetxControlWord);
   EXPECT_EQ(h.stream_id, 0xDC000001u);
   EXPECT_EQ(h.sequence, 77u);
-  EXPECT_EQ(h.packet_length, 176u);
+  EXPECT_EQ(h.packet_length, 180u);
   const std::int64_t t = s.exposure_mid_tai_ns;
   EXPECT_EQ(h.ptp_seconds, static_cast<std::uint32_t>(t / 1'000'000'000));
   EXPECT_EQ(h.ptp_nanoseconds, static_cast<std::uint32_t>(t % 1'000'000'000));
@@ -82,7 +115,7 @@ TEST(FtiCsv, HeaderNamesEveryColumnWithAUnit) {
   std::string header;
   std::getline(in, header);
   const auto columns = fti_csv_columns();
-  EXPECT_EQ(columns.size(), 19u + 15u + 5u);
+  EXPECT_EQ(columns.size(), 19u + 15u + 6u);
   std::size_t count = 1;
   for (char c : header)
     count += c == ',';
@@ -91,16 +124,32 @@ TEST(FtiCsv, HeaderNamesEveryColumnWithAUnit) {
     EXPECT_NE(c.find(" ["), std::string::npos) << c << " has no unit";
     EXPECT_NE(header.find(c), std::string::npos);
   }
+  // The budget columns read back (9 significant digits round-trip a float exactly).
+  const auto column = [&](const std::string& name) {
+    return static_cast<std::size_t>(std::find(columns.begin(), columns.end(), name) -
+                                    columns.begin());
+  };
+  const std::size_t sync_col = column("u_budget_sync [m]");
+  const std::size_t process_col = column("u_budget_process [m]");
+  ASSERT_EQ(process_col, sync_col + 1);
+  ASSERT_EQ(column("coverage_factor [1]"), process_col + 1);
+  std::mt19937_64 replay(2);
   std::string row;
-  int rows = 0;
+  std::uint32_t rows = 0;
   while (std::getline(in, row)) {
-    std::size_t fields = 1;
-    for (char c : row)
-      fields += c == ',';
-    EXPECT_EQ(fields, columns.size());
+    std::vector<std::string> fields;
+    std::stringstream ss(row);
+    for (std::string f; std::getline(ss, f, ',');)
+      fields.push_back(f);
+    EXPECT_EQ(fields.size(), columns.size());
+    const msg::FtiSample s = testing::make_sample(rows, 0, replay);
+    if (fields.size() == columns.size()) {
+      EXPECT_EQ(std::strtof(fields[sync_col].c_str(), nullptr), s.u_budget_sync_m);
+      EXPECT_EQ(std::strtof(fields[process_col].c_str(), nullptr), s.u_budget_process_m);
+    }
     ++rows;
   }
-  EXPECT_EQ(rows, 10);
+  EXPECT_EQ(rows, 10u);
   std::filesystem::remove(path);
 }
 

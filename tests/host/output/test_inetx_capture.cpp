@@ -101,7 +101,7 @@ TEST(InetxCapture, TsharkSeesTheHeaderAndPayloadThatWereSent) {
     std::string hex;
     fields >> dstport >> udp_length >> hex;
     EXPECT_EQ(dstport, port);
-    EXPECT_EQ(udp_length, 8 + 176);
+    EXPECT_EQ(udp_length, 8 + 180);
     payloads.push_back(from_hex(hex));
   }
   pclose(pipe);
@@ -114,7 +114,7 @@ TEST(InetxCapture, TsharkSeesTheHeaderAndPayloadThatWereSent) {
     EXPECT_EQ(h.control_word, 0x11000000u);
     EXPECT_EQ(h.stream_id, 0x5354'0001u);
     EXPECT_EQ(h.sequence, i);
-    EXPECT_EQ(h.packet_length, 176u);
+    EXPECT_EQ(h.packet_length, 180u);
     const std::int64_t t = sent[i].exposure_mid_tai_ns;
     EXPECT_EQ(h.ptp_seconds, static_cast<std::uint32_t>(t / 1'000'000'000));
     EXPECT_EQ(h.ptp_nanoseconds, static_cast<std::uint32_t>(t % 1'000'000'000));
@@ -131,8 +131,10 @@ TEST(InetxCapture, TsharkSeesTheHeaderAndPayloadThatWereSent) {
     EXPECT_EQ(be::get_f32(b + 40), sent[i].roll_rad);
     EXPECT_EQ(be::get_f32(b + 44), sent[i].u_x_m);
     EXPECT_EQ(be::get_f32(b + 68), sent[i].correlation[0]);
+    EXPECT_EQ(be::get_u16(b + 18), 2);  // block version
     EXPECT_EQ(be::get_f32(b + 140), sent[i].u_budget_sync_m);
-    EXPECT_EQ(be::get_f32(b + 144), 2.0f);
+    EXPECT_EQ(be::get_f32(b + 144), sent[i].u_budget_process_m);
+    EXPECT_EQ(be::get_f32(b + 148), 2.0f);
   }
   fs::remove_all(dir);
 }

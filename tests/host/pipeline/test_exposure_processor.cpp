@@ -54,8 +54,10 @@ TEST(ExposureProcessor, StoreSeparationPoseAgainstTruth) {
     const double parts2 = s.u_budget_centroid_m * s.u_budget_centroid_m +
                           s.u_budget_intrinsic_m * s.u_budget_intrinsic_m +
                           s.u_budget_extrinsic_m * s.u_budget_extrinsic_m +
-                          s.u_budget_sync_m * s.u_budget_sync_m;
+                          s.u_budget_sync_m * s.u_budget_sync_m +
+                          s.u_budget_process_m * s.u_budget_process_m;
     EXPECT_NEAR(parts2 / total2, 1.0, 1e-4);
+    EXPECT_EQ(s.u_budget_process_m, 0.0f);  // measured, not extrapolated
     for (float c : s.correlation) {
       EXPECT_TRUE(std::isfinite(c));
       EXPECT_LE(std::abs(c), 1.0f + 1e-6f);

@@ -4,6 +4,7 @@
 // intervals of the extrapolated samples must contain the truth, the flag must be set exactly on
 // the samples predicted within the configured gap, and later samples must be invalid.
 #include <algorithm>
+#include <cfloat>
 #include <cmath>
 #include <cstdio>
 #include <random>
@@ -171,6 +172,69 @@ TEST(PoseTracker, ExtrapolatesHonestlyWithinTheGapAndStopsAfterIt) {
       EXPECT_LE(acc->coverage(a), band.coverage_high) << what << ", axis " << a;
     }
   }
+}
+
+// The FtiSample budget of an extrapolated sample (issue 13): the process noise is a budget entry
+// of its own, so the five budget fields add up to the total position variance, and it is the
+// closed form of the constant-velocity lever sigma_a tau (tau + dt) / 2 on each of 3 axes.
+TEST(PoseTracker, ExtrapolatedBudgetAddsUpWithTheProcessNoiseInIt) {
+  const sim::Scenario scenario = sim::load_scenario(test::scenario_path("store_separation"));
+  const sim::Simulator sim(scenario, 23);
+  ExposureProcessor proc(sim.calibrated_rig(), sim.pylon_survey(), sim.store_survey(),
+                         ProcessorConfig{});
+  PoseTrackerConfig config;
+  config.accel_sigma_m_s2 = 12.5;  // not the default: the closed form must follow the setting
+  config.angular_accel_sigma_rad_s2 = 3.0;
+  PoseTracker tracker(proc.factors(), config);
+  const double frame_s = 1.0 / scenario.frame_rate_hz;
+  const int k0 = static_cast<int>(std::ceil(0.1 / frame_s));  // after the ejector stroke
+  // Rounding bound of sum(budget^2) - (u_x^2 + u_y^2 + u_z^2), both exactly equal in real
+  // arithmetic (J C J^T is linear in C = sum of the sources): every field is one f32 rounding
+  // (relative u = FLT_EPSILON / 2) of a double, except u_budget_extrinsic = hypotf of two rounded
+  // floats (2u); squaring doubles a relative error. So |parts - total| <= (4u + 2u) total.
+  const double rounding = 3.0 * FLT_EPSILON;
+  time::TaiNs t_last = 0, t_previous = 0;
+  int extrapolated = 0;
+  for (int k = k0; k < k0 + kSolvedBefore + kHidden; ++k) {
+    test::SimExposure in = test::make_exposure(sim, k);
+    const bool hidden = k >= k0 + kSolvedBefore;
+    if (hidden) hide_store_marks(in);
+    ExposureResult r = proc.process(in.exposure, in.ids);
+    const bool did = tracker.update(r);
+    const msg::FtiSample& s = r.sample;
+    if (!(s.status & msg::fti_status::kValid)) continue;  // past the gap
+    const double total2 =
+        double{s.u_x_m} * s.u_x_m + double{s.u_y_m} * s.u_y_m + double{s.u_z_m} * s.u_z_m;
+    const double parts2 = double{s.u_budget_centroid_m} * s.u_budget_centroid_m +
+                          double{s.u_budget_intrinsic_m} * s.u_budget_intrinsic_m +
+                          double{s.u_budget_extrinsic_m} * s.u_budget_extrinsic_m +
+                          double{s.u_budget_sync_m} * s.u_budget_sync_m +
+                          double{s.u_budget_process_m} * s.u_budget_process_m;
+    EXPECT_LE(std::abs(parts2 - total2), rounding * total2)
+        << "k " << k << (did ? " extrapolated" : " solved") << ": parts/total " << parts2 / total2;
+    if (!did) {
+      ASSERT_FALSE(hidden);
+      EXPECT_EQ(s.u_budget_process_m, 0.0f) << "a measured sample has no process noise";
+      t_previous = t_last;
+      t_last = r.reference_mid_tai_ns;
+      continue;
+    }
+    ++extrapolated;
+    const double tau = static_cast<double>(r.reference_mid_tai_ns - t_last) * 1e-9;
+    const double dt = static_cast<double>(t_last - t_previous) * 1e-9;
+    const double expected = config.accel_sigma_m_s2 * 0.5 * tau * (tau + dt) * std::sqrt(3.0);
+    // One f32 rounding of the double result (relative FLT_EPSILON / 2), a factor 2 of margin.
+    EXPECT_NEAR(s.u_budget_process_m, expected, FLT_EPSILON * expected)
+        << "k " << k << " tau " << tau << " dt " << dt;
+    if (extrapolated == 1 || extrapolated == 7)
+      std::printf(
+          "  tau %.2f ms: u_budget_process %.4f mm (closed form %.4f mm), parts/total "
+          "%.9f, u_budget_process^2 / total %.3f\n",
+          tau * 1e3, s.u_budget_process_m * 1e3, expected * 1e3, parts2 / total2,
+          s.u_budget_process_m * double{s.u_budget_process_m} / total2);
+  }
+  // 20 ms gap at 2.5 ms per exposure: 8 extrapolated samples (7 if jitter moves the 8th past it).
+  EXPECT_GE(extrapolated, 7);
 }
 
 TEST(PoseTracker, NoVelocityNoExtrapolation) {

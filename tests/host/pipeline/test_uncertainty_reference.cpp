@@ -168,7 +168,8 @@ TEST(UncertaintyReference, FastPathMatchesDenseReference) {
     Mat6 A_p, A_s;
     pose::relative_pose_jacobians(pylon.T, store.T, A_p, A_s);
     const DenseSens6 d_ps = A_p * pylon.d_theta + A_s * store.d_theta;
-    std::array<Mat6, uncertainty::kNumSources> ref_ps{};
+    // Zeros for the sources a solved pose has none of (kProcess: extrapolation only).
+    std::array<Mat6, uncertainty::kNumSources> ref_ps = zero_by_source<Mat6>();
     ref_ps[idx(Source::kCentroid)] =
         A_p * pylon.cov_centroid * A_p.transpose() + A_s * store.cov_centroid * A_s.transpose();
     ref_ps[idx(Source::kSurvey)] =

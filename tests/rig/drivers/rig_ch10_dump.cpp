@@ -29,6 +29,7 @@ int main(int argc, char** argv) {
   nlohmann::json out;
   std::map<std::string, int> by_type;
   int header_errors = 0, data_errors = 0, message_errors = 0, block_errors = 0;
+  std::string first_block_error;
   nlohmann::json samples = nlohmann::json::array();
   for (const rd::Packet& p : file.packets) {
     char type[8];
@@ -44,9 +45,10 @@ int main(int argc, char** argv) {
       continue;
     }
     for (const rd::Message& m : *messages) {
-      const auto b = rd::decode_fti_block(m.bytes);
+      std::string block_error;
+      const auto b = rd::decode_fti_block(m.bytes, &block_error);
       if (!b) {
-        ++block_errors;
+        if (block_errors++ == 0) first_block_error = block_error;  // e.g. another block version
         continue;
       }
       samples.push_back({{"trigger_seq", b->trigger_seq},
@@ -70,6 +72,7 @@ int main(int argc, char** argv) {
   out["data_checksum_errors"] = data_errors;
   out["message_decode_errors"] = message_errors;
   out["fti_block_errors"] = block_errors;
+  out["fti_block_first_error"] = first_block_error;
   out["truncated"] = file.truncated;
   out["stop_reason"] = file.stop_reason;
   out["samples"] = samples;

@@ -77,9 +77,12 @@ struct FtiBlock {
   double pose[6] = {};         ///< x y z [m], yaw pitch roll [rad]
   double uncertainty[6] = {};  ///< standard uncertainties of the above
   double correlation[15] = {};
-  double budget[4] = {};  ///< centroid, intrinsic, extrinsic, sync [m]
+  double budget[5] = {};  ///< centroid, intrinsic, extrinsic, sync, process [m]
   double coverage_factor = 0;
 };
-std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> bytes);
+/// Block version 2 only: a block of another version (or too short) is nullopt, with `error`
+/// naming the version found.
+std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> bytes,
+                                         std::string* error = nullptr);
 
 }  // namespace storetrack::ch10read

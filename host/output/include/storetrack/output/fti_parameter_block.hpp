@@ -1,4 +1,4 @@
-// The FTI parameter block: one FtiSample as 148 big-endian bytes. The SAME block is the payload
+// The FTI parameter block: one FtiSample as 152 big-endian bytes. The SAME block is the payload
 // of an iNET-X packet and the body of one Chapter 10 Message Data F0 message, so the recorder and
 // the telemetry stream decode identically. Byte-by-byte layout: docs/fti-output.md.
 #pragma once
@@ -6,18 +6,26 @@
 #include <cstddef>
 #include <cstdint>
 #include <span>
+#include <string>
 
 #include "storetrack/msg/messages.hpp"
 
 namespace storetrack::output {
 
-inline constexpr std::size_t kFtiParameterBlockBytes = 148;
-/// Version of the block layout, carried in the block itself (offset 18).
-inline constexpr std::uint16_t kFtiParameterBlockVersion = 1;
+inline constexpr std::size_t kFtiParameterBlockBytes = 152;
+/// Version of the block layout, carried in the block itself (offset 18). Version 2 added
+/// u_budget_process at 144 (coverage_factor moved to 148; version 1 was 148 bytes).
+inline constexpr std::uint16_t kFtiParameterBlockVersion = 2;
+/// Offset of the block_version field: readable in a block of any version.
+inline constexpr std::size_t kFtiParameterBlockVersionOffset = 18;
 
 /// Writes the block; returns the byte count or -ENOSPC when `out` is too small.
 int encode_fti_parameter_block(const msg::FtiSample& sample, std::span<std::uint8_t> out);
-/// Reads a block back; returns 0, -EINVAL (too short) or -EPROTO (unknown block version).
+/// Reads a block back; returns 0, -EINVAL (too short) or -EPROTO (another block version: a
+/// version-1 block is refused, not misread; fti_parameter_block_error() says which).
 int decode_fti_parameter_block(std::span<const std::uint8_t> in, msg::FtiSample& sample);
+/// Why decode_fti_parameter_block() refused `in`, naming the versions and sizes; empty when
+/// it would decode.
+std::string fti_parameter_block_error(std::span<const std::uint8_t> in);
 
 }  // namespace storetrack::output

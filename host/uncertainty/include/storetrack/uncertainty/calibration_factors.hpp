@@ -51,7 +51,8 @@ class CalibrationFactors {
   int num_factors() const { return num_factors_; }
   int num_cameras() const { return static_cast<int>(cameras_.size()); }
   const CameraFactors& camera(int slot) const { return cameras_[static_cast<size_t>(slot)]; }
-  /// Column range [begin, begin + count) of one source (kCentroid/kSurvey have none: count 0).
+  /// Column range [begin, begin + count) of one source (kCentroid/kSurvey/kProcess have none: count
+  /// 0).
   std::pair<int, int> range(Source s) const { return ranges_[static_cast<size_t>(index(s))]; }
 
  private:
