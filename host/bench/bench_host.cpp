@@ -381,6 +381,10 @@ struct ScalingData {
   std::vector<cv::Mat> projections;                           // per camera index
   std::vector<std::vector<PairBatch>> first_pair, all_pairs;  // per exposure
   double first_pair_points = 0, all_pairs_points = 0;         // per exposure
+  // That the peer computes the same points: distance of its first-pair point from the
+  // processor's mark position, median and largest over the scenario [mm].
+  double peer_median_difference_mm = 0, peer_max_difference_mm = 0;
+  std::vector<double> peer_differences_mm;
 
  private:
   void add_peer_inputs(const camera::RigCalibration& rig, const pipeline::AlignedExposure& ex,
@@ -417,6 +421,20 @@ ScalingData::ScalingData(int cameras, int store_marks)
   triangulated /= n;
   first_pair_points /= n;
   all_pairs_points /= n;
+  if (!peer_differences_mm.empty()) {
+    std::sort(peer_differences_mm.begin(), peer_differences_mm.end());
+    peer_median_difference_mm = peer_differences_mm[peer_differences_mm.size() / 2];
+    peer_max_difference_mm = peer_differences_mm.back();
+  }
+}
+
+// One point through cv::triangulatePoints (untimed check of the peer's inputs).
+geometry::Vec3 dlt_point(const cv::Mat& P_a, const cv::Mat& P_b, const Eigen::Vector4d& xy) {
+  const cv::Mat x_a = (cv::Mat_<double>(2, 1) << xy(0), xy(1));
+  const cv::Mat x_b = (cv::Mat_<double>(2, 1) << xy(2), xy(3));
+  cv::Mat X;
+  cv::triangulatePoints(P_a, P_b, x_a, x_b, X);
+  return geometry::Vec3(X.at<double>(0), X.at<double>(1), X.at<double>(2)) / X.at<double>(3);
 }
 
 void ScalingData::add_peer_inputs(const camera::RigCalibration& rig,
@@ -439,7 +457,12 @@ void ScalingData::add_peer_inputs(const camera::RigCalibration& rig,
         const Eigen::Vector4d xy(seen[i].second.x(), seen[i].second.y(), seen[j].second.x(),
                                  seen[j].second.y());
         all[{seen[i].first, seen[j].first}].push_back(xy);
-        if (i == 0 && j == 1) first[{seen[i].first, seen[j].first}].push_back(xy);
+        if (i == 0 && j == 1) {
+          first[{seen[i].first, seen[j].first}].push_back(xy);
+          const geometry::Vec3 p_w = dlt_point(projections[static_cast<size_t>(seen[i].first)],
+                                               projections[static_cast<size_t>(seen[j].first)], xy);
+          peer_differences_mm.push_back(1e3 * (p_w - mark.p_w).norm());
+        }
         all_pairs_points += 1;
         first_pair_points += i == 0 && j == 1 ? 1 : 0;
       }
@@ -503,6 +526,8 @@ void BM_HostScalingCvTriangulate(benchmark::State& state, int cameras, int store
   }
   set_scaling_counters(state, d);
   state.counters["points"] = all_pairs ? d.all_pairs_points : d.first_pair_points;
+  state.counters["first_pair_vs_process_median_mm"] = d.peer_median_difference_mm;
+  state.counters["first_pair_vs_process_max_mm"] = d.peer_max_difference_mm;
 }
 
 // Each configuration's three benchmarks registered side by side, so a drift of the machine's
