@@ -40,6 +40,8 @@ ap.add_argument("root")
 ap.add_argument("out")
 ap.add_argument("--seconds", type=float, default=float(os.environ.get("STORETRACK_SOAK_SECONDS", "30")))
 ap.add_argument("--flood", type=int, default=0)
+ap.add_argument("--ch10-sync", action="store_true",
+                help="also record a Chapter 10 file, fdatasync after every packet (--ch10-sync every)")
 ap.add_argument("--p99-budget-us", type=float, default=0)
 ap.add_argument("--no-kernel-filter", action="store_true",
                 help="run the host with --no-udp-kernel-filter (the flood reaches the host)")
@@ -63,7 +65,8 @@ FPS, CAMERAS, UNITS = 400.0, 8, 4
 OUT = a.out
 os.makedirs(OUT, exist_ok=True)
 CSV = os.path.join(OUT, "fti.csv")
-for stale in [f for f in os.listdir(OUT) if f.startswith("fti.") and f.endswith(".csv")]:
+for stale in [f for f in os.listdir(OUT) if (f.startswith("fti.") and f.endswith(".csv"))
+              or (f.startswith("soak.") and f.endswith(".ch10"))]:
     os.remove(os.path.join(OUT, stale))  # the host never overwrites: it would number a new file
 CAMERA_MISSING = 1 << 4  # FtiSample status bit 4 (common/msg/schema/fti_sample.yaml)
 # Below the ephemeral range (32768-60999), so that no client socket of the run can hold it.
@@ -155,6 +158,8 @@ def main():
         host_args += ["--udp-source", "%d@127.0.0.1" % u]
     if a.no_kernel_filter:
         host_args.append("--no-udp-kernel-filter")
+    if a.ch10_sync:
+        host_args += ["--ch10", os.path.join(OUT, "soak.ch10"), "--ch10-sync", "every"]
     host = subprocess.Popen(host_args, stdout=open(os.path.join(OUT, "host.log"), "w"),
                             stderr=subprocess.STDOUT)
     try:
@@ -282,6 +287,11 @@ def check(total, rss, flood_sent, late_sends, marks_per_msg, host_rc, seq0, spli
        "every exposure processed (%d of %d), complete but the sender-split (%d)"
        % (s["exposures_processed"], total, al["exposures_complete"]))
     ok(s["outputs"]["inetx_sent"] == total, "one iNET-X packet per exposure (%d)" % s["outputs"]["inetx_sent"])
+    o = s["outputs"]
+    if a.ch10_sync:
+        lost = {k: o.get(k, 0) for k in ("ch10_write_errors", "ch10_sync_errors", "ch10_messages_dropped",
+                                         "file_queue_dropped")}
+        ok(all(v == 0 for v in lost.values()), "Chapter 10 file synced after every packet, nothing lost: %s" % lost)
     valid_sent = total * CAMERAS
     # Socket-buffer drops are counted by the kernel (SO_RXQ_OVFL) with the next datagram
     # received; drops before the socket (the loopback backlog, netdev_max_backlog) are not: they
