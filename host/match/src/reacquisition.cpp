@@ -1,0 +1,538 @@
+// Re-acquisition of a body without a usable prediction (docs/matching.md, step 6): its track
+// timed out, its extrapolated gates grew wider than its mark spacing, or its prior pose explains
+// none of the observations (host started after the release).
+//
+// 1. Candidate points: free observations (no id, or an unconfirmed id of this body) are paired
+//    across cameras; a pair is kept when host/triangulate's two-view reprojection chi-square (the
+//    epipolar constraint with its uncertainty) passes chi-square(1); each pair is extended by the
+//    one observation per other camera consistent with both, and the set is triangulated again
+//    with the calibration pixel covariance at the point (chi-square(2n - 3)).
+// 2. Layout hypotheses (alignment / interpretation tree, Grimson & Lozano-Perez 1987): every
+//    well-spread triple of candidates whose three distances match three surveyed distances, the
+//    gate from the triangulation covariance along the line and the survey sigmas (chi-square(1)),
+//    gives a pose (host/pose's absolute orientation); the pose predicts every mark and takes the
+//    candidates uniquely inside its chi-square(3) gate; refit, extend once more, refit.
+// 3. A hypothesis passes with >= min_reacquisition_marks well-spread marks (min_layout_spread,
+//    max_layout_*_sigma) and the fit's chi-square(3n - 6). Hypotheses outside the body's region
+//    (set_region) are excluded; passing hypotheses with the same pose (chi-square(6) of their
+//    difference) are one interpretation; an interpretation whose explained observations are a
+//    strict subset of another's is dropped (it leaves points unexplained that the other explains
+//    with the same layout). Exactly one interpretation left: accepted, the body's filter starts
+//    from its pose and the bootstrap step assigns the marks. More than one: refused (ambiguous).
+#include "matcher_work.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <iterator>
+#include <optional>
+
+#include "storetrack/uncertainty/spd_inverse.hpp"
+
+namespace storetrack::match {
+
+enum class MarkMatcher::SearchOutcome : std::uint8_t {
+  kAccepted,
+  kAmbiguous,
+  kInconsistent,
+  kTooFewMarks,
+  kOutsideRegion,
+};
+
+namespace {
+
+/// Closest point between two rays (centre c, direction d), when in front of both.
+std::optional<Vec3> ray_midpoint(const Vec3& c1, const Vec3& d1, const Vec3& c2, const Vec3& d2) {
+  const Vec3 r = c1 - c2;
+  const double a = d1.dot(d1), b = d1.dot(d2), c = d2.dot(d2), d = d1.dot(r), e = d2.dot(r);
+  const double den = a * c - b * b;
+  if (!(den > 1e-12 * a * c)) return std::nullopt;  // (nearly) parallel rays
+  const double s = (b * e - c * d) / den, t = (a * e - b * d) / den;
+  if (!(s > 0 && t > 0)) return std::nullopt;
+  return 0.5 * (c1 + s * d1 + c2 + t * d2);
+}
+
+bool shares_observation(const std::vector<int>& a, const std::vector<int>& b) {
+  for (int o : a)
+    if (std::binary_search(b.begin(), b.end(), o)) return true;
+  return false;
+}
+
+/// Pose difference T2 vs T1 as a left perturbation (transform.hpp, perturb_left).
+geometry::Vec6 pose_difference(const Transform& T1, const Transform& T2) {
+  geometry::Vec6 d;
+  d.head<3>() = geometry::rotvec_from_rotation(T2.linear() * T1.linear().transpose());
+  d.tail<3>() = T2.translation() - T1.translation();
+  return d;
+}
+
+/// Bound on the layout hypotheses tried per search; past it the search is refused as ambiguous
+/// (it could not be exhausted).
+constexpr int kMaxBases = 20000;
+
+}  // namespace
+
+bool MarkMatcher::triangulate_free(Work& w, std::span<const int> obs, const Vec3& initial,
+                                   bool calibration_at_point, Vec3& p_w, Mat3& cov_w,
+                                   double& chi2) const {
+  // Weights: the observation's sigma plus the calibration pixel covariance, either at the point
+  // (final) or bounded by the per-camera trace bound (pairing: wider, never rejects a true pair).
+  auto& views = w.tri_views;
+  views.clear();
+  for (int o : obs) {
+    const auto& ob = w.obs[o];
+    const auto& cal = rig_.cameras[ob.slot];
+    Mat2 S = ob.sigma * ob.sigma * Mat2::Identity();
+    if (calibration_at_point) {
+      S += calibration_pixel_covariance(ob.slot, initial);
+    } else {
+      const double z = (cal.T_c_w * initial).z();
+      S += calibration_bound(ob.slot, z) * Mat2::Identity();
+    }
+    Mat2 W;
+    if (!uncertainty::inverse_spd<2>(S, W)) return false;
+    triangulate::Observation v;
+    v.model = &cal.model;
+    v.T_c_w = cal.T_c_w;
+    v.pixel_px = ob.raw;
+    v.sigma_px = ob.sigma;
+    v.information_px = W;
+    views.push_back(v);
+  }
+  triangulate::Options options;
+  options.initial_p_w = initial;
+  options.calibration_jacobians = false;
+  if (!triangulate::triangulate(views, options, w.tri_result)) return false;
+  p_w = w.tri_result.p_w;
+  cov_w = w.tri_result.cov_centroid;
+  chi2 = w.tri_result.chi2;
+  return std::isfinite(chi2) && p_w.allFinite();
+}
+
+void MarkMatcher::form_candidates(Work& w) const {
+  auto& cands = w.candidates;
+  cands.clear();
+  const int C = static_cast<int>(w.cams.size());
+  // Rays of the free observations (world frame): centre and direction.
+  auto ray = [&](int o, Vec3& centre, Vec3& dir) {
+    const auto& T = rig_.cameras[w.obs[o].slot].T_c_w;
+    const Mat3 Rt = T.linear().transpose();
+    centre = -Rt * T.translation();
+    dir = Rt * Vec3(w.obs[o].xy.x(), w.obs[o].xy.y(), 1.0);
+  };
+  // Epipolar-consistent pairs: a first-order pre-gate (Sampson distance of the essential matrix
+  // x2^T E x1 = 0, Hartley & Zisserman 2004, sec. 11.4.3, with each observation's sigma plus the
+  // calibration bound converted to the normalised plane by the camera's smallest pixel scale,
+  // i.e. a wider gate, and 4x the chi-square(1) gate for the first-order error), then the
+  // two-view triangulation's reprojection chi-square(1) (the epipolar constraint, exact).
+  struct Pair {
+    int o1, o2;
+    Vec3 p;
+  };
+  std::vector<Pair> pairs;
+  std::vector<std::vector<int>> compatible(w.obs.size());
+  auto normalised_var = [&](int o, double z) {
+    const auto& ob = w.obs[o];
+    const auto& bound = cal_bounds_[ob.slot];
+    const double scale = bound.min_pixel_scale;
+    return (ob.sigma * ob.sigma + calibration_bound(ob.slot, std::max(z, 1e-3))) / (scale * scale);
+  };
+  for (int c1 = 0; c1 < C; ++c1)
+    for (int c2 = c1 + 1; c2 < C; ++c2) {
+      const auto& T1 = rig_.cameras[w.cams[c1].slot].T_c_w;
+      const auto& T2 = rig_.cameras[w.cams[c2].slot].T_c_w;
+      const Mat3 R21 = T2.linear() * T1.linear().transpose();
+      const Vec3 t21 = T2.translation() - R21 * T1.translation();
+      const Mat3 E = geometry::skew(t21) * R21;
+      for (int o1 : w.free_by_cam[c1]) {
+        Vec3 e1, d1;
+        ray(o1, e1, d1);
+        const Vec3 x1(w.obs[o1].xy.x(), w.obs[o1].xy.y(), 1.0);
+        const Vec3 Ex1 = E * x1;
+        for (int o2 : w.free_by_cam[c2]) {
+          const Vec3 x2(w.obs[o2].xy.x(), w.obs[o2].xy.y(), 1.0);
+          const double r = x2.dot(Ex1);
+          const Vec3 Etx2 = E.transpose() * x2;
+          Vec3 e2, d2;
+          ray(o2, e2, d2);
+          const auto mid = ray_midpoint(e1, d1, e2, d2);
+          if (!mid) continue;
+          const double z1 = (T1 * *mid).z(), z2 = (T2 * *mid).z();
+          const double sampson_var = normalised_var(o1, z1) * Etx2.head<2>().squaredNorm() +
+                                     normalised_var(o2, z2) * Ex1.head<2>().squaredNorm();
+          if (!(r * r <= 4 * chi2_gate_[1] * sampson_var)) continue;
+          Vec3 p;
+          Mat3 cov;
+          double chi2 = 0;
+          const int two[2] = {o1, o2};
+          if (!triangulate_free(w, two, *mid, false, p, cov, chi2) || !(chi2 <= chi2_gate_[1]))
+            continue;
+          pairs.push_back({o1, o2, p});
+          compatible[o1].push_back(o2);
+          compatible[o2].push_back(o1);
+        }
+      }
+    }
+  for (auto& v : compatible)
+    std::sort(v.begin(), v.end());
+  auto compat = [&](int a, int b) {
+    return std::binary_search(compatible[a].begin(), compatible[a].end(), b);
+  };
+  // Each pair extended by the one observation per other camera consistent with all members
+  // (none where two are: that correspondence is not unique), then triangulated with the
+  // calibration covariance at the point; a failing extension falls back to the pair itself.
+  std::vector<int> set;
+  for (const Pair& pr : pairs) {
+    set = {pr.o1, pr.o2};
+    for (int c = 0; c < C; ++c) {
+      if (c == w.obs[pr.o1].cam || c == w.obs[pr.o2].cam) continue;
+      int found = -1, count = 0;
+      for (int o : w.free_by_cam[c]) {
+        bool ok = true;
+        for (int s : set)
+          ok = ok && compat(o, s);
+        if (ok) {
+          found = o;
+          ++count;
+        }
+      }
+      if (count == 1) set.push_back(found);
+    }
+    std::sort(set.begin(), set.end());
+    for (int attempt = 0; attempt < 2; ++attempt) {
+      if (attempt == 1) {
+        if (set.size() == 2) break;
+        set = {std::min(pr.o1, pr.o2), std::max(pr.o1, pr.o2)};
+      }
+      bool seen = false;
+      for (const auto& cd : cands)
+        seen = seen || cd.obs == set;
+      if (seen) break;
+      Work::Candidate cd;
+      double chi2 = 0;
+      const int n = static_cast<int>(set.size());
+      if (triangulate_free(w, set, pr.p, true, cd.p, cd.cov, chi2) &&
+          chi2 <= chi2_gate_[2 * n - 3]) {
+        cd.obs = set;
+        cd.views = n;
+        cands.push_back(std::move(cd));
+        break;
+      }
+    }
+  }
+}
+
+void MarkMatcher::extend_hypothesis(Work& w, int b, const Transform& T_w_b, const Mat6& cov,
+                                    std::vector<std::pair<int, int>>& pairs) const {
+  // Every mark of the body predicted from the pose; a candidate is taken when it is the mark's
+  // only candidate inside the chi-square(3) gate and the mark is the candidate's only one, and
+  // it shares no observation with another taken candidate.
+  const auto& cands = w.candidates;
+  const int K = static_cast<int>(cands.size());
+  std::vector<int> mark_of_cand(K, -1), hits_of_cand(K, 0);
+  std::vector<std::pair<int, int>> found;
+  for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
+    if (marks_[m].body != b) continue;
+    const auto G = point_pose_jacobian(T_w_b, marks_[m].p_body);
+    const Vec3 p = T_w_b * marks_[m].p_body;
+    const double s2 = marks_[m].survey_sigma_m * marks_[m].survey_sigma_m;
+    const Mat3 C_pred = G * cov * G.transpose() + s2 * Mat3::Identity();
+    int hit = -1, hits = 0;
+    for (int k = 0; k < K; ++k) {
+      const Vec3 e = cands[k].p - p;
+      // e^T C^-1 e >= |e|^2 / lambda_max(C) >= |e|^2 / trace(C): far candidates skip the inverse.
+      const Mat3 C_sum = C_pred + cands[k].cov;
+      if (e.squaredNorm() > chi2_gate_[3] * C_sum.trace()) continue;
+      Mat3 Wm;
+      if (!uncertainty::inverse_spd<3>(C_sum, Wm)) continue;
+      if (!(e.dot(Wm * e) <= chi2_gate_[3])) continue;
+      ++hits;
+      hit = k;
+      ++hits_of_cand[k];
+    }
+    if (hits == 1) found.emplace_back(m, hit);
+  }
+  pairs.clear();
+  for (const auto& [m, k] : found) {
+    if (hits_of_cand[k] != 1) continue;
+    bool clash = false;
+    for (const auto& [m2, k2] : found)
+      clash = clash ||
+              (k2 != k && hits_of_cand[k2] == 1 && shares_observation(cands[k].obs, cands[k2].obs));
+    if (!clash) pairs.emplace_back(m, k);
+  }
+}
+
+bool MarkMatcher::inside_region(const Work& w, int b, const Transform& T_w_b) const {
+  const Region& rg = regions_[b];
+  if (!rg.valid) return true;
+  const int ref = rg.reference;
+  Transform T_w_ref;
+  if (w.fitted[ref]) {
+    T_w_ref = w.T_w_b[ref];
+  } else if (w.body[ref].predicted) {
+    T_w_ref = w.body[ref].pred.T_w_b;
+  } else if (priors_[ref].valid) {
+    T_w_ref = priors_[ref].T_w_b;
+  } else {
+    return true;  // reference unknown: nothing excluded (ambiguities are then refused)
+  }
+  const Transform T_ref_b = T_w_ref.inverse() * T_w_b;
+  const Transform& nominal = rg.region.T_ref_b_nominal;
+  const double angle =
+      geometry::rotvec_from_rotation(nominal.linear().transpose() * T_ref_b.linear()).norm();
+  const Vec3 offset = T_ref_b.translation() - nominal.translation();
+  return angle <= rg.region.max_rotation_rad &&
+         (offset.array() >= rg.region.min_offset_m.array()).all() &&
+         (offset.array() <= rg.region.max_offset_m.array()).all();
+}
+
+MarkMatcher::SearchOutcome MarkMatcher::search_body(Work& w, int b) const {
+  form_candidates(w);
+  const auto& cands = w.candidates;
+  const int K = static_cast<int>(cands.size());
+  const int min_marks = std::max({3, config_.min_layout_marks, config_.min_reacquisition_marks});
+  if (K < min_marks) return SearchOutcome::kTooFewMarks;
+  std::vector<int> body_marks;
+  for (int m = 0; m < static_cast<int>(marks_.size()); ++m)
+    if (marks_[m].body == b) body_marks.push_back(m);
+  const int M = static_cast<int>(body_marks.size());
+  if (M < min_marks) return SearchOutcome::kTooFewMarks;
+  // Distance gate: (d - D)^2 <= chi2(1) (u^T (C_a + C_b) u + s_i^2 + s_j^2), u along the line;
+  // tabulated per candidate pair over the ordered survey pairs.
+  const double gate1 = chi2_gate_[1];
+  std::vector<std::uint8_t> match_table(static_cast<size_t>(K * K) * M * M, 0);
+  auto table = [&](int a, int c) { return &match_table[(static_cast<size_t>(a) * K + c) * M * M]; };
+  for (int a = 0; a < K; ++a)
+    for (int c = a + 1; c < K; ++c) {
+      const Vec3 d = cands[c].p - cands[a].p;
+      const double dist = d.norm();
+      const Vec3 u = d / dist;
+      const double var_points = u.dot((cands[a].cov + cands[c].cov) * u);
+      std::uint8_t* ac = table(a, c);
+      std::uint8_t* ca = table(c, a);
+      for (int i = 0; i < M; ++i)
+        for (int j = 0; j < M; ++j) {
+          if (i == j) continue;
+          const auto& mi = marks_[body_marks[i]];
+          const auto& mj = marks_[body_marks[j]];
+          const double D = (mi.p_body - mj.p_body).norm();
+          const double var = var_points + mi.survey_sigma_m * mi.survey_sigma_m +
+                             mj.survey_sigma_m * mj.survey_sigma_m;
+          const std::uint8_t ok = (dist - D) * (dist - D) <= gate1 * var;
+          ac[i * M + j] = ok;
+          ca[j * M + i] = ok;
+        }
+    }
+  auto distance_matches = [&](int a, int c, int i, int j) { return table(a, c)[i * M + j] != 0; };
+  // Candidates with more views first: real marks are usually seen by >= 3 cameras, so the
+  // large hypotheses are found early and cover (skip) most later bases.
+  std::vector<int> order(K);
+  for (int k = 0; k < K; ++k)
+    order[k] = k;
+  std::stable_sort(order.begin(), order.end(),
+                   [&](int x, int y) { return cands[x].views > cands[y].views; });
+  auto& hyps = w.hypotheses;
+  hyps.clear();
+  int bases = 0;
+  bool exhausted = true;
+  std::vector<std::pair<int, int>> pairs;
+  std::vector<Vec3> q3(3), p3(3);
+  std::vector<Mat3> c3(3);
+  // Hypotheses holding each (candidate, body mark) pair: a basis all of whose three pairs one
+  // hypothesis already holds would only find that hypothesis again.
+  std::vector<std::vector<int>> hyps_with(static_cast<size_t>(K) * M);
+  std::vector<int> mark_slot(marks_.size(), -1);
+  for (int i = 0; i < M; ++i)
+    mark_slot[body_marks[i]] = i;
+  std::vector<std::vector<int>> cand_of_mark;  // per hypothesis: body mark -> candidate
+  auto covered = [&](int a, int i, int c, int j, int e, int k) {
+    for (int h : hyps_with[static_cast<size_t>(a) * M + i])
+      if (cand_of_mark[h][j] == c && cand_of_mark[h][k] == e) return true;
+    return false;
+  };
+  for (int ia = 0; ia < K && exhausted; ++ia)
+    for (int ic = ia + 1; ic < K && exhausted; ++ic) {
+      const int a = order[ia], c = order[ic];
+      if (shares_observation(cands[a].obs, cands[c].obs)) continue;
+      for (int ie = ic + 1; ie < K && exhausted; ++ie) {
+        const int e = order[ie];
+        if (shares_observation(cands[a].obs, cands[e].obs) ||
+            shares_observation(cands[c].obs, cands[e].obs))
+          continue;
+        p3 = {cands[a].p, cands[c].p, cands[e].p};
+        if (!layout_well_spread(p3, config_.min_layout_spread)) continue;
+        for (int i = 0; i < M && exhausted; ++i)
+          for (int j = 0; j < M && exhausted; ++j) {
+            if (!distance_matches(a, c, i, j)) continue;
+            for (int k = 0; k < M && exhausted; ++k) {
+              if (!distance_matches(a, e, i, k) || !distance_matches(c, e, j, k) ||
+                  covered(a, i, c, j, e, k))
+                continue;
+              if (++bases > kMaxBases) {
+                exhausted = false;
+                break;
+              }
+              // Pose from the basis, then extend / refit twice.
+              const int basis_marks[3] = {body_marks[i], body_marks[j], body_marks[k]};
+              const int basis_cands[3] = {a, c, e};
+              for (int t = 0; t < 3; ++t) {
+                const double s = marks_[basis_marks[t]].survey_sigma_m;
+                q3[t] = marks_[basis_marks[t]].p_body;
+                c3[t] = cands[basis_cands[t]].cov + s * s * Mat3::Identity();
+              }
+              LayoutFit fit;
+              if (!fit_layout(q3, p3, c3, w.layout_weights, fit)) continue;
+              Work::Hypothesis h;
+              for (int round = 0; round < 2; ++round) {
+                extend_hypothesis(w, b, fit.T_w_b, fit.cov, pairs);
+                if (pairs.size() < 3) break;
+                auto &q_b = w.layout_q_b, &p_w = w.layout_p_w;
+                auto& cov_w = w.layout_cov;
+                q_b.clear();
+                p_w.clear();
+                cov_w.clear();
+                for (const auto& [m, cd] : pairs) {
+                  const double s = marks_[m].survey_sigma_m;
+                  q_b.push_back(marks_[m].p_body);
+                  p_w.push_back(cands[cd].p);
+                  cov_w.push_back(cands[cd].cov + s * s * Mat3::Identity());
+                }
+                if (!fit_layout(q_b, p_w, cov_w, w.layout_weights, fit)) break;
+                h.pairs = pairs;
+                h.fit = fit;
+              }
+              // The basis itself is kept even when the extension lost it (so it is not retried).
+              if (h.pairs.empty())
+                h.pairs = {{basis_marks[0], a}, {basis_marks[1], c}, {basis_marks[2], e}};
+              const int n = static_cast<int>(h.pairs.size());
+              if (n >= min_marks) {
+                auto& q_b = w.layout_q_b;
+                q_b.clear();
+                for (const auto& [m, cd] : h.pairs)
+                  q_b.push_back(marks_[m].p_body);
+                h.well_posed = layout_well_posed(q_b, h.fit.cov, config_);
+                h.consistent = h.fit.chi2 <= chi2_gate_[std::min(kMaxDof, 3 * n - 6)];
+                for (const auto& [m, cd] : h.pairs)
+                  h.obs.insert(h.obs.end(), cands[cd].obs.begin(), cands[cd].obs.end());
+                std::sort(h.obs.begin(), h.obs.end());
+              }
+              cand_of_mark.emplace_back(M, -1);
+              for (const auto& [m, cd] : h.pairs) {
+                cand_of_mark.back()[mark_slot[m]] = cd;
+                hyps_with[static_cast<size_t>(cd) * M + mark_slot[m]].push_back(
+                    static_cast<int>(hyps.size()));
+              }
+              hyps.push_back(std::move(h));
+            }
+          }
+      }
+    }
+  if (!exhausted) return SearchOutcome::kAmbiguous;
+
+  // Classify: sizable (enough well-spread marks), consistent, inside the region.
+  bool any_sizable = false, any_consistent = false;
+  struct Group {
+    int rep;
+    std::vector<int> obs;
+  };
+  std::vector<Group> groups;
+  for (int h = 0; h < static_cast<int>(hyps.size()); ++h) {
+    const auto& hy = hyps[h];
+    if (!hy.well_posed) continue;
+    any_sizable = true;
+    if (!hy.consistent) continue;
+    any_consistent = true;
+    if (!inside_region(w, b, hy.fit.T_w_b)) continue;
+    bool merged = false;
+    for (auto& g : groups) {
+      const auto& rep = hyps[g.rep];
+      Mat6 Winv;
+      const geometry::Vec6 d = pose_difference(rep.fit.T_w_b, hy.fit.T_w_b);
+      if (!uncertainty::inverse_spd<6>(Mat6(rep.fit.cov + hy.fit.cov), Winv)) continue;
+      if (!(d.dot(Winv * d) <= chi2_gate_[6])) continue;
+      std::vector<int> u;
+      std::set_union(g.obs.begin(), g.obs.end(), hy.obs.begin(), hy.obs.end(),
+                     std::back_inserter(u));
+      g.obs = std::move(u);
+      if (hy.pairs.size() > rep.pairs.size()) g.rep = h;
+      merged = true;
+      break;
+    }
+    if (!merged) groups.push_back({h, hy.obs});
+  }
+  if (!any_sizable) return SearchOutcome::kTooFewMarks;
+  if (!any_consistent) return SearchOutcome::kInconsistent;
+  if (groups.empty()) return SearchOutcome::kOutsideRegion;
+  // An interpretation explaining a strict subset of another's observations is dropped.
+  std::vector<int> kept;
+  for (size_t g = 0; g < groups.size(); ++g) {
+    bool dominated = false;
+    for (size_t o = 0; o < groups.size() && !dominated; ++o)
+      dominated = o != g && groups[o].obs.size() > groups[g].obs.size() &&
+                  std::includes(groups[o].obs.begin(), groups[o].obs.end(), groups[g].obs.begin(),
+                                groups[g].obs.end());
+    if (!dominated) kept.push_back(static_cast<int>(g));
+  }
+  if (kept.size() != 1) return SearchOutcome::kAmbiguous;
+  const auto& best = hyps[groups[kept[0]].rep];
+  // Accepted: this body's unconfirmed ids are released, its pose starts from the fit (no
+  // prediction: the bootstrap's layout test is then the fit's chi-square).
+  for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
+    if (marks_[m].body != b) continue;
+    for (int o : w.assigned[m]) {
+      w.obs[o].state = ObsState::kUnassigned;
+      w.obs[o].mark = -1;
+    }
+    w.assigned[m].clear();
+    w.tri[m] = {};
+    w.dirty[m] = false;
+  }
+  w.fitted[b] = true;
+  w.T_w_b[b] = best.fit.T_w_b;
+  w.cov_b[b] = best.fit.cov;
+  w.body[b].predicted = false;
+  w.body[b].updated = false;
+  w.reacquired[b] = true;
+  return SearchOutcome::kAccepted;
+}
+
+void MarkMatcher::reacquire_lost_bodies(Work& w) const {
+  const int min_marks = std::max({3, config_.min_layout_marks, config_.min_reacquisition_marks});
+  for (int b = 0; b < static_cast<int>(bodies_.size()); ++b) {
+    if (w.fitted[b]) continue;
+    // Free observations: without an id, or with an (unconfirmed) id of this body.
+    w.free_by_cam.resize(w.cams.size());
+    int cams_with = 0, total = 0;
+    for (size_t c = 0; c < w.cams.size(); ++c) {
+      auto& fr = w.free_by_cam[c];
+      fr.clear();
+      for (int o : w.cams[c].obs) {
+        const auto& ob = w.obs[o];
+        if (ob.state != ObsState::kAssigned || marks_[ob.mark].body == b) fr.push_back(o);
+      }
+      cams_with += !fr.empty();
+      total += static_cast<int>(fr.size());
+    }
+    if (cams_with < 2 || total < 2 * min_marks) continue;
+    ++w.counts.reacquisition_attempted;
+    switch (search_body(w, b)) {
+      case SearchOutcome::kAccepted:
+        ++w.counts.reacquisition_accepted;
+        break;
+      case SearchOutcome::kAmbiguous:
+        ++w.counts.reacquisition_ambiguous;
+        break;
+      case SearchOutcome::kInconsistent:
+        ++w.counts.reacquisition_inconsistent;
+        break;
+      case SearchOutcome::kTooFewMarks:
+        ++w.counts.reacquisition_too_few_marks;
+        break;
+      case SearchOutcome::kOutsideRegion:
+        ++w.counts.reacquisition_outside_region;
+        break;
+    }
+  }
+}
+
+}  // namespace storetrack::match
