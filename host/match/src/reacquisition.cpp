@@ -219,6 +219,17 @@ void MarkMatcher::form_candidates(Work& w) const {
       }
     }
   }
+  // An observation is the image of one mark: a two-view point that uses an observation of a
+  // point consistent in three or more views is a false correspondence along an epipolar line
+  // (one view is much weaker evidence than three), and only multiplies the bases searched.
+  std::vector<bool> in_multi_view(w.obs.size(), false);
+  for (const auto& cd : cands)
+    if (cd.views >= 3)
+      for (int o : cd.obs)
+        in_multi_view[o] = true;
+  std::erase_if(cands, [&](const Work::Candidate& cd) {
+    return cd.views == 2 && (in_multi_view[cd.obs[0]] || in_multi_view[cd.obs[1]]);
+  });
 }
 
 void MarkMatcher::extend_hypothesis(Work& w, int b, const Transform& T_w_b, const Mat6& cov,
@@ -385,7 +396,9 @@ MarkMatcher::SearchOutcome MarkMatcher::search_body(Work& w, int b) const {
               Work::Hypothesis h;
               for (int round = 0; round < 2; ++round) {
                 extend_hypothesis(w, b, fit.T_w_b, fit.cov, pairs);
-                if (pairs.size() < 3) break;
+                // Too few marks after the first (widest) extension: no need to refine it.
+                if (pairs.size() < 3 || (round == 0 && static_cast<int>(pairs.size()) < min_marks))
+                  break;
                 auto &q_b = w.layout_q_b, &p_w = w.layout_p_w;
                 auto& cov_w = w.layout_cov;
                 q_b.clear();
