@@ -843,11 +843,24 @@ TEST(MarkMatcherReacquisition, IdenticalSecondStoreIsRefusedWhenNothingTellsThem
 
 TEST(MarkMatcherReacquisition, IdenticalSecondStoreIsToldApartByRegion) {
   // The same with the store's separation region relative to the pylon: the twin (0.7 m aside)
-  // is outside it, so our store is found and tracked, the twin never identified.
+  // is outside it. While our store is hidden (exposures 145-149) the search finds only the twin
+  // and refuses it (outside the region); then our store is found and tracked, the twin is never
+  // identified.
   const sim::Simulator& sim = shared_simulator("store_separation");
   MarkMatcher matcher(sim.calibrated_rig(), {sim.pylon_survey(), sim.store_survey()});
   set_installation_priors(sim, matcher);
   ASSERT_TRUE(matcher.set_region("store", separation_region(sim)));
+  std::vector<Feed> hidden;
+  for (int k = 145; k < 150; ++k)
+    hidden.push_back({k, 0, true, kTwinOffset});
+  const StoreTally th = run_feeds(sim, matcher, hidden, 12);
+  print_store_tally("twin store visible, ours hidden, separation region", th, matcher.counters(),
+                    0);
+  EXPECT_EQ(th.wrong, 0);
+  ASSERT_GT(th.twin_observations, 100);
+  EXPECT_EQ(th.twin_identified, 0);
+  EXPECT_EQ(matcher.counters().reacquisition_outside_region, hidden.size());
+  EXPECT_EQ(matcher.counters().reacquisition_accepted, 0u);
   std::vector<Feed> feeds;
   for (int k = 150; k < sim.num_exposures(); ++k)
     feeds.push_back({k, 0, false, kTwinOffset});
@@ -858,6 +871,7 @@ TEST(MarkMatcherReacquisition, IdenticalSecondStoreIsToldApartByRegion) {
   EXPECT_EQ(t.twin_identified, 0);
   ASSERT_GT(t.store_observations, 1000);
   EXPECT_GE(t.rate(), 0.95);
+  EXPECT_EQ(matcher.counters().reacquisition_accepted, 1u);
   expect_pose_coverage(t);
 }
 }  // namespace
