@@ -48,6 +48,27 @@ bool layout_well_spread(std::span<const Vec3> q_b, double min_spread);
 /// known to MatcherConfig::max_layout_rotation_sigma_rad / max_layout_translation_sigma_m.
 bool layout_well_posed(std::span<const Vec3> q_b, const Mat6& cov, const MatcherConfig& config);
 
+/// Re-acquisition (reacquisition.cpp): two free observations of different cameras that pass
+/// the epipolar test, and their two-view point.
+struct EpipolarPair {
+  int o1 = -1, o2 = -1;
+  Vec3 p = Vec3::Zero();
+};
+/// A 3-D point triangulated from free observations of >= 2 cameras.
+struct CandidatePoint {
+  std::vector<int> obs;  ///< observation indices, ascending, one per camera
+  Vec3 p = Vec3::Zero();
+  Mat3 cov = Mat3::Zero();  ///< triangulation covariance
+  int views = 0;
+};
+/// Survey marks assigned to candidate points, and the fitted pose.
+struct LayoutHypothesis {
+  std::vector<std::pair<int, int>> pairs;  ///< (mark index in MarkMatcher::marks_, candidate)
+  LayoutFit fit;
+  bool well_posed = false, consistent = false;
+  std::vector<int> obs;  ///< observations of the explained candidates, ascending
+};
+
 enum class ObsState : std::uint8_t { kUnassigned, kAssigned, kAmbiguous, kUngated };
 
 /// Per-exposure working state.
@@ -127,21 +148,11 @@ struct MarkMatcher::Work {
   };
   std::vector<BodyState> body;
   /// Re-acquisition scratch (reacquisition.cpp).
-  struct Candidate {
-    std::vector<int> obs;  ///< observation indices, ascending, one per camera (>= 2)
-    Vec3 p = Vec3::Zero();
-    Mat3 cov = Mat3::Zero();  ///< triangulation covariance
-    int views = 0;
-  };
-  struct Hypothesis {
-    std::vector<std::pair<int, int>> pairs;  ///< (mark index in marks_, candidate), by mark
-    LayoutFit fit;
-    bool well_posed = false, consistent = false;
-    std::vector<int> obs;  ///< observations of the explained candidates, ascending
-  };
   std::vector<std::vector<int>> free_by_cam;
-  std::vector<Candidate> candidates;
-  std::vector<Hypothesis> hypotheses;
+  std::vector<EpipolarPair> epipolar_pairs;
+  std::vector<std::vector<int>> compatible;  ///< per observation: epipolar partners, ascending
+  std::vector<CandidatePoint> candidates;
+  std::vector<LayoutHypothesis> hypotheses;
   std::vector<bool> lost;        ///< per body: its extrapolated pose was too uncertain to gate
   std::vector<bool> reacquired;  ///< per body: found by the re-acquisition search
   std::vector<Pred> pred_track, pred_body;  ///< prediction scratch, per mark

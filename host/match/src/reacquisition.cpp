@@ -69,6 +69,224 @@ geometry::Vec6 pose_difference(const Transform& T1, const Transform& T2) {
 /// (it could not be exhausted).
 constexpr int kMaxBases = 20000;
 
+/// One body's surveyed marks as the search sees them.
+struct BodyMarks {
+  std::vector<int> index;  ///< in MarkMatcher::marks_
+  std::vector<Vec3> q_b;
+  std::vector<double> sigma_m;
+  int size() const { return static_cast<int>(index.size()); }
+};
+
+/// Layout hypotheses of one body among the candidate points (steps 2 and 3 of the header).
+class LayoutSearch {
+ public:
+  LayoutSearch(const std::vector<CandidatePoint>& cands, const BodyMarks& marks,
+               const std::vector<double>& chi2_gate, const MatcherConfig& config, int min_marks,
+               std::vector<LayoutHypothesis>& hyps)
+      : cands_(cands),
+        marks_(marks),
+        gate_(chi2_gate),
+        config_(config),
+        min_marks_(min_marks),
+        hyps_(hyps),
+        K_(static_cast<int>(cands.size())),
+        M_(marks.size()) {}
+
+  /// Tries every basis; false when kMaxBases was reached (not exhausted).
+  bool run();
+
+ private:
+  void build_distance_table();
+  bool distance_matches(int a, int c, int i, int j) const {
+    return table_[(static_cast<size_t>(a) * K_ + c) * M_ * M_ + static_cast<size_t>(i) * M_ + j] !=
+           0;
+  }
+  bool covered(int a, int i, int c, int j, int e, int k) const;
+  void try_basis(int a, int c, int e, int i, int j, int k);
+  void extend(const Transform& T_w_b, const Mat6& cov, std::vector<std::pair<int, int>>& pairs);
+  bool fit(const std::vector<std::pair<int, int>>& pairs, LayoutFit& out);
+  void record(LayoutHypothesis h);
+
+  const std::vector<CandidatePoint>& cands_;
+  const BodyMarks& marks_;
+  const std::vector<double>& gate_;
+  const MatcherConfig& config_;
+  const int min_marks_;
+  std::vector<LayoutHypothesis>& hyps_;
+  const int K_, M_;
+  std::vector<std::uint8_t> table_;             ///< per ordered candidate pair x ordered mark pair
+  std::vector<std::vector<int>> hyps_with_;     ///< per (candidate, mark slot): hypotheses
+  std::vector<std::vector<int>> cand_of_mark_;  ///< per hypothesis: mark slot -> candidate
+  std::vector<Vec3> q_, p_;
+  std::vector<Mat3> cov_;
+  std::vector<double> weights_;
+  std::vector<int> hits_of_cand_;
+  std::vector<std::pair<int, int>> found_;
+};
+
+void LayoutSearch::build_distance_table() {
+  // Distance gate: (d - D)^2 <= chi2(1) (u^T (C_a + C_c) u + s_i^2 + s_j^2), u along the line.
+  table_.assign(static_cast<size_t>(K_) * K_ * M_ * M_, 0);
+  for (int a = 0; a < K_; ++a)
+    for (int c = a + 1; c < K_; ++c) {
+      const Vec3 d = cands_[c].p - cands_[a].p;
+      const double dist = d.norm();
+      const Vec3 u = d / dist;
+      const double var_points = u.dot((cands_[a].cov + cands_[c].cov) * u);
+      std::uint8_t* ac = &table_[(static_cast<size_t>(a) * K_ + c) * M_ * M_];
+      std::uint8_t* ca = &table_[(static_cast<size_t>(c) * K_ + a) * M_ * M_];
+      for (int i = 0; i < M_; ++i)
+        for (int j = 0; j < M_; ++j) {
+          if (i == j) continue;
+          const double D = (marks_.q_b[i] - marks_.q_b[j]).norm();
+          const double var = var_points + marks_.sigma_m[i] * marks_.sigma_m[i] +
+                             marks_.sigma_m[j] * marks_.sigma_m[j];
+          const std::uint8_t ok = (dist - D) * (dist - D) <= gate_[1] * var;
+          ac[i * M_ + j] = ok;
+          ca[j * M_ + i] = ok;
+        }
+    }
+}
+
+bool LayoutSearch::covered(int a, int i, int c, int j, int e, int k) const {
+  // A basis all of whose three pairs one hypothesis already holds would only find it again.
+  for (int h : hyps_with_[static_cast<size_t>(a) * M_ + i])
+    if (cand_of_mark_[h][j] == c && cand_of_mark_[h][k] == e) return true;
+  return false;
+}
+
+bool LayoutSearch::run() {
+  build_distance_table();
+  hyps_.clear();
+  hyps_with_.assign(static_cast<size_t>(K_) * M_, {});
+  cand_of_mark_.clear();
+  // Candidates with more views first: real marks are usually seen by >= 3 cameras, so the
+  // large hypotheses are found early and cover (skip) most later bases.
+  std::vector<int> order(K_);
+  for (int k = 0; k < K_; ++k)
+    order[k] = k;
+  std::stable_sort(order.begin(), order.end(),
+                   [&](int x, int y) { return cands_[x].views > cands_[y].views; });
+  int bases = 0;
+  std::vector<Vec3> corners(3);
+  for (int ia = 0; ia < K_; ++ia)
+    for (int ic = ia + 1; ic < K_; ++ic) {
+      const int a = order[ia], c = order[ic];
+      if (shares_observation(cands_[a].obs, cands_[c].obs)) continue;
+      for (int ie = ic + 1; ie < K_; ++ie) {
+        const int e = order[ie];
+        if (shares_observation(cands_[a].obs, cands_[e].obs) ||
+            shares_observation(cands_[c].obs, cands_[e].obs))
+          continue;
+        corners = {cands_[a].p, cands_[c].p, cands_[e].p};
+        if (!layout_well_spread(corners, config_.min_layout_spread)) continue;
+        for (int i = 0; i < M_; ++i)
+          for (int j = 0; j < M_; ++j) {
+            if (!distance_matches(a, c, i, j)) continue;
+            for (int k = 0; k < M_; ++k) {
+              if (!distance_matches(a, e, i, k) || !distance_matches(c, e, j, k) ||
+                  covered(a, i, c, j, e, k))
+                continue;
+              if (++bases > kMaxBases) return false;
+              try_basis(a, c, e, i, j, k);
+            }
+          }
+      }
+    }
+  return true;
+}
+
+bool LayoutSearch::fit(const std::vector<std::pair<int, int>>& pairs, LayoutFit& out) {
+  q_.clear();
+  p_.clear();
+  cov_.clear();
+  for (const auto& [i, cd] : pairs) {
+    q_.push_back(marks_.q_b[i]);
+    p_.push_back(cands_[cd].p);
+    cov_.push_back(cands_[cd].cov + marks_.sigma_m[i] * marks_.sigma_m[i] * Mat3::Identity());
+  }
+  return fit_layout(q_, p_, cov_, weights_, out);
+}
+
+void LayoutSearch::try_basis(int a, int c, int e, int i, int j, int k) {
+  // Pose from the basis, then extend and refit twice.
+  const std::vector<std::pair<int, int>> basis{{i, a}, {j, c}, {k, e}};
+  LayoutFit fit3;
+  if (!fit(basis, fit3)) return;
+  LayoutHypothesis h;
+  LayoutFit current = fit3;
+  std::vector<std::pair<int, int>> pairs;
+  for (int round = 0; round < 2; ++round) {
+    extend(current.T_w_b, current.cov, pairs);
+    // Too few marks after the first (widest) extension: no need to refine it.
+    if (pairs.size() < 3 || (round == 0 && static_cast<int>(pairs.size()) < min_marks_)) break;
+    if (!fit(pairs, current)) break;
+    h.pairs = pairs;
+    h.fit = current;
+  }
+  // The basis itself is kept even when the extension lost it (so it is not retried).
+  if (h.pairs.empty()) h.pairs = basis;
+  const int n = static_cast<int>(h.pairs.size());
+  if (n >= min_marks_) {
+    q_.clear();
+    for (const auto& [mi, cd] : h.pairs)
+      q_.push_back(marks_.q_b[mi]);
+    h.well_posed = layout_well_posed(q_, h.fit.cov, config_);
+    h.consistent = h.fit.chi2 <= gate_[std::min(kMaxDof, 3 * n - 6)];
+    for (const auto& [mi, cd] : h.pairs)
+      h.obs.insert(h.obs.end(), cands_[cd].obs.begin(), cands_[cd].obs.end());
+    std::sort(h.obs.begin(), h.obs.end());
+  }
+  record(std::move(h));
+}
+
+void LayoutSearch::record(LayoutHypothesis h) {
+  cand_of_mark_.emplace_back(M_, -1);
+  for (auto& [i, cd] : h.pairs) {
+    cand_of_mark_.back()[i] = cd;
+    hyps_with_[static_cast<size_t>(cd) * M_ + i].push_back(static_cast<int>(hyps_.size()));
+    i = marks_.index[i];  // stored as MarkMatcher::marks_ indices
+  }
+  hyps_.push_back(std::move(h));
+}
+
+void LayoutSearch::extend(const Transform& T_w_b, const Mat6& cov,
+                          std::vector<std::pair<int, int>>& pairs) {
+  // Every mark of the body predicted from the pose; a candidate is taken when it is the mark's
+  // only candidate inside the chi-square(3) gate and the mark is the candidate's only one, and
+  // it shares no observation with another taken candidate.
+  hits_of_cand_.assign(K_, 0);
+  found_.clear();
+  for (int i = 0; i < M_; ++i) {
+    const auto G = point_pose_jacobian(T_w_b, marks_.q_b[i]);
+    const Vec3 p = T_w_b * marks_.q_b[i];
+    const Mat3 C_pred =
+        G * cov * G.transpose() + marks_.sigma_m[i] * marks_.sigma_m[i] * Mat3::Identity();
+    int hit = -1, hits = 0;
+    for (int k = 0; k < K_; ++k) {
+      const Vec3 e = cands_[k].p - p;
+      // e^T C^-1 e >= |e|^2 / lambda_max(C) >= |e|^2 / trace(C): far candidates skip the inverse.
+      const Mat3 C_sum = C_pred + cands_[k].cov;
+      if (e.squaredNorm() > gate_[3] * C_sum.trace()) continue;
+      Mat3 W;
+      if (!uncertainty::inverse_spd<3>(C_sum, W) || !(e.dot(W * e) <= gate_[3])) continue;
+      ++hits;
+      hit = k;
+      ++hits_of_cand_[k];
+    }
+    if (hits == 1) found_.emplace_back(i, hit);
+  }
+  pairs.clear();
+  for (const auto& [i, k] : found_) {
+    if (hits_of_cand_[k] != 1) continue;
+    bool clash = false;
+    for (const auto& [i2, k2] : found_)
+      clash = clash || (k2 != k && hits_of_cand_[k2] == 1 &&
+                        shares_observation(cands_[k].obs, cands_[k2].obs));
+    if (!clash) pairs.emplace_back(i, k);
+  }
+}
+
 }  // namespace
 
 bool MarkMatcher::triangulate_free(Work& w, std::span<const int> obs, const Vec3& initial,
@@ -108,9 +326,7 @@ bool MarkMatcher::triangulate_free(Work& w, std::span<const int> obs, const Vec3
   return std::isfinite(chi2) && p_w.allFinite();
 }
 
-void MarkMatcher::form_candidates(Work& w) const {
-  auto& cands = w.candidates;
-  cands.clear();
+void MarkMatcher::find_epipolar_pairs(Work& w) const {
   const int C = static_cast<int>(w.cams.size());
   // Rays of the free observations (world frame): centre and direction.
   auto ray = [&](int o, Vec3& centre, Vec3& dir) {
@@ -124,12 +340,12 @@ void MarkMatcher::form_candidates(Work& w) const {
   // calibration bound converted to the normalised plane by the camera's smallest pixel scale,
   // i.e. a wider gate, and 4x the chi-square(1) gate for the first-order error), then the
   // two-view triangulation's reprojection chi-square(1) (the epipolar constraint, exact).
-  struct Pair {
-    int o1, o2;
-    Vec3 p;
-  };
-  std::vector<Pair> pairs;
-  std::vector<std::vector<int>> compatible(w.obs.size());
+  auto& pairs = w.epipolar_pairs;
+  auto& compatible = w.compatible;
+  pairs.clear();
+  compatible.resize(w.obs.size());
+  for (auto& v : compatible)
+    v.clear();
   auto normalised_var = [&](int o, double z) {
     const auto& ob = w.obs[o];
     const auto& bound = cal_bounds_[ob.slot];
@@ -174,6 +390,14 @@ void MarkMatcher::form_candidates(Work& w) const {
     }
   for (auto& v : compatible)
     std::sort(v.begin(), v.end());
+}
+
+void MarkMatcher::form_candidates(Work& w) const {
+  find_epipolar_pairs(w);
+  auto& cands = w.candidates;
+  cands.clear();
+  const int C = static_cast<int>(w.cams.size());
+  const auto& compatible = w.compatible;
   auto compat = [&](int a, int b) {
     return std::binary_search(compatible[a].begin(), compatible[a].end(), b);
   };
@@ -181,7 +405,7 @@ void MarkMatcher::form_candidates(Work& w) const {
   // (none where two are: that correspondence is not unique), then triangulated with the
   // calibration covariance at the point; a failing extension falls back to the pair itself.
   std::vector<int> set;
-  for (const Pair& pr : pairs) {
+  for (const EpipolarPair& pr : w.epipolar_pairs) {
     set = {pr.o1, pr.o2};
     for (int c = 0; c < C; ++c) {
       if (c == w.obs[pr.o1].cam || c == w.obs[pr.o2].cam) continue;
@@ -207,7 +431,7 @@ void MarkMatcher::form_candidates(Work& w) const {
       for (const auto& cd : cands)
         seen = seen || cd.obs == set;
       if (seen) break;
-      Work::Candidate cd;
+      CandidatePoint cd;
       double chi2 = 0;
       const int n = static_cast<int>(set.size());
       if (triangulate_free(w, set, pr.p, true, cd.p, cd.cov, chi2) &&
@@ -227,50 +451,9 @@ void MarkMatcher::form_candidates(Work& w) const {
     if (cd.views >= 3)
       for (int o : cd.obs)
         in_multi_view[o] = true;
-  std::erase_if(cands, [&](const Work::Candidate& cd) {
+  std::erase_if(cands, [&](const CandidatePoint& cd) {
     return cd.views == 2 && (in_multi_view[cd.obs[0]] || in_multi_view[cd.obs[1]]);
   });
-}
-
-void MarkMatcher::extend_hypothesis(Work& w, int b, const Transform& T_w_b, const Mat6& cov,
-                                    std::vector<std::pair<int, int>>& pairs) const {
-  // Every mark of the body predicted from the pose; a candidate is taken when it is the mark's
-  // only candidate inside the chi-square(3) gate and the mark is the candidate's only one, and
-  // it shares no observation with another taken candidate.
-  const auto& cands = w.candidates;
-  const int K = static_cast<int>(cands.size());
-  std::vector<int> mark_of_cand(K, -1), hits_of_cand(K, 0);
-  std::vector<std::pair<int, int>> found;
-  for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
-    if (marks_[m].body != b) continue;
-    const auto G = point_pose_jacobian(T_w_b, marks_[m].p_body);
-    const Vec3 p = T_w_b * marks_[m].p_body;
-    const double s2 = marks_[m].survey_sigma_m * marks_[m].survey_sigma_m;
-    const Mat3 C_pred = G * cov * G.transpose() + s2 * Mat3::Identity();
-    int hit = -1, hits = 0;
-    for (int k = 0; k < K; ++k) {
-      const Vec3 e = cands[k].p - p;
-      // e^T C^-1 e >= |e|^2 / lambda_max(C) >= |e|^2 / trace(C): far candidates skip the inverse.
-      const Mat3 C_sum = C_pred + cands[k].cov;
-      if (e.squaredNorm() > chi2_gate_[3] * C_sum.trace()) continue;
-      Mat3 Wm;
-      if (!uncertainty::inverse_spd<3>(C_sum, Wm)) continue;
-      if (!(e.dot(Wm * e) <= chi2_gate_[3])) continue;
-      ++hits;
-      hit = k;
-      ++hits_of_cand[k];
-    }
-    if (hits == 1) found.emplace_back(m, hit);
-  }
-  pairs.clear();
-  for (const auto& [m, k] : found) {
-    if (hits_of_cand[k] != 1) continue;
-    bool clash = false;
-    for (const auto& [m2, k2] : found)
-      clash = clash ||
-              (k2 != k && hits_of_cand[k2] == 1 && shares_observation(cands[k].obs, cands[k2].obs));
-    if (!clash) pairs.emplace_back(m, k);
-  }
 }
 
 bool MarkMatcher::inside_region(const Work& w, int b, const Transform& T_w_b) const {
@@ -297,152 +480,10 @@ bool MarkMatcher::inside_region(const Work& w, int b, const Transform& T_w_b) co
          (offset.array() <= rg.region.max_offset_m.array()).all();
 }
 
-MarkMatcher::SearchOutcome MarkMatcher::search_body(Work& w, int b) const {
-  form_candidates(w);
-  const auto& cands = w.candidates;
-  const int K = static_cast<int>(cands.size());
-  const int min_marks = std::max({3, config_.min_layout_marks, config_.min_reacquisition_marks});
-  if (K < min_marks) return SearchOutcome::kTooFewMarks;
-  std::vector<int> body_marks;
-  for (int m = 0; m < static_cast<int>(marks_.size()); ++m)
-    if (marks_[m].body == b) body_marks.push_back(m);
-  const int M = static_cast<int>(body_marks.size());
-  if (M < min_marks) return SearchOutcome::kTooFewMarks;
-  // Distance gate: (d - D)^2 <= chi2(1) (u^T (C_a + C_b) u + s_i^2 + s_j^2), u along the line;
-  // tabulated per candidate pair over the ordered survey pairs.
-  const double gate1 = chi2_gate_[1];
-  std::vector<std::uint8_t> match_table(static_cast<size_t>(K * K) * M * M, 0);
-  auto table = [&](int a, int c) { return &match_table[(static_cast<size_t>(a) * K + c) * M * M]; };
-  for (int a = 0; a < K; ++a)
-    for (int c = a + 1; c < K; ++c) {
-      const Vec3 d = cands[c].p - cands[a].p;
-      const double dist = d.norm();
-      const Vec3 u = d / dist;
-      const double var_points = u.dot((cands[a].cov + cands[c].cov) * u);
-      std::uint8_t* ac = table(a, c);
-      std::uint8_t* ca = table(c, a);
-      for (int i = 0; i < M; ++i)
-        for (int j = 0; j < M; ++j) {
-          if (i == j) continue;
-          const auto& mi = marks_[body_marks[i]];
-          const auto& mj = marks_[body_marks[j]];
-          const double D = (mi.p_body - mj.p_body).norm();
-          const double var = var_points + mi.survey_sigma_m * mi.survey_sigma_m +
-                             mj.survey_sigma_m * mj.survey_sigma_m;
-          const std::uint8_t ok = (dist - D) * (dist - D) <= gate1 * var;
-          ac[i * M + j] = ok;
-          ca[j * M + i] = ok;
-        }
-    }
-  auto distance_matches = [&](int a, int c, int i, int j) { return table(a, c)[i * M + j] != 0; };
-  // Candidates with more views first: real marks are usually seen by >= 3 cameras, so the
-  // large hypotheses are found early and cover (skip) most later bases.
-  std::vector<int> order(K);
-  for (int k = 0; k < K; ++k)
-    order[k] = k;
-  std::stable_sort(order.begin(), order.end(),
-                   [&](int x, int y) { return cands[x].views > cands[y].views; });
-  auto& hyps = w.hypotheses;
-  hyps.clear();
-  int bases = 0;
-  bool exhausted = true;
-  std::vector<std::pair<int, int>> pairs;
-  std::vector<Vec3> q3(3), p3(3);
-  std::vector<Mat3> c3(3);
-  // Hypotheses holding each (candidate, body mark) pair: a basis all of whose three pairs one
-  // hypothesis already holds would only find that hypothesis again.
-  std::vector<std::vector<int>> hyps_with(static_cast<size_t>(K) * M);
-  std::vector<int> mark_slot(marks_.size(), -1);
-  for (int i = 0; i < M; ++i)
-    mark_slot[body_marks[i]] = i;
-  std::vector<std::vector<int>> cand_of_mark;  // per hypothesis: body mark -> candidate
-  auto covered = [&](int a, int i, int c, int j, int e, int k) {
-    for (int h : hyps_with[static_cast<size_t>(a) * M + i])
-      if (cand_of_mark[h][j] == c && cand_of_mark[h][k] == e) return true;
-    return false;
-  };
-  for (int ia = 0; ia < K && exhausted; ++ia)
-    for (int ic = ia + 1; ic < K && exhausted; ++ic) {
-      const int a = order[ia], c = order[ic];
-      if (shares_observation(cands[a].obs, cands[c].obs)) continue;
-      for (int ie = ic + 1; ie < K && exhausted; ++ie) {
-        const int e = order[ie];
-        if (shares_observation(cands[a].obs, cands[e].obs) ||
-            shares_observation(cands[c].obs, cands[e].obs))
-          continue;
-        p3 = {cands[a].p, cands[c].p, cands[e].p};
-        if (!layout_well_spread(p3, config_.min_layout_spread)) continue;
-        for (int i = 0; i < M && exhausted; ++i)
-          for (int j = 0; j < M && exhausted; ++j) {
-            if (!distance_matches(a, c, i, j)) continue;
-            for (int k = 0; k < M && exhausted; ++k) {
-              if (!distance_matches(a, e, i, k) || !distance_matches(c, e, j, k) ||
-                  covered(a, i, c, j, e, k))
-                continue;
-              if (++bases > kMaxBases) {
-                exhausted = false;
-                break;
-              }
-              // Pose from the basis, then extend / refit twice.
-              const int basis_marks[3] = {body_marks[i], body_marks[j], body_marks[k]};
-              const int basis_cands[3] = {a, c, e};
-              for (int t = 0; t < 3; ++t) {
-                const double s = marks_[basis_marks[t]].survey_sigma_m;
-                q3[t] = marks_[basis_marks[t]].p_body;
-                c3[t] = cands[basis_cands[t]].cov + s * s * Mat3::Identity();
-              }
-              LayoutFit fit;
-              if (!fit_layout(q3, p3, c3, w.layout_weights, fit)) continue;
-              Work::Hypothesis h;
-              for (int round = 0; round < 2; ++round) {
-                extend_hypothesis(w, b, fit.T_w_b, fit.cov, pairs);
-                // Too few marks after the first (widest) extension: no need to refine it.
-                if (pairs.size() < 3 || (round == 0 && static_cast<int>(pairs.size()) < min_marks))
-                  break;
-                auto &q_b = w.layout_q_b, &p_w = w.layout_p_w;
-                auto& cov_w = w.layout_cov;
-                q_b.clear();
-                p_w.clear();
-                cov_w.clear();
-                for (const auto& [m, cd] : pairs) {
-                  const double s = marks_[m].survey_sigma_m;
-                  q_b.push_back(marks_[m].p_body);
-                  p_w.push_back(cands[cd].p);
-                  cov_w.push_back(cands[cd].cov + s * s * Mat3::Identity());
-                }
-                if (!fit_layout(q_b, p_w, cov_w, w.layout_weights, fit)) break;
-                h.pairs = pairs;
-                h.fit = fit;
-              }
-              // The basis itself is kept even when the extension lost it (so it is not retried).
-              if (h.pairs.empty())
-                h.pairs = {{basis_marks[0], a}, {basis_marks[1], c}, {basis_marks[2], e}};
-              const int n = static_cast<int>(h.pairs.size());
-              if (n >= min_marks) {
-                auto& q_b = w.layout_q_b;
-                q_b.clear();
-                for (const auto& [m, cd] : h.pairs)
-                  q_b.push_back(marks_[m].p_body);
-                h.well_posed = layout_well_posed(q_b, h.fit.cov, config_);
-                h.consistent = h.fit.chi2 <= chi2_gate_[std::min(kMaxDof, 3 * n - 6)];
-                for (const auto& [m, cd] : h.pairs)
-                  h.obs.insert(h.obs.end(), cands[cd].obs.begin(), cands[cd].obs.end());
-                std::sort(h.obs.begin(), h.obs.end());
-              }
-              cand_of_mark.emplace_back(M, -1);
-              for (const auto& [m, cd] : h.pairs) {
-                cand_of_mark.back()[mark_slot[m]] = cd;
-                hyps_with[static_cast<size_t>(cd) * M + mark_slot[m]].push_back(
-                    static_cast<int>(hyps.size()));
-              }
-              hyps.push_back(std::move(h));
-            }
-          }
-      }
-    }
-  if (!exhausted) return SearchOutcome::kAmbiguous;
-
-  // Classify: sizable (enough well-spread marks), consistent, inside the region.
+MarkMatcher::SearchOutcome MarkMatcher::choose_hypothesis(const Work& w, int b, int& best) const {
+  // Passing: enough well-spread marks, consistent, inside the region. Passing hypotheses with
+  // the same pose (chi-square(6) of the difference) form one interpretation.
+  const auto& hyps = w.hypotheses;
   bool any_sizable = false, any_consistent = false;
   struct Group {
     int rep;
@@ -459,10 +500,11 @@ MarkMatcher::SearchOutcome MarkMatcher::search_body(Work& w, int b) const {
     bool merged = false;
     for (auto& g : groups) {
       const auto& rep = hyps[g.rep];
-      Mat6 Winv;
+      Mat6 W;
       const geometry::Vec6 d = pose_difference(rep.fit.T_w_b, hy.fit.T_w_b);
-      if (!uncertainty::inverse_spd<6>(Mat6(rep.fit.cov + hy.fit.cov), Winv)) continue;
-      if (!(d.dot(Winv * d) <= chi2_gate_[6])) continue;
+      if (!uncertainty::inverse_spd<6>(Mat6(rep.fit.cov + hy.fit.cov), W) ||
+          !(d.dot(W * d) <= chi2_gate_[6]))
+        continue;
       std::vector<int> u;
       std::set_union(g.obs.begin(), g.obs.end(), hy.obs.begin(), hy.obs.end(),
                      std::back_inserter(u));
@@ -477,19 +519,25 @@ MarkMatcher::SearchOutcome MarkMatcher::search_body(Work& w, int b) const {
   if (!any_consistent) return SearchOutcome::kInconsistent;
   if (groups.empty()) return SearchOutcome::kOutsideRegion;
   // An interpretation explaining a strict subset of another's observations is dropped.
-  std::vector<int> kept;
+  int kept = 0;
   for (size_t g = 0; g < groups.size(); ++g) {
     bool dominated = false;
     for (size_t o = 0; o < groups.size() && !dominated; ++o)
       dominated = o != g && groups[o].obs.size() > groups[g].obs.size() &&
                   std::includes(groups[o].obs.begin(), groups[o].obs.end(), groups[g].obs.begin(),
                                 groups[g].obs.end());
-    if (!dominated) kept.push_back(static_cast<int>(g));
+    if (!dominated) {
+      ++kept;
+      best = groups[g].rep;
+    }
   }
-  if (kept.size() != 1) return SearchOutcome::kAmbiguous;
-  const auto& best = hyps[groups[kept[0]].rep];
-  // Accepted: this body's unconfirmed ids are released, its pose starts from the fit (no
-  // prediction: the bootstrap's layout test is then the fit's chi-square).
+  return kept == 1 ? SearchOutcome::kAccepted : SearchOutcome::kAmbiguous;
+}
+
+void MarkMatcher::accept_reacquisition(Work& w, int b, const Transform& T_w_b,
+                                       const Mat6& cov) const {
+  // This body's unconfirmed ids are released; its pose starts from the fit (no prediction: the
+  // bootstrap's layout test is then the fit's chi-square, and a new filter starts from it).
   for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
     if (marks_[m].body != b) continue;
     for (int o : w.assigned[m]) {
@@ -501,12 +549,32 @@ MarkMatcher::SearchOutcome MarkMatcher::search_body(Work& w, int b) const {
     w.dirty[m] = false;
   }
   w.fitted[b] = true;
-  w.T_w_b[b] = best.fit.T_w_b;
-  w.cov_b[b] = best.fit.cov;
+  w.T_w_b[b] = T_w_b;
+  w.cov_b[b] = cov;
   w.body[b].predicted = false;
   w.body[b].updated = false;
   w.reacquired[b] = true;
-  return SearchOutcome::kAccepted;
+}
+
+MarkMatcher::SearchOutcome MarkMatcher::search_body(Work& w, int b) const {
+  form_candidates(w);
+  const int min_marks = std::max({3, config_.min_layout_marks, config_.min_reacquisition_marks});
+  BodyMarks body;
+  for (int m = 0; m < static_cast<int>(marks_.size()); ++m)
+    if (marks_[m].body == b) {
+      body.index.push_back(m);
+      body.q_b.push_back(marks_[m].p_body);
+      body.sigma_m.push_back(marks_[m].survey_sigma_m);
+    }
+  if (static_cast<int>(w.candidates.size()) < min_marks || body.size() < min_marks)
+    return SearchOutcome::kTooFewMarks;
+  LayoutSearch search(w.candidates, body, chi2_gate_, config_, min_marks, w.hypotheses);
+  if (!search.run()) return SearchOutcome::kAmbiguous;  // not exhausted: cannot tell
+  int best = -1;
+  const SearchOutcome outcome = choose_hypothesis(w, b, best);
+  if (outcome == SearchOutcome::kAccepted)
+    accept_reacquisition(w, b, w.hypotheses[best].fit.T_w_b, w.hypotheses[best].fit.cov);
+  return outcome;
 }
 
 void MarkMatcher::reacquire_lost_bodies(Work& w) const {

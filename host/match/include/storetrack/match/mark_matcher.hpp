@@ -5,6 +5,7 @@
 //   match::MarkMatcher matcher(rig, {pylon_survey, store_survey}, match::MatcherConfig{});
 //   matcher.set_prior_pose("pylon", T_w_p_nominal, cov_p);   // for (re-)acquisition
 //   matcher.set_prior_pose("store", T_w_p_nominal * T_p_s_carriage, cov_s);
+//   matcher.set_region("store", {"pylon", T_p_s_carriage, max_angle, box_min, box_max});
 //   for each exposure:
 //     match::MatchResult m = matcher.match(exposure.cameras);   // span of MarkObservations
 //     // m.ids[e][j]: mark id of exposure.cameras[e].marks[j], or -1  (= pipeline::MarkIds)
@@ -26,6 +27,10 @@
 // fitted body pose
 // re-predicts that body's unassigned marks with a tight covariance and the gating is repeated
 // (bootstrap from a coarse prior). Tracks are updated from the triangulated positions.
+// A body with no usable prediction (track timed out or too uncertain, prior explaining nothing)
+// is re-acquired from this exposure's unidentified observations alone: multi-view points
+// matched to its survey's distance table, one pose passing the chi-square test, any second
+// distinct interpretation refused as ambiguous (src/reacquisition.cpp).
 #pragma once
 
 #include <cstdint>
@@ -296,12 +301,14 @@ class MarkMatcher {
   enum class SearchOutcome : std::uint8_t;
   void reacquire_lost_bodies(Work& w) const;
   SearchOutcome search_body(Work& w, int b) const;
+  void find_epipolar_pairs(Work& w) const;
   void form_candidates(Work& w) const;
   bool triangulate_free(Work& w, std::span<const int> obs, const geometry::Vec3& initial,
                         bool calibration_at_point, geometry::Vec3& p_w, geometry::Mat3& cov_w,
                         double& chi2) const;
-  void extend_hypothesis(Work& w, int b, const geometry::Transform& T_w_b,
-                         const geometry::Mat6& cov, std::vector<std::pair<int, int>>& pairs) const;
+  SearchOutcome choose_hypothesis(const Work& w, int b, int& best) const;
+  void accept_reacquisition(Work& w, int b, const geometry::Transform& T_w_b,
+                            const geometry::Mat6& cov) const;
   bool inside_region(const Work& w, int b, const geometry::Transform& T_w_b) const;
 
   camera::RigCalibration rig_;
