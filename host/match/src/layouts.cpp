@@ -172,6 +172,10 @@ void MarkMatcher::verify_layouts(Work& w) const {
     }
   };
   for (int b = 0; b < static_cast<int>(bodies_.size()); ++b) {
+    if (w.reacquired[b]) {
+      verify_against_reacquired_pose(w, b);
+      continue;
+    }
     w.fitted[b] = false;
     w.body[b].updated = false;
     std::vector<int> members;
@@ -255,6 +259,29 @@ void MarkMatcher::verify_layouts(Work& w) const {
     }
     // Unverifiable single-view or untriangulated assignments of an unfitted body stay as they
     // are (their ids rest on the prediction alone, see MatcherConfig::single_view_*).
+  }
+}
+
+void MarkMatcher::verify_against_reacquired_pose(Work& w, int b) const {
+  // A body re-acquired in this exposure keeps the search's verified pose; each triangulated
+  // mark the bootstrap assigned is tested on its own against that pose (chi-square(3) of
+  // p - T q with G P G^T + triangulation + survey covariance), so bad marks (e.g. a two-view
+  // point off its mark) are dropped one by one instead of failing the whole layout.
+  for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
+    if (marks_[m].body != b || !w.tri[m].valid) continue;
+    const auto G = point_pose_jacobian(w.T_w_b[b], marks_[m].p_body);
+    const double s = marks_[m].survey_sigma_m;
+    const Mat3 C = G * w.cov_b[b] * G.transpose() + w.tri[m].cov + s * s * Mat3::Identity();
+    const Vec3 e = w.tri[m].p - w.T_w_b[b] * marks_[m].p_body;
+    Mat3 W;
+    if (uncertainty::inverse_spd<3>(C, W) && e.dot(W * e) <= chi2_gate_[3]) continue;
+    for (int o : w.assigned[m]) {
+      w.obs[o].state = ObsState::kUngated;
+      w.obs[o].mark = -1;
+    }
+    w.assigned[m].clear();
+    w.tri[m] = {};
+    ++w.counts.layout_rejected;
   }
 }
 

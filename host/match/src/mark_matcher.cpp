@@ -80,9 +80,14 @@ MarkMatcher::MarkMatcher(const camera::RigCalibration& rig,
       }
   compute_calibration_bounds();
   chi2_gate_.assign(kMaxDof + 1, 0.0);
-  for (int dof = 1; dof <= kMaxDof; ++dof)
+  chi2_competitor_gate_.assign(kMaxDof + 1, 0.0);
+  const double miss = 1 - config_.gate_probability;
+  for (int dof = 1; dof <= kMaxDof; ++dof) {
     chi2_gate_[dof] = uncertainty::chi_square_quantile(
         uncertainty::Probability(config_.gate_probability), uncertainty::DegreesOfFreedom(dof));
+    chi2_competitor_gate_[dof] = uncertainty::chi_square_quantile(
+        uncertainty::Probability(1 - miss * miss), uncertainty::DegreesOfFreedom(dof));
+  }
 }
 
 bool MarkMatcher::set_prior_pose(const std::string& body_name, const Transform& T_w_b,

@@ -59,14 +59,19 @@ struct CandidatePoint {
   std::vector<int> obs;  ///< observation indices, ascending, one per camera
   Vec3 p = Vec3::Zero();
   Mat3 cov = Mat3::Zero();  ///< triangulation covariance
+  double chi2 = 0;          ///< reprojection chi-square, dof 2 views - 3
   int views = 0;
 };
 /// Survey marks assigned to candidate points, and the fitted pose.
 struct LayoutHypothesis {
   std::vector<std::pair<int, int>> pairs;  ///< (mark index in MarkMatcher::marks_, candidate)
   LayoutFit fit;
-  bool well_posed = false, consistent = false;
-  std::vector<int> obs;  ///< observations of the explained candidates, ascending
+  bool well_posed = false;
+  bool consistent = false;  ///< chi-square within the gate (may be accepted)
+  bool plausible = false;   ///< within the competitor gate (counts against another's acceptance)
+  /// Observations of the explained candidates seen in >= 3 views, ascending (a two-view point
+  /// may be a false correspondence, so it does not make one explanation larger than another).
+  std::vector<int> obs;
 };
 
 enum class ObsState : std::uint8_t { kUnassigned, kAssigned, kAmbiguous, kUngated };

@@ -81,11 +81,12 @@ struct BodyMarks {
 class LayoutSearch {
  public:
   LayoutSearch(const std::vector<CandidatePoint>& cands, const BodyMarks& marks,
-               const std::vector<double>& chi2_gate, const MatcherConfig& config, int min_marks,
-               std::vector<LayoutHypothesis>& hyps)
+               const std::vector<double>& chi2_gate, const std::vector<double>& competitor_gate,
+               const MatcherConfig& config, int min_marks, std::vector<LayoutHypothesis>& hyps)
       : cands_(cands),
         marks_(marks),
         gate_(chi2_gate),
+        competitor_gate_(competitor_gate),
         config_(config),
         min_marks_(min_marks),
         hyps_(hyps),
@@ -105,11 +106,14 @@ class LayoutSearch {
   void try_basis(int a, int c, int e, int i, int j, int k);
   void extend(const Transform& T_w_b, const Mat6& cov, std::vector<std::pair<int, int>>& pairs);
   bool fit(const std::vector<std::pair<int, int>>& pairs, LayoutFit& out);
+  void trim(LayoutHypothesis& h);
+  void classify(LayoutHypothesis& h);
   void record(LayoutHypothesis h);
 
   const std::vector<CandidatePoint>& cands_;
   const BodyMarks& marks_;
   const std::vector<double>& gate_;
+  const std::vector<double>& competitor_gate_;
   const MatcherConfig& config_;
   const int min_marks_;
   std::vector<LayoutHypothesis>& hyps_;
@@ -226,18 +230,52 @@ void LayoutSearch::try_basis(int a, int c, int e, int i, int j, int k) {
   }
   // The basis itself is kept even when the extension lost it (so it is not retried).
   if (h.pairs.empty()) h.pairs = basis;
-  const int n = static_cast<int>(h.pairs.size());
-  if (n >= min_marks_) {
-    q_.clear();
-    for (const auto& [mi, cd] : h.pairs)
-      q_.push_back(marks_.q_b[mi]);
-    h.well_posed = layout_well_posed(q_, h.fit.cov, config_);
-    h.consistent = h.fit.chi2 <= gate_[std::min(kMaxDof, 3 * n - 6)];
-    for (const auto& [mi, cd] : h.pairs)
-      h.obs.insert(h.obs.end(), cands_[cd].obs.begin(), cands_[cd].obs.end());
-    std::sort(h.obs.begin(), h.obs.end());
+  if (static_cast<int>(h.pairs.size()) >= min_marks_) {
+    trim(h);
+    classify(h);
   }
   record(std::move(h));
+}
+
+void LayoutSearch::trim(LayoutHypothesis& h) {
+  // A point the extension took that does not belong (e.g. a false two-view correspondence
+  // inside a gate) fails the whole hypothesis, which would hide the true interpretation from
+  // the ambiguity test: while the test fails, the worst point (largest e^T W e) is dropped.
+  auto dof = [&] { return std::min(kMaxDof, 3 * static_cast<int>(h.pairs.size()) - 6); };
+  while (static_cast<int>(h.pairs.size()) > min_marks_ && !(h.fit.chi2 <= gate_[dof()])) {
+    size_t worst = 0;
+    double worst_d2 = -1;
+    for (size_t t = 0; t < h.pairs.size(); ++t) {
+      const auto [i, cd] = h.pairs[t];
+      const Vec3 e = cands_[cd].p - h.fit.T_w_b * marks_.q_b[i];
+      Mat3 W;
+      const Mat3 C = cands_[cd].cov + marks_.sigma_m[i] * marks_.sigma_m[i] * Mat3::Identity();
+      if (!uncertainty::inverse_spd<3>(C, W)) return;
+      const double d2 = e.dot(W * e);
+      if (d2 > worst_d2) {
+        worst_d2 = d2;
+        worst = t;
+      }
+    }
+    h.pairs.erase(h.pairs.begin() + static_cast<long>(worst));
+    if (!fit(h.pairs, h.fit)) return;
+  }
+}
+
+void LayoutSearch::classify(LayoutHypothesis& h) {
+  const int n = static_cast<int>(h.pairs.size());
+  q_.clear();
+  for (const auto& [i, cd] : h.pairs)
+    q_.push_back(marks_.q_b[i]);
+  h.well_posed = layout_well_posed(q_, h.fit.cov, config_);
+  const int dof = std::min(kMaxDof, 3 * n - 6);
+  h.consistent = h.fit.chi2 <= gate_[dof];
+  h.plausible = h.fit.chi2 <= competitor_gate_[dof];
+  h.obs.clear();
+  for (const auto& [i, cd] : h.pairs)
+    if (cands_[cd].views >= 3)
+      h.obs.insert(h.obs.end(), cands_[cd].obs.begin(), cands_[cd].obs.end());
+  std::sort(h.obs.begin(), h.obs.end());
 }
 
 void LayoutSearch::record(LayoutHypothesis h) {
@@ -437,6 +475,7 @@ void MarkMatcher::form_candidates(Work& w) const {
       if (triangulate_free(w, set, pr.p, true, cd.p, cd.cov, chi2) &&
           chi2 <= chi2_gate_[2 * n - 3]) {
         cd.obs = set;
+        cd.chi2 = chi2;
         cd.views = n;
         cands.push_back(std::move(cd));
         break;
@@ -481,8 +520,9 @@ bool MarkMatcher::inside_region(const Work& w, int b, const Transform& T_w_b) co
 }
 
 MarkMatcher::SearchOutcome MarkMatcher::choose_hypothesis(const Work& w, int b, int& best) const {
-  // Passing: enough well-spread marks, consistent, inside the region. Passing hypotheses with
-  // the same pose (chi-square(6) of the difference) form one interpretation.
+  // Competitors: enough well-spread marks, within the competitor gate, inside the region.
+  // Competitors with the same pose (chi-square(6) of the difference) form one interpretation,
+  // represented by its consistent hypothesis with the most marks.
   const auto& hyps = w.hypotheses;
   bool any_sizable = false, any_consistent = false;
   struct Group {
@@ -490,13 +530,16 @@ MarkMatcher::SearchOutcome MarkMatcher::choose_hypothesis(const Work& w, int b, 
     std::vector<int> obs;
   };
   std::vector<Group> groups;
+  auto better = [&](int h, int than) {
+    const auto &x = hyps[h], &y = hyps[than];
+    return x.consistent != y.consistent ? x.consistent : x.pairs.size() > y.pairs.size();
+  };
   for (int h = 0; h < static_cast<int>(hyps.size()); ++h) {
     const auto& hy = hyps[h];
     if (!hy.well_posed) continue;
     any_sizable = true;
-    if (!hy.consistent) continue;
-    any_consistent = true;
-    if (!inside_region(w, b, hy.fit.T_w_b)) continue;
+    any_consistent = any_consistent || hy.consistent;
+    if (!hy.plausible || !inside_region(w, b, hy.fit.T_w_b)) continue;
     bool merged = false;
     for (auto& g : groups) {
       const auto& rep = hyps[g.rep];
@@ -509,16 +552,20 @@ MarkMatcher::SearchOutcome MarkMatcher::choose_hypothesis(const Work& w, int b, 
       std::set_union(g.obs.begin(), g.obs.end(), hy.obs.begin(), hy.obs.end(),
                      std::back_inserter(u));
       g.obs = std::move(u);
-      if (hy.pairs.size() > rep.pairs.size()) g.rep = h;
+      if (better(h, g.rep)) g.rep = h;
       merged = true;
       break;
     }
     if (!merged) groups.push_back({h, hy.obs});
   }
   if (!any_sizable) return SearchOutcome::kTooFewMarks;
-  if (!any_consistent) return SearchOutcome::kInconsistent;
-  if (groups.empty()) return SearchOutcome::kOutsideRegion;
-  // An interpretation explaining a strict subset of another's observations is dropped.
+  bool consistent_in_region = false;
+  for (const auto& g : groups)
+    consistent_in_region = consistent_in_region || hyps[g.rep].consistent;
+  if (!consistent_in_region)
+    return any_consistent ? SearchOutcome::kOutsideRegion : SearchOutcome::kInconsistent;
+  // An interpretation whose multi-view (>= 3) observations are a strict subset of another's is
+  // dropped: it leaves real points unexplained that the other explains with the same layout.
   int kept = 0;
   for (size_t g = 0; g < groups.size(); ++g) {
     bool dominated = false;
@@ -531,13 +578,16 @@ MarkMatcher::SearchOutcome MarkMatcher::choose_hypothesis(const Work& w, int b, 
       best = groups[g].rep;
     }
   }
-  return kept == 1 ? SearchOutcome::kAccepted : SearchOutcome::kAmbiguous;
+  if (kept != 1) return SearchOutcome::kAmbiguous;
+  return hyps[best].consistent ? SearchOutcome::kAccepted : SearchOutcome::kInconsistent;
 }
 
-void MarkMatcher::accept_reacquisition(Work& w, int b, const Transform& T_w_b,
-                                       const Mat6& cov) const {
-  // This body's unconfirmed ids are released; its pose starts from the fit (no prediction: the
-  // bootstrap's layout test is then the fit's chi-square, and a new filter starts from it).
+void MarkMatcher::accept_reacquisition(Work& w, int b, int hypothesis) const {
+  // This body's unconfirmed ids are released and its pose starts from the fit (no prediction:
+  // a new filter starts from it). The bootstrap step then assigns its marks by the per-camera
+  // unique gating from this pose (the hypothesis' own point-to-mark pairs are not trusted for
+  // that: a point triangulated from two marks nearly on one camera's ray fits either), and
+  // tests each against the pose (verify_against_reacquired_pose).
   for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
     if (marks_[m].body != b) continue;
     for (int o : w.assigned[m]) {
@@ -548,9 +598,10 @@ void MarkMatcher::accept_reacquisition(Work& w, int b, const Transform& T_w_b,
     w.tri[m] = {};
     w.dirty[m] = false;
   }
+  const LayoutHypothesis& h = w.hypotheses[hypothesis];
   w.fitted[b] = true;
-  w.T_w_b[b] = T_w_b;
-  w.cov_b[b] = cov;
+  w.T_w_b[b] = h.fit.T_w_b;
+  w.cov_b[b] = h.fit.cov;
   w.body[b].predicted = false;
   w.body[b].updated = false;
   w.reacquired[b] = true;
@@ -568,12 +619,12 @@ MarkMatcher::SearchOutcome MarkMatcher::search_body(Work& w, int b) const {
     }
   if (static_cast<int>(w.candidates.size()) < min_marks || body.size() < min_marks)
     return SearchOutcome::kTooFewMarks;
-  LayoutSearch search(w.candidates, body, chi2_gate_, config_, min_marks, w.hypotheses);
+  LayoutSearch search(w.candidates, body, chi2_gate_, chi2_competitor_gate_, config_, min_marks,
+                      w.hypotheses);
   if (!search.run()) return SearchOutcome::kAmbiguous;  // not exhausted: cannot tell
   int best = -1;
   const SearchOutcome outcome = choose_hypothesis(w, b, best);
-  if (outcome == SearchOutcome::kAccepted)
-    accept_reacquisition(w, b, w.hypotheses[best].fit.T_w_b, w.hypotheses[best].fit.cov);
+  if (outcome == SearchOutcome::kAccepted) accept_reacquisition(w, b, best);
   return outcome;
 }
 

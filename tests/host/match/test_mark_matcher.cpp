@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <map>
 #include <memory>
 #include <optional>
@@ -535,15 +536,17 @@ TEST(MarkMatcher, DuplicateMarkIdsRejected) {
 // Re-acquisition without a prior (docs/matching.md, step 6).
 
 /// Where the store can be relative to the pylon during a separation (MarkMatcher::set_region):
-/// within 45 deg of its carriage attitude, at most 0.1 m forward or 1.5 m aft of the carriage,
-/// 0.5 m to either side, 0.1 m above to 5 m below it (z down). A physical envelope: it excludes
-/// the store turned end for end (the survey's ring layout is symmetric under 180 deg about z)
-/// and the identical store on the other pylon (>= 1 m sideways).
+/// within 30 deg of its carriage attitude (the scenario reaches 26 deg of pitch at its end), at
+/// most 0.1 m forward or 1.5 m aft of the carriage, 0.5 m to either side, 0.1 m above to 5 m
+/// below it (z down). A physical envelope: it excludes the store turned end for end (the
+/// survey's ring layout is symmetric under 180 deg about z), the store rolled by one ring step
+/// (40 deg: with one mark of each ring hidden the other three fit either way) and the identical
+/// store on the other pylon (0.7 m sideways).
 BodyRegion separation_region(const sim::Simulator& sim) {
   BodyRegion r;
   r.reference_body = "pylon";
   r.T_ref_b_nominal = sim.truth(0).T_p_s;  // the carriage pose (store at rest before release)
-  r.max_rotation_rad = 45.0 * M_PI / 180.0;
+  r.max_rotation_rad = 30.0 * M_PI / 180.0;
   r.min_offset_m = geometry::Vec3(-1.5, -0.5, -0.1);
   r.max_offset_m = geometry::Vec3(0.1, 0.5, 5.0);
   return r;
@@ -818,9 +821,10 @@ const geometry::Vec3 kTwinOffset(0.0, 0.7, 0.0);
 
 TEST(MarkMatcherReacquisition, IdenticalSecondStoreIsRefusedWhenNothingTellsThemApart) {
   // Host started mid-separation with a second, identical store in view. The region bounds the
-  // store's attitude only (45 deg from its carriage's, which excludes the store turned end for
-  // end) and not its position: both stores are then equally good explanations, so every search
-  // must be refused as ambiguous: neither store's marks get an id, the pylon's still do.
+  // store's attitude only (30 deg from its carriage's, which excludes the store turned end for
+  // end or rolled by a ring step) and not its position: both stores are then equally good
+  // explanations, so every search must be refused as ambiguous: neither store's marks get an id,
+  // the pylon's still do.
   const sim::Simulator& sim = shared_simulator("store_separation");
   MarkMatcher matcher(sim.calibrated_rig(), {sim.pylon_survey(), sim.store_survey()});
   set_installation_priors(sim, matcher);
@@ -873,6 +877,49 @@ TEST(MarkMatcherReacquisition, IdenticalSecondStoreIsToldApartByRegion) {
   EXPECT_GE(t.rate(), 0.95);
   EXPECT_EQ(matcher.counters().reacquisition_accepted, 1u);
   expect_pose_coverage(t);
+}
+
+TEST(MarkMatcherReacquisition, OtherCalibrationDraws) {
+  // The host started mid-separation with the twin store in view, for other simulator seeds
+  // (calibration, survey and noise draws: each its own layout errors and candidate points). CI
+  // runs 5 draws (~0.5 s); STORETRACK_REACQ_DRAWS=N runs N (docs/matching.md).
+  const char* env = std::getenv("STORETRACK_REACQ_DRAWS");
+  const int draws = env ? std::max(1, std::atoi(env)) : 5;
+  long total_wrong = 0, twin_ids = 0, accepted_draws = 0, identified = 0, usable = 0;
+  long poses = 0, within95 = 0;
+  for (int d = 0; d < draws; ++d) {
+    const sim::Simulator sim(sim::load_scenario(scenario_path("store_separation")),
+                             static_cast<std::uint64_t>(100 + d));
+    MarkMatcher matcher(sim.calibrated_rig(), {sim.pylon_survey(), sim.store_survey()});
+    set_installation_priors(sim, matcher);
+    ASSERT_TRUE(matcher.set_region("store", separation_region(sim)));
+    std::vector<Feed> feeds;
+    for (int k = 150; k < sim.num_exposures(); ++k)
+      feeds.push_back({k, 0, false, kTwinOffset});
+    const StoreTally t = run_feeds(sim, matcher, feeds, static_cast<std::uint64_t>(200 + d));
+    const std::string name = "draw " + std::to_string(d) + " (seed " + std::to_string(100 + d) +
+                             "), host started at 150, twin in view";
+    print_store_tally(name.c_str(), t, matcher.counters(), 0);
+    total_wrong += t.wrong;
+    twin_ids += t.twin_identified;
+    accepted_draws += matcher.counters().reacquisition_accepted > 0;
+    identified += t.store_identified;
+    usable += t.store_observations;
+    poses += t.poses;
+    within95 += t.nees_within_95;
+    EXPECT_EQ(t.wrong, 0);
+    EXPECT_EQ(t.twin_identified, 0);
+    // Found in every draw; in some the first exposures are refused as ambiguous (counted).
+    EXPECT_GE(matcher.counters().reacquisition_accepted, 1u);
+    expect_pose_coverage(t);
+  }
+  const double rate = double(identified) / double(usable);
+  std::printf(
+      "%d draws: %ld wrong ids, %ld twin ids, store found in %ld draws, %.4f of %ld usable store "
+      "observations identified, %ld of %ld poses (%.4f) with NEES <= chi2(6, 0.95)\n",
+      draws, total_wrong, twin_ids, accepted_draws, rate, usable, within95, poses,
+      double(within95) / double(poses));
+  EXPECT_GE(rate, 0.95);
 }
 }  // namespace
 }  // namespace storetrack::match

@@ -307,9 +307,9 @@ class MarkMatcher {
                         bool calibration_at_point, geometry::Vec3& p_w, geometry::Mat3& cov_w,
                         double& chi2) const;
   SearchOutcome choose_hypothesis(const Work& w, int b, int& best) const;
-  void accept_reacquisition(Work& w, int b, const geometry::Transform& T_w_b,
-                            const geometry::Mat6& cov) const;
+  void accept_reacquisition(Work& w, int b, int hypothesis) const;
   bool inside_region(const Work& w, int b, const geometry::Transform& T_w_b) const;
+  void verify_against_reacquired_pose(Work& w, int b) const;
 
   camera::RigCalibration rig_;
   std::vector<survey::RigidBodySurvey> bodies_;
@@ -321,6 +321,9 @@ class MarkMatcher {
   std::vector<Region> regions_;           ///< per body
   std::vector<double> min_mark_spacing_;  ///< per body: smallest distance between two marks [m]
   std::vector<double> chi2_gate_;         ///< chi2_gate_[dof] at gate_probability, dof 0..kMaxDof
+  /// At 1 - (1 - gate_probability)^2: a re-acquisition hypothesis within it is a competitor
+  /// (only dismissed at a false-rejection probability squared), see reacquisition.cpp.
+  std::vector<double> chi2_competitor_gate_;
   std::vector<CalibrationBound> cal_bounds_;  ///< per camera slot
   MatchCounters counters_;
   WorkBuffers work_;
