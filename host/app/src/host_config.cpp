@@ -272,6 +272,8 @@ void parse_identifier(const nlohmann::json& i, const std::string& w, HostConfig&
   get(i, "initial_marks_sigma_m", c.initial_marks_sigma_m, w);
   if (!(c.initial_marks_sigma_m > 0))
     throw HostConfigError(w + "/initial_marks_sigma_m must be > 0");
+  m.reacquisition_retry_s =
+      get_number(i, "reacquisition_retry_s", m.reacquisition_retry_s, 0.0, false, 10.0, w);
   m.min_reacquisition_marks = static_cast<int>(
       get_integer(i, "min_reacquisition_marks", m.min_reacquisition_marks, 3, 64, w));
   if (i.contains("store_region")) parse_store_region(i.at("store_region"), w + "/store_region", c);

@@ -123,7 +123,8 @@ nlohmann::json identifier_stats_json(const pipeline::ExposureProcessor& processo
           {"reacquisition_ambiguous", ic.reacquisition_ambiguous},
           {"reacquisition_inconsistent", ic.reacquisition_inconsistent},
           {"reacquisition_too_few_marks", ic.reacquisition_too_few_marks},
-          {"reacquisition_outside_region", ic.reacquisition_outside_region}};
+          {"reacquisition_outside_region", ic.reacquisition_outside_region},
+          {"reacquisition_deferred", ic.reacquisition_deferred}};
 }
 
 nlohmann::json processor_stats_json(const pipeline::ExposureProcessor& processor) {

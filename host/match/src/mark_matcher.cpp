@@ -71,6 +71,7 @@ MarkMatcher::MarkMatcher(const camera::RigCalibration& rig,
   body_tracks_.resize(bodies_.size());
   priors_.resize(bodies_.size());
   regions_.resize(bodies_.size());
+  next_search_s_.assign(bodies_.size(), -std::numeric_limits<double>::infinity());
   min_mark_spacing_.assign(bodies_.size(), std::numeric_limits<double>::infinity());
   for (size_t i = 0; i < marks_.size(); ++i)
     for (size_t j = i + 1; j < marks_.size(); ++j)
@@ -121,6 +122,7 @@ void MarkMatcher::reset_tracking() {
     t.count = 0;
   for (auto& t : body_tracks_)
     t.valid = false;
+  next_search_s_.assign(bodies_.size(), -std::numeric_limits<double>::infinity());
 }
 
 MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
@@ -221,6 +223,7 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
   w.cov_b.assign(bodies_.size(), Mat6::Zero());
   w.body.assign(bodies_.size(), {});
   w.reacquired.assign(bodies_.size(), false);
+  w.search_refused.assign(bodies_.size(), false);
 
   if (t_count > 0) {
     predict(w, t_s);
@@ -229,7 +232,7 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
     verify_layouts(w);
     // A body without a fitted pose (lost: no usable prediction, or its prediction explains
     // none of the observations) is searched for among the free observations.
-    reacquire_lost_bodies(w);
+    reacquire_lost_bodies(w, t_s);
     // Bootstrap: a fitted body re-predicts its still-unassigned marks from this exposure's
     // layout fit (tight), which resolves what the coarse prediction left ambiguous.
     // Needed only when some observation is still without an id.
@@ -322,6 +325,8 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
   out.reacquired = w.reacquired;
 
   if (t_count > 0) update_tracks(w, t_s);
+  for (size_t b = 0; b < bodies_.size(); ++b)
+    if (w.search_refused[b]) next_search_s_[b] = t_s + config_.reacquisition_retry_s;
 
   // Accumulate counters.
   auto& c = counters_;
@@ -350,6 +355,7 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
   c.reacquisition_inconsistent += d.reacquisition_inconsistent;
   c.reacquisition_too_few_marks += d.reacquisition_too_few_marks;
   c.reacquisition_outside_region += d.reacquisition_outside_region;
+  c.reacquisition_deferred += d.reacquisition_deferred;
   return out;
 }
 

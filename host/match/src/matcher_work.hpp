@@ -158,8 +158,9 @@ struct MarkMatcher::Work {
   std::vector<std::vector<int>> compatible;  ///< per observation: epipolar partners, ascending
   std::vector<CandidatePoint> candidates;
   std::vector<LayoutHypothesis> hypotheses;
-  std::vector<bool> lost;        ///< per body: its extrapolated pose was too uncertain to gate
-  std::vector<bool> reacquired;  ///< per body: found by the re-acquisition search
+  std::vector<bool> lost;            ///< per body: its extrapolated pose was too uncertain to gate
+  std::vector<bool> reacquired;      ///< per body: found by the re-acquisition search
+  std::vector<bool> search_refused;  ///< per body: searched for and not accepted
   std::vector<Pred> pred_track, pred_body;  ///< prediction scratch, per mark
   bool acquired = false;
   MatchCounters counts;

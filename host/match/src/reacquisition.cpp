@@ -628,7 +628,7 @@ MarkMatcher::SearchOutcome MarkMatcher::search_body(Work& w, int b) const {
   return outcome;
 }
 
-void MarkMatcher::reacquire_lost_bodies(Work& w) const {
+void MarkMatcher::reacquire_lost_bodies(Work& w, double t_s) const {
   const int min_marks = std::max({3, config_.min_layout_marks, config_.min_reacquisition_marks});
   for (int b = 0; b < static_cast<int>(bodies_.size()); ++b) {
     if (w.fitted[b]) continue;
@@ -646,8 +646,14 @@ void MarkMatcher::reacquire_lost_bodies(Work& w) const {
       total += static_cast<int>(fr.size());
     }
     if (cams_with < 2 || total < 2 * min_marks) continue;
+    if (t_s < next_search_s_[b]) {
+      ++w.counts.reacquisition_deferred;
+      continue;
+    }
     ++w.counts.reacquisition_attempted;
-    switch (search_body(w, b)) {
+    const SearchOutcome outcome = search_body(w, b);
+    w.search_refused[b] = outcome != SearchOutcome::kAccepted;
+    switch (outcome) {
       case SearchOutcome::kAccepted:
         ++w.counts.reacquisition_accepted;
         break;

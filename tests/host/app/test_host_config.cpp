@@ -208,6 +208,7 @@ TEST(HostConfig, EverySectionNamesTheKeyOfABadValue) {
       {R"({"identifier": {"keep_single_view": 3}})", "/identifier/keep_single_view"},
       {R"({"identifier": {"initial_marks_sigma_m": 0}})", "/identifier/initial_marks_sigma_m"},
       {R"({"identifier": {"min_reacquisition_marks": 2}})", "/identifier/min_reacquisition_marks"},
+      {R"({"identifier": {"reacquisition_retry_s": -1}})", "/identifier/reacquisition_retry_s"},
       {R"({"identifier": {"store_region": {"max_offset_m": [1, 1, 1]}}})",
        "/identifier/store_region/min_offset_m is required"},
       {R"({"identifier": {"store_region": {"min_offset_m": [0, 0, 2], "max_offset_m": [1, 1, 1]}}})",

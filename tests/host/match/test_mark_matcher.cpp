@@ -841,8 +841,12 @@ TEST(MarkMatcherReacquisition, IdenticalSecondStoreIsRefusedWhenNothingTellsThem
   ASSERT_GT(t.twin_observations, 100);
   EXPECT_EQ(t.twin_identified, 0);
   EXPECT_EQ(t.store_identified, 0);
-  EXPECT_EQ(matcher.counters().reacquisition_ambiguous, feeds.size());
-  EXPECT_EQ(matcher.counters().reacquisition_accepted, 0u);
+  // Searched every MatcherConfig::reacquisition_retry_s (4 exposures), each refused.
+  const auto& c = matcher.counters();
+  EXPECT_GE(c.reacquisition_attempted, 2u);
+  EXPECT_EQ(c.reacquisition_ambiguous, c.reacquisition_attempted);
+  EXPECT_EQ(c.reacquisition_attempted + c.reacquisition_deferred, feeds.size());
+  EXPECT_EQ(c.reacquisition_accepted, 0u);
 }
 
 TEST(MarkMatcherReacquisition, IdenticalSecondStoreIsToldApartByRegion) {
@@ -863,8 +867,11 @@ TEST(MarkMatcherReacquisition, IdenticalSecondStoreIsToldApartByRegion) {
   EXPECT_EQ(th.wrong, 0);
   ASSERT_GT(th.twin_observations, 100);
   EXPECT_EQ(th.twin_identified, 0);
-  EXPECT_EQ(matcher.counters().reacquisition_outside_region, hidden.size());
-  EXPECT_EQ(matcher.counters().reacquisition_accepted, 0u);
+  const auto& c = matcher.counters();
+  EXPECT_GE(c.reacquisition_outside_region, 1u);
+  EXPECT_EQ(c.reacquisition_outside_region, c.reacquisition_attempted);
+  EXPECT_EQ(c.reacquisition_attempted + c.reacquisition_deferred, hidden.size());
+  EXPECT_EQ(c.reacquisition_accepted, 0u);
   std::vector<Feed> feeds;
   for (int k = 150; k < sim.num_exposures(); ++k)
     feeds.push_back({k, 0, false, kTwinOffset});
@@ -874,7 +881,10 @@ TEST(MarkMatcherReacquisition, IdenticalSecondStoreIsToldApartByRegion) {
   ASSERT_GT(t.twin_observations, 1000);
   EXPECT_EQ(t.twin_identified, 0);
   ASSERT_GT(t.store_observations, 1000);
-  EXPECT_GE(t.rate(), 0.95);
+  // The search refused at exposure 149 pauses reacquisition_retry_s (4 exposures): our store is
+  // found at the latest on its 4th visible exposure, so at most 3 x ~32 of its 2212
+  // observations are missed (4.3 %) on top of the ~0.3 % the tracked store loses.
+  EXPECT_GE(t.rate(), 0.95 - 0.043);
   EXPECT_EQ(matcher.counters().reacquisition_accepted, 1u);
   expect_pose_coverage(t);
 }

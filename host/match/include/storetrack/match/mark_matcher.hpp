@@ -99,6 +99,11 @@ struct MatcherConfig {
   /// must explain at least this many marks (three points fix a pose and leave only their own
   /// three distances to test, which clutter matches too easily).
   int min_reacquisition_marks = 4;
+  /// After a search that found nothing to accept, the body is not searched for again for this
+  /// long [s] (a search costs milliseconds; while a lost body stays unfound among free
+  /// observations, e.g. refused as ambiguous, the host would otherwise fall behind). 0: every
+  /// exposure.
+  double reacquisition_retry_s = 0.01;
 };
 
 /// Where a body can be relative to a reference body (e.g. the store relative to its pylon during
@@ -201,6 +206,8 @@ struct MatchCounters {
   std::uint64_t reacquisition_inconsistent = 0;    ///< hypotheses found, none passes the chi-square
   std::uint64_t reacquisition_too_few_marks = 0;   ///< no hypothesis with enough well-spread marks
   std::uint64_t reacquisition_outside_region = 0;  ///< the only passing ones are outside the region
+  /// Searches not run: within reacquisition_retry_s of the body's last refused one.
+  std::uint64_t reacquisition_deferred = 0;
 };
 
 class MarkMatcher {
@@ -299,7 +306,7 @@ class MarkMatcher {
   void update_tracks(const Work& w, double t_s);
   // Re-acquisition of lost bodies (reacquisition.cpp).
   enum class SearchOutcome : std::uint8_t;
-  void reacquire_lost_bodies(Work& w) const;
+  void reacquire_lost_bodies(Work& w, double t_s) const;
   SearchOutcome search_body(Work& w, int b) const;
   void find_epipolar_pairs(Work& w) const;
   void form_candidates(Work& w) const;
@@ -320,6 +327,7 @@ class MarkMatcher {
   std::vector<Prior> priors_;
   std::vector<Region> regions_;           ///< per body
   std::vector<double> min_mark_spacing_;  ///< per body: smallest distance between two marks [m]
+  std::vector<double> next_search_s_;     ///< per body: no re-acquisition search before [s]
   std::vector<double> chi2_gate_;         ///< chi2_gate_[dof] at gate_probability, dof 0..kMaxDof
   /// At 1 - (1 - gate_probability)^2: a re-acquisition hypothesis within it is a competitor
   /// (only dismissed at a false-rejection probability squared), see reacquisition.cpp.
