@@ -5,6 +5,7 @@
 #include <cmath>
 #include <fstream>
 #include <limits>
+#include <numbers>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
@@ -228,6 +229,27 @@ void parse_pose_tracker(const nlohmann::json& t, const std::string& w, HostConfi
     throw HostConfigError(w + ": max_gap_s must be >= 0 (0: never extrapolate), the others > 0");
 }
 
+// Where the store can be relative to the pylon: {max_rotation_deg, min_offset_m [x, y, z],
+// max_offset_m [x, y, z]} (pylon frame, from the installation pose).
+void parse_store_region(const nlohmann::json& r, const std::string& w, HostConfig& c) {
+  if (!r.is_object()) throw HostConfigError(w + " must be an object");
+  auto& region = c.store_region;
+  region.max_rotation_rad =
+      get_number(r, "max_rotation_deg", 45.0, 0.0, true, 180.0, w) * std::numbers::pi / 180.0;
+  for (const auto& [key, out] : {std::pair{"min_offset_m", &region.min_offset_m},
+                                 std::pair{"max_offset_m", &region.max_offset_m}}) {
+    if (!r.contains(key)) throw HostConfigError(w + "/" + key + " is required ([x, y, z] m)");
+    std::vector<double> v;
+    get(r, key, v, w);
+    if (v.size() != 3 || !std::isfinite(v[0]) || !std::isfinite(v[1]) || !std::isfinite(v[2]))
+      throw HostConfigError(w + "/" + key + " needs 3 finite values [x, y, z] m");
+    *out = geometry::Vec3(v[0], v[1], v[2]);
+  }
+  if (!(region.min_offset_m.array() <= region.max_offset_m.array()).all())
+    throw HostConfigError(w + ": min_offset_m must be <= max_offset_m on every axis");
+  region.valid = true;
+}
+
 // Mark identification (host/match MarkMatcher, docs/matching.md).
 void parse_identifier(const nlohmann::json& i, const std::string& w, HostConfig& c) {
   for (const char* removed : {"gate_px", "ambiguity_ratio", "max_track_age_s"})
@@ -250,6 +272,11 @@ void parse_identifier(const nlohmann::json& i, const std::string& w, HostConfig&
   get(i, "initial_marks_sigma_m", c.initial_marks_sigma_m, w);
   if (!(c.initial_marks_sigma_m > 0))
     throw HostConfigError(w + "/initial_marks_sigma_m must be > 0");
+  m.reacquisition_retry_s =
+      get_number(i, "reacquisition_retry_s", m.reacquisition_retry_s, 0.0, false, 10.0, w);
+  m.min_reacquisition_marks = static_cast<int>(
+      get_integer(i, "min_reacquisition_marks", m.min_reacquisition_marks, 3, 64, w));
+  if (i.contains("store_region")) parse_store_region(i.at("store_region"), w + "/store_region", c);
 }
 
 void parse_chapter10(const nlohmann::json& o, const std::string& w, HostConfig& c) {

@@ -46,6 +46,15 @@ struct HostConfig {
   // to the initial mark positions, whose standard uncertainty per axis is this [m]
   double initial_marks_sigma_m = 0.005;
   std::map<int, geometry::Vec3> initial_marks_w;
+  // where the store can be relative to the pylon (identifier.store_region; used by the
+  // re-acquisition of a lost store, docs/matching.md): its nominal pose is the installation
+  // priors' pylon-to-store pose; offsets in the pylon frame [m]
+  struct StoreRegion {
+    bool valid = false;
+    double max_rotation_rad = 0;
+    geometry::Vec3 min_offset_m = geometry::Vec3::Zero();
+    geometry::Vec3 max_offset_m = geometry::Vec3::Zero();
+  } store_region;
   // outputs
   std::string ch10_path, csv_path, marks_csv_path, rigid_csv_path;
   std::string inetx_destination;

@@ -101,18 +101,30 @@ int load_inputs(st::hostapp::HostOptions& o, InputFiles& in) {
 // survey's initial mark positions; without them it cannot acquire a body.
 void set_prior_poses(const HostConfig& cfg, const InputFiles& in,
                      st::pipeline::ExposureProcessor& processor) {
+  std::vector<st::geometry::Transform> fitted;
   for (const auto* body : {&in.pylon, &in.store}) {
     st::geometry::Transform T_w_b;
     st::geometry::Mat6 cov;
     if (st::match::fit_body_pose(*body, cfg.initial_marks_w, cfg.initial_marks_sigma_m, T_w_b,
                                  cov)) {
       processor.matcher().set_prior_pose(body->name, T_w_b, cov);
+      fitted.push_back(T_w_b);
     } else {
       spdlog::warn(
           "storetrack-host: no prior pose for '{}' (needs >= 3 non-collinear of its marks in "
           "--initial-marks): its marks cannot be identified",
           body->name);
     }
+  }
+  // The store's region relative to the pylon (re-acquisition), around its installation pose.
+  if (cfg.store_region.valid && fitted.size() == 2) {
+    st::match::BodyRegion region;
+    region.reference_body = in.pylon.name;
+    region.T_ref_b_nominal = fitted[0].inverse() * fitted[1];
+    region.max_rotation_rad = cfg.store_region.max_rotation_rad;
+    region.min_offset_m = cfg.store_region.min_offset_m;
+    region.max_offset_m = cfg.store_region.max_offset_m;
+    processor.matcher().set_region(in.store.name, region);
   }
 }
 

@@ -116,7 +116,15 @@ nlohmann::json identifier_stats_json(const pipeline::ExposureProcessor& processo
           {"layout_rejected", ic.layout_rejected},
           {"single_view", ic.single_view},
           {"acquisitions", ic.acquisitions},
-          {"duplicate_camera", ic.duplicate_camera}};
+          {"duplicate_camera", ic.duplicate_camera},
+          {"lost_body", ic.lost_body},
+          {"reacquisition_attempted", ic.reacquisition_attempted},
+          {"reacquisition_accepted", ic.reacquisition_accepted},
+          {"reacquisition_ambiguous", ic.reacquisition_ambiguous},
+          {"reacquisition_inconsistent", ic.reacquisition_inconsistent},
+          {"reacquisition_too_few_marks", ic.reacquisition_too_few_marks},
+          {"reacquisition_outside_region", ic.reacquisition_outside_region},
+          {"reacquisition_deferred", ic.reacquisition_deferred}};
 }
 
 nlohmann::json processor_stats_json(const pipeline::ExposureProcessor& processor) {

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "storetrack/uncertainty/spd_inverse.hpp"
 
@@ -15,13 +16,12 @@ void MarkMatcher::compute_calibration_bounds() {
   // intrinsic and rotation parts do not depend on z, the translation part scales with 1/z, and
   // (u + v)^T C (u + v) <= 2 u^T C u + 2 v^T C v. Evaluated on a grid, x 1.5 between nodes.
   cal_bounds_.assign(rig_.cameras.size(), {});
-  if (!config_.use_calibration_covariance) return;
   for (size_t slot = 0; slot < rig_.cameras.size(); ++slot) {
     const auto& cal = rig_.cameras[slot];
     const auto& in = cal.model.intrinsics();
     const double margin = config_.image_margin_px + 0.5;
     constexpr int kGrid = 12;
-    double a = 0, b = 0;
+    double a = 0, b = 0, min_scale = std::numeric_limits<double>::infinity();
     for (int iu = 0; iu <= kGrid; ++iu)
       for (int iv = 0; iv <= kGrid; ++iv) {
         const Vec2 px(-margin + (in.width + 2 * margin) * iu / kGrid,
@@ -32,6 +32,13 @@ void MarkMatcher::compute_calibration_bounds() {
         Eigen::Matrix<double, 2, 3> J_cam;
         Eigen::Matrix<double, 2, camera::kNumIntrinsics> J_int;
         if (!cal.model.project(p_cam, &J_cam, &J_int)) continue;
+        // Smallest singular value: sqrt of the smaller eigenvalue of A^T A (2x2, closed form).
+        const Mat2 AtA = J_cam.leftCols<2>().transpose() * J_cam.leftCols<2>();
+        const double half_trace = AtA.trace() / 2;
+        const double lambda_min =
+            half_trace - std::sqrt(std::max(0.0, half_trace * half_trace - AtA.determinant()));
+        min_scale = std::min(min_scale, std::sqrt(std::max(0.0, lambda_min)));
+        if (!config_.use_calibration_covariance) continue;
         const Eigen::Matrix<double, 2, 3> J_rot = -J_cam * geometry::skew(p_cam);
         const Mat3 C_rot = cal.extrinsic_covariance.topLeftCorner<3, 3>();
         const Mat3 C_trans = cal.extrinsic_covariance.bottomRightCorner<3, 3>();
@@ -42,7 +49,8 @@ void MarkMatcher::compute_calibration_bounds() {
         b = std::max(b, 2 * t_trans);
       }
     // intrinsic and extrinsic parts add: trace(A + B) = trace A + trace B
-    cal_bounds_[slot] = {1.5 * a, 1.5 * b};
+    // The pixel scale varies smoothly (distortion): / 1.5 between grid nodes as well.
+    cal_bounds_[slot] = {1.5 * a, 1.5 * b, min_scale / 1.5};
   }
 }
 

@@ -13,12 +13,8 @@
 
 namespace storetrack::match {
 
-namespace {
-
-/// Body-frame points spread in at least two directions: the second singular value of the centred
-/// points is above `min_spread` times the first (else the rotation about their line is free).
-/// The singular values are the square roots of the eigenvalues of the 3x3 scatter matrix.
 bool layout_well_spread(std::span<const Vec3> q_b, double min_spread) {
+  // The singular values are the square roots of the eigenvalues of the 3x3 scatter matrix.
   Vec3 mean = Vec3::Zero();
   for (const Vec3& q : q_b)
     mean += q;
@@ -31,7 +27,32 @@ bool layout_well_spread(std::span<const Vec3> q_b, double min_spread) {
   return ev[1] > min_spread * min_spread * ev[2];
 }
 
-}  // namespace
+bool layout_well_posed(std::span<const Vec3> q_b, const Mat6& cov, const MatcherConfig& config) {
+  if (!layout_well_spread(q_b, config.min_layout_spread)) return false;
+  const double rot_var = cov.topLeftCorner<3, 3>().diagonal().maxCoeff();
+  const double trans_var = cov.bottomRightCorner<3, 3>().diagonal().maxCoeff();
+  return cov.allFinite() && std::sqrt(rot_var) <= config.max_layout_rotation_sigma_rad &&
+         std::sqrt(trans_var) <= config.max_layout_translation_sigma_m;
+}
+
+bool fit_layout(pose::PointsInBody q_body, pose::PointsInWorld p_world, std::span<const Mat3> cov_w,
+                std::vector<double>& weights_scratch, LayoutFit& out) {
+  const std::span<const Vec3> q_b = q_body.points, p_w = p_world.points;
+  const size_t n = q_b.size();
+  weights_scratch.assign(n, 1.0);
+  if (!pose::absolute_orientation(q_body, p_world, weights_scratch, out.T_w_b)) return false;
+  Mat6 info = Mat6::Zero();
+  out.chi2 = 0;
+  for (size_t i = 0; i < n; ++i) {
+    Mat3 W;
+    if (!uncertainty::inverse_spd<3>(cov_w[i], W)) return false;
+    const Vec3 e = p_w[i] - out.T_w_b * q_b[i];
+    out.chi2 += e.dot(W * e);
+    const auto G = point_pose_jacobian(out.T_w_b, q_b[i]);
+    info += G.transpose() * W * G;
+  }
+  return uncertainty::inverse_spd<6>(info, out.cov);
+}
 
 bool fit_body_pose(const survey::RigidBodySurvey& body, const std::map<int, Vec3>& p_w_by_id,
                    double sigma_m, Transform& T_w_b, Mat6& covariance) {
@@ -154,6 +175,10 @@ void MarkMatcher::verify_layouts(Work& w) const {
     }
   };
   for (int b = 0; b < static_cast<int>(bodies_.size()); ++b) {
+    if (w.reacquired[b]) {
+      verify_against_reacquired_pose(w, b);
+      continue;
+    }
     w.fitted[b] = false;
     w.body[b].updated = false;
     std::vector<int> members;
@@ -190,30 +215,23 @@ void MarkMatcher::verify_layouts(Work& w) const {
       auto fit = [&](const std::vector<int>& set, Transform& T, Mat6& cov, bool& consistent) {
         const int n = static_cast<int>(set.size());
         auto &q_b = w.layout_q_b, &p_w = w.layout_p_w;
+        auto& cov_w = w.layout_cov;
         q_b.resize(set.size());
         p_w.resize(set.size());
-        for (int i = 0; i < n; ++i) {
-          q_b[i] = marks_[set[i]].p_body;
-          p_w[i] = w.tri[set[i]].p;
-        }
-        w.layout_weights.assign(set.size(), 1.0);
-        if (!pose::absolute_orientation(pose::PointsInBody{q_b}, pose::PointsInWorld{p_w},
-                                        w.layout_weights, T))
-          return false;
-        Mat6 info = Mat6::Zero();
-        double chi2 = 0;
+        cov_w.resize(set.size());
         for (int i = 0; i < n; ++i) {
           const double s = marks_[set[i]].survey_sigma_m;
-          Mat3 W;
-          if (!uncertainty::inverse_spd<3>(Mat3(w.tri[set[i]].cov + s * s * Mat3::Identity()), W))
-            return false;
-          const Vec3 e = w.tri[set[i]].p - T * marks_[set[i]].p_body;
-          chi2 += e.dot(W * e);
-          const auto G = point_pose_jacobian(T, marks_[set[i]].p_body);
-          info += G.transpose() * W * G;
+          q_b[i] = marks_[set[i]].p_body;
+          p_w[i] = w.tri[set[i]].p;
+          cov_w[i] = w.tri[set[i]].cov + s * s * Mat3::Identity();
         }
-        if (!uncertainty::inverse_spd<6>(info, cov)) return false;
-        consistent = chi2 <= chi2_gate_[3 * n - 6];
+        LayoutFit lf;
+        if (!fit_layout(pose::PointsInBody{q_b}, pose::PointsInWorld{p_w}, cov_w, w.layout_weights,
+                        lf))
+          return false;
+        T = lf.T_w_b;
+        cov = lf.cov;
+        consistent = lf.chi2 <= chi2_gate_[3 * n - 6];
         return true;
       };
       // A layout whose marks are (nearly) collinear leaves the rotation about that line
@@ -224,11 +242,7 @@ void MarkMatcher::verify_layouts(Work& w) const {
         q_b.resize(set.size());
         for (size_t i = 0; i < set.size(); ++i)
           q_b[i] = marks_[set[i]].p_body;
-        if (!layout_well_spread(q_b, config_.min_layout_spread)) return false;
-        const double rot_var = cov.topLeftCorner<3, 3>().diagonal().maxCoeff();
-        const double trans_var = cov.bottomRightCorner<3, 3>().diagonal().maxCoeff();
-        return cov.allFinite() && std::sqrt(rot_var) <= config_.max_layout_rotation_sigma_rad &&
-               std::sqrt(trans_var) <= config_.max_layout_translation_sigma_m;
+        return layout_well_posed(q_b, cov, config_);
       };
       Transform T;
       Mat6 cov;
@@ -250,6 +264,29 @@ void MarkMatcher::verify_layouts(Work& w) const {
     }
     // Unverifiable single-view or untriangulated assignments of an unfitted body stay as they
     // are (their ids rest on the prediction alone, see MatcherConfig::single_view_*).
+  }
+}
+
+void MarkMatcher::verify_against_reacquired_pose(Work& w, int b) const {
+  // A body re-acquired in this exposure keeps the search's verified pose; each triangulated
+  // mark the bootstrap assigned is tested on its own against that pose (chi-square(3) of
+  // p - T q with G P G^T + triangulation + survey covariance), so bad marks (e.g. a two-view
+  // point off its mark) are dropped one by one instead of failing the whole layout.
+  for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
+    if (marks_[m].body != b || !w.tri[m].valid) continue;
+    const auto G = point_pose_jacobian(w.T_w_b[b], marks_[m].p_body);
+    const double s = marks_[m].survey_sigma_m;
+    const Mat3 C = G * w.cov_b[b] * G.transpose() + w.tri[m].cov + s * s * Mat3::Identity();
+    const Vec3 e = w.tri[m].p - w.T_w_b[b] * marks_[m].p_body;
+    Mat3 W;
+    if (uncertainty::inverse_spd<3>(C, W) && e.dot(W * e) <= chi2_gate_[3]) continue;
+    for (int o : w.assigned[m]) {
+      w.obs[o].state = ObsState::kUngated;
+      w.obs[o].mark = -1;
+    }
+    w.assigned[m].clear();
+    w.tri[m] = {};
+    ++w.counts.layout_rejected;
   }
 }
 

@@ -13,6 +13,7 @@
 #include <algorithm>
 #include <bit>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <unordered_map>
 
@@ -69,11 +70,26 @@ MarkMatcher::MarkMatcher(const camera::RigCalibration& rig,
   mark_tracks_.resize(marks_.size());
   body_tracks_.resize(bodies_.size());
   priors_.resize(bodies_.size());
+  regions_.resize(bodies_.size());
+  next_search_s_.assign(bodies_.size(), -std::numeric_limits<double>::infinity());
+  refused_in_a_row_.assign(bodies_.size(), 0);
+  min_mark_spacing_.assign(bodies_.size(), std::numeric_limits<double>::infinity());
+  for (size_t i = 0; i < marks_.size(); ++i)
+    for (size_t j = i + 1; j < marks_.size(); ++j)
+      if (marks_[i].body == marks_[j].body) {
+        double& d = min_mark_spacing_[marks_[i].body];
+        d = std::min(d, (marks_[i].p_body - marks_[j].p_body).norm());
+      }
   compute_calibration_bounds();
   chi2_gate_.assign(kMaxDof + 1, 0.0);
-  for (int dof = 1; dof <= kMaxDof; ++dof)
+  chi2_competitor_gate_.assign(kMaxDof + 1, 0.0);
+  const double miss = 1 - config_.gate_probability;
+  for (int dof = 1; dof <= kMaxDof; ++dof) {
     chi2_gate_[dof] = uncertainty::chi_square_quantile(
         uncertainty::Probability(config_.gate_probability), uncertainty::DegreesOfFreedom(dof));
+    chi2_competitor_gate_[dof] = uncertainty::chi_square_quantile(
+        uncertainty::Probability(1 - miss * miss), uncertainty::DegreesOfFreedom(dof));
+  }
 }
 
 bool MarkMatcher::set_prior_pose(const std::string& body_name, const Transform& T_w_b,
@@ -91,11 +107,24 @@ void MarkMatcher::clear_prior_pose(const std::string& body_name) {
     if (bodies_[b].name == body_name) priors_[b].valid = false;
 }
 
+bool MarkMatcher::set_region(const std::string& body_name, const BodyRegion& region) {
+  int body = -1, reference = -1;
+  for (int b = 0; b < static_cast<int>(bodies_.size()); ++b) {
+    if (bodies_[b].name == body_name) body = b;
+    if (bodies_[b].name == region.reference_body) reference = b;
+  }
+  if (body < 0 || reference < 0 || body == reference) return false;
+  regions_[body] = {true, reference, region};
+  return true;
+}
+
 void MarkMatcher::reset_tracking() {
   for (auto& t : mark_tracks_)
     t.count = 0;
   for (auto& t : body_tracks_)
     t.valid = false;
+  next_search_s_.assign(bodies_.size(), -std::numeric_limits<double>::infinity());
+  refused_in_a_row_.assign(bodies_.size(), 0);
 }
 
 MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
@@ -195,12 +224,17 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
   w.T_w_b.assign(bodies_.size(), Transform::Identity());
   w.cov_b.assign(bodies_.size(), Mat6::Zero());
   w.body.assign(bodies_.size(), {});
+  w.reacquired.assign(bodies_.size(), false);
+  w.search_refused.assign(bodies_.size(), false);
 
   if (t_count > 0) {
     predict(w, t_s);
     gate_and_assign(w);
     verify_views(w);
     verify_layouts(w);
+    // A body without a fitted pose (lost: no usable prediction, or its prediction explains
+    // none of the observations) is searched for among the free observations.
+    reacquire_lost_bodies(w, t_s);
     // Bootstrap: a fitted body re-predicts its still-unassigned marks from this exposure's
     // layout fit (tight), which resolves what the coarse prediction left ambiguous.
     // Needed only when some observation is still without an id.
@@ -288,9 +322,17 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
   out.acquired_from_prior = w.acquired;
   if (w.acquired) ++w.counts.acquisitions;
   out.T_w_b = w.T_w_b;
+  out.cov_b = w.cov_b;
   out.fitted = w.fitted;
+  out.reacquired = w.reacquired;
 
   if (t_count > 0) update_tracks(w, t_s);
+  for (size_t b = 0; b < bodies_.size(); ++b) {
+    if (w.reacquired[b]) refused_in_a_row_[b] = 0;
+    if (!w.search_refused[b]) continue;
+    const int doublings = std::min(refused_in_a_row_[b]++, MatcherConfig::kMaxRetryDoublings);
+    next_search_s_[b] = t_s + config_.reacquisition_retry_s * static_cast<double>(1 << doublings);
+  }
 
   // Accumulate counters.
   auto& c = counters_;
@@ -312,6 +354,14 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
   c.single_view += d.single_view;
   c.acquisitions += d.acquisitions;
   c.duplicate_camera += d.duplicate_camera;
+  c.lost_body += d.lost_body;
+  c.reacquisition_attempted += d.reacquisition_attempted;
+  c.reacquisition_accepted += d.reacquisition_accepted;
+  c.reacquisition_ambiguous += d.reacquisition_ambiguous;
+  c.reacquisition_inconsistent += d.reacquisition_inconsistent;
+  c.reacquisition_too_few_marks += d.reacquisition_too_few_marks;
+  c.reacquisition_outside_region += d.reacquisition_outside_region;
+  c.reacquisition_deferred += d.reacquisition_deferred;
   return out;
 }
 

@@ -3,11 +3,13 @@
 #pragma once
 
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include <Eigen/Core>
 
 #include "storetrack/match/mark_matcher.hpp"
+#include "storetrack/pose/body_pose.hpp"
 #include "storetrack/triangulate/triangulate.hpp"
 
 namespace storetrack::match {
@@ -29,6 +31,49 @@ inline Eigen::Matrix<double, 3, 6> point_pose_jacobian(const Transform& T_w_b, c
   G.rightCols<3>() = Mat3::Identity();
   return G;
 }
+
+/// Absolute orientation (host/pose) of surveyed points q_b onto measured world points p_w, each
+/// with its total 3x3 covariance cov_w (measurement + survey): the pose, its covariance
+/// (G^T W G)^-1 and the chi-square sum of e^T W e (dof 3n - 6). src/layouts.cpp.
+struct LayoutFit {
+  Transform T_w_b = Transform::Identity();
+  Mat6 cov = Mat6::Zero();
+  double chi2 = 0;
+};
+bool fit_layout(pose::PointsInBody q_b, pose::PointsInWorld p_w, std::span<const Mat3> cov_w,
+                std::vector<double>& weights_scratch, LayoutFit& out);
+/// Body-frame points spread in at least two directions (second / first singular value of the
+/// centred points above min_spread; else the rotation about their line is free).
+bool layout_well_spread(std::span<const Vec3> q_b, double min_spread);
+/// A fit that can verify ids and predict the body's other marks: well-spread marks and a pose
+/// known to MatcherConfig::max_layout_rotation_sigma_rad / max_layout_translation_sigma_m.
+bool layout_well_posed(std::span<const Vec3> q_b, const Mat6& cov, const MatcherConfig& config);
+
+/// Re-acquisition (reacquisition.cpp): two free observations of different cameras that pass
+/// the epipolar test, and their two-view point.
+struct EpipolarPair {
+  int o1 = -1, o2 = -1;
+  Vec3 p = Vec3::Zero();
+};
+/// A 3-D point triangulated from free observations of >= 2 cameras.
+struct CandidatePoint {
+  std::vector<int> obs;  ///< observation indices, ascending, one per camera
+  Vec3 p = Vec3::Zero();
+  Mat3 cov = Mat3::Zero();  ///< triangulation covariance
+  double chi2 = 0;          ///< reprojection chi-square, dof 2 views - 3
+  int views = 0;
+};
+/// Survey marks assigned to candidate points, and the fitted pose.
+struct LayoutHypothesis {
+  std::vector<std::pair<int, int>> pairs;  ///< (mark index in MarkMatcher::marks_, candidate)
+  LayoutFit fit;
+  bool well_posed = false;
+  bool consistent = false;  ///< chi-square within the gate (may be accepted)
+  bool plausible = false;   ///< within the competitor gate (counts against another's acceptance)
+  /// Observations of the explained candidates seen in >= 3 views, ascending (a two-view point
+  /// may be a false correspondence, so it does not make one explanation larger than another).
+  std::vector<int> obs;
+};
 
 enum class ObsState : std::uint8_t { kUnassigned, kAssigned, kAmbiguous, kUngated };
 
@@ -94,6 +139,7 @@ struct MarkMatcher::Work {
   std::vector<triangulate::Observation> tri_views;  ///< triangulation scratch
   triangulate::Result tri_result;
   std::vector<Vec3> layout_q_b, layout_p_w;  ///< layout fit scratch
+  std::vector<Mat3> layout_cov;
   std::vector<double> layout_weights;
   std::vector<bool> fitted;  ///< per body
   std::vector<Transform> T_w_b;
@@ -107,6 +153,16 @@ struct MarkMatcher::Work {
     BodyTrack post;
   };
   std::vector<BodyState> body;
+  /// Re-acquisition scratch (reacquisition.cpp).
+  std::vector<std::vector<int>> free_by_cam;
+  std::vector<EpipolarPair> epipolar_pairs;
+  std::vector<std::vector<int>> compatible;  ///< per observation: epipolar partners, ascending
+  std::vector<CandidatePoint> candidates;
+  std::vector<LayoutHypothesis> hypotheses;
+  std::vector<bool> lost;            ///< per body: its extrapolated pose was too uncertain to gate
+  std::vector<bool> reacquired;      ///< per body: found by the re-acquisition search
+  std::vector<bool> search_refused;  ///< per body: searched for and not accepted
+  std::vector<Pred> pred_track, pred_body;  ///< prediction scratch, per mark
   bool acquired = false;
   MatchCounters counts;
 };

@@ -2,6 +2,8 @@
 // (Bar-Shalom et al. 2001, sec. 6.3.3) or the prior pose (acquisition).
 #include "matcher_work.hpp"
 
+#include <Eigen/Eigenvalues>
+
 #include "storetrack/geometry/transform.hpp"
 
 namespace storetrack::match {
@@ -69,6 +71,10 @@ void MarkMatcher::predict(Work& w, double t_s) const {
   }
 
   w.pred.assign(marks_.size(), {});
+  w.pred_track.assign(marks_.size(), {});
+  w.pred_body.assign(marks_.size(), {});
+  w.lost.assign(bodies_.size(), false);
+  const double gate3 = chi2_gate_[3];
   for (size_t m = 0; m < marks_.size(); ++m) {
     const MarkInfo& info = marks_[m];
     const MarkTrack& mt = mark_tracks_[m];
@@ -78,7 +84,8 @@ void MarkMatcher::predict(Work& w, double t_s) const {
     // covariance wins: a fresh mark track beats a body extrapolation, but a mark that has been
     // hidden for a while (its track covariance grows with the gap) is predicted from its body,
     // so its gate does not swallow its neighbours' observations.
-    Work::Pred from_track, from_body;
+    Work::Pred& from_track = w.pred_track[m];
+    Work::Pred& from_body = w.pred_body[m];
     if (mt.count > 0 && t_s - mt.t_s[last] <= config_.track_max_gap_s) {
       const double dt = t_s - mt.t_s[last];
       const double accel = 0.5 * config_.max_acceleration_mps2 * dt * dt;
@@ -102,7 +109,30 @@ void MarkMatcher::predict(Work& w, double t_s) const {
                       (info.survey_sigma_m * info.survey_sigma_m + floor2) * Mat3::Identity();
       from_body.source = body_src[b];
       from_body.valid = true;
+      // A pose extrapolated over a long gap: once a mark's gate (chi-square(3)) reaches past
+      // the body's smallest mark spacing in EVERY direction (smallest eigenvalue; a pose poorly
+      // known about one axis only, e.g. a row's roll, still tells neighbours apart in the
+      // images), it can only make its marks (and other bodies' marks) ambiguous. The body is
+      // then lost: searched for instead (reacquisition.cpp). The smallest eigenvalue is at most
+      // trace / 3, so it is computed only past that cheap bound (never on the tracking path).
+      const double limit2 = min_mark_spacing_[b] * min_mark_spacing_[b];
+      if (body_src[b] == PredictionSource::kBodyTrack &&
+          gate3 * from_body.cov.trace() / 3 > limit2 &&
+          gate3 * Eigen::SelfAdjointEigenSolver<Mat3>(from_body.cov, Eigen::EigenvaluesOnly)
+                      .eigenvalues()[0] >
+              limit2)
+        w.lost[b] = true;
     }
+  }
+  for (size_t b = 0; b < bodies_.size(); ++b)
+    if (w.lost[b]) {
+      w.body[b].predicted = false;
+      ++w.counts.lost_body;
+    }
+  for (size_t m = 0; m < marks_.size(); ++m) {
+    const Work::Pred& from_track = w.pred_track[m];
+    Work::Pred from_body = w.pred_body[m];
+    if (w.lost[marks_[m].body]) from_body.valid = false;
     auto& pr = w.pred[m];
     if (from_track.valid && (!from_body.valid || from_track.cov.trace() <= from_body.cov.trace()))
       pr = from_track;

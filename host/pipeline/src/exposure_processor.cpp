@@ -91,14 +91,6 @@ void add_product(const MatA& A, const MatL& L, MatOut& out) {
       if (A(r, j) != 0.0) out.row(r) += A(r, j) * L.row(j);
 }
 
-// Left-perturbation difference xi with T_a = perturb_left(T_b, xi).
-Vec6 pose_difference(const Transform& T_a, const Transform& T_b) {
-  Vec6 xi;
-  xi.head<3>() = geometry::rotvec_from_rotation(T_a.linear() * T_b.linear().transpose());
-  xi.tail<3>() = T_a.translation() - T_b.translation();
-  return xi;
-}
-
 double wrap_angle(double a) {
   return std::remainder(a, 2.0 * M_PI);
 }
@@ -693,7 +685,7 @@ MonteCarloResult ExposureProcessor::monte_carlo(const AlignedExposure& exposure,
     }
     if (nominal.T_p_s.valid) {
       if (r.T_p_s.valid) {
-        const Vec6 xi = pose_difference(r.T_p_s.T, nominal.T_p_s.T);
+        const Vec6 xi = geometry::left_difference(r.T_p_s.T, nominal.T_p_s.T);
         Vec6 o = r.xyz_ypr - nominal.xyz_ypr;
         for (int a = 3; a < 6; ++a)
           o(a) = wrap_angle(o(a));

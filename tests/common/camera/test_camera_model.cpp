@@ -52,6 +52,18 @@ Vec3 random_point_in_view(std::mt19937_64& rng, const Intrinsics& in) {
   return {(uu(rng) - in.cx) / in.fx * z, (vv(rng) - in.cy) / in.fy * z, z};
 }
 
+// geometry::left_difference inverts perturb_left (up to rotations of pi, where Log is ambiguous).
+TEST(Geometry, LeftDifferenceInvertsPerturbLeft) {
+  const geometry::Transform T = geometry::make_transform(Vec3(0.3, -1.2, 2.0), Vec3(1, 2, 3));
+  for (const double scale : {1e-6, 1e-2, 1.0, 3.0}) {
+    geometry::Vec6 delta;
+    delta << 0.4, -0.7, 0.5, 0.1, -0.2, 0.3;
+    delta.head<3>() *= scale / delta.head<3>().norm();  // rotation angle = scale < pi
+    const geometry::Vec6 back = geometry::left_difference(geometry::perturb_left(T, delta), T);
+    EXPECT_LT((back - delta).norm(), 1e-12) << scale;
+  }
+}
+
 TEST(CameraModel, PackUnpackRoundTrip) {
   const Intrinsics in = typical_intrinsics();
   const Intrinsics back = unpack(pack(in), in.width, in.height);

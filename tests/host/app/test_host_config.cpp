@@ -207,6 +207,15 @@ TEST(HostConfig, EverySectionNamesTheKeyOfABadValue) {
       {R"({"identifier": {"gate_probability": 1}})", "/identifier/gate_probability"},
       {R"({"identifier": {"keep_single_view": 3}})", "/identifier/keep_single_view"},
       {R"({"identifier": {"initial_marks_sigma_m": 0}})", "/identifier/initial_marks_sigma_m"},
+      {R"({"identifier": {"min_reacquisition_marks": 2}})", "/identifier/min_reacquisition_marks"},
+      {R"({"identifier": {"reacquisition_retry_s": -1}})", "/identifier/reacquisition_retry_s"},
+      {R"({"identifier": {"store_region": {"max_offset_m": [1, 1, 1]}}})",
+       "/identifier/store_region/min_offset_m is required"},
+      {R"({"identifier": {"store_region": {"min_offset_m": [0, 0, 2], "max_offset_m": [1, 1, 1]}}})",
+       "/identifier/store_region: min_offset_m must be <= max_offset_m"},
+      {R"({"identifier": {"store_region": {"max_rotation_deg": 0, "min_offset_m": [0, 0, 0],
+           "max_offset_m": [1, 1, 1]}}})",
+       "/identifier/store_region/max_rotation_deg"},
       {R"({"chapter10": {"data_checksum": "yes"}})", "/chapter10/data_checksum"},
       {R"({"chapter10": {"test_point": 12}})", "/chapter10/test_point"},
   };
@@ -218,7 +227,10 @@ TEST(HostConfig, EverySectionNamesTheKeyOfABadValue) {
   HostConfig c;
   ASSERT_EQ(load(R"({"processor": {"coverage_factor": 3, "store_id": 9},
                      "pose_tracker": {"max_gap_s": 0.05},
-                     "identifier": {"gate_probability": 0.999, "initial_marks_sigma_m": 0.01},
+                     "identifier": {"gate_probability": 0.999, "initial_marks_sigma_m": 0.01,
+                                    "store_region": {"max_rotation_deg": 30,
+                                                     "min_offset_m": [-1.5, -0.5, -0.1],
+                                                     "max_offset_m": [0.1, 0.5, 5]}},
                      "chapter10": {"test_point": "TP-7", "data_checksum": true}})",
                  &c),
             "");
@@ -227,6 +239,10 @@ TEST(HostConfig, EverySectionNamesTheKeyOfABadValue) {
   EXPECT_EQ(c.pose_tracker.max_gap_s, 0.05);
   EXPECT_EQ(c.processor.matcher.gate_probability, 0.999);
   EXPECT_EQ(c.initial_marks_sigma_m, 0.01);
+  EXPECT_TRUE(c.store_region.valid);
+  EXPECT_NEAR(c.store_region.max_rotation_rad, 30 * M_PI / 180, 1e-12);
+  EXPECT_EQ(c.store_region.min_offset_m, geometry::Vec3(-1.5, -0.5, -0.1));
+  EXPECT_EQ(c.store_region.max_offset_m, geometry::Vec3(0.1, 0.5, 5));
   EXPECT_EQ(c.ch10.test_point, "TP-7");
   EXPECT_TRUE(c.ch10.data_checksum);
 }

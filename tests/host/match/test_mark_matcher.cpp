@@ -4,14 +4,21 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
 #include <map>
 #include <memory>
+#include <optional>
 #include <random>
 #include <vector>
 
 #include "storetrack/match/mark_matcher.hpp"
+#include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/sim/scenario.hpp"
 #include "storetrack/sim/simulator.hpp"
+#include "storetrack/uncertainty/spd_inverse.hpp"
+#include "storetrack/uncertainty/statistics.hpp"
 
 namespace storetrack::match {
 namespace {
@@ -332,10 +339,11 @@ TEST(MarkMatcher, PendulumIdentifies) {
 
 TEST(MarkMatcher, StoreHiddenFor20ExposuresIsNeverGuessed) {
   // The store is invisible in every camera for exposures 100..119 (50 ms, in free flight). Its
-  // pose filter extrapolates meanwhile; afterwards the predicted gates (process noise over
-  // 50 ms) are wider than the mark spacing, so its observations must be rejected as ambiguous,
-  // never given a wrong id, while the pylon stays identified. (Re-acquisition of a body whose
-  // gates overlap needs a layout hypothesis search: not implemented, docs/matching.md.)
+  // pose filter extrapolates meanwhile; afterwards its predicted gates (process noise over
+  // 50 ms) are wider than the mark spacing, so the store is lost and searched for by its layout
+  // (re-acquisition). Without a region (MarkMatcher::set_region) the store's ring layout is
+  // symmetric under a 180 deg turn about its z axis: the search must refuse it as ambiguous,
+  // never give a wrong id, while the pylon stays identified.
   Scene s = make_setup("store_separation", 34, 0.005, 0.01);
   Tally before, hidden, after;
   const auto cams = all_cameras(*s.sim);
@@ -343,15 +351,15 @@ TEST(MarkMatcher, StoreHiddenFor20ExposuresIsNeverGuessed) {
     run_exposure(*s.sim, *s.matcher, k, cams, before);
   for (int k = 100; k < 120; ++k)
     run_exposure(*s.sim, *s.matcher, k, cams, hidden, 0, nullptr, 100);
-  const auto ambiguous_before =
-      s.matcher->counters().ambiguous_observation + s.matcher->counters().ambiguous_mark;
+  const auto refused_before = s.matcher->counters().reacquisition_ambiguous;
   for (int k = 120; k < 170; ++k)
     run_exposure(*s.sim, *s.matcher, k, cams, after);  // everything visible again
   EXPECT_EQ(before.wrong + hidden.wrong + after.wrong, 0);
   EXPECT_GE(observation_rate(before), 0.99);
   EXPECT_GE(observation_rate(hidden), 0.99);  // the pylon's marks, while the store is hidden
-  EXPECT_GT(s.matcher->counters().ambiguous_observation + s.matcher->counters().ambiguous_mark,
-            ambiguous_before);
+  EXPECT_GT(s.matcher->counters().lost_body, 0u);
+  EXPECT_GT(s.matcher->counters().reacquisition_ambiguous, refused_before);
+  EXPECT_EQ(s.matcher->counters().reacquisition_accepted, 0u);
 }
 
 TEST(MarkMatcher, AmbiguousLayoutIsRejected) {
@@ -524,5 +532,408 @@ TEST(MarkMatcher, DuplicateMarkIdsRejected) {
   EXPECT_THROW(MarkMatcher(camera::RigCalibration{}, {a, b}), std::invalid_argument);
 }
 
+// ---------------------------------------------------------------------------------------------
+// Re-acquisition without a prior (docs/matching.md, step 6).
+
+/// Where the store can be relative to the pylon during a separation (MarkMatcher::set_region):
+/// within 30 deg of its carriage attitude (the scenario reaches 26 deg of pitch at its end), at
+/// most 0.1 m forward or 1.5 m aft of the carriage, 0.5 m to either side, 0.1 m above to 5 m
+/// below it (z down). A physical envelope: it excludes the store turned end for end (the
+/// survey's ring layout is symmetric under 180 deg about z), the store rolled by one ring step
+/// (40 deg: with one mark of each ring hidden the other three fit either way) and the identical
+/// store on the other pylon (0.7 m sideways).
+BodyRegion separation_region(const sim::Simulator& sim) {
+  BodyRegion r;
+  r.reference_body = "pylon";
+  r.T_ref_b_nominal = sim.truth(0).T_p_s;  // the carriage pose (store at rest before release)
+  r.max_rotation_rad = 30.0 * M_PI / 180.0;
+  r.min_offset_m = geometry::Vec3(-1.5, -0.5, -0.1);
+  r.max_offset_m = geometry::Vec3(0.1, 0.5, 5.0);
+  return r;
+}
+
+/// Installation-survey prior of the store (its carriage pose from the initial mark positions,
+/// standard uncertainty 5 mm as the host's default identifier.initial_marks_sigma_m), as
+/// storetrack-host sets it: host/match's fit_body_pose.
+void set_installation_priors(const sim::Simulator& sim, MarkMatcher& matcher) {
+  const sim::ExposureTruth t0 = sim.truth(0);
+  for (const survey::RigidBodySurvey& body : {sim.pylon_survey(), sim.store_survey()}) {
+    std::map<int, geometry::Vec3> initial;
+    for (const auto& mk : t0.marks)
+      if (body.find(mk.id)) initial[mk.id] = mk.p_w0;
+    Transform T;
+    Mat6 cov;
+    ASSERT_TRUE(fit_body_pose(body, initial, 0.005, T, cov));
+    ASSERT_TRUE(matcher.set_prior_pose(body.name, T, cov));
+  }
+}
+
+/// What one exposure of a re-acquisition scenario feeds the matcher.
+struct Feed {
+  int k = 0;                       ///< simulator exposure
+  std::int64_t time_shift_ns = 0;  ///< added to every camera's exposure start
+  bool hide_store = false;         ///< store marks (ids >= 100) not seen at all
+  /// Second, identical store: the store's true marks displaced by this world offset, projected
+  /// through the true rig with 0.1 px noise (each where the real mark is visible).
+  std::optional<geometry::Vec3> twin_offset_w;
+};
+
+struct StoreTally {
+  long store_observations = 0, store_identified = 0;  ///< usable store observations (ids >= 100)
+  long wrong = 0, twin_observations = 0, twin_identified = 0;
+  long poses = 0, nees_within_95 = 0;  ///< pipeline store poses, and with NEES <= chi2(6, 0.95)
+  double max_nees = 0, sum_nees = 0;
+  long reacquired_exposures = 0;
+  double rate() const {
+    return store_observations ? double(store_identified) / double(store_observations) : 0.0;
+  }
+};
+
+/// Normalised estimation error squared of the store pose T_p_s that the pipeline
+/// (ExposureProcessor, its full GUM covariance with the calibration) solves from the matcher's
+/// ids, against simulator truth; nullopt when no pose was solved.
+std::optional<double> store_pose_nees(const sim::Simulator& sim, int k,
+                                      pipeline::ExposureProcessor& processor,
+                                      const std::vector<msg::MarkObservations>& obs,
+                                      const MatchResult& r) {
+  pipeline::AlignedExposure exposure;
+  exposure.cameras = obs;
+  exposure.trigger_seq = obs.front().trigger_seq;
+  for (const auto& o : obs)
+    exposure.exposure_mid_tai_ns =
+        std::min(exposure.exposure_mid_tai_ns, pipeline::exposure_mid_tai_ns(o));
+  const pipeline::ExposureResult res = processor.process(exposure, r.ids);
+  if (!res.T_p_s.valid) return std::nullopt;
+  const Transform truth = sim.truth(k).T_p_s;
+  Vec6 d;
+  d.head<3>() = geometry::rotvec_from_rotation(res.T_p_s.T.linear() * truth.linear().transpose());
+  d.tail<3>() = res.T_p_s.T.translation() - truth.translation();
+  Mat6 info;
+  if (!uncertainty::inverse_spd<6>(res.T_p_s.cov, info)) return std::nullopt;
+  return d.dot(info * d);
+}
+
+MatchResult feed_exposure(const sim::Simulator& sim, MarkMatcher& matcher, const Feed& f,
+                          StoreTally& tally, std::mt19937_64& rng,
+                          std::vector<msg::MarkObservations>* fed = nullptr) {
+  const Recorded& rec = recorded(sim, f.k);
+  std::vector<msg::MarkObservations> obs = rec.obs;
+  std::vector<std::vector<int>> truth = rec.truth;
+  const sim::ExposureTruth t = f.twin_offset_w ? sim.truth(f.k) : sim::ExposureTruth{};
+  const auto& true_rig = sim.true_rig();
+  std::normal_distribution<double> noise(0, 0.1);
+  for (size_t e = 0; e < obs.size(); ++e) {
+    obs[e].exposure_start_tai_ns += f.time_shift_ns;
+    if (f.hide_store) {
+      msg::MarkObservations kept = obs[e];
+      std::vector<int> ids;
+      kept.mark_count = 0;
+      for (int j = 0; j < obs[e].mark_count; ++j)
+        if (truth[e][j] < 100) {
+          kept.marks[kept.mark_count++] = obs[e].marks[j];
+          ids.push_back(truth[e][j]);
+        }
+      obs[e] = kept;
+      truth[e] = ids;
+    }
+    if (f.twin_offset_w) {
+      const auto& cam = true_rig.cameras[e];
+      const auto& in = cam.model.intrinsics();
+      for (const auto& mk : t.marks) {
+        if (mk.id < 100 || !mk.cameras[e].visible || obs[e].mark_count >= obs[e].marks.size())
+          continue;
+        const auto px = cam.model.project(cam.T_c_w * (mk.p_w0 + *f.twin_offset_w));
+        if (!px || px->x() < 2 || px->y() < 2 || px->x() > in.width - 3 || px->y() > in.height - 3)
+          continue;
+        msg::MarkObservation o{};
+        o.x_px = static_cast<float>(px->x() + noise(rng));
+        o.y_px = static_cast<float>(px->y() + noise(rng));
+        o.sigma_px = 0.1f;
+        o.peak = 100;
+        o.diameter_px = 6;
+        obs[e].marks[obs[e].mark_count++] = o;
+        truth[e].push_back(1000 + mk.id);  // the twin's marks: no id of ours is right for them
+      }
+    }
+  }
+  const MatchResult r = matcher.match(obs);
+  for (size_t e = 0; e < obs.size(); ++e)
+    for (int j = 0; j < obs[e].mark_count; ++j) {
+      const int tr = truth[e][j], got = r.ids[e][j];
+      const bool usable = !(obs[e].marks[j].flags & MatcherConfig{}.rejected_mark_flags);
+      if (tr >= 100 && tr < 1000 && usable) {
+        ++tally.store_observations;
+        if (got == tr) ++tally.store_identified;
+      }
+      tally.twin_observations += tr >= 1000;
+      if (tr >= 1000 && got >= 0) ++tally.twin_identified;
+      if (got >= 0 && got != tr) {
+        ++tally.wrong;
+        ADD_FAILURE() << "exposure " << f.k << " camera " << e << ": id " << got << ", truth "
+                      << tr;
+      }
+    }
+  if (fed) *fed = std::move(obs);
+  return r;
+}
+
+/// Runs a feed list through the matcher and, with its ids, the pipeline (store pose scored).
+StoreTally run_feeds(const sim::Simulator& sim, MarkMatcher& matcher,
+                     const std::vector<Feed>& feeds, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  pipeline::ExposureProcessor processor(sim.calibrated_rig(), sim.pylon_survey(),
+                                        sim.store_survey(), pipeline::ProcessorConfig{});
+  StoreTally t;
+  const double within95 = uncertainty::chi_square_quantile(uncertainty::Probability(0.95),
+                                                           uncertainty::DegreesOfFreedom(6));
+  std::vector<msg::MarkObservations> obs;
+  for (const Feed& f : feeds) {
+    const MatchResult r = feed_exposure(sim, matcher, f, t, rng, &obs);
+    if (r.reacquired.size() > 1 && r.reacquired[1]) ++t.reacquired_exposures;
+    if (f.hide_store) continue;
+    if (const auto nees = store_pose_nees(sim, f.k, processor, obs, r)) {
+      ++t.poses;
+      t.sum_nees += *nees;
+      t.max_nees = std::max(t.max_nees, *nees);
+      t.nees_within_95 += *nees <= within95;
+    }
+  }
+  return t;
+}
+
+/// Store hidden in every camera for `gap` exposures from exposure 100, then visible again from
+/// exposure 150 to the end (219). A gap longer than 50 exposures is replayed (the scenario has
+/// 220): the hidden phase cycles the pylon-only observations of exposures 100-149 with their
+/// stamps advanced, and exposures 150-219 follow with their stamps shifted by gap - 50 frames,
+/// so the store reappears where it was at exposure 150 after `gap` exposures of time.
+std::vector<Feed> hidden_store_feeds(const sim::Simulator& sim, int gap) {
+  const std::int64_t frame_ns = std::llround(1e9 / sim.scenario().frame_rate_hz);
+  std::vector<Feed> feeds;
+  for (int k = 0; k < 100; ++k)
+    feeds.push_back({k, 0, false, std::nullopt});
+  for (int i = 0; i < gap; ++i)
+    feeds.push_back({100 + i % 50, (i - i % 50) * frame_ns, true, std::nullopt});
+  for (int k = 150; k < sim.num_exposures(); ++k)
+    feeds.push_back({k, (gap - 50) * frame_ns, false, std::nullopt});
+  return feeds;
+}
+
+/// Pose coverage bounds for n scored exposures of one run. The exposures share one calibration
+/// draw, so they are not independent; the union bound holds for any correlation: if the pose
+/// covariance is honest, P(some NEES > chi2(6, 1 - a/n)) <= a, and since min <= mean,
+/// P(mean NEES < chi2(6, a/n)) <= a. With a = 1 % each the test fails an honest matcher in at
+/// most 2 % of calibration draws.
+void expect_pose_coverage(const StoreTally& t) {
+  ASSERT_GT(t.poses, 0);
+  const double a = 0.01 / static_cast<double>(t.poses);
+  const double upper = uncertainty::chi_square_quantile(uncertainty::Probability(1 - a),
+                                                        uncertainty::DegreesOfFreedom(6));
+  const double lower = uncertainty::chi_square_quantile(uncertainty::Probability(a),
+                                                        uncertainty::DegreesOfFreedom(6));
+  EXPECT_LE(t.max_nees, upper);
+  EXPECT_GE(t.sum_nees / static_cast<double>(t.poses), lower);
+}
+
+void print_store_tally(const char* name, const StoreTally& t, const MatchCounters& c,
+                       double search_ms) {
+  std::printf(
+      "%s: store %ld / %ld usable observations identified (%.4f), %ld wrong, twin ids %ld of %ld; "
+      "poses %ld, NEES <= chi2(6,0.95) %.3f, mean %.2f, max %.1f; re-acquisition attempted %lu "
+      "accepted %lu ambiguous %lu inconsistent %lu too-few %lu outside-region %lu, lost %lu; "
+      "search %.2f ms\n",
+      name, t.store_identified, t.store_observations, t.rate(), t.wrong, t.twin_identified,
+      t.twin_observations, t.poses, t.poses ? double(t.nees_within_95) / double(t.poses) : 0.0,
+      t.poses ? t.sum_nees / double(t.poses) : 0.0, t.max_nees,
+      (unsigned long)c.reacquisition_attempted, (unsigned long)c.reacquisition_accepted,
+      (unsigned long)c.reacquisition_ambiguous, (unsigned long)c.reacquisition_inconsistent,
+      (unsigned long)c.reacquisition_too_few_marks, (unsigned long)c.reacquisition_outside_region,
+      (unsigned long)c.lost_body, search_ms);
+}
+
+/// Wall time of the matcher on the first exposure a lost store is visible again [ms].
+double time_first_visible(const sim::Simulator& sim, MarkMatcher matcher, const Feed& feed) {
+  std::mt19937_64 rng(1);
+  StoreTally ignored;
+  const auto t0 = std::chrono::steady_clock::now();
+  feed_exposure(sim, matcher, feed, ignored, rng);
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+void hidden_store_run(int gap) {
+  Scene s = make_setup("store_separation", 40 + gap, 0.005, 0.01);
+  ASSERT_TRUE(s.matcher->set_region("store", separation_region(*s.sim)));
+  const std::vector<Feed> feeds = hidden_store_feeds(*s.sim, gap);
+  const size_t first_visible = 100 + static_cast<size_t>(gap);
+  // Up to the first visible exposure, then timed on a copy (the search runs there).
+  std::mt19937_64 rng(7);
+  StoreTally before;
+  for (size_t i = 0; i < first_visible; ++i)
+    feed_exposure(*s.sim, *s.matcher, feeds[i], before, rng);
+  EXPECT_EQ(before.wrong, 0);
+  const double search_ms = time_first_visible(*s.sim, *s.matcher, feeds[first_visible]);
+  const std::vector<Feed> after(feeds.begin() + static_cast<long>(first_visible), feeds.end());
+  const StoreTally t = run_feeds(*s.sim, *s.matcher, after, 8);
+  const std::string name = "store hidden " + std::to_string(gap) + " exposures";
+  print_store_tally(name.c_str(), t, s.matcher->counters(), search_ms);
+  EXPECT_EQ(t.wrong, 0);
+  EXPECT_GE(t.reacquired_exposures, 1);
+  // Found again on its first visible exposure, then tracked as in the uninterrupted run.
+  ASSERT_GT(t.store_observations, 1000);
+  EXPECT_GE(t.rate(), 0.95);
+  EXPECT_GE(s.matcher->counters().reacquisition_accepted, 1u);
+  expect_pose_coverage(t);
+}
+
+TEST(MarkMatcherReacquisition, StoreHidden50Exposures) {
+  hidden_store_run(50);
+}
+
+TEST(MarkMatcherReacquisition, StoreHidden200Exposures) {
+  hidden_store_run(200);
+}
+
+TEST(MarkMatcherReacquisition, StoreHidden1000Exposures) {
+  hidden_store_run(1000);
+}
+
+TEST(MarkMatcherReacquisition, HostStartedMidSeparation) {
+  // The host starts at exposure 150 (the store has fallen ~0.8 m): its only priors are the
+  // installation survey's (store on its carriage), which explain none of the store's marks.
+  const sim::Simulator& sim = shared_simulator("store_separation");
+  MarkMatcher matcher(sim.calibrated_rig(), {sim.pylon_survey(), sim.store_survey()});
+  set_installation_priors(sim, matcher);
+  ASSERT_TRUE(matcher.set_region("store", separation_region(sim)));
+  std::vector<Feed> feeds;
+  for (int k = 150; k < sim.num_exposures(); ++k)
+    feeds.push_back({k, 0, false, std::nullopt});
+  const double search_ms = time_first_visible(sim, matcher, feeds[0]);
+  const StoreTally t = run_feeds(sim, matcher, feeds, 9);
+  print_store_tally("host started at exposure 150", t, matcher.counters(), search_ms);
+  EXPECT_EQ(t.wrong, 0);
+  ASSERT_GT(t.store_observations, 1000);
+  EXPECT_GE(t.rate(), 0.95);
+  EXPECT_GE(matcher.counters().reacquisition_accepted, 1u);
+  expect_pose_coverage(t);
+}
+
+/// The identical store on the other pylon: 0.7 m to the side of ours (world y).
+const geometry::Vec3 kTwinOffset(0.0, 0.7, 0.0);
+
+TEST(MarkMatcherReacquisition, IdenticalSecondStoreIsRefusedWhenNothingTellsThemApart) {
+  // Host started mid-separation with a second, identical store in view. The region bounds the
+  // store's attitude only (30 deg from its carriage's, which excludes the store turned end for
+  // end or rolled by a ring step) and not its position: both stores are then equally good
+  // explanations, so every search must be refused as ambiguous: neither store's marks get an id,
+  // the pylon's still do.
+  const sim::Simulator& sim = shared_simulator("store_separation");
+  MarkMatcher matcher(sim.calibrated_rig(), {sim.pylon_survey(), sim.store_survey()});
+  set_installation_priors(sim, matcher);
+  BodyRegion attitude_only = separation_region(sim);
+  attitude_only.min_offset_m = geometry::Vec3::Constant(-100);
+  attitude_only.max_offset_m = geometry::Vec3::Constant(100);
+  ASSERT_TRUE(matcher.set_region("store", attitude_only));
+  std::vector<Feed> feeds;
+  for (int k = 150; k < 160; ++k)
+    feeds.push_back({k, 0, false, kTwinOffset});
+  const StoreTally t = run_feeds(sim, matcher, feeds, 10);
+  print_store_tally("twin store, attitude-only region", t, matcher.counters(), 0);
+  EXPECT_EQ(t.wrong, 0);
+  ASSERT_GT(t.twin_observations, 100);
+  EXPECT_EQ(t.twin_identified, 0);
+  EXPECT_EQ(t.store_identified, 0);
+  // Searched at 150, after reacquisition_retry_s (4 exposures) at 154, then after twice that
+  // (8 exposures): 2 searches in the 10 exposures, each refused.
+  const auto& c = matcher.counters();
+  EXPECT_EQ(c.reacquisition_attempted, 2u);
+  EXPECT_EQ(c.reacquisition_ambiguous, c.reacquisition_attempted);
+  EXPECT_EQ(c.reacquisition_attempted + c.reacquisition_deferred, feeds.size());
+  EXPECT_EQ(c.reacquisition_accepted, 0u);
+}
+
+TEST(MarkMatcherReacquisition, IdenticalSecondStoreIsToldApartByRegion) {
+  // The same with the store's separation region relative to the pylon: the twin (0.7 m aside)
+  // is outside it. While our store is hidden (exposures 145-149) the search finds only the twin
+  // and refuses it (outside the region); then our store is found and tracked, the twin is never
+  // identified.
+  const sim::Simulator& sim = shared_simulator("store_separation");
+  MarkMatcher matcher(sim.calibrated_rig(), {sim.pylon_survey(), sim.store_survey()});
+  set_installation_priors(sim, matcher);
+  ASSERT_TRUE(matcher.set_region("store", separation_region(sim)));
+  std::vector<Feed> hidden;
+  for (int k = 145; k < 150; ++k)
+    hidden.push_back({k, 0, true, kTwinOffset});
+  const StoreTally th = run_feeds(sim, matcher, hidden, 12);
+  print_store_tally("twin store visible, ours hidden, separation region", th, matcher.counters(),
+                    0);
+  EXPECT_EQ(th.wrong, 0);
+  ASSERT_GT(th.twin_observations, 100);
+  EXPECT_EQ(th.twin_identified, 0);
+  const auto& c = matcher.counters();
+  EXPECT_GE(c.reacquisition_outside_region, 1u);
+  EXPECT_EQ(c.reacquisition_outside_region, c.reacquisition_attempted);
+  EXPECT_EQ(c.reacquisition_attempted + c.reacquisition_deferred, hidden.size());
+  EXPECT_EQ(c.reacquisition_accepted, 0u);
+  std::vector<Feed> feeds;
+  for (int k = 150; k < sim.num_exposures(); ++k)
+    feeds.push_back({k, 0, false, kTwinOffset});
+  const StoreTally t = run_feeds(sim, matcher, feeds, 11);
+  print_store_tally("twin store, separation region", t, matcher.counters(), 0);
+  EXPECT_EQ(t.wrong, 0);
+  ASSERT_GT(t.twin_observations, 1000);
+  EXPECT_EQ(t.twin_identified, 0);
+  ASSERT_GT(t.store_observations, 1000);
+  // The searches refused at exposures 145 and 149 double the pause to 2 x reacquisition_retry_s
+  // (8 exposures): our store is found at the latest on its 8th visible exposure (150-157), so
+  // at least 70 - 7 of its 70 visible exposures give a pose. Those 7 early exposures, the store
+  // still near the pylon and seen whole, carry ~48 of its 2212 observations each (15.2 %), on
+  // top of the ~0.3 % the tracked store loses.
+  EXPECT_GE(t.poses, 70 - 7);
+  EXPECT_GE(t.rate(), 0.95 - 0.152);
+  EXPECT_EQ(matcher.counters().reacquisition_accepted, 1u);
+  expect_pose_coverage(t);
+}
+
+TEST(MarkMatcherReacquisition, OtherCalibrationDraws) {
+  // The host started mid-separation with the twin store in view, for other simulator seeds
+  // (calibration, survey and noise draws: each its own layout errors and candidate points). CI
+  // runs 5 draws (~0.5 s); STORETRACK_REACQ_DRAWS=N runs N (docs/matching.md).
+  const char* env = std::getenv("STORETRACK_REACQ_DRAWS");
+  const int draws = env ? std::max(1, std::atoi(env)) : 5;
+  long total_wrong = 0, twin_ids = 0, accepted_draws = 0, identified = 0, usable = 0;
+  long poses = 0, within95 = 0;
+  for (int d = 0; d < draws; ++d) {
+    const sim::Simulator sim(sim::load_scenario(scenario_path("store_separation")),
+                             static_cast<std::uint64_t>(100 + d));
+    MarkMatcher matcher(sim.calibrated_rig(), {sim.pylon_survey(), sim.store_survey()});
+    set_installation_priors(sim, matcher);
+    ASSERT_TRUE(matcher.set_region("store", separation_region(sim)));
+    std::vector<Feed> feeds;
+    for (int k = 150; k < sim.num_exposures(); ++k)
+      feeds.push_back({k, 0, false, kTwinOffset});
+    const StoreTally t = run_feeds(sim, matcher, feeds, static_cast<std::uint64_t>(200 + d));
+    const std::string name = "draw " + std::to_string(d) + " (seed " + std::to_string(100 + d) +
+                             "), host started at 150, twin in view";
+    print_store_tally(name.c_str(), t, matcher.counters(), 0);
+    total_wrong += t.wrong;
+    twin_ids += t.twin_identified;
+    accepted_draws += matcher.counters().reacquisition_accepted > 0;
+    identified += t.store_identified;
+    usable += t.store_observations;
+    poses += t.poses;
+    within95 += t.nees_within_95;
+    EXPECT_EQ(t.wrong, 0);
+    EXPECT_EQ(t.twin_identified, 0);
+    // Found in every draw; in some the first exposures are refused as ambiguous (counted).
+    EXPECT_GE(matcher.counters().reacquisition_accepted, 1u);
+    expect_pose_coverage(t);
+  }
+  const double rate = double(identified) / double(usable);
+  std::printf(
+      "%d draws: %ld wrong ids, %ld twin ids, store found in %ld draws, %.4f of %ld usable store "
+      "observations identified, %ld of %ld poses (%.4f) with NEES <= chi2(6, 0.95)\n",
+      draws, total_wrong, twin_ids, accepted_draws, rate, usable, within95, poses,
+      double(within95) / double(poses));
+  EXPECT_GE(rate, 0.95);
+}
 }  // namespace
 }  // namespace storetrack::match

@@ -66,6 +66,15 @@ inline Transform perturb_left(const Transform& T_a_b, const Vec6& delta) {
   return out;
 }
 
+/// Its inverse: the delta with T_perturbed = perturb_left(T, delta) (a pose error against truth,
+/// the step between two estimates), in the same (rotation, translation) order.
+inline Vec6 left_difference(const Transform& T_perturbed, const Transform& T) {
+  Vec6 delta;
+  delta.head<3>() = rotvec_from_rotation(T_perturbed.linear() * T.linear().transpose());
+  delta.tail<3>() = T_perturbed.translation() - T.translation();
+  return delta;
+}
+
 /// Jacobians of the composition T_a_c = T_a_b T_b_c w.r.t. left perturbations (perturb_left) of
 /// its factors: xi_ac = d_ac_d_ab xi_ab + d_ac_d_bc xi_bc (first order). With R_a_b <- Exp(phi)
 /// R_a_b, t_a_b <- t_a_b + rho: phi_ac = phi, rho_ac = rho - [R_a_b t_b_c]x phi; with R_b_c <-

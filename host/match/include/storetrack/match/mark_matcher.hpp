@@ -5,6 +5,7 @@
 //   match::MarkMatcher matcher(rig, {pylon_survey, store_survey}, match::MatcherConfig{});
 //   matcher.set_prior_pose("pylon", T_w_p_nominal, cov_p);   // for (re-)acquisition
 //   matcher.set_prior_pose("store", T_w_p_nominal * T_p_s_carriage, cov_s);
+//   matcher.set_region("store", {"pylon", T_p_s_carriage, max_angle, box_min, box_max});
 //   for each exposure:
 //     match::MatchResult m = matcher.match(exposure.cameras);   // span of MarkObservations
 //     // m.ids[e][j]: mark id of exposure.cameras[e].marks[j], or -1  (= pipeline::MarkIds)
@@ -26,6 +27,10 @@
 // fitted body pose
 // re-predicts that body's unassigned marks with a tight covariance and the gating is repeated
 // (bootstrap from a coarse prior). Tracks are updated from the triangulated positions.
+// A body with no usable prediction (track timed out or too uncertain, prior explaining nothing)
+// is re-acquired from this exposure's unidentified observations alone: multi-view points
+// matched to its survey's distance table, one pose passing the chi-square test, any second
+// distinct interpretation refused as ambiguous (src/reacquisition.cpp).
 #pragma once
 
 #include <cstdint>
@@ -90,6 +95,35 @@ struct MatcherConfig {
   bool single_view_requires_track = true;
   /// Predictions further than this outside the image border are not gated [px].
   double image_margin_px = 20.0;
+  /// Re-acquisition without a usable prediction (docs/matching.md, step 6): a layout hypothesis
+  /// must explain at least this many marks (three points fix a pose and leave only their own
+  /// three distances to test, which clutter matches too easily).
+  int min_reacquisition_marks = 4;
+  /// After a search that found nothing to accept, the body is not searched for again for this
+  /// long [s], doubled after each further refusal up to kMaxRetryDoublings times (0.01 s ->
+  /// 0.32 s) and back to it once a search is accepted: a search costs 8-40 ms, so while a lost
+  /// body stays unfound among free observations (refused as ambiguous: a symmetric layout with
+  /// no region) the host would otherwise fall behind the 2.5 ms frame period for good; with the
+  /// doubling the search's share falls below 10 % of the thread after 5 refusals
+  /// (docs/matching.md). 0: every exposure.
+  double reacquisition_retry_s = 0.01;
+  static constexpr int kMaxRetryDoublings = 5;
+};
+
+/// Where a body can be relative to a reference body (e.g. the store relative to its pylon during
+/// the separation). Used only to choose between layout hypotheses of a re-acquisition: a
+/// hypothesis outside the region is excluded, so a symmetric layout (the store turned by 180 deg)
+/// or a second identical body elsewhere (the store on the other pylon) is told apart instead of
+/// refused as ambiguous. Hard bounds, generous by intent (a physical envelope, not a gate).
+struct BodyRegion {
+  std::string reference_body;  ///< name of the body whose pose frames the region ("pylon")
+  /// Nominal pose T_ref_b of the body in the reference body's frame (e.g. the carriage pose).
+  geometry::Transform T_ref_b_nominal = geometry::Transform::Identity();
+  /// Largest rotation angle between the body's attitude and the nominal one [rad].
+  double max_rotation_rad = 0;
+  /// Box of the body origin's offset from the nominal origin, reference frame axes [m].
+  geometry::Vec3 min_offset_m = geometry::Vec3::Zero();
+  geometry::Vec3 max_offset_m = geometry::Vec3::Zero();
 };
 
 /// Where a mark's prediction came from.
@@ -136,9 +170,13 @@ struct MatchResult {
   int identified = 0;    ///< observations with an id
   int ambiguous = 0;     ///< observations or marks rejected as ambiguous in this exposure
   bool acquired_from_prior = false;  ///< some body was (re-)acquired from its prior pose
-  /// Fitted body poses T_w_b (index as bodies), valid when fitted[b].
+  /// Fitted body poses T_w_b (index as bodies), valid when fitted[b], and their 6x6 covariance
+  /// (left perturbation, rx ry rz tx ty tz).
   std::vector<geometry::Transform> T_w_b;
+  std::vector<geometry::Mat6> cov_b;
   std::vector<bool> fitted;
+  /// Per body: found again in this exposure by the re-acquisition search (no prediction used).
+  std::vector<bool> reacquired;
 
   const MatchedMark* find(int id) const;
 };
@@ -161,6 +199,19 @@ struct MatchCounters {
   std::uint64_t single_view = 0;            ///< marks identified in exactly one camera
   std::uint64_t acquisitions = 0;           ///< exposures where a body used its prior pose
   std::uint64_t duplicate_camera = 0;       ///< same camera_id twice in one exposure (2nd ignored)
+  /// Exposures where a body's extrapolated pose was too uncertain to gate its marks (gate wider
+  /// than its smallest mark spacing): the body counts as lost and is searched for instead.
+  std::uint64_t lost_body = 0;
+  /// Re-acquisition searches (a body without a fitted pose, free observations in >= 2 cameras)
+  /// and their outcomes (each search has exactly one).
+  std::uint64_t reacquisition_attempted = 0;
+  std::uint64_t reacquisition_accepted = 0;
+  std::uint64_t reacquisition_ambiguous = 0;       ///< >= 2 distinct hypotheses pass: refused
+  std::uint64_t reacquisition_inconsistent = 0;    ///< hypotheses found, none passes the chi-square
+  std::uint64_t reacquisition_too_few_marks = 0;   ///< no hypothesis with enough well-spread marks
+  std::uint64_t reacquisition_outside_region = 0;  ///< the only passing ones are outside the region
+  /// Searches not run: within reacquisition_retry_s of the body's last refused one.
+  std::uint64_t reacquisition_deferred = 0;
 };
 
 class MarkMatcher {
@@ -175,6 +226,10 @@ class MarkMatcher {
   bool set_prior_pose(const std::string& body_name, const geometry::Transform& T_w_b,
                       const geometry::Mat6& covariance);
   void clear_prior_pose(const std::string& body_name);
+
+  /// Region the body can occupy relative to another body (used by re-acquisition only).
+  /// Returns false if either body is unknown or the region refers to the body itself.
+  bool set_region(const std::string& body_name, const BodyRegion& region);
 
   /// Identifies the marks of one exposure (all cameras that delivered it, any order, missing
   /// cameras simply absent) and updates the tracks.
@@ -216,6 +271,11 @@ class MarkMatcher {
     geometry::Transform T_w_b = geometry::Transform::Identity();
     geometry::Mat6 cov = geometry::Mat6::Zero();
   };
+  struct Region {
+    bool valid = false;
+    int reference = -1;  ///< body index
+    BodyRegion region;
+  };
   struct Work;
 
   /// Owns the per-exposure scratch buffers (reused; a copied matcher gets fresh ones).
@@ -231,6 +291,9 @@ class MarkMatcher {
   /// trace(calibration pixel covariance) <= a + b / z_cam^2 (per camera slot; pre-gate).
   struct CalibrationBound {
     double a = 0, b = 0;
+    /// Smallest singular value of d(pixel)/d(normalised point) over the image [px] (the
+    /// re-acquisition's epipolar pre-gate converts pixel sigmas to the normalised plane with it).
+    double min_pixel_scale = 0;
   };
 
   void compute_calibration_bounds();
@@ -245,6 +308,19 @@ class MarkMatcher {
   bool triangulate(Work& w, const std::vector<int>& obs, const geometry::Vec3& initial,
                    geometry::Vec3& p_w, geometry::Mat3& cov_w, double& chi2) const;
   void update_tracks(const Work& w, double t_s);
+  // Re-acquisition of lost bodies (reacquisition.cpp).
+  enum class SearchOutcome : std::uint8_t;
+  void reacquire_lost_bodies(Work& w, double t_s) const;
+  SearchOutcome search_body(Work& w, int b) const;
+  void find_epipolar_pairs(Work& w) const;
+  void form_candidates(Work& w) const;
+  bool triangulate_free(Work& w, std::span<const int> obs, const geometry::Vec3& initial,
+                        bool calibration_at_point, geometry::Vec3& p_w, geometry::Mat3& cov_w,
+                        double& chi2) const;
+  SearchOutcome choose_hypothesis(const Work& w, int b, int& best) const;
+  void accept_reacquisition(Work& w, int b, int hypothesis) const;
+  bool inside_region(const Work& w, int b, const geometry::Transform& T_w_b) const;
+  void verify_against_reacquired_pose(Work& w, int b) const;
 
   camera::RigCalibration rig_;
   std::vector<survey::RigidBodySurvey> bodies_;
@@ -253,7 +329,14 @@ class MarkMatcher {
   std::vector<MarkTrack> mark_tracks_;
   std::vector<BodyTrack> body_tracks_;
   std::vector<Prior> priors_;
-  std::vector<double> chi2_gate_;  ///< chi2_gate_[dof] at gate_probability, dof 0..kMaxDof
+  std::vector<Region> regions_;           ///< per body
+  std::vector<double> min_mark_spacing_;  ///< per body: smallest distance between two marks [m]
+  std::vector<double> next_search_s_;     ///< per body: no re-acquisition search before [s]
+  std::vector<int> refused_in_a_row_;     ///< per body: searches refused since the last accepted
+  std::vector<double> chi2_gate_;         ///< chi2_gate_[dof] at gate_probability, dof 0..kMaxDof
+  /// At 1 - (1 - gate_probability)^2: a re-acquisition hypothesis within it is a competitor
+  /// (only dismissed at a false-rejection probability squared), see reacquisition.cpp.
+  std::vector<double> chi2_competitor_gate_;
   std::vector<CalibrationBound> cal_bounds_;  ///< per camera slot
   MatchCounters counters_;
   WorkBuffers work_;
