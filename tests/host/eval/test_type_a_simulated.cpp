@@ -1,9 +1,10 @@
 // The static Type A of storetrack-eval validated against the simulator's truth (issue 10): G
 // independent groups of N = 20 repetitions (SisTrO's 20 tests) of the static scene.
 //  - The Type A standard uncertainty of the mean, u = s/sqrt(N), must describe the Monte Carlo
-//    spread of the groups' mean errors: per mark and axis, sum_g N_g e_g^2 / mean_g(s_g^2) is
-//    chi-square(G) for honest u (e_g ~ N(0, sigma^2/N_g); mean_g(s_g^2) has ~G(N-1) dof, close
-//    to exact); two-sided, level 1 - 0.01/P for the P mark-axes (Bonferroni, family-wise 1 %).
+//    spread of the groups' mean errors: per mark and axis, sum_g N_g e_g^2 / mean_g(N_g u_g^2) is
+//    chi-square(G) for honest u (e_g ~ N(0, sigma^2/N_g); N_g u_g^2 = s_g^2, whose mean has ~G(N-1)
+//    dof, close to exact); two-sided, level 1 - 0.01/P for the P mark-axes (Bonferroni, family-wise
+//    1 %).
 //  - The mean error must lie within its k = 2 interval at the rate P(|t_{N-1}| <= 2) (the
 //    interval uses the estimated u), and the program's verdict on the instrument's stated u
 //    ("agrees": s/u_stated in its 95 % chi-square interval for N-1 dof) must say "agrees" at
@@ -51,10 +52,10 @@ double student_t_inside(double k, int dof) {
   return 2 * sum * h / 3;
 }
 
-/// Per mark and axis over groups: sum of N_g e_g^2 and of s_g^2 (a mark missed by the host in
-/// some repetitions has N_g < N; scaling by N_g keeps each term's variance sigma^2).
+/// Per mark and axis over groups: sums of N_g e_g^2 and of N_g u_g^2 (a mark missed by the host
+/// in some repetitions has N_g < N; scaling by N_g gives every term the expectation sigma^2).
 struct MarkAxisAcc {
-  double e2_sum = 0, s2_sum = 0;
+  double e2_sum = 0, n_u2_sum = 0;
   double u_stated2_sum = 0;  ///< of the host's stated per-sample u (squared)
 };
 
@@ -95,7 +96,7 @@ TEST(TypeASimulated, UncertaintyMatchesMonteCarloSpread) {
         const eval::AxisTypeA& x = m.axis[static_cast<size_t>(a)];
         MarkAxisAcc& s = acc[j * 3 + static_cast<size_t>(a)];
         s.e2_sum += m.repetitions * x.mean_error_m * x.mean_error_m;
-        s.s2_sum += x.sd_m * x.sd_m;
+        s.n_u2_sum += m.repetitions * x.u_mean_m * x.u_mean_m;  // the program's u, times N_g
         s.u_stated2_sum += x.u_stated_m * x.u_stated_m;
         ++checks;
         agreeing += x.agrees ? 1 : 0;                // its interval is exact for its own N
@@ -129,26 +130,26 @@ TEST(TypeASimulated, UncertaintyMatchesMonteCarloSpread) {
   const double hi = uncertainty::chi_square_quantile(uncertainty::Probability(1 - tail), dof);
   double worst_low = 1e9, worst_high = 0;
   for (size_t j = 0; j < acc.size(); ++j) {
-    const double statistic = acc[j].e2_sum / (acc[j].s2_sum / G);
+    const double statistic = acc[j].e2_sum / (acc[j].n_u2_sum / G);
     worst_low = std::min(worst_low, statistic);
     worst_high = std::max(worst_high, statistic);
     EXPECT_GE(statistic, lo) << "mark " << mark_ids[j / 3] << " axis " << j % 3;
     EXPECT_LE(statistic, hi) << "mark " << mark_ids[j / 3] << " axis " << j % 3;
   }
   std::printf(
-      "%d groups x %d repetitions, %d mark-axes: sum e^2/mean u^2 in [%.1f, %.1f], "
+      "%d groups x %d repetitions, %d mark-axes: sum N e^2 / mean N u^2 in [%.1f, %.1f], "
       "chi-square(%d) interval [%.1f, %.1f]; MC sd / Type A u (RMS over mark-axes) %.3f\n",
       G, kRepetitions, P, worst_low, worst_high, G, lo, hi, [&] {
         double s = 0;
         for (const MarkAxisAcc& a : acc)
-          s += a.e2_sum / a.s2_sum;
+          s += a.e2_sum / a.n_u2_sum;
         return std::sqrt(s / P);
       }());
 
   std::printf("pooled s / u_stated per mark (x, y, z):");
   for (size_t j = 0; j < acc.size(); ++j)
     std::printf("%s%.3f", j % 3 ? " " : (j ? "; " : " "),
-                std::sqrt(acc[j].s2_sum / acc[j].u_stated2_sum));
+                std::sqrt(acc[j].n_u2_sum / acc[j].u_stated2_sum));
   std::printf("\n");
 
   // 2. and 3.: the mean error within +-2u at the Student-t rate, the stated u agreeing at 95 %;
