@@ -15,6 +15,9 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <string>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -54,6 +57,22 @@ double student_t_inside(double k, int dof) {
 
 /// Per mark and axis over groups: sums of N_g e_g^2 and of N_g u_g^2 (a mark missed by the host
 /// in some repetitions has N_g < N; scaling by N_g gives every term the expectation sigma^2).
+/// STORETRACK_TYPE_A_WRITE_DIR=DIR: group 0's marks CSVs (rep01.csv .. rep20.csv) and the
+/// reference survey (reference.json) for the documented storetrack-eval command.
+void write_group_files(const std::vector<std::string>& csv_texts,
+                       const survey::RigidBodySurvey& reference) {
+  const char* dir = std::getenv("STORETRACK_TYPE_A_WRITE_DIR");
+  if (!dir) return;
+  std::filesystem::create_directories(dir);
+  for (size_t i = 0; i < csv_texts.size(); ++i) {
+    char name[32];
+    std::snprintf(name, sizeof name, "/rep%02zu.csv", i + 1);
+    std::ofstream(std::string(dir) + name) << csv_texts[i];
+  }
+  survey::write_survey(reference, std::string(dir) + "/reference.json");
+  std::printf("wrote %zu marks CSVs and reference.json to %s\n", csv_texts.size(), dir);
+}
+
 struct MarkAxisAcc {
   double e2_sum = 0, n_u2_sum = 0;
   double u_stated2_sum = 0;  ///< of the host's stated per-sample u (squared)
@@ -70,6 +89,7 @@ TEST(TypeASimulated, UncertaintyMatchesMonteCarloSpread) {
       ASSERT_LT((test::true_mark_in_host_world(other, m.id, t) - m.p_body).norm(), 1e-9) << m.id;
   }
   const int G = groups();
+  std::vector<std::string> csv_texts(kRepetitions);
   std::vector<MarkAxisAcc> acc;
   std::vector<int> mark_ids;
   std::int64_t checks = 0, full_checks = 0, inside_k2 = 0, agreeing = 0, short_marks = 0;
@@ -78,9 +98,11 @@ TEST(TypeASimulated, UncertaintyMatchesMonteCarloSpread) {
     std::vector<eval::MarksRecording> recordings;
     for (int i = 0; i < kRepetitions; ++i) {
       const std::uint64_t seed = 90000 + static_cast<std::uint64_t>(g * kRepetitions + i);
-      recordings.push_back(eval::parse_marks_csv(test::simulated_marks_csv(scenario, seed),
-                                                 "seed " + std::to_string(seed)));
+      csv_texts[static_cast<size_t>(i)] = test::simulated_marks_csv(scenario, seed);
+      recordings.push_back(
+          eval::parse_marks_csv(csv_texts[static_cast<size_t>(i)], "seed " + std::to_string(seed)));
     }
+    if (g == 0) write_group_files(csv_texts, reference);
     const eval::TypeAResult r = eval::evaluate_type_a(recordings, reference, "truth");
     if (g == 0) {
       for (const eval::MarkTypeA& m : r.marks)
