@@ -1,0 +1,44 @@
+#include "eval_cli.hpp"
+
+#include "storetrack/cli/command_line.hpp"
+
+namespace storetrack::evalapp {
+namespace {
+
+void add_type_a(cli::Command& app, TypeAArgs& a) {
+  cli::Command& sub = app.subcommand(
+      "type-a", "SisTrO static Type A: repeated static recordings vs total-station coordinates");
+  sub.option("marks_csv", a.marks_csv, "The host's --marks-csv, one file per repetition")
+      .required()
+      .existing_file();
+  sub.option("--survey", a.survey, "Reference marks' total-station coordinates (frame w)")
+      .required()
+      .existing_file();
+  sub.option("--body", a.body, "Marks of this body are evaluated (p pylon, s store)")
+      .one_of({"p", "s"})
+      .show_default();
+  sub.option("--coverage-factor", a.options.coverage_factor, "k of U = k u")
+      .positive()
+      .show_default();
+  sub.option("--agreement-level", a.options.agreement_level,
+             "Two-sided level of the chi-square interval of s / u_stated")
+      .range(0.5, 0.9999)
+      .show_default();
+  sub.option("-o,--output", a.output, "Result JSON to write").required();
+}
+
+}  // namespace
+
+int parse_eval_command(int argc, char** argv, EvalCommand& command) {
+  cli::Command app{"storetrack-eval: evaluation procedures (docs/evaluation.md)"};
+  app.require_subcommand(1);
+  add_type_a(app, command.type_a);
+  if (const int rc = app.parse(argc, argv); rc >= 0) return rc;
+  if (app.got_subcommand("type-a")) {
+    command.kind = EvalCommand::Kind::kTypeA;
+    command.type_a.options.body = command.type_a.body[0];
+  }
+  return -1;
+}
+
+}  // namespace storetrack::evalapp

@@ -1,0 +1,27 @@
+// storetrack-eval command line: one subcommand per evaluation procedure (docs/evaluation.md).
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "storetrack/eval/type_a.hpp"
+
+namespace storetrack::evalapp {
+
+struct TypeAArgs {
+  std::vector<std::string> marks_csv;  ///< one per repetition
+  std::string survey;                  ///< reference marks in the world frame
+  std::string body = "p";
+  eval::TypeAOptions options;
+  std::string output;  ///< result JSON
+};
+
+struct EvalCommand {
+  enum class Kind { kNone, kTypeA } kind = Kind::kNone;
+  TypeAArgs type_a;
+};
+
+/// Returns -1 to run `command`, else the exit code (0 after --help, 2 on a bad argument).
+int parse_eval_command(int argc, char** argv, EvalCommand& command);
+
+}  // namespace storetrack::evalapp

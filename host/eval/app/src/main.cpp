@@ -1,0 +1,21 @@
+// storetrack-eval: evaluation procedures of the instrument (docs/evaluation.md). Subcommands:
+//   type-a   repeated static marks CSVs + world survey -> Type A per mark and axis
+//            (eval_commands.cpp, run_type_a)
+// Exit codes: 0 ok, 1 runtime failure (writing files), 2 bad arguments or input.
+#include <iostream>
+
+#include "eval_cli.hpp"
+#include "eval_commands.hpp"
+
+int main(int argc, char** argv) {
+  namespace app = storetrack::evalapp;
+  app::EvalCommand command;
+  if (const int rc = app::parse_eval_command(argc, argv, command); rc >= 0) return rc;
+  switch (command.kind) {
+    case app::EvalCommand::Kind::kTypeA:
+      return app::run_type_a(command.type_a, std::cout, std::cerr);
+    case app::EvalCommand::Kind::kNone:
+      break;
+  }
+  return 2;
+}

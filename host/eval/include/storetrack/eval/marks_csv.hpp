@@ -1,0 +1,44 @@
+// Reader of the host's --marks-csv (docs/fti-output.md; writer: host/app/src/diagnostic_csv.cpp):
+// one row per mark observation (per camera), so a mark's triangulated world position appears
+// once per camera that saw it; the reader keeps one sample per (trigger_seq, mark_id).
+#pragma once
+
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "storetrack/geometry/transform.hpp"
+
+namespace storetrack::eval {
+
+/// Bad evaluation input; what() names the file (and line) and the field, and why.
+class EvalInputError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/// One mark in one exposure: the host's triangulated world position and its stated per-axis
+/// standard uncertainty.
+struct MarkSample {
+  std::uint32_t trigger_seq = 0;
+  int mark_id = 0;
+  char body = '?';                              ///< 'p' pylon, 's' store, '?' unidentified body
+  geometry::Vec3 p_w = geometry::Vec3::Zero();  ///< [m]
+  geometry::Vec3 u_w = geometry::Vec3::Zero();  ///< standard uncertainty per axis [m]
+  int line = 0;                                 ///< first CSV line of this sample (messages)
+};
+
+struct MarksRecording {
+  std::string path;
+  std::vector<MarkSample> samples;  ///< excluded marks left out (the host did not use them)
+  std::int64_t excluded_rows = 0;   ///< rows the host flagged excluded (counted, not used)
+};
+
+/// Reads a marks CSV; throws EvalInputError on a missing column, a malformed or non-finite value
+/// or a file without samples.
+MarksRecording read_marks_csv(const std::string& path);
+/// The same from text; `origin` names the file in messages.
+MarksRecording parse_marks_csv(const std::string& text, const std::string& origin);
+
+}  // namespace storetrack::eval

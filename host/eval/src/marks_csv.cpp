@@ -1,0 +1,149 @@
+// The host's marks CSV, read strictly: a missing column or a non-finite position must stop the
+// evaluation with the file, line and field, never shift a mark silently.
+#include <algorithm>
+#include <array>
+#include <charconv>
+#include <cmath>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <string_view>
+#include <utility>
+
+#include "storetrack/eval/marks_csv.hpp"
+
+namespace storetrack::eval {
+namespace {
+
+// The columns the evaluation needs, by the name before the unit ("x_w [m]" -> "x_w").
+enum Column { kSeq, kMarkId, kBody, kExcluded, kX, kY, kZ, kUx, kUy, kUz, kColumnCount };
+constexpr std::array<const char*, kColumnCount> kNames = {
+    "trigger_seq", "mark_id", "body", "excluded", "x_w", "y_w", "z_w", "u_x_w", "u_y_w", "u_z_w"};
+
+[[noreturn]] void fail(const std::string& origin, int line, const std::string& field,
+                       const std::string& why) {
+  throw EvalInputError(origin + ":" + std::to_string(line) + ": " + field + ": " + why);
+}
+
+std::vector<std::string> split(const std::string& line) {
+  std::vector<std::string> out;
+  std::string cell;
+  std::istringstream in(line);
+  while (std::getline(in, cell, ','))
+    out.push_back(cell);
+  if (!line.empty() && line.back() == ',') out.emplace_back();
+  return out;
+}
+
+std::string column_name(std::string cell) {
+  const auto bracket = cell.find('[');
+  if (bracket != std::string::npos) cell.resize(bracket);
+  const auto b = cell.find_first_not_of(" \t\r");
+  if (b == std::string::npos) return {};
+  return cell.substr(b, cell.find_last_not_of(" \t\r") - b + 1);
+}
+
+std::array<int, kColumnCount> header_columns(const std::string& header, const std::string& origin) {
+  std::array<int, kColumnCount> index;
+  index.fill(-1);
+  const std::vector<std::string> cells = split(header);
+  for (size_t i = 0; i < cells.size(); ++i) {
+    const std::string name = column_name(cells[i]);
+    for (int c = 0; c < kColumnCount; ++c)
+      if (name == kNames[static_cast<size_t>(c)])
+        index[static_cast<size_t>(c)] = static_cast<int>(i);
+  }
+  for (int c = 0; c < kColumnCount; ++c)
+    if (index[static_cast<size_t>(c)] < 0)
+      fail(origin, 1, kNames[static_cast<size_t>(c)], "missing column in the header");
+  return index;
+}
+
+struct Row {
+  const std::vector<std::string>& cells;
+  const std::array<int, kColumnCount>& index;
+  const std::string& origin;
+  int line;
+
+  const std::string& cell(Column c) const { return cells[static_cast<size_t>(index[c])]; }
+  long long integer(Column c, long long lo, long long hi) const {
+    const std::string& text = cell(c);
+    long long v = 0;
+    const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+    if (ec != std::errc() || end != text.data() + text.size())
+      fail(origin, line, kNames[c], "expected an integer, got '" + text + "'");
+    if (v < lo || v > hi) fail(origin, line, kNames[c], "'" + text + "' out of range");
+    return v;
+  }
+  double number(Column c) const {
+    const std::string& text = cell(c);
+    double v = 0;
+    const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+    if (ec != std::errc() || end != text.data() + text.size())
+      fail(origin, line, kNames[c], "expected a number, got '" + text + "'");
+    if (!std::isfinite(v)) fail(origin, line, kNames[c], "not finite ('" + text + "')");
+    return v;
+  }
+};
+
+}  // namespace
+
+MarksRecording parse_marks_csv(const std::string& text, const std::string& origin) {
+  MarksRecording rec;
+  rec.path = origin;
+  std::istringstream in(text);
+  std::string line_text;
+  if (!std::getline(in, line_text)) fail(origin, 1, "header", "empty file");
+  const std::array<int, kColumnCount> index = header_columns(line_text, origin);
+  int needed = 0;
+  for (int i : index)
+    needed = std::max(needed, i + 1);
+  std::map<std::pair<std::uint32_t, int>, size_t> seen;  // one sample per (exposure, mark)
+  for (int line = 2; std::getline(in, line_text); ++line) {
+    if (column_name(line_text).empty()) continue;
+    const std::vector<std::string> cells = split(line_text);
+    if (static_cast<int>(cells.size()) < needed)
+      fail(origin, line, "row",
+           std::to_string(cells.size()) + " cells, the header needs " + std::to_string(needed));
+    const Row row{cells, index, origin, line};
+    if (row.integer(kExcluded, 0, 1) == 1) {
+      ++rec.excluded_rows;
+      continue;
+    }
+    MarkSample s;
+    s.trigger_seq = static_cast<std::uint32_t>(row.integer(kSeq, 0, 0xFFFFFFFFLL));
+    s.mark_id = static_cast<int>(row.integer(kMarkId, 0, 1000000));
+    const std::string& body = row.cell(kBody);
+    if (body.size() != 1) fail(origin, line, "body", "expected p, s or ?, got '" + body + "'");
+    s.body = body[0];
+    s.p_w = {row.number(kX), row.number(kY), row.number(kZ)};
+    s.u_w = {row.number(kUx), row.number(kUy), row.number(kUz)};
+    for (int a = 0; a < 3; ++a)
+      if (!(s.u_w(a) > 0)) fail(origin, line, kNames[kUx + a], "standard uncertainty not > 0");
+    s.line = line;
+    const auto key = std::make_pair(s.trigger_seq, s.mark_id);
+    if (const auto it = seen.find(key); it != seen.end()) {
+      // The same triangulated mark, repeated for each camera that saw it.
+      if ((rec.samples[it->second].p_w - s.p_w).norm() > 1e-6)
+        fail(origin, line, "x_w",
+             "mark " + std::to_string(s.mark_id) + " of trigger_seq " +
+                 std::to_string(s.trigger_seq) + " differs from its row on line " +
+                 std::to_string(rec.samples[it->second].line));
+      continue;
+    }
+    seen.emplace(key, rec.samples.size());
+    rec.samples.push_back(s);
+  }
+  if (rec.samples.empty()) fail(origin, 2, "rows", "no mark samples (excluded rows left out)");
+  return rec;
+}
+
+MarksRecording read_marks_csv(const std::string& path) {
+  std::ifstream file(path, std::ios::binary);
+  if (!file) throw EvalInputError(path + ": cannot open the marks CSV");
+  std::ostringstream text;
+  text << file.rdbuf();
+  return parse_marks_csv(text.str(), path);
+}
+
+}  // namespace storetrack::eval
