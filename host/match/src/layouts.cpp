@@ -164,12 +164,7 @@ void MarkMatcher::verify_layouts(Work& w) const {
     const std::vector<int> drop =
         passing == 1 ? std::vector<int>{members[static_cast<size_t>(culprit)]} : members;
     for (int m : drop) {
-      for (int o : w.assigned[m]) {
-        w.obs[o].state = ObsState::kUngated;
-        w.obs[o].mark = -1;
-      }
-      w.assigned[m].clear();
-      w.tri[m] = {};
+      w.unassign_mark(m, ObsState::kUngated);
       ++w.counts.layout_rejected;
       members.erase(std::find(members.begin(), members.end(), m));
     }
@@ -280,12 +275,7 @@ void MarkMatcher::verify_against_reacquired_pose(Work& w, int b) const {
     const Vec3 e = w.tri[m].p - w.T_w_b[b] * marks_[m].p_body;
     Mat3 W;
     if (uncertainty::inverse_spd<3>(C, W) && e.dot(W * e) <= chi2_gate_[3]) continue;
-    for (int o : w.assigned[m]) {
-      w.obs[o].state = ObsState::kUngated;
-      w.obs[o].mark = -1;
-    }
-    w.assigned[m].clear();
-    w.tri[m] = {};
+    w.unassign_mark(m, ObsState::kUngated);
     ++w.counts.layout_rejected;
   }
 }

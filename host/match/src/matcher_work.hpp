@@ -165,6 +165,16 @@ struct MarkMatcher::Work {
   std::vector<Pred> pred_track, pred_body;  ///< prediction scratch, per mark
   bool acquired = false;
   MatchCounters counts;
+
+  /// Takes mark m's id back from its observations (they become `to`) and forgets its point.
+  void unassign_mark(int m, ObsState to) {
+    for (int o : assigned[m]) {
+      obs[o].state = to;
+      obs[o].mark = -1;
+    }
+    assigned[m].clear();
+    tri[m] = {};
+  }
 };
 
 }  // namespace storetrack::match

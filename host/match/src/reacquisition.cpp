@@ -582,12 +582,7 @@ void MarkMatcher::accept_reacquisition(Work& w, int b, int hypothesis) const {
   // tests each against the pose (verify_against_reacquired_pose).
   for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
     if (marks_[m].body != b) continue;
-    for (int o : w.assigned[m]) {
-      w.obs[o].state = ObsState::kUnassigned;
-      w.obs[o].mark = -1;
-    }
-    w.assigned[m].clear();
-    w.tri[m] = {};
+    w.unassign_mark(m, ObsState::kUnassigned);
     w.dirty[m] = false;
   }
   const LayoutHypothesis& h = w.hypotheses[hypothesis];
