@@ -43,6 +43,9 @@ ap.add_argument("--flood", type=int, default=0)
 ap.add_argument("--ch10-sync", action="store_true",
                 help="also record a Chapter 10 file, fdatasync after every packet (--ch10-sync every)")
 ap.add_argument("--p99-budget-us", type=float, default=0)
+ap.add_argument("--budget-only-when-quiet", action="store_true",
+                help="assert --p99-budget-us only when the 1-minute load <= cores (as check_faults.py: "
+                     "on an overloaded shared machine the host is preempted whatever it does); print otherwise")
 ap.add_argument("--no-kernel-filter", action="store_true",
                 help="run the host with --no-udp-kernel-filter (the flood reaches the host)")
 ap.add_argument("--mark-stations", type=int, default=6,
@@ -329,7 +332,12 @@ def check(total, rss, flood_sent, late_sends, marks_per_msg, host_rc, seq0, spli
     print("     latency last observation -> iNET-X: p50 %.0f us, p99 %.0f us, max %.0f us (%d exposures)"
           % (lat["p50_us"], lat["p99_us"], lat["max_us"], lat["count"]))
     if a.p99_budget_us > 0:
-        ok(lat["p99_us"] <= a.p99_budget_us, "p99 %.0f us <= budget %.0f us" % (lat["p99_us"], a.p99_budget_us))
+        load, cores = os.getloadavg()[0], os.cpu_count() or 1
+        what = "p99 %.0f us <= budget %.0f us (load %.1f on %d cores)" % (lat["p99_us"], a.p99_budget_us, load, cores)
+        if not a.budget_only_when_quiet or load <= cores:
+            ok(lat["p99_us"] <= a.p99_budget_us, what)
+        else:
+            print("SKIP " + what + ": not asserted, the machine is overloaded")
     print("     sender: %d exposures sent more than 5 ms behind their due time" % late_sends)
     summary = {"seconds": a.seconds, "store_marks": 16 + 8 * a.mark_stations, "exposures": total, "cameras": CAMERAS, "units": UNITS,
                "fps": FPS, "marks_per_message_mean": sum(marks_per_msg) / len(marks_per_msg),
