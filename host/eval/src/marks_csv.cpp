@@ -86,6 +86,24 @@ struct Row {
   }
 };
 
+// Optional: the exposure time (the dynamic procedures need it, the static ones do not).
+constexpr const char* kTimeName = "reference_mid_tai_ns";
+
+int optional_column(const std::string& header, const std::string& name) {
+  const std::vector<std::string> cells = split(header);
+  for (size_t i = 0; i < cells.size(); ++i)
+    if (column_name(cells[i]) == name) return static_cast<int>(i);
+  return -1;
+}
+
+std::int64_t tai_ns(const std::string& text, const Row& row) {
+  std::int64_t v = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+  if (ec != std::errc() || end != text.data() + text.size())
+    fail(row.origin, row.line, kTimeName, "expected an integer, got '" + text + "'");
+  return v;
+}
+
 }  // namespace
 
 MarksRecording parse_marks_csv(const std::string& text, const std::string& origin) {
@@ -95,9 +113,12 @@ MarksRecording parse_marks_csv(const std::string& text, const std::string& origi
   std::string line_text;
   if (!std::getline(in, line_text)) fail(origin, 1, "header", "empty file");
   const std::array<int, kColumnCount> index = header_columns(line_text, origin);
+  const int time_column = optional_column(line_text, kTimeName);
+  rec.has_time = time_column >= 0;
   int needed = 0;
   for (int i : index)
     needed = std::max(needed, i + 1);
+  needed = std::max(needed, time_column + 1);
   std::map<std::pair<std::uint32_t, int>, size_t> seen;  // one sample per (exposure, mark)
   for (int line = 2; std::getline(in, line_text); ++line) {
     if (column_name(line_text).empty()) continue;
@@ -121,6 +142,7 @@ MarksRecording parse_marks_csv(const std::string& text, const std::string& origi
     for (int a = 0; a < 3; ++a)
       if (!(s.u_w(a) > 0)) fail(origin, line, kNames[kUx + a], "standard uncertainty not > 0");
     s.line = line;
+    if (rec.has_time) s.reference_mid_tai_ns = tai_ns(cells[static_cast<size_t>(time_column)], row);
     const auto key = std::make_pair(s.trigger_seq, s.mark_id);
     if (const auto it = seen.find(key); it != seen.end()) {
       // The same triangulated mark, repeated for each camera that saw it.

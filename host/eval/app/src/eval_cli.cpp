@@ -33,10 +33,15 @@ int parse_eval_command(int argc, char** argv, EvalCommand& command) {
   cli::Command app{"storetrack-eval: evaluation procedures (docs/evaluation.md)"};
   app.require_subcommand(1);
   add_type_a(app, command.type_a);
+  add_pendulum_command(app, command.pendulum);
   if (const int rc = app.parse(argc, argv); rc >= 0) return rc;
   if (app.got_subcommand("type-a")) {
     command.kind = EvalCommand::Kind::kTypeA;
     command.type_a.options.body = command.type_a.body[0];
+  }
+  if (app.got_subcommand("pendulum")) {
+    command.kind = EvalCommand::Kind::kPendulum;
+    finish_pendulum_args(command.pendulum);
   }
   return -1;
 }

@@ -1,6 +1,8 @@
 // storetrack-eval: evaluation procedures of the instrument (docs/evaluation.md). Subcommands:
 //   type-a   repeated static marks CSVs + world survey -> Type A per mark and axis
 //            (eval_commands.cpp, run_type_a)
+//   pendulum SisTrO dynamic calibration: pendulum runs' marks CSVs -> identified model and the
+//            dynamic error per axis (pendulum_command.cpp, run_pendulum)
 // Exit codes: 0 ok, 1 runtime failure (writing files), 2 bad arguments or input.
 #include <iostream>
 
@@ -14,6 +16,8 @@ int main(int argc, char** argv) {
   switch (command.kind) {
     case app::EvalCommand::Kind::kTypeA:
       return app::run_type_a(command.type_a, std::cout, std::cerr);
+    case app::EvalCommand::Kind::kPendulum:
+      return app::run_pendulum(command.pendulum, std::cout, std::cerr);
     case app::EvalCommand::Kind::kNone:
       break;
   }

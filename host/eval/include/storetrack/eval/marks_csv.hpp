@@ -27,12 +27,14 @@ struct MarkSample {
   geometry::Vec3 p_w = geometry::Vec3::Zero();  ///< [m]
   geometry::Vec3 u_w = geometry::Vec3::Zero();  ///< standard uncertainty per axis [m]
   int line = 0;                                 ///< first CSV line of this sample (messages)
+  std::int64_t reference_mid_tai_ns = 0;        ///< exposure time (when has_time)
 };
 
 struct MarksRecording {
   std::string path;
   std::vector<MarkSample> samples;  ///< excluded marks left out (the host did not use them)
   std::int64_t excluded_rows = 0;   ///< rows the host flagged excluded (counted, not used)
+  bool has_time = false;            ///< the optional reference_mid_tai_ns column was present
 };
 
 /// Reads a marks CSV; throws EvalInputError on a missing column, a malformed or non-finite value
