@@ -5,6 +5,7 @@ type-a (docs/evaluation.md): the per-axis table laid out as SisTrO's static tabl
 1-sigma experimental standard deviation, the instrument's stated u), the per-mark table (mean
 error +- U with k, s, u = s/sqrt(N), s/u_stated in its chi-square interval), and two plots:
 mean error +- U per mark and axis, s/u_stated per mark and axis with its interval.
+pendulum: storetrack_eval_pendulum.py (SisTrO's dynamic table, parameters, error growth plots).
 Debian packages only (python3-matplotlib, python3-numpy).
 
 Usage: storetrack_eval_report.py RESULT.json OUT_DIR
@@ -114,6 +115,10 @@ def main():
     args = p.parse_args()
     with open(args.result) as f:
         r = json.load(f)
+    if r.get("format") == "storetrack-eval-pendulum":
+        from storetrack_eval_pendulum import write_pendulum_report  # noqa: E402
+        print(f"report: {write_pendulum_report(r, args.out_dir)}")
+        return
     if r.get("format") != "storetrack-eval-type-a":
         sys.exit(f"{args.result}: format: expected storetrack-eval-type-a, got {r.get('format')!r}")
     os.makedirs(args.out_dir, exist_ok=True)
