@@ -24,6 +24,10 @@ namespace {
 /// far above the ~0.1 mm noise of a triangulated mark).
 constexpr double kMotionThresholdRad = 3e-3;
 
+/// Before any geometry is fitted (a circle through a short arc is ill-conditioned): the board
+/// has been released once a mark left its first position by this much.
+constexpr double kMotionThresholdM = 1.5e-3;
+
 [[noreturn]] void too_short(const std::string& path, const std::string& why) {
   throw EvalInputError(path + ": run too short to identify the pendulum: " + why);
 }
@@ -214,6 +218,15 @@ std::vector<PreparedRun> prepare_runs(const std::vector<PendulumRun>& runs,
       seen[static_cast<size_t>(s)] = 1;
     if (std::count(seen.begin(), seen.end(), 1) < 3)
       too_short(r.path, "fewer than 3 marks of the pendulum seen");
+    std::map<int, Vec3> first;
+    double moved = 0;
+    for (const MarkSample& s : r.samples) {
+      const auto [it, inserted] = first.emplace(s.mark_id, s.p_w);
+      moved = std::max(moved, (s.p_w - it->second).norm());
+    }
+    if (moved < kMotionThresholdM)
+      too_short(r.path, "no release seen (no mark moves by more than " +
+                            std::to_string(moved * 1e3) + " mm)");
     out.push_back(std::move(p));
   }
   return out;
