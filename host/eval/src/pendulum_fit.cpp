@@ -255,6 +255,10 @@ PendulumResult identify_pendulum(const std::vector<PendulumRun>& runs,
   out.parameters = b.columns;
   out.reduced_chi_square = 2 * cost / std::max(1, out.residuals - out.parameters);
   out.solver_iterations = static_cast<int>(summary.iterations.size());
+  for (const PendulumRun& r : runs) {
+    out.other_body_samples += r.other_body_samples;
+    out.excluded_rows += r.excluded_rows;
+  }
   const double scale =
       options.covariance_scale == CovarianceScale::kResidual ? out.reduced_chi_square : 1.0;
   const Eigen::MatrixXd C =

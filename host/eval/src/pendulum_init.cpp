@@ -174,7 +174,11 @@ std::vector<PendulumRun> pendulum_runs(const std::vector<MarksRecording>& record
     PendulumRun run;
     run.path = rec.path;
     for (const MarkSample& s : rec.samples)
-      if (s.body == options.body) run.samples.push_back(s);
+      if (s.body == options.body)
+        run.samples.push_back(s);
+      else
+        ++run.other_body_samples;
+    run.excluded_rows = rec.excluded_rows;
     if (run.samples.empty())
       throw EvalInputError(rec.path + ": body: no sample of body '" + std::string(1, options.body) +
                            "' (the pendulum's marks, --body)");

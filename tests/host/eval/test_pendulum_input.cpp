@@ -124,3 +124,52 @@ TEST(PendulumInput, MissingColumnsAreRefusedNamingTheField) {
 
 }  // namespace
 }  // namespace storetrack
+
+namespace storetrack {
+namespace {
+
+// The simulator's pendulum truth (truth_pendulum.json) against its own mark positions: the
+// board pose, and the model's parameters (pivot, normal, r, phi, h, theta), must reproduce every
+// mark in the host's world frame at every exposure. Also: theta follows the energy balance.
+TEST(PendulumTruth, ParametersAndPoseReproduceTheMarks) {
+  for (bool ccw : {false, true}) {
+    const sim::Scenario sc = test::pendulum_scenario(ccw);
+    const sim::Simulator sim(sc, 11);
+    const sim::PendulumTruth t = sim::pendulum_truth(sim);
+    ASSERT_EQ(t.exposures.size(), static_cast<size_t>(sim.num_exposures()));
+    const geometry::Vec3 down(0, 0, 1);  // world z points down (docs/conventions.md)
+    const geometry::Vec3 e1 = (down - down.dot(t.normal_w) * t.normal_w).normalized();
+    const geometry::Vec3 e2 = t.normal_w.cross(e1);
+    for (size_t k = 0; k < t.exposures.size(); k += 37) {
+      const sim::PendulumExposureTruth& e = t.exposures[k];
+      for (const sim::PendulumMarkTruth& m : t.marks) {
+        const geometry::Vec3 p = test::true_mark_in_host_world(sim, m.id, e.reference_tai_ns);
+        const geometry::Vec3 model = t.pivot_w +
+                                     m.radius_m * (std::cos(e.theta_rad + m.angle_rad) * e1 +
+                                                   std::sin(e.theta_rad + m.angle_rad) * e2) +
+                                     m.offset_m * t.normal_w;
+        EXPECT_LT((model - p).norm(), 1e-9) << "exposure " << k << " mark " << m.id;
+        const survey::SurveyedMark* body = nullptr;
+        for (const survey::SurveyedMark& s : sc.pendulum.marks)
+          if (s.id == m.id) body = &s;
+        ASSERT_NE(body, nullptr);
+        EXPECT_LT((e.T_w0_b * body->p_body - p).norm(), 1e-9) << "exposure " << k;
+      }
+    }
+    // Held at theta0 before the release, then energy lost only to damping (beta > 0): the
+    // energy never rises and stays within 1 % of its start over 1.2 s.
+    const sim::PendulumMotion& m = t.motion;
+    const auto energy = [&](const sim::PendulumExposureTruth& e) {
+      return 0.5 * m.l2_m * m.l2_m * e.theta_dot_rad_s * e.theta_dot_rad_s +
+             m.g_m_s2 * m.l1_m * (1 - std::cos(e.theta_rad));
+    };
+    EXPECT_DOUBLE_EQ(t.exposures.front().theta_rad, m.theta0_rad);
+    for (size_t k = 1; k < t.exposures.size(); ++k) {
+      EXPECT_LE(energy(t.exposures[k]), energy(t.exposures[k - 1]) + 1e-12);
+      EXPECT_GT(energy(t.exposures[k]), 0.99 * energy(t.exposures[0]));
+    }
+  }
+}
+
+}  // namespace
+}  // namespace storetrack

@@ -110,6 +110,9 @@ void print_summary(const eval::PendulumResult& r, std::ostream& out) {
   }
   print_bins("distance from the optical axis", "distance [m]", 1, r.by_axis_distance, out);
   print_bins("mark speed", "speed [m/s]", 1, r.by_speed, out);
+  if (r.other_body_samples > 0 || r.excluded_rows > 0)
+    out << fmt::format("left out: {} samples of other bodies, {} rows the host excluded\n",
+                       r.other_body_samples, r.excluded_rows);
 }
 
 }  // namespace
@@ -191,6 +194,8 @@ nlohmann::json pendulum_json(const eval::PendulumResult& r, const PendulumArgs& 
     p["beta_per_mass_sigma_m2_s"] = *r.beta_per_mass_sigma_m2_s;
   }
   doc["parameters"] = p;
+  doc["other_body_samples"] = r.other_body_samples;
+  doc["excluded_rows"] = r.excluded_rows;
   for (const eval::PendulumRunEstimate& e : r.runs)
     doc["runs"].push_back({{"marks_csv", e.path},
                            {"direction", e.clockwise ? "clockwise" : "counter-clockwise"},

@@ -47,6 +47,8 @@ struct PendulumRun {
   std::string path;
   std::int64_t origin_tai_ns = 0;  ///< reference_mid_tai_ns of the first sample
   std::vector<MarkSample> samples;
+  std::int64_t other_body_samples = 0;  ///< samples of other bodies (counted, not used)
+  std::int64_t excluded_rows = 0;       ///< rows the host flagged excluded (counted, not used)
 };
 
 /// The estimated parameters with their standard uncertainties (1 sigma).
