@@ -56,8 +56,11 @@ struct Blocks {
   }
 };
 
-void add_residual_blocks(ceres::Problem& problem, const std::vector<detail::PreparedRun>& runs,
-                         detail::PendulumState& st, const PendulumOptions& options) {
+/// Returns the residual blocks in run order (the order of the evaluated residuals).
+std::vector<ceres::ResidualBlockId> add_residual_blocks(
+    ceres::Problem& problem, const std::vector<detail::PreparedRun>& runs,
+    detail::PendulumState& st, const PendulumOptions& options) {
+  std::vector<ceres::ResidualBlockId> ids;
   for (size_t r = 0; r < runs.size(); ++r) {
     auto* functor = new RunResidual;
     functor->run = &runs[r];
@@ -79,11 +82,12 @@ void add_residual_blocks(ceres::Problem& problem, const std::vector<detail::Prep
         cost->AddParameterBlock(3);
       }
     cost->SetNumResiduals(static_cast<int>(3 * runs[r].run->samples.size()));
-    problem.AddResidualBlock(cost, nullptr, blocks);
+    ids.push_back(problem.AddResidualBlock(cost, nullptr, blocks));
   }
   problem.SetManifold(st.normal.data(), new ceres::SphereManifold<3>);
   problem.SetManifold(st.mark[0].data(), new ceres::SubsetManifold(3, {2}));
   problem.SetParameterLowerBound(st.shared.data(), 0, 1e-3);
+  return ids;
 }
 
 Blocks ordered_blocks(detail::PendulumState& st) {
@@ -221,7 +225,8 @@ PendulumResult identify_pendulum(const std::vector<PendulumRun>& runs,
   detail::PendulumState st = detail::initial_state(prepared, mark_ids, options);
 
   ceres::Problem problem;
-  add_residual_blocks(problem, prepared, st, options);
+  const std::vector<ceres::ResidualBlockId> residual_blocks =
+      add_residual_blocks(problem, prepared, st, options);
   ceres::Solver::Options solver;
   solver.linear_solver_type = ceres::DENSE_QR;
   solver.max_num_iterations = 200;
@@ -237,6 +242,7 @@ PendulumResult identify_pendulum(const std::vector<PendulumRun>& runs,
   const Blocks b = ordered_blocks(st);
   ceres::Problem::EvaluateOptions eval;
   eval.parameter_blocks = b.order;
+  eval.residual_blocks = residual_blocks;
   double cost = 0;
   std::vector<double> residuals;
   ceres::CRSMatrix crs;
