@@ -12,6 +12,8 @@
 
 #include "storetrack/eval/marks_csv.hpp"
 
+#include "storetrack/csv/fields.hpp"
+
 namespace storetrack::eval {
 namespace {
 
@@ -25,28 +27,16 @@ constexpr std::array<const char*, kColumnCount> kNames = {
   throw EvalInputError(origin + ":" + std::to_string(line) + ": " + field + ": " + why);
 }
 
-std::vector<std::string> split(const std::string& line) {
-  std::vector<std::string> out;
-  std::string cell;
-  std::istringstream in(line);
-  while (std::getline(in, cell, ','))
-    out.push_back(cell);
-  if (!line.empty() && line.back() == ',') out.emplace_back();
-  return out;
-}
-
 std::string column_name(std::string cell) {
   const auto bracket = cell.find('[');
   if (bracket != std::string::npos) cell.resize(bracket);
-  const auto b = cell.find_first_not_of(" \t\r");
-  if (b == std::string::npos) return {};
-  return cell.substr(b, cell.find_last_not_of(" \t\r") - b + 1);
+  return csv::trim(cell);
 }
 
 std::array<int, kColumnCount> header_columns(const std::string& header, const std::string& origin) {
   std::array<int, kColumnCount> index;
   index.fill(-1);
-  const std::vector<std::string> cells = split(header);
+  const std::vector<std::string> cells = csv::split_fields(header);
   for (size_t i = 0; i < cells.size(); ++i) {
     const std::string name = column_name(cells[i]);
     for (int c = 0; c < kColumnCount; ++c)
@@ -101,7 +91,7 @@ MarksRecording parse_marks_csv(const std::string& text, const std::string& origi
   std::map<std::pair<std::uint32_t, int>, size_t> seen;  // one sample per (exposure, mark)
   for (int line = 2; std::getline(in, line_text); ++line) {
     if (column_name(line_text).empty()) continue;
-    const std::vector<std::string> cells = split(line_text);
+    const std::vector<std::string> cells = csv::split_fields(line_text);
     if (static_cast<int>(cells.size()) < needed)
       fail(origin, line, "row",
            std::to_string(cells.size()) + " cells, the header needs " + std::to_string(needed));
