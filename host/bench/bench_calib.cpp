@@ -201,6 +201,7 @@ void BM_IntrinsicStoretrackVsOpenCv(benchmark::State& state) {
   state.counters["opencv_over_storetrack"] = theirs_s / ours_s;
   state.counters["rms_storetrack_px"] = ours_rms;
   state.counters["rms_opencv_px"] = theirs_rms;
+  state.counters["rms_storetrack_minus_opencv_px"] = ours_rms - theirs_rms;
   // Same minimum: the RMS agree to 1e-4 relative (OpenCV's float inputs, stopping criteria).
   if (std::abs(ours_rms - theirs_rms) > 1e-4 * theirs_rms)
     state.SkipWithError("the two calibrations did not reach the same RMS");
