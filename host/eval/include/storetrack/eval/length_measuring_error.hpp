@@ -6,7 +6,8 @@
 // with S_a, S_b the host's stated covariances of the two marks (per-axis only when the file
 // lacks the cov_*_w columns: the approximation is flagged) and u_bar the bar's calibration u.
 // It treats the two marks' errors as independent: exact for centroid noise; calibration errors
-// common to both marks (a rig translation moves both ends alike) make it overstate u.
+// are shared by both ends (a rig translation moves them alike, a focal-length error moves them
+// apart), which the marks CSV cannot carry, so u is then approximate (docs/evaluation.md).
 // Per bar, per repetition and overall: max |LME|, mean, sigma (seed 001's table), pass/fail
 // against the maximum permissible error MPE = A + L/K or a constant.
 #pragma once
