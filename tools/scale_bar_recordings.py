@@ -67,12 +67,13 @@ def bar_frame_survey(scenario, truth_marks_csv, path, sigma_m=0.0002):
 def one_repetition(a, sim_setup, r, port):
     seed = a.seed + r - 1
     sim_dir = os.path.join(a.out, "sim%02d" % r)
-    subprocess.run([a.sim, "--scenario", os.path.join(a.root, "common/sim/scenarios/scale_bars.json"),
+    scenario_path = os.path.join(a.root, "common/sim/scenarios/scale_bars.json")
+    subprocess.run([a.sim, "--scenario", scenario_path,
                     "--seed", str(seed), "--out", sim_dir, "--mode", "observations"],
                    check=True, stdout=subprocess.DEVNULL)
     sim_setup.write_initial_marks(os.path.join(sim_dir, "truth_marks.csv"),
                                   os.path.join(sim_dir, "initial_marks.json"))
-    scenario = json.load(open(os.path.join(a.root, "common/sim/scenarios/scale_bars.json")))
+    scenario = json.load(open(scenario_path))
     bar_frame_survey(scenario, os.path.join(sim_dir, "truth_marks.csv"),
                      os.path.join(sim_dir, "store_stand_in.json"))
     if r == 1:
@@ -116,7 +117,8 @@ def main():
     port = 21000 + os.getpid() % 900 * 2
     for r in range(1, a.repetitions + 1):
         one_repetition(a, sim_setup, r, port)
-    print("storetrack-eval lme %s/rep*.csv --bars %s/bars.json -o %s/lme.json" % (a.out, a.out, a.out))
+    print("storetrack-eval lme %s/rep*.csv --bars %s/bars.json -o %s/lme.json"
+          % (a.out, a.out, a.out))
 
 
 if __name__ == "__main__":

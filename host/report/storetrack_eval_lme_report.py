@@ -67,7 +67,8 @@ def _table(header, rows):
 def _stats_row(s):
     lo, hi = s["z_rms_interval"]
     return [s["n"], f"{s['max_abs_m'] * MM:.4f}", f"{s['mean_m'] * MM:.4f}",
-            f"{s['sd_m'] * MM:.4f}", f"{s['u_rms_m'] * MM:.4f}", f"{s['z_rms']:.2f} [{lo:.2f}, {hi:.2f}]"]
+            f"{s['sd_m'] * MM:.4f}", f"{s['u_rms_m'] * MM:.4f}",
+            f"{s['z_rms']:.2f} [{lo:.2f}, {hi:.2f}]"]
 
 
 def lme_page(r, out_dir):

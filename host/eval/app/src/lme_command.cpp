@@ -80,6 +80,9 @@ void print_summary(const eval::LmeResult& r, std::ostream& out) {
       "{:>9}  {}\n",
       "all", "", o.n, o.max_abs_m * 1e3, o.mean_m * 1e3, o.sd_m * 1e3, o.u_rms_m * 1e3, o.z_rms,
       o.z_rms_low, o.z_rms_high, "", verdict(r, o.exceeding_mpe));
+  out << "RMS(LME/u): its chi-square interval assumes independent measurements; the exposures of "
+         "one repetition share its calibration error, and u treats the bar's two ends as "
+         "independent (docs/evaluation.md)\n";
   out << "per repetition [mm] (seed 001's Table 5):\n  repetition      n   LME max   LME mean  "
          "LME sigma\n";
   for (size_t i = 0; i < r.repetitions.size(); ++i) {
