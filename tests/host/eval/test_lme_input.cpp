@@ -79,6 +79,22 @@ TEST(LmeInput, LengthErrorAndUncertaintyMatchClosedForm) {
   EXPECT_NEAR(r.bars[0].stats.max_abs_m, 3e-4, 1e-12);
 }
 
+TEST(LmeInput, FileWithoutCovarianceColumnsIsFlaggedPerAxis) {
+  // An older marks CSV (no cov_*_w): S diagonal, u^2 = sum over both marks of (Sxx + Syy) / 2,
+  // and the result says so.
+  std::string header = kHeader;
+  header.resize(header.find(",cov_xy_w"));
+  std::string rows = mark_rows(7, 300, 1, 2, 3) +
+                     mark_rows(7, 301, 1 + 1 / std::sqrt(2.0), 2 + 1 / std::sqrt(2.0), 3);
+  for (size_t at = rows.find(",0,0,0\n"); at != std::string::npos; at = rows.find(",0,0,0\n", at))
+    rows.erase(at, 6);
+  const eval::LmeResult r =
+      eval::evaluate_lme({eval::parse_marks_csv(header + "\n" + rows, "old.csv")}, one_bar(1.0, 0),
+                         "bars.json", options());
+  EXPECT_FALSE(r.full_covariance);
+  EXPECT_NEAR(r.bars.at(0).measurements.at(0).u_m, std::sqrt(1e-8 + 4e-8), 1e-12);
+}
+
 TEST(LmeInput, StatisticsAndMpeVerdict) {
   // Three exposures with LME +0.1, -0.2, +0.4 mm: max 0.4, mean 0.1, sigma sqrt(0.09) = 0.3 mm.
   std::string csv = std::string(kHeader) + "\n";
