@@ -5,6 +5,7 @@ type-a (docs/evaluation.md): the per-axis table laid out as SisTrO's static tabl
 1-sigma experimental standard deviation, the instrument's stated u), the per-mark table (mean
 error +- U with k, s, u = s/sqrt(N), s/u_stated in its chi-square interval), and two plots:
 mean error +- U per mark and axis, s/u_stated per mark and axis with its interval.
+lme: VDI/VDE 2634-1 length measuring error as seed 001's table (storetrack_eval_lme_report.py).
 Debian packages only (python3-matplotlib, python3-numpy).
 
 Usage: storetrack_eval_report.py RESULT.json OUT_DIR
@@ -114,15 +115,25 @@ def main():
     args = p.parse_args()
     with open(args.result) as f:
         r = json.load(f)
-    if r.get("format") != "storetrack-eval-type-a":
-        sys.exit(f"{args.result}: format: expected storetrack-eval-type-a, got {r.get('format')!r}")
+    if r.get("format") not in ("storetrack-eval-type-a", "storetrack-eval-lme"):
+        sys.exit(f"{args.result}: format: expected storetrack-eval-type-a or storetrack-eval-lme, "
+                 f"got {r.get('format')!r}")
     os.makedirs(args.out_dir, exist_ok=True)
+    if r["format"] == "storetrack-eval-lme":
+        sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+        from storetrack_eval_lme_report import lme_page
+        write_page(args.out_dir, lme_page(r, args.out_dir))
+        return
     plot_errors(r, os.path.join(args.out_dir, "type_a_errors.png"))
     plot_ratio(r, os.path.join(args.out_dir, "type_a_ratio.png"))
-    with open(os.path.join(args.out_dir, "index.html"), "w") as f:
+    write_page(args.out_dir, type_a_page(r))
+
+
+def write_page(out_dir, body):
+    with open(os.path.join(out_dir, "index.html"), "w") as f:
         f.write("<!doctype html><html><head><meta charset='utf-8'><title>storetrack-eval"
-                "</title></head><body>" + type_a_page(r) + "</body></html>\n")
-    print(f"report: {os.path.join(args.out_dir, 'index.html')}")
+                "</title></head><body>" + body + "</body></html>\n")
+    print(f"report: {os.path.join(out_dir, 'index.html')}")
 
 
 if __name__ == "__main__":

@@ -18,9 +18,27 @@ namespace storetrack::eval {
 namespace {
 
 // The columns the evaluation needs, by the name before the unit ("x_w [m]" -> "x_w").
-enum Column { kSeq, kMarkId, kBody, kExcluded, kX, kY, kZ, kUx, kUy, kUz, kColumnCount };
-constexpr std::array<const char*, kColumnCount> kNames = {
-    "trigger_seq", "mark_id", "body", "excluded", "x_w", "y_w", "z_w", "u_x_w", "u_y_w", "u_z_w"};
+// The optional off-diagonal covariance columns follow kColumnCount (older files lack them).
+enum Column {
+  kSeq,
+  kMarkId,
+  kBody,
+  kExcluded,
+  kX,
+  kY,
+  kZ,
+  kUx,
+  kUy,
+  kUz,
+  kColumnCount,
+  kCovXy = kColumnCount,
+  kCovXz,
+  kCovYz,
+  kAllColumns
+};
+constexpr std::array<const char*, kAllColumns> kNames = {
+    "trigger_seq", "mark_id", "body",  "excluded", "x_w",      "y_w",     "z_w",
+    "u_x_w",       "u_y_w",   "u_z_w", "cov_xy_w", "cov_xz_w", "cov_yz_w"};
 
 [[noreturn]] void fail(const std::string& origin, int line, const std::string& field,
                        const std::string& why) {
@@ -33,25 +51,31 @@ std::string column_name(std::string cell) {
   return csv::trim(cell);
 }
 
-std::array<int, kColumnCount> header_columns(const std::string& header, const std::string& origin) {
-  std::array<int, kColumnCount> index;
+std::array<int, kAllColumns> header_columns(const std::string& header, const std::string& origin) {
+  std::array<int, kAllColumns> index;
   index.fill(-1);
   const std::vector<std::string> cells = csv::split_fields(header);
   for (size_t i = 0; i < cells.size(); ++i) {
     const std::string name = column_name(cells[i]);
-    for (int c = 0; c < kColumnCount; ++c)
+    for (int c = 0; c < kAllColumns; ++c)
       if (name == kNames[static_cast<size_t>(c)])
         index[static_cast<size_t>(c)] = static_cast<int>(i);
   }
   for (int c = 0; c < kColumnCount; ++c)
     if (index[static_cast<size_t>(c)] < 0)
       fail(origin, 1, kNames[static_cast<size_t>(c)], "missing column in the header");
+  const int covariance_columns = (index[kCovXy] >= 0) + (index[kCovXz] >= 0) + (index[kCovYz] >= 0);
+  if (covariance_columns != 0 && covariance_columns != 3)
+    for (int c = kCovXy; c < kAllColumns; ++c)
+      if (index[static_cast<size_t>(c)] < 0)
+        fail(origin, 1, kNames[static_cast<size_t>(c)],
+             "missing column in the header (the covariance columns come as a set of three)");
   return index;
 }
 
 struct Row {
   const std::vector<std::string>& cells;
-  const std::array<int, kColumnCount>& index;
+  const std::array<int, kAllColumns>& index;
   const std::string& origin;
   int line;
 
@@ -84,7 +108,8 @@ MarksRecording parse_marks_csv(const std::string& text, const std::string& origi
   std::istringstream in(text);
   std::string line_text;
   if (!std::getline(in, line_text)) fail(origin, 1, "header", "empty file");
-  const std::array<int, kColumnCount> index = header_columns(line_text, origin);
+  const std::array<int, kAllColumns> index = header_columns(line_text, origin);
+  const bool full_covariance = index[kCovXy] >= 0;
   int needed = 0;
   for (int i : index)
     needed = std::max(needed, i + 1);
@@ -110,6 +135,13 @@ MarksRecording parse_marks_csv(const std::string& text, const std::string& origi
     s.u_w = {row.number(kUx), row.number(kUy), row.number(kUz)};
     for (int a = 0; a < 3; ++a)
       if (!(s.u_w(a) > 0)) fail(origin, line, kNames[kUx + a], "standard uncertainty not > 0");
+    s.cov_w = s.u_w.cwiseAbs2().asDiagonal();
+    if (full_covariance) {
+      s.full_covariance = true;
+      s.cov_w(0, 1) = s.cov_w(1, 0) = row.number(kCovXy);
+      s.cov_w(0, 2) = s.cov_w(2, 0) = row.number(kCovXz);
+      s.cov_w(1, 2) = s.cov_w(2, 1) = row.number(kCovYz);
+    }
     s.line = line;
     const auto key = std::make_pair(s.trigger_seq, s.mark_id);
     if (const auto it = seen.find(key); it != seen.end()) {
@@ -119,6 +151,7 @@ MarksRecording parse_marks_csv(const std::string& text, const std::string& origi
              "mark " + std::to_string(s.mark_id) + " of trigger_seq " +
                  std::to_string(s.trigger_seq) + " differs from its row on line " +
                  std::to_string(rec.samples[it->second].line));
+      ++rec.samples[it->second].camera_rows;
       continue;
     }
     seen.emplace(key, rec.samples.size());

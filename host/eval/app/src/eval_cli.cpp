@@ -1,5 +1,7 @@
 #include "eval_cli.hpp"
 
+#include <iostream>
+
 #include "storetrack/cli/command_line.hpp"
 
 namespace storetrack::evalapp {
@@ -33,10 +35,15 @@ int parse_eval_command(int argc, char** argv, EvalCommand& command) {
   cli::Command app{"storetrack-eval: evaluation procedures (docs/evaluation.md)"};
   app.require_subcommand(1);
   add_type_a(app, command.type_a);
+  add_lme_command(app, command.lme);
   if (const int rc = app.parse(argc, argv); rc >= 0) return rc;
   if (app.got_subcommand("type-a")) {
     command.kind = EvalCommand::Kind::kTypeA;
     command.type_a.options.body = command.type_a.body[0];
+  }
+  if (app.got_subcommand("lme")) {
+    command.kind = EvalCommand::Kind::kLme;
+    return finish_lme_args(command.lme, std::cerr);
   }
   return -1;
 }

@@ -4,6 +4,7 @@
 #include <string>
 #include <vector>
 
+#include "lme_command.hpp"
 #include "storetrack/eval/type_a.hpp"
 
 namespace storetrack::evalapp {
@@ -17,8 +18,9 @@ struct TypeAArgs {
 };
 
 struct EvalCommand {
-  enum class Kind { kNone, kTypeA } kind = Kind::kNone;
+  enum class Kind { kNone, kTypeA, kLme } kind = Kind::kNone;
   TypeAArgs type_a;
+  LmeArgs lme;
 };
 
 /// Returns -1 to run `command`, else the exit code (0 after --help, 2 on a bad argument).

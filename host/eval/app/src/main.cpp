@@ -1,6 +1,8 @@
 // storetrack-eval: evaluation procedures of the instrument (docs/evaluation.md). Subcommands:
 //   type-a   repeated static marks CSVs + world survey -> Type A per mark and axis
 //            (eval_commands.cpp, run_type_a)
+//   lme      scale-bar marks CSVs + bar definition -> VDI/VDE 2634-1 length measuring error
+//            (lme_command.cpp, run_lme)
 // Exit codes: 0 ok, 1 runtime failure (writing files), 2 bad arguments or input.
 #include <iostream>
 
@@ -14,6 +16,8 @@ int main(int argc, char** argv) {
   switch (command.kind) {
     case app::EvalCommand::Kind::kTypeA:
       return app::run_type_a(command.type_a, std::cout, std::cerr);
+    case app::EvalCommand::Kind::kLme:
+      return app::run_lme(command.lme, std::cout, std::cerr);
     case app::EvalCommand::Kind::kNone:
       break;
   }

@@ -26,7 +26,12 @@ struct MarkSample {
   char body = '?';                              ///< 'p' pylon, 's' store, '?' unidentified body
   geometry::Vec3 p_w = geometry::Vec3::Zero();  ///< [m]
   geometry::Vec3 u_w = geometry::Vec3::Zero();  ///< standard uncertainty per axis [m]
-  int line = 0;                                 ///< first CSV line of this sample (messages)
+  /// Stated covariance [m^2]: u_w^2 on the diagonal; the off-diagonal terms when the file has
+  /// the cov_xy_w, cov_xz_w, cov_yz_w columns (`full_covariance`), else zero.
+  geometry::Mat3 cov_w = geometry::Mat3::Zero();
+  bool full_covariance = false;
+  int camera_rows = 1;  ///< rows of this sample (one per camera that saw the mark)
+  int line = 0;         ///< first CSV line of this sample (messages)
 };
 
 struct MarksRecording {
