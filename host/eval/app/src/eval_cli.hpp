@@ -4,6 +4,7 @@
 #include <string>
 #include <vector>
 
+#include "storetrack/eval/noise_floor.hpp"
 #include "storetrack/eval/type_a.hpp"
 
 namespace storetrack::evalapp {
@@ -16,9 +17,19 @@ struct TypeAArgs {
   std::string output;  ///< result JSON
 };
 
+/// noise-floor (seed 002): one static record.
+struct NoiseFloorArgs {
+  std::string marks_csv;  ///< the host's --marks-csv of a static record
+  std::string survey;     ///< the marks' coordinates in the world frame
+  std::string rig;        ///< rig calibration (optional: rig axes, stereo angles, centroid u)
+  eval::NoiseFloorOptions options;
+  std::string output;  ///< result JSON
+};
+
 struct EvalCommand {
-  enum class Kind { kNone, kTypeA } kind = Kind::kNone;
+  enum class Kind { kNone, kTypeA, kNoiseFloor } kind = Kind::kNone;
   TypeAArgs type_a;
+  NoiseFloorArgs noise_floor;
 };
 
 /// Returns -1 to run `command`, else the exit code (0 after --help, 2 on a bad argument).

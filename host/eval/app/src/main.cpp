@@ -1,11 +1,14 @@
 // storetrack-eval: evaluation procedures of the instrument (docs/evaluation.md). Subcommands:
 //   type-a   repeated static marks CSVs + world survey -> Type A per mark and axis
 //            (eval_commands.cpp, run_type_a)
+//   noise-floor  one static marks CSV + world survey [+ rig] -> seed 002's variance and bias
+//            errors, image-coordinate, stereo-angle and distance errors (noise_floor_command.cpp)
 // Exit codes: 0 ok, 1 runtime failure (writing files), 2 bad arguments or input.
 #include <iostream>
 
 #include "eval_cli.hpp"
 #include "eval_commands.hpp"
+#include "noise_floor_command.hpp"
 
 int main(int argc, char** argv) {
   namespace app = storetrack::evalapp;
@@ -14,6 +17,8 @@ int main(int argc, char** argv) {
   switch (command.kind) {
     case app::EvalCommand::Kind::kTypeA:
       return app::run_type_a(command.type_a, std::cout, std::cerr);
+    case app::EvalCommand::Kind::kNoiseFloor:
+      return app::run_noise_floor(command.noise_floor, std::cout, std::cerr);
     case app::EvalCommand::Kind::kNone:
       break;
   }
