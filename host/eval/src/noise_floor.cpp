@@ -101,7 +101,7 @@ std::map<int, MarkSeries> collect(const MarksRecording& record,
                                   const std::string& survey_path, NoiseFloorResult& result) {
   std::map<int, MarkSeries> series;
   for (const MarkSample& s : record.samples) {
-    if (result.options.bodies.find(s.body) == std::string::npos) {
+    if (!((s.body == 'p' && result.options.pylon) || (s.body == 's' && result.options.store))) {
       ++result.other_body_samples;
       continue;
     }
@@ -224,6 +224,7 @@ AxisNoiseSummary summarise_axis(const std::vector<MarkNoise>& marks, bool rig_fr
     const ChiInterval interval = ratio_interval(dof, level);
     s.pooled_low = interval.low;
     s.pooled_high = interval.high;
+    s.pooled_dof = dof;
   }
   return s;
 }
@@ -235,8 +236,7 @@ void check_inputs(const MarksRecording& record, const survey::RigidBodySurvey& r
     fail(survey_path + ": frame: '" + std::string(1, reference.frame) +
          "'; the marks' surveyed coordinates must be in the world frame 'w' (the frame of the "
          "marks CSV)");
-  if (options.bodies.empty() || options.bodies.find_first_not_of("ps") != std::string::npos)
-    fail("--body: '" + options.bodies + "'; expected p, s or ps");
+  if (!options.pylon && !options.store) fail("--body: no body to evaluate; expected p, s or ps");
   if (options.min_samples < 3) fail("--min-samples: must be at least 3");
   if (rig && rig->cameras.empty()) fail(rig_path + ": cameras: the rig has no camera");
   if (rig)
@@ -298,7 +298,7 @@ NoiseFloorResult evaluate_noise_floor(const MarksRecording& record,
   }
   if (ids.size() < 2)
     fail(record.path + ": mark_id: " + std::to_string(ids.size()) + " mark(s) of body '" +
-         options.bodies + "' seen in at least " + std::to_string(options.min_samples) +
+         options.bodies() + "' seen in at least " + std::to_string(options.min_samples) +
          " exposures; the noise floor needs at least 2 (spatial variation, distances)");
   r.exposures = static_cast<std::int64_t>(exposures.size());
   if (record.has_time) r.duration_s = static_cast<double>(t_last - t_first) * 1e-9;

@@ -84,6 +84,7 @@ void evaluate_image_coordinates(const MarksRecording& record, const EvaluatedSam
   }
   for (auto& [camera_id, c] : cams) {
     c.out.camera_id = camera_id;
+    c.out.pooled_dof = c.dof;
     const double n = static_cast<double>(std::max<std::int64_t>(c.with_pixel, 1));
     const ChiInterval interval =
         c.dof > 0 ? ratio_interval(c.dof, r.options.agreement_level) : ChiInterval{};

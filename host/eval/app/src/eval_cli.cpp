@@ -40,7 +40,7 @@ void add_noise_floor(cli::Command& app, NoiseFloorArgs& a) {
              "Rig calibration the host used: in-plane/out-of-plane axes, stereo angles, the "
              "stated centroid-only u")
       .existing_file();
-  sub.option("--body", a.options.bodies, "Marks of these bodies are evaluated (p, s, ps)")
+  sub.option("--body", a.bodies, "Marks of these bodies are evaluated (p, s, ps)")
       .one_of({"p", "s", "ps"})
       .show_default();
   sub.option("--min-samples", a.options.min_samples, "Exposures a record and a mark need")
@@ -68,7 +68,12 @@ int parse_eval_command(int argc, char** argv, EvalCommand& command) {
     command.kind = EvalCommand::Kind::kTypeA;
     command.type_a.options.body = command.type_a.body[0];
   }
-  if (app.got_subcommand("noise-floor")) command.kind = EvalCommand::Kind::kNoiseFloor;
+  if (app.got_subcommand("noise-floor")) {
+    command.kind = EvalCommand::Kind::kNoiseFloor;
+    NoiseFloorArgs& n = command.noise_floor;
+    n.options.pylon = n.bodies.find('p') != std::string::npos;
+    n.options.store = n.bodies.find('s') != std::string::npos;
+  }
   return -1;
 }
 

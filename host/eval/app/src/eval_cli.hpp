@@ -19,9 +19,10 @@ struct TypeAArgs {
 
 /// noise-floor (seed 002): one static record.
 struct NoiseFloorArgs {
-  std::string marks_csv;  ///< the host's --marks-csv of a static record
-  std::string survey;     ///< the marks' coordinates in the world frame
-  std::string rig;        ///< rig calibration (optional: rig axes, stereo angles, centroid u)
+  std::string marks_csv;     ///< the host's --marks-csv of a static record
+  std::string survey;        ///< the marks' coordinates in the world frame
+  std::string rig;           ///< rig calibration (optional: rig axes, stereo angles, centroid u)
+  std::string bodies = "p";  ///< --body: p, s or ps
   eval::NoiseFloorOptions options;
   std::string output;  ///< result JSON
 };

@@ -36,6 +36,7 @@ nlohmann::json summary_json(const eval::AxisNoiseSummary& s) {
           {"u_centroid_rms_m", s.u_centroid_rms_m},
           {"pooled_ratio", s.pooled_ratio},
           {"pooled_interval", {s.pooled_low, s.pooled_high}},
+          {"pooled_dof", s.pooled_dof},
           {"agreeing_marks", s.agreeing_marks},
           {"bias_within_k_u", s.bias_within_k_u}};
 }
@@ -63,7 +64,8 @@ nlohmann::json image_json(const eval::NoiseFloorResult& r) {
     nlohmann::json jc = {{"camera_id", c.camera_id},
                          {"marks", c.marks},
                          {"observations", c.observations},
-                         {"without_pixel", c.without_pixel}};
+                         {"without_pixel", c.without_pixel},
+                         {"pooled_dof", c.pooled_dof}};
     for (int a = 0; a < 2; ++a) {
       const eval::ImageAxisNoise& x = c.axis[static_cast<size_t>(a)];
       jc[a == 0 ? "u" : "v"] = {{"residual_rms_px", x.residual_rms_px},
@@ -162,7 +164,7 @@ void print_noise_floor(const eval::NoiseFloorResult& r, std::ostream& out) {
   out << fmt::format(
       "storetrack-eval noise-floor: {} exposures over {:.3f} s, {} marks of body '{}' (seed 002 "
       "noise floor; k = {:g}; s/u in its {:g} % chi-square interval)\n",
-      r.exposures, r.duration_s, r.marks.size(), r.options.bodies, r.options.coverage_factor,
+      r.exposures, r.duration_s, r.marks.size(), r.options.bodies(), r.options.coverage_factor,
       100 * r.options.agreement_level);
   const std::string header =
       "          axis  temporal   spatial   bias       bias       bias       u_centroid  "
@@ -199,7 +201,7 @@ nlohmann::json noise_floor_json(const eval::NoiseFloorResult& r, const NoiseFloo
       "and bias error per axis of a static record; image-coordinate, stereo-angle and "
       "reconstruction errors";
   doc["inputs"] = {{"marks_csv", args.marks_csv}, {"survey", args.survey}, {"rig", args.rig}};
-  doc["bodies"] = r.options.bodies;
+  doc["bodies"] = r.options.bodies();
   doc["coverage_factor"] = r.options.coverage_factor;
   doc["agreement_level"] = r.options.agreement_level;
   doc["min_samples"] = r.options.min_samples;

@@ -26,7 +26,8 @@
 namespace storetrack::eval {
 
 struct NoiseFloorOptions {
-  std::string bodies = "p";       ///< marks of these bodies are evaluated ("p", "s" or "ps")
+  bool pylon = true, store = false;  ///< marks of these bodies are evaluated
+  std::string bodies() const { return std::string(pylon ? "p" : "") + (store ? "s" : ""); }
   double coverage_factor = 2;     ///< k of the expanded uncertainty U = k u
   double agreement_level = 0.95;  ///< two-sided level of the chi-square intervals
   int min_samples = 10;           ///< exposures a record (and a mark) needs
@@ -72,6 +73,7 @@ struct AxisNoiseSummary {
   double u_stated_rms_m = 0, u_centroid_rms_m = 0;
   double pooled_ratio = 0;                 ///< sqrt(sum (n-1) s^2/u_c^2 / sum (n-1))
   double pooled_low = 0, pooled_high = 0;  ///< its chi-square interval
+  std::int64_t pooled_dof = 0;             ///< sum over marks of (n - 1)
   int agreeing_marks = 0, bias_within_k_u = 0;
 };
 
@@ -89,6 +91,7 @@ struct CameraImageNoise {
   int camera_id = 0;
   int marks = 0;
   std::int64_t observations = 0, without_pixel = 0;
+  std::int64_t pooled_dof = 0;         ///< sum over marks of (n - 1)
   std::array<ImageAxisNoise, 2> axis;  ///< u, v
 };
 
