@@ -304,8 +304,11 @@ NoiseFloorResult evaluate_noise_floor(const MarksRecording& record,
   if (record.has_time) r.duration_s = static_cast<double>(t_last - t_first) * 1e-9;
   for (int id : ids)
     r.marks.push_back(evaluate_mark(id, series.at(id), *reference.find(id), r));
+  std::set<int> seen;  // of any body
+  for (const MarkSample& s : record.samples)
+    seen.insert(s.mark_id);
   for (const survey::SurveyedMark& m : reference.marks)
-    if (!series.count(m.id)) r.surveyed_marks_not_seen.push_back(m.id);
+    if (!seen.count(m.id)) r.surveyed_marks_not_seen.push_back(m.id);
   for (int a = 0; a < 3; ++a) {
     r.world_summary[static_cast<size_t>(a)] =
         summarise_axis(r.marks, false, a, options.agreement_level);

@@ -114,9 +114,10 @@ void print_axis_rows(const std::array<eval::AxisNoiseSummary, 3>& summary,
             ? fmt::format("{:.3f} [{:.3f}, {:.3f}]", s.pooled_ratio, s.pooled_low, s.pooled_high)
             : std::string("n/a");
     out << fmt::format(
-        "  {:>12}  {:>9.4f}  {:>9.4f}  {:>9.4f}  {:>9.4f}  {:>9.4f}  {:>10.4f}  {:>9}  {}\n",
-        names[a], s.temporal_sd_mean_m * 1e3, s.spatial_sd_mean_m * 1e3, s.bias_mean_m * 1e3,
-        s.bias_rms_m * 1e3, s.bias_max_abs_m * 1e3, s.u_centroid_rms_m * 1e3,
+        "  {:>12}  {:>9.4f}  {:>9.4f}  {:>9.4f}  {:>9.4f}  {:>9.4f}  {:>10}  {:>9}  {}\n", names[a],
+        s.temporal_sd_mean_m * 1e3, s.spatial_sd_mean_m * 1e3, s.bias_mean_m * 1e3,
+        s.bias_rms_m * 1e3, s.bias_max_abs_m * 1e3,
+        s.u_centroid_rms_m > 0 ? fmt::format("{:.4f}", s.u_centroid_rms_m * 1e3) : std::string("-"),
         stated ? fmt::format("{:.4f}", s.u_stated_rms_m * 1e3) : std::string("-"), ratio);
   }
 }
