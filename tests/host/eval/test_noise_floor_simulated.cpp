@@ -46,8 +46,9 @@ int records() {
   return env ? std::max(1, std::atoi(env)) : 3;
 }
 
-// Tests per run: 3 axes x (temporal + bias) + distances + 4 cameras x 2 image axes.
-constexpr int kTests = 3 * 2 + 1 + 8;
+// Tests per run: 3 axes x (temporal + bias + temporal along the rig axes) + distances + 4
+// cameras x 2 image axes.
+constexpr int kTests = 3 * 3 + 1 + 8;
 constexpr double kTail = 0.01 / kTests / 2;
 
 /// A pooled chi-square statistic and its degrees of freedom.
@@ -83,7 +84,7 @@ void write_files(const std::string& csv, const survey::RigidBodySurvey& referenc
 void run(bool perfect) {
   const sim::Scenario scenario = sim::load_scenario(kStaticScenario);
   const int R = records();
-  std::array<Chi2, 3> temporal, bias, bias_vs_zero;
+  std::array<Chi2, 3> temporal, temporal_rig, bias, bias_vs_zero;
   std::array<Chi2, 8> image;
   double max_z = 0;
   int pairs = 0;
@@ -116,6 +117,10 @@ void run(bool perfect) {
             (m.samples - 1) * x.temporal_sd_m * x.temporal_sd_m / (u * u), m.samples - 1);
         const double e = x.bias_m - expected_bias(a);
         bias[static_cast<size_t>(a)].add(m.samples * e * e / (x.u_centroid_m * x.u_centroid_m), 1);
+        // Along the rig axes: the stated centroid covariance projected on them.
+        const eval::AxisNoise& g = m.rig[static_cast<size_t>(a)];
+        temporal_rig[static_cast<size_t>(a)].add(
+            (m.samples - 1) * std::pow(g.temporal_sd_m / g.u_centroid_m, 2), m.samples - 1);
         bias_vs_zero[static_cast<size_t>(a)].add(
             m.samples * x.bias_m * x.bias_m / (x.u_centroid_m * x.u_centroid_m), 1);
       }
@@ -150,6 +155,8 @@ void run(bool perfect) {
     char what[64];
     std::snprintf(what, sizeof what, "temporal s / stated u, axis %c", "xyz"[a]);
     EXPECT_TRUE(temporal[static_cast<size_t>(a)].inside(what));
+    std::snprintf(what, sizeof what, "temporal s / centroid u, rig axis %d", a);
+    EXPECT_TRUE(temporal_rig[static_cast<size_t>(a)].inside(what));
     std::snprintf(what, sizeof what, "bias - truth, axis %c", "xyz"[a]);
     EXPECT_TRUE(bias[static_cast<size_t>(a)].inside(what));
   }
