@@ -208,6 +208,38 @@ TEST(NoiseFloorInput, CameraNotInTheRig) {
   EXPECT_EQ(e.find("rec.csv:"), 0u) << e;
 }
 
+// The host writes "nan" for a centroid it could not look up: kept in the record, counted per
+// camera as without pixel, left out of the offline triangulation (the mark keeps >= 2 cameras).
+TEST(NoiseFloorInput, ObservationWithoutPixelIsCounted) {
+  const sim::Scenario scenario = sim::load_scenario(kStaticScenario);
+  const sim::Simulator sim(scenario, 4245);
+  std::string csv = test::simulated_static_record(sim, sim.calibrated_rig());
+  // Row 2 (the first data row): its 13th cell, u_obs.
+  const size_t row = csv.find('\n') + 1;
+  size_t begin = row;
+  for (int cell = 0; cell < 12; ++cell)
+    begin = csv.find(',', begin) + 1;
+  csv.replace(begin, csv.find(',', begin) - begin, "nan");
+  const eval::MarksRecording rec = eval::parse_marks_csv(csv, "rec.csv");
+  ASSERT_TRUE(rec.has_observations);
+  EXPECT_TRUE(std::isnan(rec.samples[0].observations[0].pixel_px.x()));
+  const camera::RigCalibration rig = sim.calibrated_rig();
+  eval::NoiseFloorOptions options;
+  options.store = true;
+  const eval::NoiseFloorResult r =
+      eval::evaluate_noise_floor(rec, test::true_static_survey(sim), "truth", &rig, "rig", options);
+  std::int64_t without = 0;
+  for (const eval::CameraImageNoise& c : r.cameras)
+    without += c.without_pixel;
+  EXPECT_EQ(without, 1);
+  // A non-finite stated sigma is still refused.
+  std::string bad = csv;
+  bad.replace(bad.rfind(',', bad.find('\n', row)) + 1,
+              bad.find('\n', row) - bad.rfind(',', bad.find('\n', row)) - 1, "inf");
+  const std::string e = error_of([&] { eval::parse_marks_csv(bad, "rec.csv"); });
+  EXPECT_NE(e.find("rec.csv:2: sigma: not finite"), std::string::npos) << e;
+}
+
 TEST(NoiseFloorInput, ProgramEndToEndOnHostWrittenFiles) {
   const fs::path dir = fs::temp_directory_path() / ("st_noise_" + std::to_string(::getpid()));
   fs::create_directories(dir);

@@ -132,6 +132,30 @@ void run(bool perfect) {
       max_z = std::max(max_z, std::abs(z));
       ++pairs;
     }
+    // Seed 002's spatial variation, by an independent implementation of its definition from the
+    // raw samples: per exposure the sd over the evaluated marks of the displacement from the
+    // survey, averaged over the exposures.
+    for (int a = 0; a < 3; ++a) {
+      std::map<std::uint32_t, std::vector<double>> at;
+      for (const eval::MarkSample& smp : record.samples)
+        for (const eval::MarkNoise& m : r.marks)
+          if (m.mark_id == smp.mark_id)
+            at[smp.trigger_seq].push_back(smp.p_w(a) - reference.find(m.mark_id)->p_body(a));
+      double sum = 0;
+      int count = 0;
+      for (const auto& [seq, d] : at) {
+        if (d.size() < 2) continue;
+        double mean = 0, ss = 0;
+        for (double v : d)
+          mean += v;
+        mean /= static_cast<double>(d.size());
+        for (double v : d)
+          ss += (v - mean) * (v - mean);
+        sum += std::sqrt(ss / static_cast<double>(d.size() - 1));
+        ++count;
+      }
+      EXPECT_NEAR(r.world_summary[static_cast<size_t>(a)].spatial_sd_mean_m, sum / count, 1e-12);
+    }
     ASSERT_EQ(r.cameras.size(), 4u);
     for (size_t c = 0; c < r.cameras.size(); ++c)
       for (int a = 0; a < 2; ++a) {
