@@ -36,7 +36,10 @@ RigAxes rig_axes(const camera::RigCalibration& rig) {
   const geometry::SymmetricEigen eig = geometry::symmetric_eigen(scatter);
   Vec3 baseline = across * Vec3(eig.vectors.col(2));
   if (baseline.norm() < 1e-9) baseline = across * Vec3::UnitX();  // a single camera position
-  a.axis[0] = baseline.normalized();
+  // An eigenvector's sign is arbitrary: point it along the world axis it follows most.
+  Eigen::Index major = 0;
+  baseline.cwiseAbs().maxCoeff(&major);
+  a.axis[0] = (baseline(major) < 0 ? -baseline : baseline).normalized();
   a.axis[1] = a.axis[2].cross(a.axis[0]);
   return a;
 }
