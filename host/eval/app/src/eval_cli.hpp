@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "lme_command.hpp"
+#include "storetrack/eval/noise_floor.hpp"
 #include "storetrack/eval/type_a.hpp"
 
 namespace storetrack::evalapp {
@@ -17,10 +18,21 @@ struct TypeAArgs {
   std::string output;  ///< result JSON
 };
 
+/// noise-floor (seed 002): one static record.
+struct NoiseFloorArgs {
+  std::string marks_csv;     ///< the host's --marks-csv of a static record
+  std::string survey;        ///< the marks' coordinates in the world frame
+  std::string rig;           ///< rig calibration (optional: rig axes, stereo angles, centroid u)
+  std::string bodies = "p";  ///< --body: p, s or ps
+  eval::NoiseFloorOptions options;
+  std::string output;  ///< result JSON
+};
+
 struct EvalCommand {
-  enum class Kind { kNone, kTypeA, kLme } kind = Kind::kNone;
+  enum class Kind { kNone, kTypeA, kLme, kNoiseFloor } kind = Kind::kNone;
   TypeAArgs type_a;
   LmeArgs lme;
+  NoiseFloorArgs noise_floor;
 };
 
 /// Returns -1 to run `command`, else the exit code (0 after --help, 2 on a bad argument).

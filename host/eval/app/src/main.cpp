@@ -3,11 +3,14 @@
 //            (eval_commands.cpp, run_type_a)
 //   lme      scale-bar marks CSVs + bar definition -> VDI/VDE 2634-1 length measuring error
 //            (lme_command.cpp, run_lme)
+//   noise-floor  one static marks CSV + world survey [+ rig] -> seed 002's variance and bias
+//            errors, image-coordinate, stereo-angle and distance errors (noise_floor_command.cpp)
 // Exit codes: 0 ok, 1 runtime failure (writing files), 2 bad arguments or input.
 #include <iostream>
 
 #include "eval_cli.hpp"
 #include "eval_commands.hpp"
+#include "noise_floor_command.hpp"
 
 int main(int argc, char** argv) {
   namespace app = storetrack::evalapp;
@@ -18,6 +21,8 @@ int main(int argc, char** argv) {
       return app::run_type_a(command.type_a, std::cout, std::cerr);
     case app::EvalCommand::Kind::kLme:
       return app::run_lme(command.lme, std::cout, std::cerr);
+    case app::EvalCommand::Kind::kNoiseFloor:
+      return app::run_noise_floor(command.noise_floor, std::cout, std::cerr);
     case app::EvalCommand::Kind::kNone:
       break;
   }
