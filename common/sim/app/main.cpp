@@ -126,6 +126,11 @@ int main(int argc, char** argv) {
     if (scenario.has_store()) {
       survey::write_survey(simulator.true_store(), out_dir + "/true_survey_store.json");
     }
+    if (scenario.kind == sim::ScenarioKind::kScaleBars) {
+      // The bar definition storetrack-eval lme reads (docs/evaluation.md).
+      survey::write_scale_bars(simulator.scale_bar_set(false), out_dir + "/scale_bars.json");
+      survey::write_scale_bars(simulator.scale_bar_set(true), out_dir + "/true_scale_bars.json");
+    }
     sim::write_truth_csv(simulator, out_dir + "/truth_poses.csv", out_dir + "/truth_marks.csv");
     if (scenario.kind == sim::ScenarioKind::kPendulum)
       sim::write_pendulum_truth_json(simulator, out_dir + "/truth_pendulum.json");

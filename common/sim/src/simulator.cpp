@@ -214,6 +214,22 @@ std::vector<survey::RigidBodySurvey> Simulator::surveys() const {
   return out;
 }
 
+survey::ScaleBarSet Simulator::scale_bar_set(bool truth) const {
+  survey::ScaleBarSet set;
+  set.name = sc_.name + (truth ? " (true lengths)" : " (as calibrated)");
+  const std::vector<survey::RigidBodySurvey>& bars = truth ? bars_true_ : bars_surveyed_;
+  for (const survey::RigidBodySurvey& b : bars) {
+    survey::ScaleBar bar;
+    bar.id = b.name;
+    bar.mark_a = b.marks[0].id;
+    bar.mark_b = b.marks[1].id;
+    bar.length_m = (b.marks[1].p_body - b.marks[0].p_body).norm();
+    bar.u_length_m = std::sqrt(2.0) * sc_.scale_bars.mark_sigma_m;
+    set.bars.push_back(bar);
+  }
+  return set;
+}
+
 time::TaiNs Simulator::trigger_tai_ns(int k) const {
   return sc_.start_tai_ns + std::llround(k * 1e9 / sc_.frame_rate_hz);
 }

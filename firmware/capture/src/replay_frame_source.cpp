@@ -12,22 +12,13 @@
 #include <stdexcept>
 
 #include "storetrack/capture/pgm.hpp"
+#include "storetrack/csv/fields.hpp"
 #include "storetrack/time/saturating.hpp"
 
 namespace storetrack::capture {
 namespace fs = std::filesystem;
 
 namespace {
-
-std::vector<std::string> split_csv(const std::string& line) {
-  std::vector<std::string> out;
-  std::string field;
-  std::istringstream in(line);
-  while (std::getline(in, field, ','))
-    out.push_back(field);
-  if (!line.empty() && line.back() == ',') out.emplace_back();
-  return out;
-}
 
 int column(const std::vector<std::string>& header, std::initializer_list<const char*> names) {
   for (const char* n : names) {
@@ -60,7 +51,7 @@ std::vector<ReplayRecord> parse_trigger_csv(const std::string& text) {
     ++line_no;
     if (!line.empty() && line.back() == '\r') line.pop_back();
     if (line.empty() || line[0] == '#') continue;
-    const std::vector<std::string> f = split_csv(line);
+    const std::vector<std::string> f = csv::split_fields(line);
     if (header.empty()) {  // the header names the columns (any order, extra columns ignored)
       header = f;
       c_file = column(header, {"file"});

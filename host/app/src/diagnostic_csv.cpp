@@ -14,7 +14,7 @@ const char* const kMarksCsvHeader =
     "trigger_seq [1],reference_mid_tai_ns [ns],mark_id [1],body [p|s|?],"
     "excluded [0|1],x_w [m],y_w [m],z_w [m],u_x_w [m],u_y_w [m],u_z_w [m],"
     "camera_id [1],u_obs [px],v_obs [px],residual_u [px],residual_v [px],"
-    "sigma [px]";
+    "sigma [px],cov_xy_w [m^2],cov_xz_w [m^2],cov_yz_w [m^2]";
 const char* const kRigidCsvHeader =
     "trigger_seq [1],body [p|s],id_a [1],id_b [1],distance [m],surveyed [m],"
     "sigma [m],z2 [1]";
@@ -46,12 +46,13 @@ void format_marks_rows(const pipeline::AlignedExposure& e, const pipeline::Expos
           v = cam.marks[static_cast<std::size_t>(o.mark_index)].y_px;
         }
       }
-      append_format(out,
-                    "%" PRIu32 ",%" PRId64
-                    ",%d,%c,%d,%.9g,%.9g,%.9g,%.4g,%.4g,%.4g,%d,%.3f,%.3f,%.5f,%.5f,%.4f\n",
-                    e.trigger_seq, r.reference_mid_tai_ns, m.id, m.body, m.excluded ? 1 : 0,
-                    m.p_w.x(), m.p_w.y(), m.p_w.z(), su, sv, sw, o.camera_id, u, v,
-                    o.residual_px.x(), o.residual_px.y(), o.sigma_px);
+      append_format(
+          out,
+          "%" PRIu32 ",%" PRId64
+          ",%d,%c,%d,%.9g,%.9g,%.9g,%.4g,%.4g,%.4g,%d,%.3f,%.3f,%.5f,%.5f,%.4f,%.4g,%.4g,%.4g\n",
+          e.trigger_seq, r.reference_mid_tai_ns, m.id, m.body, m.excluded ? 1 : 0, m.p_w.x(),
+          m.p_w.y(), m.p_w.z(), su, sv, sw, o.camera_id, u, v, o.residual_px.x(), o.residual_px.y(),
+          o.sigma_px, m.cov_w(0, 1), m.cov_w(0, 2), m.cov_w(1, 2));
     }
   }
 }

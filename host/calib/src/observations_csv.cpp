@@ -8,6 +8,7 @@
 #include <string_view>
 
 #include "storetrack/calib/observations.hpp"
+#include "storetrack/csv/fields.hpp"
 
 namespace storetrack::calib {
 namespace {
@@ -22,21 +23,8 @@ constexpr size_t kRequiredColumns = 8;
   throw ObservationFileError(origin + ":" + std::to_string(line) + ": " + field + ": " + why);
 }
 
-std::vector<std::string> split(const std::string& line, char sep) {
-  std::vector<std::string> out;
-  std::string cell;
-  std::istringstream in(line);
-  while (std::getline(in, cell, sep))
-    out.push_back(cell);
-  if (!line.empty() && line.back() == sep) out.emplace_back();
-  return out;
-}
-
-std::string trim(const std::string& s) {
-  const auto b = s.find_first_not_of(" \t\r");
-  if (b == std::string::npos) return {};
-  return s.substr(b, s.find_last_not_of(" \t\r") - b + 1);
-}
+using csv::split_fields;
+using csv::trim;
 
 struct Cursor {
   const std::string& origin;
@@ -63,7 +51,7 @@ struct Cursor {
 
 /// "# image_size,<camera>,<width>,<height>" and "# frame,<frame>,<source>" comment lines.
 void parse_metadata(const std::string& line, const Cursor& at, ObservationSet& set) {
-  const auto cells = split(trim(line.substr(1)), ',');
+  const auto cells = split_fields(trim(line.substr(1)), ',');
   if (cells.empty()) return;
   const std::string key = trim(cells[0]);
   if (key == "image_size") {
@@ -133,12 +121,12 @@ ObservationSet parse_observations_csv(const std::string& text, const std::string
       continue;
     }
     if (columns == 0) {
-      const auto cells = split(t, ',');
+      const auto cells = split_fields(t, ',');
       check_header(cells, at);
       columns = cells.size();
       continue;
     }
-    Observation o = parse_row(split(t, ','), columns, at);
+    Observation o = parse_row(split_fields(t, ','), columns, at);
     const auto [it, inserted] = seen.emplace(std::array{o.camera, o.frame, o.point_id}, number);
     if (!inserted)
       fail(origin, number, "point_id",

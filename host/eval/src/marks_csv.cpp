@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <array>
 #include <charconv>
+#include <climits>
 #include <cmath>
+#include <cstdint>
 #include <fstream>
 #include <map>
 #include <sstream>
@@ -12,96 +14,129 @@
 
 #include "storetrack/eval/marks_csv.hpp"
 
+#include "storetrack/csv/fields.hpp"
+
 namespace storetrack::eval {
 namespace {
 
 // The columns the evaluation needs, by the name before the unit ("x_w [m]" -> "x_w").
-enum Column { kSeq, kMarkId, kBody, kExcluded, kX, kY, kZ, kUx, kUy, kUz, kColumnCount };
-constexpr std::array<const char*, kColumnCount> kNames = {
-    "trigger_seq", "mark_id", "body", "excluded", "x_w", "y_w", "z_w", "u_x_w", "u_y_w", "u_z_w"};
+// The optional off-diagonal covariance columns follow kColumnCount (older files lack them).
+enum Column {
+  kSeq,
+  kMarkId,
+  kBody,
+  kExcluded,
+  kX,
+  kY,
+  kZ,
+  kUx,
+  kUy,
+  kUz,
+  kColumnCount,
+  kCovXy = kColumnCount,
+  kCovXz,
+  kCovYz,
+  kAllColumns
+};
+constexpr std::array<const char*, kAllColumns> kNames = {
+    "trigger_seq", "mark_id", "body",  "excluded", "x_w",      "y_w",     "z_w",
+    "u_x_w",       "u_y_w",   "u_z_w", "cov_xy_w", "cov_xz_w", "cov_yz_w"};
+// Optional columns: the exposure time and the per-camera observation (noise floor's image
+// coordinates and stereo angles).
+enum OptionalColumn { kTime, kCamera, kUObs, kVObs, kResU, kResV, kSigma, kOptionalCount };
+constexpr std::array<const char*, kOptionalCount> kOptionalNames = {
+    "reference_mid_tai_ns", "camera_id", "u_obs", "v_obs", "residual_u", "residual_v", "sigma"};
 
 [[noreturn]] void fail(const std::string& origin, int line, const std::string& field,
                        const std::string& why) {
   throw EvalInputError(origin + ":" + std::to_string(line) + ": " + field + ": " + why);
 }
 
-std::vector<std::string> split(const std::string& line) {
-  std::vector<std::string> out;
-  std::string cell;
-  std::istringstream in(line);
-  while (std::getline(in, cell, ','))
-    out.push_back(cell);
-  if (!line.empty() && line.back() == ',') out.emplace_back();
-  return out;
-}
-
 std::string column_name(std::string cell) {
   const auto bracket = cell.find('[');
   if (bracket != std::string::npos) cell.resize(bracket);
-  const auto b = cell.find_first_not_of(" \t\r");
-  if (b == std::string::npos) return {};
-  return cell.substr(b, cell.find_last_not_of(" \t\r") - b + 1);
+  return csv::trim(cell);
 }
 
-std::array<int, kColumnCount> header_columns(const std::string& header, const std::string& origin) {
-  std::array<int, kColumnCount> index;
+std::array<int, kAllColumns> header_columns(const std::string& header, const std::string& origin,
+                                            std::array<int, kOptionalCount>& optional) {
+  std::array<int, kAllColumns> index;
   index.fill(-1);
-  const std::vector<std::string> cells = split(header);
+  optional.fill(-1);
+  const std::vector<std::string> cells = csv::split_fields(header);
   for (size_t i = 0; i < cells.size(); ++i) {
     const std::string name = column_name(cells[i]);
-    for (int c = 0; c < kColumnCount; ++c)
+    for (int c = 0; c < kAllColumns; ++c)
       if (name == kNames[static_cast<size_t>(c)])
         index[static_cast<size_t>(c)] = static_cast<int>(i);
+    for (int c = 0; c < kOptionalCount; ++c)
+      if (name == kOptionalNames[static_cast<size_t>(c)])
+        optional[static_cast<size_t>(c)] = static_cast<int>(i);
   }
   for (int c = 0; c < kColumnCount; ++c)
     if (index[static_cast<size_t>(c)] < 0)
       fail(origin, 1, kNames[static_cast<size_t>(c)], "missing column in the header");
+  const int covariance_columns = (index[kCovXy] >= 0) + (index[kCovXz] >= 0) + (index[kCovYz] >= 0);
+  if (covariance_columns != 0 && covariance_columns != 3)
+    for (int c = kCovXy; c < kAllColumns; ++c)
+      if (index[static_cast<size_t>(c)] < 0)
+        fail(origin, 1, kNames[static_cast<size_t>(c)],
+             "missing column in the header (the covariance columns come as a set of three)");
   return index;
+}
+
+long long parse_integer(const std::string& text, const std::string& origin, int line,
+                        const char* name, long long lo, long long hi) {
+  long long v = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+  if (ec != std::errc() || end != text.data() + text.size())
+    fail(origin, line, name, "expected an integer, got '" + text + "'");
+  if (v < lo || v > hi) fail(origin, line, name, "'" + text + "' out of range");
+  return v;
+}
+
+// `allow_nan`: the host writes "nan" for a centroid it could not look up (kept, counted later).
+double parse_number(const std::string& text, const std::string& origin, int line, const char* name,
+                    bool allow_nan = false) {
+  double v = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+  if (ec != std::errc() || end != text.data() + text.size())
+    fail(origin, line, name, "expected a number, got '" + text + "'");
+  if (!std::isfinite(v) && !(allow_nan && std::isnan(v)))
+    fail(origin, line, name, "not finite ('" + text + "')");
+  return v;
 }
 
 struct Row {
   const std::vector<std::string>& cells;
-  const std::array<int, kColumnCount>& index;
+  const std::array<int, kAllColumns>& index;
   const std::string& origin;
   int line;
+  const std::array<int, kOptionalCount>* optional = nullptr;
 
   const std::string& cell(Column c) const { return cells[static_cast<size_t>(index[c])]; }
   long long integer(Column c, long long lo, long long hi) const {
-    const std::string& text = cell(c);
-    long long v = 0;
-    const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
-    if (ec != std::errc() || end != text.data() + text.size())
-      fail(origin, line, kNames[c], "expected an integer, got '" + text + "'");
-    if (v < lo || v > hi) fail(origin, line, kNames[c], "'" + text + "' out of range");
-    return v;
+    return parse_integer(cell(c), origin, line, kNames[c], lo, hi);
   }
-  double number(Column c) const {
-    const std::string& text = cell(c);
-    double v = 0;
-    const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
-    if (ec != std::errc() || end != text.data() + text.size())
-      fail(origin, line, kNames[c], "expected a number, got '" + text + "'");
-    if (!std::isfinite(v)) fail(origin, line, kNames[c], "not finite ('" + text + "')");
-    return v;
+  double number(Column c) const { return parse_number(cell(c), origin, line, kNames[c]); }
+  const std::string& cell(OptionalColumn c) const {
+    return cells[static_cast<size_t>((*optional)[c])];
+  }
+  double number(OptionalColumn c, bool allow_nan = false) const {
+    return parse_number(cell(c), origin, line, kOptionalNames[c], allow_nan);
   }
 };
 
-// Optional: the exposure time (the dynamic procedures need it, the static ones do not).
-constexpr const char* kTimeName = "reference_mid_tai_ns";
-
-int optional_column(const std::string& header, const std::string& name) {
-  const std::vector<std::string> cells = split(header);
-  for (size_t i = 0; i < cells.size(); ++i)
-    if (column_name(cells[i]) == name) return static_cast<int>(i);
-  return -1;
-}
-
-std::int64_t tai_ns(const std::string& text, const Row& row) {
-  std::int64_t v = 0;
-  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
-  if (ec != std::errc() || end != text.data() + text.size())
-    fail(row.origin, row.line, kTimeName, "expected an integer, got '" + text + "'");
-  return v;
+/// The observation columns of a row (all present: checked by the caller).
+MarkObservationSample observation_of(const Row& row) {
+  MarkObservationSample o;
+  o.camera_id = static_cast<int>(
+      parse_integer(row.cell(kCamera), row.origin, row.line, kOptionalNames[kCamera], 0, 255));
+  o.pixel_px = {row.number(kUObs, true), row.number(kVObs, true)};
+  o.residual_px = {row.number(kResU, true), row.number(kResV, true)};
+  o.sigma_px = row.number(kSigma);
+  if (!(o.sigma_px > 0)) fail(row.origin, row.line, "sigma", "centroid sigma not > 0");
+  return o;
 }
 
 }  // namespace
@@ -112,21 +147,29 @@ MarksRecording parse_marks_csv(const std::string& text, const std::string& origi
   std::istringstream in(text);
   std::string line_text;
   if (!std::getline(in, line_text)) fail(origin, 1, "header", "empty file");
-  const std::array<int, kColumnCount> index = header_columns(line_text, origin);
-  const int time_column = optional_column(line_text, kTimeName);
-  rec.has_time = time_column >= 0;
+  std::array<int, kOptionalCount> optional;
+  const std::array<int, kAllColumns> index = header_columns(line_text, origin, optional);
+  const bool full_covariance = index[kCovXy] >= 0;
   int needed = 0;
   for (int i : index)
     needed = std::max(needed, i + 1);
-  needed = std::max(needed, time_column + 1);
+  rec.has_time = optional[kTime] >= 0;
+  if (rec.has_time) needed = std::max(needed, optional[kTime] + 1);
+  for (int c = kCamera; c < kOptionalCount; ++c)
+    if (optional[static_cast<size_t>(c)] < 0)
+      rec.missing_observation_columns.push_back(kOptionalNames[static_cast<size_t>(c)]);
+  rec.has_observations = rec.missing_observation_columns.empty();
+  if (rec.has_observations)
+    for (int c = kCamera; c < kOptionalCount; ++c)
+      needed = std::max(needed, optional[static_cast<size_t>(c)] + 1);
   std::map<std::pair<std::uint32_t, int>, size_t> seen;  // one sample per (exposure, mark)
   for (int line = 2; std::getline(in, line_text); ++line) {
     if (column_name(line_text).empty()) continue;
-    const std::vector<std::string> cells = split(line_text);
+    const std::vector<std::string> cells = csv::split_fields(line_text);
     if (static_cast<int>(cells.size()) < needed)
       fail(origin, line, "row",
            std::to_string(cells.size()) + " cells, the header needs " + std::to_string(needed));
-    const Row row{cells, index, origin, line};
+    const Row row{cells, index, origin, line, &optional};
     if (row.integer(kExcluded, 0, 1) == 1) {
       ++rec.excluded_rows;
       continue;
@@ -141,8 +184,18 @@ MarksRecording parse_marks_csv(const std::string& text, const std::string& origi
     s.u_w = {row.number(kUx), row.number(kUy), row.number(kUz)};
     for (int a = 0; a < 3; ++a)
       if (!(s.u_w(a) > 0)) fail(origin, line, kNames[kUx + a], "standard uncertainty not > 0");
+    s.cov_w = s.u_w.cwiseAbs2().asDiagonal();
+    if (full_covariance) {
+      s.full_covariance = true;
+      s.cov_w(0, 1) = s.cov_w(1, 0) = row.number(kCovXy);
+      s.cov_w(0, 2) = s.cov_w(2, 0) = row.number(kCovXz);
+      s.cov_w(1, 2) = s.cov_w(2, 1) = row.number(kCovYz);
+    }
     s.line = line;
-    if (rec.has_time) s.reference_mid_tai_ns = tai_ns(cells[static_cast<size_t>(time_column)], row);
+    if (rec.has_time)
+      s.reference_mid_tai_ns = static_cast<std::int64_t>(
+          parse_integer(row.cell(kTime), origin, line, kOptionalNames[kTime], 0, INT64_MAX));
+    if (rec.has_observations) s.observations.push_back(observation_of(row));
     const auto key = std::make_pair(s.trigger_seq, s.mark_id);
     if (const auto it = seen.find(key); it != seen.end()) {
       // The same triangulated mark, repeated for each camera that saw it.
@@ -151,6 +204,8 @@ MarksRecording parse_marks_csv(const std::string& text, const std::string& origi
              "mark " + std::to_string(s.mark_id) + " of trigger_seq " +
                  std::to_string(s.trigger_seq) + " differs from its row on line " +
                  std::to_string(rec.samples[it->second].line));
+      ++rec.samples[it->second].camera_rows;
+      if (rec.has_observations) rec.samples[it->second].observations.push_back(s.observations[0]);
       continue;
     }
     seen.emplace(key, rec.samples.size());

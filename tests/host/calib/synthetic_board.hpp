@@ -1,7 +1,9 @@
-// Synthetic board views for the calibration tests: SisTrO's board (10 x 7 corners, 50 mm), its
-// corners projected by the project's camera model with Gaussian pixel noise of known sigma.
+// Synthetic board views for the calibration tests and storetrack-calib-bench: SisTrO's board
+// (10 x 7 corners, 50 mm) or any other grid, its corners projected by the project's camera model
+// with Gaussian pixel noise of known sigma. Header-only on common/camera: no simulator.
 #pragma once
 
+#include <cmath>
 #include <random>
 
 #include "storetrack/calib/observations.hpp"
@@ -13,22 +15,57 @@ namespace storetrack::calib::test {
 constexpr int kCols = 10, kRows = 7;
 constexpr double kSquare = 0.05;  // [m]
 
+/// The project's nominal sensor (1920 x 1024), values like docs/calibration-file.md.
+inline camera::Intrinsics truth_camera() {
+  camera::Intrinsics in;
+  in.fx = 1450.3;
+  in.fy = 1448.7;
+  in.cx = 962.1;
+  in.cy = 508.4;
+  in.dist = {-0.21, 0.09, 0.0004, -0.0003, -0.02, 0, 0, 0};
+  return in;
+}
+
+struct BoardGrid {
+  int cols = kCols, rows = kRows;
+  double square_m = kSquare;
+};
+
 /// Appends one view of the board at T_c_b: every corner inside the 1920 x 1024 image.
 inline void add_board_view(const camera::CameraModel& model, const geometry::Transform& T_c_b,
                            int camera, int frame, std::normal_distribution<double>& noise,
-                           std::mt19937_64& rng, ObservationSet& set) {
-  for (int id = 0; id < kCols * kRows; ++id) {
+                           std::mt19937_64& rng, ObservationSet& set, const BoardGrid& grid = {}) {
+  for (int id = 0; id < grid.cols * grid.rows; ++id) {
     Observation o;
     o.camera = camera;
     o.frame = frame;
     o.point_id = id;
-    o.p_board = {(id % kCols) * kSquare, (id / kCols) * kSquare, 0};
+    o.p_board = {(id % grid.cols) * grid.square_m, (id / grid.cols) * grid.square_m, 0};
     const auto pixel = model.project_world(T_c_b, o.p_board);
     if (!pixel || pixel->x() < 0 || pixel->y() < 0 || pixel->x() > 1919 || pixel->y() > 1023)
       continue;
     o.pixel = *pixel + geometry::Vec2(noise(rng), noise(rng));
     set.observations.push_back(o);
   }
+}
+
+/// T_c_b of view i: the board 1.1-1.9 m away, spread over the image, tilted 20-40 degrees about
+/// an axis that turns from view to view. parallel = every board with the same orientation.
+inline geometry::Transform board_pose(int i, bool parallel, const BoardGrid& grid = {}) {
+  const double turn = parallel ? 0.7 : 2.39996 * i;  // golden angle: axes spread evenly
+  const double tilt = parallel ? 0.5 : (20 + 20 * ((i * 7) % 11) / 10.0) * M_PI / 180;
+  const geometry::Vec3 axis(std::cos(turn), std::sin(turn), 0);
+  const geometry::Mat3 R =
+      Eigen::AngleAxisd(tilt, axis).toRotationMatrix() *
+      Eigen::AngleAxisd(parallel ? 0 : 0.3 * i, geometry::Vec3::UnitZ()).toRotationMatrix();
+  const double z = 1.1 + 0.8 * ((i * 5) % 9) / 8.0;
+  const geometry::Vec3 centre_cam(0.45 * z * std::cos(1.3 * i), 0.25 * z * std::sin(1.7 * i), z);
+  const geometry::Vec3 centre_board(0.5 * (grid.cols - 1) * grid.square_m,
+                                    0.5 * (grid.rows - 1) * grid.square_m, 0);
+  geometry::Transform T = geometry::Transform::Identity();
+  T.linear() = R;
+  T.translation() = centre_cam - R * centre_board;
+  return T;
 }
 
 }  // namespace storetrack::calib::test

@@ -18,37 +18,8 @@ using uncertainty::chi_square_quantile;
 using uncertainty::DegreesOfFreedom;
 using uncertainty::Probability;
 
-camera::Intrinsics truth_camera() {
-  camera::Intrinsics in;  // the project's nominal sensor, values like docs/calibration-file.md
-  in.fx = 1450.3;
-  in.fy = 1448.7;
-  in.cx = 962.1;
-  in.cy = 508.4;
-  in.dist = {-0.21, 0.09, 0.0004, -0.0003, -0.02, 0, 0, 0};
-  return in;
-}
-
-using test::kCols;
-using test::kRows;
-using test::kSquare;
-
-/// T_c_b of view i: the board 1.1-1.9 m away, spread over the image, tilted 20-40 degrees about
-/// an axis that turns from view to view. parallel = every board with the same orientation.
-geometry::Transform board_pose(int i, bool parallel) {
-  const double turn = parallel ? 0.7 : 2.39996 * i;  // golden angle: axes spread evenly
-  const double tilt = parallel ? 0.5 : (20 + 20 * ((i * 7) % 11) / 10.0) * M_PI / 180;
-  const geometry::Vec3 axis(std::cos(turn), std::sin(turn), 0);
-  const geometry::Mat3 R =
-      Eigen::AngleAxisd(tilt, axis).toRotationMatrix() *
-      Eigen::AngleAxisd(parallel ? 0 : 0.3 * i, geometry::Vec3::UnitZ()).toRotationMatrix();
-  const double z = 1.1 + 0.8 * ((i * 5) % 9) / 8.0;
-  const geometry::Vec3 centre_cam(0.45 * z * std::cos(1.3 * i), 0.25 * z * std::sin(1.7 * i), z);
-  const geometry::Vec3 centre_board(0.5 * (kCols - 1) * kSquare, 0.5 * (kRows - 1) * kSquare, 0);
-  geometry::Transform T = geometry::Transform::Identity();
-  T.linear() = R;
-  T.translation() = centre_cam - R * centre_board;
-  return T;
-}
+using test::board_pose;
+using test::truth_camera;
 
 ObservationSet synthetic_set(int views, double sigma_px, std::mt19937_64& rng,
                              bool parallel = false) {

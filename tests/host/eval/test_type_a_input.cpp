@@ -49,9 +49,10 @@ std::string error_of(F&& f) {
 }
 
 TEST(TypeAInput, TheHostsHeaderIsAccepted) {
-  EXPECT_NO_THROW(eval::parse_marks_csv(std::string(hostapp::kMarksCsvHeader) + "\n" +
-                                            "5,0,1,p,0,1,2,3,0.001,0.001,0.001,0,1,2,0,0,0.1\n",
-                                        "host.csv"));
+  EXPECT_NO_THROW(
+      eval::parse_marks_csv(std::string(hostapp::kMarksCsvHeader) + "\n" +
+                                "5,0,1,p,0,1,2,3,0.001,0.001,0.001,0,1,2,0,0,0.1,0,0,0\n",
+                            "host.csv"));
 }
 
 TEST(TypeAInput, MissingColumnNamesFileAndField) {

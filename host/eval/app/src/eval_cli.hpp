@@ -4,6 +4,8 @@
 #include <string>
 #include <vector>
 
+#include "lme_command.hpp"
+#include "storetrack/eval/noise_floor.hpp"
 #include "pendulum_command.hpp"
 #include "storetrack/eval/type_a.hpp"
 
@@ -17,9 +19,21 @@ struct TypeAArgs {
   std::string output;  ///< result JSON
 };
 
+/// noise-floor (seed 002): one static record.
+struct NoiseFloorArgs {
+  std::string marks_csv;     ///< the host's --marks-csv of a static record
+  std::string survey;        ///< the marks' coordinates in the world frame
+  std::string rig;           ///< rig calibration (optional: rig axes, stereo angles, centroid u)
+  std::string bodies = "p";  ///< --body: p, s or ps
+  eval::NoiseFloorOptions options;
+  std::string output;  ///< result JSON
+};
+
 struct EvalCommand {
-  enum class Kind { kNone, kTypeA, kPendulum } kind = Kind::kNone;
+  enum class Kind { kNone, kTypeA, kLme, kNoiseFloor, kPendulum } kind = Kind::kNone;
   TypeAArgs type_a;
+  LmeArgs lme;
+  NoiseFloorArgs noise_floor;
   PendulumArgs pendulum;
 };
 

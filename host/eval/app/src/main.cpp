@@ -1,6 +1,10 @@
 // storetrack-eval: evaluation procedures of the instrument (docs/evaluation.md). Subcommands:
 //   type-a   repeated static marks CSVs + world survey -> Type A per mark and axis
 //            (eval_commands.cpp, run_type_a)
+//   lme      scale-bar marks CSVs + bar definition -> VDI/VDE 2634-1 length measuring error
+//            (lme_command.cpp, run_lme)
+//   noise-floor  one static marks CSV + world survey [+ rig] -> seed 002's variance and bias
+//            errors, image-coordinate, stereo-angle and distance errors (noise_floor_command.cpp)
 //   pendulum SisTrO dynamic calibration: pendulum runs' marks CSVs -> identified model and the
 //            dynamic error per axis (pendulum_command.cpp, run_pendulum)
 // Exit codes: 0 ok, 1 runtime failure (writing files), 2 bad arguments or input.
@@ -8,6 +12,7 @@
 
 #include "eval_cli.hpp"
 #include "eval_commands.hpp"
+#include "noise_floor_command.hpp"
 
 int main(int argc, char** argv) {
   namespace app = storetrack::evalapp;
@@ -16,6 +21,10 @@ int main(int argc, char** argv) {
   switch (command.kind) {
     case app::EvalCommand::Kind::kTypeA:
       return app::run_type_a(command.type_a, std::cout, std::cerr);
+    case app::EvalCommand::Kind::kLme:
+      return app::run_lme(command.lme, std::cout, std::cerr);
+    case app::EvalCommand::Kind::kNoiseFloor:
+      return app::run_noise_floor(command.noise_floor, std::cout, std::cerr);
     case app::EvalCommand::Kind::kPendulum:
       return app::run_pendulum(command.pendulum, std::cout, std::cerr);
     case app::EvalCommand::Kind::kNone:

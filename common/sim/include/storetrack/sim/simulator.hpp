@@ -24,6 +24,7 @@
 #include "storetrack/sim/render.hpp"
 #include "storetrack/sim/scenario.hpp"
 #include "storetrack/sim/trajectory.hpp"
+#include "storetrack/survey/scale_bars.hpp"
 #include "storetrack/survey/survey.hpp"
 
 namespace storetrack::sim {
@@ -99,6 +100,11 @@ class Simulator {
   const survey::RigidBodySurvey& store_survey() const { return store_surveyed_; }
   const survey::RigidBodySurvey& pendulum_survey() const { return pendulum_surveyed_; }
   const std::vector<survey::RigidBodySurvey>& scale_bar_surveys() const { return bars_surveyed_; }
+  /// The scale bars as a calibration laboratory certifies them (VDI/VDE 2634-1; empty outside
+  /// the scale_bars scenario): the true centre distance of each bar's two marks (`truth`) or
+  /// the one of the surveyed marks (as calibrated: truth + survey error); u_length_m =
+  /// sqrt(2) mark_sigma_m, the per-axis survey sigma of both marks along the bar.
+  survey::ScaleBarSet scale_bar_set(bool truth) const;
   /// All surveys (as measured) present in this scenario.
   std::vector<survey::RigidBodySurvey> surveys() const;
   /// True body coordinates.
