@@ -5,8 +5,8 @@
 #include <vector>
 
 #include "lme_command.hpp"
-#include "storetrack/eval/noise_floor.hpp"
 #include "pendulum_command.hpp"
+#include "storetrack/eval/noise_floor.hpp"
 #include "storetrack/eval/type_a.hpp"
 
 namespace storetrack::evalapp {
