@@ -11,6 +11,7 @@ mu_S spatial, bias error, per world axis and per rig axis in-plane 1, in-plane 2
 the image-coordinate error per camera, the stereo angles (seed 002 Table 3), the reconstruction
 error of the surveyed distances in % (Table 4), and two plots: temporal sd and bias per mark
 and axis, distance error per pair.
+pendulum: storetrack_eval_pendulum.py (SisTrO's dynamic table, parameters, error growth plots).
 Debian packages only (python3-matplotlib, python3-numpy).
 
 Usage: storetrack_eval_report.py RESULT.json OUT_DIR
@@ -223,6 +224,11 @@ def main():
     args = p.parse_args()
     with open(args.result) as f:
         r = json.load(f)
+    if r.get("format") == "storetrack-eval-pendulum":
+        sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+        from storetrack_eval_pendulum import write_pendulum_report
+        print(f"report: {write_pendulum_report(r, args.out_dir)}")
+        return
     formats = ("storetrack-eval-type-a", "storetrack-eval-lme", "storetrack-eval-noise-floor")
     if r.get("format") not in formats:
         sys.exit(f"{args.result}: format: expected one of {', '.join(formats)}, "

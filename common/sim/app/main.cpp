@@ -18,6 +18,7 @@
 #include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/msg/udp_codec.hpp"
 #include "storetrack/sim/frame_source.hpp"
+#include "storetrack/sim/pendulum_truth.hpp"
 #include "storetrack/sim/scenario.hpp"
 #include "storetrack/sim/simulator.hpp"
 
@@ -131,6 +132,8 @@ int main(int argc, char** argv) {
       survey::write_scale_bars(simulator.scale_bar_set(true), out_dir + "/true_scale_bars.json");
     }
     sim::write_truth_csv(simulator, out_dir + "/truth_poses.csv", out_dir + "/truth_marks.csv");
+    if (scenario.kind == sim::ScenarioKind::kPendulum)
+      sim::write_pendulum_truth_json(simulator, out_dir + "/truth_pendulum.json");
     if (mode == "frames") {
       for (int c = 0; c < simulator.num_cameras(); ++c) {
         const int id = scenario.cameras[static_cast<std::size_t>(c)].camera_id;

@@ -66,6 +66,7 @@ int parse_eval_command(int argc, char** argv, EvalCommand& command) {
   add_type_a(app, command.type_a);
   add_lme_command(app, command.lme);
   add_noise_floor(app, command.noise_floor);
+  add_pendulum_command(app, command.pendulum);
   if (const int rc = app.parse(argc, argv); rc >= 0) return rc;
   if (app.got_subcommand("type-a")) {
     command.kind = EvalCommand::Kind::kTypeA;
@@ -80,6 +81,10 @@ int parse_eval_command(int argc, char** argv, EvalCommand& command) {
     NoiseFloorArgs& n = command.noise_floor;
     n.options.pylon = n.bodies.find('p') != std::string::npos;
     n.options.store = n.bodies.find('s') != std::string::npos;
+  }
+  if (app.got_subcommand("pendulum")) {
+    command.kind = EvalCommand::Kind::kPendulum;
+    finish_pendulum_args(command.pendulum);
   }
   return -1;
 }

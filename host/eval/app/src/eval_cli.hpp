@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "lme_command.hpp"
+#include "pendulum_command.hpp"
 #include "storetrack/eval/noise_floor.hpp"
 #include "storetrack/eval/type_a.hpp"
 
@@ -29,10 +30,11 @@ struct NoiseFloorArgs {
 };
 
 struct EvalCommand {
-  enum class Kind { kNone, kTypeA, kLme, kNoiseFloor } kind = Kind::kNone;
+  enum class Kind { kNone, kTypeA, kLme, kNoiseFloor, kPendulum } kind = Kind::kNone;
   TypeAArgs type_a;
   LmeArgs lme;
   NoiseFloorArgs noise_floor;
+  PendulumArgs pendulum;
 };
 
 /// Returns -1 to run `command`, else the exit code (0 after --help, 2 on a bad argument).

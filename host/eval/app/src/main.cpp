@@ -5,6 +5,8 @@
 //            (lme_command.cpp, run_lme)
 //   noise-floor  one static marks CSV + world survey [+ rig] -> seed 002's variance and bias
 //            errors, image-coordinate, stereo-angle and distance errors (noise_floor_command.cpp)
+//   pendulum SisTrO dynamic calibration: pendulum runs' marks CSVs -> identified model and the
+//            dynamic error per axis (pendulum_command.cpp, run_pendulum)
 // Exit codes: 0 ok, 1 runtime failure (writing files), 2 bad arguments or input.
 #include <iostream>
 
@@ -23,6 +25,8 @@ int main(int argc, char** argv) {
       return app::run_lme(command.lme, std::cout, std::cerr);
     case app::EvalCommand::Kind::kNoiseFloor:
       return app::run_noise_floor(command.noise_floor, std::cout, std::cerr);
+    case app::EvalCommand::Kind::kPendulum:
+      return app::run_pendulum(command.pendulum, std::cout, std::cerr);
     case app::EvalCommand::Kind::kNone:
       break;
   }
