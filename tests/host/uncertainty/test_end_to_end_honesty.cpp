@@ -22,7 +22,7 @@
 // refusal rate, and the coverage with them counted as misses is printed.
 //
 // CI (Release): 150 draws per scene; STORETRACK_E2E_DRAWS=N for the full form (docs/evaluation.md,
-// "End-to-end honesty": 1500 draws resolve the 93-97 % band).
+// "End-to-end honesty": at 1500 draws the binomial interval, 93.7-97.0 %, lies inside the band).
 #include <algorithm>
 #include <array>
 #include <cmath>
