@@ -53,6 +53,7 @@ constexpr int kDefaultDraws = 20;  // ASan/UBSan: a smoke run of the chain
 #else
 constexpr int kDefaultDraws = 150;
 #endif
+constexpr int kMinDrawsForPower = 100;
 constexpr int kWarmup = 2;                   // exposures before the scored one
 constexpr std::uint64_t kSeedBase = 700000;  // not the seeds of the other honesty tests
 constexpr double kMaxRefusalRate = 0.01;
@@ -377,7 +378,10 @@ TEST(EndToEndHonesty, RenderedFramesCentroiderMatcherHost) {
       std::printf(" %.2f", 100 * wrong.coverage(a));
     std::printf(" %%, 6-DoF mean NEES %.3f: %s\n", wrong.pose.mean_nees(),
                 wrong.within(band) ? "ACCEPTED (the band cannot tell)" : "rejected");
-    EXPECT_FALSE(wrong.within(band)) << "u scaled by " << wrong.u_scale << " passes the band";
+    // Asserted from the CI form's size up (the sanitizer tree's 20 draws are a smoke run).
+    if (scored >= kMinDrawsForPower) {
+      EXPECT_FALSE(wrong.within(band)) << "u scaled by " << wrong.u_scale << " passes the band";
+    }
   }
 }
 
