@@ -7,6 +7,9 @@
 // installation survey's prior poses, tracking) -> triangulation, rigid-body checks and the pose
 // with its GUM uncertainty. Not exercised here (tools/testpoint runs them): the link, the
 // aligner and the unit's trigger pairing; the exposure time stamps are those the unit reports.
+// One shortcut: after the release the store's track at the window's first exposure is given to
+// the matcher as a prior pose (set_window_prior) instead of tracking it from the carriage
+// (STORETRACK_E2E_STORE_TRACK=start does that, ~40x the CPU).
 //
 // Independent unit: the calibration draw. The calibration and survey errors (drawn once per
 // simulator seed) dominate the pose budget and are shared by every exposure of a draw, so the
