@@ -180,6 +180,7 @@ def pooled_coverage(run_dirs):
     coverage falls in with 95 % probability when each draw contributes one sample (binomial,
     n = draws: the widest the within-draw correlation allows). Returns (rows, draws used)."""
     pose = {a: ([], [], []) for a in AXES_POS + AXES_ATT}
+    no_pose = 0  # samples the host wrote without a valid store pose: counted, not scored
     mk = [[] for _ in range(9)]
     used = 0
     for d in run_dirs:
@@ -190,6 +191,7 @@ def pooled_coverage(run_dirs):
             continue
         err = store_pose_errors(fti, truth)
         if err is not None:
+            no_pose += int((~np.isfinite(err["x"])).sum())
             for a in AXES_POS + AXES_ATT:
                 m = np.isfinite(err[a])
                 pose[a][0].extend(err[a][m])
@@ -215,8 +217,11 @@ def pooled_coverage(run_dirs):
         z = e / u
         inside = np.abs(z) <= K
         lo, hi = cluster_bootstrap_interval(inside, draw)
-        rows.append((name, unit, len(e), "%.4f" % np.sqrt(np.mean((e * scale) ** 2)),
+        missing = no_pose if name.startswith("store") else 0
+        rows.append((name, unit, len(e), missing if name.startswith("store") else "-",
+                     "%.4f" % np.sqrt(np.mean((e * scale) ** 2)),
                      "%.4f" % np.mean(u * scale), "%.1f" % (100.0 * np.mean(inside)),
+                     "%.1f" % (100.0 * inside.sum() / (len(e) + missing)),
                      "%.1f .. %.1f" % (100.0 * lo, 100.0 * hi),
                      "%.1f .. %.1f" % (100.0 * honest[0], 100.0 * honest[1]),
                      "%.2f" % np.sqrt(np.mean(z * z))))
@@ -481,7 +486,8 @@ def main():
         "1500." % (100.0 - share[0] - share[3] if share.sum() > 0 else float("nan")))
     if cov_table or mark_table:
         print("(" + one_draw_note + ")")
-    pool_headers = ["quantity", "unit", "samples", "RMS error", "mean u", "inside k=2 [%]",
+    pool_headers = ["quantity", "unit", "samples", "no pose (not scored)", "RMS error", "mean u",
+                    "inside k=2 [%]", "inside k=2, no pose as outside [%]",
                     "95 % CI [%] (bootstrap over draws)", "honest range [%] (binomial, n = draws)",
                     "RMS error/u"]
     pool_table, pool_draws = [], 0
@@ -490,7 +496,9 @@ def main():
         print("\nPooled over %d calibration draws (seeds): coverage should be about 95 %%, "
               "RMS error/u about 1. 95 %% CI: percentile interval of the pooled coverage over 2000 "
               "resamples of whole draws; honest range: where an honest instrument's pooled "
-              "coverage falls with 95 %% probability (Binomial(draws, 95.45 %%))" % pool_draws)
+              "coverage falls with 95 %% probability (Binomial(draws, 95.45 %%)); samples the host "
+              "wrote without a store pose are counted (no pose), and scored as outside in the "
+              "column after the coverage" % pool_draws)
         print(fmt_table(pool_table, pool_headers))
 
     with open(os.path.join(args.out, "index.html"), "w") as f:
