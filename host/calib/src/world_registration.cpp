@@ -117,27 +117,6 @@ bool triangulate_mark(const camera::RigCalibration& rig,
   return true;
 }
 
-void check_not_collinear(const std::vector<TriangulatedMark>& marks, const RegistrationOptions& o) {
-  Vec3 mean = Vec3::Zero();
-  for (const auto& m : marks)
-    mean += m.mark.q_w;
-  mean /= static_cast<double>(marks.size());
-  Mat3 scatter = Mat3::Zero();
-  for (const auto& m : marks)
-    scatter += (m.mark.q_w - mean) * (m.mark.q_w - mean).transpose();
-  scatter /= static_cast<double>(marks.size());
-  const VectorXd l = geometry::symmetric_eigen(scatter, false).values;  // ascending
-  const double first = std::sqrt(std::max(l(2), 0.0)), second = std::sqrt(std::max(l(1), 0.0));
-  if (!(second > o.collinearity_ratio * first)) {
-    std::ostringstream s;
-    s << o.survey_origin << ": marks: the " << marks.size()
-      << " usable marks are (nearly) collinear (spread across their line " << second * 1e3
-      << " mm, along it " << first * 1e3 << " mm; need a ratio >= " << o.collinearity_ratio
-      << "): the rotation about that line is not determined; survey marks off the line";
-    throw CalibrationError(s.str());
-  }
-}
-
 /// Pseudo-inverse quadratic form r^T C^+ r and the rank of C (eigenvalues above a relative floor).
 std::pair<double, int> pseudo_mahalanobis(const VectorXd& r, const MatrixXd& C) {
   const geometry::SymmetricEigen e = geometry::symmetric_eigen(C);
@@ -153,37 +132,119 @@ std::pair<double, int> pseudo_mahalanobis(const VectorXd& r, const MatrixXd& C) 
   return {q, rank};
 }
 
-/// Residual tests: r = (I + J D_p) e with e = e_p - R e_q, the marks' total errors (all sources,
-/// correlated through the calibration), so C_r = P C_e P^T exactly to first order.
-void test_residuals(const pose::BodyFit& fit, const MatrixXd& cov_errors,
-                    std::vector<MarkRegistration>& marks, RegistrationResult& out,
-                    const RegistrationOptions& o) {
-  const int n = static_cast<int>(marks.size());
+/// The usable marks' fit inputs, in ascending id order.
+struct MarkSet {
+  std::vector<Vec3> q_w, p_r;
+  std::vector<Mat3> cov_r;     ///< triangulation covariance (centroid + calibration)
+  std::vector<double> sigma;   ///< survey, per axis
+  std::vector<bool> included;  ///< in the fit (false: rejected as an outlier)
+  int size() const { return static_cast<int>(q_w.size()); }
+  int included_count() const {
+    return static_cast<int>(std::count(included.begin(), included.end(), true));
+  }
+};
+
+void check_not_collinear(const MarkSet& all, const RegistrationOptions& o) {
+  Vec3 mean = Vec3::Zero();
+  for (int i = 0; i < all.size(); ++i)
+    if (all.included[static_cast<size_t>(i)]) mean += all.q_w[static_cast<size_t>(i)];
+  const int n = all.included_count();
+  mean /= n;
+  Mat3 scatter = Mat3::Zero();
+  for (int i = 0; i < all.size(); ++i)
+    if (all.included[static_cast<size_t>(i)]) {
+      const Vec3 d = all.q_w[static_cast<size_t>(i)] - mean;
+      scatter += d * d.transpose() / n;
+    }
+  const VectorXd l = geometry::symmetric_eigen(scatter, false).values;  // ascending
+  const double first = std::sqrt(std::max(l(2), 0.0)), second = std::sqrt(std::max(l(1), 0.0));
+  if (!(second > o.collinearity_ratio * first)) {
+    std::ostringstream s;
+    s << o.survey_origin << ": marks: the " << n
+      << " usable marks are (nearly) collinear (spread across their line " << second * 1e3
+      << " mm, along it " << first * 1e3 << " mm; need a ratio >= " << o.collinearity_ratio
+      << "): the rotation about that line is not determined; survey marks off the line";
+    throw CalibrationError(s.str());
+  }
+}
+
+using Matrix6X = Eigen::Matrix<double, 6, Eigen::Dynamic>;
+
+/// Fits T_r_w to the included marks (host/pose: T_to_from with the "body" the frame mapped from,
+/// here w). D_p, D_q: dxi/dp_m and dxi/dq_m for every mark, zero for the excluded ones.
+pose::BodyFit fit_included(const MarkSet& all, Matrix6X& D_p, Matrix6X& D_q,
+                           const RegistrationOptions& o) {
+  MarkSet in;
+  for (int i = 0; i < all.size(); ++i) {
+    if (!all.included[static_cast<size_t>(i)]) continue;
+    in.q_w.push_back(all.q_w[static_cast<size_t>(i)]);
+    in.p_r.push_back(all.p_r[static_cast<size_t>(i)]);
+    in.cov_r.push_back(all.cov_r[static_cast<size_t>(i)]);
+    in.sigma.push_back(all.sigma[static_cast<size_t>(i)]);
+  }
+  pose::BodyFit fit;
+  if (!pose::fit_body(pose::PointsInBody{in.q_w}, pose::PointsInWorld{in.p_r}, in.cov_r, in.sigma,
+                      fit, 50))
+    throw CalibrationError(o.survey_origin +
+                           ": marks: the registration fit failed (singular normal matrix: marks "
+                           "collinear or coincident?)");
+  D_p = Matrix6X::Zero(6, 3 * all.size());
+  D_q = Matrix6X::Zero(6, 3 * all.size());
+  for (int i = 0, k = 0; i < all.size(); ++i) {
+    if (!all.included[static_cast<size_t>(i)]) continue;
+    D_p.middleCols<3>(3 * i) = fit.d_pose_d_point[static_cast<size_t>(k)];
+    D_q.middleCols<3>(3 * i) = fit.d_pose_d_survey[static_cast<size_t>(k)];
+    ++k;
+  }
+  return fit;
+}
+
+/// Residual tests: r = e + J xi_error with xi_error = D_p e (e = e_p - R e_q, the marks' total
+/// errors, correlated through the calibration; D_p zero for excluded marks), so
+/// C_r = P C_e P^T with P = I + J D_p exactly to first order, for used and rejected marks alike.
+void test_residuals(const Transform& T_r_w, const MarkSet& all, const Matrix6X& D_p,
+                    const MatrixXd& cov_errors, std::vector<MarkRegistration>& marks,
+                    RegistrationResult& out) {
+  const int n = all.size();
   MatrixXd P = MatrixXd::Identity(3 * n, 3 * n);
-  const Mat3 R = fit.T_w_b.linear();
+  VectorXd r(3 * n);
   for (int i = 0; i < n; ++i) {
+    const Vec3 Rq = T_r_w.linear() * all.q_w[static_cast<size_t>(i)];
     Eigen::Matrix<double, 3, 6> J;  // dr_i/dxi = [[R q_i]x, -I]
-    J.leftCols<3>() = geometry::skew(R * marks[static_cast<size_t>(i)].q_w);
+    J.leftCols<3>() = geometry::skew(Rq);
     J.rightCols<3>() = -Mat3::Identity();
-    for (int k = 0; k < n; ++k)
-      P.block<3, 3>(3 * i, 3 * k) += J * fit.d_pose_d_point[static_cast<size_t>(k)];
+    P.middleRows<3>(3 * i) += J * D_p;
+    r.segment<3>(3 * i) = all.p_r[static_cast<size_t>(i)] - (Rq + T_r_w.translation());
   }
   const MatrixXd C_r = P * cov_errors * P.transpose();
-  VectorXd r(3 * n);
+  std::vector<Eigen::Index> used;
   for (int i = 0; i < n; ++i)
-    r.segment<3>(3 * i) = fit.residual_w[static_cast<size_t>(i)];
-  std::tie(out.chi2, out.dof) = pseudo_mahalanobis(r, C_r);
+    if (all.included[static_cast<size_t>(i)])
+      for (int k = 0; k < 3; ++k)
+        used.push_back(3 * i + k);
+  std::tie(out.chi2, out.dof) = pseudo_mahalanobis(r(used), C_r(used, used));
   using uncertainty::DegreesOfFreedom;
   out.p_value =
       out.dof > 0 ? uncertainty::chi_square_survival(out.chi2, DegreesOfFreedom(out.dof)) : 1.0;
   for (int i = 0; i < n; ++i) {
     MarkRegistration& m = marks[static_cast<size_t>(i)];
+    m.used = all.included[static_cast<size_t>(i)];
     m.residual_r = r.segment<3>(3 * i);
     std::tie(m.chi2, m.dof) =
         pseudo_mahalanobis(m.residual_r, MatrixXd(C_r.block(3 * i, 3 * i, 3, 3)));
     m.p_value = m.dof > 0 ? uncertainty::chi_square_survival(m.chi2, DegreesOfFreedom(m.dof)) : 1.0;
-    m.outlier = m.p_value < o.outlier_false_alarm / n;
   }
+}
+
+/// The used mark with the smallest p-value below false_alarm / (used marks), or -1.
+int worst_failing_mark(const std::vector<MarkRegistration>& marks, int used_count,
+                       double false_alarm) {
+  int worst = -1;
+  for (size_t i = 0; i < marks.size(); ++i)
+    if (marks[i].used && marks[i].p_value < false_alarm / used_count &&
+        (worst < 0 || marks[i].p_value < marks[static_cast<size_t>(worst)].p_value))
+      worst = static_cast<int>(i);
+  return worst;
 }
 
 /// d(left perturbation of T^-1)/d(left perturbation of T): phi' = -R^T phi,
@@ -284,7 +345,6 @@ RegistrationResult register_rig(const camera::RigCalibration& rig_r,
       why += "; " + s.reason;
     throw CalibrationError(why);
   }
-  check_not_collinear(usable, o);
 
   // Joint covariance of the triangulated points: centroid (independent per mark) + calibration.
   const int n = static_cast<int>(usable.size());
@@ -306,47 +366,59 @@ RegistrationResult register_rig(const camera::RigCalibration& rig_r,
     cov_r[static_cast<size_t>(i)] = m.cov_r;
     sigma[static_cast<size_t>(i)] = m.survey_sigma_m;
   }
-  // host/pose fits T_to_from with the "body" the frame mapped from: T_r_w, body = w.
-  std::vector<double> weights(usable.size());
-  for (size_t i = 0; i < usable.size(); ++i)
-    weights[i] = 1.0 / (cov_r[i].trace() / 3.0 + sigma[i] * sigma[i]);
-  pose::absolute_orientation(pose::PointsInBody{q_w}, pose::PointsInWorld{p_r}, weights,
+  MarkSet all;
+  for (int i = 0; i < n; ++i) {
+    MarkRegistration& m = usable[static_cast<size_t>(i)].mark;
+    m.cov_r = cov_points.block<3, 3>(3 * i, 3 * i);
+    all.q_w.push_back(m.q_w);
+    all.p_r.push_back(m.p_r);
+    all.cov_r.push_back(m.cov_r);
+    all.sigma.push_back(m.survey_sigma_m);
+    out.marks.push_back(m);
+  }
+  all.included.assign(static_cast<size_t>(n), true);
+  check_not_collinear(all, o);
+  std::vector<double> weights(static_cast<size_t>(n));  // the fit's own start, for the report
+  for (size_t i = 0; i < weights.size(); ++i)
+    weights[i] = 1.0 / (all.cov_r[i].trace() / 3.0 + all.sigma[i] * all.sigma[i]);
+  pose::absolute_orientation(pose::PointsInBody{all.q_w}, pose::PointsInWorld{all.p_r}, weights,
                              out.T_r_w_start);
-  pose::BodyFit fit;
-  if (!pose::fit_body(pose::PointsInBody{q_w}, pose::PointsInWorld{p_r}, cov_r, sigma, fit, 50))
-    throw CalibrationError(o.survey_origin +
-                           ": marks: the registration fit failed (singular "
-                           "normal matrix: marks collinear or coincident?)");
-  out.T_r_w = fit.T_w_b;
-  out.iterations = fit.iterations;
+  // The marks' total errors e = e_p - R e_q: survey errors isotropic, so R s^2 I R^T = s^2 I.
+  MatrixXd cov_errors = cov_points;
+  for (int i = 0; i < n; ++i)
+    cov_errors.block<3, 3>(3 * i, 3 * i) +=
+        all.sigma[static_cast<size_t>(i)] * all.sigma[static_cast<size_t>(i)] * Mat3::Identity();
+
+  // Fit, test, reject the worst failing mark, refit, while one fails and more than 3 remain.
+  Matrix6X D_p, D_q;
+  for (;;) {
+    const pose::BodyFit fit = fit_included(all, D_p, D_q, o);
+    out.T_r_w = fit.T_w_b;
+    out.iterations = fit.iterations;
+    test_residuals(out.T_r_w, all, D_p, cov_errors, out.marks, out);
+    const int worst = worst_failing_mark(out.marks, all.included_count(), o.outlier_false_alarm);
+    if (worst < 0 || !o.reject_outliers || all.included_count() <= 3) break;
+    all.included[static_cast<size_t>(worst)] = false;
+    check_not_collinear(all, o);
+  }
+  const int used_count = all.included_count();
+  for (MarkRegistration& m : out.marks)
+    m.outlier = !m.used || m.p_value < o.outlier_false_alarm / used_count;
 
   // xi_r_w = D_p e_p + D_q e_q (first order); e_p = centroid + G theta.
-  Eigen::Matrix<double, 6, Eigen::Dynamic> D_p(6, 3 * n);
-  for (int i = 0; i < n; ++i)
-    D_p.middleCols<3>(3 * i) = fit.d_pose_d_point[static_cast<size_t>(i)];
-  const Eigen::Matrix<double, 6, Eigen::Dynamic> d_rw_d_theta = D_p * G;
+  const Matrix6X d_rw_d_theta = D_p * G;
   out.cov_T_r_w_centroid = symmetric(D_p * cov_centroid * D_p.transpose());
   out.cov_T_r_w_calibration =
       symmetric(d_rw_d_theta * calibration_covariance * d_rw_d_theta.transpose());
   for (int i = 0; i < n; ++i) {
-    const auto& D_q = fit.d_pose_d_survey[static_cast<size_t>(i)];
-    out.cov_T_r_w_survey +=
-        sigma[static_cast<size_t>(i)] * sigma[static_cast<size_t>(i)] * D_q * D_q.transpose();
+    const double s2 = all.sigma[static_cast<size_t>(i)] * all.sigma[static_cast<size_t>(i)];
+    out.cov_T_r_w_survey += s2 * D_q.middleCols<3>(3 * i) * D_q.middleCols<3>(3 * i).transpose();
   }
   out.cov_T_r_w_survey = symmetric(out.cov_T_r_w_survey);
   out.cov_T_r_w = out.cov_T_r_w_centroid + out.cov_T_r_w_calibration + out.cov_T_r_w_survey;
   out.T_w_r = out.T_r_w.inverse();
   const Mat6 d_wr_d_rw = inverse_jacobian(out.T_r_w);
   out.cov_T_w_r = symmetric(d_wr_d_rw * out.cov_T_r_w * d_wr_d_rw.transpose());
-
-  // The marks' total errors e = e_p - R e_q: survey errors isotropic, so R s^2 I R^T = s^2 I.
-  MatrixXd cov_errors = cov_points;
-  for (int i = 0; i < n; ++i)
-    cov_errors.block<3, 3>(3 * i, 3 * i) +=
-        sigma[static_cast<size_t>(i)] * sigma[static_cast<size_t>(i)] * Mat3::Identity();
-  for (auto& t : usable)
-    out.marks.push_back(t.mark);
-  test_residuals(fit, cov_errors, out.marks, out, o);
   compose_registered_rig(rig_r, calibration_covariance, d_rw_d_theta,
                          out.cov_T_r_w_centroid + out.cov_T_r_w_survey, out);
   return out;

@@ -400,6 +400,35 @@ TEST(WorldRegistration, Refusals) {
   EXPECT_NE(registration_error(no_sigma).find("marks.csv: sigma_px"), std::string::npos);
 }
 
+// A mark surveyed 12 mm off (a wrong reflector height, say) is named, and only it.
+TEST(WorldRegistration, GrossSurveyErrorNamed) {
+  std::mt19937_64 rng(6);  // (seed 5's clean draw has mark 100 at p = 5e-4 < 0.01/8 by chance)
+  Scenario s = make_scenario(rng);
+  s.survey.marks[2].p_body += Vec3(0.012, 0, 0);  // mark 102, sigma 0.5 mm
+  const RegistrationResult r =
+      register_rig(s.rig_stated, calibration_covariance(), s.survey, s.sightings);
+  for (const auto& m : r.marks) {
+    EXPECT_EQ(m.outlier, m.mark_id == 102) << "mark " << m.mark_id << " chi2 " << m.chi2;
+    EXPECT_EQ(m.used, m.mark_id != 102);
+  }
+  EXPECT_GT(r.marks[2].chi2, 100);  // tested against the fit without it
+  EXPECT_GT(r.p_value, 1e-3);       // the rest fit
+  // Without rejection the least-squares fit spreads the error: marks 100 and 105 (0.2 and
+  // 0.3 mm survey sigma) fail too (chi2 68 and 70), which is why only the worst is rejected,
+  // then the fit repeated.
+  RegistrationOptions keep;
+  keep.reject_outliers = false;
+  const RegistrationResult k =
+      register_rig(s.rig_stated, calibration_covariance(), s.survey, s.sightings, keep);
+  int failing = 0;
+  for (const auto& m : k.marks) {
+    EXPECT_TRUE(m.used);
+    failing += m.outlier;
+  }
+  EXPECT_GE(failing, 2);
+  EXPECT_LT(k.p_value, 1e-6);
+}
+
 TEST(WorldRegistration, CollinearMarksRefused) {
   // Four marks on one line in S_r (and so in S_w), seen by all cameras.
   std::mt19937_64 rng(3);

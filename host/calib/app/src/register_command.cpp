@@ -1,5 +1,6 @@
 #include "register_command.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -96,8 +97,11 @@ std::string rms_sigmas(const Mat6& C) {
 
 void print_summary(const calib::RegistrationResult& r, const std::string& covariance_source,
                    const RegisterArgs& args, std::ostream& out) {
-  out << "register: " << r.marks.size() << " marks used, " << r.skipped.size()
-      << " skipped; calibration covariance: " << covariance_source << "\n";
+  const auto used =
+      std::count_if(r.marks.begin(), r.marks.end(), [](const auto& m) { return m.used; });
+  out << "register: " << used << " marks used, " << r.marks.size() - static_cast<size_t>(used)
+      << " rejected as outliers, " << r.skipped.size()
+      << " not usable; calibration covariance: " << covariance_source << "\n";
   print_pose("T_w_r (S_r -> S_w)", r.T_w_r, r.cov_T_w_r, out);
   out << "standard uncertainty of T_r_w per axis (rms rotation, translation): total "
       << rms_sigmas(r.cov_T_r_w) << "; centroid " << rms_sigmas(r.cov_T_r_w_centroid)
@@ -112,11 +116,11 @@ void print_summary(const calib::RegistrationResult& r, const std::string& covari
       cams += std::to_string(c);
     }
     char line[256];
-    std::snprintf(line, sizeof line,
-                  "%4d %-8s %8.3f %8.3f %8.3f   %8.3f %10.3f %10.2f/%d %8.2g%s\n", m.mark_id,
-                  cams.c_str(), m.residual_r.x() * 1e3, m.residual_r.y() * 1e3,
-                  m.residual_r.z() * 1e3, m.residual_r.norm() * 1e3, m.survey_sigma_m * 1e3, m.chi2,
-                  m.dof, m.p_value, m.outlier ? "  OUTLIER" : "");
+    std::snprintf(
+        line, sizeof line, "%4d %-8s %8.3f %8.3f %8.3f   %8.3f %10.3f %10.2f/%d %8.2g%s\n",
+        m.mark_id, cams.c_str(), m.residual_r.x() * 1e3, m.residual_r.y() * 1e3,
+        m.residual_r.z() * 1e3, m.residual_r.norm() * 1e3, m.survey_sigma_m * 1e3, m.chi2, m.dof,
+        m.p_value, !m.used ? "  OUTLIER, rejected" : (m.outlier ? "  OUTLIER, kept" : ""));
     out << line;
   }
   out << "fit: chi2 " << fixed(r.chi2, 2) << " for " << r.dof << " dof (p = " << r.p_value << "), "
@@ -127,7 +131,7 @@ void print_summary(const calib::RegistrationResult& r, const std::string& covari
       if (!outliers.empty()) outliers += ", ";
       outliers += std::to_string(m.mark_id);
     }
-  out << "outliers (p < " << args.outlier_false_alarm << " / " << r.marks.size()
+  out << "outliers (p < " << args.outlier_false_alarm << " / " << used
       << "): " << (outliers.empty() ? "none" : outliers) << "\n";
   for (const auto& c : r.registered.cameras)
     print_pose(("camera " + std::to_string(c.camera_id) + " T_c_w").c_str(), c.T_c_w,
@@ -152,6 +156,7 @@ void add_register(cli::Command& app, RegisterArgs& a) {
   sub.option("--outlier-false-alarm", a.outlier_false_alarm,
              "Probability of naming any mark of a clean set an outlier")
       .range(1e-9, 0.5);
+  sub.flag("--keep-outliers", a.keep_outliers, "Name failing marks but keep them in the fit");
   sub.option("-o,--output", a.output, "Registered rig calibration JSON to write").required();
   sub.option("--residuals", a.residuals_csv, "Per-mark residual CSV to write");
 }
@@ -204,6 +209,7 @@ std::string registered_calibration_json(const calib::RegistrationResult& r,
                      {"chi2", m.chi2},
                      {"dof", m.dof},
                      {"p_value", m.p_value},
+                     {"used", m.used},
                      {"outlier", m.outlier}});
   nlohmann::json skipped = nlohmann::json::array();
   for (const auto& s : r.skipped)
@@ -256,6 +262,7 @@ int run_register(const RegisterArgs& args, std::ostream& out, std::ostream& err)
     options.survey_origin = args.survey;
     options.observations_origin = args.observations;
     options.outlier_false_alarm = args.outlier_false_alarm;
+    options.reject_outliers = !args.keep_outliers;
     result = calib::register_rig(rig, covariance, survey, read_sightings(args), options);
   } catch (const std::exception& e) {  // file errors, CalibrationError
     err << "error: " << e.what() << "\n";
@@ -268,11 +275,11 @@ int run_register(const RegisterArgs& args, std::ostream& out, std::ostream& err)
     write_text(args.output, registered_calibration_json(result, rig_text, args));
     if (!args.residuals_csv.empty()) {
       std::ostringstream rows;
-      rows << "mark_id,residual_x_m,residual_y_m,residual_z_m,chi2,dof,p_value,outlier\n";
+      rows << "mark_id,residual_x_m,residual_y_m,residual_z_m,chi2,dof,p_value,used,outlier\n";
       for (const auto& m : result.marks)
         rows << m.mark_id << ',' << m.residual_r.x() << ',' << m.residual_r.y() << ','
              << m.residual_r.z() << ',' << m.chi2 << ',' << m.dof << ',' << m.p_value << ','
-             << (m.outlier ? 1 : 0) << '\n';
+             << (m.used ? 1 : 0) << ',' << (m.outlier ? 1 : 0) << '\n';
       write_text(args.residuals_csv, rows.str());
     }
   } catch (const std::exception& e) {

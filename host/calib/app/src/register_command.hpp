@@ -19,6 +19,7 @@ struct RegisterArgs {
   std::string observations;  ///< observation CSV, point_id = survey mark id
   double sigma_px = 0;       ///< centroid sigma for rows without sigma_px (0: none given)
   double outlier_false_alarm = 0.01;
+  bool keep_outliers = false;  ///< name failing marks but keep them in the fit
   std::string output;
   std::string residuals_csv;
 };

@@ -37,6 +37,9 @@ struct RegistrationOptions {
   /// quantile at 1 - outlier_false_alarm / (usable marks) (a clean set names any mark with this
   /// probability).
   double outlier_false_alarm = 0.01;
+  /// Reject the worst failing mark and refit while one fails and more than 3 remain (a rejected
+  /// mark is still tested, against the fit without it); false: only name them.
+  bool reject_outliers = true;
   /// Marks are refused as collinear when the second principal standard deviation of the
   /// surveyed positions is below this fraction of the first.
   double collinearity_ratio = 1e-3;
@@ -63,6 +66,9 @@ struct MarkRegistration {
   double chi2 = 0;     ///< r^T C_r^+ r, C_r the residual's covariance (all sources)
   int dof = 0;         ///< rank of C_r (3 with >= 4 marks)
   double p_value = 1;  ///< P(chi2(dof) > chi2)
+  bool used = true;    ///< in the fit (false: rejected as an outlier)
+  /// Failed the test (p < outlier_false_alarm / used marks): rejected, or kept when rejection
+  /// is off or only 3 marks remain.
   bool outlier = false;
 };
 
@@ -83,7 +89,7 @@ struct RegistrationResult {
   geometry::Mat6 cov_T_w_r = geometry::Mat6::Zero();            ///< left perturbation, in S_w
   std::vector<MarkRegistration> marks;                          ///< usable marks, ascending id
   std::vector<SkippedMark> skipped;
-  double chi2 = 0;  ///< r^T C^+ r over all marks (all sources, correlations kept)
+  double chi2 = 0;  ///< r^T C^+ r over the used marks (all sources, correlations kept)
   int dof = 0;      ///< 3 marks - 6
   double p_value = 1;
   int iterations = 0;
