@@ -70,6 +70,7 @@ int parse_calib_command(int argc, char** argv, CalibCommand& command) {
   add_detect(app, command.detect);
   add_intrinsic(app, command.intrinsic);
   add_rig(app, command.rig);
+  add_register(app, command.register_args);
   if (const int rc = app.parse(argc, argv); rc >= 0) return rc;
   if (app.got_subcommand("detect")) command.kind = CalibCommand::Kind::kDetect;
   if (app.got_subcommand("intrinsic")) {
@@ -80,6 +81,7 @@ int parse_calib_command(int argc, char** argv, CalibCommand& command) {
     command.kind = CalibCommand::Kind::kRig;
     if (command.rig.no_outlier_rejection) command.rig.options.intrinsic.outlier_false_alarm = 0;
   }
+  if (app.got_subcommand("register")) command.kind = CalibCommand::Kind::kRegister;
   return -1;
 }
 

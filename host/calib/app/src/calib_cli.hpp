@@ -4,6 +4,7 @@
 #include <string>
 #include <vector>
 
+#include "register_command.hpp"
 #include "storetrack/calib/chessboard_detection.hpp"
 #include "storetrack/calib/intrinsic_calibration.hpp"
 #include "storetrack/calib/rig_calibration.hpp"
@@ -40,10 +41,11 @@ struct RigArgs {
 };
 
 struct CalibCommand {
-  enum class Kind { kNone, kDetect, kIntrinsic, kRig } kind = Kind::kNone;
+  enum class Kind { kNone, kDetect, kIntrinsic, kRig, kRegister } kind = Kind::kNone;
   DetectArgs detect;
   IntrinsicArgs intrinsic;
   RigArgs rig;
+  RegisterArgs register_args;
 };
 
 /// Returns -1 to run `command`, else the exit code (0 after --help, 2 on a bad argument).

@@ -2,6 +2,7 @@
 //   detect     images -> observation CSV          (calib_commands.cpp, run_detect)
 //   intrinsic  observation CSV -> calibration JSON (calib_commands.cpp, run_intrinsic)
 //   rig        observation CSVs -> calibration JSON of all cameras (calib_commands.cpp, run_rig)
+//   register   rig JSON + world survey + marks CSV -> registered JSON (register_command.cpp)
 // Exit codes: 0 ok, 1 runtime failure (writing files), 2 bad arguments or input.
 #include <iostream>
 
@@ -19,6 +20,8 @@ int main(int argc, char** argv) {
       return app::run_intrinsic(command.intrinsic, std::cout, std::cerr);
     case app::CalibCommand::Kind::kRig:
       return app::run_rig(command.rig, std::cout, std::cerr);
+    case app::CalibCommand::Kind::kRegister:
+      return app::run_register(command.register_args, std::cout, std::cerr);
     case app::CalibCommand::Kind::kNone:
       break;
   }

@@ -1,0 +1,117 @@
+// World registration: S_r (reference camera, camera 0) -> S_w (aircraft) from marks surveyed by
+// a total station in S_w and seen by the rig's cameras (docs/calibration.md, "Register").
+//
+// Each mark is triangulated in S_r (host/triangulate) through the rig calibration, with its
+// covariance from the centroid sigma and from the calibration's (joint) covariance; T_r_w is
+// fitted by host/pose (weighted absolute orientation, then Gauss-Newton with each mark weighted
+// by its triangulation covariance plus its survey covariance). The covariance of T_r_w is
+// propagated from all three sources, keeping the correlation between marks that share the
+// calibration. Every camera's T_c_w = T_c_r T_r_w with the joint covariance of the result.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "storetrack/camera/calibration_file.hpp"
+#include "storetrack/geometry/transform.hpp"
+#include "storetrack/survey/survey.hpp"
+
+namespace storetrack::calib {
+
+/// One camera's image of one surveyed mark (a row of the marks observation CSV).
+struct MarkSighting {
+  int camera = 0;
+  int mark_id = 0;  ///< the survey's mark id (the CSV's point_id)
+  geometry::Vec2 pixel_px = geometry::Vec2::Zero();
+  double sigma_px = 0;  ///< per-axis centroid standard uncertainty [px], > 0
+};
+
+struct RegistrationOptions {
+  /// Names used in error messages and the report (file names in the program).
+  std::string rig_origin = "rig calibration";
+  std::string survey_origin = "survey";
+  std::string observations_origin = "observations";
+  /// Per-mark test: a mark is named an outlier when its statistic exceeds the chi-square
+  /// quantile at 1 - outlier_false_alarm / (usable marks) (a clean set names any mark with this
+  /// probability).
+  double outlier_false_alarm = 0.01;
+  /// Reject the worst failing mark and refit while one fails and more than 3 remain (a rejected
+  /// mark is still tested, against the fit without it); false: only name them.
+  bool reject_outliers = true;
+  /// Marks are refused as collinear when the second principal standard deviation of the
+  /// surveyed positions is below this fraction of the first.
+  double collinearity_ratio = 1e-3;
+};
+
+/// Layout of the joint calibration covariance (input and output): per camera (in the rig's
+/// order) the 13 packed intrinsics, then the left perturbation (rx, ry, rz, tx, ty, tz) of its
+/// extrinsic (T_c_r in the input, T_c_w in the output). Same as calib::kRigBlockSize.
+inline constexpr int kRegistrationBlockSize = camera::kNumIntrinsics + 6;
+
+/// The joint covariance a version-1 calibration file implies: its per-camera blocks, no cross
+/// terms.
+Eigen::MatrixXd block_diagonal_covariance(const camera::RigCalibration& rig);
+
+struct MarkRegistration {
+  int mark_id = 0;
+  std::vector<int> cameras;                            ///< cameras that saw it
+  geometry::Vec3 p_r = geometry::Vec3::Zero();         ///< triangulated in S_r [m]
+  geometry::Mat3 cov_r = geometry::Mat3::Zero();       ///< its covariance: centroid + calibration
+  geometry::Vec3 q_w = geometry::Vec3::Zero();         ///< surveyed in S_w [m]
+  double survey_sigma_m = 0;                           ///< per axis
+  double reprojection_chi2 = 0;                        ///< the triangulation's
+  geometry::Vec3 residual_r = geometry::Vec3::Zero();  ///< p_r - T_r_w q_w [m]
+  double chi2 = 0;     ///< r^T C_r^+ r, C_r the residual's covariance (all sources)
+  int dof = 0;         ///< rank of C_r (3 with >= 4 marks)
+  double p_value = 1;  ///< P(chi2(dof) > chi2)
+  bool used = true;    ///< in the fit (false: rejected as an outlier)
+  /// Failed the test (p < outlier_false_alarm / used marks): rejected, or kept when rejection
+  /// is off or only 3 marks remain.
+  bool outlier = false;
+};
+
+struct SkippedMark {
+  int mark_id = 0;
+  std::string reason;  ///< names the file and what is missing
+};
+
+struct RegistrationResult {
+  geometry::Transform T_r_w_start = geometry::Transform::Identity();  ///< absolute orientation
+  geometry::Transform T_r_w = geometry::Transform::Identity();        ///< S_w -> S_r
+  /// Covariance of the left perturbation of T_r_w (in S_r): total and by source.
+  geometry::Mat6 cov_T_r_w = geometry::Mat6::Zero();
+  geometry::Mat6 cov_T_r_w_centroid = geometry::Mat6::Zero();
+  geometry::Mat6 cov_T_r_w_calibration = geometry::Mat6::Zero();
+  geometry::Mat6 cov_T_r_w_survey = geometry::Mat6::Zero();
+  geometry::Transform T_w_r = geometry::Transform::Identity();  ///< S_r -> S_w (the inverse)
+  geometry::Mat6 cov_T_w_r = geometry::Mat6::Zero();            ///< left perturbation, in S_w
+  std::vector<MarkRegistration> marks;                          ///< usable marks, ascending id
+  std::vector<SkippedMark> skipped;
+  double chi2 = 0;  ///< r^T C^+ r over the used marks (all sources, correlations kept)
+  int dof = 0;      ///< 3 marks - 6
+  double p_value = 1;
+  int iterations = 0;
+  /// The registered rig: every camera's T_c_w = T_c_r T_r_w, intrinsics unchanged, each
+  /// camera's extrinsic block the diagonal block of joint_covariance.
+  camera::RigCalibration registered;
+  /// Joint covariance of (intrinsics, left perturbation of T_c_w) of all cameras
+  /// (kRegistrationBlockSize per camera), cross-camera and intrinsic-extrinsic terms included.
+  Eigen::MatrixXd joint_covariance;
+};
+
+/// Registers the rig. `rig_r` is the `rig` step's calibration (T_c_w = T_c_r, camera 0 first
+/// with T = identity); `calibration_covariance` its joint covariance in the layout above
+/// (block_diagonal_covariance(rig_r) for a file without one). Throws CalibrationError with a
+/// message naming the file and field: survey not in frame 'w', a mark id not in the survey, a
+/// camera not in the rig, a (camera, mark) seen twice, fewer than 3 usable marks, collinear
+/// marks. Marks that cannot be used (seen by fewer than 2 cameras, triangulation failed) are
+/// listed in `skipped` with the reason.
+RegistrationResult register_rig(const camera::RigCalibration& rig_r,
+                                const Eigen::MatrixXd& calibration_covariance,
+                                const survey::RigidBodySurvey& survey_w,
+                                const std::vector<MarkSighting>& sightings,
+                                const RegistrationOptions& options = {});
+
+}  // namespace storetrack::calib
