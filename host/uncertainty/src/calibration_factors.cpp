@@ -31,24 +31,78 @@ Eigen::MatrixXd sqrt_factor(const Eigen::MatrixXd& cov, double relative_floor) {
 
 CalibrationFactors::CalibrationFactors(const camera::RigCalibration& rig, double relative_floor) {
   cameras_.resize(rig.cameras.size());
-  std::vector<Eigen::MatrixXd> intr(rig.cameras.size()), extr(rig.cameras.size());
+  if (rig.has_cross_covariance())
+    factor_jointly(rig, relative_floor);
+  else
+    factor_per_camera(rig, relative_floor);
+  add_sync_factors(rig);
+}
+
+void CalibrationFactors::factor_per_camera(const camera::RigCalibration& rig,
+                                           double relative_floor) {
   int col = 0;
   ranges_[index(Source::kIntrinsic)].first = col;
   for (size_t c = 0; c < rig.cameras.size(); ++c) {
-    intr[c] = sqrt_factor(rig.cameras[c].intrinsic_covariance, relative_floor);
+    cameras_[c].intrinsic = sqrt_factor(rig.cameras[c].intrinsic_covariance, relative_floor);
     cameras_[c].intrinsic_begin = col;
-    cameras_[c].intrinsic = intr[c];
-    col += static_cast<int>(intr[c].cols());
+    col += static_cast<int>(cameras_[c].intrinsic.cols());
   }
   ranges_[index(Source::kIntrinsic)].second = col - ranges_[index(Source::kIntrinsic)].first;
   ranges_[index(Source::kExtrinsic)].first = col;
   for (size_t c = 0; c < rig.cameras.size(); ++c) {
-    extr[c] = sqrt_factor(rig.cameras[c].extrinsic_covariance, relative_floor);
+    cameras_[c].extrinsic = sqrt_factor(rig.cameras[c].extrinsic_covariance, relative_floor);
     cameras_[c].extrinsic_begin = col;
-    cameras_[c].extrinsic = extr[c];
-    col += static_cast<int>(extr[c].cols());
+    col += static_cast<int>(cameras_[c].extrinsic.cols());
   }
   ranges_[index(Source::kExtrinsic)].second = col - ranges_[index(Source::kExtrinsic)].first;
+  num_factors_ = col;
+}
+
+// Intrinsics of all cameras first (F_I), then the extrinsics given them: the regression
+// A = Sigma_EI F_I (F_I^T F_I)^-1 (F_I's columns are orthogonal, so F_I^T F_I is diagonal)
+// and the factor of the remainder Sigma_EE - A A^T. Cov(theta_E, theta_I) = A F_I^T =
+// Sigma_EI (Sigma_EI lies in Sigma_II's range for a PSD joint). The budget's intrinsic source
+// thereby includes the part of the extrinsic error explained by the intrinsic one.
+void CalibrationFactors::factor_jointly(const camera::RigCalibration& rig, double relative_floor) {
+  coupled_ = true;
+  constexpr int kI = camera::kNumIntrinsics;
+  const int n = static_cast<int>(rig.cameras.size());
+  const Eigen::MatrixXd& joint = rig.joint_covariance;
+  Eigen::MatrixXd S_II(kI * n, kI * n), S_EE(6 * n, 6 * n), S_EI(6 * n, kI * n);
+  for (int a = 0; a < n; ++a)
+    for (int b = 0; b < n; ++b) {
+      const int ja = camera::kJointBlockSize * a, jb = camera::kJointBlockSize * b;
+      S_II.block<kI, kI>(kI * a, kI * b) = joint.block<kI, kI>(ja, jb);
+      S_EE.block<6, 6>(6 * a, 6 * b) = joint.block<6, 6>(ja + kI, jb + kI);
+      S_EI.block<6, kI>(6 * a, kI * b) = joint.block<6, kI>(ja + kI, jb);
+    }
+  const Eigen::MatrixXd F_I = sqrt_factor(S_II, relative_floor);
+  const Eigen::VectorXd lambda = F_I.colwise().squaredNorm().transpose();
+  const Eigen::MatrixXd A = S_EI * F_I * lambda.cwiseInverse().asDiagonal();
+  const Eigen::MatrixXd remainder = S_EE - A * A.transpose();
+  const Eigen::MatrixXd F_E = sqrt_factor(remainder, relative_floor);
+  const int r_I = static_cast<int>(F_I.cols()), r_E = static_cast<int>(F_E.cols());
+  const bool extrinsic_loads_intrinsic = !A.isZero(0.0);
+  for (int c = 0; c < n; ++c) {
+    CameraFactors& cf = cameras_[static_cast<size_t>(c)];
+    cf.intrinsic_begin = 0;
+    cf.intrinsic = F_I.middleRows(kI * c, kI);
+    if (extrinsic_loads_intrinsic) {
+      cf.extrinsic_begin = 0;
+      cf.extrinsic.resize(6, r_I + r_E);
+      cf.extrinsic << A.middleRows(6 * c, 6), F_E.middleRows(6 * c, 6);
+    } else {
+      cf.extrinsic_begin = r_I;
+      cf.extrinsic = F_E.middleRows(6 * c, 6);
+    }
+  }
+  ranges_[index(Source::kIntrinsic)] = {0, r_I};
+  ranges_[index(Source::kExtrinsic)] = {r_I, r_E};
+  num_factors_ = r_I + r_E;
+}
+
+void CalibrationFactors::add_sync_factors(const camera::RigCalibration& rig) {
+  int col = num_factors_;
   ranges_[index(Source::kSync)].first = col;
   for (size_t c = 0; c < rig.cameras.size(); ++c) {
     const double sigma_ns = rig.cameras[c].exposure_offset_sigma_ns;
