@@ -37,12 +37,13 @@ class CalibrationFactors {
   struct CameraFactors {
     int intrinsic_begin = 0;  ///< first column this camera's intrinsics load on
     /// d(packed intrinsics)/dz over columns [intrinsic_begin, intrinsic_begin + cols): the
-    /// camera's own columns (uncoupled) or the whole intrinsic range (coupled).
-    Eigen::Matrix<double, camera::kNumIntrinsics, Eigen::Dynamic> intrinsic;
+    /// camera's own columns (uncoupled) or the whole intrinsic range (coupled). Row-major, as
+    /// the loadings: B = G F is then evaluated row by row as vectorised sums of F's rows.
+    Eigen::Matrix<double, camera::kNumIntrinsics, Eigen::Dynamic, Eigen::RowMajor> intrinsic;
     int extrinsic_begin = 0;
     /// d(left perturbation of T_c_w)/dz (6 x cols) from extrinsic_begin; coupled with
     /// intrinsic-extrinsic correlation it starts at the intrinsic range.
-    Eigen::Matrix<double, 6, Eigen::Dynamic> extrinsic;
+    Eigen::Matrix<double, 6, Eigen::Dynamic, Eigen::RowMajor> extrinsic;
     int sync_column = -1;     ///< column of the exposure time offset (-1: no sync uncertainty)
     double sync_sigma_s = 0;  ///< standard uncertainty of the exposure time offset [s]
   };
