@@ -1,5 +1,6 @@
 // Rig calibration file (JSON, docs/calibration-file.md): cameras' intrinsics, extrinsics T_c_w
-// and covariances. Read by both the unit (its own cameras) and the host (all of them).
+// and covariances; version 2 adds the joint covariance of all cameras' parameters. Read by the
+// host; written by storetrack-calib and the simulator. Versions 1 and 2 are read, 2 is written.
 #pragma once
 
 #include <stdexcept>
