@@ -8,23 +8,50 @@
 namespace storetrack::uncertainty {
 namespace {
 
-// Square-root factor F (n x r) with F F^T = cov, dropping null directions.
-Eigen::MatrixXd sqrt_factor(const Eigen::MatrixXd& cov, double relative_floor) {
+// Square-root factor F (n x r) with F F^T = cov, dropping null directions, and the map
+// to_factors (n x r) with z = to_factors^T theta on F's range. The eigen-decomposition is of the
+// correlation matrix: parameters of very different scales (px^2 next to 1e-10) keep their
+// relative accuracy, and the floor is relative in those units. Fixed parameters (zero
+// variance) get zero rows.
+struct SqrtFactor {
+  Eigen::MatrixXd F, to_factors;
+};
+
+SqrtFactor sqrt_factor_with_inverse(const Eigen::MatrixXd& cov, double relative_floor) {
   if (!cov.allFinite()) throw std::invalid_argument("calibration covariance is not finite");
-  const Eigen::MatrixXd sym = 0.5 * (cov + cov.transpose());
-  const geometry::SymmetricEigen eig = geometry::symmetric_eigen(sym);
+  const Eigen::Index n = cov.rows();
+  Eigen::VectorXd sd(n), inv_sd(n);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (cov(i, i) < 0)
+      throw std::invalid_argument("calibration covariance is not positive semi-definite");
+    sd(i) = std::sqrt(cov(i, i));
+    inv_sd(i) = sd(i) > 0 ? 1 / sd(i) : 0.0;
+  }
+  const Eigen::MatrixXd corr =
+      inv_sd.asDiagonal() * (0.5 * (cov + cov.transpose())) * inv_sd.asDiagonal();
+  const geometry::SymmetricEigen eig = geometry::symmetric_eigen(corr);
   const Eigen::VectorXd& lambda = eig.values;
   const double largest = lambda.size() > 0 ? lambda.maxCoeff() : 0.0;
-  if (largest <= 0) return Eigen::MatrixXd(cov.rows(), 0);
+  SqrtFactor out{Eigen::MatrixXd(n, 0), Eigen::MatrixXd(n, 0)};
+  if (largest <= 0) return out;
   if (lambda.minCoeff() < -1e-9 * largest)
     throw std::invalid_argument("calibration covariance is not positive semi-definite");
   std::vector<int> kept;
   for (int i = 0; i < lambda.size(); ++i)
     if (lambda(i) > relative_floor * largest) kept.push_back(i);
-  Eigen::MatrixXd F(cov.rows(), static_cast<int>(kept.size()));
-  for (size_t j = 0; j < kept.size(); ++j)
-    F.col(static_cast<int>(j)) = eig.vectors.col(kept[j]) * std::sqrt(lambda(kept[j]));
-  return F;
+  out.F.resize(n, static_cast<int>(kept.size()));
+  out.to_factors.resize(n, static_cast<int>(kept.size()));
+  for (size_t j = 0; j < kept.size(); ++j) {
+    const auto col = static_cast<Eigen::Index>(j);
+    const double root = std::sqrt(lambda(kept[j]));
+    out.F.col(col) = sd.cwiseProduct(eig.vectors.col(kept[j])) * root;
+    out.to_factors.col(col) = inv_sd.cwiseProduct(eig.vectors.col(kept[j])) / root;
+  }
+  return out;
+}
+
+Eigen::MatrixXd sqrt_factor(const Eigen::MatrixXd& cov, double relative_floor) {
+  return sqrt_factor_with_inverse(cov, relative_floor).F;
 }
 
 }  // namespace
@@ -59,8 +86,8 @@ void CalibrationFactors::factor_per_camera(const camera::RigCalibration& rig,
 }
 
 // Intrinsics of all cameras first (F_I), then the extrinsics given them: the regression
-// A = Sigma_EI F_I (F_I^T F_I)^-1 (F_I's columns are orthogonal, so F_I^T F_I is diagonal)
-// and the factor of the remainder Sigma_EE - A A^T. Cov(theta_E, theta_I) = A F_I^T =
+// A = Sigma_EI F_I^+T (F_I^+ = to_factors^T on F_I's range) and the factor of the remainder
+// Sigma_EE - A A^T. Cov(theta_E, theta_I) = A F_I^T =
 // Sigma_EI (Sigma_EI lies in Sigma_II's range for a PSD joint). The budget's intrinsic source
 // thereby includes the part of the extrinsic error explained by the intrinsic one.
 void CalibrationFactors::factor_jointly(const camera::RigCalibration& rig, double relative_floor) {
@@ -76,9 +103,9 @@ void CalibrationFactors::factor_jointly(const camera::RigCalibration& rig, doubl
       S_EE.block<6, 6>(6 * a, 6 * b) = joint.block<6, 6>(ja + kI, jb + kI);
       S_EI.block<6, kI>(6 * a, kI * b) = joint.block<6, kI>(ja + kI, jb);
     }
-  const Eigen::MatrixXd F_I = sqrt_factor(S_II, relative_floor);
-  const Eigen::VectorXd lambda = F_I.colwise().squaredNorm().transpose();
-  const Eigen::MatrixXd A = S_EI * F_I * lambda.cwiseInverse().asDiagonal();
+  const SqrtFactor intrinsic = sqrt_factor_with_inverse(S_II, relative_floor);
+  const Eigen::MatrixXd& F_I = intrinsic.F;
+  const Eigen::MatrixXd A = S_EI * intrinsic.to_factors;
   const Eigen::MatrixXd remainder = S_EE - A * A.transpose();
   const Eigen::MatrixXd F_E = sqrt_factor(remainder, relative_floor);
   const int r_I = static_cast<int>(F_I.cols()), r_E = static_cast<int>(F_E.cols());

@@ -205,6 +205,57 @@ TEST(JointCalibration, SharedRegistrationAddsInWorldPosesAndCancelsInTheRelative
   EXPECT_GT(u_relative_dropped, 0.05 * u_pylon);
 }
 
+// The factor form reproduces the file's joint covariance: F F^T = Sigma, for a dense joint with
+// the structure of a bundle adjustment's (skew fixed: zero rows; camera 0 the reference: zero
+// extrinsic rows; everything else correlated, parameter scales from px^2 to 1e-10).
+TEST(JointCalibration, FactorsReproduceTheJointCovariance) {
+  const sim::Simulator sim(sim::load_scenario(test::scenario_path("static")), 5);
+  camera::RigCalibration rig = exact_rig(sim);
+  const int n = kB * static_cast<int>(rig.cameras.size());
+  std::mt19937_64 rng(3);
+  std::normal_distribution<double> normal(0, 1);
+  Eigen::VectorXd scale(n);
+  for (int i = 0; i < n; ++i) {
+    const int p = i % kB;
+    scale(i) = p < 4 ? 0.3 : p == 4 ? 0.0 : p < kI ? 1e-4 : p < kI + 3 ? 5e-5 : 1e-4;
+    if (i >= kI && i < kB) scale(i) = 0;  // camera 0: the reference
+  }
+  Eigen::MatrixXd M(n, n + 10);
+  for (Eigen::Index r = 0; r < M.rows(); ++r)
+    for (Eigen::Index c = 0; c < M.cols(); ++c)
+      M(r, c) = normal(rng);
+  const Eigen::MatrixXd joint = scale.asDiagonal() * (M * M.transpose() / n) * scale.asDiagonal();
+  camera::set_joint_covariance(rig, joint);
+  const uncertainty::CalibrationFactors f(rig);
+  ASSERT_TRUE(f.coupled());
+  Eigen::MatrixXd F = Eigen::MatrixXd::Zero(n, f.num_factors());
+  for (int c = 0; c < f.num_cameras(); ++c) {
+    const auto& cf = f.camera(c);
+    F.block(kB * c, cf.intrinsic_begin, kI, cf.intrinsic.cols()) = cf.intrinsic;
+    F.block(kB * c + kI, cf.extrinsic_begin, 6, cf.extrinsic.cols()) = cf.extrinsic;
+  }
+  const Eigen::VectorXd inv = scale.unaryExpr([](double v) { return v > 0 ? 1 / v : 0.0; });
+  // Compared as correlations (per-parameter scale removed), where 1e-9 means the same for all.
+  const double worst =
+      (inv.asDiagonal() * (F * F.transpose() - joint) * inv.asDiagonal()).cwiseAbs().maxCoeff();
+  // Rounding bound: the regression A = Sigma_EI F_I Lambda^-1 amplifies eps by the condition
+  // number of the joint (its smallest kept eigenvalue divides).
+  const Eigen::MatrixXd corr = inv.asDiagonal() * joint * inv.asDiagonal();
+  const Eigen::VectorXd lambda = geometry::symmetric_eigen(corr, false).values;
+  double largest = 0, smallest = 1e300;
+  for (Eigen::Index i = 0; i < lambda.size(); ++i)
+    if (lambda(i) > 1e-12 * lambda.maxCoeff()) {
+      largest = std::max(largest, lambda(i));
+      smallest = std::min(smallest, lambda(i));
+    }
+  const double bound = 10 * (largest / smallest) * 2.2e-16;
+  std::printf(
+      "%d x %d joint covariance, %d factors: largest |F F^T - Sigma| in correlation "
+      "units %.2e (bound 10 cond eps = %.2e)\n",
+      n, n, f.num_factors(), worst, bound);
+  EXPECT_LT(worst, bound);
+}
+
 int draws_from_environment(int release_draws) {
   if (const char* env = std::getenv("STORETRACK_HONESTY_DRAWS")) return std::atoi(env);
   return release_draws;
