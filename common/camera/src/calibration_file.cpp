@@ -8,6 +8,7 @@
 #include <fstream>
 #include <set>
 #include <sstream>
+#include <stdexcept>
 
 #include <nlohmann/json.hpp>
 
@@ -20,7 +21,7 @@ namespace {
 using nlohmann::json;
 
 constexpr const char* kFormatName = "storetrack-rig-calibration";
-constexpr int kFormatVersion = 1;
+constexpr int kFormatVersion = 2;  // written; 1 and 2 are read
 
 /// Walks a JSON document keeping the JSON path (RFC 6901 pointer) for error messages.
 class Reader {
@@ -95,41 +96,66 @@ class Reader {
 
   /// A covariance: either full rows [[...], ...] (n x n) or {"standard_deviations": [n]}
   /// (uncorrelated). Must be symmetric and positive semi-definite.
-  template <int N>
-  Eigen::Matrix<double, N, N> covariance(const json& j, const std::string& path) const {
-    Eigen::Matrix<double, N, N> cov = Eigen::Matrix<double, N, N>::Zero();
+  Eigen::MatrixXd covariance(const json& j, const std::string& path, int n) const {
+    Eigen::MatrixXd cov = Eigen::MatrixXd::Zero(n, n);
     if (j.is_object()) {
       only_keys(j, path, {"standard_deviations"});
-      const auto sd =
-          vector(member(j, path, "standard_deviations"), path + "/standard_deviations", N, N);
-      for (int i = 0; i < N; ++i) {
-        if (sd[i] < 0) fail(path + "/standard_deviations/" + std::to_string(i), "negative");
-        cov(i, i) = sd[i] * sd[i];
+      const auto sd = vector(member(j, path, "standard_deviations"), path + "/standard_deviations",
+                             static_cast<size_t>(n), static_cast<size_t>(n));
+      for (int i = 0; i < n; ++i) {
+        if (sd[static_cast<size_t>(i)] < 0)
+          fail(path + "/standard_deviations/" + std::to_string(i), "negative");
+        cov(i, i) = sd[static_cast<size_t>(i)] * sd[static_cast<size_t>(i)];
       }
       return cov;
     }
-    if (!j.is_array() || j.size() != static_cast<size_t>(N))
-      fail(path, "expected a " + std::to_string(N) + "x" + std::to_string(N) +
+    if (!j.is_array() || j.size() != static_cast<size_t>(n))
+      fail(path, "expected a " + std::to_string(n) + "x" + std::to_string(n) +
                      " array of rows or {\"standard_deviations\": [...]}");
-    for (int r = 0; r < N; ++r) {
-      const auto row = vector(j[r], path + "/" + std::to_string(r), N, N);
-      for (int c = 0; c < N; ++c)
-        cov(r, c) = row[c];
+    for (int r = 0; r < n; ++r) {
+      const auto row = vector(j[static_cast<size_t>(r)], path + "/" + std::to_string(r),
+                              static_cast<size_t>(n), static_cast<size_t>(n));
+      for (int c = 0; c < n; ++c)
+        cov(r, c) = row[static_cast<size_t>(c)];
     }
-    for (int r = 0; r < N; ++r)
-      for (int c = r + 1; c < N; ++c) {
-        const double tol = 1e-9 * std::sqrt(std::abs(cov(r, r) * cov(c, c))) + 1e-300;
+    check_covariance(cov, path);
+    return cov;
+  }
+
+  /// Symmetric (relative 1e-9) and positive semi-definite. PSD is judged on the correlation
+  /// matrix so that parameters of very different units (px^2 next to rad^2) are held to the
+  /// same relative tolerance.
+  void check_covariance(const Eigen::MatrixXd& cov, const std::string& path) const {
+    const Eigen::Index n = cov.rows();
+    for (Eigen::Index r = 0; r < n; ++r)
+      if (cov(r, r) < 0)
+        fail(path + "/" + std::to_string(r) + "/" + std::to_string(r),
+             "covariance is not positive semi-definite (negative variance)");
+    for (Eigen::Index r = 0; r < n; ++r)
+      for (Eigen::Index c = r + 1; c < n; ++c) {
+        const double tol = 1e-9 * std::sqrt(cov(r, r) * cov(c, c)) + 1e-300;
         if (std::abs(cov(r, c) - cov(c, r)) > tol)
           fail(path + "/" + std::to_string(r) + "/" + std::to_string(c),
                "covariance is not symmetric");
       }
+    Eigen::VectorXd inv_sd(n);
+    for (Eigen::Index r = 0; r < n; ++r)
+      inv_sd(r) = cov(r, r) > 0 ? 1.0 / std::sqrt(cov(r, r)) : 0.0;
+    for (Eigen::Index r = 0; r < n; ++r)  // a zero variance with a nonzero covariance
+      for (Eigen::Index c = 0; c < n; ++c)
+        if ((cov(r, r) == 0 || cov(c, c) == 0) && r != c && cov(r, c) != 0)
+          fail(path + "/" + std::to_string(r) + "/" + std::to_string(c),
+               "covariance is not positive semi-definite (covariance with a zero variance)");
+    const Eigen::MatrixXd correlation = inv_sd.asDiagonal() * cov * inv_sd.asDiagonal();
     const Eigen::VectorXd eigenvalues =
-        geometry::symmetric_eigen(Eigen::MatrixXd{cov}, /*with_vectors=*/false).values;
-    const double scale = std::max(eigenvalues.cwiseAbs().maxCoeff(), 1e-300);
-    if (eigenvalues.minCoeff() < -1e-9 * scale)
-      fail(path, "covariance is not positive semi-definite (smallest eigenvalue " +
-                     std::to_string(eigenvalues.minCoeff()) + ")");
-    return cov;
+        geometry::symmetric_eigen(Eigen::MatrixXd{0.5 * (correlation + correlation.transpose())},
+                                  /*with_vectors=*/false)
+            .values;
+    if (n > 0 && eigenvalues.minCoeff() < -1e-9)
+      fail(path,
+           "covariance is not positive semi-definite (smallest eigenvalue of the "
+           "correlation matrix " +
+               std::to_string(eigenvalues.minCoeff()) + ")");
   }
 
  private:
@@ -174,8 +200,8 @@ CalibratedCamera parse_camera(const Reader& rd, const json& j, const std::string
     in.dist[i] = dist[i];
   cam.model = CameraModel(in);
 
-  cam.intrinsic_covariance = rd.covariance<kNumIntrinsics>(
-      rd.member(j, path, "intrinsic_covariance"), path + "/intrinsic_covariance");
+  cam.intrinsic_covariance = rd.covariance(rd.member(j, path, "intrinsic_covariance"),
+                                           path + "/intrinsic_covariance", kNumIntrinsics);
 
   const std::string pose_path = path + "/T_c_w";
   const json& pj = rd.member(j, path, "T_c_w");
@@ -189,7 +215,7 @@ CalibratedCamera parse_camera(const Reader& rd, const json& j, const std::string
                                        geometry::Vec3(tv[0], tv[1], tv[2]));
 
   cam.extrinsic_covariance =
-      rd.covariance<6>(rd.member(j, path, "extrinsic_covariance"), path + "/extrinsic_covariance");
+      rd.covariance(rd.member(j, path, "extrinsic_covariance"), path + "/extrinsic_covariance", 6);
 
   cam.exposure_offset_ns =
       j.contains("exposure_offset_ns") ? rd.number(j, path, "exposure_offset_ns") : 0.0;
@@ -198,6 +224,46 @@ CalibratedCamera parse_camera(const Reader& rd, const json& j, const std::string
   if (cam.exposure_offset_sigma_ns < 0)
     rd.fail(path + "/exposure_offset_sigma_ns", "standard uncertainty must be >= 0");
   return cam;
+}
+
+/// Version 2's top-level "joint_covariance": {"camera_ids": [...], "matrix": rows}, the
+/// cameras in the order of /cameras; its diagonal blocks must equal the cameras' blocks.
+Eigen::MatrixXd parse_joint_covariance(const Reader& rd, const json& j,
+                                       const std::vector<CalibratedCamera>& cameras) {
+  const std::string path = "/joint_covariance";
+  rd.expect_object(j, path);
+  rd.only_keys(j, path, {"camera_ids", "matrix"});
+  const std::string ids_path = path + "/camera_ids";
+  const auto ids =
+      rd.vector(rd.member(j, path, "camera_ids"), ids_path, cameras.size(), cameras.size());
+  for (size_t i = 0; i < cameras.size(); ++i)
+    if (ids[i] != cameras[i].camera_id)
+      rd.fail(ids_path + "/" + std::to_string(i), "expected camera_id " +
+                                                      std::to_string(cameras[i].camera_id) +
+                                                      " (the cameras in the order of /cameras)");
+  const int n = kJointBlockSize * static_cast<int>(cameras.size());
+  const std::string matrix_path = path + "/matrix";
+  const Eigen::MatrixXd joint = rd.covariance(rd.member(j, path, "matrix"), matrix_path, n);
+  // The per-camera blocks are the marginals of the joint: they must agree (a stale block would
+  // make a v1 reader of the same file see another calibration).
+  const auto check_block = [&](int at, const Eigen::MatrixXd& block, const std::string& name) {
+    for (Eigen::Index r = 0; r < block.rows(); ++r)
+      for (Eigen::Index c = 0; c < block.cols(); ++c) {
+        const double v = joint(at + r, at + c);
+        const double tol = 1e-9 * std::sqrt(joint(at + r, at + r) * joint(at + c, at + c)) + 1e-300;
+        if (std::abs(v - block(r, c)) > tol)
+          rd.fail(matrix_path + "/" + std::to_string(at + r) + "/" + std::to_string(at + c),
+                  "differs from " + name + "/" + std::to_string(r) + "/" + std::to_string(c));
+      }
+  };
+  for (size_t i = 0; i < cameras.size(); ++i) {
+    const int at = kJointBlockSize * static_cast<int>(i);
+    const std::string cam_path = "/cameras/" + std::to_string(i);
+    check_block(at, cameras[i].intrinsic_covariance, cam_path + "/intrinsic_covariance");
+    check_block(at + kNumIntrinsics, cameras[i].extrinsic_covariance,
+                cam_path + "/extrinsic_covariance");
+  }
+  return joint;
 }
 
 template <typename Derived>
@@ -220,6 +286,44 @@ const CalibratedCamera* RigCalibration::find(int camera_id) const {
   return nullptr;
 }
 
+Eigen::MatrixXd RigCalibration::full_joint_covariance() const {
+  if (joint_covariance.size() > 0) return joint_covariance;
+  const Eigen::Index n = kJointBlockSize * static_cast<Eigen::Index>(cameras.size());
+  Eigen::MatrixXd joint = Eigen::MatrixXd::Zero(n, n);
+  for (size_t i = 0; i < cameras.size(); ++i) {
+    const Eigen::Index at = kJointBlockSize * static_cast<Eigen::Index>(i);
+    joint.block<kNumIntrinsics, kNumIntrinsics>(at, at) = cameras[i].intrinsic_covariance;
+    joint.block<6, 6>(at + kNumIntrinsics, at + kNumIntrinsics) = cameras[i].extrinsic_covariance;
+  }
+  return joint;
+}
+
+bool RigCalibration::has_cross_covariance() const {
+  if (joint_covariance.size() == 0) return false;
+  Eigen::MatrixXd off = joint_covariance;
+  for (size_t i = 0; i < cameras.size(); ++i) {
+    const Eigen::Index at = kJointBlockSize * static_cast<Eigen::Index>(i);
+    off.block<kNumIntrinsics, kNumIntrinsics>(at, at).setZero();
+    off.block<6, 6>(at + kNumIntrinsics, at + kNumIntrinsics).setZero();
+  }
+  return !off.isZero(0.0);
+}
+
+void set_joint_covariance(RigCalibration& rig, const Eigen::MatrixXd& joint) {
+  const Eigen::Index n = kJointBlockSize * static_cast<Eigen::Index>(rig.cameras.size());
+  if (joint.rows() != n || joint.cols() != n)
+    throw std::invalid_argument("set_joint_covariance: expected " + std::to_string(n) + "x" +
+                                std::to_string(n) + ", got " + std::to_string(joint.rows()) + "x" +
+                                std::to_string(joint.cols()));
+  rig.joint_covariance = joint;
+  for (size_t i = 0; i < rig.cameras.size(); ++i) {
+    const Eigen::Index at = kJointBlockSize * static_cast<Eigen::Index>(i);
+    rig.cameras[i].intrinsic_covariance = joint.block<kNumIntrinsics, kNumIntrinsics>(at, at);
+    rig.cameras[i].extrinsic_covariance =
+        joint.block<6, 6>(at + kNumIntrinsics, at + kNumIntrinsics);
+  }
+}
+
 RigCalibration parse_rig_calibration(const std::string& json_text, const std::string& origin) {
   const Reader rd(origin);
   json doc;
@@ -229,14 +333,13 @@ RigCalibration parse_rig_calibration(const std::string& json_text, const std::st
     rd.fail("", std::string("JSON syntax error: ") + e.what());
   }
   rd.expect_object(doc, "");
-  rd.only_keys(doc, "", {"format", "version", "cameras"});
+  rd.only_keys(doc, "", {"format", "version", "cameras", "joint_covariance"});
   const json& fmt = rd.member(doc, "", "format");
   if (!fmt.is_string() || fmt.get<std::string>() != kFormatName)
     rd.fail("/format", std::string("expected \"") + kFormatName + "\"");
   const int version = rd.integer(doc, "", "version", 0, 1000000);
-  if (version != kFormatVersion)
-    rd.fail("/version", "unsupported version " + std::to_string(version) +
-                            " (this reader: " + std::to_string(kFormatVersion) + ")");
+  if (version != 1 && version != 2)
+    rd.fail("/version", "unsupported version " + std::to_string(version) + " (this reader: 1, 2)");
   const json& cams = rd.member(doc, "", "cameras");
   if (!cams.is_array() || cams.empty()) rd.fail("/cameras", "expected a non-empty array");
 
@@ -248,6 +351,11 @@ RigCalibration parse_rig_calibration(const std::string& json_text, const std::st
     if (!ids.insert(rig.cameras.back().camera_id).second)
       rd.fail(path + "/camera_id",
               "duplicate camera_id " + std::to_string(rig.cameras.back().camera_id));
+  }
+  if (doc.contains("joint_covariance")) {
+    if (version < 2)
+      rd.fail("/joint_covariance", "needs version 2 (version 1 has no cross-camera covariance)");
+    rig.joint_covariance = parse_joint_covariance(rd, doc["joint_covariance"], rig.cameras);
   }
   return rig;
 }
@@ -286,6 +394,17 @@ std::string format_rig_calibration(const RigCalibration& rig) {
     c["exposure_offset_ns"] = cam.exposure_offset_ns;
     c["exposure_offset_sigma_ns"] = cam.exposure_offset_sigma_ns;
     doc["cameras"].push_back(c);
+  }
+  if (rig.joint_covariance.size() > 0) {
+    const Eigen::Index n = kJointBlockSize * static_cast<Eigen::Index>(rig.cameras.size());
+    if (rig.joint_covariance.rows() != n || rig.joint_covariance.cols() != n)
+      throw CalibrationFileError("joint_covariance: expected " + std::to_string(n) + "x" +
+                                 std::to_string(n) + " for " + std::to_string(rig.cameras.size()) +
+                                 " cameras");
+    json ids = json::array();
+    for (const auto& cam : rig.cameras)
+      ids.push_back(cam.camera_id);
+    doc["joint_covariance"] = {{"camera_ids", ids}, {"matrix", rows(rig.joint_covariance)}};
   }
   return doc.dump(2) + "\n";
 }

@@ -239,13 +239,15 @@ Scenario parse_scenario(const std::string& json_text, const std::string& origin)
     const std::string p = "calibration_errors";
     r.check_keys(*v, p,
                  {"focal_px", "principal_point_px", "skew_px", "distortion", "rotation_rad",
-                  "translation_m"});
+                  "translation_m", "registration_rotation_rad", "registration_translation_m"});
     CalibrationErrorModel& ce = sc.calibration;
     r.opt(*v, p, "focal_px", ce.focal_px, 0, 1e3);
     r.opt(*v, p, "principal_point_px", ce.principal_point_px, 0, 1e3);
     r.opt(*v, p, "skew_px", ce.skew_px, 0, 1e3);
     r.opt(*v, p, "rotation_rad", ce.rotation_rad, 0, 1);
     r.opt(*v, p, "translation_m", ce.translation_m, 0, 1);
+    r.opt(*v, p, "registration_rotation_rad", ce.registration_rotation_rad, 0, 1);
+    r.opt(*v, p, "registration_translation_m", ce.registration_translation_m, 0, 1);
     if (const json* d = r.find(*v, "distortion")) {
       if (!d->is_array() || d->size() != 8) r.fail(p + ".distortion", "expected 8 sigmas");
       for (std::size_t i = 0; i < 8; ++i) {

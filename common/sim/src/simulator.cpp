@@ -73,6 +73,42 @@ bool segment_hits_cylinder(const Vec3& a, const Vec3& b, const StoreShape& shape
 
 }  // namespace
 
+// The shared registration error: its own random stream, so scenarios without it draw exactly
+// what they drew before. T_c_w o W = perturb_left(T_c_w, (R_c_w phi, R_c_w rho)) exactly, so the
+// stated joint covariance is the cameras' blocks + D Sigma_reg D^T, D_c = diag(R_c_w, R_c_w).
+void Simulator::draw_shared_registration_error() {
+  const CalibrationErrorModel& ce = sc_.calibration;
+  if (ce.registration_rotation_rad == 0 && ce.registration_translation_m == 0) return;
+  std::mt19937_64 rng(stream_seed(5, 0, 0));
+  std::normal_distribution<double> normal(0.0, 1.0);
+  geometry::Vec6 sd;
+  sd << Vec3::Constant(ce.registration_rotation_rad), Vec3::Constant(ce.registration_translation_m);
+  geometry::Vec6 xi;
+  for (int j = 0; j < 6; ++j)
+    xi[j] = sd[j] * normal(rng);
+  Transform W = Transform::Identity();
+  W.linear() = geometry::rotation_from_rotvec(xi.head<3>());
+  W.translation() = xi.tail<3>();
+  constexpr int kB = camera::kJointBlockSize, kI = camera::kNumIntrinsics;
+  const auto n = static_cast<Eigen::Index>(true_rig_.cameras.size());
+  Eigen::MatrixXd D = Eigen::MatrixXd::Zero(kB * n, 6);
+  for (Eigen::Index c = 0; c < n; ++c) {
+    const geometry::Mat3 R = true_rig_.cameras[static_cast<size_t>(c)].T_c_w.linear();
+    D.block<3, 3>(kB * c + kI, 0) = R;
+    D.block<3, 3>(kB * c + kI + 3, 3) = R;
+    // The camera's own error was drawn as a left perturbation of the true T_c_w; the shared
+    // one acts on the world side (first order: the two perturbations add).
+    camera::CalibratedCamera& cal = calibrated_rig_.cameras[static_cast<size_t>(c)];
+    const geometry::Vec6 own =
+        geometry::left_difference(cal.T_c_w, true_rig_.cameras[static_cast<size_t>(c)].T_c_w);
+    cal.T_c_w = geometry::perturb_left(true_rig_.cameras[static_cast<size_t>(c)].T_c_w * W, own);
+  }
+  const Eigen::MatrixXd joint =
+      true_rig_.full_joint_covariance() + D * sd.cwiseAbs2().asDiagonal() * D.transpose();
+  camera::set_joint_covariance(true_rig_, joint);
+  camera::set_joint_covariance(calibrated_rig_, joint);
+}
+
 std::uint64_t Simulator::stream_seed(std::uint64_t purpose, std::uint64_t a,
                                      std::uint64_t b) const {
   return mix(seed_ ^ mix(purpose * 0x100000001B3ull ^ mix(a * 0x9E3779B1ull + b)));
@@ -133,6 +169,7 @@ Simulator::Simulator(const Scenario& scenario, std::uint64_t seed)
   }
   for (std::size_t m = 0; m < sc_.vibration.size(); ++m)
     vibration_phase_.push_back(uniform(rng));
+  draw_shared_registration_error();
 
   // Surveys as measured: truth + N(0, sigma_m) per axis.
   const auto survey = [&](const survey::RigidBodySurvey& truth) {

@@ -283,27 +283,10 @@ void compose_registered_rig(const camera::RigCalibration& rig, const MatrixXd& c
   }
   out.joint_covariance = M * cov_theta * M.transpose() + N * cov_rw_noise * N.transpose();
   out.joint_covariance = 0.5 * (out.joint_covariance + out.joint_covariance.transpose()).eval();
-  for (int c = 0; c < cameras; ++c) {
-    const int row = kBlock * c + kExtrinsicOffset;
-    out.registered.cameras[static_cast<size_t>(c)].extrinsic_covariance =
-        symmetric(out.joint_covariance.block<6, 6>(row, row));
-  }
+  camera::set_joint_covariance(out.registered, out.joint_covariance);  // file version 2
 }
 
 }  // namespace
-
-Eigen::MatrixXd block_diagonal_covariance(const camera::RigCalibration& rig) {
-  const int cameras = static_cast<int>(rig.cameras.size());
-  MatrixXd C = MatrixXd::Zero(kBlock * cameras, kBlock * cameras);
-  for (int c = 0; c < cameras; ++c) {
-    const camera::CalibratedCamera& cam = rig.cameras[static_cast<size_t>(c)];
-    C.block<camera::kNumIntrinsics, camera::kNumIntrinsics>(kBlock * c, kBlock * c) =
-        cam.intrinsic_covariance;
-    C.block<6, 6>(kBlock * c + kExtrinsicOffset, kBlock * c + kExtrinsicOffset) =
-        cam.extrinsic_covariance;
-  }
-  return C;
-}
 
 RegistrationResult register_rig(const camera::RigCalibration& rig_r,
                                 const Eigen::MatrixXd& calibration_covariance,

@@ -382,37 +382,41 @@ void ExposureProcessor::solve(const Prepared& prep,
     }
     if (with_uncertainty) {
       // dp/dtheta = -K_i dproj_i/dtheta for the parameters of observation i's camera (each
-      // camera observes a mark once); loadings = dp/dtheta * F (whitened factors).
-      // Each observation is a different camera, so its columns are written once (sparsity: a
-      // mark loads only on the factors of the cameras that saw it; the others stay zero), and
-      // each source's covariance L_s L_s^T is the sum of the per-camera blocks' B B^T.
+      // camera observes a mark once); loadings = dp/dtheta * F (whitened factors). Uncoupled
+      // factors (version-1 calibration): each camera owns its columns, so a mark loads only on
+      // the factors of the cameras that saw it and each source's covariance is the sum of the
+      // per-camera blocks' B B^T. Coupled (joint covariance): cameras share columns, the
+      // blocks add up in the loadings and each source's covariance is L_s L_s^T.
       m.loadings.setZero(3, nz);
       Mat3 cov_intrinsic = Mat3::Zero(), cov_extrinsic = Mat3::Zero(), cov_sync = Mat3::Zero();
+      const bool coupled = factors_.coupled();
       for (size_t i = 0; i < mark.obs.size(); ++i) {
         const auto& cf = factors_.camera(mark.obs[i].slot);
         const auto& K = tri.gain[i];
         const auto& J = tri.jacobians[i];
-        // B = -K (dpi/dtheta F): the 2-row product first (fewer operations than through the
-        // 3-row gain), and B B^T = K (P P^T) K^T through the 2x2 core.
+        // B = -K (dpi/dtheta) F: the fixed-size 3 x 13 (3 x 6) sensitivity first, then one
+        // coefficient-based product into the loadings (no temporaries, no heap).
         if (cf.intrinsic.cols() > 0) {
-          const Eigen::Matrix<double, 2, Eigen::Dynamic, 0, 2, camera::kNumIntrinsics> P =
-              J.d_intrinsics.lazyProduct(cf.intrinsic);
-          m.loadings.middleCols(cf.intrinsic_begin, P.cols()).noalias() = -K.lazyProduct(P);
-          const Eigen::Matrix2d PPt = P.lazyProduct(P.transpose());
-          cov_intrinsic.noalias() += K * PPt * K.transpose();
+          const Eigen::Matrix<double, 3, camera::kNumIntrinsics> G = -K * J.d_intrinsics;
+          auto B = m.loadings.middleCols(cf.intrinsic_begin, cf.intrinsic.cols());
+          B.noalias() += G.lazyProduct(cf.intrinsic);
+          if (!coupled) cov_intrinsic.noalias() += B.lazyProduct(B.transpose());
         }
         if (cf.extrinsic.cols() > 0) {
-          const Eigen::Matrix<double, 2, Eigen::Dynamic, 0, 2, 6> P =
-              J.d_pose.lazyProduct(cf.extrinsic);
-          m.loadings.middleCols(cf.extrinsic_begin, P.cols()).noalias() = -K.lazyProduct(P);
-          const Eigen::Matrix2d PPt = P.lazyProduct(P.transpose());
-          cov_extrinsic.noalias() += K * PPt * K.transpose();
+          const Eigen::Matrix<double, 3, 6> G = -K * J.d_pose;
+          auto B = m.loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols());
+          B.noalias() += G.lazyProduct(cf.extrinsic);
+          if (!coupled) cov_extrinsic.noalias() += B.lazyProduct(B.transpose());
         }
         if (cf.sync_column >= 0 && velocity_valid) {
           const Vec3 b = -K * (J.d_point_world * velocity_w) * cf.sync_sigma_s;
           m.loadings.col(cf.sync_column) = b;
           cov_sync.noalias() += b * b.transpose();
         }
+      }
+      if (coupled) {
+        cov_intrinsic = uncertainty::covariance_of(m.loadings, factors_, Source::kIntrinsic);
+        cov_extrinsic = uncertainty::covariance_of(m.loadings, factors_, Source::kExtrinsic);
       }
       m.cov_by_source[kCentroid] = tri.cov_centroid;
       m.cov_by_source[kIntrinsic] = cov_intrinsic;

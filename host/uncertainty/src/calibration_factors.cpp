@@ -8,47 +8,128 @@
 namespace storetrack::uncertainty {
 namespace {
 
-// Square-root factor F (n x r) with F F^T = cov, dropping null directions.
-Eigen::MatrixXd sqrt_factor(const Eigen::MatrixXd& cov, double relative_floor) {
+// Square-root factor F (n x r) with F F^T = cov, dropping null directions, and the map
+// to_factors (n x r) with z = to_factors^T theta on F's range. The eigen-decomposition is of the
+// correlation matrix: parameters of very different scales (px^2 next to 1e-10) keep their
+// relative accuracy, and the floor is relative in those units. Fixed parameters (zero
+// variance) get zero rows.
+struct SqrtFactor {
+  Eigen::MatrixXd F, to_factors;
+};
+
+SqrtFactor sqrt_factor_with_inverse(const Eigen::MatrixXd& cov, double relative_floor) {
   if (!cov.allFinite()) throw std::invalid_argument("calibration covariance is not finite");
-  const Eigen::MatrixXd sym = 0.5 * (cov + cov.transpose());
-  const geometry::SymmetricEigen eig = geometry::symmetric_eigen(sym);
+  const Eigen::Index n = cov.rows();
+  Eigen::VectorXd sd(n), inv_sd(n);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (cov(i, i) < 0)
+      throw std::invalid_argument("calibration covariance is not positive semi-definite");
+    sd(i) = std::sqrt(cov(i, i));
+    inv_sd(i) = sd(i) > 0 ? 1 / sd(i) : 0.0;
+  }
+  const Eigen::MatrixXd corr =
+      inv_sd.asDiagonal() * (0.5 * (cov + cov.transpose())) * inv_sd.asDiagonal();
+  const geometry::SymmetricEigen eig = geometry::symmetric_eigen(corr);
   const Eigen::VectorXd& lambda = eig.values;
   const double largest = lambda.size() > 0 ? lambda.maxCoeff() : 0.0;
-  if (largest <= 0) return Eigen::MatrixXd(cov.rows(), 0);
+  SqrtFactor out{Eigen::MatrixXd(n, 0), Eigen::MatrixXd(n, 0)};
+  if (largest <= 0) return out;
   if (lambda.minCoeff() < -1e-9 * largest)
     throw std::invalid_argument("calibration covariance is not positive semi-definite");
   std::vector<int> kept;
   for (int i = 0; i < lambda.size(); ++i)
     if (lambda(i) > relative_floor * largest) kept.push_back(i);
-  Eigen::MatrixXd F(cov.rows(), static_cast<int>(kept.size()));
-  for (size_t j = 0; j < kept.size(); ++j)
-    F.col(static_cast<int>(j)) = eig.vectors.col(kept[j]) * std::sqrt(lambda(kept[j]));
-  return F;
+  out.F.resize(n, static_cast<int>(kept.size()));
+  out.to_factors.resize(n, static_cast<int>(kept.size()));
+  for (size_t j = 0; j < kept.size(); ++j) {
+    const auto col = static_cast<Eigen::Index>(j);
+    const double root = std::sqrt(lambda(kept[j]));
+    out.F.col(col) = sd.cwiseProduct(eig.vectors.col(kept[j])) * root;
+    out.to_factors.col(col) = inv_sd.cwiseProduct(eig.vectors.col(kept[j])) / root;
+  }
+  return out;
+}
+
+Eigen::MatrixXd sqrt_factor(const Eigen::MatrixXd& cov, double relative_floor) {
+  return sqrt_factor_with_inverse(cov, relative_floor).F;
 }
 
 }  // namespace
 
 CalibrationFactors::CalibrationFactors(const camera::RigCalibration& rig, double relative_floor) {
   cameras_.resize(rig.cameras.size());
-  std::vector<Eigen::MatrixXd> intr(rig.cameras.size()), extr(rig.cameras.size());
+  if (rig.has_cross_covariance())
+    factor_jointly(rig, relative_floor);
+  else
+    factor_per_camera(rig, relative_floor);
+  add_sync_factors(rig);
+}
+
+void CalibrationFactors::factor_per_camera(const camera::RigCalibration& rig,
+                                           double relative_floor) {
   int col = 0;
   ranges_[index(Source::kIntrinsic)].first = col;
   for (size_t c = 0; c < rig.cameras.size(); ++c) {
-    intr[c] = sqrt_factor(rig.cameras[c].intrinsic_covariance, relative_floor);
+    cameras_[c].intrinsic = sqrt_factor(rig.cameras[c].intrinsic_covariance, relative_floor);
     cameras_[c].intrinsic_begin = col;
-    cameras_[c].intrinsic = intr[c];
-    col += static_cast<int>(intr[c].cols());
+    col += static_cast<int>(cameras_[c].intrinsic.cols());
   }
   ranges_[index(Source::kIntrinsic)].second = col - ranges_[index(Source::kIntrinsic)].first;
   ranges_[index(Source::kExtrinsic)].first = col;
   for (size_t c = 0; c < rig.cameras.size(); ++c) {
-    extr[c] = sqrt_factor(rig.cameras[c].extrinsic_covariance, relative_floor);
+    cameras_[c].extrinsic = sqrt_factor(rig.cameras[c].extrinsic_covariance, relative_floor);
     cameras_[c].extrinsic_begin = col;
-    cameras_[c].extrinsic = extr[c];
-    col += static_cast<int>(extr[c].cols());
+    col += static_cast<int>(cameras_[c].extrinsic.cols());
   }
   ranges_[index(Source::kExtrinsic)].second = col - ranges_[index(Source::kExtrinsic)].first;
+  num_factors_ = col;
+}
+
+// Intrinsics of all cameras first (F_I), then the extrinsics given them: the regression
+// A = Sigma_EI F_I^+T (F_I^+ = to_factors^T on F_I's range) and the factor of the remainder
+// Sigma_EE - A A^T. Cov(theta_E, theta_I) = A F_I^T =
+// Sigma_EI (Sigma_EI lies in Sigma_II's range for a PSD joint). The budget's intrinsic source
+// thereby includes the part of the extrinsic error explained by the intrinsic one.
+void CalibrationFactors::factor_jointly(const camera::RigCalibration& rig, double relative_floor) {
+  coupled_ = true;
+  constexpr int kI = camera::kNumIntrinsics;
+  const int n = static_cast<int>(rig.cameras.size());
+  const Eigen::MatrixXd& joint = rig.joint_covariance;
+  Eigen::MatrixXd S_II(kI * n, kI * n), S_EE(6 * n, 6 * n), S_EI(6 * n, kI * n);
+  for (int a = 0; a < n; ++a)
+    for (int b = 0; b < n; ++b) {
+      const int ja = camera::kJointBlockSize * a, jb = camera::kJointBlockSize * b;
+      S_II.block<kI, kI>(kI * a, kI * b) = joint.block<kI, kI>(ja, jb);
+      S_EE.block<6, 6>(6 * a, 6 * b) = joint.block<6, 6>(ja + kI, jb + kI);
+      S_EI.block<6, kI>(6 * a, kI * b) = joint.block<6, kI>(ja + kI, jb);
+    }
+  const SqrtFactor intrinsic = sqrt_factor_with_inverse(S_II, relative_floor);
+  const Eigen::MatrixXd& F_I = intrinsic.F;
+  const Eigen::MatrixXd A = S_EI * intrinsic.to_factors;
+  const Eigen::MatrixXd remainder = S_EE - A * A.transpose();
+  const Eigen::MatrixXd F_E = sqrt_factor(remainder, relative_floor);
+  const int r_I = static_cast<int>(F_I.cols()), r_E = static_cast<int>(F_E.cols());
+  const bool extrinsic_loads_intrinsic = !A.isZero(0.0);
+  for (int c = 0; c < n; ++c) {
+    CameraFactors& cf = cameras_[static_cast<size_t>(c)];
+    cf.intrinsic_begin = 0;
+    cf.intrinsic = F_I.middleRows(kI * c, kI);
+    if (extrinsic_loads_intrinsic) {
+      cf.extrinsic_begin = 0;
+      cf.extrinsic.resize(6, r_I + r_E);
+      cf.extrinsic << A.middleRows(6 * c, 6), F_E.middleRows(6 * c, 6);
+    } else {
+      cf.extrinsic_begin = r_I;
+      cf.extrinsic = F_E.middleRows(6 * c, 6);
+    }
+  }
+  ranges_[index(Source::kIntrinsic)] = {0, r_I};
+  ranges_[index(Source::kExtrinsic)] = {r_I, r_E};
+  num_factors_ = r_I + r_E;
+}
+
+void CalibrationFactors::add_sync_factors(const camera::RigCalibration& rig) {
+  int col = num_factors_;
   ranges_[index(Source::kSync)].first = col;
   for (size_t c = 0; c < rig.cameras.size(); ++c) {
     const double sigma_ns = rig.cameras[c].exposure_offset_sigma_ns;

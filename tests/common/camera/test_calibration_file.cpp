@@ -55,8 +55,24 @@ RigCalibration example_rig() {
   return rig;
 }
 
+/// example_rig() with a dense joint covariance (every camera correlated with every other, and
+/// its intrinsics with its extrinsics): version 2.
+RigCalibration example_joint_rig() {
+  RigCalibration rig = example_rig();
+  std::mt19937_64 rng(11);
+  const int n = kJointBlockSize * static_cast<int>(rig.cameras.size());
+  std::normal_distribution<double> g(0, 1);
+  Eigen::MatrixXd a(n, n);
+  for (int r = 0; r < n; ++r)
+    for (int c = 0; c < n; ++c)
+      a(r, c) = g(rng) * (r % kJointBlockSize < kNumIntrinsics ? 1e-2 : 1e-4);
+  set_joint_covariance(rig, a * a.transpose() / n);
+  return rig;
+}
+
 void expect_same_rig(const RigCalibration& a, const RigCalibration& b) {
   ASSERT_EQ(a.cameras.size(), b.cameras.size());
+  EXPECT_EQ(a.joint_covariance, b.joint_covariance);
   for (size_t i = 0; i < a.cameras.size(); ++i) {
     const auto& ca = a.cameras[i];
     const auto& cb = b.cameras[i];
@@ -147,7 +163,7 @@ void expect_error(const std::function<void(json&)>& edit, const std::string& pat
 
 TEST(CalibrationFile, MalformedFilesAreRejectedWithPathAndReason) {
   expect_error([](json& d) { d["format"] = "opencv"; }, "/format", "expected");
-  expect_error([](json& d) { d["version"] = 2; }, "/version", "unsupported version");
+  expect_error([](json& d) { d["version"] = 3; }, "/version", "unsupported version");
   expect_error([](json& d) { d.erase("cameras"); }, "/", "missing required key \"cameras\"");
   expect_error([](json& d) { d["cameras"] = json::array(); }, "/cameras", "non-empty");
   expect_error([](json& d) { d["camaras"] = 1; }, "/camaras", "unknown key");
@@ -201,6 +217,101 @@ TEST(CalibrationFile, MalformedFilesAreRejectedWithPathAndReason) {
                "/cameras/0/exposure_offset_sigma_ns", ">= 0");
   expect_error([](json& d) { d["cameras"][0]["intrinsics"]["k1"] = 0.1; },
                "/cameras/0/intrinsics/k1", "unknown key");
+}
+
+TEST(CalibrationFile, Version2JointCovarianceRoundTrip) {
+  const RigCalibration rig = example_joint_rig();
+  ASSERT_TRUE(rig.has_cross_covariance());
+  const std::string text = format_rig_calibration(rig);
+  EXPECT_EQ(json::parse(text)["version"], 2);
+  const RigCalibration back = parse_rig_calibration(text, "memory");
+  expect_same_rig(rig, back);
+  EXPECT_TRUE(back.has_cross_covariance());
+  // The per-camera blocks are the joint's diagonal blocks.
+  EXPECT_EQ(back.cameras[1].extrinsic_covariance,
+            Eigen::MatrixXd(back.joint_covariance.block(kJointBlockSize + kNumIntrinsics,
+                                                        kJointBlockSize + kNumIntrinsics, 6, 6)));
+}
+
+TEST(CalibrationFile, Version1IsReadWithZeroCrossCovariance) {
+  const RigCalibration rig = example_rig();
+  json doc = json::parse(format_rig_calibration(rig));
+  doc["version"] = 1;
+  const RigCalibration v1 = parse_rig_calibration(doc.dump(), "v1.json");
+  expect_same_rig(rig, v1);
+  EXPECT_EQ(v1.joint_covariance.size(), 0);
+  EXPECT_FALSE(v1.has_cross_covariance());
+  // The joint view of a version-1 rig: the cameras' blocks on the diagonal, zero elsewhere.
+  const Eigen::MatrixXd joint = v1.full_joint_covariance();
+  ASSERT_EQ(joint.rows(), 3 * kJointBlockSize);
+  Eigen::MatrixXd expected = Eigen::MatrixXd::Zero(joint.rows(), joint.cols());
+  for (int c = 0; c < 3; ++c) {
+    const int at = c * kJointBlockSize;
+    expected.block(at, at, kNumIntrinsics, kNumIntrinsics) =
+        v1.cameras[static_cast<size_t>(c)].intrinsic_covariance;
+    expected.block(at + kNumIntrinsics, at + kNumIntrinsics, 6, 6) =
+        v1.cameras[static_cast<size_t>(c)].extrinsic_covariance;
+  }
+  EXPECT_EQ(joint, expected);
+}
+
+/// As expect_error, on the version-2 example.
+void expect_joint_error(const std::function<void(json&)>& edit, const std::string& path_fragment,
+                        const std::string& reason_fragment) {
+  json doc = json::parse(format_rig_calibration(example_joint_rig()));
+  edit(doc);
+  try {
+    parse_rig_calibration(doc.dump(), "rig_v2.json");
+    ADD_FAILURE() << "no exception for " << path_fragment;
+  } catch (const CalibrationFileError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("rig_v2.json: " + path_fragment), std::string::npos) << what;
+    EXPECT_NE(what.find(reason_fragment), std::string::npos) << what;
+  }
+}
+
+TEST(CalibrationFile, BadJointCovarianceIsRejectedNamingTheField) {
+  // 3 cameras: 57 x 57.
+  expect_joint_error([](json& d) { d["joint_covariance"]["matrix"].erase(56); },
+                     "/joint_covariance/matrix: ", "expected a 57x57");
+  expect_joint_error([](json& d) { d["joint_covariance"]["matrix"][20].erase(3); },
+                     "/joint_covariance/matrix/20: ", "expected 57 numbers, got 56");
+  expect_joint_error(
+      [](json& d) {
+        auto& m = d["joint_covariance"]["matrix"];
+        m[40][2] = m[40][2].get<double>() * 1.5 + 1e-6;
+      },
+      "/joint_covariance/matrix/2/40: ", "not symmetric");
+  expect_joint_error(
+      [](json& d) {
+        // Correlation 1.5 between camera 0's fx and camera 2's tz: indefinite.
+        auto& m = d["joint_covariance"]["matrix"];
+        const double v = 1.5 * std::sqrt(m[0][0].get<double>() * m[56][56].get<double>());
+        m[0][56] = v;
+        m[56][0] = v;
+      },
+      "/joint_covariance/matrix: ", "not positive semi-definite");
+  expect_joint_error(
+      [](json& d) {
+        d["joint_covariance"]["camera_ids"] = {1, 5, 3};
+      },
+      "/joint_covariance/camera_ids/1: ", "expected camera_id 3");
+  expect_joint_error(
+      [](json& d) {
+        d["joint_covariance"]["camera_ids"] = {1, 3};
+      },
+      "/joint_covariance/camera_ids: ", "expected 3 numbers");
+  expect_joint_error(
+      [](json& d) {
+        d["cameras"][1]["extrinsic_covariance"][0][0] =
+            d["cameras"][1]["extrinsic_covariance"][0][0].get<double>() * 2;
+      },
+      "/joint_covariance/matrix/32/32: ", "differs from /cameras/1/extrinsic_covariance/0/0");
+  expect_joint_error([](json& d) { d["version"] = 1; }, "/joint_covariance: ", "needs version 2");
+  expect_joint_error([](json& d) { d["joint_covariance"].erase("matrix"); },
+                     "/joint_covariance: ", "missing required key \"matrix\"");
+  expect_joint_error([](json& d) { d["joint_covariance"]["layout"] = 1; },
+                     "/joint_covariance/layout: ", "unknown key");
 }
 
 TEST(CalibrationFile, SyntaxErrorNamesFile) {

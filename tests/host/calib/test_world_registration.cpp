@@ -448,26 +448,19 @@ TEST(WorldRegistration, CollinearMarksRefused) {
       << e;
 }
 
-// The rig step's joint covariance (its file's comment) is used when its cameras match the file's.
-TEST(WorldRegistration, JointCovarianceReadFromTheRigFileComment) {
-  const camera::RigCalibration rig = truth_rig();
-  const Eigen::MatrixXd joint = correlated_calibration_covariance();
-  nlohmann::json doc = nlohmann::json::parse(camera::format_rig_calibration(rig));
-  nlohmann::json rows = nlohmann::json::array();
-  for (Eigen::Index i = 0; i < joint.rows(); ++i) {
-    nlohmann::json row = nlohmann::json::array();
-    for (Eigen::Index j = 0; j < joint.cols(); ++j)
-      row.push_back(joint(i, j));
-    rows.push_back(row);
-  }
-  doc["comment"] = {{"joint_covariance", {{"camera_ids", {0, 1, 2}}, {"matrix", rows}}}};
+// The rig step's joint covariance (file version 2) is used when the file has one, else the
+// per-camera blocks; the registered file carries its own joint covariance, read back whole.
+TEST(WorldRegistration, JointCovarianceReadFromTheRigFile) {
+  camera::RigCalibration rig = truth_rig();
   std::string source;
-  EXPECT_EQ(calibapp::input_calibration_covariance(doc.dump(), rig, source), joint);
-  EXPECT_NE(source.find("joint"), std::string::npos);
-  doc["comment"]["joint_covariance"]["camera_ids"] = {0, 1, 3};  // not this file's cameras
-  EXPECT_EQ(calibapp::input_calibration_covariance(doc.dump(), rig, source),
-            block_diagonal_covariance(rig));
+  EXPECT_EQ(calibapp::input_calibration_covariance(rig, source), rig.full_joint_covariance());
   EXPECT_NE(source.find("per-camera blocks"), std::string::npos);
+  const Eigen::MatrixXd joint = correlated_calibration_covariance();
+  camera::set_joint_covariance(rig, joint);
+  const camera::RigCalibration read =
+      camera::parse_rig_calibration(camera::format_rig_calibration(rig), "rig.json");
+  EXPECT_TRUE(calibapp::input_calibration_covariance(read, source).isApprox(joint, 1e-12));
+  EXPECT_NE(source.find("joint"), std::string::npos);
 }
 
 // The command end to end: files in, registered calibration file out (read back by the host's
@@ -506,7 +499,7 @@ TEST(WorldRegistration, CommandEndToEnd) {
   EXPECT_NE(out2.str().find("T_w_r (S_r -> S_w) translation [mm]"), std::string::npos);
   const camera::RigCalibration back = camera::read_rig_calibration(out_json);
   const RegistrationResult direct =
-      register_rig(s.rig_stated, block_diagonal_covariance(s.rig_stated), s.survey, s.sightings);
+      register_rig(s.rig_stated, s.rig_stated.full_joint_covariance(), s.survey, s.sightings);
   for (int c = 0; c < kCameras; ++c) {
     const auto& cam = back.cameras[static_cast<size_t>(c)];
     EXPECT_LT(geometry::left_difference(cam.T_c_w,

@@ -238,17 +238,6 @@ void print_rig_camera(const calib::RigCameraResult& c, std::ostream& out) {
   out << "\n";
 }
 
-nlohmann::json matrix_json(const Eigen::MatrixXd& m) {
-  nlohmann::json rows = nlohmann::json::array();
-  for (Eigen::Index i = 0; i < m.rows(); ++i) {
-    nlohmann::json row = nlohmann::json::array();
-    for (Eigen::Index j = 0; j < m.cols(); ++j)
-      row.push_back(m(i, j));
-    rows.push_back(row);
-  }
-  return rows;
-}
-
 }  // namespace
 
 std::string rig_calibration_json(const calib::RigResult& r, int unit_id,
@@ -264,6 +253,9 @@ std::string rig_calibration_json(const calib::RigResult& r, int unit_id,
     cam.extrinsic_covariance = c.extrinsic_covariance;
     rig.cameras.push_back(cam);
   }
+  // Version 2: the joint covariance (same layout: per camera 13 intrinsics then the left
+  // perturbation of T_c_r), cross-camera terms included; the host propagates it.
+  camera::set_joint_covariance(rig, r.joint_covariance);
   nlohmann::json doc = nlohmann::json::parse(camera::format_rig_calibration(rig));
   for (size_t i = 0; i < r.cameras.size(); ++i) {
     const calib::RigCameraResult& c = r.cameras[i];
@@ -283,9 +275,6 @@ std::string rig_calibration_json(const calib::RigResult& r, int unit_id,
                                     {"points_rejected", c.points_rejected},
                                     {"views", views}};
   }
-  nlohmann::json ids = nlohmann::json::array();
-  for (const auto& c : r.cameras)
-    ids.push_back(c.camera_id);
   doc["comment"] = {
       {"produced_by", "storetrack-calib rig"},
       {"extrinsics",
@@ -301,12 +290,8 @@ std::string rig_calibration_json(const calib::RigResult& r, int unit_id,
       {"free_parameters", r.free_parameters},
       {"frames", r.frames},
       {"joint_covariance",
-       {{"layout",
-         "per camera in camera_ids order: the 13 packed intrinsics (fx fy cx cy skew k1 k2 p1 "
-         "p2 k3 k4 k5 k6), then the left perturbation of T_c_r (rx ry rz [rad] tx ty tz [m]); "
-         "board poses marginalised"},
-        {"camera_ids", ids},
-        {"matrix", matrix_json(r.joint_covariance)}}}};
+       "top-level joint_covariance (version 2): board poses marginalised; camera 0's "
+       "extrinsic rows are zero (S_r is defined by it)"}};
   return doc.dump(2) + "\n";
 }
 

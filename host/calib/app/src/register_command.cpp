@@ -161,35 +161,14 @@ void add_register(cli::Command& app, RegisterArgs& a) {
   sub.option("--residuals", a.residuals_csv, "Per-mark residual CSV to write");
 }
 
-Eigen::MatrixXd input_calibration_covariance(const std::string& rig_json_text,
-                                             const camera::RigCalibration& rig,
+Eigen::MatrixXd input_calibration_covariance(const camera::RigCalibration& rig,
                                              std::string& source) {
-  const nlohmann::json doc = nlohmann::json::parse(rig_json_text);
-  const auto comment = doc.find("comment");
-  if (comment != doc.end() && comment->is_object() && comment->contains("joint_covariance")) {
-    const nlohmann::json& joint = (*comment)["joint_covariance"];
-    const int size = calib::kRegistrationBlockSize * static_cast<int>(rig.cameras.size());
-    bool ok = joint.contains("camera_ids") && joint.contains("matrix") &&
-              joint["camera_ids"].size() == rig.cameras.size() &&
-              joint["matrix"].size() == static_cast<size_t>(size);
-    for (size_t i = 0; ok && i < rig.cameras.size(); ++i)
-      ok = joint["camera_ids"][i] == rig.cameras[i].camera_id;
-    if (ok) {
-      Eigen::MatrixXd C(size, size);
-      for (int i = 0; i < size; ++i) {
-        const nlohmann::json& row = joint["matrix"][static_cast<size_t>(i)];
-        if (row.size() != static_cast<size_t>(size)) ok = false;
-        for (int j = 0; ok && j < size; ++j)
-          C(i, j) = row[static_cast<size_t>(j)].get<double>();
-      }
-      if (ok) {
-        source = "joint (comment.joint_covariance, cross-camera terms included)";
-        return 0.5 * (C + C.transpose());
-      }
-    }
+  if (rig.joint_covariance.size() != 0) {
+    source = "joint (the file's joint_covariance, cross-camera terms included)";
+    return rig.joint_covariance;
   }
   source = "per-camera blocks (no joint covariance in the file: cross-camera terms taken as 0)";
-  return calib::block_diagonal_covariance(rig);
+  return rig.full_joint_covariance();
 }
 
 std::string registered_calibration_json(const calib::RegistrationResult& r,
@@ -214,17 +193,13 @@ std::string registered_calibration_json(const calib::RegistrationResult& r,
   nlohmann::json skipped = nlohmann::json::array();
   for (const auto& s : r.skipped)
     skipped.push_back({{"id", s.mark_id}, {"reason", s.reason}});
-  nlohmann::json ids = nlohmann::json::array();
-  for (const auto& c : r.registered.cameras)
-    ids.push_back(c.camera_id);
   doc["comment"] = {
       {"produced_by", "storetrack-calib register"},
       {"inputs", {{"rig", args.rig}, {"survey", args.survey}, {"observations", args.observations}}},
       {"extrinsics",
        "T_c_w = T_c_r T_r_w: world = the surveyed aircraft frame S_w. Each camera's extrinsic "
-       "covariance includes the registration's; the registration error is common to all cameras "
-       "(and correlated with the intrinsics), which the per-camera blocks of version 1 cannot "
-       "carry: joint_covariance below has it"},
+       "covariance includes the registration's; the registration error common to all cameras "
+       "(and its correlation with the intrinsics) is in the file's joint_covariance"},
       {"T_w_r", transform_json(r.T_w_r)},
       {"T_w_r_covariance", matrix_json(r.cov_T_w_r)},
       {"T_r_w", transform_json(r.T_r_w)},
@@ -238,13 +213,7 @@ std::string registered_calibration_json(const calib::RegistrationResult& r,
       {"p_value", r.p_value},
       {"outlier_false_alarm", args.outlier_false_alarm},
       {"marks", marks},
-      {"skipped", skipped},
-      {"joint_covariance",
-       {{"layout",
-         "per camera in camera_ids order: the 13 packed intrinsics (fx fy cx cy skew k1 k2 p1 "
-         "p2 k3 k4 k5 k6), then the left perturbation of T_c_w (rx ry rz [rad] tx ty tz [m])"},
-        {"camera_ids", ids},
-        {"matrix", matrix_json(r.joint_covariance)}}}};
+      {"skipped", skipped}};
   return doc.dump(2) + "\n";
 }
 
@@ -254,8 +223,7 @@ int run_register(const RegisterArgs& args, std::ostream& out, std::ostream& err)
   try {
     rig_text = text_of(args.rig);
     const camera::RigCalibration rig = camera::parse_rig_calibration(rig_text, args.rig);
-    const Eigen::MatrixXd covariance =
-        input_calibration_covariance(rig_text, rig, covariance_source);
+    const Eigen::MatrixXd covariance = input_calibration_covariance(rig, covariance_source);
     const survey::RigidBodySurvey survey = survey::read_survey(args.survey);
     calib::RegistrationOptions options;
     options.rig_origin = args.rig;

@@ -27,11 +27,9 @@ struct RegisterArgs {
 void add_register(cli::Command& app, RegisterArgs& args);
 int run_register(const RegisterArgs& args, std::ostream& out, std::ostream& err);
 
-/// The joint covariance the rig file carries in comment.joint_covariance (written by `rig`)
-/// when its camera ids match the file's cameras, else the file's per-camera blocks.
-/// `source` says which.
-Eigen::MatrixXd input_calibration_covariance(const std::string& rig_json_text,
-                                             const camera::RigCalibration& rig,
+/// The rig file's joint covariance (file version 2, written by `rig`), else its per-camera
+/// blocks (version 1: cross terms 0). `source` says which.
+Eigen::MatrixXd input_calibration_covariance(const camera::RigCalibration& rig,
                                              std::string& source);
 
 /// The registered calibration file (version 1 blocks) with the registration in its comment.

@@ -1,10 +1,13 @@
 // Rig calibration file (JSON, docs/calibration-file.md): cameras' intrinsics, extrinsics T_c_w
-// and covariances. Read by both the unit (its own cameras) and the host (all of them).
+// and covariances; version 2 adds the joint covariance of all cameras' parameters. Read by the
+// host; written by storetrack-calib and the simulator. Versions 1 and 2 are read, 2 is written.
 #pragma once
 
 #include <stdexcept>
 #include <string>
 #include <vector>
+
+#include <Eigen/Core>
 
 #include "storetrack/camera/camera_model.hpp"
 
@@ -16,10 +19,30 @@ class CalibrationFileError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+/// Parameters per camera in the joint covariance: the 13 packed intrinsics, then the left
+/// perturbation (rx, ry, rz, tx, ty, tz) of T_c_w.
+inline constexpr int kJointBlockSize = kNumIntrinsics + 6;
+
 struct RigCalibration {
   std::vector<CalibratedCamera> cameras;
+  /// Joint covariance of every camera's parameters (file version 2): kJointBlockSize rows per
+  /// camera, cameras in `cameras` order. Empty = none (version 1: cameras independent, no
+  /// intrinsic-extrinsic correlation). Its diagonal 13x13 / 6x6 blocks equal the cameras'
+  /// intrinsic_covariance / extrinsic_covariance (set_joint_covariance keeps them so).
+  Eigen::MatrixXd joint_covariance;
+
   const CalibratedCamera* find(int camera_id) const;
+  /// The joint covariance; without one, block diagonal from the cameras' blocks.
+  Eigen::MatrixXd full_joint_covariance() const;
+  /// True when the joint covariance has a nonzero term outside the cameras' 13x13 and 6x6
+  /// blocks (cross-camera or intrinsic-extrinsic correlation).
+  bool has_cross_covariance() const;
 };
+
+/// Stores `joint` (layout of RigCalibration::joint_covariance) and copies its diagonal blocks
+/// into the cameras' intrinsic_covariance / extrinsic_covariance. Throws std::invalid_argument
+/// on a wrong size.
+void set_joint_covariance(RigCalibration& rig, const Eigen::MatrixXd& joint);
 
 RigCalibration read_rig_calibration(const std::string& path);
 RigCalibration parse_rig_calibration(const std::string& json_text, const std::string& origin);

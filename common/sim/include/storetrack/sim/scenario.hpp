@@ -46,6 +46,12 @@ struct CalibrationErrorModel {
   std::array<double, 8> distortion{2e-4, 2e-4, 2e-5, 2e-5, 0, 0, 0, 0};  ///< k1 k2 p1 p2 k3..k6
   double rotation_rad = 5e-5;   ///< per axis, left perturbation of T_c_w
   double translation_m = 1e-4;  ///< per axis
+  /// The rig's registration to the world, ONE error shared by every camera (as a bundle
+  /// adjustment + world registration leaves it): T_c_w <- T_c_w o (Exp(phi), rho), phi and rho
+  /// per axis in the world frame. Nonzero: calibrated_rig() states the joint covariance with the
+  /// cross-camera terms (calibration file version 2). 0: no shared error, no draw.
+  double registration_rotation_rad = 0;
+  double registration_translation_m = 0;
 };
 
 /// One sinusoidal mode of the pylon + pod vibration, applied in the pylon frame:

@@ -162,6 +162,7 @@ class Simulator {
   geometry::Transform T_w_c_at(int camera_index, double t) const;
   CameraTiming timing(int k, int camera_index) const;
   MarkCameraTruth see(const MarkRef& m, int camera_index, double t_start, double t_end) const;
+  void draw_shared_registration_error();
   std::uint64_t stream_seed(std::uint64_t purpose, std::uint64_t a, std::uint64_t b) const;
 
   Scenario sc_;

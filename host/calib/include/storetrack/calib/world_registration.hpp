@@ -48,11 +48,7 @@ struct RegistrationOptions {
 /// Layout of the joint calibration covariance (input and output): per camera (in the rig's
 /// order) the 13 packed intrinsics, then the left perturbation (rx, ry, rz, tx, ty, tz) of its
 /// extrinsic (T_c_r in the input, T_c_w in the output). Same as calib::kRigBlockSize.
-inline constexpr int kRegistrationBlockSize = camera::kNumIntrinsics + 6;
-
-/// The joint covariance a version-1 calibration file implies: its per-camera blocks, no cross
-/// terms.
-Eigen::MatrixXd block_diagonal_covariance(const camera::RigCalibration& rig);
+inline constexpr int kRegistrationBlockSize = camera::kJointBlockSize;
 
 struct MarkRegistration {
   int mark_id = 0;
@@ -103,7 +99,7 @@ struct RegistrationResult {
 
 /// Registers the rig. `rig_r` is the `rig` step's calibration (T_c_w = T_c_r, camera 0 first
 /// with T = identity); `calibration_covariance` its joint covariance in the layout above
-/// (block_diagonal_covariance(rig_r) for a file without one). Throws CalibrationError with a
+/// (rig_r.full_joint_covariance() for a file without one). Throws CalibrationError with a
 /// message naming the file and field: survey not in frame 'w', a mark id not in the survey, a
 /// camera not in the rig, a (camera, mark) seen twice, fewer than 3 usable marks, collinear
 /// marks. Marks that cannot be used (seen by fewer than 2 cameras, triangulation failed) are

@@ -1,8 +1,13 @@
 // Calibration errors common to every mark of an exposure, in whitened ("factor") form.
 //
-// The intrinsic, extrinsic and time-offset errors of all cameras form one error vector theta.
-// Its covariance is block diagonal (per camera, per group), so theta = F z with z ~ N(0, I) and
-// F = V sqrt(Lambda) from the eigen-decomposition of each block. Every estimate derived from
+// The intrinsic, extrinsic and time-offset errors of all cameras form one error vector theta,
+// theta = F z with z ~ N(0, I). Version-1 calibrations (no cross covariance): F is block
+// diagonal, F = V sqrt(Lambda) from the eigen-decomposition of each camera's block. With a
+// joint covariance (file version 2: cameras correlated through the shared board poses and world
+// registration, intrinsics with extrinsics) the intrinsics of all cameras are factored jointly
+// and the extrinsics conditionally on them: theta_I = F_I z_I, theta_E = A z_I + F_E|I z_E with
+// A = Sigma_EI F_I^+T and F_E|I the factor of Sigma_EE - A A^T (the Schur complement), so
+// F F^T is the whole joint covariance, cross terms included. Every estimate derived from
 // the marks of one exposure carries "loadings" d(estimate)/dz; the covariance of any set of
 // estimates is then L L^T, which keeps the correlations between marks that share a camera's
 // calibration (docs/uncertainty.md). Columns are ordered by source: all intrinsic factors,
@@ -30,15 +35,15 @@ using Loadings6 = Eigen::Matrix<double, 6, Eigen::Dynamic, Eigen::RowMajor>;
 class CalibrationFactors {
  public:
   struct CameraFactors {
-    int intrinsic_begin = 0;  ///< first column of this camera's intrinsic factors
-    /// d(packed intrinsics)/dz for this camera's columns (kNumIntrinsics x count; fixed
-    /// maximum size: no heap, fixed-depth products on the per-exposure path).
-    Eigen::Matrix<double, camera::kNumIntrinsics, Eigen::Dynamic, 0, camera::kNumIntrinsics,
-                  camera::kNumIntrinsics>
-        intrinsic;
+    int intrinsic_begin = 0;  ///< first column this camera's intrinsics load on
+    /// d(packed intrinsics)/dz over columns [intrinsic_begin, intrinsic_begin + cols): the
+    /// camera's own columns (uncoupled) or the whole intrinsic range (coupled). Row-major, as
+    /// the loadings: B = G F is then evaluated row by row as vectorised sums of F's rows.
+    Eigen::Matrix<double, camera::kNumIntrinsics, Eigen::Dynamic, Eigen::RowMajor> intrinsic;
     int extrinsic_begin = 0;
-    /// d(left perturbation of T_c_w)/dz (6 x count).
-    Eigen::Matrix<double, 6, Eigen::Dynamic, 0, 6, 6> extrinsic;
+    /// d(left perturbation of T_c_w)/dz (6 x cols) from extrinsic_begin; coupled with
+    /// intrinsic-extrinsic correlation it starts at the intrinsic range.
+    Eigen::Matrix<double, 6, Eigen::Dynamic, Eigen::RowMajor> extrinsic;
     int sync_column = -1;     ///< column of the exposure time offset (-1: no sync uncertainty)
     double sync_sigma_s = 0;  ///< standard uncertainty of the exposure time offset [s]
   };
@@ -49,6 +54,9 @@ class CalibrationFactors {
   explicit CalibrationFactors(const camera::RigCalibration& rig, double relative_floor = 1e-12);
 
   int num_factors() const { return num_factors_; }
+  /// True when cameras share factor columns (a joint covariance with cross terms): a source's
+  /// covariance is then L_s L_s^T over its whole column range, not a sum of per-camera blocks.
+  bool coupled() const { return coupled_; }
   int num_cameras() const { return static_cast<int>(cameras_.size()); }
   const CameraFactors& camera(int slot) const { return cameras_[static_cast<size_t>(slot)]; }
   /// Column range [begin, begin + count) of one source (kCentroid/kSurvey/kProcess have none: count
@@ -59,6 +67,11 @@ class CalibrationFactors {
   std::vector<CameraFactors> cameras_;
   std::array<std::pair<int, int>, kNumSources> ranges_{};
   int num_factors_ = 0;
+  bool coupled_ = false;
+
+  void factor_per_camera(const camera::RigCalibration& rig, double relative_floor);
+  void factor_jointly(const camera::RigCalibration& rig, double relative_floor);
+  void add_sync_factors(const camera::RigCalibration& rig);
 };
 
 /// Covariance of loadings restricted to one source's columns: L_s L_s^T.
