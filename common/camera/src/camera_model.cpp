@@ -170,6 +170,26 @@ std::optional<Vec2> CameraModel::project_world(const geometry::Transform& T_c_w,
   return pixel;
 }
 
+std::optional<Vec2> project_body_point(const CalibratedCamera& camera,
+                                       const geometry::Transform& T_w_b, const Vec3& p_b,
+                                       Eigen::Matrix<double, 2, 6>* d_body_pose,
+                                       ProjectionJacobians* jacobians) {
+  const Vec3 Rp = T_w_b.linear() * p_b;
+  const Vec3 p_w = Rp + T_w_b.translation();
+  if (d_body_pose == nullptr && jacobians == nullptr)
+    return camera.model.project_world(camera.T_c_w, p_w);
+  ProjectionJacobians local;
+  ProjectionJacobians& J = jacobians != nullptr ? *jacobians : local;
+  const auto pixel = camera.model.project_world(camera.T_c_w, p_w, &J);
+  if (!pixel) return std::nullopt;
+  if (d_body_pose != nullptr) {
+    // Left perturbation of the body pose: p_w = Exp(dr) R p_b + t + dt.
+    d_body_pose->leftCols<3>() = -J.d_point_world * geometry::skew(Rp);
+    d_body_pose->rightCols<3>() = J.d_point_world;
+  }
+  return pixel;
+}
+
 std::optional<Vec2> CameraModel::unproject(const Vec2& pixel, double tolerance_px,
                                            int max_iterations) const {
   if (!pixel.allFinite() || !(in_.fx != 0) || !(in_.fy != 0)) return std::nullopt;

@@ -138,7 +138,9 @@ nlohmann::json processor_stats_json(const pipeline::ExposureProcessor& processor
           {"triangulation_failed", pc.triangulation_failed},
           {"marks_excluded", pc.marks_excluded},
           {"pose_failed", pc.pose_failed},
-          {"degenerate_geometry", pc.degenerate_geometry}};
+          {"degenerate_geometry", pc.degenerate_geometry},
+          {"single_view_poses", pc.single_view_poses},
+          {"single_view_rejected", pc.single_view_rejected}};
 }
 
 // The three CSVs' rows and failures, the same keys under "recording" and in "outputs".

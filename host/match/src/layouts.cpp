@@ -8,6 +8,7 @@
 
 #include <Eigen/Eigenvalues>
 
+#include "storetrack/camera/camera_model.hpp"
 #include "storetrack/pose/body_pose.hpp"
 #include "storetrack/uncertainty/spd_inverse.hpp"
 
@@ -82,14 +83,40 @@ bool fit_body_pose(const survey::RigidBodySurvey& body, const std::map<int, Vec3
   return uncertainty::inverse_spd<6>(info, covariance);
 }
 
+bool MarkMatcher::single_view_measurement(const Work& w, int m, const Transform& T_w_b, Vec2& y,
+                                          Eigen::Matrix<double, 2, 6>& H, Mat2& W) const {
+  // The observed pixel against the projection of the surveyed mark through the pose; its noise:
+  // the centroid's sigma (with quantisation), the calibration pixel covariance (from gating)
+  // and the survey sigma through the projection.
+  const Work::Obs& ob = w.obs[w.assigned[m].front()];
+  camera::ProjectionJacobians J;
+  const auto px =
+      camera::project_body_point(rig_.cameras[ob.slot], T_w_b, marks_[m].p_body, &H, &J);
+  if (!px) return false;
+  y = ob.raw - *px;
+  const double s = marks_[m].survey_sigma_m;
+  const Mat2 R = ob.S_cal + ob.sigma * ob.sigma * Mat2::Identity() +
+                 s * s * J.d_point_world * J.d_point_world.transpose();
+  return uncertainty::inverse_spd<2>(R, W);
+}
+
+int MarkMatcher::measurement_dof(const Work& w, const std::vector<int>& members) {
+  int dof = 0;
+  for (int m : members)
+    dof += w.tri[m].valid ? 3 : 2;
+  return dof;
+}
+
 bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& members,
                                 BodyTrack& post, double& nis) const {
   // Extended Kalman filter update (Bar-Shalom et al. 2001, sec. 5.2 and 10.3). The marks
   // measure the pose only, so the pose is updated in information form on its 6x6 block,
-  // Info = Ppp^-1 + sum G^T W G, with one relinearisation (iterated EKF, sec. 10.3.2), and the
+  // Info = Ppp^-1 + sum H^T W H, with one relinearisation (iterated EKF, sec. 10.3.2), and the
   // rates follow through their correlation with the pose (L = Prp Ppp^-1, exact for a
   // measurement of a sub-state). The normalised innovation squared
-  // y^T (G Ppp G^T + R)^-1 y = y^T W y - g^T Info^-1 g (matrix inversion lemma) at the prediction.
+  // y^T (H Ppp H^T + R)^-1 y = y^T W y - g^T Info^-1 g (matrix inversion lemma) at the prediction.
+  // A triangulated mark measures its 3-D position (H = G); a mark seen by one camera measures
+  // its pixel, the projection of its surveyed point (single_view_measurement).
   const BodyTrack& pred = w.body[b].pred;
   const Mat6 Ppp = pred.P.topLeftCorner<6, 6>();
   Mat6 Ppp_inv;
@@ -102,6 +129,17 @@ bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& me
     geometry::Vec6 g = -Ppp_inv * delta;
     double yWy = 0;
     for (int m : members) {
+      if (!w.tri[m].valid) {
+        Vec2 y;
+        Eigen::Matrix<double, 2, 6> H;
+        Mat2 W;
+        if (!single_view_measurement(w, m, T, y, H, W)) return false;
+        const Eigen::Matrix<double, 6, 2> HtW = H.transpose() * W;
+        info.noalias() += HtW * H;
+        g.noalias() += HtW * y;
+        yWy += y.dot(W * y);
+        continue;
+      }
       const double s = marks_[m].survey_sigma_m;
       Mat3 W;
       if (!uncertainty::inverse_spd<3>(Mat3(w.tri[m].cov + s * s * Mat3::Identity()), W))
@@ -177,8 +215,12 @@ void MarkMatcher::verify_layouts(Work& w) const {
     w.fitted[b] = false;
     w.body[b].updated = false;
     std::vector<int> members;
+    // Marks identified in one camera only update the body's own filter (not a prior alone:
+    // MatcherConfig::single_view_requires_track); their ids are tested with the others.
+    const bool single_views = w.body[b].from_track && config_.keep_single_view;
     for (int m = 0; m < static_cast<int>(marks_.size()); ++m)
-      if (marks_[m].body == b && w.tri[m].valid) members.push_back(m);
+      if (marks_[m].body == b && (w.tri[m].valid || (single_views && w.assigned[m].size() == 1)))
+        members.push_back(m);
     if (w.body[b].predicted) {
       // Tracked body: Kalman update of its pose filter with the triangulated marks; the
       // normalised innovation squared (dof 3n) is the layout test. Works with any number of
@@ -187,7 +229,7 @@ void MarkMatcher::verify_layouts(Work& w) const {
         BodyTrack post;
         double nis = 0;
         if (filter_update(w, b, members, post, nis) &&
-            nis <= chi2_gate_[std::min(kMaxDof, 3 * static_cast<int>(members.size()))]) {
+            nis <= chi2_gate_[std::min(kMaxDof, measurement_dof(w, members))]) {
           w.body[b].updated = true;
           w.body[b].post = post;
           w.fitted[b] = true;
@@ -199,12 +241,14 @@ void MarkMatcher::verify_layouts(Work& w) const {
           BodyTrack post_rest;
           double nis_rest = 0;
           return filter_update(w, b, rest, post_rest, nis_rest) &&
-                 nis_rest <= chi2_gate_[std::min(kMaxDof, 3 * static_cast<int>(rest.size()))];
+                 nis_rest <= chi2_gate_[std::min(kMaxDof, measurement_dof(w, rest))];
         });
       }
       continue;
     }
-    // Fit and test; on failure remove the unique culprit (>= 4 marks) and try again.
+    // Fit and test (triangulated marks only); on failure remove the unique culprit (>= 4 marks)
+    // and try again.
+    std::erase_if(members, [&w](int m) { return !w.tri[m].valid; });
     while (static_cast<int>(members.size()) >= std::max(3, config_.min_layout_marks)) {
       // Fit (false: no pose or no covariance, i.e. nothing to test) and chi-square test.
       auto fit = [&](const std::vector<int>& set, Transform& T, Mat6& cov, bool& consistent) {

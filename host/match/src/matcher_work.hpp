@@ -148,6 +148,9 @@ struct MarkMatcher::Work {
   /// and, when its marks updated it, the posterior.
   struct BodyState {
     bool predicted = false;
+    /// The prediction is the body's own filter (not its prior): marks it identifies in a single
+    /// camera may update it (docs/matching.md, step 5).
+    bool from_track = false;
     BodyTrack pred;
     bool updated = false;
     BodyTrack post;

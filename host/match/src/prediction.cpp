@@ -46,6 +46,7 @@ void MarkMatcher::predict(Work& w, double t_s) const {
       }
       p.P += Q;
       w.body[b].predicted = true;
+      w.body[b].from_track = true;
       w.body[b].pred = p;
       body_T[b] = p.T_w_b;
       body_cov[b] = p.P.topLeftCorner<6, 6>();

@@ -40,17 +40,6 @@ enum class MarkMatcher::SearchOutcome : std::uint8_t {
 
 namespace {
 
-/// Closest point between two rays (centre c, direction d), when in front of both.
-std::optional<Vec3> ray_midpoint(const Vec3& c1, const Vec3& d1, const Vec3& c2, const Vec3& d2) {
-  const Vec3 r = c1 - c2;
-  const double a = d1.dot(d1), b = d1.dot(d2), c = d2.dot(d2), d = d1.dot(r), e = d2.dot(r);
-  const double den = a * c - b * b;
-  if (!(den > 1e-12 * a * c)) return std::nullopt;  // (nearly) parallel rays
-  const double s = (b * e - c * d) / den, t = (a * e - b * d) / den;
-  if (!(s > 0 && t > 0)) return std::nullopt;
-  return 0.5 * (c1 + s * d1 + c2 + t * d2);
-}
-
 bool shares_observation(const std::vector<int>& a, const std::vector<int>& b) {
   for (int o : a)
     if (std::binary_search(b.begin(), b.end(), o)) return true;
@@ -400,7 +389,7 @@ void MarkMatcher::find_epipolar_pairs(Work& w) const {
           const Vec3 Etx2 = E.transpose() * x2;
           Vec3 e2, d2;
           ray(o2, e2, d2);
-          const auto mid = ray_midpoint(e1, d1, e2, d2);
+          const auto mid = triangulate::ray_midpoint(e1, d1, e2, d2);
           if (!mid) continue;
           const double z1 = (T1 * *mid).z(), z2 = (T2 * *mid).z();
           const double sampson_var = normalised_var(o1, z1) * Etx2.head<2>().squaredNorm() +

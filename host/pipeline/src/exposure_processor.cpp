@@ -4,7 +4,9 @@
 #include <cmath>
 #include <limits>
 #include <map>
+#include <optional>
 #include <random>
+#include <span>
 #include <stdexcept>
 
 #include <Eigen/Eigenvalues>
@@ -12,6 +14,8 @@
 #include "sample_fields.hpp"
 #include "storetrack/pose/body_pose.hpp"
 #include "storetrack/triangulate/triangulate.hpp"
+#include "storetrack/uncertainty/spd_inverse.hpp"
+#include "storetrack/uncertainty/statistics.hpp"
 
 namespace storetrack::pipeline {
 
@@ -91,6 +95,124 @@ void add_product(const MatA& A, const MatL& L, MatOut& out) {
       if (A(r, j) != 0.0) out.row(r) += A(r, j) * L.row(j);
 }
 
+/// One observation of a surveyed mark for a single-view resection.
+struct ResectionView {
+  const camera::CalibratedCamera* camera = nullptr;
+  int slot = -1;  ///< rig slot (its calibration factors)
+  int mark = -1;  ///< index of its mark in the resection (views of one mark share its survey error)
+  Vec2 pixel_px = Vec2::Zero();
+  double sigma_px = 0;
+  Vec3 p_b = Vec3::Zero();
+  double survey_sigma_m = 0;
+  /// Weight (sigma^2 I + calibration pixel covariance)^-1: the calibration's pixel errors exceed
+  /// the centroid noise, and its chi-square tests the marks against both.
+  geometry::Mat2 W = geometry::Mat2::Identity();
+};
+struct ResectionLimits {
+  int min_marks = 4;
+  double max_rotation_sigma_rad = 0;
+  double false_alarm_probability = 0;  ///< of the reprojection chi-square test; 0: no test
+};
+
+/// Reprojection normal equations of a body pose T_w_b: Info = sum H^T W H, g = sum H^T W r,
+/// chi2 = sum r^T W r (r = pixel - projection).
+bool resection_normal_equations(std::span<const ResectionView> views, const Transform& T_w_b,
+                                Mat6& info, Vec6& g, double& chi2) {
+  info.setZero();
+  g.setZero();
+  chi2 = 0;
+  for (const ResectionView& v : views) {
+    Eigen::Matrix<double, 2, 6> H;
+    const auto px = camera::project_body_point(*v.camera, T_w_b, v.p_b, &H);
+    if (!px) return false;
+    const Vec2 r = v.pixel_px - *px;
+    const Eigen::Matrix<double, 6, 2> HtW = H.transpose() * v.W;
+    info.noalias() += HtW * H;
+    g.noalias() += HtW * r;
+    chi2 += r.dot(v.W * r);
+  }
+  return true;
+}
+
+/// Pose of a body from its marks' pixels (resection, Gauss-Newton on the reprojection error
+/// from `T_w_b`, weights W_i), for marks seen by one camera each where no triangulation is
+/// possible. GUM propagation of the estimator (pose error = sum K_i e_i, K_i = Info^-1 H_i^T
+/// W_i): centroid sum K_i sigma_i^2 K_i^T, the calibration through the cameras' loadings (one
+/// camera's error moves all its views alike), the survey per mark. The sync term is not modelled
+/// (no velocity). The chi-square (dof 2 views - 6) treats the calibration pixel errors as
+/// independent between views; a camera's common part is largely absorbed by the pose.
+bool resect_body(std::span<ResectionView> views, Transform T_w_b,
+                 const uncertainty::CalibrationFactors& factors, const ResectionLimits& limits,
+                 bool with_uncertainty, BodySolution& sol) {
+  const int marks = views.empty() ? 0 : views.back().mark + 1;
+  if (marks < limits.min_marks) return false;
+  for (ResectionView& v : views) {
+    camera::ProjectionJacobians J;
+    if (!camera::project_body_point(*v.camera, T_w_b, v.p_b, nullptr, &J)) return false;
+    const geometry::Mat2 S =
+        v.sigma_px * v.sigma_px * geometry::Mat2::Identity() +
+        J.d_intrinsics * v.camera->intrinsic_covariance * J.d_intrinsics.transpose() +
+        J.d_pose * v.camera->extrinsic_covariance * J.d_pose.transpose();
+    if (!uncertainty::inverse_spd<2>(S, v.W)) return false;
+  }
+  Mat6 info;
+  Vec6 g;
+  double chi2 = 0;
+  bool converged = false;
+  for (int iter = 0; iter < 12 && !converged; ++iter) {
+    if (!resection_normal_equations(views, T_w_b, info, g, chi2)) return false;
+    const Eigen::LLT<Mat6> llt(info);
+    if (llt.info() != Eigen::Success) return false;
+    const Vec6 step = llt.solve(g);
+    if (!step.allFinite()) return false;
+    T_w_b = geometry::perturb_left(T_w_b, step);
+    converged = step.norm() < 1e-9;  // rad and m: far below any mark's sigma
+  }
+  Mat6 cov;
+  if (!converged || !resection_normal_equations(views, T_w_b, info, g, chi2) ||
+      !uncertainty::inverse_spd<6>(info, cov) ||
+      !pose_well_determined(cov, limits.max_rotation_sigma_rad))
+    return false;
+  const int dof = 2 * static_cast<int>(views.size()) - 6;
+  if (limits.false_alarm_probability > 0 &&
+      chi2 > uncertainty::chi_square_quantile(
+                 uncertainty::Probability(1 - limits.false_alarm_probability),
+                 uncertainty::DegreesOfFreedom(dof)))
+    return false;
+  sol = BodySolution{};
+  sol.valid = true;
+  sol.T_w_b = T_w_b;
+  sol.marks_used = marks;
+  sol.chi2 = chi2;
+  if (!with_uncertainty) return true;
+  sol.loadings = Loadings6::Zero(6, factors.num_factors());
+  Eigen::Matrix<double, 6, 3> survey_gain = Eigen::Matrix<double, 6, 3>::Zero();
+  for (size_t i = 0; i < views.size(); ++i) {
+    const ResectionView& v = views[i];
+    camera::ProjectionJacobians J;
+    Eigen::Matrix<double, 2, 6> H;
+    camera::project_body_point(*v.camera, T_w_b, v.p_b, &H, &J);
+    const Eigen::Matrix<double, 6, 2> K = cov * H.transpose() * v.W;
+    sol.cov_centroid.noalias() += v.sigma_px * v.sigma_px * K * K.transpose();
+    // A calibration error d theta shifts the pixel by J d theta: the pose by -K J d theta.
+    const auto& cf = factors.camera(v.slot);
+    if (cf.intrinsic.cols() > 0)
+      sol.loadings.middleCols(cf.intrinsic_begin, cf.intrinsic.cols()).noalias() -=
+          K * (J.d_intrinsics * cf.intrinsic);
+    if (cf.extrinsic.cols() > 0)
+      sol.loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols()).noalias() -=
+          K * (J.d_pose * cf.extrinsic);
+    // A survey error d q of the mark moves its pixel by d pixel / d p_w R d q in every view.
+    survey_gain.noalias() += K * J.d_point_world * T_w_b.linear();
+    if (i + 1 == views.size() || views[i + 1].mark != v.mark) {
+      sol.cov_survey.noalias() +=
+          v.survey_sigma_m * v.survey_sigma_m * survey_gain * survey_gain.transpose();
+      survey_gain.setZero();
+    }
+  }
+  return true;
+}
+
 double wrap_angle(double a) {
   return std::remainder(a, 2.0 * M_PI);
 }
@@ -133,6 +255,9 @@ struct ExposureProcessor::Prepared {
   std::vector<bool> slot_used;
   int cameras_used = 0;
   bool clock_not_locked = false;
+  /// Start of the single-view resection per body (0 pylon, 1 store): the matcher's pose of this
+  /// exposure or the body's last solved pose (see resect()).
+  std::array<std::optional<Transform>, 2> initial_T_w_b;
 };
 
 struct ExposureProcessor::Exclusions {
@@ -189,6 +314,9 @@ void ExposureProcessor::reset_tracking() {
 
 ExposureResult ExposureProcessor::process(const AlignedExposure& exposure) {
   const match::MatchResult m = matcher_.match(exposure.cameras);
+  // The matcher's poses of this exposure (bodies {pylon, store}) start a single-view resection.
+  for (size_t b = 0; b < pose_hint_.size() && b < m.fitted.size(); ++b)
+    if (m.fitted[b]) pose_hint_[b] = {m.T_w_b[b], m.t_mid_tai_ns};
   return process(exposure, m.ids);
 }
 
@@ -313,6 +441,12 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
       contributed = true;
     }
     if (contributed) ++prep.cameras_used;
+  }
+  for (size_t b = 0; b < pose_hint_.size(); ++b) {
+    const PoseHint& hint = pose_hint_[b];
+    const double age_s = static_cast<double>(prep.t_ref_tai_ns - hint.t_ns) * 1e-9;
+    if (hint.T_w_b && std::abs(age_s) <= config_.tracking_max_gap_s)
+      prep.initial_T_w_b[b] = hint.T_w_b;
   }
   return prep;
 }
@@ -520,8 +654,43 @@ void ExposureProcessor::solve(const Prepared& prep,
     }
     return sol;
   };
-  const BodySolution pylon = fit('p');
-  const BodySolution store = fit('s');
+  BodySolution pylon = fit('p');
+  BodySolution store = fit('s');
+  out.single_view_pose = false;
+  for (auto [body, sol] : {std::pair{'p', &pylon}, std::pair{'s', &store}}) {
+    if (sol->valid) continue;
+    const survey::RigidBodySurvey& survey = body == 'p' ? pylon_survey : store_survey;
+    const auto& initial = prep.initial_T_w_b[body == 'p' ? 0 : 1];
+    // Every observation of the body's marks (single views and the views of triangulated marks
+    // not excluded by the rigid-body test); a resection only when some mark has one view.
+    std::vector<ResectionView> views;
+    bool single = false;
+    int marks = 0;
+    for (const Prepared::Mark& mark : prep.marks) {
+      const survey::SurveyedMark* sm = survey.find(mark.id);
+      const MarkResult* triangulated = out.find_mark(mark.id);
+      if (mark.body != body || mark.obs.empty() || sm == nullptr ||
+          (triangulated && triangulated->excluded))
+        continue;
+      single = single || mark.obs.size() == 1;
+      for (const Prepared::Obs& o : mark.obs)
+        views.push_back({&cameras[static_cast<size_t>(o.slot)], o.slot, marks, o.pixel_px,
+                         o.sigma_px, sm->p_body, sm->sigma_m});
+      ++marks;
+    }
+    if (!initial || !single) continue;
+    ResectionLimits limits;
+    limits.min_marks = config_.min_pose_marks + 1;
+    limits.max_rotation_sigma_rad = config_.max_pose_rotation_sigma_rad;
+    limits.false_alarm_probability =
+        fixed_exclusions == nullptr ? config_.rigid_false_alarm_probability : 0.0;
+    if (resect_body(views, *initial, factors_, limits, with_uncertainty, *sol)) {
+      out.single_view_pose = true;
+      ++counters.single_view_poses;
+    } else {
+      ++counters.single_view_rejected;
+    }
+  }
   out.T_p_s = PoseResult{};
   fill_pose(pylon, factors_, out.T_w_p);
   fill_pose(store, factors_, out.T_w_s);
@@ -569,6 +738,7 @@ void ExposureProcessor::fill_sample(const AlignedExposure& exposure, const Prepa
   std::uint16_t status = 0;
   if (out.T_p_s.valid) {
     status |= msg::fti_status::kValid;
+    if (out.single_view_pose) status |= msg::fti_status::kSingleView;
     write_pose_fields(out.xyz_ypr, out.cov_xyz_ypr, out.cov_xyz_ypr_by_source, s);
   } else {
     clear_pose_fields(s);
@@ -597,6 +767,8 @@ ExposureResult ExposureProcessor::process(const AlignedExposure& exposure, const
   out.cameras_used = prep.cameras_used;
   solve(prep, rig_.cameras, pylon_, store_, true, nullptr, out, counters_);
   if (!out.T_p_s.valid) ++counters_.pose_failed;
+  if (out.T_w_p.valid) pose_hint_[0] = {out.T_w_p.T, prep.t_ref_tai_ns};
+  if (out.T_w_s.valid) pose_hint_[1] = {out.T_w_s.T, prep.t_ref_tai_ns};
   fill_sample(exposure, prep, out);
 
   // Tracking: velocity from the previous exposure's position of the same mark.

@@ -191,6 +191,45 @@ TEST(CameraModel, WorldAndPoseJacobiansMatchFiniteDifferences) {
   }
 }
 
+TEST(CameraModel, BodyPointProjectionJacobianMatchesFiniteDifferences) {
+  // The single-view measurement of a mark (host/match's pose filter, host/pipeline's
+  // resection): d pixel / d(left perturbation of the body pose T_w_b), by central differences
+  // of perturb_left, and the pixel itself against projecting T_w_b p_b directly.
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (int trial = 0; trial < 200; ++trial) {
+    CalibratedCamera camera;
+    camera.model = CameraModel(random_intrinsics(rng, trial % 2 == 0, true));
+    camera.T_c_w =
+        geometry::make_transform(Vec3(u(rng), u(rng), u(rng)), Vec3(u(rng), u(rng), u(rng)) * 3);
+    const Vec3 p_w = camera.T_c_w.inverse() * random_point_in_view(rng, camera.model.intrinsics());
+    const Vec3 p_b = Vec3(u(rng), u(rng), u(rng)) * 0.8;  // a mark up to ~1.4 m off the origin
+    geometry::Transform T_w_b =
+        geometry::make_transform(Vec3(u(rng), u(rng), u(rng)), Vec3::Zero());
+    T_w_b.translation() = p_w - T_w_b.linear() * p_b;  // the mark lands on the in-view point
+    Eigen::Matrix<double, 2, 6> H;
+    ProjectionJacobians J;
+    const auto px = project_body_point(camera, T_w_b, p_b, &H, &J);
+    ASSERT_TRUE(px);
+    EXPECT_LT((*px - *camera.model.project_world(camera.T_c_w, p_w)).norm(), 1e-9);
+    EXPECT_LT((*project_body_point(camera, T_w_b, p_b) - *px).norm(), 1e-12);
+    for (int k = 0; k < 6; ++k) {
+      const double h = k < 3 ? 1e-6 : 1e-5;  // rad, m
+      Vec6 d = Vec6::Zero();
+      d[k] = h;
+      const Vec2 pa = *project_body_point(camera, geometry::perturb_left(T_w_b, d), p_b);
+      const Vec2 pb = *project_body_point(camera, geometry::perturb_left(T_w_b, -d), p_b);
+      const Vec2 num = (pa - pb) / (2 * h);
+      EXPECT_LT((H.col(k) - num).norm(), 1e-5 * (1 + num.norm()))
+          << "trial " << trial << " pose component " << k;
+    }
+  }
+  // Behind the camera: no pixel.
+  CalibratedCamera camera;
+  camera.model = CameraModel(typical_intrinsics());
+  EXPECT_FALSE(project_body_point(camera, geometry::Transform::Identity(), Vec3(0, 0, -1)));
+}
+
 TEST(CameraModel, UnprojectJacobianMatchesFiniteDifferences) {
   std::mt19937_64 rng(5);
   for (int trial = 0; trial < 100; ++trial) {

@@ -143,6 +143,44 @@ TEST(ExposureProcessor, MonteCarloAgreesWithFirstOrder) {
   EXPECT_GT(checked, 10);
 }
 
+TEST(ExposureProcessor, SingleCameraResectionMonteCarloAgreesWithFirstOrder) {
+  // One camera left (every mark a single view): the pylon and store poses come from the
+  // resection, flagged single_view; its first-order covariance (centroid, calibration loadings,
+  // survey) against the JCGM 101 Monte Carlo of the same exposure, and the pose against truth.
+  Fixture f("store_separation", 13);
+  const int k = f.sim.num_exposures() / 2;
+  for (int j = k - 2; j < k; ++j) {  // all cameras: the last solved poses start the resection
+    const auto in = test::make_exposure(f.sim, j);
+    ASSERT_TRUE(f.proc.process(in.exposure, in.ids).T_p_s.valid);
+  }
+  auto in = test::make_exposure(f.sim, k);
+  const std::uint8_t kept_camera = in.exposure.cameras.front().camera_id;
+  for (size_t e = in.exposure.cameras.size(); e-- > 0;)
+    if (in.exposure.cameras[e].camera_id != kept_camera) {
+      in.exposure.cameras.erase(in.exposure.cameras.begin() + static_cast<long>(e));
+      in.ids.erase(in.ids.begin() + static_cast<long>(e));
+    }
+  ASSERT_EQ(in.exposure.cameras.size(), 1u);
+  const ExposureResult r = f.proc.process(in.exposure, in.ids);
+  ASSERT_TRUE(r.T_p_s.valid);
+  EXPECT_TRUE(r.single_view_pose);
+  EXPECT_TRUE(r.sample.status & msg::fti_status::kSingleView);
+  const geometry::Transform T_true = f.sim.T_p_s_at(r.reference_mid_tai_ns);
+  const Vec3 e = T_true.translation() - r.T_p_s.T.translation();
+  for (int a = 0; a < 3; ++a)
+    EXPECT_LT(std::abs(e(a)), 5 * std::sqrt(r.cov_xyz_ypr(a, a))) << "axis " << a;
+  const MonteCarloResult mc = f.proc.monte_carlo(in.exposure, in.ids, 800, 98);
+  ASSERT_GE(mc.draws, 790);
+  // 800 draws: a sample standard deviation within ~2.5 % (1 sigma) of the true one; the
+  // first-order value must agree within 10 % on every pose axis (as for the triangulated path).
+  for (int a = 0; a < 6; ++a) {
+    const double u_first = std::sqrt(r.cov_xyz_ypr(a, a));
+    const double u_mc = std::sqrt(mc.cov_xyz_ypr(a, a));
+    std::printf("axis %d: first order %.3g, Monte Carlo %.3g\n", a, u_first, u_mc);
+    EXPECT_NEAR(u_mc / u_first, 1.0, 0.1) << "axis " << a;
+  }
+}
+
 TEST(ExposureProcessor, DisplacedMarkIsExcludedAndFlagged) {
   Fixture f("static");
   auto in = test::make_exposure(f.sim, 10);

@@ -1,5 +1,6 @@
 // Triangulation against analytic truth: exactness without noise, honest centroid covariance
 // (NEES), gains and calibration sensitivities against finite differences.
+#include <cmath>
 #include <random>
 
 #include <gtest/gtest.h>
@@ -206,6 +207,33 @@ TEST(Triangulate, CalibrationSensitivityMatchesFiniteDifferences) {
     const Vec3 an = -r.gain[cam] * r.jacobians[cam].d_pose.col(k);
     EXPECT_LT((fd - an).norm(), 1e-4 * fd.norm() + 1e-9) << "extrinsic " << k;
   }
+}
+
+TEST(Triangulate, RayMidpointAgainstIntersectionAndPerpendicularity) {
+  std::mt19937_64 rng(9);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (int trial = 0; trial < 500; ++trial) {
+    const Vec3 c1(u(rng), u(rng), u(rng)), c2(u(rng) + 2, u(rng), u(rng));
+    const Vec3 X(u(rng), u(rng), 5 + 3 * u(rng));
+    // Intersecting rays (directions of any length): the point itself.
+    const Vec3 d1 = (X - c1) * (0.5 + std::abs(u(rng))), d2 = (X - c2) * 3.0;
+    const auto mid = ray_midpoint(c1, d1, c2, d2);
+    ASSERT_TRUE(mid);
+    EXPECT_LT((*mid - X).norm(), 1e-9);
+    // Skew rays: the segment between the closest points is perpendicular to both lines (their
+    // definition), and the midpoint is its centre.
+    const Vec3 d2s = d2 + Vec3(u(rng), u(rng), u(rng)) * 0.2;
+    const auto m = ray_midpoint(c1, d1, c2, d2s);
+    ASSERT_TRUE(m);
+    const Vec3 n = d1.cross(d2s).normalized();
+    const double half_gap = 0.5 * n.dot(c2 - c1);  // signed half distance between the lines
+    const Vec3 p1 = *m - half_gap * n, p2 = *m + half_gap * n;  // on line 1 and line 2
+    EXPECT_LT((p1 - c1).cross(d1).norm(), 1e-9 * d1.norm() * (1 + (p1 - c1).norm()));
+    EXPECT_LT((p2 - c2).cross(d2s).norm(), 1e-9 * d2s.norm() * (1 + (p2 - c2).norm()));
+  }
+  // Parallel rays and a point behind a centre: none.
+  EXPECT_FALSE(ray_midpoint(Vec3(0, 0, 0), Vec3(0, 0, 1), Vec3(1, 0, 0), Vec3(0, 0, 2)));
+  EXPECT_FALSE(ray_midpoint(Vec3(0, 0, 0), Vec3(0, 0, -1), Vec3(1, 0, 0), Vec3(-1, 0, 1)));
 }
 
 TEST(Triangulate, RejectsDegenerateInput) {

@@ -89,4 +89,16 @@ struct CalibratedCamera {
   double exposure_offset_sigma_ns = 0;  ///< its standard uncertainty (sync jitter)
 };
 
+/// Pixel of a surveyed body point p_b (body frame) through the body pose T_w_b and a calibrated
+/// camera: the measurement a mark seen by one camera makes of its body's pose (docs/matching.md,
+/// single views). When non-null, `d_body_pose` gets d pixel / d(left perturbation of T_w_b)
+/// (rx, ry, rz, tx, ty, tz; geometry::perturb_left) = d pixel / d p_w [-[R p_b]x, I], and
+/// `jacobians` the camera's projection Jacobians at the point (calibration propagation).
+/// nullopt when the point is behind the camera.
+std::optional<geometry::Vec2> project_body_point(const CalibratedCamera& camera,
+                                                 const geometry::Transform& T_w_b,
+                                                 const geometry::Vec3& p_b,
+                                                 Eigen::Matrix<double, 2, 6>* d_body_pose = nullptr,
+                                                 ProjectionJacobians* jacobians = nullptr);
+
 }  // namespace storetrack::camera

@@ -305,6 +305,13 @@ class MarkMatcher {
   void verify_layouts(Work& w) const;
   bool filter_update(const Work& w, int b, const std::vector<int>& members, BodyTrack& post,
                      double& nis) const;
+  /// Mark m seen by one camera as a measurement of its body's pose T_w_b: innovation y (pixel
+  /// minus projection), Jacobian H = d pixel / d(left perturbation) and information W = R^-1.
+  bool single_view_measurement(const Work& w, int m, const geometry::Transform& T_w_b,
+                               geometry::Vec2& y, Eigen::Matrix<double, 2, 6>& H,
+                               geometry::Mat2& W) const;
+  /// Measurement dimension of a filter update: 3 per triangulated mark, 2 per single view.
+  static int measurement_dof(const Work& w, const std::vector<int>& members);
   bool triangulate(Work& w, const std::vector<int>& obs, const geometry::Vec3& initial,
                    geometry::Vec3& p_w, geometry::Mat3& cov_w, double& chi2) const;
   void update_tracks(const Work& w, double t_s);

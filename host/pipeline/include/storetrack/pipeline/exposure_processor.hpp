@@ -10,6 +10,7 @@
 
 #include <array>
 #include <cstdint>
+#include <optional>
 #include <vector>
 
 #include <Eigen/Core>
@@ -111,6 +112,9 @@ struct ExposureResult {
   std::vector<MarkResult> marks;
   rigid::RigidCheckResult pylon_check, store_check;
   PoseResult T_w_p, T_w_s, T_p_s;
+  /// A body pose was fitted to marks seen by single cameras (resection; sample.status
+  /// kSingleView): its uncertainty is larger along the cameras' lines of sight.
+  bool single_view_pose = false;
   /// (x, y, z, yaw, pitch, roll) of T_p_s and its covariance (what the FtiSample carries).
   Eigen::Matrix<double, 6, 1> xyz_ypr = Eigen::Matrix<double, 6, 1>::Zero();
   geometry::Mat6 cov_xyz_ypr = geometry::Mat6::Zero();
@@ -152,6 +156,10 @@ struct ProcessorCounters {
   std::uint64_t marks_excluded = 0;       ///< by the rigid-body test
   std::uint64_t pose_failed = 0;          ///< exposures without a valid T_p_s
   std::uint64_t degenerate_geometry = 0;  ///< body poses refused: rotation sigma above the max
+  std::uint64_t single_view_poses = 0;    ///< body poses from single views (resection)
+  /// Single-view resections refused: reprojection chi-square above the rigid-body test's
+  /// quantile, not converged or not well determined.
+  std::uint64_t single_view_rejected = 0;
 };
 
 class ExposureProcessor {
@@ -208,6 +216,12 @@ class ExposureProcessor {
     bool velocity_valid = false;
   };
   std::vector<Track> tracks_;  ///< indexed by mark id
+  /// Last known pose T_w_b per body (0 pylon, 1 store) and its time: starts a resection.
+  struct PoseHint {
+    std::optional<geometry::Transform> T_w_b;
+    time::TaiNs t_ns = 0;
+  };
+  std::array<PoseHint, 2> pose_hint_;
   match::MarkMatcher matcher_;
   ProcessorCounters counters_;
 };

@@ -59,6 +59,25 @@ struct Result {
 /// Linear (DLT) estimate; nullopt when fewer than 2 usable observations or degenerate rays.
 std::optional<geometry::Vec3> triangulate_linear(std::span<const Observation> observations);
 
+/// Two-view midpoint of already-formed rays (centre c, direction d, any length; world frame):
+/// the point halfway between the closest points c1 + s d1 and c2 + t d2 of the two lines. The
+/// cheap start of host/match's re-acquisition pre-gate, where every ray is formed once per
+/// observation and triangulate_linear would undistort each pixel again per pair. nullopt when
+/// the rays are (nearly) parallel or the closest points are not in front of both centres.
+inline std::optional<geometry::Vec3> ray_midpoint(const geometry::Vec3& c1,
+                                                  const geometry::Vec3& d1,
+                                                  const geometry::Vec3& c2,
+                                                  const geometry::Vec3& d2) {
+  // Normal equations of min |c1 + s d1 - c2 - t d2|^2 over (s, t), solved by Cramer's rule.
+  const geometry::Vec3 r = c1 - c2;
+  const double a = d1.dot(d1), b = d1.dot(d2), c = d2.dot(d2), d = d1.dot(r), e = d2.dot(r);
+  const double den = a * c - b * b;
+  if (!(den > 1e-12 * a * c)) return std::nullopt;  // (nearly) parallel rays
+  const double s = (b * e - c * d) / den, t = (a * e - b * d) / den;
+  if (!(s > 0 && t > 0)) return std::nullopt;
+  return geometry::Vec3(0.5 * (c1 + s * d1 + c2 + t * d2));
+}
+
 /// Linear initialisation + Gauss-Newton. Returns false (out untouched beyond scratch) when the
 /// linear step fails, the point ends up behind a camera or the normal matrix is singular.
 bool triangulate(std::span<const Observation> observations, const Options& options, Result& out);
