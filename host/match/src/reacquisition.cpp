@@ -23,6 +23,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <iterator>
 #include <optional>
 
@@ -512,13 +514,22 @@ bool MarkMatcher::inside_region(const Work& w, int b, const Transform& T_w_b) co
 }
 
 MarkMatcher::SearchOutcome MarkMatcher::choose_hypothesis(const Work& w, int b, int& best) const {
-  // Competitors: enough well-spread marks, within the competitor gate, inside the region.
-  // Competitors with the same pose (chi-square(6) of the difference) form one interpretation,
-  // represented by its consistent hypothesis with the most marks.
+  // Competitors: enough marks, within the competitor gate, inside the region, well posed or not.
+  // A hypothesis that is not well posed cannot be accepted, but it is still an interpretation
+  // of the points: the store's rings are 0.5 m apart and its two middle rows only 0.1 m, so with
+  // those rows seen on all four rings the true 8-mark layout is not well spread
+  // (min_layout_spread) while the same points shifted by one ring, six of them on three rings,
+  // are; left out, the true interpretation could not drop the shifted one (strict subset) and the
+  // shifted one was accepted (docs/matching.md, step 6). Competitors with the same pose
+  // (chi-square(6) of the difference) and the same well-posedness form one interpretation,
+  // represented by its consistent hypothesis with the most marks. (A hypothesis that is not well
+  // posed may have a wide covariance: merged into another interpretation it could make that one
+  // look larger than it is.)
   const auto& hyps = w.hypotheses;
   bool any_sizable = false, any_consistent = false;
   struct Group {
     int rep;
+    bool well_posed;
     std::vector<int> obs;
   };
   std::vector<Group> groups;
@@ -528,12 +539,14 @@ MarkMatcher::SearchOutcome MarkMatcher::choose_hypothesis(const Work& w, int b, 
   };
   for (int h = 0; h < static_cast<int>(hyps.size()); ++h) {
     const auto& hy = hyps[h];
-    if (!hy.well_posed) continue;
-    any_sizable = true;
-    any_consistent = any_consistent || hy.consistent;
+    if (hy.well_posed) {
+      any_sizable = true;
+      any_consistent = any_consistent || hy.consistent;
+    }
     if (!hy.plausible || !inside_region(w, b, hy.fit.T_w_b)) continue;
     bool merged = false;
     for (auto& g : groups) {
+      if (g.well_posed != hy.well_posed) continue;
       const auto& rep = hyps[g.rep];
       Mat6 W;
       const geometry::Vec6 d = geometry::left_difference(hy.fit.T_w_b, rep.fit.T_w_b);
@@ -548,12 +561,12 @@ MarkMatcher::SearchOutcome MarkMatcher::choose_hypothesis(const Work& w, int b, 
       merged = true;
       break;
     }
-    if (!merged) groups.push_back({h, hy.obs});
+    if (!merged) groups.push_back({h, hy.well_posed, hy.obs});
   }
   if (!any_sizable) return SearchOutcome::kTooFewMarks;
   bool consistent_in_region = false;
   for (const auto& g : groups)
-    consistent_in_region = consistent_in_region || hyps[g.rep].consistent;
+    consistent_in_region = consistent_in_region || (g.well_posed && hyps[g.rep].consistent);
   if (!consistent_in_region)
     return any_consistent ? SearchOutcome::kOutsideRegion : SearchOutcome::kInconsistent;
   // An interpretation whose multi-view (>= 3) observations are a strict subset of another's is
@@ -567,10 +580,13 @@ MarkMatcher::SearchOutcome MarkMatcher::choose_hypothesis(const Work& w, int b, 
                                 groups[g].obs.end());
     if (!dominated) {
       ++kept;
-      best = groups[g].rep;
+      best = static_cast<int>(g);
     }
   }
-  if (kept != 1) return SearchOutcome::kAmbiguous;
+  // The one interpretation left must be well posed to be accepted; one that is not (the larger,
+  // possibly true, layout) leaves nothing that can be verified: refused as ambiguous.
+  if (kept != 1 || !groups[static_cast<size_t>(best)].well_posed) return SearchOutcome::kAmbiguous;
+  best = groups[static_cast<size_t>(best)].rep;
   return hyps[best].consistent ? SearchOutcome::kAccepted : SearchOutcome::kInconsistent;
 }
 
