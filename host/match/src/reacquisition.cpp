@@ -53,6 +53,12 @@ std::optional<Vec3> ray_midpoint(const Vec3& c1, const Vec3& d1, const Vec3& c2,
   return 0.5 * (c1 + s * d1 + c2 + t * d2);
 }
 
+std::vector<int> sorted_union(const std::vector<int>& a, const std::vector<int>& b) {
+  std::vector<int> u;
+  std::set_union(a.begin(), a.end(), b.begin(), b.end(), std::back_inserter(u));
+  return u;
+}
+
 bool shares_observation(const std::vector<int>& a, const std::vector<int>& b) {
   for (int o : a)
     if (std::binary_search(b.begin(), b.end(), o)) return true;
@@ -102,6 +108,7 @@ class LayoutSearch {
   bool fit(const std::vector<std::pair<int, int>>& pairs, LayoutFit& out);
   void trim(LayoutHypothesis& h);
   void classify(LayoutHypothesis& h);
+  std::vector<int> multi_view_observations(const std::vector<std::pair<int, int>>& pairs) const;
   void record(LayoutHypothesis h);
 
   const std::vector<CandidatePoint>& cands_;
@@ -225,8 +232,10 @@ void LayoutSearch::try_basis(int a, int c, int e, int i, int j, int k) {
   // The basis itself is kept even when the extension lost it (so it is not retried).
   if (h.pairs.empty()) h.pairs = basis;
   if (static_cast<int>(h.pairs.size()) >= min_marks_) {
+    const std::vector<int> explained = multi_view_observations(h.pairs);
     trim(h);
     classify(h);
+    h.explained = explained;
   }
   record(std::move(h));
 }
@@ -265,11 +274,16 @@ void LayoutSearch::classify(LayoutHypothesis& h) {
   const int dof = std::min(kMaxDof, 3 * n - 6);
   h.consistent = h.fit.chi2 <= gate_[dof];
   h.plausible = h.fit.chi2 <= competitor_gate_[dof];
-  h.obs.clear();
-  for (const auto& [i, cd] : h.pairs)
-    if (cands_[cd].views >= 3)
-      h.obs.insert(h.obs.end(), cands_[cd].obs.begin(), cands_[cd].obs.end());
-  std::sort(h.obs.begin(), h.obs.end());
+  h.obs = multi_view_observations(h.pairs);
+}
+
+std::vector<int> LayoutSearch::multi_view_observations(
+    const std::vector<std::pair<int, int>>& pairs) const {
+  std::vector<int> obs;
+  for (const auto& [i, cd] : pairs)
+    if (cands_[cd].views >= 3) obs.insert(obs.end(), cands_[cd].obs.begin(), cands_[cd].obs.end());
+  std::sort(obs.begin(), obs.end());
+  return obs;
 }
 
 void LayoutSearch::record(LayoutHypothesis h) {
@@ -530,7 +544,7 @@ MarkMatcher::SearchOutcome MarkMatcher::choose_hypothesis(const Work& w, int b, 
   struct Group {
     int rep;
     bool well_posed;
-    std::vector<int> obs;
+    std::vector<int> obs, explained;
   };
   std::vector<Group> groups;
   auto better = [&](int h, int than) {
@@ -553,15 +567,13 @@ MarkMatcher::SearchOutcome MarkMatcher::choose_hypothesis(const Work& w, int b, 
       if (!uncertainty::inverse_spd<6>(Mat6(rep.fit.cov + hy.fit.cov), W) ||
           !(d.dot(W * d) <= chi2_gate_[6]))
         continue;
-      std::vector<int> u;
-      std::set_union(g.obs.begin(), g.obs.end(), hy.obs.begin(), hy.obs.end(),
-                     std::back_inserter(u));
-      g.obs = std::move(u);
+      g.obs = sorted_union(g.obs, hy.obs);
+      g.explained = sorted_union(g.explained, hy.explained);
       if (better(h, g.rep)) g.rep = h;
       merged = true;
       break;
     }
-    if (!merged) groups.push_back({h, hy.well_posed, hy.obs});
+    if (!merged) groups.push_back({h, hy.well_posed, hy.obs, hy.explained});
   }
   if (!any_sizable) return SearchOutcome::kTooFewMarks;
   bool consistent_in_region = false;
@@ -571,13 +583,17 @@ MarkMatcher::SearchOutcome MarkMatcher::choose_hypothesis(const Work& w, int b, 
     return any_consistent ? SearchOutcome::kOutsideRegion : SearchOutcome::kInconsistent;
   // An interpretation whose multi-view (>= 3) observations are a strict subset of another's is
   // dropped: it leaves real points unexplained that the other explains with the same layout.
+  // Its observations before the trim count: with the calibration errors common to its marks the
+  // true layout's full chi-square can fail and the trim then drops real marks (the 4-view ones
+  // first); what is left may be a subset of the layout shifted by one ring, which must not win.
   int kept = 0;
   for (size_t g = 0; g < groups.size(); ++g) {
     bool dominated = false;
+    const std::vector<int>& mine = groups[g].explained;
     for (size_t o = 0; o < groups.size() && !dominated; ++o)
-      dominated = o != g && groups[o].obs.size() > groups[g].obs.size() &&
-                  std::includes(groups[o].obs.begin(), groups[o].obs.end(), groups[g].obs.begin(),
-                                groups[g].obs.end());
+      dominated =
+          o != g && groups[o].obs.size() > mine.size() &&
+          std::includes(groups[o].obs.begin(), groups[o].obs.end(), mine.begin(), mine.end());
     if (!dominated) {
       ++kept;
       best = static_cast<int>(g);

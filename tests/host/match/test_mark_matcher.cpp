@@ -973,13 +973,18 @@ TEST(MarkMatcherReacquisition, HostStartedMidSeparationNeverGuesses) {
   // the old matcher accepted the store shifted by one ring (0.5 m): all four rings' two middle
   // marks seen, the true 8-mark layout is not well spread and was left out of the ambiguity
   // test, the shifted 6-mark one is and was accepted (docs/matching.md, step 6). Old code: wrong
-  // ids in all 12 starts (770 observations). Refusing is allowed, guessing is not: the refusals
+  // ids in all 12 starts (770 observations). The other 8 (found by the sweep below): the true
+  // layout's chi-square failed, the trim dropped its 4-view marks, and the rest was a subset of
+  // the shifted layout's points, which then won (wrong ids in all 8 with only the first fix).
+  // Refusing is allowed, guessing is not: the refusals
   // are counted, not asserted. STORETRACK_REACQ_SWEEP=N runs N seeds from 700000 instead, each
   // started at exposures 20, 30, ..., 210.
   const sim::Scenario scenario = sim::load_scenario(scenario_path("store_separation"));
   std::vector<MidSeparationStart> starts = {
-      {700008, 175}, {700016, 183}, {700032, 174}, {700048, 178}, {700075, 176}, {700076, 184},
-      {700085, 181}, {700098, 170}, {700145, 179}, {700153, 178}, {700173, 175}, {700180, 181}};
+      {700008, 175}, {700016, 183}, {700032, 174}, {700048, 178}, {700075, 176},
+      {700076, 184}, {700085, 181}, {700098, 170}, {700145, 179}, {700153, 178},
+      {700173, 175}, {700180, 181}, {700050, 90},  {700060, 90},  {700060, 150},
+      {700061, 100}, {700061, 160}, {700090, 100}, {700090, 110}, {700090, 120}};
   if (const char* env = std::getenv("STORETRACK_REACQ_SWEEP")) {
     starts.clear();
     for (int d = 0; d < std::max(1, std::atoi(env)); ++d)
