@@ -973,12 +973,12 @@ TEST(MarkMatcherReacquisition, HostStartedMidSeparationNeverGuesses) {
   // the old matcher accepted the store shifted by one ring (0.5 m): all four rings' two middle
   // marks seen, the true 8-mark layout is not well spread and was left out of the ambiguity
   // test, the shifted 6-mark one is and was accepted (docs/matching.md, step 6). Old code: wrong
-  // ids in all 12 starts (770 observations). The other 8 (found by the sweep below): the true
-  // layout's chi-square failed, the trim dropped its 4-view marks, and the rest was a subset of
-  // the shifted layout's points, which then won (wrong ids in all 8 with only the first fix).
-  // Refusing is allowed, guessing is not: the refusals
-  // are counted, not asserted. STORETRACK_REACQ_SWEEP=N runs N seeds from 700000 instead, each
-  // started at exposures 20, 30, ..., 210.
+  // ids in all 20 starts (1426 observations; 770 in the first 12). The other 8 (found by the sweep
+  // below): the true layout's chi-square failed, the trim dropped its 4-view marks, and the rest
+  // was a subset of the shifted layout's points, which then won (wrong ids in all 8 with only the
+  // first fix). Refusing is allowed, guessing is not: the refusals are counted, not asserted.
+  // STORETRACK_REACQ_SWEEP=N runs N seeds from 700000 instead, each started at exposures 20, 30,
+  // ..., 210.
   const sim::Scenario scenario = sim::load_scenario(scenario_path("store_separation"));
   std::vector<MidSeparationStart> starts = {
       {700008, 175}, {700016, 183}, {700032, 174}, {700048, 178}, {700075, 176},
@@ -1003,6 +1003,24 @@ TEST(MarkMatcherReacquisition, HostStartedMidSeparationNeverGuesses) {
   std::printf("%zu starts: %ld wrong ids (in %ld starts), store not identified in %ld\n",
               starts.size(), wrong, wrong_starts, refused);
   EXPECT_EQ(wrong, 0);
+}
+
+TEST(MarkMatcherReacquisition, CalibrationDrawThatTrimsTheTrueLayoutIsRefusedNotGuessed) {
+  // Seed 118 of OtherCalibrationDraws' full form: its calibration draw makes the true layout's
+  // chi-square fail, the trim shrinks it, and the old matcher accepted the store shifted by one
+  // ring (769 wrong ids). Now every search is refused (counted): refusing is allowed, guessing
+  // is not (docs/matching.md, "Wrong ids mid-separation").
+  const sim::Simulator sim(sim::load_scenario(scenario_path("store_separation")), 118);
+  MarkMatcher matcher(sim.calibrated_rig(), {sim.pylon_survey(), sim.store_survey()});
+  set_installation_priors(sim, matcher);
+  ASSERT_TRUE(matcher.set_region("store", separation_region(sim)));
+  std::vector<Feed> feeds;
+  for (int k = 150; k < sim.num_exposures(); ++k)
+    feeds.push_back({k, 0, false, kTwinOffset});
+  const StoreTally t = run_feeds(sim, matcher, feeds, 218);
+  print_store_tally("seed 118, host started at 150, twin in view", t, matcher.counters(), 0);
+  EXPECT_EQ(t.wrong, 0);
+  EXPECT_EQ(t.twin_identified, 0);
 }
 }  // namespace
 }  // namespace storetrack::match
