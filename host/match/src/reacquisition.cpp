@@ -14,11 +14,12 @@
 //    candidates uniquely inside its chi-square(3) gate; refit, extend once more, refit.
 // 3. A hypothesis passes with >= min_reacquisition_marks well-spread marks (min_layout_spread,
 //    max_layout_*_sigma) and the fit's chi-square(3n - 6). Hypotheses outside the body's region
-//    (set_region) are excluded; passing hypotheses with the same pose (chi-square(6) of their
-//    difference) are one interpretation; an interpretation whose explained observations are a
-//    strict subset of another's is dropped (it leaves points unexplained that the other explains
-//    with the same layout). Exactly one interpretation left: accepted, the body's filter starts
-//    from its pose and the bootstrap step assigns the marks. More than one: refused (ambiguous).
+//    (set_region) are excluded; plausible hypotheses, well posed or not, with the same pose
+//    (chi-square(6) of their difference) and well-posedness are one interpretation; an
+//    interpretation whose observations explained before the trim are a strict subset of another's
+//    fitted ones is dropped (it leaves points unexplained that the other explains with the same
+//    layout). Exactly one interpretation left, well posed: accepted, the body's filter starts
+//    from its pose and the bootstrap step assigns the marks. Otherwise: refused (ambiguous).
 #include "matcher_work.hpp"
 
 #include <algorithm>
