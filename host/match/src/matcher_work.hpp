@@ -73,6 +73,8 @@ struct LayoutHypothesis {
   /// Observations of the explained candidates seen in >= 3 views, ascending (a two-view point
   /// may be a false correspondence, so it does not make one explanation larger than another).
   std::vector<int> obs;
+  /// The same before the trim (trim): what the pose explains; a superset of obs.
+  std::vector<int> explained;
 };
 
 enum class ObsState : std::uint8_t { kUnassigned, kAssigned, kAmbiguous, kUngated };

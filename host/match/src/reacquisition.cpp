@@ -14,15 +14,18 @@
 //    candidates uniquely inside its chi-square(3) gate; refit, extend once more, refit.
 // 3. A hypothesis passes with >= min_reacquisition_marks well-spread marks (min_layout_spread,
 //    max_layout_*_sigma) and the fit's chi-square(3n - 6). Hypotheses outside the body's region
-//    (set_region) are excluded; passing hypotheses with the same pose (chi-square(6) of their
-//    difference) are one interpretation; an interpretation whose explained observations are a
-//    strict subset of another's is dropped (it leaves points unexplained that the other explains
-//    with the same layout). Exactly one interpretation left: accepted, the body's filter starts
-//    from its pose and the bootstrap step assigns the marks. More than one: refused (ambiguous).
+//    (set_region) are excluded; plausible hypotheses, well posed or not, with the same pose
+//    (chi-square(6) of their difference) and well-posedness are one interpretation; an
+//    interpretation whose observations explained before the trim are a strict subset of another's
+//    fitted ones is dropped (it leaves points unexplained that the other explains with the same
+//    layout). Exactly one interpretation left, well posed: accepted, the body's filter starts
+//    from its pose and the bootstrap step assigns the marks. Otherwise: refused (ambiguous).
 #include "matcher_work.hpp"
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <iterator>
 #include <optional>
 
@@ -39,6 +42,12 @@ enum class MarkMatcher::SearchOutcome : std::uint8_t {
 };
 
 namespace {
+
+std::vector<int> sorted_union(const std::vector<int>& a, const std::vector<int>& b) {
+  std::vector<int> u;
+  std::set_union(a.begin(), a.end(), b.begin(), b.end(), std::back_inserter(u));
+  return u;
+}
 
 bool shares_observation(const std::vector<int>& a, const std::vector<int>& b) {
   for (int o : a)
@@ -89,6 +98,7 @@ class LayoutSearch {
   bool fit(const std::vector<std::pair<int, int>>& pairs, LayoutFit& out);
   void trim(LayoutHypothesis& h);
   void classify(LayoutHypothesis& h);
+  std::vector<int> multi_view_observations(const std::vector<std::pair<int, int>>& pairs) const;
   void record(LayoutHypothesis h);
 
   const std::vector<CandidatePoint>& cands_;
@@ -212,8 +222,10 @@ void LayoutSearch::try_basis(int a, int c, int e, int i, int j, int k) {
   // The basis itself is kept even when the extension lost it (so it is not retried).
   if (h.pairs.empty()) h.pairs = basis;
   if (static_cast<int>(h.pairs.size()) >= min_marks_) {
+    const std::vector<int> explained = multi_view_observations(h.pairs);
     trim(h);
     classify(h);
+    h.explained = explained;
   }
   record(std::move(h));
 }
@@ -252,11 +264,16 @@ void LayoutSearch::classify(LayoutHypothesis& h) {
   const int dof = std::min(kMaxDof, 3 * n - 6);
   h.consistent = h.fit.chi2 <= gate_[dof];
   h.plausible = h.fit.chi2 <= competitor_gate_[dof];
-  h.obs.clear();
-  for (const auto& [i, cd] : h.pairs)
-    if (cands_[cd].views >= 3)
-      h.obs.insert(h.obs.end(), cands_[cd].obs.begin(), cands_[cd].obs.end());
-  std::sort(h.obs.begin(), h.obs.end());
+  h.obs = multi_view_observations(h.pairs);
+}
+
+std::vector<int> LayoutSearch::multi_view_observations(
+    const std::vector<std::pair<int, int>>& pairs) const {
+  std::vector<int> obs;
+  for (const auto& [i, cd] : pairs)
+    if (cands_[cd].views >= 3) obs.insert(obs.end(), cands_[cd].obs.begin(), cands_[cd].obs.end());
+  std::sort(obs.begin(), obs.end());
+  return obs;
 }
 
 void LayoutSearch::record(LayoutHypothesis h) {
@@ -501,14 +518,23 @@ bool MarkMatcher::inside_region(const Work& w, int b, const Transform& T_w_b) co
 }
 
 MarkMatcher::SearchOutcome MarkMatcher::choose_hypothesis(const Work& w, int b, int& best) const {
-  // Competitors: enough well-spread marks, within the competitor gate, inside the region.
-  // Competitors with the same pose (chi-square(6) of the difference) form one interpretation,
-  // represented by its consistent hypothesis with the most marks.
+  // Competitors: enough marks, within the competitor gate, inside the region, well posed or not.
+  // A hypothesis that is not well posed cannot be accepted, but it is still an interpretation
+  // of the points: the store's rings are 0.5 m apart and its two middle rows only 0.1 m, so with
+  // those rows seen on all four rings the true 8-mark layout is not well spread
+  // (min_layout_spread) while the same points shifted by one ring, six of them on three rings,
+  // are; left out, the true interpretation could not drop the shifted one (strict subset) and the
+  // shifted one was accepted (docs/matching.md, step 6). Competitors with the same pose
+  // (chi-square(6) of the difference) and the same well-posedness form one interpretation,
+  // represented by its consistent hypothesis with the most marks. (A hypothesis that is not well
+  // posed may have a wide covariance: merged into another interpretation it could make that one
+  // look larger than it is.)
   const auto& hyps = w.hypotheses;
   bool any_sizable = false, any_consistent = false;
   struct Group {
     int rep;
-    std::vector<int> obs;
+    bool well_posed;
+    std::vector<int> obs, explained;
   };
   std::vector<Group> groups;
   auto better = [&](int h, int than) {
@@ -517,49 +543,56 @@ MarkMatcher::SearchOutcome MarkMatcher::choose_hypothesis(const Work& w, int b, 
   };
   for (int h = 0; h < static_cast<int>(hyps.size()); ++h) {
     const auto& hy = hyps[h];
-    if (!hy.well_posed) continue;
-    any_sizable = true;
-    any_consistent = any_consistent || hy.consistent;
+    if (hy.well_posed) {
+      any_sizable = true;
+      any_consistent = any_consistent || hy.consistent;
+    }
     if (!hy.plausible || !inside_region(w, b, hy.fit.T_w_b)) continue;
     bool merged = false;
     for (auto& g : groups) {
+      if (g.well_posed != hy.well_posed) continue;
       const auto& rep = hyps[g.rep];
       Mat6 W;
       const geometry::Vec6 d = geometry::left_difference(hy.fit.T_w_b, rep.fit.T_w_b);
       if (!uncertainty::inverse_spd<6>(Mat6(rep.fit.cov + hy.fit.cov), W) ||
           !(d.dot(W * d) <= chi2_gate_[6]))
         continue;
-      std::vector<int> u;
-      std::set_union(g.obs.begin(), g.obs.end(), hy.obs.begin(), hy.obs.end(),
-                     std::back_inserter(u));
-      g.obs = std::move(u);
+      g.obs = sorted_union(g.obs, hy.obs);
+      g.explained = sorted_union(g.explained, hy.explained);
       if (better(h, g.rep)) g.rep = h;
       merged = true;
       break;
     }
-    if (!merged) groups.push_back({h, hy.obs});
+    if (!merged) groups.push_back({h, hy.well_posed, hy.obs, hy.explained});
   }
   if (!any_sizable) return SearchOutcome::kTooFewMarks;
   bool consistent_in_region = false;
   for (const auto& g : groups)
-    consistent_in_region = consistent_in_region || hyps[g.rep].consistent;
+    consistent_in_region = consistent_in_region || (g.well_posed && hyps[g.rep].consistent);
   if (!consistent_in_region)
     return any_consistent ? SearchOutcome::kOutsideRegion : SearchOutcome::kInconsistent;
   // An interpretation whose multi-view (>= 3) observations are a strict subset of another's is
   // dropped: it leaves real points unexplained that the other explains with the same layout.
+  // Its observations before the trim count: with the calibration errors common to its marks the
+  // true layout's full chi-square can fail and the trim then drops real marks (the 4-view ones
+  // first); what is left may be a subset of the layout shifted by one ring, which must not win.
   int kept = 0;
   for (size_t g = 0; g < groups.size(); ++g) {
     bool dominated = false;
+    const std::vector<int>& mine = groups[g].explained;
     for (size_t o = 0; o < groups.size() && !dominated; ++o)
-      dominated = o != g && groups[o].obs.size() > groups[g].obs.size() &&
-                  std::includes(groups[o].obs.begin(), groups[o].obs.end(), groups[g].obs.begin(),
-                                groups[g].obs.end());
+      dominated =
+          o != g && groups[o].obs.size() > mine.size() &&
+          std::includes(groups[o].obs.begin(), groups[o].obs.end(), mine.begin(), mine.end());
     if (!dominated) {
       ++kept;
-      best = groups[g].rep;
+      best = static_cast<int>(g);
     }
   }
-  if (kept != 1) return SearchOutcome::kAmbiguous;
+  // The one interpretation left must be well posed to be accepted; one that is not (the larger,
+  // possibly true, layout) leaves nothing that can be verified: refused as ambiguous.
+  if (kept != 1 || !groups[static_cast<size_t>(best)].well_posed) return SearchOutcome::kAmbiguous;
+  best = groups[static_cast<size_t>(best)].rep;
   return hyps[best].consistent ? SearchOutcome::kAccepted : SearchOutcome::kInconsistent;
 }
 

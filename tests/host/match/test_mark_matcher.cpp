@@ -952,8 +952,8 @@ TEST(MarkMatcherReacquisition, OtherCalibrationDraws) {
     within95 += t.nees_within_95;
     EXPECT_EQ(t.wrong, 0);
     EXPECT_EQ(t.twin_identified, 0);
-    // Found in every draw; in some the first exposures are refused as ambiguous (counted).
-    EXPECT_GE(matcher.counters().reacquisition_accepted, 1u);
+    // A draw whose calibration error trims the true layout is refused, never guessed (seed 118
+    // of the full form, docs/matching.md "Wrong ids mid-separation"): counted, not a failure.
     expect_pose_coverage(t);
   }
   const double rate = double(identified) / double(usable);
@@ -963,6 +963,8 @@ TEST(MarkMatcherReacquisition, OtherCalibrationDraws) {
       draws, total_wrong, twin_ids, accepted_draws, rate, usable, within95, poses,
       double(within95) / double(poses));
   EXPECT_GE(rate, 0.95);
+  // The same 95 % requirement on the draws: the store found in at least 95 % of them.
+  EXPECT_GE(double(accepted_draws), 0.95 * double(draws));
 }
 
 /// One camera blinded (delivers nothing: the sun in its view) for kBlindedExposures exposures of
@@ -1211,5 +1213,91 @@ TEST(MarkMatcherSingleView, OneOfTwoCamerasBlindedOtherDraws) {
   }
 }
 
+/// One start of the host mid-separation: simulator seed and the exposure the host starts at.
+struct MidSeparationStart {
+  std::uint64_t seed;
+  int k_start;
+};
+
+/// The host started at `start.k_start` with the installation priors and the separation region,
+/// fed three exposures (as the end-to-end honesty test's reacquire form): wrong ids (every one
+/// reported by feed_exposure) and whether the last exposure has the store identified.
+struct MidSeparationOutcome {
+  long wrong = 0;
+  bool identified = false;
+};
+MidSeparationOutcome start_mid_separation(const sim::Scenario& scenario,
+                                          const MidSeparationStart& start) {
+  // Kept for the executable's lifetime: recorded() caches observations by simulator address.
+  static std::vector<std::unique_ptr<sim::Simulator>> simulators;
+  const sim::Simulator& sim =
+      *simulators.emplace_back(std::make_unique<sim::Simulator>(scenario, start.seed));
+  MarkMatcher matcher(sim.calibrated_rig(), {sim.pylon_survey(), sim.store_survey()});
+  set_installation_priors(sim, matcher);
+  EXPECT_TRUE(matcher.set_region("store", separation_region(sim)));
+  std::mt19937_64 rng(start.seed);
+  StoreTally t;
+  long identified_before_last = 0;
+  for (int k = start.k_start; k < start.k_start + 3; ++k) {
+    identified_before_last = t.store_identified;
+    feed_exposure(sim, matcher, {k, 0, false, std::nullopt}, t, rng);
+  }
+  return {t.wrong, t.store_identified > identified_before_last};
+}
+
+TEST(MarkMatcherReacquisition, HostStartedMidSeparationNeverGuesses) {
+  // Starts (the end-to-end honesty test's fast-mode reacquire draws that gave wrong ids) where
+  // the old matcher accepted the store shifted by one ring (0.5 m): all four rings' two middle
+  // marks seen, the true 8-mark layout is not well spread and was left out of the ambiguity
+  // test, the shifted 6-mark one is and was accepted (docs/matching.md, step 6). Old code: wrong
+  // ids in all 20 starts (1426 observations; 770 in the first 12). The other 8 (found by the sweep
+  // below): the true layout's chi-square failed, the trim dropped its 4-view marks, and the rest
+  // was a subset of the shifted layout's points, which then won (wrong ids in all 8 with only the
+  // first fix). Refusing is allowed, guessing is not: the refusals are counted, not asserted.
+  // STORETRACK_REACQ_SWEEP=N runs N seeds from 700000 instead, each started at exposures 20, 30,
+  // ..., 210.
+  const sim::Scenario scenario = sim::load_scenario(scenario_path("store_separation"));
+  std::vector<MidSeparationStart> starts = {
+      {700008, 175}, {700016, 183}, {700032, 174}, {700048, 178}, {700075, 176},
+      {700076, 184}, {700085, 181}, {700098, 170}, {700145, 179}, {700153, 178},
+      {700173, 175}, {700180, 181}, {700050, 90},  {700060, 90},  {700060, 150},
+      {700061, 100}, {700061, 160}, {700090, 100}, {700090, 110}, {700090, 120}};
+  if (const char* env = std::getenv("STORETRACK_REACQ_SWEEP")) {
+    starts.clear();
+    for (int d = 0; d < std::max(1, std::atoi(env)); ++d)
+      for (int k = 20; k <= 210; k += 10)
+        starts.push_back({700000 + static_cast<std::uint64_t>(d), k});
+  }
+  long wrong = 0, refused = 0, wrong_starts = 0;
+  for (const MidSeparationStart& s : starts) {
+    const MidSeparationOutcome o = start_mid_separation(scenario, s);
+    wrong += o.wrong;
+    wrong_starts += o.wrong > 0;
+    refused += !o.identified;
+    std::printf("seed %llu start %d: wrong ids %ld, store identified %d\n",
+                static_cast<unsigned long long>(s.seed), s.k_start, o.wrong, o.identified);
+  }
+  std::printf("%zu starts: %ld wrong ids (in %ld starts), store not identified in %ld\n",
+              starts.size(), wrong, wrong_starts, refused);
+  EXPECT_EQ(wrong, 0);
+}
+
+TEST(MarkMatcherReacquisition, CalibrationDrawThatTrimsTheTrueLayoutIsRefusedNotGuessed) {
+  // Seed 118 of OtherCalibrationDraws' full form: its calibration draw makes the true layout's
+  // chi-square fail, the trim shrinks it, and the old matcher accepted the store shifted by one
+  // ring (769 wrong ids). Now every search is refused (counted): refusing is allowed, guessing
+  // is not (docs/matching.md, "Wrong ids mid-separation").
+  const sim::Simulator sim(sim::load_scenario(scenario_path("store_separation")), 118);
+  MarkMatcher matcher(sim.calibrated_rig(), {sim.pylon_survey(), sim.store_survey()});
+  set_installation_priors(sim, matcher);
+  ASSERT_TRUE(matcher.set_region("store", separation_region(sim)));
+  std::vector<Feed> feeds;
+  for (int k = 150; k < sim.num_exposures(); ++k)
+    feeds.push_back({k, 0, false, kTwinOffset});
+  const StoreTally t = run_feeds(sim, matcher, feeds, 218);
+  print_store_tally("seed 118, host started at 150, twin in view", t, matcher.counters(), 0);
+  EXPECT_EQ(t.wrong, 0);
+  EXPECT_EQ(t.twin_identified, 0);
+}
 }  // namespace
 }  // namespace storetrack::match

@@ -285,15 +285,20 @@ void score(const sim::Simulator& sim, const pipeline::ExposureResult& r, Tally& 
 }
 
 /// One line per draw (STORETRACK_E2E_VERBOSE): what the matcher did.
-void print_draw(int draw, int k, const pipeline::ExposureResult& r,
+void print_draw(const sim::Simulator& sim, int draw, int k, const pipeline::ExposureResult& r,
                 const match::MatchCounters& mc) {
-  int store_ids = 0;
-  for (const pipeline::MarkResult& m : r.marks)
+  int store_ids = 0, wrong_ids = 0;
+  for (const pipeline::MarkResult& m : r.marks) {
     store_ids += m.id >= 100 && m.id < 200;
+    if (!m.excluded &&
+        (test::true_mark_in_host_world(sim, m.id, r.reference_mid_tai_ns) - m.p_w).norm() >
+            kWrongIdErrorM)
+      ++wrong_ids;
+  }
   std::printf(
-      "draw %d k %d: pose %d, store ids %d, re-acquisitions %llu (accepted %llu, "
+      "draw %d k %d: pose %d, store ids %d (wrong %d), re-acquisitions %llu (accepted %llu, "
       "ambiguous %llu), acquisitions %llu\n",
-      draw, k, r.T_p_s.valid, store_ids,
+      draw, k, r.T_p_s.valid, store_ids, wrong_ids,
       static_cast<unsigned long long>(mc.reacquisition_attempted),
       static_cast<unsigned long long>(mc.reacquisition_accepted),
       static_cast<unsigned long long>(mc.reacquisition_ambiguous),
@@ -328,7 +333,7 @@ void run_draw(const sim::Scenario& scenario, int draw, Tally& tally) {
     r = proc.process(e);
   }
   if (std::getenv("STORETRACK_E2E_VERBOSE"))
-    print_draw(draw, k_scored, r, proc.matcher().counters());
+    print_draw(sim, draw, k_scored, r, proc.matcher().counters());
   score(sim, r, tally);
 }
 
