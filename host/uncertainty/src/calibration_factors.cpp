@@ -110,17 +110,23 @@ void CalibrationFactors::factor_jointly(const camera::RigCalibration& rig, doubl
   const Eigen::MatrixXd F_E = sqrt_factor(remainder, relative_floor);
   const int r_I = static_cast<int>(F_I.cols()), r_E = static_cast<int>(F_E.cols());
   const bool extrinsic_loads_intrinsic = !A.isZero(0.0);
+  // Rows of a factor that may have no columns (a zero covariance has rank 0): Eigen's block of
+  // an empty matrix offsets its null data pointer, which UBSan reports.
+  const auto rows = [](const Eigen::MatrixXd& M, int begin, int count) -> Eigen::MatrixXd {
+    if (M.cols() == 0) return Eigen::MatrixXd(count, 0);
+    return M.middleRows(begin, count);
+  };
   for (int c = 0; c < n; ++c) {
     CameraFactors& cf = cameras_[static_cast<size_t>(c)];
     cf.intrinsic_begin = 0;
-    cf.intrinsic = F_I.middleRows(kI * c, kI);
+    cf.intrinsic = rows(F_I, kI * c, kI);
     if (extrinsic_loads_intrinsic) {
       cf.extrinsic_begin = 0;
       cf.extrinsic.resize(6, r_I + r_E);
-      cf.extrinsic << A.middleRows(6 * c, 6), F_E.middleRows(6 * c, 6);
+      cf.extrinsic << rows(A, 6 * c, 6), rows(F_E, 6 * c, 6);
     } else {
       cf.extrinsic_begin = r_I;
-      cf.extrinsic = F_E.middleRows(6 * c, 6);
+      cf.extrinsic = rows(F_E, 6 * c, 6);
     }
   }
   ranges_[index(Source::kIntrinsic)] = {0, r_I};
