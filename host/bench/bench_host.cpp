@@ -492,9 +492,8 @@ void set_scaling_counters(benchmark::State& state, const ScalingData& d) {
 
 // ExposureProcessor::process with its MarkMatcher, as BM_ExposureMatchAndProcess: exposures
 // replayed in order, the processor restarted from its priors at the end (not timed).
-void BM_HostScalingProcess(benchmark::State& state, int cameras, int store_marks) {
-  ScalingData& d = scaling_data(cameras, store_marks);
-  auto proc = make_processor(d.sim);
+// Times `proc` over the configuration's exposures, tracking restarted after the last one.
+void time_processing(benchmark::State& state, pipeline::ExposureProcessor& proc, ScalingData& d) {
   size_t k = 0;
   for (auto _ : state) {
     const pipeline::ExposureResult r = proc.process(d.exposures[k]);
@@ -509,8 +508,12 @@ void BM_HostScalingProcess(benchmark::State& state, int cameras, int store_marks
   set_scaling_counters(state, d);
 }
 
-// The peer on the same exposures: one cv::triangulatePoints call per camera pair and exposure
-// (linear DLT only: no distortion, refinement or covariance).
+void BM_HostScalingProcess(benchmark::State& state, int cameras, int store_marks) {
+  ScalingData& d = scaling_data(cameras, store_marks);
+  auto proc = make_processor(d.sim);
+  time_processing(state, proc, d);
+}
+
 // The same with a version-2 calibration whose joint covariance couples every camera (a shared
 // world registration, 0.1 mrad / 0.3 mm per axis) and each camera's principal point with its
 // rotation (correlation 0.9): the dense case, each camera's extrinsics loading on all
@@ -542,21 +545,12 @@ void BM_HostScalingProcessJoint(benchmark::State& state, int cameras, int store_
   proc.matcher().set_prior_pose("pylon", sim.scenario().T_w_p, prior);
   proc.matcher().set_prior_pose("store", sim.scenario().T_w_p * sim.scenario().separation.T_p_s0,
                                 prior);
-  size_t k = 0;
-  for (auto _ : state) {
-    const pipeline::ExposureResult r = proc.process(d.exposures[k]);
-    benchmark::DoNotOptimize(r.sample);
-    if (++k == d.exposures.size()) {
-      state.PauseTiming();
-      k = 0;
-      proc.reset_tracking();
-      state.ResumeTiming();
-    }
-  }
-  set_scaling_counters(state, d);
+  time_processing(state, proc, d);
   state.counters["factors"] = proc.factors().num_factors();
 }
 
+// The peer on the same exposures: one cv::triangulatePoints call per camera pair and exposure
+// (linear DLT only: no distortion, refinement or covariance).
 void BM_HostScalingCvTriangulate(benchmark::State& state, int cameras, int store_marks,
                                  bool all_pairs) {
   ScalingData& d = scaling_data(cameras, store_marks);
