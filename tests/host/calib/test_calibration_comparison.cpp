@@ -360,6 +360,23 @@ TEST(CompareCalibrations, ScaleBarsGiveTheScaleErrorInClosedForm) {
     EXPECT_NEAR(bar.error_b_m, 0.01 * bar.length_m, 1e-9);
     EXPECT_GT(bar.u_a_m, 0.0);
   }
+  EXPECT_NE(r.verdict.find("fail the length test"), std::string::npos) << r.verdict;
+  EXPECT_NE(r.verdict.find("do not fly with that set"), std::string::npos) << r.verdict;
+}
+
+TEST(CompareCalibrations, VerdictNamesTheSetWithTheSmallerUncertainty) {
+  // Seed 002's case: two consistent sets whose predicted uncertainties differ 2x. b states
+  // twice a's standard uncertainties (covariance x 4) with the same parameters: consistent,
+  // and a is better.
+  const camera::RigCalibration a = sim::Simulator(scenario(), 1).calibrated_rig();
+  camera::RigCalibration b = a;
+  camera::set_joint_covariance(b, 4.0 * a.full_joint_covariance());
+  const ComparisonResult r = compare_calibrations(a, b, small_options());
+  EXPECT_TRUE(r.consistent);
+  EXPECT_NEAR(r.u_b_m.rms / r.u_a_m.rms, 2.0, 1e-9);
+  EXPECT_EQ(r.better, 'a') << r.verdict;
+  const ComparisonResult swapped = compare_calibrations(b, a, small_options());
+  EXPECT_EQ(swapped.better, 'b') << swapped.verdict;
 }
 
 std::string temp_dir() {
