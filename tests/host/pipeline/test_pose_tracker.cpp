@@ -91,19 +91,24 @@ bool rejected(const uncertainty::ConsistencyAccumulator<3>& acc, const test::Hon
   return out;
 }
 
-// The store's relative accelerations of one test point, drawn from the product's stated
-// envelope (PoseTrackerConfig: random constant, per axis): the scenario's gravity along z_p plus
-// the aerodynamic spread, angular accelerations about zero. The scenario's own values
-// (-3, 0.4, 0) m/s^2 and (0.1, 0.8, 0) rad/s^2 are one such draw, each within 1 sigma.
+// The store's stated dynamics envelope (docs/uncertainty.md, "Process model"): per axis, its
+// aerodynamic specific force [m/s^2] about the fall with the aircraft's load factor, and its
+// angular acceleration [rad/s^2] about zero. The product defaults state it (checked below).
+constexpr double kEnvelopeAccel = 5.0;
+constexpr double kEnvelopeAngularAccel = 2.0;
+
+// The store's relative accelerations of one test point, drawn from the envelope (a random
+// constant per axis): the scenario's gravity along z_p plus the aerodynamic spread, angular
+// accelerations about zero. The scenario's own values (-3, 0.4, 0) m/s^2 and (0.1, 0.8, 0)
+// rad/s^2 are one such draw, each within 1 sigma.
 // STORETRACK_TRACKER_SCENARIO_DYNAMICS=1 keeps them instead (docs/uncertainty.md).
 void draw_dynamics(sim::Scenario& sc, std::mt19937_64& rng) {
   if (std::getenv("STORETRACK_TRACKER_SCENARIO_DYNAMICS")) return;
-  const PoseTrackerConfig envelope;
   std::normal_distribution<double> n01;
   sc.separation.accel_p_m_s2 = Vec3(0, 0, sc.separation.accel_p_m_s2.z());
   for (int a = 0; a < 3; ++a) {
-    sc.separation.accel_p_m_s2(a) += envelope.accel_sigma_m_s2 * n01(rng);
-    sc.separation.accel_ypr_rad_s2(a) = envelope.angular_accel_sigma_rad_s2 * n01(rng);
+    sc.separation.accel_p_m_s2(a) += kEnvelopeAccel * n01(rng);
+    sc.separation.accel_ypr_rad_s2(a) = kEnvelopeAngularAccel * n01(rng);
   }
 }
 
@@ -202,6 +207,8 @@ TEST(PoseTracker, ExtrapolatesHonestlyWithinTheGapAndStopsAfterIt) {
   const int seeds = seeds_from_env();
   const PoseTrackerConfig product;
   ASSERT_EQ(product.max_gap_s, 0.02);
+  EXPECT_EQ(product.accel_sigma_m_s2, kEnvelopeAccel);
+  EXPECT_EQ(product.angular_accel_sigma_rad_s2, kEnvelopeAngularAccel);
   PoseTrackerConfig low = product, high = product, old_model = product;
   low.accel_sigma_m_s2 *= 0.3;
   low.angular_accel_sigma_rad_s2 *= 0.3;
@@ -246,6 +253,11 @@ TEST(PoseTracker, ExtrapolatesHonestlyWithinTheGapAndStopsAfterIt) {
     EXPECT_GE(g.invalid_after_gap, seeds * 2) << v.name;
   }
   print_scores("attitude, solved exposures", solved_attitude);
+  // One test point is one draw of the envelope: its fixed accelerations give every seed the same
+  // bias, so the coverage over seeds scores that one bias, not the stated distribution (which
+  // is over the test points of the envelope). Printed, not scored.
+  if (std::getenv("STORETRACK_TRACKER_SCENARIO_DYNAMICS"))
+    GTEST_SKIP() << "the scenario's own accelerations: one draw of the envelope, not scored";
 
   const GapScores& g = variants[0].scores;
   for (int a = 0; a < 3; ++a) {
