@@ -6,6 +6,7 @@
 // they claim, neither more nor less, the flag must be set exactly on the samples predicted
 // within the configured gap, and later samples must be invalid.
 #include <algorithm>
+#include <array>
 #include <cfloat>
 #include <cmath>
 #include <cstdio>
@@ -342,6 +343,46 @@ TEST(PoseTracker, ExtrapolatedBudgetAddsUpWithTheProcessNoiseInIt) {
   }
   // 20 ms gap at 2.5 ms per exposure: 8 extrapolated samples (7 if jitter moves the 8th past it).
   EXPECT_GE(extrapolated, 7);
+}
+
+// The stated mean acceleration is part of the prediction: solved poses on an exact trajectory
+// p(t) = p0 + v t + mu t^2 / 2 (mu the configured mean) turning at a constant rate about a fixed
+// axis are extrapolated exactly (the closed form of the truth, to rounding), for the default
+// 1 g and for another test point's mean. Without the mean the error is mu tau (tau + dt) / 2.
+TEST(PoseTracker, PredictionFollowsTheStatedMeanAcceleration) {
+  const std::array<Vec3, 2> means = {PoseTrackerConfig{}.mean_accel_p_m_s2, Vec3(1.0, -2.0, 4.9)};
+  for (const Vec3& mu : means) {
+    PoseTrackerConfig config;
+    config.mean_accel_p_m_s2 = mu;
+    PoseTracker tracker(uncertainty::CalibrationFactors{}, config);
+    const Vec3 p0(0.1, -0.05, 0.3), v(0.5, 0.2, 4.0), w(0.05, 0.6, 0.1);
+    const auto truth = [&](double t) {
+      geometry::Transform T = geometry::Transform::Identity();
+      T.linear() = geometry::rotation_from_rotvec(w * t);
+      T.translation() = p0 + v * t + 0.5 * mu * t * t;
+      return T;
+    };
+    constexpr time::TaiNs kStartNs = 1'000'000'000, kFrameNs = 2'500'000;
+    for (int k = 0; k < 6; ++k) {
+      ExposureResult r;
+      r.reference_mid_tai_ns = kStartNs + k * kFrameNs;
+      const geometry::Transform T_true = truth(static_cast<double>(k * kFrameNs) * 1e-9);
+      if (k < 2) {  // two solved poses give the velocity
+        r.T_p_s.valid = true;
+        r.T_p_s.T = T_true;
+        EXPECT_FALSE(tracker.update(r));
+        continue;
+      }
+      ASSERT_TRUE(tracker.update(r)) << "k " << k;
+      const Vec3 dp = r.T_p_s_extrapolated.translation() - T_true.translation();
+      const double dphi = geometry::rotvec_from_rotation(r.T_p_s_extrapolated.linear() *
+                                                         T_true.linear().transpose())
+                              .norm();
+      for (int a = 0; a < 3; ++a)
+        EXPECT_NEAR(dp(a), 0.0, 1e-12) << "k " << k << " axis " << a;
+      EXPECT_LT(dphi, 1e-12) << "k " << k;
+    }
+  }
 }
 
 TEST(PoseTracker, NoVelocityNoExtrapolation) {
