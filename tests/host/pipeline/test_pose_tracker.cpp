@@ -154,8 +154,12 @@ void score_hidden(const sim::Simulator& sim, ExposureResult r, PoseTracker& trac
 
 // One pass over the seeds; every variant's tracker sees the same processed exposures (the
 // processor's work is shared, the trackers are cheap).
+// Counts the gaps scored. A seed whose visible exposures before the gap are not all
+// solved (with a large drawn acceleration the store leaves the cameras' view late in the run)
+// is left out, counted and listed, not scored.
 void run_gaps(std::vector<TrackerVariant>& variants, int seeds,
-              uncertainty::ConsistencyAccumulator<3>& solved_attitude) {
+              uncertainty::ConsistencyAccumulator<3>& solved_attitude, int& gaps) {
+  gaps = 0;
   const sim::Scenario base = sim::load_scenario(test::scenario_path("store_separation"));
   const double frame_s = 1.0 / base.frame_rate_hz;
   // After the release and the 50 ms ejector stroke (20 + 50 ms), leaving room for the window.
@@ -174,14 +178,21 @@ void run_gaps(std::vector<TrackerVariant>& variants, int seeds,
                                              sim.num_exposures() - kSolvedBefore - kHidden - 2);
     const int k0 = start(pick);
     time::TaiNs last_solved_ns = 0;
-    for (int k = k0; k < k0 + kSolvedBefore + kHidden + 1; ++k) {
+    bool left_out = false;
+    for (int k = k0; k < k0 + kSolvedBefore + kHidden + 1 && !left_out; ++k) {
       test::SimExposure in = test::make_exposure(sim, k);
       const bool hidden = k >= k0 + kSolvedBefore && k < k0 + kSolvedBefore + kHidden;
       if (hidden) hide_store_marks(in);
       const ExposureResult r = proc.process(in.exposure, in.ids);
       if (!hidden) {
         // All marks visible: solved, never flagged.
-        ASSERT_TRUE(r.T_p_s.valid) << "seed " << seed << " k " << k;
+        if (!r.T_p_s.valid && k < k0 + kSolvedBefore) {
+          std::printf("  left out: seed %d, exposure %d before the gap not solved (status 0x%x)\n",
+                      seed, k, static_cast<unsigned>(r.sample.status));
+          left_out = true;
+          continue;
+        }
+        if (!r.T_p_s.valid) continue;  // after the gap: the gap is scored already
         for (PoseTracker& t : trackers) {
           ExposureResult copy = r;
           EXPECT_FALSE(t.update(copy));
@@ -197,6 +208,7 @@ void run_gaps(std::vector<TrackerVariant>& variants, int seeds,
       for (size_t i = 0; i < variants.size(); ++i)
         score_hidden(sim, r, trackers[i], last_solved_ns, frame_s, variants[i].scores);
     }
+    if (!left_out) ++gaps;
   }
 }
 
@@ -223,18 +235,21 @@ TEST(PoseTracker, ExtrapolatesHonestlyWithinTheGapAndStopsAfterIt) {
                                           {"process noise x 3", high, GapScores()},
                                           {"old model (0 mean, 20, 5)", old_model, GapScores()}};
   uncertainty::ConsistencyAccumulator<3> solved_attitude;
-  run_gaps(variants, seeds, solved_attitude);
+  int gaps = 0;
+  run_gaps(variants, seeds, solved_attitude, gaps);
+  // Left-out seeds are counted (none of the CI's 200); more than 1 % would be a regression.
+  EXPECT_GE(gaps, seeds - seeds / 100) << seeds - gaps << " of " << seeds << " seeds left out";
 
-  // Acceptance. n = 8 samples per gap x seeds, but the samples of one gap share the seed's
+  // Acceptance. n = 8 samples per gap x gaps, but the samples of one gap share the seed's
   // calibration, survey, accelerations and the two tracked poses: the effective sample size is
-  // seeds / (1 + 7 rho) x 8, between seeds (rho = 1) and 8 seeds (rho = 0). The band of n_eff =
-  // seeds is the widest the correlation allows (binomial 95.45 %, alpha 0.001 per side; mean NEES
-  // of d = 3: chi-square(3 seeds) / seeds), so an honest tracker fails it with <= 0.2 % per check.
-  const test::HonestyBounds band = test::derived_bounds(seeds, 3);
+  // 8 gaps / (1 + 7 rho), between gaps (rho = 1) and 8 gaps (rho = 0). The band of n_eff =
+  // gaps is the widest the correlation allows (binomial 95.45 %, alpha 0.001 per side; mean NEES
+  // of d = 3: chi-square(3 gaps) / gaps), so an honest tracker fails it with <= 0.2 % per check.
+  const test::HonestyBounds band = test::derived_bounds(gaps, 3);
   std::printf(
-      "%d seeds; acceptance (n_eff = %d): coverage [%.4f, %.4f], mean NEES (d=3) "
-      "[%.3f, %.3f]\n",
-      seeds, seeds, band.coverage_low, band.coverage_high, band.nees_low, band.nees_high);
+      "%d seeds, %d gaps scored; acceptance (n_eff = %d): coverage [%.4f, %.4f], mean "
+      "NEES (d=3) [%.3f, %.3f]\n",
+      seeds, gaps, gaps, band.coverage_low, band.coverage_high, band.nees_low, band.nees_high);
   for (const TrackerVariant& v : variants) {
     const GapScores& g = v.scores;
     std::printf("  %s: %d extrapolated, %d invalid after the gap\n", v.name, g.extrapolated,
@@ -250,8 +265,8 @@ TEST(PoseTracker, ExtrapolatesHonestlyWithinTheGapAndStopsAfterIt) {
                 g.sum_u_z_long / std::max<double>(g.position_long.count(), 1) * 1e3);
     // 20 ms gap at 2.5 ms per exposure: 8 extrapolated and 2 invalid samples per seed (exposure
     // times jitter by ~1 us, which may move the 8th just past the gap).
-    EXPECT_GE(g.extrapolated, seeds * 7) << v.name;
-    EXPECT_GE(g.invalid_after_gap, seeds * 2) << v.name;
+    EXPECT_GE(g.extrapolated, gaps * 7) << v.name;
+    EXPECT_GE(g.invalid_after_gap, gaps * 2) << v.name;
   }
   print_scores("attitude, solved exposures", solved_attitude);
   // One test point is one draw of the envelope: its fixed accelerations give every seed the same
