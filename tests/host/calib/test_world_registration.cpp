@@ -400,6 +400,19 @@ TEST(WorldRegistration, Refusals) {
   EXPECT_NE(registration_error(no_sigma).find("marks.csv: sigma_px"), std::string::npos);
 }
 
+// A survey of two marks: the refusal names the survey file as well as the observations.
+TEST(WorldRegistration, SurveyWithTooFewMarksNamesTheSurvey) {
+  std::mt19937_64 rng(3);
+  Scenario two = make_scenario(rng, false);
+  two.survey.marks.resize(2);  // marks 100, 101
+  two.sightings = only_marks(two.sightings, {100, 101});
+  const std::string error = registration_error(two);
+  EXPECT_NE(error.find("marks.csv: point_id: 2 usable marks (100, 101), need >= 3 non-collinear "
+                       "(the survey marks_w.json has 2 marks)"),
+            std::string::npos)
+      << error;
+}
+
 // A mark surveyed 12 mm off (a wrong reflector height, say) is named, and only it.
 TEST(WorldRegistration, GrossSurveyErrorNamed) {
   std::mt19937_64 rng(6);  // (seed 5's clean draw has mark 100 at p = 5e-4 < 0.01/8 by chance)
