@@ -523,8 +523,12 @@ TEST(WorldRegistration, CommandEndToEnd) {
         direct.registered.cameras[static_cast<size_t>(c)].extrinsic_covariance, 1e-12));
   }
 
-  // A board observation file given by mistake, a survey in the pylon frame.
-  set.observations[0].p_board = Eigen::Vector3d(0.025, 0, 0);
+  // A board observation file given by mistake (every row of a point at its one board position:
+  // a point at two positions is refused earlier, docs/calibration.md "Observation CSV"), a
+  // survey in the pylon frame.
+  const int board_point = set.observations[0].point_id;
+  for (Observation& o : set.observations)
+    if (o.point_id == board_point) o.p_board = Eigen::Vector3d(0.025, 0, 0);
   write_observations_csv(set, csv);
   std::ostringstream out3, err3;
   EXPECT_EQ(calibapp::run_register(args, out3, err3), 2);
@@ -532,7 +536,8 @@ TEST(WorldRegistration, CommandEndToEnd) {
   survey::RigidBodySurvey pylon = s.survey;
   pylon.frame = 'p';
   survey::write_survey(pylon, survey);
-  set.observations[0].p_board.setZero();
+  for (Observation& o : set.observations)
+    o.p_board.setZero();
   write_observations_csv(set, csv);
   std::ostringstream out4, err4;
   EXPECT_EQ(calibapp::run_register(args, out4, err4), 2);
