@@ -253,7 +253,7 @@ int do_run(cli::Command* cmd, const Overrides& o) {
     return kExitUsage;
   }
   install_signals();
-  UnitRunner runner(config);
+  UnitRunner runner(config, simulator_camera_factory());
   std::string error;
   const int setup = runner.setup(error);
   if (setup != kExitOk) {
@@ -292,7 +292,7 @@ int do_snapshot(cli::Command* cmd, const Overrides& o, const std::string& out_st
     return kExitUsage;
   }
   config.trigger.mode = TriggerMode::kNone;
-  UnitRunner runner(config);
+  UnitRunner runner(config, simulator_camera_factory());
   std::string error;
   if (const int rc = runner.setup(error); rc != kExitOk) {
     std::fprintf(stderr, "storetrack-unit: %s\n", error.c_str());

@@ -12,9 +12,6 @@
 #include "storetrack/capture/v4l2_frame_source.hpp"
 #include "storetrack/link/canfd_link.hpp"
 #include "storetrack/link/udp_link.hpp"
-#include "storetrack/sim/frame_source.hpp"
-#include "storetrack/sim/scenario.hpp"
-#include "storetrack/sim/simulator.hpp"
 #include "storetrack/trigger/gpio_trigger.hpp"
 #include "storetrack/trigger/sim_trigger.hpp"
 
@@ -39,7 +36,8 @@ std::uint32_t clamp_u32(std::uint64_t v) {
 
 }  // namespace
 
-UnitRunner::UnitRunner(UnitConfig config) : config_(std::move(config)) {}
+UnitRunner::UnitRunner(UnitConfig config, SimulatedCameraFactory simulated)
+    : config_(std::move(config)), simulated_(std::move(simulated)) {}
 
 UnitRunner::~UnitRunner() {
   shutdown();
@@ -59,37 +57,26 @@ int UnitRunner::setup(std::string& error) {
   try {
     switch (config_.source) {
       case SourceType::kSim: {
-        const sim::Scenario scenario = sim::load_scenario(config_.sim.scenario);
-        simulator_ = std::make_unique<sim::Simulator>(scenario, config_.sim.seed);
-        if (config_.sim.camera_index < 0 || config_.sim.camera_index >= simulator_->num_cameras()) {
-          error = "sim camera index " + std::to_string(config_.sim.camera_index) + " outside 0.." +
-                  std::to_string(simulator_->num_cameras() - 1);
+        if (!simulated_) {
+          error =
+              "source sim: this program was built without the simulated mode "
+              "(it links no storetrack_unit_sim)";
           return kExitUsage;
         }
-        const auto& cam = scenario.cameras[static_cast<std::size_t>(config_.sim.camera_index)];
-        if (config_.unit_id < 0) config_.unit_id = cam.unit_id;
-        if (config_.camera_id < 0) config_.camera_id = cam.camera_id;
-        const auto& intr =
-            simulator_->true_rig().cameras[static_cast<std::size_t>(config_.sim.camera_index)];
-        width = intr.model.intrinsics().width;
-        height = intr.model.intrinsics().height;
-        if (config_.clock_state == "auto")
-          clock_state_ = static_cast<std::uint8_t>(scenario.clock_state);
-        // The simulated unit's clocks: TAI = monotonic + a fixed offset (Simulator timing model).
-        const sim::ExposureTiming t0 = simulator_->exposure_timing(0, config_.sim.camera_index);
-        tai_minus_mono_ns_ = t0.reported_start_tai_ns - t0.reported_start_mono_ns;
+        SimulatedCamera camera;
+        if (!simulated_(config_.sim, camera, error)) return kExitUsage;
+        if (config_.unit_id < 0) config_.unit_id = camera.unit_id;
+        if (config_.camera_id < 0) config_.camera_id = camera.camera_id;
+        width = camera.width;
+        height = camera.height;
+        if (config_.clock_state == "auto") clock_state_ = camera.clock_state;
+        tai_minus_mono_ns_ = camera.tai_minus_mono_ns;
         tai_from_source_ = true;
         if (config_.trigger.mode == TriggerMode::kSim)
-          config_.trigger.rate_hz = scenario.frame_rate_hz;
-        sim_first_trigger_seq_ = t0.trigger_seq;
-        if (config_.sim.start_exposure >= simulator_->num_exposures()) {
-          error = "sim start exposure " + std::to_string(config_.sim.start_exposure) +
-                  " outside 0.." + std::to_string(simulator_->num_exposures() - 1);
-          return kExitUsage;
-        }
-        source_ = std::make_unique<sim::SimFrameSource>(
-            *simulator_, config_.sim.camera_index, 4, config_.sim.realtime,
-            config_.sim.start_exposure, config_.sim.pace_hz);
+          config_.trigger.rate_hz = camera.frame_rate_hz;
+        sim_first_trigger_seq_ = camera.first_trigger_seq;
+        simulation_ = std::move(camera.simulation);
+        source_ = std::move(camera.source);
         break;
       }
       case SourceType::kReplay: {
@@ -663,7 +650,7 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
 }
 
 std::int64_t UnitRunner::sim_tai_step_ns(std::uint32_t source_sequence) const {
-  if (!simulator_ || config_.sim.tai_step_ns == 0) return 0;
+  if (!simulation_ || config_.sim.tai_step_ns == 0) return 0;
   const auto k = static_cast<std::int64_t>(source_sequence - sim_first_trigger_seq_);
   return k >= config_.sim.tai_step_from && k < config_.sim.tai_step_to ? config_.sim.tai_step_ns
                                                                        : 0;

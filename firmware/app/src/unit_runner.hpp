@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "simulated_camera.hpp"
 #include "storetrack/centroid/centroider.hpp"
 #include "storetrack/clock/clock_monitor.hpp"
 #include "storetrack/frame/frame_source.hpp"
@@ -25,9 +26,6 @@
 #include "storetrack/trigger/trigger_line.hpp"
 #include "unit_config.hpp"
 
-namespace storetrack::sim {
-class Simulator;
-}
 namespace storetrack::capture {
 class V4L2FrameSource;
 class ReplayFrameSource;
@@ -71,7 +69,8 @@ struct RunCounters {
 
 class UnitRunner {
  public:
-  explicit UnitRunner(UnitConfig config);
+  /// `simulated` builds the camera of source "sim"; empty: the program has no simulated mode.
+  explicit UnitRunner(UnitConfig config, SimulatedCameraFactory simulated = {});
   ~UnitRunner();
   UnitRunner(const UnitRunner&) = delete;
   UnitRunner& operator=(const UnitRunner&) = delete;
@@ -118,7 +117,8 @@ class UnitRunner {
 
   UnitConfig config_;
   std::string notes_;
-  std::unique_ptr<sim::Simulator> simulator_;
+  SimulatedCameraFactory simulated_;
+  std::shared_ptr<const void> simulation_;  // source sim: what source_ renders from
   std::unique_ptr<frame::FrameSource> source_;
   capture::V4L2FrameSource* v4l2_ = nullptr;              // = source_ when v4l2
   capture::ReplayFrameSource* replay_ = nullptr;          // = source_ when replay

@@ -69,7 +69,8 @@ std::vector<std::vector<Eigen::Vector2d>> weighted_residuals(const std::vector<B
 /// K (r1 +- i r2)), so a 2-parameter family of cameras fits equally well, and in every member
 /// of the family the boards are parallel: the test on the fitted poses holds whichever member
 /// the solver found.
-void check_board_orientations(const std::vector<BoardView>& views, const RefinementState& state) {
+void check_board_orientations(const std::vector<BoardView>& views, const RefinementState& state,
+                              const std::string& who) {
   std::vector<geometry::Vec3> normals;
   for (const PoseVector& pose : state.poses)
     normals.push_back(geometry::rotation_from_rotvec(pose.head<3>()).col(2));
@@ -82,7 +83,7 @@ void check_board_orientations(const std::vector<BoardView>& views, const Refinem
   if (widest_deg >= kMinBoardAngleDeg) return;
   char angle[32];
   std::snprintf(angle, sizeof angle, "%.1f", widest_deg);
-  throw CalibrationError("degenerate views: the " + std::to_string(views.size()) +
+  throw CalibrationError(who + "degenerate views: the " + std::to_string(views.size()) +
                          " boards are (nearly) parallel to each other (largest angle between two "
                          "board planes " +
                          angle +
@@ -171,10 +172,10 @@ IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
     try {
       iterations += refine_intrinsics(views, used, map, state);
     } catch (const CalibrationError&) {
-      check_board_orientations(views, state);
+      check_board_orientations(views, state, who);
       throw;
     }
-    check_board_orientations(views, state);
+    check_board_orientations(views, state, who);
     auto next = outlier_gate(weighted_residuals(views, map, state), options.outlier_false_alarm);
     if (next == used) break;
     used = std::move(next);

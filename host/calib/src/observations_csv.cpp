@@ -104,14 +104,40 @@ Observation parse_row(const std::vector<std::string>& raw, size_t columns, const
   return o;
 }
 
+std::string format_point(const Eigen::Vector3d& p) {
+  std::ostringstream s;
+  s.precision(9);
+  s << '(' << p.x() << ", " << p.y() << ", " << p.z() << ')';
+  return s.str();
+}
+
 }  // namespace
+
+std::string board_position_conflict(int point_id, const Eigen::Vector3d& here,
+                                    const Eigen::Vector3d& before,
+                                    const std::string& where_before) {
+  const Eigen::Vector3d difference = here - before;
+  if (difference.cwiseAbs().maxCoeff() <= kBoardPositionTolerance_m) return "";
+  int column = 0;
+  difference.cwiseAbs().maxCoeff(&column);
+  std::ostringstream s;
+  s << kColumns[3 + static_cast<size_t>(column)] << ": point " << point_id << " at "
+    << format_point(here) << " m, but " << format_point(before) << " m " << where_before;
+  if (before.norm() > 0 && here.norm() > 0) {
+    s.precision(6);
+    s << " (scale " << here.norm() / before.norm() << ": a different square size?)";
+  }
+  s << "; one board per calibration, every point at one board position";
+  return s.str();
+}
 
 ObservationSet parse_observations_csv(const std::string& text, const std::string& origin) {
   ObservationSet set;
   std::istringstream in(text);
   std::string line;
   size_t columns = 0;
-  std::map<std::array<int, 3>, int> seen;  // (camera, frame, point) -> line
+  std::map<std::array<int, 3>, int> seen;                // (camera, frame, point) -> line
+  std::map<int, std::pair<Eigen::Vector3d, int>> board;  // point -> first position, its line
   for (int number = 1; std::getline(in, line); ++number) {
     const Cursor at{origin, number};
     const std::string t = trim(line);
@@ -132,6 +158,14 @@ ObservationSet parse_observations_csv(const std::string& text, const std::string
       fail(origin, number, "point_id",
            "camera " + std::to_string(o.camera) + " frame " + std::to_string(o.frame) + " point " +
                std::to_string(o.point_id) + " already on line " + std::to_string(it->second));
+    const auto [first, fresh] = board.emplace(o.point_id, std::pair(o.p_board, number));
+    if (!fresh) {
+      const std::string conflict =
+          board_position_conflict(o.point_id, o.p_board, first->second.first,
+                                  "on line " + std::to_string(first->second.second));
+      if (!conflict.empty())
+        throw ObservationFileError(origin + ":" + std::to_string(number) + ": " + conflict);
+    }
     set.observations.push_back(o);
   }
   if (columns == 0) fail(origin, 1, "header", "no header line (empty file?)");

@@ -112,19 +112,24 @@ bool triangulate_mark(const camera::RigCalibration& rig,
   return true;
 }
 
-/// Pseudo-inverse quadratic form r^T C^+ r and the rank of C (eigenvalues above a relative floor).
-std::pair<double, int> pseudo_mahalanobis(const VectorXd& r, const MatrixXd& C) {
+/// C^+ (eigenvalues above a relative floor inverted, the rest dropped) and the rank of C.
+std::pair<MatrixXd, int> pseudo_inverse(const MatrixXd& C) {
   const geometry::SymmetricEigen e = geometry::symmetric_eigen(C);
   const double floor = 1e-9 * std::max(e.values.maxCoeff(), 1e-300);
-  double q = 0;
+  VectorXd inverse_values = VectorXd::Zero(e.values.size());
   int rank = 0;
-  for (Eigen::Index i = 0; i < e.values.size(); ++i) {
-    if (e.values(i) <= floor) continue;
-    const double projected = e.vectors.col(i).dot(r);
-    q += projected * projected / e.values(i);
-    ++rank;
-  }
-  return {q, rank};
+  for (Eigen::Index i = 0; i < e.values.size(); ++i)
+    if (e.values(i) > floor) {
+      inverse_values(i) = 1.0 / e.values(i);
+      ++rank;
+    }
+  return {e.vectors * inverse_values.asDiagonal() * e.vectors.transpose(), rank};
+}
+
+/// Pseudo-inverse quadratic form r^T C^+ r and the rank of C.
+std::pair<double, int> pseudo_mahalanobis(const VectorXd& r, const MatrixXd& C) {
+  const auto [W, rank] = pseudo_inverse(C);
+  return {r.dot(W * r), rank};
 }
 
 /// The usable marks' fit inputs, in ascending id order.
@@ -217,7 +222,19 @@ void test_residuals(const Transform& T_r_w, const MarkSet& all, const Matrix6X& 
     if (all.included[static_cast<size_t>(i)])
       for (int k = 0; k < 3; ++k)
         used.push_back(3 * i + k);
-  std::tie(out.chi2, out.dof) = pseudo_mahalanobis(r(used), C_r(used, used));
+  const auto [W, rank] = pseudo_inverse(C_r(used, used));
+  out.chi2 = r(used).dot(W * r(used));
+  out.dof = rank;
+  // Scale: triangulated = (1 + s) T surveyed adds s R q_i to mark i's error, so r = P (e + s a),
+  // a_i = R q_i (the rigid part of a, and the origin, the fit absorbs through P): generalised
+  // least squares for s over the used marks.
+  VectorXd a(3 * n);
+  for (int i = 0; i < n; ++i)
+    a.segment<3>(3 * i) = T_r_w.linear() * all.q_w[static_cast<size_t>(i)];
+  const VectorXd b = (P * a)(used);
+  const double information = b.dot(W * b);
+  out.scale_error = information > 0 ? b.dot(W * r(used)) / information : 0;
+  out.scale_error_sigma = information > 0 ? 1 / std::sqrt(information) : HUGE_VAL;
   using uncertainty::DegreesOfFreedom;
   out.p_value =
       out.dof > 0 ? uncertainty::chi_square_survival(out.chi2, DegreesOfFreedom(out.dof)) : 1.0;
@@ -281,18 +298,15 @@ void compose_registered_rig(const camera::RigCalibration& rig, const MatrixXd& c
   camera::set_joint_covariance(out.registered, out.joint_covariance);  // file version 2
 }
 
-}  // namespace
-
-RegistrationResult register_rig(const camera::RigCalibration& rig_r,
-                                const Eigen::MatrixXd& calibration_covariance,
-                                const survey::RigidBodySurvey& survey_w,
-                                const std::vector<MarkSighting>& sightings,
-                                const RegistrationOptions& o) {
-  if (survey_w.frame != 'w')
-    throw CalibrationError(o.survey_origin + ": frame: the survey is in frame '" +
-                           std::string(1, survey_w.frame) +
-                           "'; registration needs the marks in the world frame 'w' "
-                           "(docs/conventions.md)");
+/// The fit register_rig and register_body share, written in register_rig's frames: the marks
+/// triangulated through `rig_r` in its frame (S_r) against the survey (S_w) give T_r_w and every
+/// field of the result but T_w_r, cov_T_w_r, registered and joint_covariance. `d_rw_d_theta`:
+/// d(xi_r_w)/d(calibration parameters).
+RegistrationResult fit_survey(const camera::RigCalibration& rig_r,
+                              const Eigen::MatrixXd& calibration_covariance,
+                              const survey::RigidBodySurvey& survey_w,
+                              const std::vector<MarkSighting>& sightings,
+                              const RegistrationOptions& o, Matrix6X& d_rw_d_theta) {
   const int parameters = kBlock * static_cast<int>(rig_r.cameras.size());
   if (calibration_covariance.rows() != parameters || calibration_covariance.cols() != parameters)
     throw CalibrationError(o.rig_origin + ": joint covariance: expected " +
@@ -318,7 +332,9 @@ RegistrationResult register_rig(const camera::RigCalibration& rig_r,
     for (const auto& t : usable)
       ids.push_back(t.mark.mark_id);
     std::string why = o.observations_origin + ": point_id: " + std::to_string(usable.size()) +
-                      " usable marks (" + list_ids(ids) + "), need >= 3 non-collinear";
+                      " usable marks (" + list_ids(ids) +
+                      "), need >= 3 non-collinear (the survey " + o.survey_origin + " has " +
+                      std::to_string(survey_w.marks.size()) + " marks)";
     for (const SkippedMark& s : out.skipped)
       why += "; " + s.reason;
     throw CalibrationError(why);
@@ -384,7 +400,7 @@ RegistrationResult register_rig(const camera::RigCalibration& rig_r,
     m.outlier = !m.used || m.p_value < o.outlier_false_alarm / used_count;
 
   // xi_r_w = D_p e_p + D_q e_q (first order); e_p = centroid + G theta.
-  const Matrix6X d_rw_d_theta = D_p * G;
+  d_rw_d_theta = D_p * G;
   out.cov_T_r_w_centroid = symmetric(D_p * cov_centroid * D_p.transpose());
   out.cov_T_r_w_calibration =
       symmetric(d_rw_d_theta * calibration_covariance * d_rw_d_theta.transpose());
@@ -394,11 +410,87 @@ RegistrationResult register_rig(const camera::RigCalibration& rig_r,
   }
   out.cov_T_r_w_survey = symmetric(out.cov_T_r_w_survey);
   out.cov_T_r_w = out.cov_T_r_w_centroid + out.cov_T_r_w_calibration + out.cov_T_r_w_survey;
+  return out;
+}
+
+}  // namespace
+
+RegistrationResult register_rig(const camera::RigCalibration& rig_r,
+                                const Eigen::MatrixXd& calibration_covariance,
+                                const survey::RigidBodySurvey& survey_w,
+                                const std::vector<MarkSighting>& sightings,
+                                const RegistrationOptions& o) {
+  if (survey_w.frame != 'w')
+    throw CalibrationError(o.survey_origin + ": frame: the survey is in frame '" +
+                           std::string(1, survey_w.frame) +
+                           "'; registration needs the marks in the world frame 'w' "
+                           "(docs/conventions.md)");
+  Matrix6X d_rw_d_theta;
+  RegistrationResult out =
+      fit_survey(rig_r, calibration_covariance, survey_w, sightings, o, d_rw_d_theta);
   out.T_w_r = out.T_r_w.inverse();
   const Mat6 d_wr_d_rw = inverse_jacobian(out.T_r_w);
   out.cov_T_w_r = symmetric(d_wr_d_rw * out.cov_T_r_w * d_wr_d_rw.transpose());
   compose_registered_rig(rig_r, calibration_covariance, d_rw_d_theta,
                          out.cov_T_r_w_centroid + out.cov_T_r_w_survey, out);
+  return out;
+}
+
+BodyRegistration register_body(const camera::RigCalibration& rig_w,
+                               const Eigen::MatrixXd& calibration_covariance,
+                               const survey::RigidBodySurvey& survey_b,
+                               const std::vector<MarkSighting>& sightings,
+                               const RegistrationOptions& o) {
+  if (survey_b.frame == 'w')
+    throw CalibrationError(o.survey_origin +
+                           ": frame: the survey is in the world frame 'w': "
+                           "that registers the rig (register_rig), not a body; a body survey "
+                           "is in its own frame ('p' pylon, 's' store)");
+  BodyRegistration out;
+  // register_rig's fit with S_w as the rig's frame and the body's frame as the surveyed one.
+  const RegistrationResult fit =
+      fit_survey(rig_w, calibration_covariance, survey_b, sightings, o, out.d_T_w_b_d_calibration);
+  out.body = survey_b.name;
+  out.frame = survey_b.frame;
+  out.T_w_b_start = fit.T_r_w_start;
+  out.T_w_b = fit.T_r_w;
+  out.cov_T_w_b = fit.cov_T_r_w;
+  out.cov_T_w_b_centroid = fit.cov_T_r_w_centroid;
+  out.cov_T_w_b_calibration = fit.cov_T_r_w_calibration;
+  out.cov_T_w_b_survey = fit.cov_T_r_w_survey;
+  for (const MarkRegistration& m : fit.marks)
+    out.marks.push_back({m.mark_id, m.cameras, m.p_r, m.cov_r, m.q_w, m.survey_sigma_m,
+                         m.reprojection_chi2, m.residual_r, m.chi2, m.dof, m.p_value, m.used,
+                         m.outlier});
+  out.skipped = fit.skipped;
+  out.chi2 = fit.chi2;
+  out.dof = fit.dof;
+  out.p_value = fit.p_value;
+  out.iterations = fit.iterations;
+  out.scale_error = fit.scale_error;
+  out.scale_error_sigma = fit.scale_error_sigma;
+  return out;
+}
+
+RelativePose relative_pose(const BodyRegistration& a, const BodyRegistration& b,
+                           const Eigen::MatrixXd& calibration_covariance) {
+  if (a.d_T_w_b_d_calibration.cols() != calibration_covariance.rows() ||
+      b.d_T_w_b_d_calibration.cols() != calibration_covariance.rows())
+    throw CalibrationError("relative pose: the registrations of " + a.body + " and " + b.body +
+                           " are not through the rig of this calibration covariance");
+  RelativePose out;
+  const Transform T_a_w = a.T_w_b.inverse();
+  out.T_a_b = T_a_w * b.T_w_b;
+  Mat6 d_ab_d_aw, d_ab_d_wb;
+  geometry::composition_jacobians(T_a_w, b.T_w_b, d_ab_d_aw, d_ab_d_wb);
+  const Mat6 d_ab_d_wa = d_ab_d_aw * inverse_jacobian(a.T_w_b);
+  const Matrix6X d_ab_d_theta =
+      d_ab_d_wa * a.d_T_w_b_d_calibration + d_ab_d_wb * b.d_T_w_b_d_calibration;
+  const Mat6 noise_a = a.cov_T_w_b_centroid + a.cov_T_w_b_survey;
+  const Mat6 noise_b = b.cov_T_w_b_centroid + b.cov_T_w_b_survey;
+  out.cov_T_a_b = symmetric(d_ab_d_theta * calibration_covariance * d_ab_d_theta.transpose() +
+                            d_ab_d_wa * noise_a * d_ab_d_wa.transpose() +
+                            d_ab_d_wb * noise_b * d_ab_d_wb.transpose());
   return out;
 }
 

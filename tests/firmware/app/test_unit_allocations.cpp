@@ -136,7 +136,7 @@ TEST(UnitAllocations, SteadyStateLoopAllocatesNothing) {
   config.udp.push_back(udp);
   config.health_period_ms = 10;
   config.modbus_enabled = false;
-  unit::UnitRunner runner(config);
+  unit::UnitRunner runner(config, unit::simulator_camera_factory());
   std::string error;
   ASSERT_EQ(runner.setup(error), unit::kExitOk) << error;
 

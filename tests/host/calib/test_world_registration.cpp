@@ -400,6 +400,19 @@ TEST(WorldRegistration, Refusals) {
   EXPECT_NE(registration_error(no_sigma).find("marks.csv: sigma_px"), std::string::npos);
 }
 
+// A survey of two marks: the refusal names the survey file as well as the observations.
+TEST(WorldRegistration, SurveyWithTooFewMarksNamesTheSurvey) {
+  std::mt19937_64 rng(3);
+  Scenario two = make_scenario(rng, false);
+  two.survey.marks.resize(2);  // marks 100, 101
+  two.sightings = only_marks(two.sightings, {100, 101});
+  const std::string error = registration_error(two);
+  EXPECT_NE(error.find("marks.csv: point_id: 2 usable marks (100, 101), need >= 3 non-collinear "
+                       "(the survey marks_w.json has 2 marks)"),
+            std::string::npos)
+      << error;
+}
+
 // A mark surveyed 12 mm off (a wrong reflector height, say) is named, and only it.
 TEST(WorldRegistration, GrossSurveyErrorNamed) {
   std::mt19937_64 rng(6);  // (seed 5's clean draw has mark 100 at p = 5e-4 < 0.01/8 by chance)
@@ -510,8 +523,12 @@ TEST(WorldRegistration, CommandEndToEnd) {
         direct.registered.cameras[static_cast<size_t>(c)].extrinsic_covariance, 1e-12));
   }
 
-  // A board observation file given by mistake, a survey in the pylon frame.
-  set.observations[0].p_board = Eigen::Vector3d(0.025, 0, 0);
+  // A board observation file given by mistake (every row of a point at its one board position:
+  // a point at two positions is refused earlier, docs/calibration.md "Observation CSV"), a
+  // survey in the pylon frame.
+  const int board_point = set.observations[0].point_id;
+  for (Observation& o : set.observations)
+    if (o.point_id == board_point) o.p_board = Eigen::Vector3d(0.025, 0, 0);
   write_observations_csv(set, csv);
   std::ostringstream out3, err3;
   EXPECT_EQ(calibapp::run_register(args, out3, err3), 2);
@@ -519,7 +536,8 @@ TEST(WorldRegistration, CommandEndToEnd) {
   survey::RigidBodySurvey pylon = s.survey;
   pylon.frame = 'p';
   survey::write_survey(pylon, survey);
-  set.observations[0].p_board.setZero();
+  for (Observation& o : set.observations)
+    o.p_board.setZero();
   write_observations_csv(set, csv);
   std::ostringstream out4, err4;
   EXPECT_EQ(calibapp::run_register(args, out4, err4), 2);

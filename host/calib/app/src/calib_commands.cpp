@@ -157,7 +157,10 @@ int run_intrinsic(const IntrinsicArgs& args, std::ostream& out, std::ostream& er
       set.image_sizes[args.camera] = size;
     }
     result = calib::calibrate_intrinsics(set, args.camera, args.options);
-  } catch (const std::exception& e) {  // ObservationFileError, CalibrationError
+  } catch (const calib::CalibrationError& e) {  // names the camera; the file is ours to name
+    err << "error: " << args.observations << ": " << e.what() << "\n";
+    return 2;
+  } catch (const std::exception& e) {  // ObservationFileError: names file, line and field
     err << "error: " << e.what() << "\n";
     return 2;
   }
@@ -186,9 +189,20 @@ int run_intrinsic(const IntrinsicArgs& args, std::ostream& out, std::ostream& er
   return 0;
 }
 
+namespace {
+std::string join_paths(const std::vector<std::string>& paths) {
+  std::string joined;
+  for (const std::string& p : paths)
+    joined += (joined.empty() ? "" : ", ") + p;
+  return joined;
+}
+}  // namespace
+
 calib::ObservationSet merge_observation_files(const std::vector<std::string>& paths) {
   calib::ObservationSet merged;
   std::map<std::tuple<int, int, int>, std::string> origin;  // (camera, frame, point) -> file
+  // point -> its first board position and file (one board per calibration)
+  std::map<int, std::pair<Eigen::Vector3d, std::string>> board;
   for (const std::string& path : paths) {
     calib::ObservationSet one = calib::read_observations_csv(path);
     for (const calib::Observation& o : one.observations) {
@@ -197,6 +211,12 @@ calib::ObservationSet merge_observation_files(const std::vector<std::string>& pa
         throw calib::ObservationFileError(path + ": camera " + std::to_string(o.camera) +
                                           " frame " + std::to_string(o.frame) + " point " +
                                           std::to_string(o.point_id) + " is also in " + at->second);
+      const auto [first, new_point] = board.emplace(o.point_id, std::pair(o.p_board, path));
+      const std::string conflict =
+          new_point ? ""
+                    : calib::board_position_conflict(o.point_id, o.p_board, first->second.first,
+                                                     "in " + first->second.second);
+      if (!conflict.empty()) throw calib::ObservationFileError(path + ": " + conflict);
       merged.observations.push_back(o);
     }
     for (const auto& [camera, size] : one.image_sizes) {
@@ -312,7 +332,10 @@ int run_rig(const RigArgs& args, std::ostream& out, std::ostream& err) {
       set.image_sizes[camera] = size;
     }
     result = calib::calibrate_rig(set, args.options);
-  } catch (const std::exception& e) {  // ObservationFileError, CalibrationError
+  } catch (const calib::CalibrationError& e) {  // names the camera; the files are ours to name
+    err << "error: " << join_paths(args.observations) << ": " << e.what() << "\n";
+    return 2;
+  } catch (const std::exception& e) {  // ObservationFileError: names file, line and field
     err << "error: " << e.what() << "\n";
     return 2;
   }

@@ -33,6 +33,53 @@ std::string text_of(const std::string& path) {
   return buf.str();
 }
 
+void print_summary(const calib::RegistrationResult& r, const std::string& covariance_source,
+                   const RegisterArgs& args, std::ostream& out) {
+  const auto used =
+      std::count_if(r.marks.begin(), r.marks.end(), [](const auto& m) { return m.used; });
+  out << "register: " << used << " marks used, " << r.marks.size() - static_cast<size_t>(used)
+      << " rejected as outliers, " << r.skipped.size()
+      << " not usable; calibration covariance: " << covariance_source << "\n";
+  print_pose("T_w_r (S_r -> S_w)", r.T_w_r, r.cov_T_w_r, out);
+  out << "standard uncertainty of T_r_w per axis (rms rotation, translation): total "
+      << rms_sigmas(r.cov_T_r_w) << "; centroid " << rms_sigmas(r.cov_T_r_w_centroid)
+      << ", calibration " << rms_sigmas(r.cov_T_r_w_calibration) << ", survey "
+      << rms_sigmas(r.cov_T_r_w_survey) << "\n";
+  out << "mark cameras   residual p_r - T_r_w q_w [mm]      |r| [mm] survey sigma [mm] "
+         "chi2/dof    p\n";
+  for (const auto& m : r.marks) {
+    std::string cams;
+    for (int c : m.cameras) {
+      if (!cams.empty()) cams += ',';
+      cams += std::to_string(c);
+    }
+    char line[256];
+    std::snprintf(
+        line, sizeof line, "%4d %-8s %8.3f %8.3f %8.3f   %8.3f %10.3f %10.2f/%d %8.2g%s\n",
+        m.mark_id, cams.c_str(), m.residual_r.x() * 1e3, m.residual_r.y() * 1e3,
+        m.residual_r.z() * 1e3, m.residual_r.norm() * 1e3, m.survey_sigma_m * 1e3, m.chi2, m.dof,
+        m.p_value, !m.used ? "  OUTLIER, rejected" : (m.outlier ? "  OUTLIER, kept" : ""));
+    out << line;
+  }
+  out << "fit: chi2 " << fixed(r.chi2, 2) << " for " << r.dof << " dof (p = " << r.p_value << "), "
+      << r.iterations << " Gauss-Newton iterations\n";
+  out << "scale of the triangulated marks against the survey: " << fixed(r.scale_error * 1e6, 0)
+      << " +/- " << fixed(r.scale_error_sigma * 1e6, 0) << " ppm\n";
+  std::string outliers;
+  for (const auto& m : r.marks)
+    if (m.outlier) {
+      if (!outliers.empty()) outliers += ", ";
+      outliers += std::to_string(m.mark_id);
+    }
+  out << "outliers (p < " << args.outlier_false_alarm << " / " << used
+      << "): " << (outliers.empty() ? "none" : outliers) << "\n";
+  for (const auto& c : r.registered.cameras)
+    print_pose(("camera " + std::to_string(c.camera_id) + " T_c_w").c_str(), c.T_c_w,
+               c.extrinsic_covariance, out);
+}
+
+}  // namespace
+
 void write_text(const std::string& path, const std::string& text) {
   std::ofstream f(path, std::ios::trunc);
   f << text;
@@ -95,59 +142,16 @@ std::string rms_sigmas(const Mat6& C) {
   return fixed(rot * 180 / M_PI * 1000, 2) + " mdeg, " + fixed(trans * 1000, 3) + " mm";
 }
 
-void print_summary(const calib::RegistrationResult& r, const std::string& covariance_source,
-                   const RegisterArgs& args, std::ostream& out) {
-  const auto used =
-      std::count_if(r.marks.begin(), r.marks.end(), [](const auto& m) { return m.used; });
-  out << "register: " << used << " marks used, " << r.marks.size() - static_cast<size_t>(used)
-      << " rejected as outliers, " << r.skipped.size()
-      << " not usable; calibration covariance: " << covariance_source << "\n";
-  print_pose("T_w_r (S_r -> S_w)", r.T_w_r, r.cov_T_w_r, out);
-  out << "standard uncertainty of T_r_w per axis (rms rotation, translation): total "
-      << rms_sigmas(r.cov_T_r_w) << "; centroid " << rms_sigmas(r.cov_T_r_w_centroid)
-      << ", calibration " << rms_sigmas(r.cov_T_r_w_calibration) << ", survey "
-      << rms_sigmas(r.cov_T_r_w_survey) << "\n";
-  out << "mark cameras   residual p_r - T_r_w q_w [mm]      |r| [mm] survey sigma [mm] "
-         "chi2/dof    p\n";
-  for (const auto& m : r.marks) {
-    std::string cams;
-    for (int c : m.cameras) {
-      if (!cams.empty()) cams += ',';
-      cams += std::to_string(c);
-    }
-    char line[256];
-    std::snprintf(
-        line, sizeof line, "%4d %-8s %8.3f %8.3f %8.3f   %8.3f %10.3f %10.2f/%d %8.2g%s\n",
-        m.mark_id, cams.c_str(), m.residual_r.x() * 1e3, m.residual_r.y() * 1e3,
-        m.residual_r.z() * 1e3, m.residual_r.norm() * 1e3, m.survey_sigma_m * 1e3, m.chi2, m.dof,
-        m.p_value, !m.used ? "  OUTLIER, rejected" : (m.outlier ? "  OUTLIER, kept" : ""));
-    out << line;
-  }
-  out << "fit: chi2 " << fixed(r.chi2, 2) << " for " << r.dof << " dof (p = " << r.p_value << "), "
-      << r.iterations << " Gauss-Newton iterations\n";
-  std::string outliers;
-  for (const auto& m : r.marks)
-    if (m.outlier) {
-      if (!outliers.empty()) outliers += ", ";
-      outliers += std::to_string(m.mark_id);
-    }
-  out << "outliers (p < " << args.outlier_false_alarm << " / " << used
-      << "): " << (outliers.empty() ? "none" : outliers) << "\n";
-  for (const auto& c : r.registered.cameras)
-    print_pose(("camera " + std::to_string(c.camera_id) + " T_c_w").c_str(), c.T_c_w,
-               c.extrinsic_covariance, out);
-}
-
-}  // namespace
-
 void add_register(cli::Command& app, RegisterArgs& a) {
   cli::Command& sub = app.subcommand(
       "register", "S_r -> S_w from total-station marks: every camera's T_c_w with covariance");
   sub.option("rig", a.rig, "Rig calibration JSON of the rig step (world = S_r)")
       .required()
       .existing_file();
-  sub.option("--survey", a.survey, "Survey JSON of the marks in frame w")
-      .required()
+  sub.option("--survey", a.survey, "Survey JSON of the marks in frame w").existing_file();
+  sub.option("--body-survey", a.body_surveys,
+             "Instead of --survey: a pylon ('p') or store ('s') survey, registered through a "
+             "registered rig (repeatable; both: also T_p_s)")
       .existing_file();
   sub.option("--observations", a.observations, "Observation CSV, point_id = survey mark id")
       .required()
@@ -211,6 +215,8 @@ std::string registered_calibration_json(const calib::RegistrationResult& r,
       {"chi2", r.chi2},
       {"dof", r.dof},
       {"p_value", r.p_value},
+      {"scale_error", r.scale_error},
+      {"scale_error_sigma", r.scale_error_sigma},
       {"outlier_false_alarm", args.outlier_false_alarm},
       {"marks", marks},
       {"skipped", skipped}};
@@ -218,6 +224,12 @@ std::string registered_calibration_json(const calib::RegistrationResult& r,
 }
 
 int run_register(const RegisterArgs& args, std::ostream& out, std::ostream& err) {
+  if (args.survey.empty() == args.body_surveys.empty()) {
+    err << "error: give either --survey (frame w: register the rig) or --body-survey (pylon, "
+           "store: register bodies through a registered rig)\n";
+    return 2;
+  }
+  if (!args.body_surveys.empty()) return run_register_bodies(args, out, err);
   calib::RegistrationResult result;
   std::string rig_text, covariance_source;
   try {

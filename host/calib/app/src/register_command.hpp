@@ -1,12 +1,16 @@
 // storetrack-calib register: S_r -> S_w from total-station marks (docs/calibration.md,
 // "Register"): reads the rig step's calibration, the world-frame survey and the marks' image
-// observations, writes the registered rig calibration file.
+// observations, writes the registered rig calibration file. With --body-survey instead of
+// --survey (pylon, store): the bodies' poses in S_w through the registered rig, their surveys
+// checked against the triangulated marks, and the carriage pose T_p_s (body_registration.cpp).
 #pragma once
 
 #include <ostream>
 #include <string>
+#include <vector>
 
 #include <Eigen/Core>
+#include <nlohmann/json.hpp>
 
 #include "storetrack/calib/world_registration.hpp"
 #include "storetrack/cli/command_line.hpp"
@@ -14,8 +18,10 @@
 namespace storetrack::calibapp {
 
 struct RegisterArgs {
-  std::string rig;           ///< rig calibration file (the `rig` step's, world = S_r)
-  std::string survey;        ///< storetrack-survey JSON, frame "w"
+  std::string rig;     ///< rig calibration file (the `rig` step's, world = S_r)
+  std::string survey;  ///< storetrack-survey JSON, frame "w"
+  /// Instead of `survey`: body surveys ('p' pylon, 's' store) registered through a registered rig.
+  std::vector<std::string> body_surveys;
   std::string observations;  ///< observation CSV, point_id = survey mark id
   double sigma_px = 0;       ///< centroid sigma for rows without sigma_px (0: none given)
   double outlier_false_alarm = 0.01;
@@ -26,6 +32,20 @@ struct RegisterArgs {
 
 void add_register(cli::Command& app, RegisterArgs& args);
 int run_register(const RegisterArgs& args, std::ostream& out, std::ostream& err);
+
+/// --body-survey: every body's T_w_b, its survey's check, and T_p_s with pylon and store.
+int run_register_bodies(const RegisterArgs& args, std::ostream& out, std::ostream& err);
+
+/// The observation CSV's rows as sightings (point_id = mark id; board columns must be 0).
+std::vector<calib::MarkSighting> read_sightings(const RegisterArgs& args);
+
+/// Console summary helpers shared by the rig's and the bodies' registration.
+void print_pose(const char* name, const geometry::Transform& T, const geometry::Mat6& C,
+                std::ostream& out);
+std::string rms_sigmas(const geometry::Mat6& C);
+nlohmann::json matrix_json(const Eigen::MatrixXd& m);
+nlohmann::json transform_json(const geometry::Transform& T);
+void write_text(const std::string& path, const std::string& text);
 
 /// The rig file's joint covariance (file version 2, written by `rig`), else its per-camera
 /// blocks (version 1: cross terms 0). `source` says which.

@@ -43,6 +43,17 @@ struct ObservationSet {
   std::map<int, std::string> frame_sources;  ///< frame -> image file, from "# frame" lines
 };
 
+/// One board per observation set: a point id keeps one board position (within
+/// kBoardPositionTolerance_m) in every frame, camera and file. "" when `here` agrees with
+/// `before` (the position seen first, `where_before`: "line 12", "in a.csv"), else the reason,
+/// "<column>: point <id> at (x, y, z) m, but (x', y', z') m <where_before> ..." naming the
+/// first coordinate that differs and the scale between the two (a different square size?).
+inline constexpr double kBoardPositionTolerance_m = 1e-6;
+std::string board_position_conflict(int point_id, const Eigen::Vector3d& here,
+                                    const Eigen::Vector3d& before, const std::string& where_before);
+
+/// Throws ObservationFileError "<file>:<line>: <field>: <reason>" on malformed input, a
+/// duplicate (camera, frame, point) or a point whose board position differs from its first.
 ObservationSet read_observations_csv(const std::string& path);
 ObservationSet parse_observations_csv(const std::string& text, const std::string& origin);
 void write_observations_csv(const ObservationSet& set, const std::string& path);

@@ -89,6 +89,12 @@ struct RegistrationResult {
   int dof = 0;      ///< 3 marks - 6
   double p_value = 1;
   int iterations = 0;
+  /// Scale of the triangulated marks against the survey: p_r = (1 + scale_error) T_r_w q_w,
+  /// estimated (generalised least squares) from the used marks' residuals, which the rigid fit
+  /// leaves it in; 0 +/- scale_error_sigma when rig and survey agree. A wrong board square size
+  /// in the rig step, or a survey in the wrong unit, shows here first.
+  double scale_error = 0;
+  double scale_error_sigma = 0;
   /// The registered rig: every camera's T_c_w = T_c_r T_r_w, intrinsics unchanged, each
   /// camera's extrinsic block the diagonal block of joint_covariance.
   camera::RigCalibration registered;
@@ -109,5 +115,71 @@ RegistrationResult register_rig(const camera::RigCalibration& rig_r,
                                 const survey::RigidBodySurvey& survey_w,
                                 const std::vector<MarkSighting>& sightings,
                                 const RegistrationOptions& options = {});
+
+/// One mark of a surveyed body (pylon, store) in a body registration.
+struct BodyMarkRegistration {
+  int mark_id = 0;
+  std::vector<int> cameras;                            ///< cameras that saw it
+  geometry::Vec3 p_w = geometry::Vec3::Zero();         ///< triangulated in S_w [m]
+  geometry::Mat3 cov_w = geometry::Mat3::Zero();       ///< its covariance: centroid + calibration
+  geometry::Vec3 q_b = geometry::Vec3::Zero();         ///< surveyed in the body frame [m]
+  double survey_sigma_m = 0;                           ///< per axis
+  double reprojection_chi2 = 0;                        ///< the triangulation's
+  geometry::Vec3 residual_w = geometry::Vec3::Zero();  ///< p_w - T_w_b q_b [m]
+  double chi2 = 0;                                     ///< as MarkRegistration's
+  int dof = 0;
+  double p_value = 1;
+  bool used = true;
+  bool outlier = false;
+};
+
+/// A surveyed body (the pylon, frame 'p', or the store, frame 's', on the ground before flight)
+/// registered in S_w through the registered rig: its pose, the survey checked against what the
+/// cameras see (per-mark chi-square, the fit's chi-square, the scale), docs/calibration.md,
+/// "Register the pylon and the store".
+struct BodyRegistration {
+  std::string body;  ///< the survey's name ("pylon", "store")
+  char frame = 'b';  ///< the survey's frame letter
+  geometry::Transform T_w_b_start = geometry::Transform::Identity();  ///< absolute orientation
+  geometry::Transform T_w_b = geometry::Transform::Identity();        ///< S_b -> S_w
+  /// Covariance of the left perturbation of T_w_b (in S_w): total and by source.
+  geometry::Mat6 cov_T_w_b = geometry::Mat6::Zero();
+  geometry::Mat6 cov_T_w_b_centroid = geometry::Mat6::Zero();
+  geometry::Mat6 cov_T_w_b_calibration = geometry::Mat6::Zero();
+  geometry::Mat6 cov_T_w_b_survey = geometry::Mat6::Zero();
+  /// d(left perturbation of T_w_b)/d(calibration parameters) (6 x kRegistrationBlockSize per
+  /// camera): what correlates two bodies registered through the same rig.
+  Eigen::Matrix<double, 6, Eigen::Dynamic> d_T_w_b_d_calibration;
+  std::vector<BodyMarkRegistration> marks;  ///< usable marks, ascending id
+  std::vector<SkippedMark> skipped;
+  double chi2 = 0;
+  int dof = 0;
+  double p_value = 1;
+  int iterations = 0;
+  double scale_error = 0;  ///< p_w = (1 + scale_error) T_w_b q_b, as RegistrationResult's
+  double scale_error_sigma = 0;
+};
+
+/// Registers a surveyed body through a registered rig (`rig_w`: T_c_w in S_w, the `register`
+/// step's output; `calibration_covariance` its joint covariance, layout above). The same
+/// triangulation, weighted fit, tests and propagation as register_rig, with S_w in the place of
+/// S_r and the body's frame in the place of S_w. Throws CalibrationError naming the file and
+/// field: survey in frame 'w' (that is register_rig's), and every refusal of register_rig.
+BodyRegistration register_body(const camera::RigCalibration& rig_w,
+                               const Eigen::MatrixXd& calibration_covariance,
+                               const survey::RigidBodySurvey& survey_b,
+                               const std::vector<MarkSighting>& sightings,
+                               const RegistrationOptions& options = {});
+
+/// Body b's pose in body a's frame, T_a_b = T_w_a^-1 T_w_b, from two registrations through the
+/// same rig and `calibration_covariance` (e.g. the store's carriage pose on the pylon before
+/// flight, T_p_s). The covariance keeps the calibration error the two share; their centroid and
+/// survey errors are independent (different marks).
+struct RelativePose {
+  geometry::Transform T_a_b = geometry::Transform::Identity();
+  geometry::Mat6 cov_T_a_b = geometry::Mat6::Zero();  ///< left perturbation, in S_a
+};
+RelativePose relative_pose(const BodyRegistration& a, const BodyRegistration& b,
+                           const Eigen::MatrixXd& calibration_covariance);
 
 }  // namespace storetrack::calib

@@ -1,0 +1,51 @@
+// The unit's simulated mode from the scene simulator (common/sim): one camera of a scenario,
+// rendered frame by frame (sim::SimFrameSource), with the simulator's clock and trigger model.
+#include <string>
+
+#include "simulated_camera.hpp"
+#include "storetrack/sim/frame_source.hpp"
+#include "storetrack/sim/scenario.hpp"
+#include "storetrack/sim/simulator.hpp"
+
+namespace storetrack::unit {
+namespace {
+
+bool make_simulated_camera(const SimSourceConfig& config, SimulatedCamera& out,
+                           std::string& error) {
+  const sim::Scenario scenario = sim::load_scenario(config.scenario);
+  auto simulator = std::make_shared<const sim::Simulator>(scenario, config.seed);
+  if (config.camera_index < 0 || config.camera_index >= simulator->num_cameras()) {
+    error = "sim camera index " + std::to_string(config.camera_index) + " outside 0.." +
+            std::to_string(simulator->num_cameras() - 1);
+    return false;
+  }
+  if (config.start_exposure >= simulator->num_exposures()) {
+    error = "sim start exposure " + std::to_string(config.start_exposure) + " outside 0.." +
+            std::to_string(simulator->num_exposures() - 1);
+    return false;
+  }
+  const auto index = static_cast<std::size_t>(config.camera_index);
+  out.unit_id = scenario.cameras[index].unit_id;
+  out.camera_id = scenario.cameras[index].camera_id;
+  const auto& intrinsics = simulator->true_rig().cameras[index].model.intrinsics();
+  out.width = intrinsics.width;
+  out.height = intrinsics.height;
+  out.clock_state = static_cast<std::uint8_t>(scenario.clock_state);
+  // The simulated unit's clocks: TAI = monotonic + a fixed offset (Simulator timing model).
+  const sim::ExposureTiming t0 = simulator->exposure_timing(0, config.camera_index);
+  out.tai_minus_mono_ns = t0.reported_start_tai_ns - t0.reported_start_mono_ns;
+  out.frame_rate_hz = scenario.frame_rate_hz;
+  out.first_trigger_seq = t0.trigger_seq;
+  out.source = std::make_unique<sim::SimFrameSource>(
+      *simulator, config.camera_index, 4, config.realtime, config.start_exposure, config.pace_hz);
+  out.simulation = std::move(simulator);
+  return true;
+}
+
+}  // namespace
+
+SimulatedCameraFactory simulator_camera_factory() {
+  return make_simulated_camera;
+}
+
+}  // namespace storetrack::unit
