@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "register_command.hpp"
+#include "storetrack/calib/charuco_detection.hpp"
 #include "storetrack/calib/chessboard_detection.hpp"
 #include "storetrack/calib/intrinsic_calibration.hpp"
 #include "storetrack/calib/rig_calibration.hpp"
@@ -14,9 +15,11 @@ namespace storetrack::calibapp {
 struct DetectArgs {
   std::string board = "chessboard";
   calib::ChessboardSpec chessboard;
+  calib::CharucoSpec charuco;  ///< its square_m is chessboard.square_m (one --square option)
   int camera = 0;
   std::vector<std::string> images;
   std::string output;
+  std::string report_json;  ///< per-image outcome for host/report/storetrack_calib_report.py
 };
 
 struct IntrinsicArgs {
