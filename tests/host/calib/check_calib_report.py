@@ -106,7 +106,7 @@ def check_fit(doc, residual_csv, page_path, label):
               f"{label} camera {cid}: page shows fx = {fx:.6g} ± {sd_fx:.3g} px of the JSON")
 
 
-check_fit(json.load(open(o("left.json"))) | {}, o("left_res.csv"),
+check_fit(json.load(open(o("left.json"))), o("left_res.csv"),
           o("intrinsic_report/index.html"), "intrinsic")
 check_fit(json.load(open(o("rig.json"))), o("rig_res.csv"), o("rig_report/index.html"), "rig")
 print(f"{len(failures)} failed" if failures else "all passed")
