@@ -224,6 +224,13 @@ void parse_pose_tracker(const nlohmann::json& t, const std::string& w, HostConfi
   get(t, "max_velocity_baseline_s", pt.max_velocity_baseline_s, w);
   get(t, "accel_sigma_m_s2", pt.accel_sigma_m_s2, w);
   get(t, "angular_accel_sigma_rad_s2", pt.angular_accel_sigma_rad_s2, w);
+  if (t.contains("mean_accel_p_m_s2")) {
+    std::vector<double> v;
+    get(t, "mean_accel_p_m_s2", v, w);
+    if (v.size() != 3 || !std::isfinite(v[0]) || !std::isfinite(v[1]) || !std::isfinite(v[2]))
+      throw HostConfigError(w + "/mean_accel_p_m_s2 needs 3 finite values [x, y, z] m/s^2");
+    pt.mean_accel_p_m_s2 = geometry::Vec3(v[0], v[1], v[2]);
+  }
   if (!(pt.max_gap_s >= 0) || !(pt.max_velocity_baseline_s > 0) || !(pt.accel_sigma_m_s2 > 0) ||
       !(pt.angular_accel_sigma_rad_s2 > 0))
     throw HostConfigError(w + ": max_gap_s must be >= 0 (0: never extrapolate), the others > 0");

@@ -10,6 +10,7 @@
 #include <tuple>
 
 #include "storetrack/calib/intrinsic_calibration.hpp"  // CalibrationError
+#include "storetrack/calib/point_uncertainty.hpp"
 #include "storetrack/geometry/symmetric_eigen.hpp"
 #include "storetrack/pose/body_pose.hpp"
 #include "storetrack/triangulate/triangulate.hpp"
@@ -106,14 +107,8 @@ bool triangulate_mark(const camera::RigCalibration& rig,
   out.cov_centroid = tri.cov_centroid;
   // dp/dtheta = -K_i dpixel_i/dtheta for the parameters of observation i's camera
   // (host/pipeline's calibration loadings, here over the raw parameters).
-  out.d_point_d_calibration = MatrixXd::Zero(3, kBlock * static_cast<int>(rig.cameras.size()));
-  for (size_t i = 0; i < seen.size(); ++i) {
-    const int col = kBlock * slots[i];
-    out.d_point_d_calibration.middleCols(col, camera::kNumIntrinsics) -=
-        tri.gain[i] * tri.jacobians[i].d_intrinsics;
-    out.d_point_d_calibration.middleCols(col + kExtrinsicOffset, 6) -=
-        tri.gain[i] * tri.jacobians[i].d_pose;
-  }
+  out.d_point_d_calibration =
+      calibration_sensitivity(tri, slots, static_cast<int>(rig.cameras.size()));
   return true;
 }
 

@@ -25,6 +25,8 @@ PoseTracker::PoseTracker(const uncertainty::CalibrationFactors& factors,
       !(config_.angular_accel_sigma_rad_s2 >= 0) ||
       !std::isfinite(config_.angular_accel_sigma_rad_s2))
     throw std::invalid_argument("PoseTracker: process noise sigmas must be finite and >= 0");
+  if (!config_.mean_accel_p_m_s2.allFinite())
+    throw std::invalid_argument("PoseTracker: mean_accel_p_m_s2 must be finite");
 }
 
 void PoseTracker::reset() {
@@ -53,15 +55,19 @@ bool PoseTracker::update(ExposureResult& r) {
     return false;
   }
 
-  // Constant velocity: v = (t1 - t0) / dt, omega dt = Log(R1 R0^T) (left/spatial increments,
-  // docs/conventions.md); prediction at tau after the last solved pose.
+  // Velocity from differencing: v = (t1 - t0) / dt, omega dt = Log(R1 R0^T) (left/spatial
+  // increments, docs/conventions.md). The differenced velocity belongs to t1 - dt / 2, so a
+  // constant acceleration alpha moves the pose by alpha tau (tau + dt) / 2 beyond the
+  // constant-velocity extrapolation at tau after the last solved pose.
   const Transform& T1 = last_.pose.T;
   const Transform& T0 = previous_.pose.T;
   const double a = tau / dt;
+  const double lever = 0.5 * tau * (tau + dt);
   const Vec3 rot_step = geometry::rotvec_from_rotation(T1.linear() * T0.linear().transpose());
   Transform T_pred = Transform::Identity();
   T_pred.linear() = geometry::rotation_from_rotvec(a * rot_step) * T1.linear();
-  T_pred.translation() = T1.translation() + a * (T1.translation() - T0.translation());
+  T_pred.translation() = T1.translation() + a * (T1.translation() - T0.translation()) +
+                         lever * config_.mean_accel_p_m_s2;
 
   // First order (the rotation between the two poses and over tau is small, so Exp's Jacobian
   // and the adjoint of Exp(omega tau) are I to first order): xi_pred = (1 + a) xi_1 - a xi_0.
@@ -92,10 +98,8 @@ bool PoseTracker::update(ExposureResult& r) {
       by_source[i] = 2.0 * (w1 * w1 * p1.cov_by_source[i] + w0 * w0 * p0.cov_by_source[i]);
     }
   }
-  // Process noise: with the velocity from differencing over dt, an unmodelled constant
-  // acceleration alpha gives the error alpha tau (tau + dt) / 2 at the horizon.
+  // Process noise: the acceleration's spread about its mean through the same lever.
   // A budget source of its own, so the sample's budget adds up to its total.
-  const double lever = 0.5 * tau * (tau + dt);
   Mat6& process = by_source[static_cast<size_t>(uncertainty::index(Source::kProcess))];
   process.setZero();
   process.topLeftCorner<3, 3>() =

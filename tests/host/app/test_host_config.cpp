@@ -203,6 +203,7 @@ TEST(HostConfig, EverySectionNamesTheKeyOfABadValue) {
        "/processor/max_pose_rotation_sigma_rad"},
       {R"({"pose_tracker": {"max_gap_s": -1}})", "/pose_tracker: max_gap_s"},
       {R"({"pose_tracker": {"accel_sigma_m_s2": "x"}})", "/pose_tracker/accel_sigma_m_s2"},
+      {R"({"pose_tracker": {"mean_accel_p_m_s2": [0, 9.8]}})", "/pose_tracker/mean_accel_p_m_s2"},
       {R"({"identifier": {"gate_px": 3}})", "/identifier/gate_px: no longer exists"},
       {R"({"identifier": {"gate_probability": 1}})", "/identifier/gate_probability"},
       {R"({"identifier": {"keep_single_view": 3}})", "/identifier/keep_single_view"},
@@ -226,7 +227,7 @@ TEST(HostConfig, EverySectionNamesTheKeyOfABadValue) {
   // Each section's good values still load (the split readers apply them).
   HostConfig c;
   ASSERT_EQ(load(R"({"processor": {"coverage_factor": 3, "store_id": 9},
-                     "pose_tracker": {"max_gap_s": 0.05},
+                     "pose_tracker": {"max_gap_s": 0.05, "mean_accel_p_m_s2": [0, 0, 4.9]},
                      "identifier": {"gate_probability": 0.999, "initial_marks_sigma_m": 0.01,
                                     "store_region": {"max_rotation_deg": 30,
                                                      "min_offset_m": [-1.5, -0.5, -0.1],
@@ -237,6 +238,7 @@ TEST(HostConfig, EverySectionNamesTheKeyOfABadValue) {
   EXPECT_EQ(c.processor.coverage_factor, 3);
   EXPECT_EQ(c.processor.store_id, 9);
   EXPECT_EQ(c.pose_tracker.max_gap_s, 0.05);
+  EXPECT_EQ(c.pose_tracker.mean_accel_p_m_s2, geometry::Vec3(0, 0, 4.9));  // a 0.5 g test point
   EXPECT_EQ(c.processor.matcher.gate_probability, 0.999);
   EXPECT_EQ(c.initial_marks_sigma_m, 0.01);
   EXPECT_TRUE(c.store_region.valid);

@@ -39,7 +39,7 @@ void check_ranges(const app::HostConfig& c) {
   if (!(c.initial_marks_sigma_m > 0)) std::abort();
   const auto& t = c.pose_tracker;
   if (!(t.max_gap_s >= 0) || !(t.max_velocity_baseline_s > 0) || !(t.accel_sigma_m_s2 > 0) ||
-      !(t.angular_accel_sigma_rad_s2 > 0))
+      !(t.angular_accel_sigma_rad_s2 > 0) || !t.mean_accel_p_m_s2.allFinite())
     std::abort();
 }
 

@@ -1,13 +1,19 @@
-// PoseTracker (issue 3, FtiSample status bit "extrapolated"): store separation in the simulator
-// with the store marks hidden for several exposures. Over independent simulator seeds
-// (calibration, survey and centroid errors drawn from their stated distributions), the k = 2
-// intervals of the extrapolated samples must contain the truth, the flag must be set exactly on
-// the samples predicted within the configured gap, and later samples must be invalid.
+// PoseTracker (issue 3, FtiSample status bit "extrapolated"; issue 10: two-sided): store
+// separation in the simulator with the store marks hidden for several exposures. Over
+// independent simulator seeds (calibration, survey and centroid errors drawn from their stated
+// distributions, and the store's relative accelerations drawn from the tracker's stated
+// envelope), the k = 2 intervals of the extrapolated samples must contain the truth as often as
+// they claim, neither more nor less, the flag must be set exactly on the samples predicted
+// within the configured gap, and later samples must be invalid.
 #include <algorithm>
+#include <array>
 #include <cfloat>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <random>
+#include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -31,6 +37,12 @@ constexpr int kSeeds = 200;  // seeds are the effective sample (own calibration 
 constexpr int kSolvedBefore = 3;  // exposures with all marks before the store marks vanish
 constexpr int kHidden = 10;       // 25 ms at 400 fps: longer than the 20 ms gap
 
+// STORETRACK_TRACKER_SEEDS=N: the full form (docs/uncertainty.md); the band follows N.
+int seeds_from_env() {
+  const char* v = std::getenv("STORETRACK_TRACKER_SEEDS");
+  return v ? std::max(20, std::atoi(v)) : kSeeds;
+}
+
 bool is_store_mark(int id) {
   return id >= 100 && id < 200;
 }
@@ -52,125 +64,236 @@ Vec6 error_to_truth(const sim::Simulator& sim, const ExposureResult& r) {
   return e;
 }
 
-TEST(PoseTracker, ExtrapolatesHonestlyWithinTheGapAndStopsAfterIt) {
-  const sim::Scenario scenario = sim::load_scenario(test::scenario_path("store_separation"));
-  // The product defaults: 20 m/s^2 and 5 rad/s^2 of unmodelled relative acceleration (the
-  // scenario's own, after the ejector stroke, are |(-3, 0.4, 9.79)| m/s^2 and 0.8 rad/s^2;
-  // docs/uncertainty.md reports the roll coverage with those).
+// The k = 2 scores of one tracker configuration over the gaps.
+struct GapScores {
+  uncertainty::ConsistencyAccumulator<3> position, attitude, position_short, attitude_short,
+      position_long, attitude_long;
+  int extrapolated = 0, invalid_after_gap = 0;
+  double sum_u_z_short = 0, sum_u_z_long = 0;
+};
+
+struct TrackerVariant {
+  const char* name;
   PoseTrackerConfig config;
-  ASSERT_EQ(config.max_gap_s, 0.02);
-  const double frame_s = 1.0 / scenario.frame_rate_hz;
+  GapScores scores;
+};
+
+void print_scores(const char* what, const uncertainty::ConsistencyAccumulator<3>& acc) {
+  std::printf("    %-26s n=%5lld coverage(k=2) %.4f %.4f %.4f  mean NEES %.3f\n", what,
+              static_cast<long long>(acc.count()), acc.coverage(0), acc.coverage(1),
+              acc.coverage(2), acc.mean_nees());
+}
+
+// Outside the acceptance on any axis, or its mean NEES outside the chi-square band.
+bool rejected(const uncertainty::ConsistencyAccumulator<3>& acc, const test::HonestyBounds& b) {
+  bool out = acc.mean_nees() < b.nees_low || acc.mean_nees() > b.nees_high;
+  for (int a = 0; a < 3; ++a)
+    out = out || acc.coverage(a) < b.coverage_low || acc.coverage(a) > b.coverage_high;
+  return out;
+}
+
+// The store's stated dynamics envelope (docs/uncertainty.md, "Process model"): per axis, its
+// aerodynamic specific force [m/s^2] about the fall with the aircraft's load factor, and its
+// angular acceleration [rad/s^2] about zero. The product defaults state it (checked below).
+constexpr double kEnvelopeAccel = 5.0;
+constexpr double kEnvelopeAngularAccel = 2.0;
+
+// The store's relative accelerations of one test point, drawn from the envelope (a random
+// constant per axis): the scenario's gravity along z_p plus the aerodynamic spread, angular
+// accelerations about zero. The scenario's own values (-3, 0.4, 0) m/s^2 and (0.1, 0.8, 0)
+// rad/s^2 are one such draw, each within 1 sigma.
+// STORETRACK_TRACKER_SCENARIO_DYNAMICS=1 keeps them instead (docs/uncertainty.md).
+void draw_dynamics(sim::Scenario& sc, std::mt19937_64& rng) {
+  if (std::getenv("STORETRACK_TRACKER_SCENARIO_DYNAMICS")) return;
+  std::normal_distribution<double> n01;
+  sc.separation.accel_p_m_s2 = Vec3(0, 0, sc.separation.accel_p_m_s2.z());
+  for (int a = 0; a < 3; ++a) {
+    sc.separation.accel_p_m_s2(a) += kEnvelopeAccel * n01(rng);
+    sc.separation.accel_ypr_rad_s2(a) = kEnvelopeAngularAccel * n01(rng);
+  }
+}
+
+// Scores one extrapolated or past-the-gap exposure of one tracker; checks its flags.
+void score_hidden(const sim::Simulator& sim, ExposureResult r, PoseTracker& tracker,
+                  time::TaiNs last_solved_ns, double frame_s, GapScores& g) {
+  const bool did = tracker.update(r);
+  const std::uint16_t status = r.sample.status;
+  ASSERT_EQ(did, r.extrapolated);
+  const double tau = static_cast<double>(r.reference_mid_tai_ns - last_solved_ns) * 1e-9;
+  if (tau > tracker.config().max_gap_s) {
+    // Beyond the gap: invalid, no flag, no pose.
+    EXPECT_FALSE(did);
+    EXPECT_FALSE(status & msg::fti_status::kValid);
+    EXPECT_FALSE(status & msg::fti_status::kExtrapolated);
+    EXPECT_TRUE(std::isnan(r.sample.x_m));
+    ++g.invalid_after_gap;
+    return;
+  }
+  ASSERT_TRUE(did) << "tau " << tau;
+  EXPECT_EQ(status & (msg::fti_status::kValid | msg::fti_status::kExtrapolated),
+            msg::fti_status::kValid | msg::fti_status::kExtrapolated);
+  EXPECT_NEAR(r.extrapolation_horizon_s, tau, 1e-12);
+  EXPECT_TRUE(std::isfinite(r.sample.z_m));
+  EXPECT_FLOAT_EQ(r.sample.u_z_m, static_cast<float>(std::sqrt(r.cov_xyz_ypr(2, 2))));
+  ++g.extrapolated;
+  const Vec6 e = error_to_truth(sim, r);
+  const auto C_pos = r.cov_xyz_ypr.topLeftCorner<3, 3>();
+  const auto C_att = r.cov_xyz_ypr.bottomRightCorner<3, 3>();
+  g.position.add(e.head<3>(), C_pos);
+  g.attitude.add(e.tail<3>(), C_att);
+  if (tau < 1.5 * frame_s) {
+    g.position_short.add(e.head<3>(), C_pos);
+    g.attitude_short.add(e.tail<3>(), C_att);
+    g.sum_u_z_short += r.sample.u_z_m;
+  } else if (tau > 6.5 * frame_s) {
+    g.position_long.add(e.head<3>(), C_pos);
+    g.attitude_long.add(e.tail<3>(), C_att);
+    g.sum_u_z_long += r.sample.u_z_m;
+  }
+}
+
+// One pass over the seeds; every variant's tracker sees the same processed exposures (the
+// processor's work is shared, the trackers are cheap).
+// Counts the gaps scored. A seed whose visible exposures before the gap are not all
+// solved (with a large drawn acceleration the store leaves the cameras' view late in the run)
+// is left out, counted and listed, not scored.
+void run_gaps(std::vector<TrackerVariant>& variants, int seeds,
+              uncertainty::ConsistencyAccumulator<3>& solved_attitude, int& gaps) {
+  gaps = 0;
+  const sim::Scenario base = sim::load_scenario(test::scenario_path("store_separation"));
+  const double frame_s = 1.0 / base.frame_rate_hz;
   // After the release and the 50 ms ejector stroke (20 + 50 ms), leaving room for the window.
   const int first_k = static_cast<int>(std::ceil(0.1 / frame_s));
-
-  uncertainty::ConsistencyAccumulator<3> position, attitude, position_short, position_long,
-      attitude_short, attitude_long, solved_attitude;
-  std::mt19937_64 pick(4242);
-  int extrapolated = 0, invalid_after_gap = 0, seeds_checked = 0;
-  double sum_u_z_short = 0, sum_u_z_long = 0;
-  int n_short = 0, n_long = 0;
-  for (int seed = 0; seed < kSeeds; ++seed) {
+  std::mt19937_64 pick(4242), dynamics(777);
+  for (int seed = 0; seed < seeds; ++seed) {
+    sim::Scenario scenario = base;
+    draw_dynamics(scenario, dynamics);
     const sim::Simulator sim(scenario, 5000 + static_cast<std::uint64_t>(seed));
     ExposureProcessor proc(sim.calibrated_rig(), sim.pylon_survey(), sim.store_survey(),
                            ProcessorConfig{});
-    PoseTracker tracker(proc.factors(), config);
+    std::vector<PoseTracker> trackers;
+    for (const TrackerVariant& v : variants)
+      trackers.emplace_back(proc.factors(), v.config);
     std::uniform_int_distribution<int> start(first_k,
                                              sim.num_exposures() - kSolvedBefore - kHidden - 2);
     const int k0 = start(pick);
     time::TaiNs last_solved_ns = 0;
-    for (int k = k0; k < k0 + kSolvedBefore + kHidden + 1; ++k) {
+    bool left_out = false;
+    for (int k = k0; k < k0 + kSolvedBefore + kHidden + 1 && !left_out; ++k) {
       test::SimExposure in = test::make_exposure(sim, k);
       const bool hidden = k >= k0 + kSolvedBefore && k < k0 + kSolvedBefore + kHidden;
       if (hidden) hide_store_marks(in);
-      ExposureResult r = proc.process(in.exposure, in.ids);
-      const bool did = tracker.update(r);
-      const std::uint16_t status = r.sample.status;
-      ASSERT_EQ(did, r.extrapolated);
+      const ExposureResult r = proc.process(in.exposure, in.ids);
       if (!hidden) {
         // All marks visible: solved, never flagged.
-        ASSERT_TRUE(r.T_p_s.valid) << "seed " << seed << " k " << k;
-        EXPECT_FALSE(status & msg::fti_status::kExtrapolated);
-        EXPECT_TRUE(status & msg::fti_status::kValid);
+        if (!r.T_p_s.valid && k < k0 + kSolvedBefore) {
+          std::printf("  left out: seed %d, exposure %d before the gap not solved (status 0x%x)\n",
+                      seed, k, static_cast<unsigned>(r.sample.status));
+          left_out = true;
+          continue;
+        }
+        if (!r.T_p_s.valid) continue;  // after the gap: the gap is scored already
+        for (PoseTracker& t : trackers) {
+          ExposureResult copy = r;
+          EXPECT_FALSE(t.update(copy));
+          EXPECT_FALSE(copy.sample.status & msg::fti_status::kExtrapolated);
+          EXPECT_TRUE(copy.sample.status & msg::fti_status::kValid);
+        }
         last_solved_ns = r.reference_mid_tai_ns;
         solved_attitude.add(error_to_truth(sim, r).tail<3>(),
                             r.cov_xyz_ypr.bottomRightCorner<3, 3>());
         continue;
       }
       ASSERT_FALSE(r.T_p_s.valid);  // no store marks: the pose cannot be solved
-      const double tau = static_cast<double>(r.reference_mid_tai_ns - last_solved_ns) * 1e-9;
-      if (tau <= config.max_gap_s) {
-        ASSERT_TRUE(did) << "seed " << seed << " tau " << tau;
-        EXPECT_EQ(status & (msg::fti_status::kValid | msg::fti_status::kExtrapolated),
-                  msg::fti_status::kValid | msg::fti_status::kExtrapolated);
-        EXPECT_NEAR(r.extrapolation_horizon_s, tau, 1e-12);
-        EXPECT_TRUE(std::isfinite(r.sample.z_m));
-        EXPECT_FLOAT_EQ(r.sample.u_z_m, static_cast<float>(std::sqrt(r.cov_xyz_ypr(2, 2))));
-        ++extrapolated;
-        const Vec6 e = error_to_truth(sim, r);
-        position.add(e.head<3>(), r.cov_xyz_ypr.topLeftCorner<3, 3>());
-        attitude.add(e.tail<3>(), r.cov_xyz_ypr.bottomRightCorner<3, 3>());
-        if (tau < 1.5 * frame_s) {
-          position_short.add(e.head<3>(), r.cov_xyz_ypr.topLeftCorner<3, 3>());
-          attitude_short.add(e.tail<3>(), r.cov_xyz_ypr.bottomRightCorner<3, 3>());
-          sum_u_z_short += r.sample.u_z_m;
-          ++n_short;
-        } else if (tau > 6.5 * frame_s) {
-          position_long.add(e.head<3>(), r.cov_xyz_ypr.topLeftCorner<3, 3>());
-          attitude_long.add(e.tail<3>(), r.cov_xyz_ypr.bottomRightCorner<3, 3>());
-          sum_u_z_long += r.sample.u_z_m;
-          ++n_long;
-        }
-      } else {
-        // Beyond the gap: invalid, no flag, no pose.
-        EXPECT_FALSE(did);
-        EXPECT_FALSE(status & msg::fti_status::kValid);
-        EXPECT_FALSE(status & msg::fti_status::kExtrapolated);
-        EXPECT_TRUE(std::isnan(r.sample.x_m));
-        ++invalid_after_gap;
-      }
+      for (size_t i = 0; i < variants.size(); ++i)
+        score_hidden(sim, r, trackers[i], last_solved_ns, frame_s, variants[i].scores);
     }
-    ++seeds_checked;
+    if (!left_out) ++gaps;
   }
-  auto print = [](const char* what, const auto& acc) {
-    std::printf("  %-28s n=%5lld coverage(k=2) %.4f %.4f %.4f  mean NEES %.3f\n", what,
-                static_cast<long long>(acc.count()), acc.coverage(0), acc.coverage(1),
-                acc.coverage(2), acc.mean_nees());
-  };
-  std::printf("%d seeds: %d extrapolated samples, %d invalid after the gap\n", seeds_checked,
-              extrapolated, invalid_after_gap);
-  print("position (x,y,z)", position);
-  print("attitude (y,p,r)", attitude);
-  print("position, 1 frame ahead", position_short);
-  print("position, >= 7 frames ahead", position_long);
-  print("attitude, 1 frame ahead", attitude_short);
-  print("attitude, >= 7 frames ahead", attitude_long);
-  print("attitude, solved exposures", solved_attitude);
-  std::printf("  mean u_z: 1 frame ahead %.3f mm, >= 7 frames ahead %.3f mm\n",
-              sum_u_z_short / std::max(n_short, 1) * 1e3, sum_u_z_long / std::max(n_long, 1) * 1e3);
+}
 
-  // 20 ms gap at 2.5 ms per exposure: 8 extrapolated and 2 invalid samples per seed (exposure
-  // times jitter by ~1 us, which may move the 8th just past the gap).
-  EXPECT_GE(extrapolated, kSeeds * 7);
-  EXPECT_GE(invalid_after_gap, kSeeds * 2);
-  // Coverage over seeds (each seed has its own calibration and survey errors). The seeds are
-  // the independent samples (the samples of one seed share its calibration), so the binomial
-  // band of kSeeds, the widest the correlation allows, is the acceptance (honesty_bounds.hpp).
-  // One frame ahead the process noise is small and the propagated calibration/centroid
-  // correlations between the two tracked poses decide: two-sided, over-coverage is as wrong as
-  // under-coverage. Over the whole gap the configured process noise dominates; the product's
-  // default is a stated margin for any test point's accelerations (docs/uncertainty.md), above
-  // this scenario's, so there only the lower side is a requirement.
-  const test::HonestyBounds band = test::derived_bounds(kSeeds, 3);
-  std::printf("  acceptance (%d seeds): coverage [%.4f, %.4f]\n", kSeeds, band.coverage_low,
-              band.coverage_high);
+// The product defaults against accelerations drawn from their stated envelope: whole-gap k = 2
+// coverage per axis (position and attitude) and mean NEES two-sided. Deliberately mis-scaled
+// process noise (x 0.3, x 3) and the old model (no mean, 20 m/s^2, 5 rad/s^2) must be rejected
+// by the same acceptance, or the test could not tell an honest tracker from a wrong one.
+TEST(PoseTracker, ExtrapolatesHonestlyWithinTheGapAndStopsAfterIt) {
+  const int seeds = seeds_from_env();
+  const PoseTrackerConfig product;
+  ASSERT_EQ(product.max_gap_s, 0.02);
+  EXPECT_EQ(product.accel_sigma_m_s2, kEnvelopeAccel);
+  EXPECT_EQ(product.angular_accel_sigma_rad_s2, kEnvelopeAngularAccel);
+  PoseTrackerConfig low = product, high = product, old_model = product;
+  low.accel_sigma_m_s2 *= 0.3;
+  low.angular_accel_sigma_rad_s2 *= 0.3;
+  high.accel_sigma_m_s2 *= 3;
+  high.angular_accel_sigma_rad_s2 *= 3;
+  old_model.mean_accel_p_m_s2.setZero();
+  old_model.accel_sigma_m_s2 = 20;
+  old_model.angular_accel_sigma_rad_s2 = 5;
+  std::vector<TrackerVariant> variants = {{"product defaults", product, GapScores()},
+                                          {"process noise x 0.3", low, GapScores()},
+                                          {"process noise x 3", high, GapScores()},
+                                          {"old model (0 mean, 20, 5)", old_model, GapScores()}};
+  uncertainty::ConsistencyAccumulator<3> solved_attitude;
+  int gaps = 0;
+  run_gaps(variants, seeds, solved_attitude, gaps);
+  // Left-out seeds are counted (none of the CI's 200); more than 1 % would be a regression.
+  EXPECT_GE(gaps, seeds - seeds / 100) << seeds - gaps << " of " << seeds << " seeds left out";
+
+  // Acceptance. n = 8 samples per gap x gaps, but the samples of one gap share the seed's
+  // calibration, survey, accelerations and the two tracked poses: the effective sample size is
+  // 8 gaps / (1 + 7 rho), between gaps (rho = 1) and 8 gaps (rho = 0). The band of n_eff =
+  // gaps is the widest the correlation allows (binomial 95.45 %, alpha 0.001 per side; mean NEES
+  // of d = 3: chi-square(3 gaps) / gaps), so an honest tracker fails it with <= 0.2 % per check.
+  const test::HonestyBounds band = test::derived_bounds(gaps, 3);
+  std::printf(
+      "%d seeds, %d gaps scored; acceptance (n_eff = %d): coverage [%.4f, %.4f], mean "
+      "NEES (d=3) [%.3f, %.3f]\n",
+      seeds, gaps, gaps, band.coverage_low, band.coverage_high, band.nees_low, band.nees_high);
+  for (const TrackerVariant& v : variants) {
+    const GapScores& g = v.scores;
+    std::printf("  %s: %d extrapolated, %d invalid after the gap\n", v.name, g.extrapolated,
+                g.invalid_after_gap);
+    print_scores("position (x,y,z)", g.position);
+    print_scores("attitude (y,p,r)", g.attitude);
+    print_scores("position, 1 frame ahead", g.position_short);
+    print_scores("position, >= 7 frames ahead", g.position_long);
+    print_scores("attitude, 1 frame ahead", g.attitude_short);
+    print_scores("attitude, >= 7 frames ahead", g.attitude_long);
+    std::printf("    mean u_z: 1 frame ahead %.3f mm, >= 7 frames ahead %.3f mm\n",
+                g.sum_u_z_short / std::max<double>(g.position_short.count(), 1) * 1e3,
+                g.sum_u_z_long / std::max<double>(g.position_long.count(), 1) * 1e3);
+    // 20 ms gap at 2.5 ms per exposure: 8 extrapolated and 2 invalid samples per seed (exposure
+    // times jitter by ~1 us, which may move the 8th just past the gap).
+    EXPECT_GE(g.extrapolated, gaps * 7) << v.name;
+    EXPECT_GE(g.invalid_after_gap, gaps * 2) << v.name;
+  }
+  print_scores("attitude, solved exposures", solved_attitude);
+  // One test point is one draw of the envelope: its fixed accelerations give every seed the same
+  // bias, so the coverage over seeds scores that one bias, not the stated distribution (which
+  // is over the test points of the envelope). Printed, not scored.
+  if (std::getenv("STORETRACK_TRACKER_SCENARIO_DYNAMICS"))
+    GTEST_SKIP() << "the scenario's own accelerations: one draw of the envelope, not scored";
+
+  const GapScores& g = variants[0].scores;
   for (int a = 0; a < 3; ++a) {
-    EXPECT_GE(position.coverage(a), band.coverage_low) << "position axis " << a;
-    EXPECT_GE(attitude.coverage(a), band.coverage_low) << "attitude axis " << a;
-    for (const auto& [what, acc] : {std::pair{"position 1 frame ahead", &position_short},
-                                    std::pair{"attitude 1 frame ahead", &attitude_short}}) {
+    for (const auto& [what, acc] : {std::pair{"position, whole gap", &g.position},
+                                    std::pair{"attitude, whole gap", &g.attitude},
+                                    std::pair{"position 1 frame ahead", &g.position_short},
+                                    std::pair{"attitude 1 frame ahead", &g.attitude_short}}) {
       EXPECT_GE(acc->coverage(a), band.coverage_low) << what << ", axis " << a;
       EXPECT_LE(acc->coverage(a), band.coverage_high) << what << ", axis " << a;
     }
+  }
+  for (const auto& [what, acc] : {std::pair{"position, whole gap", &g.position},
+                                  std::pair{"attitude, whole gap", &g.attitude}}) {
+    EXPECT_GE(acc->mean_nees(), band.nees_low) << what;
+    EXPECT_LE(acc->mean_nees(), band.nees_high) << what;
+  }
+  for (size_t i = 1; i < variants.size(); ++i) {
+    const GapScores& w = variants[i].scores;
+    EXPECT_TRUE(rejected(w.position, band) || rejected(w.attitude, band))
+        << variants[i].name << " passes the acceptance: the test cannot see it";
   }
 }
 
@@ -235,6 +358,46 @@ TEST(PoseTracker, ExtrapolatedBudgetAddsUpWithTheProcessNoiseInIt) {
   }
   // 20 ms gap at 2.5 ms per exposure: 8 extrapolated samples (7 if jitter moves the 8th past it).
   EXPECT_GE(extrapolated, 7);
+}
+
+// The stated mean acceleration is part of the prediction: solved poses on an exact trajectory
+// p(t) = p0 + v t + mu t^2 / 2 (mu the configured mean) turning at a constant rate about a fixed
+// axis are extrapolated exactly (the closed form of the truth, to rounding), for the default
+// 1 g and for another test point's mean. Without the mean the error is mu tau (tau + dt) / 2.
+TEST(PoseTracker, PredictionFollowsTheStatedMeanAcceleration) {
+  const std::array<Vec3, 2> means = {PoseTrackerConfig{}.mean_accel_p_m_s2, Vec3(1.0, -2.0, 4.9)};
+  for (const Vec3& mu : means) {
+    PoseTrackerConfig config;
+    config.mean_accel_p_m_s2 = mu;
+    PoseTracker tracker(uncertainty::CalibrationFactors{}, config);
+    const Vec3 p0(0.1, -0.05, 0.3), v(0.5, 0.2, 4.0), w(0.05, 0.6, 0.1);
+    const auto truth = [&](double t) {
+      geometry::Transform T = geometry::Transform::Identity();
+      T.linear() = geometry::rotation_from_rotvec(w * t);
+      T.translation() = p0 + v * t + 0.5 * mu * t * t;
+      return T;
+    };
+    constexpr time::TaiNs kStartNs = 1'000'000'000, kFrameNs = 2'500'000;
+    for (int k = 0; k < 6; ++k) {
+      ExposureResult r;
+      r.reference_mid_tai_ns = kStartNs + k * kFrameNs;
+      const geometry::Transform T_true = truth(static_cast<double>(k * kFrameNs) * 1e-9);
+      if (k < 2) {  // two solved poses give the velocity
+        r.T_p_s.valid = true;
+        r.T_p_s.T = T_true;
+        EXPECT_FALSE(tracker.update(r));
+        continue;
+      }
+      ASSERT_TRUE(tracker.update(r)) << "k " << k;
+      const Vec3 dp = r.T_p_s_extrapolated.translation() - T_true.translation();
+      const double dphi = geometry::rotvec_from_rotation(r.T_p_s_extrapolated.linear() *
+                                                         T_true.linear().transpose())
+                              .norm();
+      for (int a = 0; a < 3; ++a)
+        EXPECT_NEAR(dp(a), 0.0, 1e-12) << "k " << k << " axis " << a;
+      EXPECT_LT(dphi, 1e-12) << "k " << k;
+    }
+  }
 }
 
 TEST(PoseTracker, NoVelocityNoExtrapolation) {

@@ -76,6 +76,8 @@ int parse_calib_command(int argc, char** argv, CalibCommand& command) {
   add_intrinsic(app, command.intrinsic);
   add_rig(app, command.rig);
   add_register(app, command.register_args);
+  add_compare(app, command.compare);
+  add_uncertainty_map(app, command.uncertainty_map);
   if (const int rc = app.parse(argc, argv); rc >= 0) return rc;
   if (app.got_subcommand("detect")) command.kind = CalibCommand::Kind::kDetect;
   if (app.got_subcommand("intrinsic")) {
@@ -87,6 +89,8 @@ int parse_calib_command(int argc, char** argv, CalibCommand& command) {
     if (command.rig.no_outlier_rejection) command.rig.options.intrinsic.outlier_false_alarm = 0;
   }
   if (app.got_subcommand("register")) command.kind = CalibCommand::Kind::kRegister;
+  if (app.got_subcommand("compare")) command.kind = CalibCommand::Kind::kCompare;
+  if (app.got_subcommand("uncertainty-map")) command.kind = CalibCommand::Kind::kUncertaintyMap;
   return -1;
 }
 

@@ -4,6 +4,7 @@
 #include <string>
 #include <vector>
 
+#include "compare_command.hpp"
 #include "register_command.hpp"
 #include "storetrack/calib/charuco_detection.hpp"
 #include "storetrack/calib/chessboard_detection.hpp"
@@ -44,11 +45,21 @@ struct RigArgs {
 };
 
 struct CalibCommand {
-  enum class Kind { kNone, kDetect, kIntrinsic, kRig, kRegister } kind = Kind::kNone;
+  enum class Kind {
+    kNone,
+    kDetect,
+    kIntrinsic,
+    kRig,
+    kRegister,
+    kCompare,
+    kUncertaintyMap
+  } kind = Kind::kNone;
   DetectArgs detect;
   IntrinsicArgs intrinsic;
   RigArgs rig;
   RegisterArgs register_args;
+  CompareArgs compare;
+  UncertaintyMapArgs uncertainty_map;
 };
 
 /// Returns -1 to run `command`, else the exit code (0 after --help, 2 on a bad argument).

@@ -3,6 +3,7 @@
 //   intrinsic  observation CSV -> calibration JSON (calib_commands.cpp, run_intrinsic)
 //   rig        observation CSVs -> calibration JSON of all cameras (calib_commands.cpp, run_rig)
 //   register   rig JSON + world survey + marks CSV -> registered JSON (register_command.cpp)
+//   compare, uncertainty-map   rig JSON(s) -> result JSON (compare_command.cpp)
 // Exit codes: 0 ok, 1 runtime failure (writing files), 2 bad arguments or input.
 #include <iostream>
 
@@ -22,6 +23,10 @@ int main(int argc, char** argv) {
       return app::run_rig(command.rig, std::cout, std::cerr);
     case app::CalibCommand::Kind::kRegister:
       return app::run_register(command.register_args, std::cout, std::cerr);
+    case app::CalibCommand::Kind::kCompare:
+      return app::run_compare(command.compare, std::cout, std::cerr);
+    case app::CalibCommand::Kind::kUncertaintyMap:
+      return app::run_uncertainty_map(command.uncertainty_map, std::cout, std::cerr);
     case app::CalibCommand::Kind::kNone:
       break;
   }

@@ -8,9 +8,10 @@
 // constant-velocity prediction (translation and rotation) with status valid | extrapolated;
 // beyond the gap the sample stays invalid. The prediction's covariance is first-order: the two
 // poses' calibration errors are the same factors (loadings combine, they largely cancel in the
-// velocity), their centroid errors are independent, the survey error is common, and an
-// unmodelled relative acceleration (white, per axis: accel_sigma_m_s2, angular_accel_sigma_rad_s2)
-// adds the process noise.
+// velocity), their centroid errors are independent, the survey error is common, and the
+// store's relative acceleration over the gap, a random constant with the stated mean
+// (mean_accel_p_m_s2, gravity for a released store) and per-axis spread (accel_sigma_m_s2,
+// angular_accel_sigma_rad_s2), adds its mean to the prediction and its spread as process noise.
 #pragma once
 
 #include <cstdint>
@@ -24,13 +25,18 @@ struct PoseTrackerConfig {
   double max_gap_s = 0.02;
   /// The two solved poses that give the velocity must be at most this far apart [s].
   double max_velocity_baseline_s = 0.05;
-  /// Standard uncertainty per axis of the relative (pylon-frame) acceleration the constant-
-  /// velocity model ignores [m/s^2]. Must cover the test point's manoeuvre: gravity and drag
-  /// after release are ~1 g; during an ejector stroke of s in t it is 2 s / t^2 (0.1 m in
-  /// 50 ms: 80 m/s^2).
-  double accel_sigma_m_s2 = 20.0;
-  /// The same for the angular acceleration of the store relative to the pylon [rad/s^2].
-  double angular_accel_sigma_rad_s2 = 5.0;
+  /// Process model (docs/uncertainty.md, "Extrapolation"): over the gap the store's
+  /// acceleration relative to the pylon is a random constant, mean `mean_accel_p_m_s2` and
+  /// standard uncertainty `accel_sigma_m_s2` per pylon axis. A released store falls relative
+  /// to the aircraft with the aircraft's specific force reversed: +n_z g along z_p (down) at
+  /// load factor n_z (default 1 g, standard gravity); set n_z g of the test point, or 0 for a
+  /// captive store. The spread is the store's own aerodynamic specific force (drag, lift, side
+  /// force: a few m/s^2 for a 250 kg store at 30 kPa) plus the load-factor tolerance.
+  geometry::Vec3 mean_accel_p_m_s2 = geometry::Vec3(0, 0, 9.80665);
+  double accel_sigma_m_s2 = 5.0;
+  /// Standard uncertainty per axis of the store's angular acceleration relative to the pylon
+  /// [rad/s^2] (mean 0): aerodynamic pitching and yawing moments after release.
+  double angular_accel_sigma_rad_s2 = 2.0;
 };
 
 struct PoseTrackerCounters {
