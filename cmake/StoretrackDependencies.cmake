@@ -9,7 +9,7 @@ find_package(Python3 REQUIRED COMPONENTS Interpreter)
 find_package(GTest REQUIRED)
 
 if(NOT STORETRACK_FIRMWARE_ONLY)
-  find_package(OpenCV 4.6 REQUIRED COMPONENTS core imgproc imgcodecs calib3d)
+  find_package(OpenCV 4.6 REQUIRED COMPONENTS core imgproc imgcodecs calib3d aruco)
   find_package(Ceres 2.1 REQUIRED)
   find_package(CLI11 REQUIRED)
   find_package(fmt REQUIRED)

@@ -27,6 +27,9 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from report_html import table, write_page  # noqa: E402
+
 AXES = ["x", "y", "z"]
 MM = 1e3
 
@@ -68,13 +71,6 @@ def plot_ratio(r, path):
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-def table(header, rows):
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>"
-                   for row in rows)
-    return f"<table border=1 cellpadding=4><tr>{head}</tr>{body}</table>"
 
 
 def type_a_page(r):
@@ -246,13 +242,6 @@ def main():
         plot_errors(r, os.path.join(args.out_dir, "type_a_errors.png"))
         plot_ratio(r, os.path.join(args.out_dir, "type_a_ratio.png"))
         write_page(args.out_dir, type_a_page(r))
-
-
-def write_page(out_dir, body):
-    with open(os.path.join(out_dir, "index.html"), "w") as f:
-        f.write("<!doctype html><html><head><meta charset='utf-8'><title>storetrack-eval"
-                "</title></head><body>" + body + "</body></html>\n")
-    print(f"report: {os.path.join(out_dir, 'index.html')}")
 
 
 if __name__ == "__main__":

@@ -1,5 +1,6 @@
 #include "calib_cli.hpp"
 
+#include "detect_report.hpp"
 #include "storetrack/cli/command_line.hpp"
 
 namespace storetrack::calibapp {
@@ -7,13 +8,17 @@ namespace {
 
 void add_detect(cli::Command& app, DetectArgs& a) {
   cli::Command& sub = app.subcommand("detect", "Board observations from images -> CSV");
-  sub.option("--board", a.board, "Board type").one_of({"chessboard"});
-  sub.option("--cols", a.chessboard.cols, "Inner corners per board row").range(2, 1000);
-  sub.option("--rows", a.chessboard.rows, "Inner corners per board column").range(2, 1000);
+  sub.option("--board", a.board, "Board type").one_of({"chessboard", "charuco"});
+  sub.option("--cols", a.chessboard.cols, "Chessboard: inner corners per board row").range(2, 1000);
+  sub.option("--rows", a.chessboard.rows, "Chessboard: inner corners per board column")
+      .range(2, 1000);
   sub.option("--square", a.chessboard.square_m, "Square side [m]").positive();
+  add_charuco_options(sub, a.charuco);
   sub.option("--camera", a.camera, "Camera id written to the CSV").range(0, 255);
   sub.option("images", a.images, "Images (frame = position in this list)").required();
   sub.option("-o,--output", a.output, "Observation CSV to write").required();
+  sub.option("--report-json", a.report_json,
+             "Per-image outcome JSON for host/report/storetrack_calib_report.py");
 }
 
 /// The model flags and outlier gate, shared by intrinsic and rig.

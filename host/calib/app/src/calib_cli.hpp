@@ -6,6 +6,7 @@
 
 #include "compare_command.hpp"
 #include "register_command.hpp"
+#include "storetrack/calib/charuco_detection.hpp"
 #include "storetrack/calib/chessboard_detection.hpp"
 #include "storetrack/calib/intrinsic_calibration.hpp"
 #include "storetrack/calib/rig_calibration.hpp"
@@ -15,9 +16,11 @@ namespace storetrack::calibapp {
 struct DetectArgs {
   std::string board = "chessboard";
   calib::ChessboardSpec chessboard;
+  calib::CharucoSpec charuco;  ///< its square_m is chessboard.square_m (one --square option)
   int camera = 0;
   std::vector<std::string> images;
   std::string output;
+  std::string report_json;  ///< per-image outcome for host/report/storetrack_calib_report.py
 };
 
 struct IntrinsicArgs {

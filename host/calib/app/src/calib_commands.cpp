@@ -9,6 +9,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "detect_report.hpp"
 #include "storetrack/camera/calibration_file.hpp"
 
 namespace storetrack::calibapp {
@@ -91,6 +92,7 @@ nlohmann::json flags_json(const calib::IntrinsicOptions& options) {
 }  // namespace
 
 int run_detect(const DetectArgs& args, std::ostream& out, std::ostream& err) {
+  if (args.board == "charuco") return run_detect_charuco(args, out, err);
   const calib::DetectionResult result =
       calib::detect_chessboards(args.images, args.chessboard, args.camera);
   for (const auto& rejected : result.rejected)
@@ -104,6 +106,7 @@ int run_detect(const DetectArgs& args, std::ostream& out, std::ostream& err) {
     return 2;
   }
   try {
+    write_detect_report(args, result, {});
     calib::write_observations_csv(result.set, args.output);
   } catch (const std::exception& e) {
     err << "error: " << e.what() << "\n";
