@@ -202,9 +202,9 @@ TEST(LmeSimulated, PerturbedCalibrationGrowsAsPredicted) {
       "%d seeds scored (%d left out: a mark of the scored bar not triangulated), chi-square(%d) "
       "99 %% interval [%.1f, %.1f]\n"
       "  perfect rig vs centroid-only u:            sum z^2 %.1f\n"
-      "  perturbed rig vs predicted u (shared cal): sum z^2 %.1f\n"
+      "  perturbed rig vs predicted u (shared cal): sum z^2 %.3f\n"
       "  perturbed rig vs centroid-only u (power):  sum z^2 %.1f\n"
-      "  perturbed rig vs the program's u:          sum z^2 %.1f (program u RMS / predicted u "
+      "  perturbed rig vs the program's u:          sum z^2 %.3f (program u RMS / predicted u "
       "RMS %.3f)\n"
       "  LME RMS perfect %.4f mm, perturbed %.4f mm: growth %.3f observed, %.3f predicted\n",
       scored, skipped, scored, ci.low, ci.high, perfect.z2, perturbed.z2, perturbed_vs_centroid.z2,
@@ -258,7 +258,7 @@ TEST(LmeSimulated, CalibrationDominatedSharedEnds) {
   std::printf(
       "%d seeds scored (%d left out), perfect centroids, calibration draws: chi-square(%d) 99 %% "
       "interval [%.1f, %.1f]\n"
-      "  the program's u with the rig (shared ends):   sum z^2 %.1f\n"
+      "  the program's u with the rig (shared ends):   sum z^2 %.3f\n"
       "  the program's u without it (independent ends): sum z^2 %.1f (u RMS %.3f times)\n"
       "  LME RMS %.4f mm, u RMS %.4f mm\n",
       scored, skipped, scored, ci.low, ci.high, shared.z2, independent.z2,
