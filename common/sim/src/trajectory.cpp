@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "storetrack/pendulum/pendulum_ode.hpp"
+
 namespace storetrack::sim {
 
 geometry::Vec3 SeparationTrajectory::displacement_p(double t) const {
@@ -52,21 +54,10 @@ PendulumTrajectory::PendulumTrajectory(const PendulumMotion& motion, double dura
   theta_.resize(static_cast<std::size_t>(n));
   theta_dot_.resize(static_cast<std::size_t>(n));
   double th = m_.theta0_rad, om = m_.theta_dot0_rad_s;
-  const double inertia = m_.mass_kg * m_.l2_m * m_.l2_m;
-  const auto accel = [&](double a, double w) {
-    return -(m_.damping_n_m_s * w + m_.mass_kg * m_.g_m_s2 * m_.l1_m * std::sin(a)) / inertia;
-  };
   for (int i = 0; i < n; ++i) {
     theta_[static_cast<std::size_t>(i)] = th;
     theta_dot_[static_cast<std::size_t>(i)] = om;
-    // Classical RK4 on (theta, omega).
-    const double h = step_s_;
-    const double k1a = om, k1w = accel(th, om);
-    const double k2a = om + 0.5 * h * k1w, k2w = accel(th + 0.5 * h * k1a, om + 0.5 * h * k1w);
-    const double k3a = om + 0.5 * h * k2w, k3w = accel(th + 0.5 * h * k2a, om + 0.5 * h * k2w);
-    const double k4a = om + h * k3w, k4w = accel(th + h * k3a, om + h * k3w);
-    th += h / 6 * (k1a + 2 * k2a + 2 * k3a + k4a);
-    om += h / 6 * (k1w + 2 * k2w + 2 * k3w + k4w);
+    pendulum::rk4_step(omega0_sq(), gamma(), th, om, step_s_);
   }
 }
 
@@ -77,18 +68,7 @@ void PendulumTrajectory::state(double t, double& theta, double& theta_dot) const
   std::size_t i = static_cast<std::size_t>(std::min(std::floor(pos), static_cast<double>(last)));
   const double h = tau - static_cast<double>(i) * step_s_;
   double th = theta_[i], om = theta_dot_[i];
-  if (h > 0) {
-    const double inertia = m_.mass_kg * m_.l2_m * m_.l2_m;
-    const auto accel = [&](double a, double w) {
-      return -(m_.damping_n_m_s * w + m_.mass_kg * m_.g_m_s2 * m_.l1_m * std::sin(a)) / inertia;
-    };
-    const double k1a = om, k1w = accel(th, om);
-    const double k2a = om + 0.5 * h * k1w, k2w = accel(th + 0.5 * h * k1a, om + 0.5 * h * k1w);
-    const double k3a = om + 0.5 * h * k2w, k3w = accel(th + 0.5 * h * k2a, om + 0.5 * h * k2w);
-    const double k4a = om + h * k3w, k4w = accel(th + h * k3a, om + h * k3w);
-    th += h / 6 * (k1a + 2 * k2a + 2 * k3a + k4a);
-    om += h / 6 * (k1w + 2 * k2w + 2 * k3w + k4w);
-  }
+  if (h > 0) pendulum::rk4_step(omega0_sq(), gamma(), th, om, h);
   theta = th;
   theta_dot = om;
 }

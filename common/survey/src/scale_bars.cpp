@@ -10,22 +10,15 @@
 
 #include <nlohmann/json.hpp>
 
+#include "json_fields.hpp"
+
 namespace storetrack::survey {
 namespace {
 
 using nlohmann::json;
 
-[[noreturn]] void fail(const std::string& origin, const std::string& field,
-                       const std::string& why) {
-  throw SurveyFileError(origin + ": field '" + field + "': " + why);
-}
-
-const json& require(const json& obj, const char* key, const std::string& origin,
-                    const std::string& path) {
-  const auto it = obj.find(key);
-  if (it == obj.end()) fail(origin, path + key, "missing");
-  return *it;
-}
+using detail::fail;
+using detail::require;
 
 int mark_id(const json& v, const std::string& origin, const std::string& path) {
   if (!v.is_number_integer() || v.get<long long>() < 0 ||

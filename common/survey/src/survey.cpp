@@ -8,23 +8,15 @@
 
 #include <nlohmann/json.hpp>
 
+#include "json_fields.hpp"
+
 namespace storetrack::survey {
 namespace {
 
 using nlohmann::json;
 
-[[noreturn]] void fail(const std::string& origin, const std::string& field,
-                       const std::string& why) {
-  throw SurveyFileError(origin + ": field '" + field + "': " + why);
-}
-
-const json& require(const json& obj, const char* key, const std::string& origin,
-                    const std::string& path) {
-  if (!obj.is_object()) fail(origin, path, "expected an object");
-  const auto it = obj.find(key);
-  if (it == obj.end()) fail(origin, path + "." + key, "missing");
-  return *it;
-}
+using detail::fail;
+using detail::require;
 
 double finite_number(const json& v, const std::string& origin, const std::string& path) {
   if (!v.is_number()) fail(origin, path, "expected a number");
@@ -56,25 +48,25 @@ RigidBodySurvey parse_survey(const std::string& json_text, const std::string& or
     fail(origin, "version", "unsupported version (expected 1)");
   }
   RigidBodySurvey s;
-  const json& name = require(root, "name", origin, "$");
+  const json& name = require(root, "name", origin, "$.");
   if (!name.is_string() || name.get<std::string>().empty()) fail(origin, "name", "expected a name");
   s.name = name.get<std::string>();
-  const json& frame = require(root, "frame", origin, "$");
+  const json& frame = require(root, "frame", origin, "$.");
   if (!frame.is_string() || frame.get<std::string>().size() != 1) {
     fail(origin, "frame", "expected a one-letter frame name");
   }
   s.frame = frame.get<std::string>()[0];
   s.mark_diameter_m =
-      finite_number(require(root, "mark_diameter_m", origin, "$"), origin, "mark_diameter_m");
+      finite_number(require(root, "mark_diameter_m", origin, "$."), origin, "mark_diameter_m");
   if (s.mark_diameter_m <= 0) fail(origin, "mark_diameter_m", "must be > 0");
-  const json& marks = require(root, "marks", origin, "$");
+  const json& marks = require(root, "marks", origin, "$.");
   if (!marks.is_array() || marks.empty()) fail(origin, "marks", "expected a non-empty array");
   std::set<int> ids;
   for (std::size_t i = 0; i < marks.size(); ++i) {
     const std::string path = "marks[" + std::to_string(i) + "]";
     const json& m = marks[i];
     SurveyedMark mark;
-    const json& id = require(m, "id", origin, path);
+    const json& id = require(m, "id", origin, path + ".");
     // An id outside int would wrap silently onto another mark's (4294967396 -> 100).
     const bool in_range = id.is_number_unsigned()
                               ? id.get<std::uint64_t>() <= std::numeric_limits<int>::max()
@@ -84,13 +76,14 @@ RigidBodySurvey parse_survey(const std::string& json_text, const std::string& or
     if (!in_range) fail(origin, path + ".id", "expected an integer in the range of int");
     mark.id = static_cast<int>(id.get<std::int64_t>());
     if (!ids.insert(mark.id).second) fail(origin, path + ".id", "duplicate mark id");
-    const json& p = require(m, "p_body_m", origin, path);
+    const json& p = require(m, "p_body_m", origin, path + ".");
     if (!p.is_array() || p.size() != 3) fail(origin, path + ".p_body_m", "expected [x, y, z]");
     for (int k = 0; k < 3; ++k) {
       mark.p_body[k] = finite_number(p[static_cast<std::size_t>(k)], origin,
                                      path + ".p_body_m[" + std::to_string(k) + "]");
     }
-    mark.sigma_m = finite_number(require(m, "sigma_m", origin, path), origin, path + ".sigma_m");
+    mark.sigma_m =
+        finite_number(require(m, "sigma_m", origin, path + "."), origin, path + ".sigma_m");
     if (mark.sigma_m < 0) fail(origin, path + ".sigma_m", "must be >= 0");
     s.marks.push_back(mark);
   }

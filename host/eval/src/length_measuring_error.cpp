@@ -6,6 +6,9 @@
 #include <map>
 #include <utility>
 
+#include "rig_observations.hpp"
+#include "storetrack/triangulate/triangulate.hpp"
+#include "storetrack/uncertainty/calibration_factors.hpp"
 #include "storetrack/uncertainty/statistics.hpp"
 
 namespace storetrack::eval {
@@ -51,8 +54,37 @@ std::map<Key, const MarkSample*> index_bar_marks(const MarksRecording& rec,
   return index;
 }
 
+/// The rig the host measured with and its calibration factors (the ends' shared error).
+struct SharedCalibration {
+  const camera::RigCalibration* rig = nullptr;
+  uncertainty::CalibrationFactors factors;
+};
+
+/// A mark's loadings on the calibration factors: its observations (the CSV's pixels and sigma)
+/// triangulated again with the host's triangulator from the CSV's position, then the host's
+/// loadings of each observation. Throws when a camera is not in the rig or the point is lost.
+uncertainty::Loadings3 calibration_loadings(const MarkSample& s, const SharedCalibration& cal,
+                                            const std::string& path) {
+  std::vector<int> slots;
+  const std::vector<triangulate::Observation> obs =
+      detail::rig_observations(s, *cal.rig, path, "calibration", &slots);
+  triangulate::Options options;
+  options.initial_p_w = s.p_w;
+  triangulate::Result tri;
+  if (!triangulate::triangulate(obs, options, tri))
+    throw EvalInputError(path + ":" + std::to_string(s.line) + ": u_obs, v_obs: mark " +
+                         std::to_string(s.mark_id) +
+                         " cannot be triangulated again with the rig calibration");
+  uncertainty::Loadings3 loadings = uncertainty::Loadings3::Zero(3, cal.factors.num_factors());
+  Eigen::Matrix3d unused_intrinsic = Eigen::Matrix3d::Zero(), unused_extrinsic = unused_intrinsic;
+  for (size_t i = 0; i < obs.size(); ++i)
+    uncertainty::add_observation_loadings(cal.factors, slots[i], tri.gain[i], tri.jacobians[i],
+                                          loadings, unused_intrinsic, unused_extrinsic);
+  return loadings;
+}
+
 LengthMeasurement measure(const MarkSample& a, const MarkSample& b, const survey::ScaleBar& bar,
-                          int repetition) {
+                          int repetition, const SharedCalibration* cal, const std::string& path) {
   LengthMeasurement m;
   m.repetition = repetition;
   m.trigger_seq = a.trigger_seq;
@@ -62,7 +94,13 @@ LengthMeasurement measure(const MarkSample& a, const MarkSample& b, const survey
   m.measured_m = ab.norm();
   m.error_m = m.measured_m - bar.length_m;
   const geometry::Vec3 d = ab / m.measured_m;
-  m.u_m = std::sqrt(d.dot((a.cov_w + b.cov_w) * d) + bar.u_length_m * bar.u_length_m);
+  double variance = d.dot((a.cov_w + b.cov_w) * d) + bar.u_length_m * bar.u_length_m;
+  if (cal) {
+    const Eigen::RowVectorXd la = d.transpose() * calibration_loadings(a, *cal, path);
+    const Eigen::RowVectorXd lb = d.transpose() * calibration_loadings(b, *cal, path);
+    variance -= 2 * la.dot(lb);
+  }
+  m.u_m = std::sqrt(std::max(variance, 0.0));
   return m;
 }
 
@@ -98,12 +136,16 @@ LmeStatistics statistics(const std::vector<const LengthMeasurement*>& ms, const 
 
 /// Measurements of every bar in every exposure where both of its marks were triangulated.
 void collect(const std::vector<MarksRecording>& recordings, const survey::ScaleBarSet& bars,
-             const std::string& bars_path, LmeResult& result) {
+             const std::string& bars_path, const SharedCalibration* cal, LmeResult& result) {
   for (const survey::ScaleBar& b : bars.bars)
     result.bars.push_back(BarLme{b, {}, 0, 0, 0, {}, {}, {}});
   for (size_t r = 0; r < recordings.size(); ++r) {
     const MarksRecording& rec = recordings[r];
     result.excluded_rows += rec.excluded_rows;
+    if (cal && !rec.has_observations)
+      throw EvalInputError(rec.path + ":1: " + rec.missing_observation_columns.front() +
+                           ": missing column in the header (the ends' shared calibration "
+                           "error needs each mark's observations; or give no rig)");
     const std::map<Key, const MarkSample*> index = index_bar_marks(rec, bars, bars_path);
     for (BarLme& bl : result.bars) {
       const size_t before = bl.measurements.size();
@@ -116,7 +158,8 @@ void collect(const std::vector<MarksRecording>& recordings, const survey::ScaleB
         }
         result.full_covariance =
             result.full_covariance && a->full_covariance && b->second->full_covariance;
-        bl.measurements.push_back(measure(*a, *b->second, bl.bar, static_cast<int>(r)));
+        bl.measurements.push_back(
+            measure(*a, *b->second, bl.bar, static_cast<int>(r), cal, rec.path));
       }
       for (const auto& [key, b] : index)  // mark_b without mark_a
         if (key.second == bl.bar.mark_b && !index.count({key.first, bl.bar.mark_a}))
@@ -134,7 +177,11 @@ LmeResult evaluate_lme(const std::vector<MarksRecording>& recordings,
   if (recordings.empty()) throw EvalInputError("recordings: no marks CSV given");
   LmeResult result;
   result.options = options;
-  collect(recordings, bars, bars_path, result);
+  std::optional<SharedCalibration> cal;
+  if (options.rig)
+    cal = SharedCalibration{&*options.rig, uncertainty::CalibrationFactors(*options.rig)};
+  result.shared_calibration = cal.has_value();
+  collect(recordings, bars, bars_path, cal ? &*cal : nullptr, result);
   std::vector<const LengthMeasurement*> all;
   std::vector<double> all_mpe;
   std::vector<std::vector<const LengthMeasurement*>> per_rep(recordings.size());

@@ -8,6 +8,7 @@
 #include <set>
 
 #include "noise_floor_parts.hpp"
+#include "rig_observations.hpp"
 #include "storetrack/geometry/symmetric_eigen.hpp"
 #include "storetrack/triangulate/triangulate.hpp"
 #include "storetrack/uncertainty/statistics.hpp"
@@ -68,20 +69,8 @@ namespace {
 std::optional<Mat3> centroid_covariance(const MarkSample& s, const camera::RigCalibration& rig,
                                         const std::string& record_path, const std::string& rig_path,
                                         double& offset_m) {
-  std::vector<triangulate::Observation> obs;
-  for (const MarkObservationSample& o : s.observations) {
-    const camera::CalibratedCamera* cam = rig.find(o.camera_id);
-    if (!cam)
-      fail(record_path + ":" + std::to_string(s.line) + ": camera_id: camera " +
-           std::to_string(o.camera_id) + " is not in the rig " + rig_path);
-    if (!o.pixel_px.allFinite()) continue;
-    triangulate::Observation t;
-    t.model = &cam->model;
-    t.T_c_w = cam->T_c_w;
-    t.pixel_px = o.pixel_px;
-    t.sigma_px = o.sigma_px;
-    obs.push_back(t);
-  }
+  const std::vector<triangulate::Observation> obs =
+      detail::rig_observations(s, rig, record_path, rig_path);
   if (obs.size() < 2) return std::nullopt;
   triangulate::Options options;
   options.calibration_jacobians = false;

@@ -1,8 +1,10 @@
 // The pendulum identification (Ceres): one residual block per run (every sample's 3-D position
-// against the model, whitened by the host's stated per-axis u), shared L, gamma, pivot, normal
-// and mark geometry, per-run theta0 and release time. The covariance is (J^T J)^-1 of the
-// whitened Jacobian in the tangent space (the normal on its sphere, the first mark's offset
-// fixed), scaled per PendulumOptions::covariance_scale.
+// against the model, whitened by the host's stated 3x3 covariance: the triangulation's depth
+// elongation is not along a world axis), shared L, gamma, pivot, normal and mark geometry,
+// per-run theta0 and release time. The covariance, in the tangent space (the normal on its
+// sphere, the first mark's offset fixed), per PendulumOptions::covariance_scale: by default the
+// sandwich A^-1 B A^-1 (A = J^T J of the whitened Jacobian, B from the residuals clustered per
+// exposure), which holds whatever the shape of the random errors against the stated weights.
 #include <ceres/ceres.h>
 
 #include <Eigen/Dense>
@@ -21,7 +23,8 @@ namespace {
 /// Residuals of one run; parameter blocks: shared, run, pivot, normal, then its marks.
 struct RunResidual {
   const detail::PreparedRun* run = nullptr;
-  std::vector<int> block_of_slot;  ///< mark slot -> parameter block index (-1: not in the run)
+  std::vector<int> block_of_slot;      ///< mark slot -> parameter block index (-1: not in the run)
+  std::vector<geometry::Mat3> whiten;  ///< per sample: L^-1 with L L^T its stated covariance
   double g = 0;
   Vec3 down = Vec3::UnitZ();
 
@@ -37,12 +40,28 @@ struct RunResidual {
       T pos[3];
       detail::mark_position(p[2], p[3], down.data(), m[0], m[1], m[2],
                             theta[static_cast<size_t>(run->time_index[i])], pos);
+      const geometry::Mat3& W = whiten[i];
+      const T d[3] = {pos[0] - s.p_w(0), pos[1] - s.p_w(1), pos[2] - s.p_w(2)};
       for (int k = 0; k < 3; ++k)
-        residuals[3 * i + static_cast<size_t>(k)] = (pos[k] - s.p_w(k)) / s.u_w(k);
+        residuals[3 * i + static_cast<size_t>(k)] =
+            W(k, 0) * d[0] + W(k, 1) * d[1] + W(k, 2) * d[2];
     }
     return true;
   }
 };
+
+/// L^-1 of the sample's stated covariance (the per-axis u when the file has no off-diagonal
+/// terms, where cov_w is diagonal anyway).
+geometry::Mat3 whitening(const MarkSample& s) {
+  const geometry::Mat3 cov =
+      s.full_covariance ? s.cov_w : geometry::Mat3(s.u_w.cwiseProduct(s.u_w).asDiagonal());
+  const Eigen::LLT<geometry::Mat3> llt(cov);
+  if (llt.info() != Eigen::Success)
+    throw EvalInputError(s.line > 0 ? "line " + std::to_string(s.line) +
+                                          ": the stated covariance is not positive definite"
+                                    : "a sample's stated covariance is not positive definite");
+  return llt.matrixL().solve(geometry::Mat3::Identity());
+}
 
 /// The solver's parameter blocks and where each one's tangent columns start in the Jacobian.
 struct Blocks {
@@ -66,6 +85,8 @@ std::vector<ceres::ResidualBlockId> add_residual_blocks(
     functor->run = &runs[r];
     functor->g = options.g_m_s2;
     functor->down = options.down_w.normalized();
+    for (const MarkSample& sample : runs[r].run->samples)
+      functor->whiten.push_back(whitening(sample));
     auto* cost = new ceres::DynamicAutoDiffCostFunction<RunResidual, 8>(functor);
     std::vector<double*> blocks = {st.shared.data(), st.run[r].data(), st.pivot.data(),
                                    st.normal.data()};
@@ -108,6 +129,35 @@ Eigen::MatrixXd dense(const ceres::CRSMatrix& crs) {
     for (int k = crs.rows[static_cast<size_t>(i)]; k < crs.rows[static_cast<size_t>(i) + 1]; ++k)
       J(i, crs.cols[static_cast<size_t>(k)]) = crs.values[static_cast<size_t>(k)];
   return J;
+}
+
+/// The sandwich A^-1 B A^-1 (Huber-White, clustered): B = sum over exposures of g g^T with
+/// g = J_e^T r_e the gradient of one exposure's whitened residuals (its marks share the
+/// cameras' trigger jitter), times the small-sample factor G/(G-1) (N-1)/(N-p) for G exposures,
+/// N residuals and p parameters. It estimates the scatter of the random errors as they are,
+/// where s^2 A^-1 assumes they have the stated covariance's shape up to one scale.
+Eigen::MatrixXd observed_covariance(const std::vector<detail::PreparedRun>& runs,
+                                    const Eigen::MatrixXd& J, const std::vector<double>& residuals,
+                                    const Eigen::MatrixXd& A_inverse) {
+  Eigen::MatrixXd B = Eigen::MatrixXd::Zero(J.cols(), J.cols());
+  Eigen::Index row = 0;
+  long exposures = 0;
+  for (const detail::PreparedRun& run : runs) {
+    Eigen::MatrixXd gradient =
+        Eigen::MatrixXd::Zero(J.cols(), static_cast<Eigen::Index>(run.times_s.size()));
+    for (size_t i = 0; i < run.run->samples.size(); ++i, row += 3) {
+      const Eigen::Vector3d r(residuals[static_cast<size_t>(row)],
+                              residuals[static_cast<size_t>(row + 1)],
+                              residuals[static_cast<size_t>(row + 2)]);
+      gradient.col(run.time_index[i]) += J.middleRows(row, 3).transpose() * r;
+    }
+    B += gradient * gradient.transpose();
+    exposures += static_cast<long>(run.times_s.size());
+  }
+  const double n = static_cast<double>(J.rows()), p = static_cast<double>(J.cols()),
+               g = static_cast<double>(exposures);
+  const double small_sample = g / (g - 1) * (n - 1) / (n - p);
+  return small_sample * A_inverse * B * A_inverse;
 }
 
 double sigma(const Eigen::MatrixXd& C, int i) {
@@ -189,11 +239,12 @@ std::vector<detail::SampleError> sample_errors(const detail::PendulumState& st,
     for (size_t i = 0; i < runs[r].run->samples.size(); ++i, row += 3) {
       const MarkSample& s = runs[r].run->samples[i];
       detail::SampleError e;
-      Eigen::Matrix<double, 3, Eigen::Dynamic> Jp = J.middleRows(row, 3);
-      for (int k = 0; k < 3; ++k) {
-        e.error_m(k) = -s.u_w(k) * residuals[static_cast<size_t>(row + k)];
-        Jp.row(k) *= s.u_w(k);
-      }
+      // Whitened rows back to metres: L times them (L^-1 = whitening(s)).
+      const geometry::Mat3 L = whitening(s).inverse();
+      const Eigen::Matrix<double, 3, Eigen::Dynamic> Jp = L * J.middleRows(row, 3);
+      e.error_m =
+          -L * Vec3(residuals[static_cast<size_t>(row)], residuals[static_cast<size_t>(row + 1)],
+                    residuals[static_cast<size_t>(row + 2)]);
       const Eigen::Matrix3d cov = Jp * C * Jp.transpose();
       e.u_reference_m = cov.diagonal().cwiseMax(0.0).cwiseSqrt();
       e.u_stated_m = s.u_w;
@@ -265,10 +316,20 @@ PendulumResult identify_pendulum(const std::vector<PendulumRun>& runs,
     out.other_body_samples += r.other_body_samples;
     out.excluded_rows += r.excluded_rows;
   }
-  const double scale =
-      options.covariance_scale == CovarianceScale::kResidual ? out.reduced_chi_square : 1.0;
-  const Eigen::MatrixXd C =
-      scale * ldlt.solve(Eigen::MatrixXd::Identity(normal.rows(), normal.cols()));
+  const Eigen::MatrixXd A_inverse =
+      ldlt.solve(Eigen::MatrixXd::Identity(normal.rows(), normal.cols()));
+  Eigen::MatrixXd C;
+  switch (options.covariance_scale) {
+    case CovarianceScale::kObserved:
+      C = observed_covariance(prepared, J, residuals, A_inverse);
+      break;
+    case CovarianceScale::kResidual:
+      C = out.reduced_chi_square * A_inverse;
+      break;
+    case CovarianceScale::kStated:
+      C = A_inverse;
+      break;
+  }
   fill_parameters(st, prepared, b, C, options, out);
   detail::summarise_dynamic_errors(sample_errors(st, prepared, residuals, J, C, options, out), out);
   return out;

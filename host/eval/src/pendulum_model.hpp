@@ -6,6 +6,8 @@
 #include <cstddef>
 #include <vector>
 
+#include "storetrack/pendulum/pendulum_ode.hpp"
+
 namespace storetrack::eval::detail {
 
 /// Integration step [s]: RK4's global error at omega <= 10 rad/s is ~1e-9 rad over seconds.
@@ -26,16 +28,7 @@ template <typename T>
 void integrate_pendulum(const T& omega0_sq, const T& gamma, const T& theta0,
                         const std::vector<T>& tau, std::vector<T>& theta,
                         std::vector<T>& theta_dot) {
-  using std::sin;
-  const auto accel = [&](const T& a, const T& w) { return -gamma * w - omega0_sq * sin(a); };
-  const auto step = [&](T& a, T& w, const T& h) {
-    const T k1a = w, k1w = accel(a, w);
-    const T k2a = w + 0.5 * h * k1w, k2w = accel(a + 0.5 * h * k1a, w + 0.5 * h * k1w);
-    const T k3a = w + 0.5 * h * k2w, k3w = accel(a + 0.5 * h * k2a, w + 0.5 * h * k2w);
-    const T k4a = w + h * k3w, k4w = accel(a + h * k3a, w + h * k3w);
-    a += h / 6.0 * (k1a + 2.0 * k2a + 2.0 * k3a + k4a);
-    w += h / 6.0 * (k1w + 2.0 * k2w + 2.0 * k3w + k4w);
-  };
+  const auto step = [&](T& a, T& w, const T& h) { pendulum::rk4_step(omega0_sq, gamma, a, w, h); };
   theta.resize(tau.size());
   theta_dot.resize(tau.size());
   T grid_a = theta0, grid_w = T(0.0);

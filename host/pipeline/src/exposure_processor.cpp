@@ -528,20 +528,8 @@ void ExposureProcessor::solve(const Prepared& prep,
         const auto& cf = factors_.camera(mark.obs[i].slot);
         const auto& K = tri.gain[i];
         const auto& J = tri.jacobians[i];
-        // B = -K (dpi/dtheta) F: the fixed-size 3 x 13 (3 x 6) sensitivity first, then one
-        // coefficient-based product into the loadings (no temporaries, no heap).
-        if (cf.intrinsic.cols() > 0) {
-          const Eigen::Matrix<double, 3, camera::kNumIntrinsics> G = -K * J.d_intrinsics;
-          auto B = m.loadings.middleCols(cf.intrinsic_begin, cf.intrinsic.cols());
-          B.noalias() += G.lazyProduct(cf.intrinsic);
-          if (!coupled) cov_intrinsic.noalias() += B.lazyProduct(B.transpose());
-        }
-        if (cf.extrinsic.cols() > 0) {
-          const Eigen::Matrix<double, 3, 6> G = -K * J.d_pose;
-          auto B = m.loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols());
-          B.noalias() += G.lazyProduct(cf.extrinsic);
-          if (!coupled) cov_extrinsic.noalias() += B.lazyProduct(B.transpose());
-        }
+        uncertainty::add_observation_loadings(factors_, mark.obs[i].slot, K, J, m.loadings,
+                                              cov_intrinsic, cov_extrinsic);
         if (cf.sync_column >= 0 && velocity_valid) {
           const Vec3 b = -K * (J.d_point_world * velocity_w) * cf.sync_sigma_s;
           m.loadings.col(cf.sync_column) = b;

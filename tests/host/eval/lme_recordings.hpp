@@ -5,30 +5,12 @@
 // rig (truth + one error draw from its stated covariance, a new draw per seed).
 #pragma once
 
-#include <cstdint>
-#include <functional>
 #include <string>
 #include <vector>
 
-#include "diagnostic_csv.hpp"
-#include "sim_exposure.hpp"
-#include "storetrack/pipeline/exposure_processor.hpp"
+#include "host_recordings.hpp"
 
 namespace storetrack::test {
-
-/// The true rig with its calibration covariance set to zero: only centroid noise (and the
-/// negligible sync term of static marks) remains in the host's stated u.
-inline camera::RigCalibration perfect_rig(const sim::Simulator& sim) {
-  camera::RigCalibration rig = sim.true_rig();
-  for (camera::CalibratedCamera& c : rig.cameras) {
-    c.intrinsic_covariance.setZero();
-    c.extrinsic_covariance.setZero();
-  }
-  return rig;
-}
-
-/// Drops a camera's observation of a mark before the host sees it (visibility faults).
-using ObservationFilter = std::function<bool(int camera_index, int mark_id)>;
 
 /// Exposure 0 warms the tracker up (as a recording's first exposure does); exposures
 /// 1..`exposures` are recorded. `results` (optional) receives the recorded exposures' results.
@@ -36,21 +18,7 @@ inline std::string scale_bar_marks_csv(const sim::Simulator& sim, const camera::
                                        int exposures,
                                        std::vector<pipeline::ExposureResult>* results = nullptr,
                                        const ObservationFilter& drop = {}) {
-  pipeline::ExposureProcessor proc(rig, sim.pylon_survey(), sim.store_survey(),
-                                   pipeline::ProcessorConfig{});
-  std::string csv = std::string(hostapp::kMarksCsvHeader) + "\n";
-  for (int k = 0; k <= exposures; ++k) {
-    SimExposure in = make_exposure(sim, k);
-    if (drop)
-      for (size_t c = 0; c < in.ids.size(); ++c)
-        for (int& id : in.ids[c])
-          if (id >= 0 && drop(static_cast<int>(c), id)) id = -1;
-    const pipeline::ExposureResult r = proc.process(in.exposure, in.ids);
-    if (k == 0) continue;
-    hostapp::format_marks_rows(in.exposure, r, csv);
-    if (results) results->push_back(r);
-  }
-  return csv;
+  return host_marks_csv(sim, rig, {1, exposures, results, drop});
 }
 
 /// The bars with their TRUE lengths and zero calibration u (the truth is exact).

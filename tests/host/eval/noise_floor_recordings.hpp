@@ -9,40 +9,18 @@
 #include <string>
 #include <vector>
 
-#include "diagnostic_csv.hpp"
-#include "sim_exposure.hpp"
+#include "host_recordings.hpp"
 #include "storetrack/eval/marks_csv.hpp"
-#include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/survey/survey.hpp"
 #include "storetrack/triangulate/triangulate.hpp"
 
 namespace storetrack::test {
 
-/// The true rig with its calibration stated perfect (zero covariances, zero sync sigma): the
-/// host's stated u is then its centroid part alone.
-inline camera::RigCalibration perfect_rig(const sim::Simulator& sim) {
-  camera::RigCalibration rig = sim.true_rig();
-  for (camera::CalibratedCamera& c : rig.cameras) {
-    c.intrinsic_covariance.setZero();
-    c.extrinsic_covariance.setZero();
-    c.exposure_offset_sigma_ns = 0;
-  }
-  return rig;
-}
-
 /// The marks CSV text of a static record: every exposure of the scenario through the host's
 /// ExposureProcessor with `rig`, written by the host's own writer.
 inline std::string simulated_static_record(const sim::Simulator& sim,
                                            const camera::RigCalibration& rig) {
-  pipeline::ExposureProcessor proc(rig, sim.pylon_survey(), sim.store_survey(),
-                                   pipeline::ProcessorConfig{});
-  std::string csv = std::string(hostapp::kMarksCsvHeader) + "\n";
-  for (int k = 0; k < sim.num_exposures(); ++k) {
-    const SimExposure in = make_exposure(sim, k);
-    const pipeline::ExposureResult r = proc.process(in.exposure, in.ids);
-    hostapp::format_marks_rows(in.exposure, r, csv);
-  }
-  return csv;
+  return host_marks_csv(sim, rig);
 }
 
 /// Every mark's true coordinates in the host's world frame (a perfect total station).

@@ -174,6 +174,39 @@ TEST(LmeInput, ScaleBarSeenByOneCameraThroughTheHost) {
     EXPECT_EQ(b.stats.n, 2) << b.bar.id;
 }
 
+TEST(LmeInput, RigWithoutObservationColumnsNamesFileAndColumn) {
+  // --rig re-triangulates each end from its observations: a CSV without them is refused, the
+  // first missing column named; a camera the rig lacks is named with its line.
+  const sim::Simulator sim(sim::load_scenario(test::scenario_path("scale_bars")), 3);
+  std::istringstream full(test::scale_bar_marks_csv(sim, sim.calibrated_rig(), 1));
+  std::string csv, line;
+  while (std::getline(full, line)) {  // the first 11 columns: up to u_z_w
+    size_t at = 0;
+    for (int comma = 0; comma < 11 && at != std::string::npos; ++comma)
+      at = line.find(',', at + 1);
+    csv += line.substr(0, at) + "\n";
+  }
+  eval::LmeOptions with_rig = options();
+  with_rig.rig = sim.calibrated_rig();
+  const std::string e = error_of([&] {
+    eval::evaluate_lme({eval::parse_marks_csv(csv, "noobs.csv")}, sim.scale_bar_set(false),
+                       "bars.json", with_rig);
+  });
+  EXPECT_NE(e.find("noobs.csv:1: camera_id: missing column in the header"), std::string::npos) << e;
+  EXPECT_NE(e.find(": camera_id: missing column in the header"), std::string::npos) << e;
+  camera::RigCalibration other = sim.calibrated_rig();
+  other.cameras.erase(other.cameras.begin());
+  with_rig.rig = other;
+  const std::string e2 = error_of([&] {
+    eval::evaluate_lme({eval::parse_marks_csv(
+                           test::scale_bar_marks_csv(sim, sim.calibrated_rig(), 1), "rep7.csv")},
+                       sim.scale_bar_set(false), "bars.json", with_rig);
+  });
+  EXPECT_NE(e2.find("rep7.csv:"), std::string::npos) << e2;
+  EXPECT_NE(e2.find(": camera_id: camera 0 is not in the rig calibration"), std::string::npos)
+      << e2;
+}
+
 TEST(LmeInput, TooFewRepetitionsNamesBarAndCount) {
   const std::string csv =
       std::string(kHeader) + "\n" + mark_rows(1, 300, 0, 0, 0) + mark_rows(1, 301, 1, 0, 0);

@@ -11,13 +11,28 @@
 namespace storetrack::test {
 
 inline std::string scenario_path(const std::string& name) {
-  return std::string(STORETRACK_SCENARIO_DIR) + "/" + name + ".json";
+  // Appended in place: GCC 12 -O3 reports a false -Warray-bounds on the chained operator+.
+  std::string path = STORETRACK_SCENARIO_DIR;
+  path.append("/").append(name).append(".json");
+  return path;
 }
 
 struct SimExposure {
   pipeline::AlignedExposure exposure;
   pipeline::MarkIds ids;
 };
+
+/// The true rig with its calibration stated perfect (zero covariances, zero sync sigma): the
+/// host's stated u is then its centroid part alone.
+inline camera::RigCalibration perfect_rig(const sim::Simulator& sim) {
+  camera::RigCalibration rig = sim.true_rig();
+  for (camera::CalibratedCamera& c : rig.cameras) {
+    c.intrinsic_covariance.setZero();
+    c.extrinsic_covariance.setZero();
+    c.exposure_offset_sigma_ns = 0;
+  }
+  return rig;
+}
 
 inline SimExposure make_exposure(const sim::Simulator& sim, int k) {
   SimExposure out;

@@ -61,17 +61,6 @@ Eigen::MatrixXd registration_jacobian(const camera::RigCalibration& rig) {
   return D;
 }
 
-/// The true rig with every covariance zero and no time-offset uncertainty.
-camera::RigCalibration exact_rig(const sim::Simulator& sim) {
-  camera::RigCalibration rig = sim.true_rig();
-  for (camera::CalibratedCamera& c : rig.cameras) {
-    c.intrinsic_covariance.setZero();
-    c.extrinsic_covariance.setZero();
-    c.exposure_offset_sigma_ns = 0;
-  }
-  return rig;
-}
-
 camera::RigCalibration without_cross_terms(camera::RigCalibration rig) {
   rig.joint_covariance.resize(0, 0);  // the cameras' blocks stay: the version-1 view
   return rig;
@@ -108,7 +97,7 @@ struct ClosedFormCase {
 
 TEST(JointCalibration, SharedTranslationAddsClosedForm) {
   const ClosedFormCase k;
-  camera::RigCalibration rig = exact_rig(k.sim);
+  camera::RigCalibration rig = test::perfect_rig(k.sim);
   const double sigma_m = 1e-3;
   const Eigen::MatrixXd D = registration_jacobian(rig);
   Eigen::Matrix<double, 6, 6> S_reg = Eigen::Matrix<double, 6, 6>::Zero();
@@ -163,7 +152,7 @@ double residual_over_spread(const pipeline::ExposureResult& r, const sim::Simula
 
 TEST(JointCalibration, SharedRegistrationAddsInWorldPosesAndCancelsInTheRelativePose) {
   const ClosedFormCase k;
-  camera::RigCalibration rig = exact_rig(k.sim);
+  camera::RigCalibration rig = test::perfect_rig(k.sim);
   Eigen::Matrix<double, 6, 1> sd_reg;
   sd_reg << 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3;  // rad, m
   const Eigen::Matrix<double, 6, 6> S_reg = sd_reg.cwiseAbs2().asDiagonal();
@@ -210,7 +199,7 @@ TEST(JointCalibration, SharedRegistrationAddsInWorldPosesAndCancelsInTheRelative
 // extrinsic rows; everything else correlated, parameter scales from px^2 to 1e-10).
 TEST(JointCalibration, FactorsReproduceTheJointCovariance) {
   const sim::Simulator sim(sim::load_scenario(test::scenario_path("static")), 5);
-  camera::RigCalibration rig = exact_rig(sim);
+  camera::RigCalibration rig = test::perfect_rig(sim);
   const int n = kB * static_cast<int>(rig.cameras.size());
   std::mt19937_64 rng(3);
   std::normal_distribution<double> normal(0, 1);

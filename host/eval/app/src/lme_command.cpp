@@ -81,8 +81,11 @@ void print_summary(const eval::LmeResult& r, std::ostream& out) {
       "all", "", o.n, o.max_abs_m * 1e3, o.mean_m * 1e3, o.sd_m * 1e3, o.u_rms_m * 1e3, o.z_rms,
       o.z_rms_low, o.z_rms_high, "", verdict(r, o.exceeding_mpe));
   out << "RMS(LME/u): its chi-square interval assumes independent measurements; the exposures of "
-         "one repetition share its calibration error, and u treats the bar's two ends as "
-         "independent (docs/evaluation.md)\n";
+         "one repetition share its calibration error (docs/evaluation.md). u "
+      << (r.shared_calibration
+              ? "has the calibration error the bar's two ends share (--rig)\n"
+              : "treats the bar's two ends as independent (no --rig): overstated when the "
+                "calibration dominates\n");
   out << "per repetition [mm] (seed 001's Table 5):\n  repetition      n   LME max   LME mean  "
          "LME sigma\n";
   for (size_t i = 0; i < r.repetitions.size(); ++i) {
@@ -117,6 +120,10 @@ void add_lme_command(cli::Command& app, LmeArgs& a) {
              "Two-sided level of the chi-square interval of RMS(LME/u)")
       .range(0.5, 0.9999)
       .show_default();
+  sub.option("--rig", a.rig,
+             "Rig calibration the host used: u gets the calibration error the ends share "
+             "(needs the marks CSV's observation columns)")
+      .existing_file();
   sub.option("-o,--output", a.output, "Result JSON to write").required();
   a.command = &sub;
 }
@@ -141,8 +148,10 @@ nlohmann::json lme_json(const eval::LmeResult& r, const LmeArgs& args) {
   doc["version"] = 1;
   doc["method"] =
       "VDI/VDE 2634-1 length measuring error LME = measured - calibrated per bar and exposure; "
-      "u^2 = d^T (S_a + S_b) d + u_bar^2 (k = 1)";
-  doc["inputs"] = {{"marks_csv", args.marks_csv}, {"bars", args.bars}};
+      "u^2 = d^T (S_a + S_b) d - 2 (L_a^T d).(L_b^T d) + u_bar^2 (k = 1; L: the ends' loadings "
+      "on the rig's calibration factors, the cross term only with a rig)";
+  doc["inputs"] = {{"marks_csv", args.marks_csv}, {"bars", args.bars}, {"rig", args.rig}};
+  doc["shared_calibration"] = r.shared_calibration;
   const eval::MaximumPermissibleError& mpe = r.options.mpe;
   doc["mpe"] = mpe.assessed ? nlohmann::json{{"a_m", mpe.a_m}, {"k", mpe.k}} : nlohmann::json();
   doc["verdict"] = verdict(r, r.overall.exceeding_mpe);
@@ -165,14 +174,19 @@ int run_lme(const LmeArgs& args, std::ostream& out, std::ostream& err) {
   eval::LmeResult result;
   try {
     const survey::ScaleBarSet bars = survey::read_scale_bars(args.bars);
+    eval::LmeOptions options = args.options;
+    if (!args.rig.empty()) options.rig = camera::read_rig_calibration(args.rig);
     std::vector<eval::MarksRecording> recordings;
     for (const std::string& path : args.marks_csv)
       recordings.push_back(eval::read_marks_csv(path));
-    result = eval::evaluate_lme(recordings, bars, args.bars, args.options);
+    result = eval::evaluate_lme(recordings, bars, args.bars, options);
   } catch (const eval::EvalInputError& e) {
     err << "storetrack-eval lme: " << e.what() << "\n";
     return 2;
   } catch (const survey::SurveyFileError& e) {
+    err << "storetrack-eval lme: " << e.what() << "\n";
+    return 2;
+  } catch (const camera::CalibrationFileError& e) {
     err << "storetrack-eval lme: " << e.what() << "\n";
     return 2;
   }

@@ -15,6 +15,7 @@ namespace storetrack::evalapp {
 struct LmeArgs {
   std::vector<std::string> marks_csv;  ///< one per repetition
   std::string bars;                    ///< scale-bar definition (common/survey scale_bars.hpp)
+  std::string rig;                     ///< rig calibration the host used (optional)
   double mpe_a_m = 0, mpe_k = 0, mpe_m = 0;
   eval::LmeOptions options;
   std::string output;               ///< result JSON

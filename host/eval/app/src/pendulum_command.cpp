@@ -41,14 +41,24 @@ nlohmann::json nullable(double v) {
   return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr);
 }
 
+const char* covariance_description(eval::CovarianceScale scale) {
+  switch (scale) {
+    case eval::CovarianceScale::kObserved:
+      return "observed: sandwich from the residuals per exposure";
+    case eval::CovarianceScale::kResidual:
+      return "scaled by the residual variance";
+    case eval::CovarianceScale::kStated:
+      return "of the stated covariance";
+  }
+  return "";
+}
+
 void print_parameters(const eval::PendulumResult& r, std::ostream& out) {
   out << fmt::format(
       "model m l2^2 theta'' + beta theta' + m g l1 sin(theta) = 0, g = {:.7f} m/s^2; parameters "
-      "+- 1 sigma (covariance scaled by {}; reduced chi^2 {:.4f}, {} residuals, {} parameters)\n",
-      r.options.g_m_s2,
-      r.options.covariance_scale == eval::CovarianceScale::kResidual ? "the residual variance"
-                                                                     : "the stated u",
-      r.reduced_chi_square, r.residuals, r.parameters);
+      "+- 1 sigma (covariance {}; reduced chi^2 {:.4f}, {} residuals, {} parameters)\n",
+      r.options.g_m_s2, covariance_description(r.options.covariance_scale), r.reduced_chi_square,
+      r.residuals, r.parameters);
   out << fmt::format("  L = l2^2/l1          {:.6f} +- {:.6f} m (omega0 {:.5f} rad/s)\n",
                      r.equivalent_length_m, r.equivalent_length_sigma_m, r.omega0_rad_s);
   out << fmt::format("  beta/(m l2^2)        {:.6f} +- {:.6f} 1/s\n", r.damping_per_inertia_1_s,
@@ -134,8 +144,9 @@ void add_pendulum_command(cli::Command& app, PendulumArgs& a) {
       .non_negative();
   sub.option("--l1-sigma", a.l1_sigma_m, "Standard uncertainty of --l1 [m]").non_negative();
   sub.option("--covariance", a.covariance,
-             "Scale of (J^T W J)^-1: residual (s^2 = chi^2/(n-p)) or stated (the host's u)")
-      .one_of({"residual", "stated"})
+             "Parameter covariance: observed (sandwich, residuals per exposure), residual "
+             "(s^2 (J^T W J)^-1, s^2 = chi^2/(n-p)) or stated ((J^T W J)^-1, the host's u)")
+      .one_of({"observed", "residual", "stated"})
       .show_default();
   sub.option("--calibration", a.calibration,
              "Rig calibration: bins the error by distance from the reference camera's axis")
@@ -154,8 +165,9 @@ void finish_pendulum_args(PendulumArgs& a) {
     a.options.l1_m = a.l1_m;
     a.options.l1_sigma_m = a.l1_sigma_m;
   }
-  a.options.covariance_scale =
-      a.covariance == "stated" ? eval::CovarianceScale::kStated : eval::CovarianceScale::kResidual;
+  a.options.covariance_scale = a.covariance == "stated"     ? eval::CovarianceScale::kStated
+                               : a.covariance == "residual" ? eval::CovarianceScale::kResidual
+                                                            : eval::CovarianceScale::kObserved;
   a.options.down_w = geometry::Vec3(a.down_w[0], a.down_w[1], a.down_w[2]);
 }
 

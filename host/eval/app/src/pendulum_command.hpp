@@ -15,7 +15,7 @@ struct PendulumArgs {
   std::vector<std::string> marks_csv;  ///< one per run (release)
   std::string body = "s";
   double l1_m = 0, l1_sigma_m = 0;  ///< 0: not given
-  std::string covariance = "residual";
+  std::string covariance = "observed";
   std::string calibration;  ///< rig calibration: the reference camera's optical axis
   int axis_camera = -1;     ///< camera id of the reference camera (-1: the first)
   std::vector<double> down_w = {0, 0, 1};

@@ -40,6 +40,9 @@ class PendulumTrajectory {
 
  private:
   void state(double t, double& theta, double& theta_dot) const;
+  /// The model's coefficients per unit inertia (storetrack/pendulum/pendulum_ode.hpp).
+  double omega0_sq() const { return m_.g_m_s2 * m_.l1_m / (m_.l2_m * m_.l2_m); }
+  double gamma() const { return m_.damping_n_m_s / (m_.mass_kg * m_.l2_m * m_.l2_m); }
   PendulumMotion m_;
   double step_s_ = 1e-4;
   std::vector<double> theta_, theta_dot_;

@@ -5,17 +5,24 @@
 //   u^2 = d^T (S_a + S_b) d + u_bar^2,   d = (p_b - p_a) / |p_b - p_a|,
 // with S_a, S_b the host's stated covariances of the two marks (per-axis only when the file
 // lacks the cov_*_w columns: the approximation is flagged) and u_bar the bar's calibration u.
-// It treats the two marks' errors as independent: exact for centroid noise; calibration errors
-// are shared by both ends (a rig translation moves them alike, a focal-length error moves them
-// apart), which the marks CSV cannot carry, so u is then approximate (docs/evaluation.md).
+// The two ends share the calibration error (a rig translation moves them alike, a focal-length
+// error moves them apart), which per-mark rows cannot carry. Given the rig calibration the
+// host used (LmeOptions::rig), each end is triangulated again from its observations with the
+// host's triangulator and its loadings L on the calibration factors computed with the host's
+// own code (uncertainty::add_observation_loadings), and
+//   u^2 = d^T (S_a + S_b) d - 2 (L_a^T d) . (L_b^T d) + u_bar^2
+// (the shared calibration error cancels in the difference). Without a rig the cross term is
+// left out (independent ends: u overstated when the calibration dominates), and flagged.
 // Per bar, per repetition and overall: max |LME|, mean, sigma (seed 001's table), pass/fail
 // against the maximum permissible error MPE = A + L/K or a constant.
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
+#include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/eval/marks_csv.hpp"
 #include "storetrack/survey/scale_bars.hpp"
 
@@ -32,6 +39,9 @@ struct MaximumPermissibleError {
 
 struct LmeOptions {
   MaximumPermissibleError mpe;
+  /// The rig calibration the host measured with (its covariance): the ends' shared calibration
+  /// error enters u. Empty: the ends are treated as independent.
+  std::optional<camera::RigCalibration> rig;
   int min_repetitions = 3;          ///< marks CSVs in which every bar must be measured
   double consistency_level = 0.95;  ///< two-sided level of the RMS(LME/u) interval
 };
@@ -77,8 +87,9 @@ struct LmeResult {
   std::vector<BarLme> bars;                ///< in the order of the bar file
   std::vector<RepetitionLme> repetitions;  ///< one per marks CSV
   LmeStatistics overall;
-  bool full_covariance = true;  ///< every sample carried its off-diagonal covariance
-  bool pass = false;            ///< every |LME| <= MPE(L) (only when options.mpe.assessed)
+  bool full_covariance = true;      ///< every sample carried its off-diagonal covariance
+  bool shared_calibration = false;  ///< u has the ends' shared calibration error (a rig given)
+  bool pass = false;                ///< every |LME| <= MPE(L) (only when options.mpe.assessed)
   std::int64_t excluded_rows = 0;
 };
 

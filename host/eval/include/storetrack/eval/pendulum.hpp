@@ -24,10 +24,11 @@
 
 namespace storetrack::eval {
 
-/// How the parameter covariance (J^T W J)^-1 (residuals whitened by the stated u) is scaled.
+/// The parameter covariance, from A = J^T W J (residuals whitened by the stated covariance).
 enum class CovarianceScale {
-  kResidual,  ///< by s^2 = chi^2 / (n - p): the scatter the fit leaves (default, see .md)
-  kStated,    ///< by 1: trusts the host's stated per-sample u as independent errors
+  kObserved,  ///< sandwich A^-1 B A^-1, B from the residuals per exposure (default, see .md)
+  kResidual,  ///< s^2 A^-1, s^2 = chi^2 / (n - p): assumes the stated covariance's shape
+  kStated,    ///< A^-1: trusts the host's stated covariance as independent errors
 };
 
 struct PendulumOptions {
@@ -36,7 +37,7 @@ struct PendulumOptions {
   geometry::Vec3 down_w = geometry::Vec3(0, 0, 1);  ///< gravity direction, world frame (z down)
   std::optional<double> l1_m;                       ///< pivot-to-centre-of-mass distance, if known
   double l1_sigma_m = 0;
-  CovarianceScale covariance_scale = CovarianceScale::kResidual;
+  CovarianceScale covariance_scale = CovarianceScale::kObserved;
   int min_exposures_after_release = 40;           ///< a shorter run cannot be identified
   std::optional<geometry::Transform> T_w_camera;  ///< reference camera, for the axis distance
   int distance_bins = 5, speed_bins = 5;

@@ -74,6 +74,34 @@ class CalibrationFactors {
   void add_sync_factors(const camera::RigCalibration& rig);
 };
 
+/// One camera's observation of a triangulated point: its loadings on the calibration factors,
+/// dp/dtheta F with dp/dtheta = -K dproj/dtheta (K = dp/d(pixel), the triangulation's gain; J
+/// its projection Jacobians), added over the camera's intrinsic and extrinsic columns. With
+/// uncoupled factors the camera owns those columns, so its B B^T is also added to
+/// cov_intrinsic / cov_extrinsic (coupled: take covariance_of over the sum instead). The one
+/// implementation of a mark's calibration loadings (the host's processor, storetrack-eval lme).
+inline void add_observation_loadings(const CalibrationFactors& f, int slot,
+                                     const Eigen::Matrix<double, 3, 2>& K,
+                                     const camera::ProjectionJacobians& J, Loadings3& loadings,
+                                     Eigen::Matrix3d& cov_intrinsic,
+                                     Eigen::Matrix3d& cov_extrinsic) {
+  const auto& cf = f.camera(slot);
+  // B = -K (dpi/dtheta) F: the fixed-size 3 x 13 (3 x 6) sensitivity first, then one
+  // coefficient-based product into the loadings (no temporaries, no heap).
+  if (cf.intrinsic.cols() > 0) {
+    const Eigen::Matrix<double, 3, camera::kNumIntrinsics> G = -K * J.d_intrinsics;
+    auto B = loadings.middleCols(cf.intrinsic_begin, cf.intrinsic.cols());
+    B.noalias() += G.lazyProduct(cf.intrinsic);
+    if (!f.coupled()) cov_intrinsic.noalias() += B.lazyProduct(B.transpose());
+  }
+  if (cf.extrinsic.cols() > 0) {
+    const Eigen::Matrix<double, 3, 6> G = -K * J.d_pose;
+    auto B = loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols());
+    B.noalias() += G.lazyProduct(cf.extrinsic);
+    if (!f.coupled()) cov_extrinsic.noalias() += B.lazyProduct(B.transpose());
+  }
+}
+
 /// Covariance of loadings restricted to one source's columns: L_s L_s^T.
 template <typename Derived>
 auto covariance_of(const Eigen::MatrixBase<Derived>& loadings, const CalibrationFactors& f,
