@@ -7,13 +7,14 @@ namespace {
 
 void add_detect(cli::Command& app, DetectArgs& a) {
   cli::Command& sub = app.subcommand("detect", "Board observations from images -> CSV");
-  sub.option("--board", a.board, "Board type").one_of({"chessboard"});
+  sub.option("--board", a.board, "Board type").one_of({"chessboard", "dots", "ring-dots"});
   sub.option("--cols", a.chessboard.cols, "Inner corners per board row").range(2, 1000);
   sub.option("--rows", a.chessboard.rows, "Inner corners per board column").range(2, 1000);
   sub.option("--square", a.chessboard.square_m, "Square side [m]").positive();
   sub.option("--camera", a.camera, "Camera id written to the CSV").range(0, 255);
   sub.option("images", a.images, "Images (frame = position in this list)").required();
   sub.option("-o,--output", a.output, "Observation CSV to write").required();
+  add_dot_detect_options(sub, a.dots);
 }
 
 /// The model flags and outlier gate, shared by intrinsic and rig.

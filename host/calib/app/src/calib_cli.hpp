@@ -4,6 +4,7 @@
 #include <string>
 #include <vector>
 
+#include "dot_detect_command.hpp"
 #include "register_command.hpp"
 #include "storetrack/calib/chessboard_detection.hpp"
 #include "storetrack/calib/intrinsic_calibration.hpp"
@@ -14,6 +15,7 @@ namespace storetrack::calibapp {
 struct DetectArgs {
   std::string board = "chessboard";
   calib::ChessboardSpec chessboard;
+  DotDetectArgs dots;  ///< --board dots | ring-dots (cols / rows: chessboard's)
   int camera = 0;
   std::vector<std::string> images;
   std::string output;
