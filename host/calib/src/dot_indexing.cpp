@@ -9,6 +9,7 @@
 // after it; the symmetry's handedness says whether the print is seen from the front.
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <map>
 #include <sstream>
 
@@ -203,7 +204,9 @@ GridIndexing index_ring_dot_grid(const std::vector<MeasuredDot>& dots, const Dot
   for (int k = 0; k < 3; ++k) {
     if (!node_of.count(rings[static_cast<size_t>(k)])) {
       const Eigen::Vector2d p = dots[static_cast<size_t>(rings[static_cast<size_t>(k)])].pixel;
-      out.failure = "the ring dot at " + node_text(p.x(), p.y()) +
+      char at[64];
+      std::snprintf(at, sizeof at, "(%.1f, %.1f)", p.x(), p.y());
+      out.failure = "the ring dot at " + std::string(at) +
                     " px is not connected to the others through the dot lattice (" +
                     std::to_string(lattice.size()) + " dots reached)";
       return out;
