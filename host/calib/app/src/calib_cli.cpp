@@ -8,9 +8,10 @@ namespace {
 
 void add_detect(cli::Command& app, DetectArgs& a) {
   cli::Command& sub = app.subcommand("detect", "Board observations from images -> CSV");
-  sub.option("--board", a.board, "Board type").one_of({"chessboard", "charuco"});
-  sub.option("--cols", a.chessboard.cols, "Chessboard: inner corners per board row").range(2, 1000);
-  sub.option("--rows", a.chessboard.rows, "Chessboard: inner corners per board column")
+  sub.option("--board", a.board, "Board type").one_of({"chessboard", "charuco", "dots", "ring-dots"});
+  sub.option("--cols", a.chessboard.cols, "Chessboard, dots: inner corners / dots per board row")
+      .range(2, 1000);
+  sub.option("--rows", a.chessboard.rows, "Chessboard, dots: inner corners / dots per board column")
       .range(2, 1000);
   sub.option("--square", a.chessboard.square_m, "Square side [m]").positive();
   add_charuco_options(sub, a.charuco);
@@ -19,6 +20,7 @@ void add_detect(cli::Command& app, DetectArgs& a) {
   sub.option("-o,--output", a.output, "Observation CSV to write").required();
   sub.option("--report-json", a.report_json,
              "Per-image outcome JSON for host/report/storetrack_calib_report.py");
+  add_dot_detect_options(sub, a.dots);
 }
 
 /// The model flags and outlier gate, shared by intrinsic and rig.

@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "compare_command.hpp"
+#include "dot_detect_command.hpp"
 #include "register_command.hpp"
 #include "storetrack/calib/charuco_detection.hpp"
 #include "storetrack/calib/chessboard_detection.hpp"
@@ -17,6 +18,7 @@ struct DetectArgs {
   std::string board = "chessboard";
   calib::ChessboardSpec chessboard;
   calib::CharucoSpec charuco;  ///< its square_m is chessboard.square_m (one --square option)
+  DotDetectArgs dots;  ///< --board dots | ring-dots (cols / rows: chessboard's)
   int camera = 0;
   std::vector<std::string> images;
   std::string output;

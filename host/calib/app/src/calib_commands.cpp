@@ -93,6 +93,7 @@ nlohmann::json flags_json(const calib::IntrinsicOptions& options) {
 
 int run_detect(const DetectArgs& args, std::ostream& out, std::ostream& err) {
   if (args.board == "charuco") return run_detect_charuco(args, out, err);
+  if (args.board != "chessboard") return run_dot_detect(args, out, err);
   const calib::DetectionResult result =
       calib::detect_chessboards(args.images, args.chessboard, args.camera);
   for (const auto& rejected : result.rejected)
