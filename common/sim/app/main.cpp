@@ -70,6 +70,37 @@ void write_observations(const sim::Simulator& sim, const std::string& dir) {
   if (!csv || !udp) throw std::runtime_error(dir + ": observation write failed");
 }
 
+// The world registration's inputs (storetrack-calib register, docs/calibration.md): the
+// total-station survey of the registration marks in S_w and their hangar observations in the
+// observation CSV of storetrack-calib (point_id = mark id, board coordinates 0, sigma_px the
+// centroid's). Border-cut and merged blobs are left out, as a unit's operator would.
+void write_registration(const sim::Simulator& sim, const std::string& dir) {
+  survey::write_survey(sim.registration_survey(false), dir + "/survey_aircraft.json");
+  survey::write_survey(sim.registration_survey(true), dir + "/true_survey_aircraft.json");
+  std::ofstream csv(dir + "/registration_marks.csv");
+  if (!csv) throw std::runtime_error(dir + ": cannot write registration_marks.csv");
+  csv << "# storetrack board observations (docs/calibration.md): registration marks, "
+         "storetrack-sim hangar exposure\n";
+  for (const camera::CalibratedCamera& c : sim.true_rig().cameras) {
+    csv << "# image_size," << c.camera_id << "," << c.model.intrinsics().width << ","
+        << c.model.intrinsics().height << "\n";
+  }
+  csv << "camera,frame,point_id,board_x_m,board_y_m,board_z_m,image_x_px,image_y_px,sigma_px\n";
+  csv.precision(9);  // float32 wire values: 9 significant digits read back exactly
+  msg::MarkObservations obs;
+  std::vector<int> ids;
+  for (int c = 0; c < sim.num_cameras(); ++c) {
+    sim.observe_registration(c, obs, &ids);
+    for (int i = 0; i < obs.mark_count; ++i) {
+      const msg::MarkObservation& m = obs.marks[static_cast<std::size_t>(i)];
+      if (m.flags & (msg::mark_flags::kBorder | msg::mark_flags::kMerged)) continue;
+      csv << int{obs.camera_id} << ",0," << ids[static_cast<std::size_t>(i)] << ",0,0,0," << m.x_px
+          << "," << m.y_px << "," << m.sigma_px << "\n";
+    }
+  }
+  if (!csv) throw std::runtime_error(dir + ": registration_marks.csv write failed");
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -131,6 +162,7 @@ int main(int argc, char** argv) {
       survey::write_scale_bars(simulator.scale_bar_set(false), out_dir + "/scale_bars.json");
       survey::write_scale_bars(simulator.scale_bar_set(true), out_dir + "/true_scale_bars.json");
     }
+    write_registration(simulator, out_dir);
     sim::write_truth_csv(simulator, out_dir + "/truth_poses.csv", out_dir + "/truth_marks.csv");
     if (scenario.kind == sim::ScenarioKind::kPendulum)
       sim::write_pendulum_truth_json(simulator, out_dir + "/truth_pendulum.json");
