@@ -15,6 +15,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <functional>
+#include <map>
 #include <random>
 #include <string>
 #include <vector>
@@ -169,11 +170,50 @@ Parameters rig_parameters() {
 struct Draw {
   Eigen::VectorXd error;
   Eigen::MatrixXd covariance;
+  double residual_sigma_px = 0;  // the fit's, which scales the covariance
+  // Diagnostics of the detected corners against the true projections: per-axis rms, the
+  // correlation of x with y, and of neighbouring corners' x errors along a row.
+  double corner_sigma_px = 0, corner_xy_correlation = 0, neighbour_correlation = 0;
 };
 
+void corner_diagnostics(const camera::RigCalibration& rig, const std::vector<View>& views,
+                        const std::vector<sim::BoardFrame>& frames,
+                        const sim::BoardSetOptions& options, const ObservationSet& set, Draw& d) {
+  std::map<std::pair<int, int>, std::map<int, Eigen::Vector2d>> errors;  // (camera, frame)
+  for (const Observation& o : set.observations) {
+    const auto& cam = *rig.find(o.camera);
+    const auto truth = sim::project_board_corners(
+        cam.model, sim::board_in_camera(cam, frames[static_cast<std::size_t>(o.frame)]),
+        options.board);
+    errors[{o.camera, o.frame}][o.point_id] =
+        o.pixel - *truth[static_cast<std::size_t>(o.point_id)];
+  }
+  (void)views;
+  double sxx = 0, syy = 0, sxy = 0, snn = 0, sn = 0;
+  int n = 0, nn = 0;
+  for (const auto& [key, view] : errors) {
+    for (const auto& [id, e] : view) {
+      sxx += e.x() * e.x();
+      syy += e.y() * e.y();
+      sxy += e.x() * e.y();
+      ++n;
+      const auto next = view.find(id + 1);
+      if ((id + 1) % options.board.cols != 0 && next != view.end()) {
+        snn += e.x() * next->second.x();
+        sn += e.x() * e.x();
+        ++nn;
+      }
+    }
+  }
+  d.corner_sigma_px = std::sqrt((sxx + syy) / (2.0 * std::max(n, 1)));
+  d.corner_xy_correlation = sxy / std::sqrt(sxx * syy);
+  d.neighbour_correlation = nn > 0 ? snn / sn : 0;
+}
+
 Draw recalibrate(const camera::RigCalibration& rig, const std::vector<View>& views,
-                 const sim::BoardSetOptions& options, const sim::BoardPhotometry& photometry,
-                 const Parameters& params, std::uint64_t seed) {
+                 const std::vector<sim::BoardFrame>& frames, const sim::BoardSetOptions& options,
+                 const sim::BoardPhotometry& photometry, const Parameters& params,
+                 std::uint64_t seed) {
   ObservationSet set;
   std::vector<std::uint8_t> gray;
   for (const View& v : views) {
@@ -197,6 +237,8 @@ Draw recalibrate(const camera::RigCalibration& rig, const std::vector<View>& vie
       geometry::left_difference(result.cameras[1].T_c_r, T_c1_r_true);
   const auto n = static_cast<Eigen::Index>(params.joint_index.size());
   Draw d;
+  d.residual_sigma_px = result.residual_sigma_px;
+  corner_diagnostics(rig, views, frames, options, set, d);
   d.error.resize(n);
   d.covariance.resize(n, n);
   for (Eigen::Index i = 0; i < n; ++i) {
@@ -286,22 +328,30 @@ TEST(BoardImages, RigCovarianceIsHonestOnRenderedBoards) {
   sim::BoardSetOptions options;
   options.common_views = 5;
   options.single_views = 5;
-  const auto frames = sim::plan_board_frames(rig, options, 21);
   const sim::BoardPhotometry photometry = scenario_photometry();
-  const std::vector<View> views = render_views(rig, frames, options, photometry);
   const Parameters params = rig_parameters();
-  const int m = draws_from_env(12);
+  const int m = draws_from_env(20);
   std::vector<Draw> draws;
+  std::size_t images = 0;
   const auto t0 = std::chrono::steady_clock::now();
-  for (int k = 0; k < m; ++k)
-    draws.push_back(recalibrate(rig, views, options, photometry, params, 1000 + k));
+  // Each draw a fresh board set (poses) and fresh sensor noise: the detector's own corner bias
+  // (0.016 px per axis on a noise-free render, as large as this sensor's corner noise) is a
+  // fixed pattern for fixed poses, so with the poses held fixed the parameters' errors carried a
+  // fixed offset of up to 1.1 sigma (40 draws) and the test measured that pattern, not the
+  // covariance. A real calibration's poses are new every time, as here.
+  for (int k = 0; k < m; ++k) {
+    const auto frames = sim::plan_board_frames(rig, options, 21 + static_cast<std::uint64_t>(k));
+    const std::vector<View> views = render_views(rig, frames, options, photometry);
+    images += views.size();
+    draws.push_back(recalibrate(rig, views, frames, options, photometry, params, 1000 + k));
+  }
   const double per_draw_s = seconds_since(t0) / m;
   const int d = static_cast<int>(params.joint_index.size());
   const Bands b = bands(m, d);
   const auto stated = [](const Eigen::MatrixXd& C) { return C; };
   const Honesty h = honesty(draws, stated);
-  std::printf("%d recalibrations (%zu images each, %.1f s per draw), %d parameters\n", m,
-              views.size(), per_draw_s, d);
+  std::printf("%d recalibrations (%zu images, %.1f s per draw), %d parameters\n", m, images,
+              per_draw_s, d);
   std::printf("bands: ratio [%.3f, %.3f], mean NEES [%.2f, %.2f] (dimension %d)\n", b.ratio_low,
               b.ratio_high, b.nees_low, b.nees_high, d);
   for (int i = 0; i < d; ++i) {
@@ -310,6 +360,22 @@ TEST(BoardImages, RigCovarianceIsHonestOnRenderedBoards) {
                 h.direction_ratio[i]);
   }
   std::printf("mean NEES %.2f (dimension %d)\n", h.mean_nees, d);
+  Eigen::VectorXd bias = Eigen::VectorXd::Zero(d);
+  double fit_sigma = 0, corner_sigma = 0, xy = 0, neighbour = 0;
+  for (const Draw& dr : draws) {
+    bias += dr.error.cwiseQuotient(dr.covariance.diagonal().cwiseSqrt()) / m;
+    fit_sigma += dr.residual_sigma_px / m;
+    corner_sigma += dr.corner_sigma_px / m;
+    xy += dr.corner_xy_correlation / m;
+    neighbour += dr.neighbour_correlation / m;
+  }
+  std::printf("mean error / sigma (bias; +-%.2f is 2 standard errors):", 2 / std::sqrt(m));
+  for (int i = 0; i < d; ++i)
+    std::printf(" %.2f", bias[i]);
+  std::printf(
+      "\ncorners: fit residual sigma %.4f px, detected - true %.4f px per axis, "
+      "x-y correlation %.3f, neighbour correlation %.3f\n",
+      fit_sigma, corner_sigma, xy, neighbour);
   EXPECT_EQ(failures(h, b), 0);
 
   // Wrong covariances on the same draws must fail.
