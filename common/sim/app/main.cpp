@@ -1,7 +1,8 @@
 // storetrack-sim: runs a scenario of the scene simulator and writes it to disk.
 //
 //   storetrack-sim --scenario store_separation --cameras 4 --seed 1 --out /tmp/sep
-//                  [--mode frames|observations] [--exposures N]
+//                  [--mode frames|observations|boards] [--exposures N]
+//   storetrack-sim --scenario static --mode boards --out /tmp/boards [--board-cols 10 ...]
 //
 // Output files are described in common/sim/README.md. Exit codes: 0 ok, 1 I/O or runtime
 // error, 2 bad arguments or bad scenario file.
@@ -15,6 +16,7 @@
 
 #include "storetrack/cli/command_line.hpp"
 
+#include "board_images.hpp"
 #include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/msg/udp_codec.hpp"
 #include "storetrack/sim/frame_source.hpp"
@@ -120,8 +122,28 @@ int main(int argc, char** argv) {
       .range(0, 8);
   app.option("--seed", seed, "Random seed (noise, calibration and survey errors)").show_default();
   app.option("--out", out_dir, "Output directory (created)").required();
-  app.option("--mode", mode, "frames: PGM images + triggers.csv; observations: fast mode")
-      .one_of({"frames", "observations"})
+  app.option("--mode", mode,
+             "frames: PGM images + triggers.csv; observations: fast mode; boards: calibration "
+             "board images of the rig + rig_true.json + boards/truth.json only")
+      .one_of({"frames", "observations", "boards"})
+      .show_default();
+  sim::BoardSetOptions boards;
+  app.option("--board-cols", boards.board.cols, "boards: inner corners per row")
+      .range(3, 40)
+      .show_default();
+  app.option("--board-rows", boards.board.rows, "boards: inner corners per column")
+      .range(3, 40)
+      .show_default();
+  app.option("--board-square", boards.board.square_m, "boards: square size [m]")
+      .range(0.001, 1.0)
+      .show_default();
+  app.option("--board-common-views", boards.common_views,
+             "boards: frames camera 0 and each other camera see together")
+      .range(0, 100)
+      .show_default();
+  app.option("--board-single-views", boards.single_views,
+             "boards: frames per camera over a 3x3 grid of its image")
+      .range(0, 100)
       .show_default();
   app.option("--exposures", exposures, "Limit the number of exposures (0: scenario's)")
       .range(0, 1000000);
@@ -149,6 +171,10 @@ int main(int argc, char** argv) {
     std::filesystem::create_directories(out_dir);
     const sim::Simulator simulator(scenario, seed);
     camera::write_rig_calibration(simulator.true_rig(), out_dir + "/rig_true.json");
+    if (mode == "boards") {
+      sim_app::write_board_images(simulator, boards, seed, out_dir);
+      return 0;
+    }
     camera::write_rig_calibration(simulator.calibrated_rig(), out_dir + "/rig_calibrated.json");
     for (const survey::RigidBodySurvey& s : simulator.surveys()) {
       survey::write_survey(s, out_dir + "/survey_" + s.name + ".json");
