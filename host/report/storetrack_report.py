@@ -228,6 +228,78 @@ def pooled_coverage(run_dirs):
     return rows, used
 
 
+def calibration_stage(stage_dir, budget_share, image_size, outdir, figures):
+    """The calibration stage of tools/testpoint (tools/calib_stage.py: storetrack-calib detect,
+    rig, register): its residuals and its share of the store-position budget. Returns (summary
+    rows, per-camera table rows, registration table rows, printed note) or None without it."""
+    path = os.path.join(stage_dir, "calibration_summary.json")
+    if not os.path.exists(path):
+        return None
+    s = json.load(open(path))
+    rows = [("calibration: board images / rig RMS / residual sigma",
+             "%d / %.3f px / %.3f px" % (s["images"], s["rig"]["rms_px"], s["rig"]["residual_sigma_px"])),
+            ("calibration: board points used / rejected",
+             "%d / %d" % (s["rig"]["points_used"], s["rig"]["points_rejected"]))]
+    cams = [(c["camera_id"], c["views"], c["points_used"], c["points_rejected"],
+             "%.3f" % c["rms_px"], "%.3f" % c["intrinsic_fit_rms_px"],
+             "-" if c["camera_id"] == 0 else "%.2f +/- %.3f" % (c["baseline_m"] * 1e3, c["baseline_sigma_m"] * 1e3))
+            for c in s["cameras"]]
+    r = s["registration"]
+    marks = [(m["id"], ",".join(str(c) for c in m["cameras"]),
+              "%.3f" % (1e3 * math.sqrt(sum(x * x for x in m["residual_r_m"]))),
+              "%.2f / %d" % (m["chi2"], m["dof"]), "%.3f" % m["p_value"],
+              "yes" if m["used"] else "no", "OUTLIER" if m["outlier"] else "")
+             for m in r["marks"]]
+    sig = r["T_r_w_sigma"]
+    rows.append(("registration: chi2 / dof (p)", "%.2f / %d (%.3f)" % (r["chi2"], r["dof"], r["p_value"])))
+    rows.append(("registration: u(T_r_w) rms per axis: total, centroid, calibration, survey",
+                 ", ".join("%.1f mdeg %.2f mm" % (sig[k][0] * 180e3 / math.pi, sig[k][1] * 1e3)
+                           for k in ("total", "centroid", "calibration", "survey"))))
+    rows.append(("calibration stage time [s]",
+                 ", ".join("%s %.1f" % kv for kv in s["seconds"].items())))
+    cal_share = budget_share.get("intrinsic", 0) + budget_share.get("extrinsic / registration", 0)
+    rows.append(("calibration share of the store-position variance (intrinsic + extrinsic/registration)",
+                 "%.1f %% (%.1f + %.1f)" % (cal_share, budget_share.get("intrinsic", 0),
+                                          budget_share.get("extrinsic / registration", 0))))
+    # Residual map of the rig fit: every board point where it was seen, coloured by |residual|.
+    res = read_csv(os.path.join(stage_dir, "rig_residuals.csv"))
+    if res is not None and len(res.get("camera", [])) > 0:
+        at = {}  # (camera, frame, point) -> detected pixel, from the observation CSVs
+        for c in s["cameras"]:
+            p = os.path.join(stage_dir, "cam%d.csv" % c["camera_id"])
+            if not os.path.exists(p):
+                continue
+            with open(p, newline="") as f:  # '#' comment lines come before the header
+                rd = csv.reader(line for line in f if not line.startswith("#"))
+                next(rd)
+                for row in rd:
+                    at[(int(row[0]), int(row[1]), int(row[2]))] = (float(row[6]), float(row[7]))
+        cam_ids = [c["camera_id"] for c in s["cameras"]]
+        ncol = min(2, len(cam_ids))
+        fig, axs = plt.subplots((len(cam_ids) + ncol - 1) // ncol, ncol, figsize=(7 * ncol, 3.6 * ((len(cam_ids) + 1) // 2)), squeeze=False)
+        for ax in axs.flat[len(cam_ids):]:
+            ax.set_visible(False)
+        for ax, cid in zip(axs.flat, cam_ids):
+            m = res["camera"] == cid
+            xy = [at.get((cid, int(f), int(q)), (np.nan, np.nan)) for f, q in zip(res["frame"][m], res["point_id"][m])]
+            xy = np.array(xy).reshape(-1, 2)
+            mag = np.hypot(res["residual_x_px"][m], res["residual_y_px"][m])
+            sc = ax.scatter(xy[:, 0], xy[:, 1], c=mag, s=2, cmap="viridis", vmin=0,
+                            vmax=np.percentile(mag, 99) if len(mag) else 1)
+            ax.set_xlim(-0.5, image_size[0] - 0.5); ax.set_ylim(image_size[1] - 0.5, -0.5)
+            ax.set_aspect("equal")
+            ax.set_title("camera %d: %d board points, RMS %.3f px" % (
+                cid, int(m.sum()), math.sqrt(np.mean(mag ** 2)) if len(mag) else float("nan")), fontsize=9)
+            fig.colorbar(sc, ax=ax, label="|residual| [px]", shrink=0.7)
+        fig.suptitle("Calibration (storetrack-calib rig): board points over each image, coloured by residual")
+        savefig(fig, outdir, "calibration_residuals.png", figures)
+    note = ("The host flew with storetrack-calib's calibration of this run (board images rendered "
+            "by the simulator, detect, rig, register from the simulated total-station survey), not "
+            "the simulator's calibration file; its stated covariance is %.0f %% of the store-position "
+            "variance." % cal_share)
+    return rows, cams, marks, note
+
+
 def savefig(fig, outdir, name, figures):
     path = os.path.join(outdir, name)
     fig.savefig(path, dpi=90, bbox_inches="tight")
@@ -242,6 +314,9 @@ def main():
     ap.add_argument("--truth-marks", help="simulator truth_marks.csv (default next to poses)")
     ap.add_argument("--calibration", help="rig calibration JSON (image size)")
     ap.add_argument("--out", required=True, help="output directory for index.html and PNGs")
+    ap.add_argument("--calibration-stage", metavar="DIR",
+                    help="tools/testpoint's calibration stage directory (calibration_summary.json, "
+                         "rig_residuals.csv, cam<id>.csv): its residuals and budget share")
     ap.add_argument("--pool-runs", nargs="+", default=[], metavar="DIR",
                     help="run directories of the same test point with other seeds (other "
                          "calibration draws, each with sim/truth_*.csv): adds the k = 2 coverage "
@@ -427,6 +502,11 @@ def main():
         axs[1].text(s, i, " %.1f %%" % s, va="center", fontsize=8)
         summary.append(("budget share: %s" % comps[i][0], "%.1f %%" % s))
     savefig(fig, args.out, "budget.png", figures)
+    calib = (calibration_stage(args.calibration_stage, {n: v for (n, _), v in zip(comps, share)},
+                               (width, height), args.out, figures)
+             if args.calibration_stage else None)
+    if calib:
+        summary.extend(calib[0])
     if len(comps) == 5 and valid.any():
         # The five parts are independent sources: their variances add up to u_x^2 + u_y^2 + u_z^2
         # (to the CSV's 9 digits), extrapolated samples included.
@@ -486,6 +566,15 @@ def main():
         "1500." % (100.0 - share[0] - share[3] if share.sum() > 0 else float("nan")))
     if cov_table or mark_table:
         print("(" + one_draw_note + ")")
+    calib_headers = (["camera", "views", "points used", "rejected", "RMS [px]",
+                      "own intrinsic fit RMS [px]", "baseline [mm] +/- u"],
+                     ["mark", "cameras", "|residual| [mm]", "chi2 / dof", "p", "used", "outlier"])
+    if calib:
+        print("\nCalibration stage (storetrack-calib rig, per camera)")
+        print(fmt_table(calib[1], calib_headers[0]))
+        print("\nWorld registration (storetrack-calib register, per mark; residual in S_r)")
+        print(fmt_table(calib[2], calib_headers[1]))
+        print("(" + calib[3] + ")")
     pool_headers = ["quantity", "unit", "samples", "no pose (not scored)", "RMS error", "mean u",
                     "inside k=2 [%]", "inside k=2, no pose as outside [%]",
                     "95 % CI [%] (bootstrap over draws)", "honest range [%] (binomial, n = draws)",
@@ -513,6 +602,13 @@ def main():
         f.write("</table>")
         if cov_table or mark_table:
             f.write("<p><i>%s</i></p>" % html.escape(one_draw_note))
+        if calib:
+            f.write("<h2>Calibration stage (storetrack-calib)</h2><p>%s</p>" % html.escape(calib[3]))
+            for table, headers in ((calib[1], calib_headers[0]), (calib[2], calib_headers[1])):
+                f.write("<table><tr>%s</tr>" % "".join("<th>%s</th>" % h for h in headers))
+                for r in table:
+                    f.write("<tr>%s</tr>" % "".join("<td>%s</td>" % html.escape(str(c)) for c in r))
+                f.write("</table><br>")
         if pool_table:
             f.write("<h2>Pooled over %d calibration draws</h2><p>Coverage should be about 95 %%, "
                     "RMS error/u about 1.</p><table><tr>%s</tr>" % (

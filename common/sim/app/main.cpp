@@ -1,7 +1,8 @@
 // storetrack-sim: runs a scenario of the scene simulator and writes it to disk.
 //
 //   storetrack-sim --scenario store_separation --cameras 4 --seed 1 --out /tmp/sep
-//                  [--mode frames|observations] [--exposures N]
+//                  [--mode frames|observations|boards] [--exposures N]
+//   storetrack-sim --scenario static --mode boards --out /tmp/boards [--board-cols 10 ...]
 //
 // Output files are described in common/sim/README.md. Exit codes: 0 ok, 1 I/O or runtime
 // error, 2 bad arguments or bad scenario file.
@@ -15,6 +16,7 @@
 
 #include "storetrack/cli/command_line.hpp"
 
+#include "board_images.hpp"
 #include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/msg/udp_codec.hpp"
 #include "storetrack/sim/frame_source.hpp"
@@ -70,6 +72,37 @@ void write_observations(const sim::Simulator& sim, const std::string& dir) {
   if (!csv || !udp) throw std::runtime_error(dir + ": observation write failed");
 }
 
+// The world registration's inputs (storetrack-calib register, docs/calibration.md): the
+// total-station survey of the registration marks in S_w and their hangar observations in the
+// observation CSV of storetrack-calib (point_id = mark id, board coordinates 0, sigma_px the
+// centroid's). Border-cut and merged blobs are left out, as a unit's operator would.
+void write_registration(const sim::Simulator& sim, const std::string& dir) {
+  survey::write_survey(sim.registration_survey(false), dir + "/survey_aircraft.json");
+  survey::write_survey(sim.registration_survey(true), dir + "/true_survey_aircraft.json");
+  std::ofstream csv(dir + "/registration_marks.csv");
+  if (!csv) throw std::runtime_error(dir + ": cannot write registration_marks.csv");
+  csv << "# storetrack board observations (docs/calibration.md): registration marks, "
+         "storetrack-sim hangar exposure\n";
+  for (const camera::CalibratedCamera& c : sim.true_rig().cameras) {
+    csv << "# image_size," << c.camera_id << "," << c.model.intrinsics().width << ","
+        << c.model.intrinsics().height << "\n";
+  }
+  csv << "camera,frame,point_id,board_x_m,board_y_m,board_z_m,image_x_px,image_y_px,sigma_px\n";
+  csv.precision(9);  // float32 wire values: 9 significant digits read back exactly
+  msg::MarkObservations obs;
+  std::vector<int> ids;
+  for (int c = 0; c < sim.num_cameras(); ++c) {
+    sim.observe_registration(c, obs, &ids);
+    for (int i = 0; i < obs.mark_count; ++i) {
+      const msg::MarkObservation& m = obs.marks[static_cast<std::size_t>(i)];
+      if (m.flags & (msg::mark_flags::kBorder | msg::mark_flags::kMerged)) continue;
+      csv << int{obs.camera_id} << ",0," << ids[static_cast<std::size_t>(i)] << ",0,0,0," << m.x_px
+          << "," << m.y_px << "," << m.sigma_px << "\n";
+    }
+  }
+  if (!csv) throw std::runtime_error(dir + ": registration_marks.csv write failed");
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -89,8 +122,28 @@ int main(int argc, char** argv) {
       .range(0, 8);
   app.option("--seed", seed, "Random seed (noise, calibration and survey errors)").show_default();
   app.option("--out", out_dir, "Output directory (created)").required();
-  app.option("--mode", mode, "frames: PGM images + triggers.csv; observations: fast mode")
-      .one_of({"frames", "observations"})
+  app.option("--mode", mode,
+             "frames: PGM images + triggers.csv; observations: fast mode; boards: calibration "
+             "board images of the rig + rig_true.json + boards/truth.json only")
+      .one_of({"frames", "observations", "boards"})
+      .show_default();
+  sim::BoardSetOptions boards;
+  app.option("--board-cols", boards.board.cols, "boards: inner corners per row")
+      .range(3, 40)
+      .show_default();
+  app.option("--board-rows", boards.board.rows, "boards: inner corners per column")
+      .range(3, 40)
+      .show_default();
+  app.option("--board-square", boards.board.square_m, "boards: square size [m]")
+      .range(0.001, 1.0)
+      .show_default();
+  app.option("--board-common-views", boards.common_views,
+             "boards: frames camera 0 and each other camera see together")
+      .range(0, 100)
+      .show_default();
+  app.option("--board-single-views", boards.single_views,
+             "boards: frames per camera over a 3x3 grid of its image")
+      .range(0, 100)
       .show_default();
   app.option("--exposures", exposures, "Limit the number of exposures (0: scenario's)")
       .range(0, 1000000);
@@ -118,6 +171,10 @@ int main(int argc, char** argv) {
     std::filesystem::create_directories(out_dir);
     const sim::Simulator simulator(scenario, seed);
     camera::write_rig_calibration(simulator.true_rig(), out_dir + "/rig_true.json");
+    if (mode == "boards") {
+      sim_app::write_board_images(simulator, boards, seed, out_dir);
+      return 0;
+    }
     camera::write_rig_calibration(simulator.calibrated_rig(), out_dir + "/rig_calibrated.json");
     for (const survey::RigidBodySurvey& s : simulator.surveys()) {
       survey::write_survey(s, out_dir + "/survey_" + s.name + ".json");
@@ -131,6 +188,7 @@ int main(int argc, char** argv) {
       survey::write_scale_bars(simulator.scale_bar_set(false), out_dir + "/scale_bars.json");
       survey::write_scale_bars(simulator.scale_bar_set(true), out_dir + "/true_scale_bars.json");
     }
+    write_registration(simulator, out_dir);
     sim::write_truth_csv(simulator, out_dir + "/truth_poses.csv", out_dir + "/truth_marks.csv");
     if (scenario.kind == sim::ScenarioKind::kPendulum)
       sim::write_pendulum_truth_json(simulator, out_dir + "/truth_pendulum.json");

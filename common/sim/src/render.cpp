@@ -66,6 +66,78 @@ Pixel to_dn(double electrons, const SensorModel& sensor) {
   return static_cast<Pixel>(std::clamp(dn, 0.0, static_cast<double>(sensor.full_scale_dn)));
 }
 
+// One pixel of the EMVA 1288 sensor: Poisson shot noise on mu electrons, Gaussian read noise,
+// quantisation and clipping.
+template <typename Pixel>
+Pixel draw_dn(double mu, const SensorModel& sensor, std::mt19937_64& rng,
+              std::normal_distribution<double>& read_noise) {
+  double electrons = 0;
+  if (mu > 0) {
+    std::poisson_distribution<long> shot(mu);
+    electrons = static_cast<double>(shot(rng));
+  }
+  electrons += sensor.read_noise_e * read_noise(rng);
+  return to_dn<Pixel>(electrons, sensor);
+}
+
+// Walker/Vose alias table of the exact DN distribution of a pixel with mean mu_e electrons
+// (Poisson (*) Gaussian read noise, quantised, clipped): O(1) exact sampling.
+void build_dn_alias_table(double mu_e, const SensorModel& sensor, std::vector<double>& alias_prob,
+                          std::vector<std::uint32_t>& alias_index) {
+  const int levels = sensor.full_scale_dn + 1;
+  std::vector<double> pmf(static_cast<std::size_t>(levels), 0.0);
+  const double mu = std::max(mu_e, 0.0);
+  const double g = sensor.gain_e_per_dn, rn = sensor.read_noise_e;
+  const double spread = 12 * std::sqrt(mu) + 10;
+  const int n_lo = static_cast<int>(std::max(0.0, std::floor(mu - spread)));
+  const int n_hi = static_cast<int>(std::ceil(mu + spread));
+  for (int n = n_lo; n <= n_hi; ++n) {
+    // Poisson pmf in log space (stable for large means).
+    const double p_n =
+        mu > 0 ? std::exp(n * std::log(mu) - mu - std::lgamma(n + 1.0)) : (n == 0 ? 1.0 : 0.0);
+    if (p_n < 1e-300) continue;
+    if (rn <= 0) {
+      pmf[static_cast<std::size_t>(to_dn<int>(n, sensor))] += p_n;
+      continue;
+    }
+    // DN = k when electrons in [g (k - 0.5 - black), g (k + 0.5 - black)).
+    const double centre_dn = n / g + sensor.black_level_dn;
+    const int k_lo = std::max(0, static_cast<int>(std::floor(centre_dn - 9 * rn / g)) - 1);
+    const int k_hi = std::min(levels - 1, static_cast<int>(std::ceil(centre_dn + 9 * rn / g)) + 1);
+    for (int k = k_lo; k <= k_hi; ++k) {
+      const double lo = (k == 0) ? -1e300 : g * (k - 0.5 - sensor.black_level_dn);
+      const double hi = (k == levels - 1) ? 1e300 : g * (k + 0.5 - sensor.black_level_dn);
+      pmf[static_cast<std::size_t>(k)] +=
+          p_n * (normal_cdf((hi - n) / rn) - normal_cdf((lo - n) / rn));
+    }
+  }
+  // Walker/Vose alias table: O(1) exact sampling of the discrete DN distribution.
+  double acc = 0;
+  for (double p : pmf)
+    acc += p;
+  const std::size_t n = pmf.size();
+  alias_prob.assign(n, 1.0);
+  alias_index.assign(n, 0);
+  std::vector<double> scaled(n);
+  std::vector<std::uint32_t> small, large;
+  for (std::size_t k = 0; k < n; ++k) {
+    scaled[k] = pmf[k] / acc * static_cast<double>(n);
+    alias_index[k] = static_cast<std::uint32_t>(k);
+    (scaled[k] < 1.0 ? small : large).push_back(static_cast<std::uint32_t>(k));
+  }
+  while (!small.empty() && !large.empty()) {
+    const std::uint32_t s = small.back(), l = large.back();
+    small.pop_back();
+    alias_prob[s] = scaled[s];
+    alias_index[s] = l;
+    scaled[l] -= 1.0 - scaled[s];
+    if (scaled[l] < 1.0) {
+      large.pop_back();
+      small.push_back(l);
+    }
+  }
+}
+
 }  // namespace
 
 PixelBox spot_box(const Spot& spot, int width, int height) {
@@ -245,58 +317,7 @@ void SpotRenderer::build_background_table(const SensorModel& sensor) {
            a.black_level_dn == sensor.black_level_dn;
   };
   if (table_valid_ && same(table_sensor_)) return;
-  const int levels = sensor.full_scale_dn + 1;
-  std::vector<double> pmf(static_cast<std::size_t>(levels), 0.0);
-  const double mu = std::max(sensor.background_e, 0.0);
-  const double g = sensor.gain_e_per_dn, rn = sensor.read_noise_e;
-  const double spread = 12 * std::sqrt(mu) + 10;
-  const int n_lo = static_cast<int>(std::max(0.0, std::floor(mu - spread)));
-  const int n_hi = static_cast<int>(std::ceil(mu + spread));
-  for (int n = n_lo; n <= n_hi; ++n) {
-    // Poisson pmf in log space (stable for large means).
-    const double p_n =
-        mu > 0 ? std::exp(n * std::log(mu) - mu - std::lgamma(n + 1.0)) : (n == 0 ? 1.0 : 0.0);
-    if (p_n < 1e-300) continue;
-    if (rn <= 0) {
-      pmf[static_cast<std::size_t>(to_dn<int>(n, sensor))] += p_n;
-      continue;
-    }
-    // DN = k when electrons in [g (k - 0.5 - black), g (k + 0.5 - black)).
-    const double centre_dn = n / g + sensor.black_level_dn;
-    const int k_lo = std::max(0, static_cast<int>(std::floor(centre_dn - 9 * rn / g)) - 1);
-    const int k_hi = std::min(levels - 1, static_cast<int>(std::ceil(centre_dn + 9 * rn / g)) + 1);
-    for (int k = k_lo; k <= k_hi; ++k) {
-      const double lo = (k == 0) ? -1e300 : g * (k - 0.5 - sensor.black_level_dn);
-      const double hi = (k == levels - 1) ? 1e300 : g * (k + 0.5 - sensor.black_level_dn);
-      pmf[static_cast<std::size_t>(k)] +=
-          p_n * (normal_cdf((hi - n) / rn) - normal_cdf((lo - n) / rn));
-    }
-  }
-  // Walker/Vose alias table: O(1) exact sampling of the discrete DN distribution.
-  double acc = 0;
-  for (double p : pmf)
-    acc += p;
-  const std::size_t n = pmf.size();
-  alias_prob_.assign(n, 1.0);
-  alias_index_.assign(n, 0);
-  std::vector<double> scaled(n);
-  std::vector<std::uint32_t> small, large;
-  for (std::size_t k = 0; k < n; ++k) {
-    scaled[k] = pmf[k] / acc * static_cast<double>(n);
-    alias_index_[k] = static_cast<std::uint32_t>(k);
-    (scaled[k] < 1.0 ? small : large).push_back(static_cast<std::uint32_t>(k));
-  }
-  while (!small.empty() && !large.empty()) {
-    const std::uint32_t s = small.back(), l = large.back();
-    small.pop_back();
-    alias_prob_[s] = scaled[s];
-    alias_index_[s] = l;
-    scaled[l] -= 1.0 - scaled[s];
-    if (scaled[l] < 1.0) {
-      large.pop_back();
-      small.push_back(l);
-    }
-  }
+  build_dn_alias_table(sensor.background_e, sensor, alias_prob_, alias_index_);
   table_sensor_ = sensor;
   table_valid_ = true;
 }
@@ -326,14 +347,7 @@ void SpotRenderer::render_noisy(std::span<const Spot> spots, const SensorModel& 
       Pixel* row = image + static_cast<std::size_t>(y) * stride;
       const float* sig = signal_.data() + static_cast<std::size_t>(y) * width;
       for (int x = box.x0; x < box.x1; ++x) {
-        const double mu = sensor.background_e + sig[x];
-        double electrons = 0;
-        if (mu > 0) {
-          std::poisson_distribution<long> shot(mu);
-          electrons = static_cast<double>(shot(rng));
-        }
-        electrons += sensor.read_noise_e * read_noise(rng);
-        row[x] = to_dn<Pixel>(electrons, sensor);
+        row[x] = draw_dn<Pixel>(sensor.background_e + sig[x], sensor, rng, read_noise);
       }
     }
   }
@@ -450,6 +464,83 @@ void render_spots_expected(std::span<const Spot> spots, const SensorModel& senso
 
 SpotStatistics spot_statistics(const Spot& spot, const SensorModel& sensor, int width, int height) {
   return thread_renderer().statistics(spot, sensor, width, height);
+}
+
+namespace {
+
+struct DnTable {
+  float mu_e = 0;
+  std::vector<double> prob;
+  std::vector<std::uint32_t> index;
+};
+
+// The values shared by at least 1 % of the pixels (a 1/61 subsample), at most 8: the flat
+// regions of a scene (board squares, surround) have exactly equal expected values.
+std::vector<DnTable> frequent_value_tables(const float* electrons, int stride_e, int width,
+                                           int height, const SensorModel& sensor) {
+  std::vector<float> sample;
+  for (std::size_t i = 0, n = static_cast<std::size_t>(width) * height; i < n; i += 61)
+    sample.push_back(electrons[(i / width) * stride_e + i % width]);
+  std::sort(sample.begin(), sample.end());
+  std::vector<DnTable> tables;
+  for (std::size_t i = 0; i < sample.size() && tables.size() < 8;) {
+    std::size_t j = i;
+    while (j < sample.size() && sample[j] == sample[i])
+      ++j;
+    if (j - i >= std::max<std::size_t>(1, sample.size() / 100)) {
+      DnTable t;
+      t.mu_e = sample[i];
+      build_dn_alias_table(sample[i], sensor, t.prob, t.index);
+      tables.push_back(std::move(t));
+    }
+    i = j;
+  }
+  return tables;
+}
+
+}  // namespace
+
+void expose(const float* electrons, int stride_e, const SensorModel& sensor, std::mt19937_64& rng,
+            std::uint8_t* image, int width, int height, int stride) {
+  SensorModel s = sensor;
+  s.full_scale_dn = std::min(s.full_scale_dn, 255);
+  // Exact either way: an alias table draw (one random number) for the frequent values, a
+  // Poisson + Gaussian draw for the rest (edges).
+  const std::vector<DnTable> tables = frequent_value_tables(electrons, stride_e, width, height, s);
+  std::normal_distribution<double> read_noise(0.0, 1.0);
+  for (int y = 0; y < height; ++y) {
+    const float* mu = electrons + static_cast<std::size_t>(y) * stride_e;
+    std::uint8_t* row = image + static_cast<std::size_t>(y) * stride;
+    for (int x = 0; x < width; ++x) {
+      const DnTable* table = nullptr;
+      for (const DnTable& t : tables) {
+        if (t.mu_e == mu[x]) {
+          table = &t;
+          break;
+        }
+      }
+      if (table == nullptr) {
+        row[x] = draw_dn<std::uint8_t>(mu[x], s, rng, read_noise);
+        continue;
+      }
+      const std::uint64_t r = rng();
+      const std::size_t k = static_cast<std::size_t>(((r >> 32) * table->prob.size()) >> 32);
+      const double u = static_cast<double>(r & 0xFFFFFFFFull) * 0x1.0p-32;
+      row[x] = static_cast<std::uint8_t>(u < table->prob[k] ? k : table->index[k]);
+    }
+  }
+}
+
+void expose_noise_free(const float* electrons, int stride_e, const SensorModel& sensor,
+                       std::uint8_t* image, int width, int height, int stride) {
+  SensorModel s = sensor;
+  s.full_scale_dn = std::min(s.full_scale_dn, 255);
+  for (int y = 0; y < height; ++y) {
+    const float* mu = electrons + static_cast<std::size_t>(y) * stride_e;
+    std::uint8_t* row = image + static_cast<std::size_t>(y) * stride;
+    for (int x = 0; x < width; ++x)
+      row[x] = to_dn<std::uint8_t>(mu[x], s);
+  }
 }
 
 }  // namespace storetrack::sim

@@ -15,6 +15,12 @@ using geometry::Vec3;
 
 enum BodyKind { kPylon = 0, kStore = 1, kPendulum = 2, kScaleBar = 3 };
 
+// Purposes of the random streams (stream_seed); 1-5 are the rig, timing, rendering and shared
+// registration error of the constructor and the per-exposure draws.
+constexpr std::uint64_t kFlightCentroidNoise = 4;
+constexpr std::uint64_t kRegistrationSurveyNoise = 6;
+constexpr std::uint64_t kRegistrationCentroidNoise = 7;
+
 // splitmix64 finaliser: independent, reproducible random streams per (purpose, k, camera).
 std::uint64_t mix(std::uint64_t z) {
   z += 0x9E3779B97F4A7C15ull;
@@ -506,6 +512,43 @@ ExposureTiming Simulator::exposure_timing(int k, int camera_index) const {
 
 void Simulator::observe(int k, int camera_index, msg::MarkObservations& out,
                         std::vector<int>* true_mark_ids) const {
+  observe_with_noise(k, camera_index, kFlightCentroidNoise, out, true_mark_ids);
+}
+
+void Simulator::observe_registration(int camera_index, msg::MarkObservations& out,
+                                     std::vector<int>* true_mark_ids) const {
+  std::vector<int> ids;
+  observe_with_noise(0, camera_index, kRegistrationCentroidNoise, out, &ids);
+  // Only the surveyed registration marks (the pylon's): a blob of another body, or merged with
+  // one (id -1), is not a registration mark.
+  if (true_mark_ids) true_mark_ids->clear();
+  std::size_t kept = 0;
+  for (std::size_t i = 0; i < out.mark_count; ++i) {
+    if (sc_.pylon.find(ids[i]) == nullptr) continue;
+    out.marks[kept++] = out.marks[i];
+    if (true_mark_ids) true_mark_ids->push_back(ids[i]);
+  }
+  out.mark_count = static_cast<std::uint8_t>(kept);
+}
+
+survey::RigidBodySurvey Simulator::registration_survey(bool truth) const {
+  survey::RigidBodySurvey s = sc_.pylon;
+  s.name = "aircraft";
+  s.frame = 'w';
+  std::mt19937_64 rng(stream_seed(kRegistrationSurveyNoise, 0, 0));
+  std::normal_distribution<double> normal(0.0, 1.0);
+  for (survey::SurveyedMark& m : s.marks) {
+    m.p_body = sc_.T_w_p * m.p_body;
+    if (truth) continue;
+    for (int a = 0; a < 3; ++a)
+      m.p_body[a] += m.sigma_m * normal(rng);
+  }
+  return s;
+}
+
+void Simulator::observe_with_noise(int k, int camera_index, std::uint64_t noise_purpose,
+                                   msg::MarkObservations& out,
+                                   std::vector<int>* true_mark_ids) const {
   const CameraSetup& cs = sc_.cameras[static_cast<std::size_t>(camera_index)];
   const camera::Intrinsics& in =
       true_rig_.cameras[static_cast<std::size_t>(camera_index)].model.intrinsics();
@@ -586,8 +629,8 @@ void Simulator::observe(int k, int camera_index, msg::MarkObservations& out,
   std::sort(dets.begin(), dets.end(), [](const Detection& a, const Detection& b) {
     return std::lround(a.y) != std::lround(b.y) ? a.y < b.y : a.x < b.x;
   });
-  std::mt19937_64 rng(
-      stream_seed(4, static_cast<std::uint64_t>(k), static_cast<std::uint64_t>(camera_index)));
+  std::mt19937_64 rng(stream_seed(noise_purpose, static_cast<std::uint64_t>(k),
+                                  static_cast<std::uint64_t>(camera_index)));
   std::normal_distribution<double> normal(0.0, 1.0);
   std::size_t n = 0;
   for (const Detection& d : dets) {

@@ -276,6 +276,82 @@ TEST(Simulator, SurveyErrorsFollowTheStatedSigma) {
   EXPECT_NEAR(chi2 / n, 1.0, 4 * std::sqrt(2.0 / n));
 }
 
+// The world registration's inputs (storetrack-calib register): the total-station survey of the
+// pylon marks in S_w and their hangar observations. Truth from an independent path: the marks'
+// world positions and pixels of exposure 0's truth (at rest, w0 = the nominal world).
+TEST(Simulator, RegistrationSurveyIsThePylonInTheWorldWithTheStatedSigma) {
+  const Scenario sc = load_scenario(scenario_path("store_separation"));
+  double chi2 = 0, cross = 0;
+  int n = 0;
+  for (std::uint64_t seed = 1; seed <= 60; ++seed) {
+    const Simulator sim(sc, seed);
+    const survey::RigidBodySurvey truth = sim.registration_survey(true);
+    const survey::RigidBodySurvey measured = sim.registration_survey(false);
+    EXPECT_EQ(measured.frame, 'w');
+    ASSERT_EQ(measured.marks.size(), sc.pylon.marks.size());
+    const ExposureTruth tr = sim.truth(0);
+    for (const survey::SurveyedMark& m : measured.marks) {
+      const auto it = std::find_if(tr.marks.begin(), tr.marks.end(),
+                                   [&](const MarkTruth& t) { return t.id == m.id; });
+      ASSERT_NE(it, tr.marks.end());
+      EXPECT_LT((truth.find(m.id)->p_body - it->p_w0).norm(), 1e-12);
+      const Vec3 e = (m.p_body - it->p_w0) / m.sigma_m;
+      chi2 += e.squaredNorm();
+      // A separate session: its errors are independent of the pylon survey's in S_p.
+      const survey::SurveyedMark* p = sim.pylon_survey().find(m.id);
+      const Vec3 e_p = (p->p_body - sc.pylon.find(m.id)->p_body) / p->sigma_m;
+      cross += e.dot(sc.T_w_p.linear() * e_p);
+      n += 3;
+    }
+  }
+  // chi-square(n): mean n, sd sqrt(2n); the cross products: mean 0, sd sqrt(n). Accept 4 sd.
+  EXPECT_NEAR(chi2 / n, 1.0, 4 * std::sqrt(2.0 / n));
+  EXPECT_NEAR(cross / n, 0.0, 4 / std::sqrt(n));
+}
+
+TEST(Simulator, RegistrationObservationsAreThePylonMarksWithTheStatedSigma) {
+  const Scenario sc = load_scenario(scenario_path("store_separation"));
+  double chi2 = 0, cross = 0;
+  int n = 0;
+  msg::MarkObservations hangar, flight;
+  std::vector<int> ids, flight_ids;
+  for (std::uint64_t seed = 1; seed <= 40; ++seed) {
+    const Simulator sim(sc, seed);
+    const ExposureTruth tr = sim.truth(0);
+    int marks_seen = 0;
+    for (int cam = 0; cam < sim.num_cameras(); ++cam) {
+      sim.observe_registration(cam, hangar, &ids);
+      sim.observe(0, cam, flight, &flight_ids);
+      ASSERT_EQ(ids.size(), hangar.mark_count);
+      for (int i = 0; i < hangar.mark_count; ++i) {
+        const msg::MarkObservation& m = hangar.marks[static_cast<std::size_t>(i)];
+        const int id = ids[static_cast<std::size_t>(i)];
+        ASSERT_NE(sc.pylon.find(id), nullptr) << "not a registration mark: " << id;
+        if (m.flags & msg::mark_flags::kBorder) continue;
+        const auto it = std::find_if(tr.marks.begin(), tr.marks.end(),
+                                     [&](const MarkTruth& t) { return t.id == id; });
+        const MarkCameraTruth& mc = it->cameras[static_cast<std::size_t>(cam)];
+        EXPECT_TRUE(mc.visible);
+        const double dx = (m.x_px - mc.pixel.x()) / m.sigma_px;
+        const double dy = (m.y_px - mc.pixel.y()) / m.sigma_px;
+        chi2 += dx * dx + dy * dy;
+        n += 2;
+        ++marks_seen;
+        // Its own noise: not the flight exposure 0's draw.
+        const auto f = std::find(flight_ids.begin(), flight_ids.end(), id);
+        ASSERT_NE(f, flight_ids.end());
+        const msg::MarkObservation& o =
+            flight.marks[static_cast<std::size_t>(f - flight_ids.begin())];
+        cross += dx * (o.x_px - mc.pixel.x()) / o.sigma_px;
+      }
+    }
+    EXPECT_GE(marks_seen, 10) << "seed " << seed;
+  }
+  ASSERT_GT(n, 500);
+  EXPECT_NEAR(chi2 / n, 1.0, 4 * std::sqrt(2.0 / n));
+  EXPECT_NEAR(cross / (n / 2), 0.0, 4 / std::sqrt(n / 2));
+}
+
 TEST(Trajectory, StoreSeparationKinematics) {
   SeparationMotion m;
   m.release_time_s = 0.02;

@@ -121,6 +121,16 @@ class SpotRenderer {
   bool table_valid_ = false;
 };
 
+/// The sensor model above applied to an expected image (electrons per pixel, background
+/// included, stride_e in floats): each pixel Poisson(mu) + N(0, read_noise), quantised and
+/// clipped like the spot pixels of SpotRenderer::render. Any scene rendered to expected
+/// electrons (board images, common/sim board_render.hpp) gets its noise here.
+void expose(const float* electrons, int stride_e, const SensorModel& sensor, std::mt19937_64& rng,
+            std::uint8_t* image, int width, int height, int stride);
+/// Noise-free: round(mu / gain + black), clipped (the quantised mean).
+void expose_noise_free(const float* electrons, int stride_e, const SensorModel& sensor,
+                       std::uint8_t* image, int width, int height, int stride);
+
 /// Convenience wrappers over a thread-local SpotRenderer (8-bit images, stride in bytes).
 void render_spots(std::span<const Spot> spots, const SensorModel& sensor, std::mt19937_64& rng,
                   std::uint8_t* image, int width, int height, int stride);

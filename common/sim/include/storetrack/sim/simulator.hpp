@@ -109,6 +109,18 @@ class Simulator {
   std::vector<survey::RigidBodySurvey> surveys() const;
   /// True body coordinates.
   const survey::RigidBodySurvey& true_pylon() const { return sc_.pylon; }
+
+  /// The world registration's survey (storetrack-calib register, docs/calibration.md): the
+  /// pylon marks as a total station surveys them in the aircraft frame S_w in the hangar, at the
+  /// pylon's nominal pose (frame 'w', name "aircraft"), each with the pylon survey's sigma_m.
+  /// `truth`: T_w_p0 p_p; else truth + N(0, sigma_m^2 I) from its own random stream (independent
+  /// of the pylon survey in S_p, a separate session; other draws unchanged).
+  survey::RigidBodySurvey registration_survey(bool truth) const;
+  /// The registration marks as a unit centroids them in the hangar: the scene of exposure 0
+  /// (store mounted, at rest) with centroid noise from its own stream, so no flight exposure
+  /// shares it. Same fields and flags as observe().
+  void observe_registration(int camera_index, msg::MarkObservations& out,
+                            std::vector<int>* true_mark_ids = nullptr) const;
   const survey::RigidBodySurvey& true_store() const { return sc_.store; }
 
   time::TaiNs trigger_tai_ns(int k) const;
@@ -163,6 +175,8 @@ class Simulator {
   CameraTiming timing(int k, int camera_index) const;
   MarkCameraTruth see(const MarkRef& m, int camera_index, double t_start, double t_end) const;
   void draw_shared_registration_error();
+  void observe_with_noise(int k, int camera_index, std::uint64_t noise_purpose,
+                          msg::MarkObservations& out, std::vector<int>* true_mark_ids) const;
   std::uint64_t stream_seed(std::uint64_t purpose, std::uint64_t a, std::uint64_t b) const;
 
   Scenario sc_;

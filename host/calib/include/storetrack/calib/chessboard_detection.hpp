@@ -2,6 +2,7 @@
 // the implementation: this header only names files and observations.
 #pragma once
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -29,5 +30,12 @@ struct DetectionResult {
 /// and the frames of two cameras' image lists stay aligned).
 DetectionResult detect_chessboards(const std::vector<std::string>& image_paths,
                                    const ChessboardSpec& board, int camera);
+
+/// One 8-bit grey image in memory (row-major, `stride` bytes per row), the same detector and
+/// sub-pixel settings as detect_chessboards: appends its corners as `frame` of `camera` to
+/// `set` and returns true, or returns false (board not found) and appends nothing.
+bool detect_chessboard_image(const std::uint8_t* gray, int width, int height, int stride,
+                             const ChessboardSpec& board, int camera, int frame,
+                             ObservationSet& set);
 
 }  // namespace storetrack::calib
