@@ -69,13 +69,16 @@ BoardMap map_board(const camera::CameraModel& camera, const geometry::Transform&
 
 class Pattern {
  public:
-  Pattern(const ChessboardTarget& board, const BoardPhotometry& ph) : b_(board), ph_(ph) {}
+  // `back`: the camera sees the board's back, which is opaque and plain (a real board's
+  // pattern is not seen through it, nor mirrored): the whole board is the border's white.
+  Pattern(const ChessboardTarget& board, const BoardPhotometry& ph, bool back)
+      : b_(board), ph_(ph), back_(back) {}
   // Signal of board cell (i, j) (square units; inner corner (c, r) at (c, r)).
   double at(long i, long j) const {
     const long m = b_.margin_squares;
     if (i < -1 - m || i > b_.cols - 1 + m || j < -1 - m || j > b_.rows - 1 + m)
       return ph_.surround_e;
-    if (i < -1 || i > b_.cols - 1 || j < -1 || j > b_.rows - 1) return ph_.white_e;
+    if (back_ || i < -1 || i > b_.cols - 1 || j < -1 || j > b_.rows - 1) return ph_.white_e;
     // The square whose top-left corner is inner corner 0 (cell (0, 0)) is black.
     return ((i + j) % 2 == 0) ? ph_.black_e : ph_.white_e;
   }
@@ -83,6 +86,7 @@ class Pattern {
  private:
   const ChessboardTarget& b_;
   const BoardPhotometry& ph_;
+  bool back_;
 };
 
 long cell(double u) {
@@ -228,8 +232,8 @@ void render_board_expected(const camera::CameraModel& camera, const geometry::Tr
   out.width = width;
   out.height = height;
   const BoardMap map = map_board(camera, T_c_b, board.square_m);
-  render_signal(map, Pattern(board, photometry), board, photometry.surround_e, width, height,
-                out.electrons);
+  render_signal(map, Pattern(board, photometry, sees_board_back(T_c_b)), board,
+                photometry.surround_e, width, height, out.electrons);
   blur(out.electrons, width, height, photometry.psf_sigma_px);
   const float background = static_cast<float>(photometry.sensor.background_e);
   for (float& e : out.electrons)
@@ -246,9 +250,16 @@ std::vector<std::optional<Vec2>> project_board_corners(const camera::CameraModel
   return out;
 }
 
+bool sees_board_back(const geometry::Transform& T_c_b) {
+  // The pattern faces -z_b (board z points away from the cameras that see it): the camera
+  // centre, at -R^T t in the board frame, is on the back when its z is positive.
+  return (T_c_b.inverse().translation()).z() > 0;
+}
+
 bool board_fully_visible(const camera::CameraModel& camera, const geometry::Transform& T_c_b,
                          const ChessboardTarget& board, double margin_px, double min_square_px,
                          double max_incidence_deg) {
+  if (sees_board_back(T_c_b)) return false;
   const camera::Intrinsics& in = camera.intrinsics();
   const auto inside = [&](const Vec3& p_b) {
     const auto px = camera.project(T_c_b * p_b);
@@ -278,7 +289,7 @@ bool board_fully_visible(const camera::CameraModel& camera, const geometry::Tran
   }
   const Vec3 centre_c = T_c_b * board.centre();
   const Vec3 normal_c = T_c_b.linear().col(2);
-  const double cos_incidence = std::abs(normal_c.dot(centre_c.normalized()));
+  const double cos_incidence = normal_c.dot(centre_c.normalized());
   return cos_incidence >= std::cos(max_incidence_deg * M_PI / 180);
 }
 

@@ -59,6 +59,7 @@ struct BoardExpectedImage {
 /// two or more, i.e. at corners: 16 x 16 samples), with the pixel -> board map interpolated
 /// bilinearly from exact unprojections on a 4-px grid (its error is < 0.002 px across the
 /// simulator's lenses), then the Gaussian PSF (separable, sampled, normalised).
+/// A board seen from its back (sees_board_back) is plain white: its back is opaque.
 void render_board_expected(const camera::CameraModel& camera, const geometry::Transform& T_c_b,
                            const ChessboardTarget& board, const BoardPhotometry& photometry,
                            BoardExpectedImage& out);
@@ -68,9 +69,14 @@ std::vector<std::optional<geometry::Vec2>> project_board_corners(const camera::C
                                                                  const geometry::Transform& T_c_b,
                                                                  const ChessboardTarget& board);
 
+/// True when the camera sees the board's back (the pattern faces -z_b, away from the board's
+/// normal z_b). The back is opaque and plain: render_board_expected draws it white.
+bool sees_board_back(const geometry::Transform& T_c_b);
+
 /// The whole board (border included) lies in front of the camera and at least `margin_px`
-/// inside the image, its squares at least `min_square_px` wide there, and the board is seen
-/// at most `max_incidence_deg` from its normal (at its centre).
+/// inside the image, its squares at least `min_square_px` wide there, the camera sees its
+/// patterned face (not its back: a real operator cannot show a camera the pattern from behind)
+/// and at most `max_incidence_deg` from its normal (at its centre).
 bool board_fully_visible(const camera::CameraModel& camera, const geometry::Transform& T_c_b,
                          const ChessboardTarget& board, double margin_px = 10,
                          double min_square_px = 12, double max_incidence_deg = 65);
