@@ -298,7 +298,7 @@ TEST(CalibrationRoundTrip, PooledCoverageOfTheStorePosition) {
         "draw %2d (seed %llu): rig RMS %.3f px, calibration NEES %.1f (rank %d), "
         "store inside k=2 %d/%d/%d of %d, refused %d, mean NEES %.2f\n",
         d, static_cast<unsigned long long>(seed), rms, nees, rank, s.inside[0], s.inside[1],
-        s.inside[2], s.samples, s.refused, s.nees_sum / s.samples);
+        s.inside[2], s.samples, s.refused, s.nees_sum / std::max(s.samples, 1));
   }
   std::filesystem::remove_all(dir);
 
