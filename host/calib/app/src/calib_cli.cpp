@@ -8,7 +8,8 @@ namespace {
 
 void add_detect(cli::Command& app, DetectArgs& a) {
   cli::Command& sub = app.subcommand("detect", "Board observations from images -> CSV");
-  sub.option("--board", a.board, "Board type").one_of({"chessboard", "charuco", "dots", "ring-dots"});
+  sub.option("--board", a.board, "Board type")
+      .one_of({"chessboard", "charuco", "dots", "ring-dots"});
   sub.option("--cols", a.chessboard.cols, "Chessboard, dots: inner corners / dots per board row")
       .range(2, 1000);
   sub.option("--rows", a.chessboard.rows, "Chessboard, dots: inner corners / dots per board column")

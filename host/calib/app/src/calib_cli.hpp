@@ -18,7 +18,7 @@ struct DetectArgs {
   std::string board = "chessboard";
   calib::ChessboardSpec chessboard;
   calib::CharucoSpec charuco;  ///< its square_m is chessboard.square_m (one --square option)
-  DotDetectArgs dots;  ///< --board dots | ring-dots (cols / rows: chessboard's)
+  DotDetectArgs dots;          ///< --board dots | ring-dots (cols / rows: chessboard's)
   int camera = 0;
   std::vector<std::string> images;
   std::string output;
