@@ -318,6 +318,12 @@ int failures(const Honesty& h, const Bands& b) {
   return n;
 }
 
+#ifdef STORETRACK_SANITIZE
+constexpr int kDefaultDraws = 8;  // ASan/UBSan at -O1: the chain under the sanitizers, wider bands
+#else
+constexpr int kDefaultDraws = 20;
+#endif
+
 int draws_from_env(int fallback) {
   const char* env = std::getenv("STORETRACK_CALIB_MC_DRAWS");
   return env != nullptr ? std::max(3, std::atoi(env)) : fallback;
@@ -330,7 +336,7 @@ TEST(BoardImages, RigCovarianceIsHonestOnRenderedBoards) {
   options.single_views = 5;
   const sim::BoardPhotometry photometry = scenario_photometry();
   const Parameters params = rig_parameters();
-  const int m = draws_from_env(20);
+  const int m = draws_from_env(kDefaultDraws);
   std::vector<Draw> draws;
   std::size_t images = 0;
   const auto t0 = std::chrono::steady_clock::now();
