@@ -89,17 +89,9 @@ void write_registration(const sim::Simulator& sim, const std::string& dir) {
   }
   csv << "camera,frame,point_id,board_x_m,board_y_m,board_z_m,image_x_px,image_y_px,sigma_px\n";
   csv.precision(9);  // float32 wire values: 9 significant digits read back exactly
-  msg::MarkObservations obs;
-  std::vector<int> ids;
-  for (int c = 0; c < sim.num_cameras(); ++c) {
-    sim.observe_registration(c, obs, &ids);
-    for (int i = 0; i < obs.mark_count; ++i) {
-      const msg::MarkObservation& m = obs.marks[static_cast<std::size_t>(i)];
-      if (m.flags & (msg::mark_flags::kBorder | msg::mark_flags::kMerged)) continue;
-      csv << int{obs.camera_id} << ",0," << ids[static_cast<std::size_t>(i)] << ",0,0,0," << m.x_px
-          << "," << m.y_px << "," << m.sigma_px << "\n";
-    }
-  }
+  for (const auto& r : sim.registration_sightings())
+    csv << r.camera_id << ",0," << r.mark_id << ",0,0,0," << r.px.x() << "," << r.px.y() << ","
+        << r.sigma_px << "\n";
   if (!csv) throw std::runtime_error(dir + ": registration_marks.csv write failed");
 }
 

@@ -531,6 +531,21 @@ void Simulator::observe_registration(int camera_index, msg::MarkObservations& ou
   out.mark_count = static_cast<std::uint8_t>(kept);
 }
 
+std::vector<RegistrationSighting> Simulator::registration_sightings() const {
+  std::vector<RegistrationSighting> out;
+  msg::MarkObservations obs;
+  std::vector<int> ids;
+  for (int c = 0; c < num_cameras(); ++c) {
+    observe_registration(c, obs, &ids);
+    for (std::size_t i = 0; i < obs.mark_count; ++i) {
+      const msg::MarkObservation& m = obs.marks[i];
+      if (m.flags & (msg::mark_flags::kBorder | msg::mark_flags::kMerged)) continue;
+      out.push_back({obs.camera_id, ids[i], geometry::Vec2(m.x_px, m.y_px), m.sigma_px});
+    }
+  }
+  return out;
+}
+
 survey::RigidBodySurvey Simulator::registration_survey(bool truth) const {
   survey::RigidBodySurvey s = sc_.pylon;
   s.name = "aircraft";

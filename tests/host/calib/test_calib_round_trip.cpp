@@ -4,18 +4,19 @@
 // calibrates the rig (bundle adjustment) and registers it to the aircraft frame from the
 // simulated total-station survey with fresh survey and centroid errors; the calibration file it
 // writes is read back the way the host reads it, and the host's processor flies the store
-// separation on it (fast-mode observations of the TRUE rig, the simulator's ids). The store
-// position's k = 2 coverage against the simulator's truth, pooled over the draws, must be
-// inside the range an honest instrument's falls in (below), and the pooled NEES in chi2(3 n).
-//
-// Effective sample size: every sample of a draw shares that draw's calibration and survey
-// errors (fresh per seed), nearly all of the budget (measured: body-mark survey 99.0 %, camera
-// calibration 0.2 %), so the draws (not the samples) are the independent units. The test
-// prints the pooled coverage with its 95 % interval from a bootstrap over whole draws and the
-// range an honest instrument's pooled coverage falls in when each draw counts once
-// (Binomial(draws, 95.45 %)), and whether it lies in the issue's 90-98 %. CI: 20 draws;
-// STORETRACK_ROUND_TRIP_DRAWS=N for the full form, STORETRACK_ROUND_TRIP_COVARIANCE_SCALE=f
-// scales the calibration's stated covariance (docs/calibration.md, "Round trip").
+// separation on it (fast-mode observations of the TRUE rig, the simulator's ids). Two
+// quantities are scored against the simulator's truth at every exposure, pooled over the draws:
+// - the store position in the pylon frame (T_p_s, the FTI sample; issue 9's Done-when). Its
+//   variance is nearly all the body-mark surveys' (measured: survey 99 %, camera calibration
+//   0.2 %): relative to the pylon, the cameras' calibration errors mostly cancel. So this checks
+//   the chain, not the size of the calibration's covariance;
+// - the marks' triangulated positions in the aircraft frame (host world), whose variance is the
+//   calibration's (rig + registration) and the centroids', no body survey: the check that the
+//   calibration file's covariance reaches the host at its true size (scaled x0.3 it fails).
+// Both must lie inside the range an honest instrument's falls in (check_pooled) when each draw
+// counts once. CI: 20 draws; STORETRACK_ROUND_TRIP_DRAWS=N for the full form,
+// STORETRACK_ROUND_TRIP_COVARIANCE_SCALE=f scales the calibration's stated covariance
+// (docs/calibration.md, "Round trip").
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -141,17 +142,8 @@ calib::ObservationSet detect_draw(const sim::Simulator& sim, const BoardSet& set
 /// The registration marks' hangar sightings (storetrack-sim's registration_marks.csv).
 std::vector<calib::MarkSighting> registration_sightings(const sim::Simulator& sim) {
   std::vector<calib::MarkSighting> out;
-  msg::MarkObservations obs;
-  std::vector<int> ids;
-  for (int c = 0; c < sim.num_cameras(); ++c) {
-    sim.observe_registration(c, obs, &ids);
-    for (int i = 0; i < obs.mark_count; ++i) {
-      const msg::MarkObservation& m = obs.marks[static_cast<std::size_t>(i)];
-      if (m.flags & (msg::mark_flags::kBorder | msg::mark_flags::kMerged)) continue;
-      out.push_back({obs.camera_id, ids[static_cast<std::size_t>(i)],
-                     geometry::Vec2(m.x_px, m.y_px), m.sigma_px});
-    }
-  }
+  for (const sim::RegistrationSighting& r : sim.registration_sightings())
+    out.push_back({r.camera_id, r.mark_id, r.px, r.sigma_px});
   return out;
 }
 
@@ -196,8 +188,11 @@ std::pair<double, int> calibration_nees(const camera::RigCalibration& flown,
   for (Eigen::Index c = 0; c < n; ++c) {
     const camera::CalibratedCamera& f = flown.cameras[static_cast<std::size_t>(c)];
     const camera::CalibratedCamera& t = truth.cameras[static_cast<std::size_t>(c)];
+    // One sign for the whole vector: truth = estimate + e (intrinsics) and truth =
+    // perturb_left(estimate, e) (extrinsics). Mixed signs flip the intrinsic-extrinsic cross
+    // terms and inflate the NEES ~1000x (the printout of the last change had that bug).
     e.segment<camera::kNumIntrinsics>(kB * c) =
-        camera::pack(f.model.intrinsics()) - camera::pack(t.model.intrinsics());
+        camera::pack(t.model.intrinsics()) - camera::pack(f.model.intrinsics());
     e.segment<6>(kB * c + camera::kNumIntrinsics) = geometry::left_difference(t.T_c_w, f.T_c_w);
   }
   const Eigen::MatrixXd C = flown.full_joint_covariance();
@@ -216,17 +211,59 @@ std::pair<double, int> calibration_nees(const camera::RigCalibration& flown,
   return {nees, rank};
 }
 
-struct DrawScore {
+/// k = 2 coverage per axis, NEES and variance by source of one estimated quantity against
+/// truth, summed over a draw's samples.
+struct CoverageTally {
   std::array<int, 3> inside{};
-  int samples = 0, refused = 0;
-  double nees_sum = 0;  ///< store position NEES over the samples
-  /// Summed variance of the store position: centroid, camera calibration (intrinsic +
-  /// extrinsic), body-mark survey, other (sync, process).
+  int samples = 0;
+  double nees_sum = 0;
+  /// Summed variance (trace): centroid, camera calibration (intrinsic + extrinsic, the
+  /// registration included), body-mark survey, other (sync, process).
   std::array<double, 4> budget{};
+
+  void add(const Vec3& error, const geometry::Mat3& C,
+           const std::array<geometry::Mat3, uncertainty::kNumSources>& C_by_source) {
+    for (int a = 0; a < 3; ++a)
+      inside[static_cast<std::size_t>(a)] += std::abs(error(a)) <= 2 * std::sqrt(C(a, a)) ? 1 : 0;
+    nees_sum += error.dot(C.ldlt().solve(error));
+    const auto var = [&](uncertainty::Source src) {
+      return C_by_source[static_cast<std::size_t>(uncertainty::index(src))].trace();
+    };
+    budget[0] += var(uncertainty::Source::kCentroid);
+    budget[1] += var(uncertainty::Source::kIntrinsic) + var(uncertainty::Source::kExtrinsic);
+    budget[2] += var(uncertainty::Source::kSurvey);
+    budget[3] += var(uncertainty::Source::kSync) + var(uncertainty::Source::kProcess);
+    ++samples;
+  }
+  void add(const CoverageTally& o) {
+    samples += o.samples;
+    nees_sum += o.nees_sum;
+    for (std::size_t a = 0; a < 3; ++a)
+      inside[a] += o.inside[a];
+    for (std::size_t a = 0; a < 4; ++a)
+      budget[a] += o.budget[a];
+  }
 };
 
+/// One draw: the store's position in the pylon frame (T_p_s, what the FTI sample carries; the
+/// body-mark surveys enter it) and the marks' triangulated positions in the aircraft frame
+/// (host world: the calibration and its registration, no body survey).
+struct DrawScore {
+  CoverageTally store, marks;
+  int refused = 0;
+};
+
+/// The store position's (x, y, z of the FTI sample) covariance by source.
+std::array<geometry::Mat3, uncertainty::kNumSources> position_by_source(
+    const pipeline::ExposureResult& r) {
+  std::array<geometry::Mat3, uncertainty::kNumSources> out{};
+  for (std::size_t i = 0; i < out.size(); ++i)
+    out[i] = r.cov_xyz_ypr_by_source[i].topLeftCorner<3, 3>();
+  return out;
+}
+
 /// The host flies the test point with `flown`: every exposure processed in order (tracking),
-/// the store position scored against truth at every exposure with a pose.
+/// the store position and every mark not excluded scored against truth at every exposure.
 DrawScore fly(const sim::Simulator& sim, const camera::RigCalibration& flown) {
   pipeline::ExposureProcessor proc(flown, sim.pylon_survey(), sim.store_survey(),
                                    pipeline::ProcessorConfig{});
@@ -234,41 +271,30 @@ DrawScore fly(const sim::Simulator& sim, const camera::RigCalibration& flown) {
   for (int k = 0; k < sim.num_exposures(); ++k) {
     const test::SimExposure in = test::make_exposure(sim, k);
     const pipeline::ExposureResult r = proc.process(in.exposure, in.ids);
+    for (const pipeline::MarkResult& m : r.marks) {
+      if (m.excluded) continue;
+      const Vec3 e = test::true_mark_in_host_world(sim, m.id, r.reference_mid_tai_ns) - m.p_w;
+      s.marks.add(e, m.cov_w, m.cov_by_source);
+    }
     if (!r.T_p_s.valid) {
       ++s.refused;
       continue;
     }
     const Vec3 e = sim.T_p_s_at(r.reference_mid_tai_ns).translation() - r.T_p_s.T.translation();
-    const geometry::Mat3 C = r.cov_xyz_ypr.topLeftCorner<3, 3>();
-    for (int a = 0; a < 3; ++a)
-      s.inside[static_cast<std::size_t>(a)] += std::abs(e(a)) <= 2 * std::sqrt(C(a, a)) ? 1 : 0;
-    s.nees_sum += e.dot(C.ldlt().solve(e));
-    const msg::FtiSample& f = r.sample;
-    const auto sq = [](double v) { return v * v; };
-    // The sample's extrinsic field includes the body-mark survey: split it by source.
-    const auto var = [&](uncertainty::Source src) {
-      return r.T_p_s.cov_by_source[static_cast<std::size_t>(uncertainty::index(src))]
-          .bottomRightCorner<3, 3>()
-          .trace();
-    };
-    s.budget[0] += sq(f.u_budget_centroid_m);
-    s.budget[1] += var(uncertainty::Source::kIntrinsic) + var(uncertainty::Source::kExtrinsic);
-    s.budget[2] += var(uncertainty::Source::kSurvey);
-    s.budget[3] += sq(f.u_budget_sync_m) + sq(f.u_budget_process_m);
-    ++s.samples;
+    s.store.add(e, r.cov_xyz_ypr.topLeftCorner<3, 3>(), position_by_source(r));
   }
   return s;
 }
 
 /// 95 % percentile interval of the pooled coverage of one axis, resampling whole draws.
-std::pair<double, double> bootstrap_over_draws(const std::vector<DrawScore>& d, int axis) {
+std::pair<double, double> bootstrap_over_draws(const std::vector<CoverageTally>& d, int axis) {
   std::mt19937_64 rng(7);
   std::uniform_int_distribution<std::size_t> pick(0, d.size() - 1);
   std::vector<double> cov;
   for (int b = 0; b < 2000; ++b) {
     double in = 0, n = 0;
     for (std::size_t i = 0; i < d.size(); ++i) {
-      const DrawScore& s = d[pick(rng)];
+      const CoverageTally& s = d[pick(rng)];
       in += s.inside[static_cast<std::size_t>(axis)];
       n += s.samples;
     }
@@ -276,6 +302,57 @@ std::pair<double, double> bootstrap_over_draws(const std::vector<DrawScore>& d, 
   }
   std::sort(cov.begin(), cov.end());
   return {cov[50], cov[1949]};
+}
+
+/// Prints and asserts one quantity's pooled coverage and NEES over the draws (each draw's
+/// tally). Every sample of a draw shares that draw's calibration and survey errors (fresh per
+/// seed), so the draws, not the samples, are the independent units:
+/// - coverage: a draw's covered fraction f lies in [0, 1] with mean 95.45 %, so Var(f) <=
+///   p (1 - p): the range of Binomial(draws, 95.45 %) / draws (2.5 % per side) is the
+///   conservative range of the pooled coverage;
+/// - NEES: a draw's mean NEES over its samples has mean 3 and variance <= chi2(3)'s (the mean
+///   of correlated chi2(3) terms), so the sum over the draws lies within chi2(3 draws)'s
+///   two-sided 95 % range (conservative).
+void check_pooled(const char* what, const std::vector<CoverageTally>& per_draw) {
+  CoverageTally all;
+  for (const CoverageTally& t : per_draw)
+    all.add(t);
+  const int n_draws = static_cast<int>(per_draw.size());
+  ASSERT_GT(all.samples, 0) << what;
+  const double total_var = all.budget[0] + all.budget[1] + all.budget[2] + all.budget[3];
+  std::printf(
+      "%s: %d samples; variance by source: camera calibration %.1f %%, body-mark survey "
+      "%.1f %%, centroid %.1f %%, other %.1f %%\n",
+      what, all.samples, 100 * all.budget[1] / total_var, 100 * all.budget[2] / total_var,
+      100 * all.budget[0] / total_var, 100 * all.budget[3] / total_var);
+  const double nees_lo = uncertainty::chi_square_quantile(
+      uncertainty::Probability{0.025}, uncertainty::DegreesOfFreedom{3 * n_draws});
+  const double nees_hi = uncertainty::chi_square_quantile(
+      uncertainty::Probability{0.975}, uncertainty::DegreesOfFreedom{3 * n_draws});
+  const double nees_mean = all.nees_sum / all.samples;
+  std::printf("%s: NEES mean %.2f, honest range with n = %d draws [%.2f, %.2f]\n", what, nees_mean,
+              n_draws, nees_lo / n_draws, nees_hi / n_draws);
+  EXPECT_GE(nees_mean * n_draws, nees_lo) << what;
+  EXPECT_LE(nees_mean * n_draws, nees_hi) << what;
+  const uncertainty::CountInterval honest =
+      uncertainty::binomial_interval(n_draws, kCoverageK2, 0.025);
+  const double honest_lo = static_cast<double>(honest.low) / n_draws;
+  const double honest_hi = static_cast<double>(honest.high) / n_draws;
+  for (int a = 0; a < 3; ++a) {
+    const double cov = static_cast<double>(all.inside[static_cast<std::size_t>(a)]) / all.samples;
+    const auto [lo, hi] = bootstrap_over_draws(per_draw, a);
+    std::printf(
+        "%s axis %c: pooled coverage %.1f %% (issue's band 90-98 %%: %s), 95 %% CI over draws "
+        "[%.1f, %.1f] %%, honest range with n = %d draws [%.1f, %.1f] %%\n",
+        what, "xyz"[a], 100 * cov, cov >= 0.90 && cov <= 0.98 ? "inside" : "outside", 100 * lo,
+        100 * hi, n_draws, 100 * honest_lo, 100 * honest_hi);
+    // The issue's 90-98 % band needs more draws than CI's 20: an honest instrument covers all
+    // 20 (100 %) with probability 0.9545^20 = 39 %. The full form (200 draws) is in the docs.
+    EXPECT_GE(cov, honest_lo) << what << " axis "
+                              << "xyz"[a];
+    EXPECT_LE(cov, honest_hi) << what << " axis "
+                              << "xyz"[a];
+  }
 }
 
 TEST(CalibrationRoundTrip, PooledCoverageOfTheStorePosition) {
@@ -286,9 +363,9 @@ TEST(CalibrationRoundTrip, PooledCoverageOfTheStorePosition) {
                               .string();
   sim::BoardSetOptions options;
   const BoardSet boards = plan_and_render(sim::Simulator(scenario, 1), options);
-  std::vector<DrawScore> scores;
+  std::vector<CoverageTally> store, marks;
   double nees_sum = 0;
-  int nees_dof = 0;
+  int nees_dof = 0, samples = 0, refused = 0;
   for (int d = 0; d < n_draws; ++d) {
     const std::uint64_t seed = 9000 + static_cast<std::uint64_t>(d);
     const sim::Simulator sim(scenario, seed);
@@ -297,68 +374,26 @@ TEST(CalibrationRoundTrip, PooledCoverageOfTheStorePosition) {
     const auto [nees, rank] = calibration_nees(flown, sim.true_rig());
     nees_sum += nees;
     nees_dof += rank;
-    scores.push_back(fly(sim, flown));
-    const DrawScore& s = scores.back();
+    const DrawScore s = fly(sim, flown);
+    store.push_back(s.store);
+    marks.push_back(s.marks);
+    samples += s.store.samples + s.refused;
+    refused += s.refused;
     std::printf(
-        "draw %2d (seed %llu): rig RMS %.3f px, calibration NEES %.1f (rank %d), "
-        "store inside k=2 %d/%d/%d of %d, refused %d, mean NEES %.2f\n",
-        d, static_cast<unsigned long long>(seed), rms, nees, rank, s.inside[0], s.inside[1],
-        s.inside[2], s.samples, s.refused, s.nees_sum / std::max(s.samples, 1));
+        "draw %2d (seed %llu): rig RMS %.3f px, calibration NEES %.1f (rank %d); store inside "
+        "k=2 %d/%d/%d of %d (refused %d), NEES %.2f; marks inside %d/%d/%d of %d, NEES %.2f\n",
+        d, static_cast<unsigned long long>(seed), rms, nees, rank, s.store.inside[0],
+        s.store.inside[1], s.store.inside[2], s.store.samples, s.refused,
+        s.store.nees_sum / std::max(s.store.samples, 1), s.marks.inside[0], s.marks.inside[1],
+        s.marks.inside[2], s.marks.samples, s.marks.nees_sum / std::max(s.marks.samples, 1));
   }
   std::filesystem::remove_all(dir);
-
-  int samples = 0, refused = 0;
-  std::array<double, 3> inside{};
-  std::array<double, 4> budget{};
-  double nees = 0;
-  for (const DrawScore& s : scores) {
-    samples += s.samples;
-    refused += s.refused;
-    nees += s.nees_sum;
-    for (std::size_t a = 0; a < 3; ++a)
-      inside[a] += s.inside[a];
-    for (std::size_t a = 0; a < 4; ++a)
-      budget[a] += s.budget[a];
-  }
-  const uncertainty::CountInterval honest =
-      uncertainty::binomial_interval(n_draws, kCoverageK2, 0.025);
-  const double total_var = budget[0] + budget[1] + budget[2] + budget[3];
   std::printf(
-      "%d draws, %d samples (%d exposures without a store pose, counted), calibration "
-      "NEES %.2f per draw over rank %.1f; store-position variance by source: camera "
-      "calibration %.1f %%, body-mark survey %.1f %%, centroid %.1f %%, other %.1f %%\n",
-      n_draws, samples, refused, nees_sum / n_draws, static_cast<double>(nees_dof) / n_draws,
-      100 * budget[1] / total_var, 100 * budget[2] / total_var, 100 * budget[0] / total_var,
-      100 * budget[3] / total_var);
-  // Pooled NEES: each draw's store error is nearly one calibration error seen through the
-  // pose, so a draw's mean NEES over its samples has mean 3 and variance <= chi2(3)'s; the sum
-  // over independent draws is bounded by chi2(3 n) (two-sided 95 %, conservative).
-  const double nees_lo = uncertainty::chi_square_quantile(
-      uncertainty::Probability{0.025}, uncertainty::DegreesOfFreedom{3 * n_draws});
-  const double nees_hi = uncertainty::chi_square_quantile(
-      uncertainty::Probability{0.975}, uncertainty::DegreesOfFreedom{3 * n_draws});
-  std::printf("store position NEES mean %.2f, honest range with n = %d draws [%.2f, %.2f]\n",
-              nees / samples, n_draws, nees_lo / n_draws, nees_hi / n_draws);
-  EXPECT_GE(nees / samples * n_draws, nees_lo);
-  EXPECT_LE(nees / samples * n_draws, nees_hi);
-  for (int a = 0; a < 3; ++a) {
-    const double cov = inside[static_cast<std::size_t>(a)] / samples;
-    const auto [lo, hi] = bootstrap_over_draws(scores, a);
-    const bool in_issue_band = cov >= 0.90 && cov <= 0.98;
-    std::printf(
-        "axis %c: pooled coverage %.1f %% (issue's band 90-98 %%: %s), 95 %% CI over draws "
-        "[%.1f, %.1f] %%, honest range with n = %d draws [%.1f, %.1f] %%\n",
-        "xyz"[a], 100 * cov, in_issue_band ? "inside" : "outside", 100 * lo, 100 * hi, n_draws,
-        100.0 * static_cast<double>(honest.low) / n_draws,
-        100.0 * static_cast<double>(honest.high) / n_draws);
-    // Asserted: the range an honest instrument's pooled coverage falls in (each draw one
-    // Bernoulli(95.45 %) unit, 2.5 % per side). The issue's 90-98 % band needs more draws: with
-    // 20, an honest instrument covers all of them (100 %) with probability 0.9545^20 = 39 %.
-    EXPECT_GE(cov, static_cast<double>(honest.low) / n_draws) << "axis "
-                                                              << "xyz"[a];
-    EXPECT_LE(cov, static_cast<double>(honest.high) / n_draws) << "axis "
-                                                               << "xyz"[a];
-  }
+      "%d draws, %d exposures (%d without a store pose, counted), calibration NEES %.2f per "
+      "draw over rank %.1f\n",
+      n_draws, samples, refused, nees_sum / n_draws, static_cast<double>(nees_dof) / n_draws);
+  check_pooled("store position (pylon frame)", store);
+  check_pooled("marks (aircraft frame)", marks);
   EXPECT_LE(refused, samples / 100);
 }
 

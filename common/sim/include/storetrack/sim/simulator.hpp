@@ -74,6 +74,15 @@ struct ExposureTruth {
 };
 
 /// Timing of one exposure of one camera (see the header comment).
+/// One usable hangar sighting of a registration mark (storetrack-calib register's
+/// registration_marks.csv row): neither cut by the image border nor merged with another blob.
+struct RegistrationSighting {
+  int camera_id = -1;
+  int mark_id = -1;  ///< the mark's survey id
+  geometry::Vec2 px = geometry::Vec2::Zero();
+  double sigma_px = 0;
+};
+
 struct ExposureTiming {
   std::uint32_t trigger_seq = 0;
   time::TaiNs trigger_tai_ns = 0;
@@ -121,6 +130,9 @@ class Simulator {
   /// shares it. Same fields and flags as observe().
   void observe_registration(int camera_index, msg::MarkObservations& out,
                             std::vector<int>* true_mark_ids = nullptr) const;
+  /// observe_registration() of every camera without the blobs a registration cannot use
+  /// (border-cut or merged: their centroid is not the mark's).
+  std::vector<RegistrationSighting> registration_sightings() const;
   const survey::RigidBodySurvey& true_store() const { return sc_.store; }
 
   time::TaiNs trigger_tai_ns(int k) const;
