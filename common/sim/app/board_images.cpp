@@ -3,67 +3,40 @@
 #include "board_images.hpp"
 
 #include <chrono>
-#include <csetjmp>
 #include <cstdio>
 #include <filesystem>
 #include <random>
 #include <stdexcept>
 #include <vector>
 
-#ifdef STORETRACK_HAVE_PNG
-#include <png.h>
-#endif
-
+#include "storetrack/png/png_writer.hpp"
 #include "storetrack/sim/frame_source.hpp"
 
 namespace storetrack::sim_app {
 namespace {
 
-#ifdef STORETRACK_HAVE_PNG
-constexpr const char* kExtension = "png";
-
-// libpng reports errors by longjmp back into this frame: it holds no C++ object with a
-// destructor between setjmp and the libpng calls.
-bool write_png_gray(std::FILE* fp, const std::uint8_t* gray, int width, int height) {
-  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
-  png_infop info = png ? png_create_info_struct(png) : nullptr;
-  if (png == nullptr || info == nullptr || setjmp(png_jmpbuf(png))) {
-    png_destroy_write_struct(&png, &info);
-    return false;
-  }
-  png_init_io(png, fp);
-  png_set_compression_level(png, 1);  // fast: the images are noisy, better levels gain little
-  png_set_IHDR(png, info, static_cast<png_uint_32>(width), static_cast<png_uint_32>(height), 8,
-               PNG_COLOR_TYPE_GRAY, PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT,
-               PNG_FILTER_TYPE_DEFAULT);
-  png_write_info(png, info);
-  for (int y = 0; y < height; ++y)
-    png_write_row(png, gray + static_cast<std::size_t>(y) * static_cast<std::size_t>(width));
-  png_write_end(png, nullptr);
-  png_destroy_write_struct(&png, &info);
-  return true;
+// PNG where the build has libpng (tools/install-deps.sh installs it), else PGM.
+const char* extension() {
+  return png::available() ? "png" : "pgm";
 }
 
-void write_png(const std::string& path, const std::vector<std::uint8_t>& gray, int width,
-               int height) {
+void write_image(const std::string& path, const std::vector<std::uint8_t>& gray, int width,
+                 int height) {
+  if (!png::available()) {
+    if (sim::write_pgm(path, gray.data(), width, height, width) != 0)
+      throw std::runtime_error(path + ": cannot write");
+    return;
+  }
   std::FILE* fp = std::fopen(path.c_str(), "wb");
   if (fp == nullptr) throw std::runtime_error(path + ": cannot open for writing");
-  const bool ok = write_png_gray(fp, gray.data(), width, height);
+  // Fast compression: the images are noisy, better levels gain little.
+  const bool ok = png::write_png(fp, gray.data(), width, height, png::Channels::kGray, 1);
   if (std::fclose(fp) != 0 || !ok) throw std::runtime_error(path + ": PNG write failed");
 }
-#else
-constexpr const char* kExtension = "pgm";
-
-void write_png(const std::string& path, const std::vector<std::uint8_t>& gray, int width,
-               int height) {
-  if (sim::write_pgm(path, gray.data(), width, height, width) != 0)
-    throw std::runtime_error(path + ": cannot write");
-}
-#endif
 
 std::string frame_name(int frame) {
   char buf[32];
-  std::snprintf(buf, sizeof buf, "frame_%04d.%s", frame, kExtension);
+  std::snprintf(buf, sizeof buf, "frame_%04d.%s", frame, extension());
   return buf;
 }
 
@@ -93,7 +66,7 @@ void write_board_images(const sim::Simulator& simulator, const sim::BoardSetOpti
       sim::expose(expected.electrons.data(), expected.width, photometry.sensor, rng, gray.data(),
                   expected.width, expected.height, expected.width);
       render_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      write_png(cam_dir + "/" + frame_name(f.frame), gray, expected.width, expected.height);
+      write_image(cam_dir + "/" + frame_name(f.frame), gray, expected.width, expected.height);
       for (int id : f.cameras_seeing)
         whole += id == cam.camera_id ? 1 : 0;
     }
@@ -101,7 +74,7 @@ void write_board_images(const sim::Simulator& simulator, const sim::BoardSetOpti
                 frames.size(), whole);
   }
   sim::write_board_truth_json(rig, options, frames, seed,
-                              std::string("boards/cam<camera_id>/frame_NNNN.") + kExtension,
+                              std::string("boards/cam<camera_id>/frame_NNNN.") + extension(),
                               dir + "/truth.json");
   std::printf("board set: %zu frames x %zu cameras, %.0f ms per image rendered + exposed\n",
               frames.size(), rig.cameras.size(),

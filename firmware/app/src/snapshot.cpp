@@ -7,9 +7,7 @@
 #include <cstdint>
 #include <cstring>
 
-#ifdef STORETRACK_HAVE_PNG
-#include <png.h>
-#endif
+#include "storetrack/png/png_writer.hpp"
 
 namespace storetrack::unit {
 namespace {
@@ -83,29 +81,49 @@ std::array<std::uint8_t, 3> colour(std::uint8_t flags) {
   return {0, 255, 0};
 }
 
-#ifdef STORETRACK_HAVE_PNG
-// libpng reports errors by longjmp back into this frame: it holds no C++ object and reads
-// nothing after the jump that it set after setjmp (GCC's -Wclobbered, at -O1, saw the caller's
-// strings and FILE* live across the setjmp when this was inline there).
-bool write_png_rgb(std::FILE* fp, const std::uint8_t* rgb, int width, int height) {
-  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
-  png_infop info = png ? png_create_info_struct(png) : nullptr;
-  if (png == nullptr || info == nullptr || setjmp(png_jmpbuf(png))) {
-    png_destroy_write_struct(&png, &info);
-    return false;
-  }
-  png_init_io(png, fp);
-  png_set_IHDR(png, info, static_cast<png_uint_32>(width), static_cast<png_uint_32>(height), 8,
-               PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT,
-               PNG_FILTER_TYPE_DEFAULT);
-  png_write_info(png, info);
-  for (int y = 0; y < height; ++y)
-    png_write_row(png, rgb + static_cast<std::size_t>(y) * static_cast<std::size_t>(width) * 3);
-  png_write_end(png, nullptr);
-  png_destroy_write_struct(&png, &info);
-  return true;
+/// `path` opened for writing, else nullptr with *error naming it and errno's reason.
+std::FILE* open_for_writing(const std::string& path, std::string* error) {
+  std::FILE* fp = std::fopen(path.c_str(), "wb");
+  if (fp == nullptr && error) *error = path + ": " + std::strerror(errno);
+  return fp;
 }
-#endif
+
+/// Closes `fp`: `path` when the data reached the file, else "" with *error set.
+std::string close_written(std::FILE* fp, const std::string& path, std::string* error) {
+  if (std::fclose(fp) == 0) return path;
+  if (error) *error = path + ": write failed";
+  return {};
+}
+
+std::string write_canvas_png(const std::string& stem, const Canvas& canvas, std::string* error) {
+  const std::string path = stem + ".png";
+  std::FILE* fp = open_for_writing(path, error);
+  if (fp == nullptr) return {};
+  if (!png::write_png(fp, canvas.rgb.data(), canvas.width, canvas.height, png::Channels::kRgb)) {
+    std::fclose(fp);
+    if (error) *error = path + ": libpng write failed";
+    return {};
+  }
+  return close_written(fp, path, error);
+}
+
+// No libpng on this build: a grey PGM with the overlay burnt in (marks white on dark).
+std::string write_canvas_pgm(const std::string& stem, const Canvas& canvas, std::string* error) {
+  const std::string path = stem + ".pgm";
+  std::FILE* fp = open_for_writing(path, error);
+  if (fp == nullptr) return {};
+  std::fprintf(fp, "P5\n%d %d\n255\n", canvas.width, canvas.height);
+  std::vector<std::uint8_t> row(static_cast<std::size_t>(canvas.width));
+  for (int y = 0; y < canvas.height; ++y) {
+    for (int x = 0; x < canvas.width; ++x) {
+      const std::uint8_t* p = &canvas.rgb[(static_cast<std::size_t>(y) * canvas.width + x) * 3];
+      const bool overlay = !(p[0] == p[1] && p[1] == p[2]);
+      row[static_cast<std::size_t>(x)] = overlay ? 255 : p[0];
+    }
+    std::fwrite(row.data(), 1, row.size(), fp);
+  }
+  return close_written(fp, path, error);
+}
 
 }  // namespace
 
@@ -177,47 +195,8 @@ std::string write_overlay(const std::string& stem, const frame::FrameView& f,
                   flag_letters(b.flags).c_str());
     canvas.text(static_cast<int>(b.x_px) + 8, static_cast<int>(b.y_px) - 12, label, c);
   }
-#ifdef STORETRACK_HAVE_PNG
-  const std::string path = stem + ".png";
-  std::FILE* fp = std::fopen(path.c_str(), "wb");
-  if (fp == nullptr) {
-    if (error) *error = path + ": " + std::strerror(errno);
-    return {};
-  }
-  if (!write_png_rgb(fp, canvas.rgb.data(), f.width, f.height)) {
-    std::fclose(fp);
-    if (error) *error = path + ": libpng write failed";
-    return {};
-  }
-  if (std::fclose(fp) != 0) {
-    if (error) *error = path + ": write failed";
-    return {};
-  }
-  return path;
-#else
-  // No libpng on this build: a grey PGM with the overlay burnt in (marks white on dark).
-  const std::string path = stem + ".pgm";
-  std::FILE* fp = std::fopen(path.c_str(), "wb");
-  if (fp == nullptr) {
-    if (error) *error = path + ": " + std::strerror(errno);
-    return {};
-  }
-  std::fprintf(fp, "P5\n%d %d\n255\n", f.width, f.height);
-  std::vector<std::uint8_t> row(static_cast<std::size_t>(f.width));
-  for (int y = 0; y < f.height; ++y) {
-    for (int x = 0; x < f.width; ++x) {
-      const std::uint8_t* p = &canvas.rgb[(static_cast<std::size_t>(y) * f.width + x) * 3];
-      const bool overlay = !(p[0] == p[1] && p[1] == p[2]);
-      row[static_cast<std::size_t>(x)] = overlay ? 255 : p[0];
-    }
-    std::fwrite(row.data(), 1, row.size(), fp);
-  }
-  if (std::fclose(fp) != 0) {
-    if (error) *error = path + ": write failed";
-    return {};
-  }
-  return path;
-#endif
+  return png::available() ? write_canvas_png(stem, canvas, error)
+                          : write_canvas_pgm(stem, canvas, error);
 }
 
 }  // namespace storetrack::unit

@@ -2,13 +2,13 @@
 
 #include <cmath>
 #include <cstdio>
-#include <fstream>
 #include <map>
 #include <sstream>
 #include <tuple>
 
 #include <nlohmann/json.hpp>
 
+#include "command_output.hpp"
 #include "detect_report.hpp"
 #include "storetrack/camera/calibration_file.hpp"
 
@@ -65,16 +65,10 @@ constexpr const char* kResidualHeader =
     "camera,frame,point_id,residual_x_px,residual_y_px,rejected\n";
 
 void write_residuals(const calib::IntrinsicResult& r, int camera, const std::string& path) {
-  std::ofstream f(path, std::ios::trunc);
-  f << kResidualHeader;
-  write_residual_rows(r.residuals, camera, f);
-  if (!f.flush()) throw std::runtime_error(path + ": write failed");
-}
-
-void write_file(const std::string& path, const std::string& text) {
-  std::ofstream f(path, std::ios::trunc);
-  f << text;
-  if (!f.flush()) throw std::runtime_error(path + ": write failed");
+  std::ostringstream rows;
+  rows << kResidualHeader;
+  write_residual_rows(r.residuals, camera, rows);
+  write_text(path, rows.str());
 }
 
 nlohmann::json flags_json(const calib::IntrinsicOptions& options) {
@@ -106,15 +100,10 @@ int run_detect(const DetectArgs& args, std::ostream& out, std::ostream& err) {
     err << "error: no image gave a board; nothing written\n";
     return 2;
   }
-  try {
+  return write_outputs(args.output, out, err, [&] {
     write_detect_report(args, result, {});
     calib::write_observations_csv(result.set, args.output);
-  } catch (const std::exception& e) {
-    err << "error: " << e.what() << "\n";
-    return 1;
-  }
-  out << "wrote " << args.output << "\n";
-  return 0;
+  });
 }
 
 std::string intrinsic_calibration_json(const calib::IntrinsicResult& r, int camera_id, int unit_id,
@@ -180,17 +169,11 @@ int run_intrinsic(const IntrinsicArgs& args, std::ostream& out, std::ostream& er
   for (const auto& v : result.views)
     out << ' ' << v.frame << ':' << fixed(v.rms_px, 3);
   out << "\n";
-  try {
-    std::ofstream f(args.output, std::ios::trunc);
-    f << intrinsic_calibration_json(result, args.camera, args.unit_id, args.options);
-    if (!f.flush()) throw std::runtime_error(args.output + ": write failed");
+  return write_outputs(args.output, out, err, [&] {
+    write_text(args.output,
+               intrinsic_calibration_json(result, args.camera, args.unit_id, args.options));
     if (!args.residuals_csv.empty()) write_residuals(result, args.camera, args.residuals_csv);
-  } catch (const std::exception& e) {
-    err << "error: " << e.what() << "\n";
-    return 1;
-  }
-  out << "wrote " << args.output << "\n";
-  return 0;
+  });
 }
 
 namespace {
@@ -354,21 +337,16 @@ int run_rig(const RigArgs& args, std::ostream& out, std::ostream& err) {
   out << "RMS reprojection error " << fixed(result.rms_px, 4) << " px (residual sigma "
       << fixed(result.residual_sigma_px, 4) << " px per axis, " << result.free_parameters
       << " parameters, " << result.iterations << " LM iterations)\n";
-  try {
-    write_file(args.output, rig_calibration_json(result, args.unit_id, args.options));
+  return write_outputs(args.output, out, err, [&] {
+    write_text(args.output, rig_calibration_json(result, args.unit_id, args.options));
     if (!args.residuals_csv.empty()) {
       std::ostringstream rows;
       rows << kResidualHeader;
       for (const auto& c : result.cameras)
         write_residual_rows(c.residuals, c.camera_id, rows);
-      write_file(args.residuals_csv, rows.str());
+      write_text(args.residuals_csv, rows.str());
     }
-  } catch (const std::exception& e) {
-    err << "error: " << e.what() << "\n";
-    return 1;
-  }
-  out << "wrote " << args.output << "\n";
-  return 0;
+  });
 }
 
 }  // namespace storetrack::calibapp

@@ -2,11 +2,11 @@
 
 #include <cmath>
 #include <cstdio>
-#include <fstream>
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include "command_output.hpp"
 #include "storetrack/calib/intrinsic_calibration.hpp"  // CalibrationError
 #include "storetrack/calib/observations.hpp"
 #include "storetrack/camera/calibration_file.hpp"
@@ -36,12 +36,6 @@ json volume_json(const calib::WorkingVolume& v, const std::array<int, 3>& n) {
   return {{"min_w_m", vec(v.min_w)}, {"max_w_m", vec(v.max_w)}, {"points", {n[0], n[1], n[2]}}};
 }
 
-void write_text(const std::string& path, const std::string& text) {
-  std::ofstream f(path, std::ios::trunc);
-  f << text;
-  if (!f.flush()) throw std::runtime_error(path + ": write failed");
-}
-
 void add_volume_options(cli::Command& sub, VolumeArgs& v, int default_points) {
   v.points_per_axis = default_points;
   sub.option("--distances", v.distances_m,
@@ -63,6 +57,15 @@ std::optional<calib::WorkingVolume> volume_of(const VolumeArgs& v) {
   if (!(out.min_w.array() <= out.max_w.array()).all())
     throw calib::CalibrationError("--volume: expected x0 <= x1, y0 <= y1, z0 <= z1");
   return out;
+}
+
+/// The volume options into the library's options (CompareOptions, UncertaintyMapOptions).
+template <class Options>
+void set_volume(const VolumeArgs& v, Options& o) {
+  o.distances_m = v.distances_m;
+  o.volume = volume_of(v);
+  o.volume_points = {v.points_per_axis, v.points_per_axis, v.points_per_axis};
+  o.sigma_px = v.sigma_px;
 }
 
 std::vector<calib::BarSighting> read_bar_sightings(const std::string& path) {
@@ -246,11 +249,7 @@ int run_compare(const CompareArgs& args, std::ostream& out, std::ostream& err) {
     calib::CompareOptions o;
     o.origin_a = args.a;
     o.origin_b = args.b;
-    o.distances_m = args.volume.distances_m;
-    o.volume = volume_of(args.volume);
-    const int n = args.volume.points_per_axis;
-    o.volume_points = {n, n, n};
-    o.sigma_px = args.volume.sigma_px;
+    set_volume(args.volume, o);
     o.point_false_alarm = args.point_false_alarm;
     o.false_alarm = args.false_alarm;
     if (args.scale_bars.empty() != args.observations.empty())
@@ -268,14 +267,8 @@ int run_compare(const CompareArgs& args, std::ostream& out, std::ostream& err) {
     return 2;
   }
   print_comparison(result, args, out);
-  try {
-    write_text(args.output, comparison_json(result, args));
-  } catch (const std::exception& e) {
-    err << "error: " << e.what() << "\n";
-    return 1;
-  }
-  out << "wrote " << args.output << "\n";
-  return 0;
+  return write_outputs(args.output, out, err,
+                       [&] { write_text(args.output, comparison_json(result, args)); });
 }
 
 int run_uncertainty_map(const UncertaintyMapArgs& args, std::ostream& out, std::ostream& err) {
@@ -284,11 +277,7 @@ int run_uncertainty_map(const UncertaintyMapArgs& args, std::ostream& out, std::
     const camera::RigCalibration rig = camera::read_rig_calibration(args.rig);
     calib::UncertaintyMapOptions o;
     o.origin = args.rig;
-    o.distances_m = args.volume.distances_m;
-    o.volume = volume_of(args.volume);
-    const int n = args.volume.points_per_axis;
-    o.volume_points = {n, n, n};
-    o.sigma_px = args.volume.sigma_px;
+    set_volume(args.volume, o);
     map = calib::uncertainty_map(rig, o);
   } catch (const std::exception& e) {
     err << "error: " << e.what() << "\n";
@@ -319,14 +308,8 @@ int run_uncertainty_map(const UncertaintyMapArgs& args, std::ostream& out, std::
              s.p50 * 1e3, s.p95 * 1e3, s.max * 1e3)
       << fmt::format("  of it calibration: median {:.4f} mm, centroid: median {:.4f} mm\n",
                      sc.p50 * 1e3, sn.p50 * 1e3);
-  try {
-    write_text(args.output, uncertainty_map_json(map, args));
-  } catch (const std::exception& e) {
-    err << "error: " << e.what() << "\n";
-    return 1;
-  }
-  out << "wrote " << args.output << "\n";
-  return 0;
+  return write_outputs(args.output, out, err,
+                       [&] { write_text(args.output, uncertainty_map_json(map, args)); });
 }
 
 }  // namespace storetrack::calibapp

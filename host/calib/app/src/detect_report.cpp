@@ -1,7 +1,8 @@
 #include "detect_report.hpp"
 
-#include <fstream>
 #include <map>
+
+#include "command_output.hpp"
 
 namespace storetrack::calibapp {
 
@@ -67,9 +68,7 @@ nlohmann::json detect_report_json(const DetectArgs& args, const calib::Detection
 void write_detect_report(const DetectArgs& args, const calib::DetectionResult& result,
                          const std::vector<calib::RejectedCorner>& rejected_corners) {
   if (args.report_json.empty()) return;
-  std::ofstream f(args.report_json, std::ios::trunc);
-  f << detect_report_json(args, result, rejected_corners).dump(1) << "\n";
-  if (!f.flush()) throw std::runtime_error(args.report_json + ": write failed");
+  write_text(args.report_json, detect_report_json(args, result, rejected_corners).dump(1) + "\n");
 }
 
 int run_detect_charuco(const DetectArgs& args, std::ostream& out, std::ostream& err) {
@@ -93,19 +92,15 @@ int run_detect_charuco(const DetectArgs& args, std::ostream& out, std::ostream& 
       << result.rejected_corners.size() << " corners rejected (ChArUco " << spec.squares_x << "x"
       << spec.squares_y << " squares of " << spec.square_m << " m, markers " << spec.marker_m
       << " m, " << spec.dictionary << ")\n";
-  try {
-    write_detect_report(args, d, result.rejected_corners);
-    if (d.images_used == 0) {
-      err << "error: no image gave a ChArUco board; nothing written\n";
-      return 2;
-    }
-    calib::write_observations_csv(d.set, args.output);
-  } catch (const std::exception& e) {
-    err << "error: " << e.what() << "\n";
+  // The report first: with no image used it still says why each gave nothing.
+  if (!wrote_or_reported(err, [&] { write_detect_report(args, d, result.rejected_corners); }))
     return 1;
+  if (d.images_used == 0) {
+    err << "error: no image gave a ChArUco board; nothing written\n";
+    return 2;
   }
-  out << "wrote " << args.output << "\n";
-  return 0;
+  return write_outputs(args.output, out, err,
+                       [&] { calib::write_observations_csv(d.set, args.output); });
 }
 
 }  // namespace storetrack::calibapp

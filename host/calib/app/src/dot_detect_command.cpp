@@ -3,6 +3,7 @@
 #include <cstdio>
 
 #include "calib_cli.hpp"
+#include "command_output.hpp"
 
 namespace storetrack::calibapp {
 
@@ -56,14 +57,8 @@ int run_dot_detect(const DetectArgs& args, std::ostream& out, std::ostream& err)
     err << "error: no image gave a dot grid; nothing written\n";
     return 2;
   }
-  try {
-    calib::write_observations_csv(result.set, args.output);
-  } catch (const std::exception& e) {
-    err << "error: " << e.what() << "\n";
-    return 1;
-  }
-  out << "wrote " << args.output << "\n";
-  return 0;
+  return write_outputs(args.output, out, err,
+                       [&] { calib::write_observations_csv(result.set, args.output); });
 }
 
 }  // namespace storetrack::calibapp

@@ -7,6 +7,7 @@
 #include <map>
 #include <sstream>
 
+#include "command_output.hpp"
 #include "register_command.hpp"
 #include "storetrack/calib/intrinsic_calibration.hpp"  // CalibrationError
 #include "storetrack/camera/calibration_file.hpp"
@@ -60,10 +61,10 @@ void print_body(const Body& b, std::ostream& out) {
   out << r.body << " (" << b.path << "): " << r.marks.size() << " marks, " << r.skipped.size()
       << " not usable\n";
   print_pose(pose.c_str(), r.T_w_b, r.cov_T_w_b, out);
-  out << "  standard uncertainty per axis (rms rotation, translation): total "
-      << rms_sigmas(r.cov_T_w_b) << "; centroid " << rms_sigmas(r.cov_T_w_b_centroid)
-      << ", calibration " << rms_sigmas(r.cov_T_w_b_calibration) << ", survey "
-      << rms_sigmas(r.cov_T_w_b_survey) << "\n";
+  out << "  standard uncertainty per axis (rms rotation, translation): "
+      << sigmas_by_source(r.cov_T_w_b, r.cov_T_w_b_centroid, r.cov_T_w_b_calibration,
+                          r.cov_T_w_b_survey)
+      << "\n";
   out << "  mark  residual p_w - T_w_b q_b [mm]   survey sigma [mm]  chi2/dof      p\n";
   for (const auto& m : r.marks) {
     char line[200];
@@ -80,36 +81,21 @@ void print_body(const Body& b, std::ostream& out) {
 
 nlohmann::json body_json(const Body& b) {
   const calib::BodyRegistration& r = b.registration;
-  nlohmann::json marks = nlohmann::json::array();
-  for (const auto& m : r.marks)
-    marks.push_back({{"id", m.mark_id},
-                     {"cameras", m.cameras},
-                     {"p_w_m", {m.p_w.x(), m.p_w.y(), m.p_w.z()}},
-                     {"residual_w_m", {m.residual_w.x(), m.residual_w.y(), m.residual_w.z()}},
-                     {"chi2", m.chi2},
-                     {"dof", m.dof},
-                     {"p_value", m.p_value},
-                     {"used", m.used},
-                     {"outlier", m.outlier}});
-  nlohmann::json skipped = nlohmann::json::array();
-  for (const auto& s : r.skipped)
-    skipped.push_back({{"id", s.mark_id}, {"reason", s.reason}});
-  return {{"name", r.body},
-          {"frame", std::string(1, r.frame)},
-          {"survey", b.path},
-          {"T_w_b", transform_json(r.T_w_b)},
-          {"T_w_b_covariance",
-           {{"total", matrix_json(r.cov_T_w_b)},
-            {"centroid", matrix_json(r.cov_T_w_b_centroid)},
-            {"calibration", matrix_json(r.cov_T_w_b_calibration)},
-            {"survey", matrix_json(r.cov_T_w_b_survey)}}},
-          {"chi2", r.chi2},
-          {"dof", r.dof},
-          {"p_value", r.p_value},
-          {"scale_error", r.scale_error},
-          {"scale_error_sigma", r.scale_error_sigma},
-          {"marks", marks},
-          {"skipped", skipped}};
+  return {
+      {"name", r.body},
+      {"frame", std::string(1, r.frame)},
+      {"survey", b.path},
+      {"T_w_b", transform_json(r.T_w_b)},
+      {"T_w_b_covariance", covariance_by_source_json(r.cov_T_w_b, r.cov_T_w_b_centroid,
+                                                     r.cov_T_w_b_calibration, r.cov_T_w_b_survey)},
+      {"chi2", r.chi2},
+      {"dof", r.dof},
+      {"p_value", r.p_value},
+      {"scale_error", r.scale_error},
+      {"scale_error_sigma", r.scale_error_sigma},
+      {"marks", marks_json(r.marks, 'w', &calib::BodyMarkRegistration::p_w,
+                           &calib::BodyMarkRegistration::residual_w)},
+      {"skipped", skipped_json(r.skipped)}};
 }
 
 const Body* find_frame(const std::vector<Body>& bodies, char frame) {
@@ -163,14 +149,7 @@ int run_register_bodies(const RegisterArgs& args, std::ostream& out, std::ostrea
     doc["T_p_s"] = transform_json(ps.T_a_b);
     doc["T_p_s_covariance"] = matrix_json(ps.cov_T_a_b);
   }
-  try {
-    write_text(args.output, doc.dump(2) + "\n");
-  } catch (const std::exception& e) {
-    err << "error: " << e.what() << "\n";
-    return 1;
-  }
-  out << "wrote " << args.output << "\n";
-  return 0;
+  return write_outputs(args.output, out, err, [&] { write_text(args.output, doc.dump(2) + "\n"); });
 }
 
 }  // namespace storetrack::calibapp

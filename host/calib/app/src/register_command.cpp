@@ -8,6 +8,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "command_output.hpp"
 #include "storetrack/calib/intrinsic_calibration.hpp"  // CalibrationError
 #include "storetrack/calib/observations.hpp"
 #include "storetrack/camera/calibration_file.hpp"
@@ -41,10 +42,10 @@ void print_summary(const calib::RegistrationResult& r, const std::string& covari
       << " rejected as outliers, " << r.skipped.size()
       << " not usable; calibration covariance: " << covariance_source << "\n";
   print_pose("T_w_r (S_r -> S_w)", r.T_w_r, r.cov_T_w_r, out);
-  out << "standard uncertainty of T_r_w per axis (rms rotation, translation): total "
-      << rms_sigmas(r.cov_T_r_w) << "; centroid " << rms_sigmas(r.cov_T_r_w_centroid)
-      << ", calibration " << rms_sigmas(r.cov_T_r_w_calibration) << ", survey "
-      << rms_sigmas(r.cov_T_r_w_survey) << "\n";
+  out << "standard uncertainty of T_r_w per axis (rms rotation, translation): "
+      << sigmas_by_source(r.cov_T_r_w, r.cov_T_r_w_centroid, r.cov_T_r_w_calibration,
+                          r.cov_T_r_w_survey)
+      << "\n";
   out << "mark cameras   residual p_r - T_r_w q_w [mm]      |r| [mm] survey sigma [mm] "
          "chi2/dof    p\n";
   for (const auto& m : r.marks) {
@@ -79,12 +80,6 @@ void print_summary(const calib::RegistrationResult& r, const std::string& covari
 }
 
 }  // namespace
-
-void write_text(const std::string& path, const std::string& text) {
-  std::ofstream f(path, std::ios::trunc);
-  f << text;
-  if (!f.flush()) throw std::runtime_error(path + ": write failed");
-}
 
 nlohmann::json matrix_json(const Eigen::MatrixXd& m) {
   nlohmann::json rows = nlohmann::json::array();
@@ -142,6 +137,27 @@ std::string rms_sigmas(const Mat6& C) {
   return fixed(rot * 180 / M_PI * 1000, 2) + " mdeg, " + fixed(trans * 1000, 3) + " mm";
 }
 
+std::string sigmas_by_source(const Mat6& total, const Mat6& centroid, const Mat6& calibration,
+                             const Mat6& survey) {
+  return "total " + rms_sigmas(total) + "; centroid " + rms_sigmas(centroid) + ", calibration " +
+         rms_sigmas(calibration) + ", survey " + rms_sigmas(survey);
+}
+
+nlohmann::json covariance_by_source_json(const Mat6& total, const Mat6& centroid,
+                                         const Mat6& calibration, const Mat6& survey) {
+  return {{"total", matrix_json(total)},
+          {"centroid", matrix_json(centroid)},
+          {"calibration", matrix_json(calibration)},
+          {"survey", matrix_json(survey)}};
+}
+
+nlohmann::json skipped_json(const std::vector<calib::SkippedMark>& skipped) {
+  nlohmann::json rows = nlohmann::json::array();
+  for (const auto& s : skipped)
+    rows.push_back({{"id", s.mark_id}, {"reason", s.reason}});
+  return rows;
+}
+
 void add_register(cli::Command& app, RegisterArgs& a) {
   cli::Command& sub = app.subcommand(
       "register", "S_r -> S_w from total-station marks: every camera's T_c_w with covariance");
@@ -183,20 +199,6 @@ std::string registered_calibration_json(const calib::RegistrationResult& r,
   for (size_t i = 0; i < r.registered.cameras.size(); ++i)  // keep the rig step's fit summary
     if (input["cameras"][i].contains("comment"))
       doc["cameras"][i]["comment"] = input["cameras"][i]["comment"];
-  nlohmann::json marks = nlohmann::json::array();
-  for (const auto& m : r.marks)
-    marks.push_back({{"id", m.mark_id},
-                     {"cameras", m.cameras},
-                     {"p_r_m", {m.p_r.x(), m.p_r.y(), m.p_r.z()}},
-                     {"residual_r_m", {m.residual_r.x(), m.residual_r.y(), m.residual_r.z()}},
-                     {"chi2", m.chi2},
-                     {"dof", m.dof},
-                     {"p_value", m.p_value},
-                     {"used", m.used},
-                     {"outlier", m.outlier}});
-  nlohmann::json skipped = nlohmann::json::array();
-  for (const auto& s : r.skipped)
-    skipped.push_back({{"id", s.mark_id}, {"reason", s.reason}});
   doc["comment"] = {
       {"produced_by", "storetrack-calib register"},
       {"inputs", {{"rig", args.rig}, {"survey", args.survey}, {"observations", args.observations}}},
@@ -207,19 +209,17 @@ std::string registered_calibration_json(const calib::RegistrationResult& r,
       {"T_w_r", transform_json(r.T_w_r)},
       {"T_w_r_covariance", matrix_json(r.cov_T_w_r)},
       {"T_r_w", transform_json(r.T_r_w)},
-      {"T_r_w_covariance",
-       {{"total", matrix_json(r.cov_T_r_w)},
-        {"centroid", matrix_json(r.cov_T_r_w_centroid)},
-        {"calibration", matrix_json(r.cov_T_r_w_calibration)},
-        {"survey", matrix_json(r.cov_T_r_w_survey)}}},
+      {"T_r_w_covariance", covariance_by_source_json(r.cov_T_r_w, r.cov_T_r_w_centroid,
+                                                     r.cov_T_r_w_calibration, r.cov_T_r_w_survey)},
       {"chi2", r.chi2},
       {"dof", r.dof},
       {"p_value", r.p_value},
       {"scale_error", r.scale_error},
       {"scale_error_sigma", r.scale_error_sigma},
       {"outlier_false_alarm", args.outlier_false_alarm},
-      {"marks", marks},
-      {"skipped", skipped}};
+      {"marks", marks_json(r.marks, 'r', &calib::MarkRegistration::p_r,
+                           &calib::MarkRegistration::residual_r)},
+      {"skipped", skipped_json(r.skipped)}};
   return doc.dump(2) + "\n";
 }
 
@@ -251,7 +251,7 @@ int run_register(const RegisterArgs& args, std::ostream& out, std::ostream& err)
   for (const auto& s : result.skipped)
     err << "not used: " << s.reason << "\n";
   print_summary(result, covariance_source, args, out);
-  try {
+  return write_outputs(args.output, out, err, [&] {
     write_text(args.output, registered_calibration_json(result, rig_text, args));
     if (!args.residuals_csv.empty()) {
       std::ostringstream rows;
@@ -262,12 +262,7 @@ int run_register(const RegisterArgs& args, std::ostream& out, std::ostream& err)
              << (m.used ? 1 : 0) << ',' << (m.outlier ? 1 : 0) << '\n';
       write_text(args.residuals_csv, rows.str());
     }
-  } catch (const std::exception& e) {
-    err << "error: " << e.what() << "\n";
-    return 1;
-  }
-  out << "wrote " << args.output << "\n";
-  return 0;
+  });
 }
 
 }  // namespace storetrack::calibapp

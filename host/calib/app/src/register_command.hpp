@@ -45,7 +45,42 @@ void print_pose(const char* name, const geometry::Transform& T, const geometry::
 std::string rms_sigmas(const geometry::Mat6& C);
 nlohmann::json matrix_json(const Eigen::MatrixXd& m);
 nlohmann::json transform_json(const geometry::Transform& T);
-void write_text(const std::string& path, const std::string& text);
+
+/// "total A; centroid B, calibration C, survey D": rms_sigmas of a pose covariance by source.
+std::string sigmas_by_source(const geometry::Mat6& total, const geometry::Mat6& centroid,
+                             const geometry::Mat6& calibration, const geometry::Mat6& survey);
+/// {"total", "centroid", "calibration", "survey"}: a pose covariance by source.
+nlohmann::json covariance_by_source_json(const geometry::Mat6& total,
+                                         const geometry::Mat6& centroid,
+                                         const geometry::Mat6& calibration,
+                                         const geometry::Mat6& survey);
+
+/// The "marks" table of a registration (the rig's, MarkRegistration, or a body's,
+/// BodyMarkRegistration): each mark's triangulated position `p` and residual `residual` in the
+/// frame `frame` (keys "p_<frame>_m", "residual_<frame>_m"), its test, used, outlier.
+template <class Mark>
+nlohmann::json marks_json(const std::vector<Mark>& marks, char frame, geometry::Vec3 Mark::*p,
+                          geometry::Vec3 Mark::*residual) {
+  const std::string f(1, frame);
+  nlohmann::json rows = nlohmann::json::array();
+  for (const Mark& m : marks) {
+    const geometry::Vec3& at = m.*p;
+    const geometry::Vec3& r = m.*residual;
+    rows.push_back({{"id", m.mark_id},
+                    {"cameras", m.cameras},
+                    {"p_" + f + "_m", {at.x(), at.y(), at.z()}},
+                    {"residual_" + f + "_m", {r.x(), r.y(), r.z()}},
+                    {"chi2", m.chi2},
+                    {"dof", m.dof},
+                    {"p_value", m.p_value},
+                    {"used", m.used},
+                    {"outlier", m.outlier}});
+  }
+  return rows;
+}
+
+/// The "skipped" table of a registration: each unusable mark and why.
+nlohmann::json skipped_json(const std::vector<calib::SkippedMark>& skipped);
 
 /// The rig file's joint covariance (file version 2, written by `rig`), else its per-camera
 /// blocks (version 1: cross terms 0). `source` says which.
