@@ -75,7 +75,7 @@ bool fresh_boards() {
 int draws() {
   const char* env = std::getenv("STORETRACK_ROUND_TRIP_DRAWS");
 #ifdef STORETRACK_SANITIZE
-  constexpr int kDefaultDraws = 4;  // ASan/UBSan at -O1: the chain under the sanitizers
+  constexpr int kDefaultDraws = 2;  // ASan/UBSan at -O1: the chain under the sanitizers
 #else
   constexpr int kDefaultDraws = 20;
 #endif

@@ -99,8 +99,14 @@ std::vector<double> normalised_errors(const eval::PendulumResult& r,
   return z;
 }
 
+#ifdef STORETRACK_SANITIZE
+constexpr int kDefaultTrials = 4;  // ASan/UBSan: the code path; the bands follow the trials
+#else
+constexpr int kDefaultTrials = 12;
+#endif
+
 TEST(PendulumSimulated, ParametersWithinTwoSigmaOfTruth) {
-  const int trials = env_int("STORETRACK_PENDULUM_TRIALS", 12);
+  const int trials = env_int("STORETRACK_PENDULUM_TRIALS", kDefaultTrials);
   const int stride = env_int("STORETRACK_PENDULUM_STRIDE", 4);
   const sim::Scenario cw = test::pendulum_scenario(false), ccw = test::pendulum_scenario(true);
   std::int64_t checks = 0, inside = 0, scored = 0, scored_inside = 0;
