@@ -30,9 +30,9 @@ namespace storetrack::calib {
 namespace {
 
 // Bound on the detection time of one rejected 1920 x 1024 image. Measured (this machine, the
-// other build slot busy; 121 rejected images of the seed-1 board set of tools/testpoint): the
-// quick search took 0.068 s median, 0.155 s at most; the bound leaves 6x for a loaded CI
-// machine. The old detector's median (3.4 s) is above it.
+// other build slot busy; the 120 images without a whole board of the seed-1 board set of
+// tools/testpoint): the search took 0.074 s median, 0.172 s at most; the bound leaves ~6x for
+// a loaded CI machine. The old detector's median (3.4 s) is above it.
 constexpr double kRejectSecondsBound = 1.0;
 
 struct Scene {

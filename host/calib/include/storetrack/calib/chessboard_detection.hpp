@@ -1,6 +1,6 @@
-// Chessboard corners from images (OpenCV findChessboardCornersSB as a quick search, then
-// findChessboardCorners + cornerSubPix). OpenCV stays in the implementation: this header only
-// names files and observations.
+// Chessboard corners from images (OpenCV findChessboardCorners, findChessboardCornersSB as the
+// quick search where it fails, cornerSubPix). OpenCV stays in the implementation: this header
+// only names files and observations.
 #pragma once
 
 #include <cstdint>
