@@ -45,18 +45,29 @@ constexpr int kSearchSidePx = 1024;
 // board set plans (<= 60 deg) measured >= 0.50 (docs/calibration.md, "Fast rejection").
 constexpr double kMinForeshortening = 0.45;
 
+// The quick search, where findChessboardCorners without adaptive thresholding failed:
+// findChessboardCornersSB without flags, then with CALIB_CB_NORMALIZE_IMAGE (~0.07 s each,
+// with or without a board). Each alone missed a whole view the other found (rendered
+// static-scenario views; OpenCV's 9x6 set: without flags it missed 4 of the 26 images).
+bool quick_search(const cv::Mat& search, const cv::Size& pattern,
+                  std::vector<cv::Point2f>& corners) {
+  return cv::findChessboardCornersSB(search, pattern, corners, 0) ||
+         cv::findChessboardCornersSB(search, pattern, corners, cv::CALIB_CB_NORMALIZE_IMAGE);
+}
+
 // The board's corners in the full-resolution image, OpenCV's order (row by row), or the
 // reason there are none. findChessboardCorners with adaptive thresholding (OpenCV's sample's
 // flags) takes 1 ms to find a board but seconds to fail on a board cut by the image edge: after
 // its histogram-threshold attempts it tries 6 adaptive thresholds x 8 dilations. So:
 //  1. findChessboardCorners without CALIB_CB_ADAPTIVE_THRESH: the same histogram-threshold
 //     attempts first (the same corners when one of them finds the board), then one global
-//     threshold; 1 ms to find a board, ~5 ms to fail.
-//  2. Failing that, the quick search decides: findChessboardCornersSB (~0.07 s with or without
-//     a board). It finds the boards step 1 misses (all 86 whole views of the seed-1 board set,
-//     all 26 images of OpenCV's 9x6 set); then findChessboardCorners with OpenCV's flags, as
-//     before, gives the corners and ids: SB numbers them from the other end (n - 1 - i on
-//     boards with one even side; not fixed on the others), so its corners only decide.
+//     threshold; 1 ms to find a board, ~5 ms to fail. It found 444 of 447 rendered whole
+//     views and all 26 images of OpenCV's 9x6 set.
+//  2. Failing that, the quick search decides. Its corners are findChessboardCorners' in reverse
+//     (i -> n - 1 - i) on a board with one even side, whose corner colours fix its
+//     orientation: SB starts at the other colour, with the same handedness (all 119 views both
+//     found, both sets). On other boards findChessboardCorners with OpenCV's flags, as before,
+//     gives the corners and ids.
 std::string search_corners(const cv::Mat& gray, const ChessboardSpec& board,
                            std::vector<cv::Point2f>& corners) {
   const cv::Size pattern(board.cols, board.rows);
@@ -66,15 +77,20 @@ std::string search_corners(const cv::Mat& gray, const ChessboardSpec& board,
     cv::resize(gray, search, cv::Size(gray.cols / reduction, gray.rows / reduction), 0, 0,
                cv::INTER_AREA);
   if (!cv::findChessboardCorners(search, pattern, corners, cv::CALIB_CB_NORMALIZE_IMAGE)) {
-    std::vector<cv::Point2f> quick;
-    if (!cv::findChessboardCornersSB(search, pattern, quick, cv::CALIB_CB_NORMALIZE_IMAGE))
+    if (!quick_search(search, pattern, corners))
       return "board not found (" + pattern_text(board) + "; findChessboardCorners and " +
              "findChessboardCornersSB on the " + size_text(search.size()) +
              " image): no board, or not wholly in view, too oblique or too small";
-    const int flags = cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE;
-    if (!cv::findChessboardCorners(search, pattern, corners, flags))
+    const bool one_even_side = board.cols % 2 != board.rows % 2;
+    if (one_even_side) {
+      std::reverse(corners.begin(), corners.end());
+    } else if (!cv::findChessboardCorners(
+                   search, pattern, corners,
+                   cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE)) {
       return "board not found (" + pattern_text(board) +
-             "): findChessboardCornersSB found it, findChessboardCorners did not";
+             "): findChessboardCornersSB found it, findChessboardCorners did not (a board " +
+             "with both sides odd or both even needs it for the corner order)";
+    }
   }
   const float s = static_cast<float>(reduction), offset = (s - 1) / 2;
   for (cv::Point2f& p : corners)
