@@ -8,8 +8,11 @@ with a calibration storetrack-calib made, not the simulator's.
 
   1. storetrack-sim --mode boards: chessboard images of every camera with known truth (fresh
      image noise per seed) -> OUT/boards/cam<id>/*.png, OUT/boards/truth.json
-  2. storetrack-calib detect, per camera (the board's size and square from the board's
-     certificate, here truth.json) -> OUT/cam<id>.csv
+  2. storetrack-calib detect, per camera, on EVERY image of the camera (the board's size and
+     square from the board's certificate, here truth.json) -> OUT/cam<id>.csv; detect refuses
+     the images without a whole board itself, each with its reason. Afterwards, and only to
+     score detect, truth.json: accepted vs truly whole images, lost whole images, corner ids
+     (the stage fails on a wrong id or an accepted board not in the image)
   3. storetrack-calib rig (bundle adjustment, camera 0 = S_r) -> OUT/rig.json
   4. storetrack-calib register: S_r -> S_w from the total-station survey of the pylon marks in
      S_w and their hangar observations (SIM_DIR/survey_aircraft.json, registration_marks.csv,
@@ -17,13 +20,15 @@ with a calibration storetrack-calib made, not the simulator's.
   5. OUT/rig_calibration.json: registered.json with each camera's unit id (the installation,
      scenario.json) and trigger-latency calibration (exposure_offset_ns and its sigma, from the
      simulator's rig_calibrated.json: a bench measurement storetrack-calib does not make).
-  6. OUT/calibration_summary.json: per-camera RMS, registration residuals, timings; printed.
+  6. OUT/calibration_summary.json: per-camera RMS, registration residuals, detection score,
+     timings; printed.
 
 Exit 0 ok, 1 a step failed (its log in OUT/logs), 2 bad arguments.
 """
 import argparse
 import concurrent.futures
 import json
+import math
 import os
 import subprocess
 import sys
@@ -48,21 +53,21 @@ def board_spec(truth):
     return int(b["cols"]), int(b["rows"]), float(b["square_m"])
 
 
-def frames_in_view(truth):
-    """camera id -> the frames (ascending) in which that camera sees the whole board."""
-    out = {}
-    for f in truth["frames"]:
-        for c in f["cameras"]:
-            out.setdefault(c["camera_id"], [])
-            if c["board_whole_in_view"]:
-                out[c["camera_id"]].append(f["frame"])
-    return out
+def frame_of(path):
+    """The board set's frame number of an image, from its file name (frame_NNNN.ext)."""
+    return int(os.path.basename(path).split("_", 1)[1].split(".", 1)[0])
 
 
-def name_of(truth, frame):
-    """Image file name of a frame (truth.json's pattern boards/cam<camera_id>/frame_NNNN.ext)."""
-    ext = truth["images"].rsplit(".", 1)[1]
-    return "frame_%04d.%s" % (frame, ext)
+def camera_images(out):
+    """camera id -> every board image of that camera (sorted by name, so by frame)."""
+    boards = os.path.join(out, "boards")
+    cams = {}
+    for d in sorted(os.listdir(boards)):
+        if d.startswith("cam") and os.path.isdir(os.path.join(boards, d)):
+            cams[int(d[3:])] = [os.path.join(boards, d, f)
+                                for f in sorted(os.listdir(os.path.join(boards, d)))
+                                if f.startswith("frame_")]
+    return cams
 
 
 def renumber_frames(csv_path, frames):
@@ -86,6 +91,93 @@ def renumber_frames(csv_path, frames):
         out.append(line)
     with open(csv_path, "w") as f:
         f.write("\n".join(out) + "\n")
+
+
+def incidence_deg(view, board):
+    """Angle between the board's normal and the line of sight to its centre (truth's T_c_b)."""
+    rv, t = view["T_c_b"]["rotation_vector_rad"], view["T_c_b"]["translation_m"]
+    th = math.sqrt(sum(x * x for x in rv))
+    k = [x / th for x in rv] if th > 0 else [0.0, 0.0, 1.0]
+    c, s = math.cos(th), math.sin(th)
+
+    def rotate(v):  # Rodrigues
+        kv = sum(a * b for a, b in zip(k, v))
+        cross = [k[1] * v[2] - k[2] * v[1], k[2] * v[0] - k[0] * v[2], k[0] * v[1] - k[1] * v[0]]
+        return [v[i] * c + cross[i] * s + k[i] * kv * (1 - c) for i in range(3)]
+    normal = rotate([0.0, 0.0, 1.0])
+    centre_b = [(board["cols"] - 1) * board["square_m"] / 2,
+                (board["rows"] - 1) * board["square_m"] / 2, 0.0]
+    centre = [a + b for a, b in zip(rotate(centre_b), t)]
+    cos = abs(sum(a * b for a, b in zip(normal, centre))) / math.sqrt(sum(x * x for x in centre))
+    return math.degrees(math.acos(min(1.0, cos)))
+
+
+def score_detection(truth, detections):
+    """detect's result against truth.json, AFTER detection (nothing here feeds the calibration).
+    detections: (camera id, detect's --report-json, board-set frame of each image position).
+    A corner id is right when the detected corner is nearer its own true projection than any
+    other's; an accepted view is 'not whole' when truth's planning limits (the board's white
+    border >= 12 px inside, squares >= 14 px, <= 60 deg) do not count it, 'not in the image'
+    when a true inner corner lies outside the image."""
+    board = truth["board"]
+    views = {(c["camera_id"], f["frame"]): c for f in truth["frames"] for c in f["cameras"]}
+    s = {"images": 0, "accepted": 0, "truly_whole": 0, "rejected": 0, "lost": [],
+         "accepted_not_whole": [], "accepted_not_in_image": [], "wrong_ids": [],
+         "rejections_by_reason": {}, "max_corner_error_px": 0.0}
+    for cid, report, frames in detections:
+        r = json.load(open(report))
+        points = {}
+        for pos, pid, x, y in r["points"]:
+            points.setdefault(pos, []).append((pid, x, y))
+        for img in r["images"]:
+            frame = frames[img["frame"]]
+            view, name = views[(cid, frame)], "camera %d frame %d" % (cid, frame)
+            whole = view["board_whole_in_view"]
+            s["images"] += 1
+            s["truly_whole"] += int(whole)
+            if not img["used"]:
+                s["rejected"] += 1
+                kind = img["reason"].split(" (", 1)[0]
+                s["rejections_by_reason"][kind] = s["rejections_by_reason"].get(kind, 0) + 1
+                if whole:
+                    s["lost"].append("%s: %s" % (name, img["reason"]))
+                continue
+            s["accepted"] += 1
+            true_px = view["corners_px"]
+            w, h = r["image_size"]
+            if not all(p is not None and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1
+                       for p in true_px):
+                s["accepted_not_in_image"].append(name)
+            wrong = 0
+            for pid, x, y in points.get(img["frame"], []):
+                d = [math.hypot(x - p[0], y - p[1]) if p is not None else math.inf
+                     for p in true_px]
+                if min(range(len(d)), key=d.__getitem__) != pid:
+                    wrong += 1
+                else:
+                    s["max_corner_error_px"] = max(s["max_corner_error_px"], d[pid])
+            if wrong:
+                s["wrong_ids"].append("%s: %d of %d corner ids wrong" % (
+                    name, wrong, len(points.get(img["frame"], []))))
+            if not whole:
+                inside = min(min(p[0], p[1], w - 1 - p[0], h - 1 - p[1]) for p in true_px)
+                s["accepted_not_whole"].append(
+                    "%s: incidence %.1f deg, inner corners >= %.0f px inside the image" % (
+                        name, incidence_deg(view, board), inside))
+    return s
+
+
+def print_detection(s):
+    reasons = ", ".join("%s %d" % kv for kv in sorted(s["rejections_by_reason"].items()))
+    print("  detect: %d images, %d accepted, %d truly whole (truth.json), %d rejected (%s); "
+          "%d whole lost, %d accepted not whole by truth's planning limits, %d with wrong ids, "
+          "largest corner error %.3f px" % (
+              s["images"], s["accepted"], s["truly_whole"], s["rejected"], reasons,
+              len(s["lost"]), len(s["accepted_not_whole"]), len(s["wrong_ids"]),
+              s["max_corner_error_px"]))
+    for kind in ("lost", "accepted_not_whole", "accepted_not_in_image", "wrong_ids"):
+        for line in s[kind]:
+            print("    %s: %s" % (kind.replace("_", " "), line))
 
 
 def merge_installation(registered, scenario, sim_rig, out):
@@ -183,26 +275,36 @@ def main():
     truth = json.load(open(os.path.join(a.out, "boards", "truth.json")))
     cols, rows, square = board_spec(truth)
 
-    # One detect per camera, as many at once as there are cores (each is single-threaded). Each
-    # camera gets the images in which it sees the whole board (the operator's check before
-    # detection, here from truth.json): OpenCV's search on an image without the whole board can
-    # take minutes (docs/calibration.md, "The main job's calibration stage").
-    t0, jobs, images = time.monotonic(), [], 0
-    for cid, frames in sorted(frames_in_view(truth).items()):
-        files = [os.path.join(a.out, "boards", "cam%d" % cid, name_of(truth, f)) for f in frames]
-        images += len(files)
+    # One detect per camera, as many at once as there are cores (each is single-threaded), on
+    # every image the camera took: detect refuses an image without a whole board itself, with
+    # its reason, in ~0.1 s (docs/calibration.md, "Fast rejection"). truth.json is not read
+    # until detect has finished, and then only to score it.
+    t0, jobs = time.monotonic(), []
+    for cid, files in sorted(camera_images(a.out).items()):
         csv = os.path.join(a.out, "cam%d.csv" % cid)
+        report = os.path.join(a.out, "detect_cam%d.json" % cid)
         jobs.append(("detect camera %d" % cid,
                      [a.calib, "detect", "--board", "chessboard", "--cols", str(cols), "--rows",
                       str(rows), "--square", repr(square), "--camera", str(cid)] + files +
-                     ["-o", csv], os.path.join(logs, "detect_cam%d.log" % cid), csv, frames))
+                     ["-o", csv, "--report-json", report],
+                     os.path.join(logs, "detect_cam%d.log" % cid), csv,
+                     [frame_of(f) for f in files], cid, report))
     with concurrent.futures.ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-        for f in [pool.submit(run, step, cmd, log) for step, cmd, log, _, _ in jobs]:
+        for f in [pool.submit(run, step, cmd, log) for step, cmd, log, *_ in jobs]:
             f.result()
-    for _, _, _, csv, frames in jobs:
+    for _, _, _, csv, frames, _, _ in jobs:
         renumber_frames(csv, frames)
-    obs = [csv for _, _, _, csv, _ in jobs]
+    obs = [csv for _, _, _, csv, *_ in jobs]
     timings["detect"] = time.monotonic() - t0
+    detection = score_detection(truth, [(cid, report, frames) for *_, frames, cid, report in jobs])
+    with open(os.path.join(a.out, "detection_score.json"), "w") as f:
+        json.dump(detection, f, indent=1)
+    print_detection(detection)
+    if detection["wrong_ids"] or detection["accepted_not_in_image"]:
+        sys.exit("calib_stage: detect accepted %d view(s) with wrong corner ids and %d with the "
+                 "board not in the image (truth.json; %s)" % (
+                     len(detection["wrong_ids"]), len(detection["accepted_not_in_image"]),
+                     os.path.join(a.out, "detection_score.json")))
 
     timings["rig"] = run("rig", [a.calib, "rig"] + obs + [
         "-o", os.path.join(a.out, "rig.json"), "--residuals", os.path.join(a.out, "rig_residuals.csv")],
@@ -217,7 +319,10 @@ def main():
     merge_installation(os.path.join(a.out, "registered.json"), a.scenario,
                        os.path.join(a.sim_dir, "rig_calibrated.json"),
                        os.path.join(a.out, "rig_calibration.json"))
-    s = summary_of(a.out, timings, images)
+    s = summary_of(a.out, timings, detection["accepted"])
+    s["detection"] = {k: detection[k] for k in (
+        "images", "accepted", "truly_whole", "rejected", "lost", "accepted_not_whole",
+        "wrong_ids", "rejections_by_reason", "max_corner_error_px")}
     with open(os.path.join(a.out, "calibration_summary.json"), "w") as f:
         json.dump(s, f, indent=1)
     print_summary(s)

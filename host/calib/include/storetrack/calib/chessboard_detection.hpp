@@ -1,5 +1,6 @@
-// Chessboard corners from images (OpenCV findChessboardCorners + cornerSubPix). OpenCV stays in
-// the implementation: this header only names files and observations.
+// Chessboard corners from images (OpenCV findChessboardCorners, findChessboardCornersSB as the
+// quick search where it fails, cornerSubPix). OpenCV stays in the implementation: this header
+// only names files and observations.
 #pragma once
 
 #include <cstdint>
@@ -33,9 +34,10 @@ DetectionResult detect_chessboards(const std::vector<std::string>& image_paths,
 
 /// One 8-bit grey image in memory (row-major, `stride` bytes per row), the same detector and
 /// sub-pixel settings as detect_chessboards: appends its corners as `frame` of `camera` to
-/// `set` and returns true, or returns false (board not found) and appends nothing.
+/// `set` and returns true, or returns false, appends nothing and puts why in `*reason` (when
+/// given): board not found, not wholly in view, or too oblique.
 bool detect_chessboard_image(const std::uint8_t* gray, int width, int height, int stride,
                              const ChessboardSpec& board, int camera, int frame,
-                             ObservationSet& set);
+                             ObservationSet& set, std::string* reason = nullptr);
 
 }  // namespace storetrack::calib
