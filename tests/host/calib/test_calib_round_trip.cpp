@@ -201,8 +201,8 @@ std::pair<double, int> calibration_nees(const camera::RigCalibration& flown,
     const camera::CalibratedCamera& f = flown.cameras[static_cast<std::size_t>(c)];
     const camera::CalibratedCamera& t = truth.cameras[static_cast<std::size_t>(c)];
     // One sign for the whole vector: truth = estimate + e (intrinsics) and truth =
-    // perturb_left(estimate, e) (extrinsics). Mixed signs flip the intrinsic-extrinsic cross
-    // terms and inflate the NEES ~1000x (the printout of the last change had that bug).
+    // perturb_left(estimate, e) (extrinsics): mixed signs would flip the intrinsic-extrinsic
+    // cross terms (NEES ~1000x too large).
     e.segment<camera::kNumIntrinsics>(kB * c) =
         camera::pack(t.model.intrinsics()) - camera::pack(f.model.intrinsics());
     e.segment<6>(kB * c + camera::kNumIntrinsics) = geometry::left_difference(t.T_c_w, f.T_c_w);
