@@ -13,6 +13,7 @@
 #include <set>
 #include <utility>
 
+#include "image_set_check.hpp"
 #include "storetrack/calib/charuco_detection.hpp"
 
 namespace storetrack::calib {
@@ -235,10 +236,6 @@ ViewCorners detect_view(const cv::Mat& gray, const cv::Ptr<cv::aruco::CharucoBoa
   return v;
 }
 
-std::string size_text(const cv::Size& s) {
-  return std::to_string(s.width) + "x" + std::to_string(s.height);
-}
-
 }  // namespace
 
 CharucoDetectionResult detect_charuco(const std::vector<std::string>& image_paths,
@@ -246,18 +243,12 @@ CharucoDetectionResult detect_charuco(const std::vector<std::string>& image_path
   const cv::Ptr<cv::aruco::CharucoBoard> board = make_board(spec);
   CharucoDetectionResult out;
   DetectionResult& d = out.detection;
-  cv::Size image_size;
+  ImageSetCheck images;
   for (size_t frame = 0; frame < image_paths.size(); ++frame) {
     const std::string& path = image_paths[frame];
     const cv::Mat gray = cv::imread(path, cv::IMREAD_GRAYSCALE);
-    if (gray.empty()) {
-      d.rejected.push_back({path, "unreadable (missing file or not an image OpenCV decodes)"});
-      continue;
-    }
-    if (image_size.empty()) image_size = gray.size();
-    if (gray.size() != image_size) {
-      d.rejected.push_back({path, "image size " + size_text(gray.size()) +
-                                      " differs from the first image's " + size_text(image_size)});
+    if (std::string reason = images.reason(gray); !reason.empty()) {
+      d.rejected.push_back({path, std::move(reason)});
       continue;
     }
     const ViewCorners v =
@@ -278,7 +269,8 @@ CharucoDetectionResult detect_charuco(const std::vector<std::string>& image_path
     d.set.frame_sources[static_cast<int>(frame)] = path;
     ++d.images_used;
   }
-  if (!image_size.empty()) d.set.image_sizes[camera] = {image_size.width, image_size.height};
+  if (!images.size().empty())
+    d.set.image_sizes[camera] = {images.size().width, images.size().height};
   return out;
 }
 

@@ -10,14 +10,11 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "image_set_check.hpp"
 #include "storetrack/calib/chessboard_detection.hpp"
 
 namespace storetrack::calib {
 namespace {
-
-std::string size_text(const cv::Size& s) {
-  return std::to_string(s.width) + "x" + std::to_string(s.height);
-}
 
 std::string pattern_text(const ChessboardSpec& board) {
   return std::to_string(board.cols) + "x" + std::to_string(board.rows) + " inner corners";
@@ -210,22 +207,12 @@ bool detect_chessboard_image(const std::uint8_t* gray, int width, int height, in
 DetectionResult detect_chessboards(const std::vector<std::string>& image_paths,
                                    const ChessboardSpec& board, int camera) {
   DetectionResult out;
-  cv::Size image_size;
+  ImageSetCheck images;
   for (size_t frame = 0; frame < image_paths.size(); ++frame) {
     const std::string& path = image_paths[frame];
     const cv::Mat gray = cv::imread(path, cv::IMREAD_GRAYSCALE);
-    if (gray.empty()) {
-      out.rejected.push_back({path, "unreadable (missing file or not an image OpenCV decodes)"});
-      continue;
-    }
-    if (image_size.empty()) image_size = gray.size();
-    if (gray.size() != image_size) {
-      out.rejected.push_back({path, "image size " + size_text(gray.size()) +
-                                        " differs from the first image's " +
-                                        size_text(image_size)});
-      continue;
-    }
-    std::string reason = detect_in(gray, board, camera, static_cast<int>(frame), out.set);
+    std::string reason = images.reason(gray);
+    if (reason.empty()) reason = detect_in(gray, board, camera, static_cast<int>(frame), out.set);
     if (!reason.empty()) {
       out.rejected.push_back({path, std::move(reason)});
       continue;
@@ -233,7 +220,8 @@ DetectionResult detect_chessboards(const std::vector<std::string>& image_paths,
     out.set.frame_sources[static_cast<int>(frame)] = path;
     ++out.images_used;
   }
-  if (!image_size.empty()) out.set.image_sizes[camera] = {image_size.width, image_size.height};
+  if (!images.size().empty())
+    out.set.image_sizes[camera] = {images.size().width, images.size().height};
   return out;
 }
 

@@ -11,6 +11,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "dot_indexing.hpp"
+#include "image_set_check.hpp"
 #include "storetrack/calib/dot_grid_detection.hpp"
 #include "storetrack/centroid/centroider.hpp"
 
@@ -229,10 +230,6 @@ Eigen::Vector3d board_point(const DotGridSpec& board, int col, int row) {
           0};
 }
 
-std::string size_text(int w, int h) {
-  return std::to_string(w) + "x" + std::to_string(h);
-}
-
 /// One image into `out` as frame `frame` (or a rejection with its reason).
 void detect_one(const GrayImageView& image, int frame, const DotGridSpec& board,
                 const DotCentroidOptions& options, int camera, DotDetectionResult& out) {
@@ -297,25 +294,19 @@ DotDetectionResult detect_all(size_t count,
                               int camera) {
   check_spec(board);
   DotDetectionResult out;
-  cv::Size image_size;
+  ImageSetCheck images;
   for (size_t frame = 0; frame < count; ++frame) {
     std::string name;
     const cv::Mat gray = load(frame, name);
-    if (gray.empty()) {
-      out.rejected.push_back({name, "unreadable (missing file or not an image OpenCV decodes)"});
-      continue;
-    }
-    if (image_size.empty()) image_size = gray.size();
-    if (gray.size() != image_size) {
-      out.rejected.push_back({name, "image size " + size_text(gray.cols, gray.rows) +
-                                        " differs from the first image's " +
-                                        size_text(image_size.width, image_size.height)});
+    if (std::string reason = images.reason(gray); !reason.empty()) {
+      out.rejected.push_back({name, std::move(reason)});
       continue;
     }
     const GrayImageView view{name, gray.data, gray.cols, gray.rows, static_cast<int>(gray.step)};
     detect_one(view, static_cast<int>(frame), board, options, camera, out);
   }
-  if (!image_size.empty()) out.set.image_sizes[camera] = {image_size.width, image_size.height};
+  if (!images.size().empty())
+    out.set.image_sizes[camera] = {images.size().width, images.size().height};
   return out;
 }
 
