@@ -93,25 +93,6 @@ def renumber_frames(csv_path, frames):
         f.write("\n".join(out) + "\n")
 
 
-def incidence_deg(view, board):
-    """Angle between the board's normal and the line of sight to its centre (truth's T_c_b)."""
-    rv, t = view["T_c_b"]["rotation_vector_rad"], view["T_c_b"]["translation_m"]
-    th = math.sqrt(sum(x * x for x in rv))
-    k = [x / th for x in rv] if th > 0 else [0.0, 0.0, 1.0]
-    c, s = math.cos(th), math.sin(th)
-
-    def rotate(v):  # Rodrigues
-        kv = sum(a * b for a, b in zip(k, v))
-        cross = [k[1] * v[2] - k[2] * v[1], k[2] * v[0] - k[0] * v[2], k[0] * v[1] - k[1] * v[0]]
-        return [v[i] * c + cross[i] * s + k[i] * kv * (1 - c) for i in range(3)]
-    normal = rotate([0.0, 0.0, 1.0])
-    centre_b = [(board["cols"] - 1) * board["square_m"] / 2,
-                (board["rows"] - 1) * board["square_m"] / 2, 0.0]
-    centre = [a + b for a, b in zip(rotate(centre_b), t)]
-    cos = abs(sum(a * b for a, b in zip(normal, centre))) / math.sqrt(sum(x * x for x in centre))
-    return math.degrees(math.acos(min(1.0, cos)))
-
-
 def score_detection(truth, detections):
     """detect's result against truth.json, AFTER detection (nothing here feeds the calibration).
     detections: (camera id, detect's --report-json, board-set frame of each image position).
@@ -119,7 +100,6 @@ def score_detection(truth, detections):
     other's; an accepted view is 'not whole' when truth's planning limits (the board's white
     border >= 12 px inside, squares >= 14 px, <= 60 deg) do not count it, 'not in the image'
     when a true inner corner lies outside the image."""
-    board = truth["board"]
     views = {(c["camera_id"], f["frame"]): c for f in truth["frames"] for c in f["cameras"]}
     s = {"images": 0, "accepted": 0, "truly_whole": 0, "rejected": 0, "lost": [],
          "accepted_not_whole": [], "accepted_not_in_image": [], "wrong_ids": [],
@@ -163,7 +143,7 @@ def score_detection(truth, detections):
                 inside = min(min(p[0], p[1], w - 1 - p[0], h - 1 - p[1]) for p in true_px)
                 s["accepted_not_whole"].append(
                     "%s: incidence %.1f deg, inner corners >= %.0f px inside the image" % (
-                        name, incidence_deg(view, board), inside))
+                        name, view["incidence_deg"], inside))
     return s
 
 

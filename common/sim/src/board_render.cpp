@@ -256,6 +256,12 @@ bool sees_board_back(const geometry::Transform& T_c_b) {
   return (T_c_b.inverse().translation()).z() > 0;
 }
 
+double board_incidence_deg(const geometry::Transform& T_c_b, const ChessboardTarget& board) {
+  const Vec3 centre_c = T_c_b * board.centre();
+  const double cos_incidence = T_c_b.linear().col(2).dot(centre_c.normalized());
+  return std::acos(std::clamp(cos_incidence, -1.0, 1.0)) * 180 / M_PI;
+}
+
 bool board_fully_visible(const camera::CameraModel& camera, const geometry::Transform& T_c_b,
                          const ChessboardTarget& board, double margin_px, double min_square_px,
                          double max_incidence_deg) {
@@ -287,10 +293,7 @@ bool board_fully_visible(const camera::CameraModel& camera, const geometry::Tran
         (*p - *corners[static_cast<std::size_t>(id + board.cols)]).norm() < min_square_px)
       return false;
   }
-  const Vec3 centre_c = T_c_b * board.centre();
-  const Vec3 normal_c = T_c_b.linear().col(2);
-  const double cos_incidence = normal_c.dot(centre_c.normalized());
-  return cos_incidence >= std::cos(max_incidence_deg * M_PI / 180);
+  return board_incidence_deg(T_c_b, board) <= max_incidence_deg;
 }
 
 }  // namespace storetrack::sim

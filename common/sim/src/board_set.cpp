@@ -195,6 +195,7 @@ void write_board_truth_json(const camera::RigCalibration& rig, const BoardSetOpt
       cams.push_back({{"camera_id", cam.camera_id},
                       {"board_whole_in_view", whole},
                       {"T_c_b", pose_json(T_c_b)},
+                      {"incidence_deg", board_incidence_deg(T_c_b, b)},
                       {"corners_px", corners}});
     }
     jf.push_back({{"frame", f.frame},

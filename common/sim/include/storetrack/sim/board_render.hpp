@@ -73,6 +73,10 @@ std::vector<std::optional<geometry::Vec2>> project_board_corners(const camera::C
 /// normal z_b). The back is opaque and plain: render_board_expected draws it white.
 bool sees_board_back(const geometry::Transform& T_c_b);
 
+/// Angle between the board's normal and the line of sight to its centre [deg] (0 = facing the
+/// camera; > 90 = its back).
+double board_incidence_deg(const geometry::Transform& T_c_b, const ChessboardTarget& board);
+
 /// The whole board (border included) lies in front of the camera and at least `margin_px`
 /// inside the image, its squares at least `min_square_px` wide there, the camera sees its
 /// patterned face (not its back: a real operator cannot show a camera the pattern from behind)
