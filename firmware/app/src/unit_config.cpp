@@ -387,8 +387,8 @@ void load_config_file(const std::string& path, UnitConfig& config) {
 namespace {
 
 void validate_ptp4l(const clock::ClockMonitorConfig& p, int health_period_ms) {
-  if (p.ptp4l.uds_path.empty()) throw ConfigError("ptp4l.uds_path must not be empty");
-  if (p.ptp4l.client_dir.empty()) throw ConfigError("ptp4l.client_dir must not be empty");
+  if (const std::string problem = clock::socket_path_problem(p.ptp4l); !problem.empty())
+    throw ConfigError(problem);
   if (p.lock.lock_threshold_ns < 1 || p.lock.lock_threshold_ns > 1'000'000'000)
     throw ConfigError("ptp4l.lock_threshold_ns must be in [1, 1e9]");
   if (p.lock.lock_polls < 1 || p.lock.lock_polls > 100)

@@ -8,6 +8,7 @@
 #include <cerrno>
 #include <cstring>
 #include <ctime>
+#include <utility>
 
 namespace storetrack::clock {
 namespace {
@@ -40,7 +41,32 @@ std::int64_t monotonic_ms() {
 
 std::atomic<unsigned> g_instance{0};  // several clients in one process get distinct paths
 
+constexpr std::size_t kMaxSocketPath = sizeof(sockaddr_un{}.sun_path) - 1;  // 107 on Linux
+constexpr const char* kClientPrefix = "/storetrack-pmc.";
+
+std::string client_path_for(const std::string& dir, long pid, unsigned instance) {
+  return dir + kClientPrefix + std::to_string(pid) + "." + std::to_string(instance);
+}
+
 }  // namespace
+
+std::string socket_path_problem(const Ptp4lClientConfig& config) {
+  if (config.uds_path.empty()) return "ptp4l.uds_path is empty";
+  if (config.uds_path.size() > kMaxSocketPath)
+    return "ptp4l.uds_path is " + std::to_string(config.uds_path.size()) +
+           " bytes, longer than a UNIX socket path may be (" + std::to_string(kMaxSocketPath) +
+           "): " + config.uds_path;
+  if (config.client_dir.empty()) return "ptp4l.client_dir is empty";
+  // The longest name this client can bind: a pid up to Linux's PID_MAX_LIMIT (2^22, 7 digits)
+  // and an instance number up to 2^32 - 1.
+  const std::size_t longest = client_path_for(config.client_dir, 4194304, 4294967295U).size();
+  if (longest > kMaxSocketPath)
+    return "ptp4l.client_dir is too long by " + std::to_string(longest - kMaxSocketPath) +
+           " bytes: the client's socket " + config.client_dir + kClientPrefix +
+           "<pid>.<n> may take " + std::to_string(longest) + " of the " +
+           std::to_string(kMaxSocketPath) + " bytes a UNIX socket path may have";
+  return {};
+}
 
 Ptp4lClient::Ptp4lClient(Ptp4lClientConfig config) : config_(std::move(config)) {}
 
@@ -50,8 +76,13 @@ Ptp4lClient::~Ptp4lClient() {
 
 int Ptp4lClient::open() {
   close();
-  client_path_ = config_.client_dir + "/storetrack-pmc." + std::to_string(::getpid()) + "." +
-                 std::to_string(g_instance.fetch_add(1));
+  // The same rule as at start-up, whatever this process's pid: a path that fits only for a
+  // small pid must not work on the bench and fail on the aircraft.
+  if (std::string problem = socket_path_problem(config_); !problem.empty()) {
+    error_ = std::move(problem);
+    return -ENAMETOOLONG;
+  }
+  client_path_ = client_path_for(config_.client_dir, ::getpid(), g_instance.fetch_add(1));
   sockaddr_un self{};
   socklen_t self_length = 0;
   sockaddr_un peer{};

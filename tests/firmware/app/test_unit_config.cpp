@@ -110,6 +110,9 @@ TEST(UnitConfig, Ptp4lValuesOutsideTheirRangesAreRefused) {
   refused([](UnitConfig& u) { u.ptp4l.ptp4l.reply_timeout_ms = 334; });  // 3 x 334 > 1000 ms
   refused([](UnitConfig& u) { u.ptp4l.ptp4l.uds_path.clear(); });
   refused([](UnitConfig& u) { u.ptp4l.ptp4l.client_dir.clear(); });
+  // The client's socket path must fit 107 bytes at start-up (ptp4l_client.hpp).
+  refused([](UnitConfig& u) { u.ptp4l.ptp4l.client_dir = "/" + std::string(80, 'd'); });
+  refused([](UnitConfig& u) { u.ptp4l.ptp4l.uds_path = "/" + std::string(120, 'u'); });
 }
 
 TEST(UnitConfig, NumbersAreReadExactlyOrRefused) {

@@ -17,12 +17,17 @@ SIM="$1"; UNIT="$2"; HOST="$3"; ROOT="$4"; OUT="$5"; PTP4L="$6"
 TAG=$$
 NSM="stclkm-$TAG" NSS="stclks-$TAG" VM="sem$TAG" VS="ses$TAG"
 ip netns add "$NSM" 2>/dev/null || { echo "SKIP: cannot create a network namespace"; exit 77; }
+# The UNIX sockets live in a short directory of their own: a socket path may have 107 bytes, and
+# the build tree of a deep checkout alone can take more (the test must not depend on where the
+# checkout lies).
+SOCK=$(mktemp -d /tmp/stclk.XXXXXX)
 PIDS=""
 cleanup() {
   for p in $PIDS; do kill -9 "$p" 2>/dev/null || true; done
   wait 2>/dev/null || true
   ip netns del "$NSM" 2>/dev/null || true
   ip netns del "$NSS" 2>/dev/null || true
+  rm -rf "$SOCK"
 }
 trap cleanup EXIT
 rm -rf "$OUT"; mkdir -p "$OUT/sim"
@@ -38,7 +43,7 @@ for role in master slave; do
     echo "free_running 1"; echo "time_stamping software"
     echo "logAnnounceInterval -2"; echo "announceReceiptTimeout 2"
     echo "logSyncInterval -3"; echo "logMinDelayReqInterval -3"
-    echo "uds_address $OUT/$role.uds"
+    echo "uds_address $SOCK/$role.uds"
     [ "$role" = master ] && echo "priority1 10" || echo "slaveOnly 1"
   } >"$OUT/$role.cfg"
 done
@@ -55,7 +60,7 @@ PY
   "$OUT/initial_marks.json" 0
 cat >"$OUT/unit.json" <<JSON
 {"health": {"period_ms": 250},
- "ptp4l": {"uds_path": "$OUT/slave.uds", "client_dir": "$OUT", "reply_timeout_ms": 50,
+ "ptp4l": {"uds_path": "$SOCK/slave.uds", "client_dir": "$SOCK", "reply_timeout_ms": 50,
            "lock_threshold_ns": 500000, "lock_polls": 3, "holdover_s": 3, "measure_only": true}}
 JSON
 

@@ -190,3 +190,38 @@ TEST_F(Ptp4lClientTest, MonitorThreadPublishesLockLossHoldoverAndFreeRunning) {
 
 }  // namespace
 }  // namespace storetrack::clock
+
+namespace storetrack::clock {
+
+// A UNIX socket path has 108 bytes with its NUL (sys/un.h). The client binds
+// <client_dir>/storetrack-pmc.<pid>.<n>: "/storetrack-pmc." is 16 bytes, a pid at most 7 digits
+// (PID_MAX_LIMIT 4194304), "." 1, an instance number at most 10: client_dir may have 107 - 34 =
+// 73 bytes. Refused beyond, naming the path, before any socket is made.
+TEST(Ptp4lSocketPaths, ClientDirLimitFollowsTheLongestNameTheClientCanBind) {
+  static_assert(sizeof(sockaddr_un{}.sun_path) == 108);
+  Ptp4lClientConfig config;
+  config.uds_path = "/run/ptp4l";
+  config.client_dir = "/" + std::string(72, 'd');  // 73 bytes
+  EXPECT_EQ(socket_path_problem(config), "");
+  config.client_dir += "e";  // 74 bytes
+  const std::string problem = socket_path_problem(config);
+  EXPECT_NE(problem.find("ptp4l.client_dir is too long by 1 bytes"), std::string::npos) << problem;
+  EXPECT_NE(problem.find(config.client_dir), std::string::npos) << problem;
+
+  Ptp4lClient client(config);
+  EXPECT_EQ(client.open(), -ENAMETOOLONG);
+}
+
+TEST(Ptp4lSocketPaths, UdsPathOverTheLimitIsNamed) {
+  Ptp4lClientConfig config;
+  config.client_dir = "/tmp";
+  config.uds_path = "/" + std::string(106, 'u');  // 107 bytes: fits
+  EXPECT_EQ(socket_path_problem(config), "");
+  config.uds_path += "v";
+  const std::string problem = socket_path_problem(config);
+  EXPECT_NE(problem.find("ptp4l.uds_path is 108 bytes"), std::string::npos) << problem;
+  config.uds_path.clear();
+  EXPECT_EQ(socket_path_problem(config), "ptp4l.uds_path is empty");
+}
+
+}  // namespace storetrack::clock

@@ -35,6 +35,12 @@ struct Ptp4lClientStats {
   int last_errno = 0;
 };
 
+/// Empty when both socket paths fit a sockaddr_un (107 bytes and the NUL), whatever the pid
+/// and instance number the client's own path gets; else which configured path is too long and
+/// by how much. The unit checks it at start-up, so a deep directory is named before the first
+/// poll instead of failing every open().
+std::string socket_path_problem(const Ptp4lClientConfig& config);
+
 class Ptp4lClient {
  public:
   explicit Ptp4lClient(Ptp4lClientConfig config);
