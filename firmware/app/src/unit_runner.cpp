@@ -18,6 +18,24 @@
 namespace storetrack::unit {
 namespace {
 
+// The generator never drives a pulse later than half this unit's phase tolerance after its grid
+// time (at most period / 8): the pulse's stamp must land inside the tolerance, or the pairer
+// would call a real exposure an extra edge.
+trigger::GpioMasterConfig master_config(const TriggerConfig& trigger, double rate_hz,
+                                        std::int64_t width_ns) {
+  trigger::GpioMasterConfig mc;
+  mc.chip = trigger.chip;
+  mc.lines = trigger.lines;
+  mc.active_low = trigger.active_low;
+  mc.rate_hz = rate_hz;
+  mc.pulse_width_ns = width_ns;
+  const auto period = static_cast<std::int64_t>(std::llround(1e9 / rate_hz));
+  const std::int64_t tolerance =
+      trigger.edge_phase_tolerance_ns > 0 ? trigger.edge_phase_tolerance_ns : period / 4;
+  mc.max_late_ns = std::max<std::int64_t>(1, std::min(period / 8, tolerance / 2));
+  return mc;
+}
+
 /// The Modbus pulse_width_us register's view of a pulse width (docs/modbus.md: 1..5000 us).
 std::uint16_t pulse_width_register(std::int64_t width_ns) {
   return static_cast<std::uint16_t>(std::clamp<std::int64_t>(width_ns / 1000, 1, 5000));
@@ -216,13 +234,8 @@ int UnitRunner::setup(std::string& error) {
       break;
     }
     case TriggerMode::kGpioMaster: {
-      trigger::GpioMasterConfig mc;
-      mc.chip = config_.trigger.chip;
-      mc.lines = config_.trigger.lines;
-      mc.rate_hz = config_.trigger.rate_hz;
-      mc.pulse_width_ns = config_.trigger.pulse_width_ns;
-      mc.active_low = config_.trigger.active_low;
-      auto t = std::make_unique<trigger::GpioMasterTrigger>(mc);
+      auto t = std::make_unique<trigger::GpioMasterTrigger>(
+          master_config(config_.trigger, config_.trigger.rate_hz, config_.trigger.pulse_width_ns));
       if (t->start() < 0) {
         error = "trigger: " + t->error();
         return kExitStartFailure;
@@ -464,12 +477,7 @@ void UnitRunner::apply_exposure(std::uint32_t exposure_us) {
 void UnitRunner::apply_trigger_change(double rate_hz, std::int64_t width_ns) {
   if (rate_hz == config_.trigger.rate_hz && width_ns == config_.trigger.pulse_width_ns) return;
   if (config_.trigger.mode == TriggerMode::kGpioMaster && trigger_) {
-    trigger::GpioMasterConfig mc;
-    mc.chip = config_.trigger.chip;
-    mc.lines = config_.trigger.lines;
-    mc.active_low = config_.trigger.active_low;
-    mc.rate_hz = rate_hz;
-    mc.pulse_width_ns = width_ns;
+    const trigger::GpioMasterConfig mc = master_config(config_.trigger, rate_hz, width_ns);
     if (trigger::validate(mc, nullptr) < 0) {
       ++run_.config_apply_errors;
       return;

@@ -38,6 +38,8 @@ int validate(const GpioMasterConfig& c, std::string* why) {
     reason = "at least one output line is needed";
   } else if (c.pulse_width_ns <= 0 || static_cast<double>(c.pulse_width_ns) >= 0.9e9 / c.rate_hz) {
     reason = "pulse width must be > 0 and < 90 % of the trigger period";
+  } else if (c.max_late_ns < 0 || static_cast<double>(c.max_late_ns) >= 0.5e9 / c.rate_hz) {
+    reason = "max_late_ns must be >= 0 and < half the trigger period";
   }
   if (why != nullptr) *why = reason;
   return reason.empty() ? 0 : -EINVAL;
@@ -123,6 +125,7 @@ void GpioMasterTrigger::run() {
     pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
   }
   const std::int64_t period = static_cast<std::int64_t>(std::llround(1e9 / config_.rate_hz));
+  const std::int64_t max_late = config_.max_late_ns > 0 ? config_.max_late_ns : period / 8;
   // Phase-lock to the monotonic clock: pulses on whole multiples of the period.
   const std::int64_t now = time::monotonic_now_ns();
   std::int64_t k = now / period + 2;
@@ -138,8 +141,10 @@ void GpioMasterTrigger::run() {
     const std::int64_t before = time::monotonic_now_ns();
     const std::int64_t late = before - t_k;
     if (late > max_late_ns_.load(std::memory_order_relaxed)) max_late_ns_.store(late);
-    if (late >= period) {  // woke a whole period late: skip, never bunch pulses
-      const std::int64_t skipped = late / period;
+    if (late > max_late) {
+      // Too late for this slot: skip it and every whole period missed, never drive a pulse off
+      // the grid or bunch pulses. The next slot may already be due; the loop sees to it.
+      const std::int64_t skipped = std::max<std::int64_t>(1, late / period);
       overruns_.fetch_add(static_cast<std::uint64_t>(skipped));
       k += skipped;
       continue;

@@ -3,11 +3,14 @@
 // Master: a generator thread drives the output line(s) high at t_k = t0 + k * period on
 // CLOCK_MONOTONIC (clock_nanosleep TIMER_ABSTIME, so the schedule never drifts however late a
 // single wake-up is) and low again pulse_width later; t0 is a whole multiple of the period
-// (phase-locked to the unit clock). A wake-up later than a whole period skips the missed pulses
-// (counted as overruns) rather than bunching them. Each pulse's time stamp (taken around the
-// set-value call) goes through a lock-free single-producer/single-consumer ring to read_edges().
-// Slave: the input line is requested for rising-edge events; each event carries the kernel's
-// time stamp (CLOCK_MONOTONIC for the v1 ABI since Linux 5.7), which is the edge time used.
+// (phase-locked to the unit clock). A wake-up later than max_late_ns skips that pulse (and any
+// whole periods missed; counted as overruns) rather than driving it off the grid or bunching
+// pulses: every unit pairs edges to the grid within a phase tolerance (frame_pairer.hpp), and a
+// pulse driven later than that would be an exposure no unit can number. Each pulse's time stamp
+// (taken around the set-value call) goes through a lock-free single-producer/single-consumer ring
+// to read_edges(). Slave: the input line is requested for rising-edge events; each event carries
+// the kernel's time stamp (CLOCK_MONOTONIC for the v1 ABI since Linux 5.7), which is the edge time
+// used.
 #pragma once
 
 #include <array>
@@ -33,6 +36,9 @@ struct GpioMasterConfig {
   bool active_low = false;
   bool realtime_priority = true;  ///< try SCHED_FIFO for the generator (ignored if refused)
   std::string consumer = "storetrack-unit";
+  /// The latest a pulse may be driven after its grid time; later, it is skipped (an overrun).
+  /// 0: period / 8, half the pairer's default phase tolerance (period / 4). In [0, period / 2).
+  std::int64_t max_late_ns = 0;
 };
 
 struct GpioSlaveConfig {

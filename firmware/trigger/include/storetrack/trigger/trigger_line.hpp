@@ -25,7 +25,8 @@ struct TriggerEdge {
 /// Counters of the line itself (the pairer counts the pairing statistics).
 struct TriggerLineStats {
   std::uint64_t edges = 0;          ///< edges generated (master) or received (slave)
-  std::uint64_t overruns = 0;       ///< master: pulses skipped because the thread woke late;
+  std::uint64_t overruns = 0;       ///< master: pulses skipped because the thread woke later
+                                    ///< than max_late_ns (gpio_trigger.hpp);
                                     ///< slave: edge events lost in the kernel queue
   std::int64_t max_late_ns = 0;     ///< master: worst wake-up lateness against the schedule
   std::uint64_t dropped_edges = 0;  ///< edges lost because the reader did not drain in time
