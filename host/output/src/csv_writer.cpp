@@ -4,6 +4,7 @@
 
 #include <cerrno>
 #include <cinttypes>
+#include <span>
 
 #include "storetrack/output/chapter10_writer.hpp"
 
@@ -77,16 +78,19 @@ int FtiCsvWriter::write(const msg::FtiSample& s) {
   std::fprintf(file_, "%" PRIu32 ",%" PRId64 ",%u,%u,%u,%u,%u", s.trigger_seq,
                s.exposure_mid_tai_ns, unsigned{s.store_id}, unsigned{s.status},
                unsigned{s.cameras_used}, unsigned{s.marks_used}, unsigned{s.pylon_marks_used});
+  // Every float with 9 significant digits, the correlations too: enough to read back the very
+  // float that was sent (FLT_DECIMAL_DIG), as docs/fti-output.md states.
+  const auto write_floats = [this](std::span<const float> values) {
+    for (float v : values)
+      std::fprintf(file_, ",%.9g", static_cast<double>(v));
+  };
   const float values[] = {s.x_m,   s.y_m,   s.z_m,   s.yaw_rad,   s.pitch_rad,   s.roll_rad,
                           s.u_x_m, s.u_y_m, s.u_z_m, s.u_yaw_rad, s.u_pitch_rad, s.u_roll_rad};
-  for (float v : values)
-    std::fprintf(file_, ",%.9g", static_cast<double>(v));
-  for (float v : s.correlation)
-    std::fprintf(file_, ",%.6g", static_cast<double>(v));
+  write_floats(values);
+  write_floats(s.correlation);
   const float tail[] = {s.u_budget_centroid_m, s.u_budget_intrinsic_m, s.u_budget_extrinsic_m,
                         s.u_budget_sync_m,     s.u_budget_process_m,   s.coverage_factor};
-  for (float v : tail)
-    std::fprintf(file_, ",%.9g", static_cast<double>(v));
+  write_floats(tail);
   // Line-buffered: the newline writes the row, so a full disk shows here.
   if (std::fputc('\n', file_) == EOF || std::ferror(file_)) {
     std::clearerr(file_);

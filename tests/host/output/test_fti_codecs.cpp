@@ -146,6 +146,19 @@ TEST(FtiCsv, HeaderNamesEveryColumnWithAUnit) {
     if (fields.size() == columns.size()) {
       EXPECT_EQ(std::strtof(fields[sync_col].c_str(), nullptr), s.u_budget_sync_m);
       EXPECT_EQ(std::strtof(fields[process_col].c_str(), nullptr), s.u_budget_process_m);
+      // Every float column, the 15 correlations included (they were written with 6 digits:
+      // a correlation of 0.123456789 read back as 0.123457), reads back the very float sent.
+      const std::vector<float> sent = {s.x_m,       s.y_m,       s.z_m,         s.yaw_rad,
+                                       s.pitch_rad, s.roll_rad,  s.u_x_m,       s.u_y_m,
+                                       s.u_z_m,     s.u_yaw_rad, s.u_pitch_rad, s.u_roll_rad};
+      const std::size_t first_float = column("x [m]");
+      for (std::size_t i = 0; i < sent.size(); ++i)
+        EXPECT_EQ(std::strtof(fields[first_float + i].c_str(), nullptr), sent[i])
+            << columns[first_float + i];
+      const std::size_t first_correlation = first_float + sent.size();
+      for (std::size_t i = 0; i < 15; ++i)
+        EXPECT_EQ(std::strtof(fields[first_correlation + i].c_str(), nullptr), s.correlation[i])
+            << columns[first_correlation + i];
     }
     ++rows;
   }
