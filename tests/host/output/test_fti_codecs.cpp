@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "fti_sample_factory.hpp"
-#include "storetrack/output/big_endian.hpp"
+#include "storetrack/bytes/byte_cursor.hpp"
 #include "storetrack/output/csv_writer.hpp"
 #include "storetrack/output/inetx.hpp"
 
@@ -51,12 +51,12 @@ TEST(FtiParameterBlock, OtherVersionsAreRefusedByName) {
   std::mt19937_64 rng(7);
   std::array<std::uint8_t, kFtiParameterBlockBytes> buf{};
   ASSERT_EQ(encode_fti_parameter_block(testing::make_sample(1, 0, rng), buf), 152);
-  EXPECT_EQ(be::get_u16(buf.data() + 18), 2);
+  EXPECT_EQ(bytes::BigEndianReader(std::span(buf).subspan(18)).get_u16(), 2);
   msg::FtiSample d{};
   EXPECT_EQ(decode_fti_parameter_block(std::span(buf).first(148), d), -EINVAL);
   EXPECT_EQ(fti_parameter_block_error(std::span(buf).first(148)),
             "FTI parameter block version 2 of 148 bytes: needs 152");
-  be::put_u16(buf.data() + 18, 1);
+  bytes::BigEndianWriter(std::span(buf).subspan(18)).put_u16(1);
   for (std::size_t bytes : {std::size_t{148}, std::size_t{152}}) {
     EXPECT_EQ(decode_fti_parameter_block(std::span(buf).first(bytes), d), -EPROTO);
     EXPECT_EQ(fti_parameter_block_error(std::span(buf).first(bytes)),
