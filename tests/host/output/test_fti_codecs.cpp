@@ -66,6 +66,26 @@ TEST(FtiParameterBlock, OtherVersionsAreRefusedByName) {
   EXPECT_EQ(decode_fti_parameter_block(std::span(buf).first(19), d), -EINVAL);
 }
 
+// The block is the schema's generated FtiSample payload: its block_version is the schema
+// constant (offset 18 = 8 + 4 + 4 x 1 + 2), refused when it differs, and the payload is exactly
+// 152 bytes.
+TEST(FtiParameterBlock, GeneratedCodecChecksVersionAndLength) {
+  static_assert(msg::kFtiSampleBlockVersionOffset == 18);
+  std::mt19937_64 rng(3);
+  std::array<std::uint8_t, kFtiParameterBlockBytes + 1> buf{};
+  ASSERT_EQ(encode_fti_parameter_block(testing::make_sample(2, 0, rng), buf), 152);
+  msg::FtiSample d{};
+  bytes::BigEndianReader whole{std::span<const std::uint8_t>(buf).first(152)};
+  EXPECT_EQ(msg::unpack_payload(whole, d), msg::DecodeError::kNone);
+  bytes::BigEndianReader longer{std::span<const std::uint8_t>(buf)};
+  EXPECT_EQ(msg::unpack_payload(longer, d), msg::DecodeError::kBadLength);
+  bytes::BigEndianReader shorter{std::span<const std::uint8_t>(buf).first(151)};
+  EXPECT_EQ(msg::unpack_payload(shorter, d), msg::DecodeError::kBadLength);
+  buf[19] = 3;  // block_version 3
+  bytes::BigEndianReader other{std::span<const std::uint8_t>(buf).first(152)};
+  EXPECT_EQ(msg::unpack_payload(other, d), msg::DecodeError::kBadVersion);
+}
+
 TEST(Inetx, HeaderFieldsAreBigEndianAtTheDocumentedOffsets) {
   std::mt19937_64 rng(9);
   auto s = testing::make_sample(3, 1'800'000'000'123'456'789, rng);
