@@ -14,6 +14,7 @@ Usage:
   generate.py --header OUT/storetrack/msg/messages.hpp
   generate.py --check-icd docs/icd.md
   generate.py --update-icd docs/icd.md
+  generate.py --check-doc docs/fti-output.md   (another document: only the blocks it holds)
 """
 
 import argparse
@@ -28,7 +29,7 @@ import yaml
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCHEMA_FILES = ["mark_observations.yaml", "unit_health.yaml", "fti_sample.yaml"]
 
-# Scalar wire types: (C++ type, bytes, BeWriter/BeReader suffix).
+# Scalar wire types: (C++ type, bytes, put_/get_ suffix of storetrack/bytes/byte_cursor.hpp).
 SCALARS = {
     "u8": ("std::uint8_t", 1, "u8"),
     "u16": ("std::uint16_t", 2, "u16"),
@@ -85,6 +86,19 @@ def invalid_cpp(v, scalar):
     if m:
         return "std::numeric_limits<%s>::%s()" % (cpp, m.group(2).lower())
     fail("cannot express invalid value %r" % v)
+
+
+def constant_cpp(s, f):
+    """The C++ value of a field the schema fixes (`constant: version`: the message version, so a
+    reader of a recording or stream refuses another layout by this field)."""
+    if f["constant"] != "version":
+        fail("%s.%s: unknown constant %r (only 'version')" % (s["message"], f["name"], f["constant"]))
+    return "k%sVersion" % s["message"]
+
+
+def member_fields(s):
+    """The fields that are members of the C++ struct (not the constants the codec writes)."""
+    return [f for f in s["fields"] if "constant" not in f]
 
 
 def cstr(s):
@@ -288,6 +302,10 @@ def gen_payload_codec(lines, s):
     lines.append("// ---- %s payload (big-endian, schema order) ----" % msg)
     lines.append("inline constexpr std::size_t k%sFixedBytes = %d;" % (msg, s["_fixed_bytes"]))
     lines.append("inline constexpr std::size_t k%sMaxPayloadBytes = %d;" % (msg, s["_max_bytes"]))
+    for f in s["fields"]:
+        if "constant" in f:  # where a reader finds it in a payload of any layout version
+            lines.append("inline constexpr std::size_t k%s%sOffset = %d;" %
+                         (msg, snake_to_camel(f["name"]), f["_offset"]))
     if rep:
         lines.append("inline constexpr std::size_t k%sBytes = %d;" % (rep["struct"], rep["packed_bits"] // 8))
         lines.append("static_assert(k%sBytes * 8 == %d);" % (rep["struct"], rep["packed_bits"]))
@@ -315,13 +333,15 @@ def gen_payload_codec(lines, s):
     # encoder
     lines.append("/// Writes the payload. 0, -ENOSPC (writer too small) or -ERANGE (a value that the"
                  " wire\n/// cannot carry: count above its maximum, a rejected mark coordinate).")
-    lines.append("inline int pack_payload(const %s& m, BeWriter& w) {" % msg)
+    lines.append("inline int pack_payload(const %s& m, bytes::BigEndianWriter& w) {" % msg)
     if rep:
         lines.append("  if (m.%s > %d) return -ERANGE;" % (count_field, rep["max_count"]))
     lines.append("  if (w.remaining() < payload_size(m)) return -ENOSPC;")
     for f in s["fields"]:
         sfx = SCALARS[f["_scalar"]][2]
-        if f["_count"]:
+        if "constant" in f:
+            lines.append("  w.put_%s(%s);  // %s" % (sfx, constant_cpp(s, f), f["name"]))
+        elif f["_count"]:
             lines.append("  for (const auto& v : m.%s) w.put_%s(v);" % (f["name"], sfx))
         else:
             lines.append("  w.put_%s(m.%s);" % (sfx, f["name"]))
@@ -337,11 +357,14 @@ def gen_payload_codec(lines, s):
     # decoder
     lines.append("/// Reads and validates the payload; the reader must hold exactly one payload."
                  "\n/// On error `m` is partly written and must not be used.")
-    lines.append("inline DecodeError unpack_payload(BeReader& r, %s& m) {" % msg)
+    lines.append("inline DecodeError unpack_payload(bytes::BigEndianReader& r, %s& m) {" % msg)
     lines.append("  if (r.remaining() < k%sFixedBytes) return DecodeError::kBadLength;" % msg)
     for f in s["fields"]:
         sfx = SCALARS[f["_scalar"]][2]
-        if f["_count"]:
+        if "constant" in f:
+            lines.append("  if (r.get_%s() != %s) return DecodeError::kBadVersion;  // %s" %
+                         (sfx, constant_cpp(s, f), f["name"]))
+        elif f["_count"]:
             lines.append("  for (auto& v : m.%s) v = r.get_%s();" % (f["name"], sfx))
         else:
             lines.append("  m.%s = r.get_%s();" % (f["name"], sfx))
@@ -375,7 +398,7 @@ def generate_header(schemas):
                 "<limits>", "<string_view>"]:
         L.append("#include %s" % inc)
     L.append("")
-    L.append('#include "storetrack/msg/byte_order.hpp"')
+    L.append('#include "storetrack/bytes/byte_cursor.hpp"')
     L.append('#include "storetrack/msg/decode_error.hpp"')
     L.append("")
     L.append("namespace storetrack::msg {")
@@ -428,7 +451,7 @@ def generate_header(schemas):
             L.append("")
         L.append("/// %s" % " ".join(s["doc"].split()))
         L.append("struct %s {" % s["message"])
-        for f in s["fields"]:
+        for f in member_fields(s):
             cpp = SCALARS[f["_scalar"]][0]
             if f["_count"]:
                 cpp = "std::array<%s, %d>" % (cpp, f["_count"])
@@ -440,7 +463,7 @@ def generate_header(schemas):
         L.append("")
         L.append("/// Invalid (\"not available\") values per field, from the schema.")
         L.append("namespace %s_invalid {" % camel_to_snake(s["message"]))
-        for f in s["fields"]:
+        for f in member_fields(s):
             L.append("inline constexpr %s k%s = %s;" % (SCALARS[f["_scalar"]][0],
                                                       snake_to_camel(f["name"]),
                                                       invalid_cpp(f["invalid"], f["_scalar"])))
@@ -481,6 +504,8 @@ def icd_blocks(schemas):
             extra = ""
             if "max" in f:
                 extra = " (valid: 0..%d or the invalid value)" % f["max"]
+            if "constant" in f:
+                extra = " (always %d, the message version; a decoder refuses any other)" % s["version"]
             rows.append("| %d | %d | `%s` | %s | %s | %s | %s | %s%s |" % (
                 f["_offset"], f["_size"], f["name"], f["type"], md(f["unit"]), md(f["frame"]),
                 invalid_text(f["invalid"]), md(f["doc"]), extra))
@@ -560,6 +585,10 @@ def main():
     ap.add_argument("--header", help="write messages.hpp here")
     ap.add_argument("--check-icd", metavar="ICD_MD", help="fail when the ICD tables drifted")
     ap.add_argument("--update-icd", metavar="ICD_MD", help="rewrite the ICD tables in place")
+    ap.add_argument("--check-doc", metavar="MD", action="append", default=[],
+                    help="like --check-icd for another document, over the blocks it holds")
+    ap.add_argument("--update-doc", metavar="MD", action="append", default=[],
+                    help="like --update-icd for another document, over the blocks it holds")
     ap.add_argument("--print-icd", action="store_true", help="print the generated blocks")
     args = ap.parse_args()
     schemas = load_schemas(args.schema_dir)
@@ -577,12 +606,19 @@ def main():
     if args.print_icd:
         for name, b in blocks.items():
             print("<!-- BEGIN GENERATED %s -->\n%s\n<!-- END GENERATED %s -->\n" % (name, b, name))
-    for path, update in ((args.check_icd, False), (args.update_icd, True)):
+    docs = [(args.check_icd, False, True), (args.update_icd, True, True)]
+    docs += [(p, False, False) for p in args.check_doc] + [(p, True, False) for p in args.update_doc]
+    for path, update, whole_icd in docs:
         if not path:
             continue
         with open(path) as fh:
             text = fh.read()
         out, missing = render_icd(text, blocks)
+        if not whole_icd:  # another document: the blocks it holds, at least one
+            if len(missing) == len(blocks):
+                sys.stderr.write("%s holds no generated schema block\n" % path)
+                return 1
+            missing = []
         if update:
             if missing:
                 out += "".join("\n<!-- BEGIN GENERATED %s -->\n%s\n<!-- END GENERATED %s -->\n" %

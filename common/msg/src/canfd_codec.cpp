@@ -6,7 +6,7 @@
 #include <cstring>
 #include <string_view>
 
-#include "storetrack/msg/byte_order.hpp"
+#include "storetrack/bytes/byte_cursor.hpp"
 #include "storetrack/msg/crc.hpp"
 #include "storetrack/time/time.hpp"
 
@@ -56,7 +56,7 @@ std::uint8_t camera_of(const UnitHealth&) {
 template <typename Message>
 int encode(const Message& m, MessageId id, std::span<CanFdFrame> out) {
   std::array<std::uint8_t, kCanFdMaxTransferBytes> stream;
-  BeWriter w(stream);
+  bytes::BigEndianWriter w(stream);
   if (const int rc = pack_payload(m, w); rc != 0) return rc;
   w.put_u32(crc32(std::span<const std::uint8_t>(stream).first(w.size())));
   if (!w.ok()) return -ENOSPC;
@@ -73,7 +73,7 @@ int encode(const Message& m, MessageId id, std::span<CanFdFrame> out) {
     f.can_id = can_id;
     f.len = canfd_round_up_len(kCanFdFragmentHeaderBytes + chunk);
     std::memset(f.data, 0, sizeof(f.data));
-    BeWriter fw(std::span<std::uint8_t>(f.data, f.len));
+    bytes::BigEndianWriter fw(std::span<std::uint8_t>(f.data, f.len));
     fw.put_u16(transfer_seq(m));
     fw.put_u8(static_cast<std::uint8_t>(i << 4 | (count - 1)));
     fw.put_bytes(std::span<const std::uint8_t>(stream).subspan(begin, chunk));
@@ -190,7 +190,7 @@ DecodeError CanFdReassembler::push(const CanFdFrame& frame, std::int64_t now_ns,
   if (frame.len <= kCanFdFragmentHeaderBytes) return count_error(DecodeError::kTooShort);
   if (frame.len > kCanFdMaxData || !is_valid_canfd_len(frame.len))
     return count_error(DecodeError::kBadLength);
-  BeReader r(std::span<const std::uint8_t>(frame.data, frame.len));
+  bytes::BigEndianReader r(std::span<const std::uint8_t>(frame.data, frame.len));
   const Key key{id, r.get_u16()};
   const std::uint8_t fragment = r.get_u8();
   const std::size_t index = fragment >> 4;
@@ -277,11 +277,11 @@ DecodeError CanFdReassembler::finish(Slot& slot, std::int64_t now_ns,
   if (canfd_round_up_len(kCanFdFragmentHeaderBytes + last_chunk) !=
       kCanFdFragmentHeaderBytes + slot.last_len)
     return count_error(DecodeError::kBadLength);
-  BeReader crc_reader(stream.subspan(payload_bytes, kCanFdTransferCrcBytes));
+  bytes::BigEndianReader crc_reader(stream.subspan(payload_bytes, kCanFdTransferCrcBytes));
   if (crc_reader.get_u32() != crc32(stream.first(payload_bytes)))
     return count_error(DecodeError::kBadCrc);
 
-  BeReader r(stream.first(payload_bytes));
+  bytes::BigEndianReader r(stream.first(payload_bytes));
   DecodeError e = DecodeError::kNone;
   if (marks) {
     AnyMessage& any = completed.emplace(std::in_place_type<MarkObservations>);

@@ -2,7 +2,7 @@
 
 #include <cerrno>
 
-#include "storetrack/msg/byte_order.hpp"
+#include "storetrack/bytes/byte_cursor.hpp"
 #include "storetrack/msg/crc.hpp"
 
 namespace storetrack::msg {
@@ -20,7 +20,7 @@ int encode(const Message& m, MessageId id, std::uint8_t version, std::span<std::
            std::uint32_t datagram_seq) {
   const std::size_t total = kUdpHeaderBytes + payload_size(m) + kUdpCrcBytes;
   if (out.size() < total) return -ENOSPC;
-  BeWriter w(out.first(total));
+  bytes::BigEndianWriter w(out.first(total));
   w.put_u16(kUdpMagic);
   w.put_u8(kUdpFramingVersion);
   w.put_u8(static_cast<std::uint8_t>(id));
@@ -38,7 +38,7 @@ template <typename Message>
 DecodeError decode_payload(std::span<const std::uint8_t> payload, std::uint8_t header_unit,
                            AnyMessage& out) {
   Message& m = out.emplace<Message>();
-  BeReader r(payload);
+  bytes::BigEndianReader r(payload);
   if (const DecodeError e = unpack_payload(r, m); e != DecodeError::kNone) return e;
   if (m.unit_id != header_unit) return DecodeError::kOutOfRange;
   return DecodeError::kNone;
@@ -58,7 +58,7 @@ int encode_datagram(const UnitHealth& m, std::span<std::uint8_t> out, std::uint3
 DecodeError decode_datagram(std::span<const std::uint8_t> in, AnyMessage& out,
                             DatagramHeader* header) {
   if (in.size() < kUdpHeaderBytes + kUdpCrcBytes) return DecodeError::kTooShort;
-  BeReader r(in);
+  bytes::BigEndianReader r(in);
   DatagramHeader h;
   h.magic = r.get_u16();
   h.framing_version = r.get_u8();
@@ -71,7 +71,7 @@ DecodeError decode_datagram(std::span<const std::uint8_t> in, AnyMessage& out,
   if (h.framing_version != kUdpFramingVersion) return DecodeError::kBadVersion;
   if (h.length != in.size() || in.size() > kMaxDatagramBytes) return DecodeError::kBadLength;
   const std::size_t covered = in.size() - kUdpCrcBytes;
-  BeReader crc_reader(in.subspan(covered));
+  bytes::BigEndianReader crc_reader(in.subspan(covered));
   if (crc_reader.get_u32() != crc32(in.first(covered))) return DecodeError::kBadCrc;
   const auto payload = in.subspan(kUdpHeaderBytes, covered - kUdpHeaderBytes);
   DecodeError e = DecodeError::kUnknownType;

@@ -3,26 +3,27 @@
 // Message F0 (0x30). All multi-byte packet fields are little-endian.
 #include "storetrack/output/chapter10_reader.hpp"
 
+#include <algorithm>
 #include <bit>
 #include <chrono>
 #include <fstream>
 #include <iterator>
 #include <stdexcept>
 
+#include "storetrack/bytes/byte_cursor.hpp"
+
 namespace storetrack::ch10read {
 namespace {
 
-std::uint32_t le(std::span<const std::uint8_t> b, std::size_t at, int bytes) {
-  std::uint32_t v = 0;
-  for (int i = bytes - 1; i >= 0; --i)
-    v = (v << 8) | b[at + static_cast<std::size_t>(i)];
-  return v;
+// Fields at their documented offsets; the byte order is the common cursor's. A field past the
+// span reads as 0 (callers check the lengths first; the fuzzer checks that they do).
+std::uint32_t le(std::span<const std::uint8_t> b, std::size_t at, int width) {
+  bytes::LittleEndianReader r(b.subspan(std::min(at, b.size())));
+  return static_cast<std::uint32_t>(r.get_uint(static_cast<std::size_t>(width)));
 }
-std::uint64_t be_u(std::span<const std::uint8_t> b, std::size_t at, int bytes) {
-  std::uint64_t v = 0;
-  for (int i = 0; i < bytes; ++i)
-    v = (v << 8) | b[at + static_cast<std::size_t>(i)];
-  return v;
+std::uint64_t be_u(std::span<const std::uint8_t> b, std::size_t at, int width) {
+  bytes::BigEndianReader r(b.subspan(std::min(at, b.size())));
+  return r.get_uint(static_cast<std::size_t>(width));
 }
 double be_float(std::span<const std::uint8_t> b, std::size_t at) {
   return static_cast<double>(std::bit_cast<float>(static_cast<std::uint32_t>(be_u(b, at, 4))));

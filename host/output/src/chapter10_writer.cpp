@@ -13,6 +13,7 @@
 #include <cstring>
 #include <filesystem>
 
+#include "storetrack/bytes/byte_cursor.hpp"
 #include "storetrack/output/fti_parameter_block.hpp"
 
 namespace storetrack::output {
@@ -27,21 +28,11 @@ constexpr std::uint8_t kFlagsChecksum32 = 0x03;        // packet flags bits 1-0 
 constexpr std::size_t kHeaderBytes = 24;
 constexpr std::uint8_t kTmatsCh10Version106_17 = 0x0C;  // TMATS CSDW bits 7-0
 
-void put_le16(std::vector<std::uint8_t>& v, std::size_t at, std::uint16_t x) {
-  v[at] = static_cast<std::uint8_t>(x);
-  v[at + 1] = static_cast<std::uint8_t>(x >> 8);
-}
-void put_le32(std::vector<std::uint8_t>& v, std::size_t at, std::uint32_t x) {
-  for (int i = 0; i < 4; ++i)
-    v[at + i] = static_cast<std::uint8_t>(x >> (8 * i));
-}
-void append_le32(std::vector<std::uint8_t>& v, std::uint32_t x) {
-  v.resize(v.size() + 4);
-  put_le32(v, v.size() - 4, x);
-}
-void append_le16(std::vector<std::uint8_t>& v, std::uint16_t x) {
-  v.resize(v.size() + 2);
-  put_le16(v, v.size() - 2, x);
+// Chapter 10 packet structure is little-endian (11.2): `n` more bytes at the end of `v` and a
+// writer over exactly them.
+bytes::LittleEndianWriter grow(std::vector<std::uint8_t>& v, std::size_t n) {
+  v.resize(v.size() + n);
+  return bytes::LittleEndianWriter(std::span(v).last(n));
 }
 std::uint8_t bcd2(int value) {
   return static_cast<std::uint8_t>(((value / 10) % 10) << 4 | (value % 10));
@@ -196,7 +187,7 @@ int Chapter10Writer::write_file_header(bool repeat_time_packet) {
   // Computer-Generated Data Format 1 (setup record): CSDW bit 9 SRCC = 0, bit 8 format = 0
   // (ASCII TMATS), bits 7-0 Chapter 10 version.
   std::vector<std::uint8_t> body;
-  append_le32(body, kTmatsCh10Version106_17);
+  grow(body, 4).put_u32(kTmatsCh10Version106_17);
   const std::string tmats = tmats_text();
   body.insert(body.end(), tmats.begin(), tmats.end());
   bool written = false;
@@ -254,30 +245,32 @@ std::vector<std::uint8_t> Chapter10Writer::build_packet(std::uint16_t channel_id
   const std::size_t trailer = config_.data_checksum ? 4 : 0;
   const std::size_t packet_length = kHeaderBytes + padded + trailer;
   std::vector<std::uint8_t> packet(packet_length, 0);
-  put_le16(packet, 0, kSync);
-  put_le16(packet, 2, channel_id);
-  put_le32(packet, 4, static_cast<std::uint32_t>(packet_length));
-  put_le32(packet, 8, static_cast<std::uint32_t>(data_length));
-  packet[12] = kDataTypeVersion106_17;
-  packet[13] = sequence_[channel_id]++;
-  packet[14] = config_.data_checksum ? kFlagsChecksum32 : 0x00;  // no secondary header, RTC
-  packet[15] = data_type;
-  for (int i = 0; i < 6; ++i)
-    packet[16 + i] = static_cast<std::uint8_t>(rtc >> (8 * i));
+  bytes::LittleEndianWriter w(packet);
+  w.put_u16(kSync);
+  w.put_u16(channel_id);
+  w.put_u32(static_cast<std::uint32_t>(packet_length));
+  w.put_u32(static_cast<std::uint32_t>(data_length));
+  w.put_u8(kDataTypeVersion106_17);
+  w.put_u8(sequence_[channel_id]++);
+  w.put_u8(config_.data_checksum ? kFlagsChecksum32 : 0x00);  // no secondary header, RTC
+  w.put_u8(data_type);
+  w.put_uint(rtc, 6);  // 48-bit relative time counter
+  // Header checksum: 16-bit sum of the 11 little-endian 16-bit words before it.
+  bytes::LittleEndianReader header_words(std::span<const std::uint8_t>(packet).first(22));
   std::uint16_t header_sum = 0;
-  for (std::size_t i = 0; i < 22; i += 2) {
-    header_sum = static_cast<std::uint16_t>(header_sum + (packet[i] | (packet[i + 1] << 8)));
-  }
-  put_le16(packet, 22, header_sum);
-  std::memcpy(packet.data() + kHeaderBytes, body.data(), body.size());
+  for (int i = 0; i < 11; ++i)
+    header_sum = static_cast<std::uint16_t>(header_sum + header_words.get_u16());
+  w.put_u16(header_sum);
+  w.put_bytes(body);
+  w.put_zeros(padded - data_length);  // filler
   if (config_.data_checksum) {
     // 32-bit arithmetic sum of the 32-bit little-endian words of the body including filler.
+    bytes::LittleEndianReader body_words(
+        std::span<const std::uint8_t>(packet).subspan(kHeaderBytes, padded));
     std::uint32_t sum = 0;
-    for (std::size_t i = kHeaderBytes; i < kHeaderBytes + padded; i += 4) {
-      sum += std::uint32_t{packet[i]} | std::uint32_t{packet[i + 1]} << 8 |
-             std::uint32_t{packet[i + 2]} << 16 | std::uint32_t{packet[i + 3]} << 24;
-    }
-    put_le32(packet, kHeaderBytes + padded, sum);
+    for (std::size_t i = 0; i < padded / 4; ++i)
+      sum += body_words.get_u32();
+    w.put_u32(sum);
   }
   return packet;
 }
@@ -362,12 +355,13 @@ std::vector<std::uint8_t> Chapter10Writer::time_body(std::int64_t utc_second) co
   // CSDW: bits 3-0 SRC = 1 (external: PTP), bits 7-4 FMT = 4 (UTC), bit 8 LY, bit 9 DATE = 1
   // (month and year format), bits 11-10 ITS = 0.
   const bool leap = (c.year % 4 == 0 && c.year % 100 != 0) || c.year % 400 == 0;
-  append_le32(body, 0x1u | (0x4u << 4) | (leap ? 1u << 8 : 0u) | (1u << 9));
+  bytes::LittleEndianWriter w = grow(body, 12);
+  w.put_u32(0x1u | (0x4u << 4) | (leap ? 1u << 8 : 0u) | (1u << 9));
   // Month/year format: four 16-bit words of BCD digits.
-  append_le16(body, static_cast<std::uint16_t>(bcd2(c.millisecond / 10) | (bcd2(c.second) << 8)));
-  append_le16(body, static_cast<std::uint16_t>(bcd2(c.minute) | (bcd2(c.hour) << 8)));
-  append_le16(body, static_cast<std::uint16_t>(bcd2(c.day) | (bcd2(c.month) << 8)));
-  append_le16(body, static_cast<std::uint16_t>(bcd2(c.year % 100) | (bcd2(c.year / 100) << 8)));
+  w.put_u16(static_cast<std::uint16_t>(bcd2(c.millisecond / 10) | (bcd2(c.second) << 8)));
+  w.put_u16(static_cast<std::uint16_t>(bcd2(c.minute) | (bcd2(c.hour) << 8)));
+  w.put_u16(static_cast<std::uint16_t>(bcd2(c.day) | (bcd2(c.month) << 8)));
+  w.put_u16(static_cast<std::uint16_t>(bcd2(c.year % 100) | (bcd2(c.year / 100) << 8)));
   return body;
 }
 
@@ -404,17 +398,14 @@ int Chapter10Writer::write(const msg::FtiSample& sample) {
   // Intra-packet header (11.2.1.1, Message Data F0): 8-byte time stamp (48-bit RTC in the low
   // bytes), then the intra-packet data header: bits 15-0 message length, bits 29-16 subchannel,
   // bit 30 format error, bit 31 data error (set when the sample is not a valid pose).
-  const std::uint64_t ipts = rtc_of(t);
-  append_le32(pending_body_, static_cast<std::uint32_t>(ipts));
-  append_le32(pending_body_, static_cast<std::uint32_t>(ipts >> 32));
+  bytes::LittleEndianWriter w = grow(pending_body_, 12);
+  w.put_u64(rtc_of(t));
   const bool valid = (sample.status & msg::fti_status::kValid) != 0;
-  append_le32(pending_body_, static_cast<std::uint32_t>(kFtiParameterBlockBytes) |
-                                 (static_cast<std::uint32_t>(sample.store_id & 0x3FFF) << 16) |
-                                 (valid ? 0u : 1u << 31));
-  const std::size_t at = pending_body_.size();
+  w.put_u32(static_cast<std::uint32_t>(kFtiParameterBlockBytes) |
+            (static_cast<std::uint32_t>(sample.store_id & 0x3FFF) << 16) | (valid ? 0u : 1u << 31));
   static_assert(kFtiParameterBlockBytes % 2 == 0, "Chapter 10 messages need no filler byte");
-  pending_body_.resize(at + kFtiParameterBlockBytes);
-  encode_fti_parameter_block(sample, std::span(pending_body_).subspan(at));
+  pending_body_.resize(pending_body_.size() + kFtiParameterBlockBytes);
+  encode_fti_parameter_block(sample, std::span(pending_body_).last(kFtiParameterBlockBytes));
   ++pending_messages_;
   if (pending_messages_ >= config_.max_messages_per_packet) {
     if (int r = flush(); r != 0) rc = r;
@@ -428,7 +419,7 @@ int Chapter10Writer::flush() {
   body.reserve(pending_body_.size() + 4);
   // CSDW: bits 15-0 message count (<= kMaxChapter10MessagesPerPacket by open()), bits 17-16
   // packet type 00 = complete messages.
-  append_le32(body, static_cast<std::uint32_t>(pending_messages_));
+  grow(body, 4).put_u32(static_cast<std::uint32_t>(pending_messages_));
   body.insert(body.end(), pending_body_.begin(), pending_body_.end());
   const int rc = write_packet(config_.message_channel_id, kTypeMessageF0,
                               rtc_of(pending_first_tai_ns_), body, pending_messages_);

@@ -9,7 +9,7 @@
 #include <cerrno>
 #include <charconv>
 
-#include "storetrack/output/big_endian.hpp"
+#include "storetrack/bytes/byte_cursor.hpp"
 #include "storetrack/time/time.hpp"
 
 namespace storetrack::output {
@@ -17,7 +17,6 @@ namespace storetrack::output {
 int encode_inetx_packet(const msg::FtiSample& sample, std::uint32_t stream_id,
                         std::uint32_t sequence, std::span<std::uint8_t> out) {
   if (out.size() < kInetxPacketBytes) return -ENOSPC;
-  std::uint8_t* p = out.data();
   std::int64_t t = sample.exposure_mid_tai_ns;
   std::int64_t secs = t / time::kNsPerSecond;
   std::int64_t ns = t % time::kNsPerSecond;
@@ -26,22 +25,30 @@ int encode_inetx_packet(const msg::FtiSample& sample, std::uint32_t stream_id,
     --secs;
   }
   const bool valid = (sample.status & msg::fti_status::kValid) != 0;
-  be::put_u32(p + 0, kInetxControlWord);
-  be::put_u32(p + 4, stream_id);
-  be::put_u32(p + 8, sequence);
-  be::put_u32(p + 12, static_cast<std::uint32_t>(kInetxPacketBytes));
-  be::put_u32(p + 16, static_cast<std::uint32_t>(secs));
-  be::put_u32(p + 20, static_cast<std::uint32_t>(ns));
-  be::put_u32(p + 24, valid ? 0u : kInetxPifDataError);
-  encode_fti_parameter_block(sample, out.subspan(kInetxHeaderBytes));
+  bytes::BigEndianWriter w(out.first(kInetxHeaderBytes));
+  w.put_u32(kInetxControlWord);
+  w.put_u32(stream_id);
+  w.put_u32(sequence);
+  w.put_u32(static_cast<std::uint32_t>(kInetxPacketBytes));
+  w.put_u32(static_cast<std::uint32_t>(secs));
+  w.put_u32(static_cast<std::uint32_t>(ns));
+  w.put_u32(valid ? 0u : kInetxPifDataError);
+  static_assert(kInetxHeaderBytes == 7 * 4);
+  if (!w.ok() || w.remaining() != 0) return -ENOSPC;
+  if (encode_fti_parameter_block(sample, out.subspan(kInetxHeaderBytes)) < 0) return -ENOSPC;
   return static_cast<int>(kInetxPacketBytes);
 }
 
 int decode_inetx_header(std::span<const std::uint8_t> in, InetxHeader& h) {
   if (in.size() < kInetxHeaderBytes) return -EINVAL;
-  const std::uint8_t* p = in.data();
-  h = {be::get_u32(p),      be::get_u32(p + 4),  be::get_u32(p + 8), be::get_u32(p + 12),
-       be::get_u32(p + 16), be::get_u32(p + 20), be::get_u32(p + 24)};
+  bytes::BigEndianReader r(in);
+  h.control_word = r.get_u32();
+  h.stream_id = r.get_u32();
+  h.sequence = r.get_u32();
+  h.packet_length = r.get_u32();
+  h.ptp_seconds = r.get_u32();
+  h.ptp_nanoseconds = r.get_u32();
+  h.pif = r.get_u32();
   if (h.packet_length != in.size()) return -EINVAL;
   return 0;
 }

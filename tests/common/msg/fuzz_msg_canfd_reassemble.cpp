@@ -12,7 +12,7 @@
 #include <cstdlib>
 #include <cstring>
 
-#include "storetrack/msg/byte_order.hpp"
+#include "storetrack/bytes/byte_cursor.hpp"
 #include "storetrack/msg/canfd_codec.hpp"
 #include "storetrack/msg/crc.hpp"
 
@@ -36,7 +36,7 @@ void raw_frames(CanFdReassembler& reassembler, std::int64_t& now, const std::uin
   std::size_t pos = 0;
   while (pos + 7 <= size) {
     CanFdFrame f;
-    BeReader r(std::span<const std::uint8_t>(data + pos, 7));
+    storetrack::bytes::BigEndianReader r(std::span<const std::uint8_t>(data + pos, 7));
     f.can_id = r.get_u32() & 0x3FFFFFFFu;  // mostly 29 bits, sometimes one bit above
     f.len = r.get_u8();
     now += static_cast<std::int64_t>(r.get_u16()) * 1000;
@@ -57,7 +57,8 @@ void structured_transfer(const std::uint8_t* data, std::size_t size) {
   std::uint8_t stream[kCanFdMaxFragments * kCanFdFragmentPayloadBytes] = {};
   const std::size_t payload = std::min(size - 1, sizeof(stream) - kCanFdTransferCrcBytes);
   std::memcpy(stream, data + 1, payload);
-  BeWriter w(std::span<std::uint8_t>(stream + payload, kCanFdTransferCrcBytes));
+  storetrack::bytes::BigEndianWriter w(
+      std::span<std::uint8_t>(stream + payload, kCanFdTransferCrcBytes));
   w.put_u32(crc32(std::span<const std::uint8_t>(stream, payload)));
   const std::size_t length = payload + kCanFdTransferCrcBytes;
   const std::size_t count = (length + kCanFdFragmentPayloadBytes - 1) / kCanFdFragmentPayloadBytes;
@@ -67,7 +68,8 @@ void structured_transfer(const std::uint8_t* data, std::size_t size) {
   // report_tai_ns at 6..13).
   const std::uint8_t fid = health ? 2 : 1;
   const std::uint32_t id = canid::make(canid::kLccNoc, fid, stream[0], health ? 0 : stream[1]);
-  BeReader health_time(std::span<const std::uint8_t>(stream + 6, 8));  // report_tai_ns
+  storetrack::bytes::BigEndianReader health_time(
+      std::span<const std::uint8_t>(stream + 6, 8));  // report_tai_ns
   const std::uint16_t seq =
       health ? static_cast<std::uint16_t>(static_cast<std::uint64_t>(health_time.get_i64()) >> 20)
              : static_cast<std::uint16_t>(stream[4] << 8 | stream[5]);
@@ -79,7 +81,7 @@ void structured_transfer(const std::uint8_t* data, std::size_t size) {
     const std::size_t begin = i * kCanFdFragmentPayloadBytes;
     const std::size_t chunk = std::min(kCanFdFragmentPayloadBytes, length - begin);
     f.len = canfd_round_up_len(kCanFdFragmentHeaderBytes + chunk);
-    BeWriter fw(std::span<std::uint8_t>(f.data, f.len));
+    storetrack::bytes::BigEndianWriter fw(std::span<std::uint8_t>(f.data, f.len));
     fw.put_u16(seq);
     fw.put_u8(static_cast<std::uint8_t>(i << 4 | (count - 1)));
     fw.put_bytes(std::span<const std::uint8_t>(stream + begin, chunk));

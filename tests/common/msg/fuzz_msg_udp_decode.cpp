@@ -8,7 +8,7 @@
 #include <cstdlib>
 #include <cstring>
 
-#include "storetrack/msg/byte_order.hpp"
+#include "storetrack/bytes/byte_cursor.hpp"
 #include "storetrack/msg/crc.hpp"
 #include "storetrack/msg/udp_codec.hpp"
 
@@ -20,7 +20,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   std::memcpy(buffer, data + 1, n);
   const std::span<std::uint8_t> datagram(buffer, n);
   if ((data[0] & 1) != 0 && n >= kUdpCrcBytes) {
-    BeWriter w(datagram.subspan(n - kUdpCrcBytes));
+    storetrack::bytes::BigEndianWriter w(datagram.subspan(n - kUdpCrcBytes));
     w.put_u32(crc32(datagram.first(n - kUdpCrcBytes)));
   }
   AnyMessage message;

@@ -9,7 +9,7 @@
 #include <iterator>
 #include <vector>
 
-#include "storetrack/msg/byte_order.hpp"
+#include "storetrack/bytes/byte_cursor.hpp"
 #include "storetrack/msg/canfd_codec.hpp"
 #include "storetrack/msg/udp_codec.hpp"
 
@@ -80,7 +80,7 @@ TEST(MsgIcdVectors, CanFdFramesBuiltFromTheIcdReassemble) {
     const auto bytes = read_file(entry.path());
     CanFdReassembler reassembler;
     std::optional<AnyMessage> done;
-    BeReader r{std::span<const std::uint8_t>(bytes).subspan(1)};
+    bytes::BigEndianReader r{std::span<const std::uint8_t>(bytes).subspan(1)};
     while (r.remaining() > 0) {
       CanFdFrame f;
       f.can_id = r.get_u32();

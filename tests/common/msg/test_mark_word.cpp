@@ -6,7 +6,7 @@
 #include <limits>
 #include <random>
 
-#include "storetrack/msg/byte_order.hpp"
+#include "storetrack/bytes/byte_cursor.hpp"
 #include "storetrack/msg/crc.hpp"
 #include "storetrack/msg/messages.hpp"
 #include "test_helpers.hpp"
@@ -110,7 +110,7 @@ TEST(MsgMarkWord, SaturatingAndInvalidFields) {
 
 TEST(MsgByteOrder, BigEndianOnTheWire) {
   std::array<std::uint8_t, 31> buf{};
-  BeWriter w(buf);
+  bytes::BigEndianWriter w(buf);
   w.put_u8(0x01);
   w.put_u16(0x0203);
   w.put_u32(0x04050607);
@@ -128,7 +128,7 @@ TEST(MsgByteOrder, BigEndianOnTheWire) {
   w.put_u32(1);  // does not fit
   EXPECT_FALSE(w.ok());
 
-  BeReader r(buf);
+  bytes::BigEndianReader r(buf);
   EXPECT_EQ(r.get_u8(), 0x01);
   EXPECT_EQ(r.get_u16(), 0x0203);
   EXPECT_EQ(r.get_u32(), 0x04050607u);

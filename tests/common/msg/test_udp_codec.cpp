@@ -6,7 +6,7 @@
 #include <random>
 #include <vector>
 
-#include "storetrack/msg/byte_order.hpp"
+#include "storetrack/bytes/byte_cursor.hpp"
 #include "storetrack/msg/crc.hpp"
 #include "storetrack/msg/udp_codec.hpp"
 #include "test_helpers.hpp"
@@ -66,7 +66,7 @@ void expect_same(const UnitHealth& a, const UnitHealth& b) {
 // Rewrites the CRC trailer so that a deliberately malformed datagram reaches the later checks.
 void reseal(std::span<std::uint8_t> datagram) {
   const std::size_t covered = datagram.size() - kUdpCrcBytes;
-  BeWriter w(datagram.subspan(covered));
+  bytes::BigEndianWriter w(datagram.subspan(covered));
   w.put_u32(crc32(datagram.first(covered)));
 }
 
@@ -254,7 +254,7 @@ TEST(MsgUdp, RandomGarbageNeverCrashesAndIsCounted) {
     for (auto& b : d)
       b = static_cast<std::uint8_t>(rng());
     if (structured && d.size() >= kUdpHeaderBytes + kUdpCrcBytes) {
-      BeWriter w(d);
+      bytes::BigEndianWriter w(d);
       w.put_u16(kUdpMagic);
       w.put_u8(kUdpFramingVersion);
       w.put_u8(id);
@@ -275,7 +275,7 @@ TEST(MsgUdp, RandomGarbageNeverCrashesAndIsCounted) {
     if (e == DecodeError::kNone) {
       // Whatever is accepted is canonical: encoding it again reproduces the datagram.
       Buffer again;
-      const std::uint32_t seq = BeReader(std::span(d).subspan(8)).get_u32();
+      const std::uint32_t seq = bytes::BigEndianReader(std::span(d).subspan(8)).get_u32();
       const int n = std::visit([&](const auto& m) { return encode_datagram(m, again, seq); }, any);
       ASSERT_EQ(n, static_cast<int>(d.size()));
       EXPECT_TRUE(std::equal(d.begin(), d.end(), again.begin()));

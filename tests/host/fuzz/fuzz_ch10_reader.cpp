@@ -19,6 +19,7 @@
 #include <string>
 #include <vector>
 
+#include "storetrack/bytes/byte_cursor.hpp"
 #include "storetrack/output/chapter10_reader.hpp"
 
 namespace {
@@ -26,15 +27,13 @@ namespace {
 namespace ch10 = storetrack::ch10read;
 
 std::uint32_t get_le(const std::vector<std::uint8_t>& b, std::size_t at, int bytes) {
-  std::uint32_t v = 0;
-  for (int i = bytes - 1; i >= 0; --i)
-    v = (v << 8) | b[at + static_cast<std::size_t>(i)];
-  return v;
+  storetrack::bytes::LittleEndianReader r{std::span(b).subspan(at)};
+  return static_cast<std::uint32_t>(r.get_uint(static_cast<std::size_t>(bytes)));
 }
 
 void put_le(std::vector<std::uint8_t>& b, std::size_t at, std::uint32_t v, int bytes) {
-  for (int i = 0; i < bytes; ++i)
-    b[at + static_cast<std::size_t>(i)] = static_cast<std::uint8_t>(v >> (8 * i));
+  storetrack::bytes::LittleEndianWriter w{std::span(b).subspan(at)};
+  w.put_uint(v, static_cast<std::size_t>(bytes));
 }
 
 // IRIG 106-17 11.2.1.1.10: the header checksum is the 16-bit sum of the first 11 header words;

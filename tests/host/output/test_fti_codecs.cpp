@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "fti_sample_factory.hpp"
-#include "storetrack/output/big_endian.hpp"
+#include "storetrack/bytes/byte_cursor.hpp"
 #include "storetrack/output/csv_writer.hpp"
 #include "storetrack/output/inetx.hpp"
 
@@ -51,12 +51,12 @@ TEST(FtiParameterBlock, OtherVersionsAreRefusedByName) {
   std::mt19937_64 rng(7);
   std::array<std::uint8_t, kFtiParameterBlockBytes> buf{};
   ASSERT_EQ(encode_fti_parameter_block(testing::make_sample(1, 0, rng), buf), 152);
-  EXPECT_EQ(be::get_u16(buf.data() + 18), 2);
+  EXPECT_EQ(bytes::BigEndianReader(std::span(buf).subspan(18)).get_u16(), 2);
   msg::FtiSample d{};
   EXPECT_EQ(decode_fti_parameter_block(std::span(buf).first(148), d), -EINVAL);
   EXPECT_EQ(fti_parameter_block_error(std::span(buf).first(148)),
             "FTI parameter block version 2 of 148 bytes: needs 152");
-  be::put_u16(buf.data() + 18, 1);
+  bytes::BigEndianWriter(std::span(buf).subspan(18)).put_u16(1);
   for (std::size_t bytes : {std::size_t{148}, std::size_t{152}}) {
     EXPECT_EQ(decode_fti_parameter_block(std::span(buf).first(bytes), d), -EPROTO);
     EXPECT_EQ(fti_parameter_block_error(std::span(buf).first(bytes)),
@@ -64,6 +64,26 @@ TEST(FtiParameterBlock, OtherVersionsAreRefusedByName) {
               "docs/fti-output.md)");
   }
   EXPECT_EQ(decode_fti_parameter_block(std::span(buf).first(19), d), -EINVAL);
+}
+
+// The block is the schema's generated FtiSample payload: its block_version is the schema
+// constant (offset 18 = 8 + 4 + 4 x 1 + 2), refused when it differs, and the payload is exactly
+// 152 bytes.
+TEST(FtiParameterBlock, GeneratedCodecChecksVersionAndLength) {
+  static_assert(msg::kFtiSampleBlockVersionOffset == 18);
+  std::mt19937_64 rng(3);
+  std::array<std::uint8_t, kFtiParameterBlockBytes + 1> buf{};
+  ASSERT_EQ(encode_fti_parameter_block(testing::make_sample(2, 0, rng), buf), 152);
+  msg::FtiSample d{};
+  bytes::BigEndianReader whole{std::span<const std::uint8_t>(buf).first(152)};
+  EXPECT_EQ(msg::unpack_payload(whole, d), msg::DecodeError::kNone);
+  bytes::BigEndianReader longer{std::span<const std::uint8_t>(buf)};
+  EXPECT_EQ(msg::unpack_payload(longer, d), msg::DecodeError::kBadLength);
+  bytes::BigEndianReader shorter{std::span<const std::uint8_t>(buf).first(151)};
+  EXPECT_EQ(msg::unpack_payload(shorter, d), msg::DecodeError::kBadLength);
+  buf[19] = 3;  // block_version 3
+  bytes::BigEndianReader other{std::span<const std::uint8_t>(buf).first(152)};
+  EXPECT_EQ(msg::unpack_payload(other, d), msg::DecodeError::kBadVersion);
 }
 
 TEST(Inetx, HeaderFieldsAreBigEndianAtTheDocumentedOffsets) {

@@ -16,7 +16,7 @@
 #include <thread>
 
 #include "fti_sample_factory.hpp"
-#include "storetrack/output/big_endian.hpp"
+#include "storetrack/bytes/byte_cursor.hpp"
 #include "storetrack/output/inetx.hpp"
 
 namespace storetrack::output {
@@ -120,21 +120,22 @@ TEST(InetxCapture, TsharkSeesTheHeaderAndPayloadThatWereSent) {
     EXPECT_EQ(h.ptp_nanoseconds, static_cast<std::uint32_t>(t % 1'000'000'000));
     EXPECT_EQ(h.pif, (sent[i].status & msg::fti_status::kValid) ? 0u : kInetxPifDataError);
     // Payload parameters at the documented offsets (docs/fti-output.md), decoded by hand.
-    const std::uint8_t* b = p.data() + 28;
-    EXPECT_EQ(static_cast<std::int64_t>(be::get_u64(b)), t);
-    EXPECT_EQ(be::get_u32(b + 8), sent[i].trigger_seq);
+    const auto b = std::span<const std::uint8_t>(p).subspan(28);
+    auto at = [&b](std::size_t offset) { return bytes::BigEndianReader(b.subspan(offset)); };
+    EXPECT_EQ(static_cast<std::int64_t>(at(0).get_u64()), t);
+    EXPECT_EQ(at(8).get_u32(), sent[i].trigger_seq);
     EXPECT_EQ(b[13], sent[i].cameras_used);
     EXPECT_EQ(b[14], sent[i].marks_used);
-    EXPECT_EQ(be::get_u16(b + 16), sent[i].status);
-    EXPECT_EQ(be::get_f32(b + 20), sent[i].x_m);
-    EXPECT_EQ(be::get_f32(b + 28), sent[i].z_m);
-    EXPECT_EQ(be::get_f32(b + 40), sent[i].roll_rad);
-    EXPECT_EQ(be::get_f32(b + 44), sent[i].u_x_m);
-    EXPECT_EQ(be::get_f32(b + 68), sent[i].correlation[0]);
-    EXPECT_EQ(be::get_u16(b + 18), 2);  // block version
-    EXPECT_EQ(be::get_f32(b + 140), sent[i].u_budget_sync_m);
-    EXPECT_EQ(be::get_f32(b + 144), sent[i].u_budget_process_m);
-    EXPECT_EQ(be::get_f32(b + 148), 2.0f);
+    EXPECT_EQ(at(16).get_u16(), sent[i].status);
+    EXPECT_EQ(at(20).get_f32(), sent[i].x_m);
+    EXPECT_EQ(at(28).get_f32(), sent[i].z_m);
+    EXPECT_EQ(at(40).get_f32(), sent[i].roll_rad);
+    EXPECT_EQ(at(44).get_f32(), sent[i].u_x_m);
+    EXPECT_EQ(at(68).get_f32(), sent[i].correlation[0]);
+    EXPECT_EQ(at(18).get_u16(), 2);  // block version
+    EXPECT_EQ(at(140).get_f32(), sent[i].u_budget_sync_m);
+    EXPECT_EQ(at(144).get_f32(), sent[i].u_budget_process_m);
+    EXPECT_EQ(at(148).get_f32(), 2.0f);
   }
   fs::remove_all(dir);
 }

@@ -1,6 +1,7 @@
 // The FTI parameter block: one FtiSample as 152 big-endian bytes. The SAME block is the payload
 // of an iNET-X packet and the body of one Chapter 10 Message Data F0 message, so the recorder and
-// the telemetry stream decode identically. Byte-by-byte layout: docs/fti-output.md.
+// the telemetry stream decode identically. It is the FtiSample payload generated from
+// common/msg/schema/fti_sample.yaml (field order = wire order); layout: docs/fti-output.md.
 #pragma once
 
 #include <cstddef>
@@ -12,12 +13,16 @@
 
 namespace storetrack::output {
 
-inline constexpr std::size_t kFtiParameterBlockBytes = 152;
-/// Version of the block layout, carried in the block itself (offset 18). Version 2 added
-/// u_budget_process at 144 (coverage_factor moved to 148; version 1 was 148 bytes).
-inline constexpr std::uint16_t kFtiParameterBlockVersion = 2;
+inline constexpr std::size_t kFtiParameterBlockBytes = msg::kFtiSampleFixedBytes;
+static_assert(kFtiParameterBlockBytes == 152, "the documented block size (docs/fti-output.md)");
+/// Version of the block layout, carried in the block itself (offset 18): the schema's message
+/// version. Version 2 added u_budget_process at 144 (coverage_factor moved to 148; version 1
+/// was 148 bytes).
+inline constexpr std::uint16_t kFtiParameterBlockVersion = msg::kFtiSampleVersion;
+static_assert(kFtiParameterBlockVersion == 2);
 /// Offset of the block_version field: readable in a block of any version.
-inline constexpr std::size_t kFtiParameterBlockVersionOffset = 18;
+inline constexpr std::size_t kFtiParameterBlockVersionOffset = msg::kFtiSampleBlockVersionOffset;
+static_assert(kFtiParameterBlockVersionOffset == 18);
 
 /// Writes the block; returns the byte count or -ENOSPC when `out` is too small.
 int encode_fti_parameter_block(const msg::FtiSample& sample, std::span<std::uint8_t> out);
