@@ -6,8 +6,8 @@
 // (Bar-Shalom, Li, Kirubarajan, "Estimation with Applications to Tracking and Navigation",
 // 2001, sec. 5.4); the multi-view test is the reprojection chi-square of the Gauss-Newton
 // triangulation (Hartley & Zisserman, "Multiple View Geometry", 2nd ed., ch. 12), which for two
-// views is the epipolar constraint with its uncertainty (host/triangulate). The layout fit is the
-// absolute orientation of host/pose (Umeyama, IEEE TPAMI 13(4), 1991).
+// views is the epipolar constraint with its uncertainty (estimation/triangulate). The layout fit is
+// the absolute orientation of estimation/pose (Umeyama, IEEE TPAMI 13(4), 1991).
 #include "matcher_work.hpp"
 
 #include <algorithm>

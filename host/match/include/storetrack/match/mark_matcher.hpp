@@ -352,8 +352,8 @@ class MarkMatcher {
 };
 
 /// Pose T_w_b of a body from the world positions of some of its marks (e.g. the installation
-/// survey's initial mark positions, for set_prior_pose) by absolute orientation (host/pose), and
-/// its 6x6 covariance (left perturbation) for positions of standard uncertainty `sigma_m` per
+/// survey's initial mark positions, for set_prior_pose) by absolute orientation (estimation/pose),
+/// and its 6x6 covariance (left perturbation) for positions of standard uncertainty `sigma_m` per
 /// axis (plus each mark's survey sigma). Ids not in the survey are ignored. Returns false with
 /// fewer than 3 of the body's marks or nearly collinear ones (no defined pose).
 bool fit_body_pose(const survey::RigidBodySurvey& body,
