@@ -54,7 +54,7 @@ MarkMatcher::WorkBuffers::~WorkBuffers() = default;
 
 MarkMatcher::MarkMatcher(const camera::RigCalibration& rig,
                          std::vector<survey::RigidBodySurvey> bodies, const MatcherConfig& config)
-    : rig_(rig), bodies_(std::move(bodies)), config_(config) {
+    : rig_(rig), factors_(rig), bodies_(std::move(bodies)), config_(config) {
   if (!(config_.gate_probability > 0 && config_.gate_probability < 1))
     throw std::invalid_argument("MatcherConfig.gate_probability must be in (0, 1)");
   std::unordered_map<int, int> seen;
