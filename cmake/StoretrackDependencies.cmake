@@ -48,7 +48,7 @@ set(STORETRACK_TESTS_NOT_BUILT "" CACHE STRING "Regex of GoogleTest executables 
 option(STORETRACK_TEST_PCH "Precompile GoogleTest + Eigen once for all test executables" ON)
 # The sanitizer tree compiles the tests' own sources at -O0 (after, so in place of, the tree's
 # -O1): the code under test is in the libraries, still -O1, and a test source compiles in about
-# half the time (clang ASan + UBSan, tests/host/pose/test_body_pose.cpp: 49 s -> 28 s of CPU).
+# half the time (clang ASan + UBSan, tests/estimation/pose/test_body_pose.cpp: 49 s -> 28 s of CPU).
 # ASan and UBSan see at least as much at -O0. The tests' PCH gets the same, so that it matches.
 # A test marked LONG_RUNNING (its own code loops: Monte Carlo draws, image synthesis, synthetic
 # calibrations) stays at -O1, without the shared PCH: at -O0 test_uncertainty_honesty_static ran

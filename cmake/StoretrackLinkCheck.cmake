@@ -2,9 +2,10 @@
 # added, storetrack_write_link_closures() writes each library's transitive link closure to
 # <build>/storetrack_library_links.txt, one line per library: name|source dir|simulated-mode
 # flag|closure (;-list). The test test_no_production_library_links_simulator
-# (tests/cmake/check_no_simulator_link.cmake) reads it and fails on any library under host/ or
-# firmware/ whose closure holds common/sim's libraries, unless the library is the simulated
-# side of a split (target property STORETRACK_SIMULATED_MODE, e.g. storetrack_unit_sim).
+# (tests/cmake/check_no_simulator_link.cmake) reads it and fails on any library under host/,
+# firmware/ or estimation/ whose closure holds common/sim's libraries, unless the library is the
+# simulated side of a split (target property STORETRACK_SIMULATED_MODE, e.g. storetrack_unit_sim).
+# tests/cmake/check_layering.cmake reads the same list: no host/ library links a firmware/ one.
 # Uses storetrack_collect_targets (StoretrackPch.cmake).
 
 # The library targets `target` links, directly or through others (aliases resolved, generator

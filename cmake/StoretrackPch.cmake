@@ -1,13 +1,13 @@
 # One precompiled header for the project's own libraries and programs (Eigen, nlohmann-json, the
 # standard library), the way storetrack_test_pch serves the tests: parsed once per tree instead of
 # once per source. Measured on 2026-12-01, GCC 12 -O3, one compile each:
-# host/pipeline/src/exposure_processor.cpp 33 s -> 28 s, host/pose/src/body_pose.cpp 27 s -> 23 s
+# host/pipeline/src/exposure_processor.cpp 33 s -> 28 s, estimation/pose/src/body_pose.cpp 27 s -> 23 s
 # of CPU (docs/performance.md, "CI budget").
 #
 # storetrack_apply_pch() runs after every folder is added and gives the header to each library
 # and executable that compiles with the project's flags (links storetrack_warnings: GCC refuses a
 # header built with other flags, -Winvalid-pch, an error in CI) and sets none of its own
-# (firmware/centroid's -fopenmp-simd, the fuzzers' instrumentation, -fPIC for code that goes
+# (estimation/centroid's -fopenmp-simd, the fuzzers' instrumentation, -fPIC for code that goes
 # into a shared object): those, and the tests (their own header), compile as before. Options
 # every target inherits from the top directory are the header's too: the sanitizer tree's
 # -fsanitize flags once kept all of its targets from it (0 of 34).

@@ -1,7 +1,7 @@
 # cmake -DLINKS=<build>/storetrack_library_links.txt [-DREQUIRED=a,b] -P check_no_simulator_link.cmake
-# Fails, naming each offender and the simulator library it reaches, when a library under host/
-# or firmware/ links common/sim (storetrack_sim, storetrack_sim_render), directly or through
-# another library, without being the simulated side of a split (STORETRACK_SIMULATED_MODE).
+# Fails, naming each offender and the simulator library it reaches, when a library under host/,
+# firmware/ or estimation/ links common/sim (storetrack_sim, storetrack_sim_render), directly or
+# through another library, without being the simulated side of a split (STORETRACK_SIMULATED_MODE).
 # The list is written at configure time (cmake/StoretrackLinkCheck.cmake). REQUIRED: libraries
 # that must be in the list (so a broken list cannot pass by being empty).
 cmake_minimum_required(VERSION 3.25)
@@ -49,4 +49,4 @@ if(offenders)
   message(FATAL_ERROR "production libraries link the simulator (common/sim); move the "
                       "simulated part into its own library (docs/architecture.md):\n  ${text}")
 endif()
-message(STATUS "${checked} libraries under host/ and firmware/, none links the simulator")
+message(STATUS "${checked} libraries under host/, firmware/ and estimation/, none links the simulator")

@@ -1,4 +1,4 @@
-// Dot grids measured with the unit's centroider (firmware/centroid, the flight marks' code and
+// Dot grids measured with the unit's centroider (estimation/centroid, the flight marks' code and
 // sigma), indexed into the grid model (docs/calibration.md, "Dot grids").
 #include <algorithm>
 #include <cmath>

@@ -1,16 +1,16 @@
 #include "storetrack/calib/point_uncertainty.hpp"
 
+#include "storetrack/uncertainty/calibration_factors.hpp"
+
 namespace storetrack::calib {
 
 Eigen::MatrixXd calibration_sensitivity(const triangulate::Result& tri, std::span<const int> slots,
                                         int num_cameras) {
   constexpr int kBlock = camera::kJointBlockSize;
   Eigen::MatrixXd G = Eigen::MatrixXd::Zero(3, kBlock * num_cameras);
-  for (size_t i = 0; i < slots.size(); ++i) {
-    const int col = kBlock * slots[i];
-    G.middleCols(col, camera::kNumIntrinsics) -= tri.gain[i] * tri.jacobians[i].d_intrinsics;
-    G.middleCols(col + camera::kNumIntrinsics, 6) -= tri.gain[i] * tri.jacobians[i].d_pose;
-  }
+  for (size_t i = 0; i < slots.size(); ++i)
+    G.middleCols<kBlock>(kBlock * slots[i]) +=
+        uncertainty::point_sensitivity(tri.gain[i], tri.jacobians[i]);
   return G;
 }
 

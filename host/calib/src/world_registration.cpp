@@ -170,8 +170,8 @@ void check_not_collinear(const MarkSet& all, const RegistrationOptions& o) {
 
 using Matrix6X = Eigen::Matrix<double, 6, Eigen::Dynamic>;
 
-/// Fits T_r_w to the included marks (host/pose: T_to_from with the "body" the frame mapped from,
-/// here w). D_p, D_q: dxi/dp_m and dxi/dq_m for every mark, zero for the excluded ones.
+/// Fits T_r_w to the included marks (estimation/pose: T_to_from with the "body" the frame mapped
+/// from, here w). D_p, D_q: dxi/dp_m and dxi/dq_m for every mark, zero for the excluded ones.
 pose::BodyFit fit_included(const MarkSet& all, Matrix6X& D_p, Matrix6X& D_q,
                            const RegistrationOptions& o) {
   MarkSet in;

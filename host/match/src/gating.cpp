@@ -6,6 +6,7 @@
 #include <cmath>
 #include <limits>
 
+#include "storetrack/uncertainty/calibration_factors.hpp"
 #include "storetrack/uncertainty/spd_inverse.hpp"
 
 namespace storetrack::match {
@@ -48,9 +49,11 @@ void MarkMatcher::compute_calibration_bounds() {
         a = std::max(a, t_int + 2 * t_rot);
         b = std::max(b, 2 * t_trans);
       }
-    // intrinsic and extrinsic parts add: trace(A + B) = trace A + trace B
+    // Independent intrinsic and extrinsic errors add: trace(A + B) = trace A + trace B.
+    // Correlated (a joint covariance's cross term), the same inequality again: x 2.
+    const double coupling = factors_.intrinsic_extrinsic_correlated(static_cast<int>(slot)) ? 2 : 1;
     // The pixel scale varies smoothly (distortion): / 1.5 between grid nodes as well.
-    cal_bounds_[slot] = {1.5 * a, 1.5 * b, min_scale / 1.5};
+    cal_bounds_[slot] = {1.5 * coupling * a, 1.5 * coupling * b, min_scale / 1.5};
   }
 }
 
@@ -185,12 +188,7 @@ Mat2 MarkMatcher::calibration_pixel_covariance(int slot, const Vec3& p_w) const 
   const camera::CalibratedCamera& cal = rig_.cameras[slot];
   camera::ProjectionJacobians J;
   if (!cal.model.project_world(cal.T_c_w, p_w, &J)) return Mat2::Zero();
-  // Coefficient-based (lazy) products: Eigen would send the 2x13x13 product to its blocked
-  // GEMM kernel, which costs more than the arithmetic here.
-  const Eigen::Matrix<double, 2, camera::kNumIntrinsics> JC =
-      J.d_intrinsics.lazyProduct(cal.intrinsic_covariance);
-  const Eigen::Matrix<double, 2, 6> JE = J.d_pose.lazyProduct(cal.extrinsic_covariance);
-  return JC.lazyProduct(J.d_intrinsics.transpose()) + JE.lazyProduct(J.d_pose.transpose());
+  return uncertainty::pixel_covariance(factors_, slot, J);
 }
 
 double MarkMatcher::calibration_bound(int slot, double z_cam) const {

@@ -1,5 +1,5 @@
 // Layout check per body: the pose filter's Kalman update (tracked bodies) or an absolute
-// orientation fit (host/pose; Umeyama, IEEE TPAMI 13(4), 1991) with its chi-square test.
+// orientation fit (estimation/pose; Umeyama, IEEE TPAMI 13(4), 1991) with its chi-square test.
 #include "matcher_work.hpp"
 
 #include <algorithm>

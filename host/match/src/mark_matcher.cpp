@@ -6,8 +6,8 @@
 // (Bar-Shalom, Li, Kirubarajan, "Estimation with Applications to Tracking and Navigation",
 // 2001, sec. 5.4); the multi-view test is the reprojection chi-square of the Gauss-Newton
 // triangulation (Hartley & Zisserman, "Multiple View Geometry", 2nd ed., ch. 12), which for two
-// views is the epipolar constraint with its uncertainty (host/triangulate). The layout fit is the
-// absolute orientation of host/pose (Umeyama, IEEE TPAMI 13(4), 1991).
+// views is the epipolar constraint with its uncertainty (estimation/triangulate). The layout fit is
+// the absolute orientation of estimation/pose (Umeyama, IEEE TPAMI 13(4), 1991).
 #include "matcher_work.hpp"
 
 #include <algorithm>
@@ -54,7 +54,7 @@ MarkMatcher::WorkBuffers::~WorkBuffers() = default;
 
 MarkMatcher::MarkMatcher(const camera::RigCalibration& rig,
                          std::vector<survey::RigidBodySurvey> bodies, const MatcherConfig& config)
-    : rig_(rig), bodies_(std::move(bodies)), config_(config) {
+    : rig_(rig), factors_(rig), bodies_(std::move(bodies)), config_(config) {
   if (!(config_.gate_probability > 0 && config_.gate_probability < 1))
     throw std::invalid_argument("MatcherConfig.gate_probability must be in (0, 1)");
   std::unordered_map<int, int> seen;

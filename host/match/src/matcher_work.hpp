@@ -32,9 +32,9 @@ inline Eigen::Matrix<double, 3, 6> point_pose_jacobian(const Transform& T_w_b, c
   return G;
 }
 
-/// Absolute orientation (host/pose) of surveyed points q_b onto measured world points p_w, each
-/// with its total 3x3 covariance cov_w (measurement + survey): the pose, its covariance
-/// (G^T W G)^-1 and the chi-square sum of e^T W e (dof 3n - 6). src/layouts.cpp.
+/// Absolute orientation (estimation/pose) of surveyed points q_b onto measured world points p_w,
+/// each with its total 3x3 covariance cov_w (measurement + survey): the pose, its covariance (G^T W
+/// G)^-1 and the chi-square sum of e^T W e (dof 3n - 6). src/layouts.cpp.
 struct LayoutFit {
   Transform T_w_b = Transform::Identity();
   Mat6 cov = Mat6::Zero();

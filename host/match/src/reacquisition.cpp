@@ -3,15 +3,15 @@
 // none of the observations (host started after the release).
 //
 // 1. Candidate points: free observations (no id, or an unconfirmed id of this body) are paired
-//    across cameras; a pair is kept when host/triangulate's two-view reprojection chi-square (the
-//    epipolar constraint with its uncertainty) passes chi-square(1); each pair is extended by the
-//    one observation per other camera consistent with both, and the set is triangulated again
+//    across cameras; a pair is kept when estimation/triangulate's two-view reprojection chi-square
+//    (the epipolar constraint with its uncertainty) passes chi-square(1); each pair is extended by
+//    the one observation per other camera consistent with both, and the set is triangulated again
 //    with the calibration pixel covariance at the point (chi-square(2n - 3)).
 // 2. Layout hypotheses (alignment / interpretation tree, Grimson & Lozano-Perez 1987): every
 //    well-spread triple of candidates whose three distances match three surveyed distances, the
 //    gate from the triangulation covariance along the line and the survey sigmas (chi-square(1)),
-//    gives a pose (host/pose's absolute orientation); the pose predicts every mark and takes the
-//    candidates uniquely inside its chi-square(3) gate; refit, extend once more, refit.
+//    gives a pose (estimation/pose's absolute orientation); the pose predicts every mark and takes
+//    the candidates uniquely inside its chi-square(3) gate; refit, extend once more, refit.
 // 3. A hypothesis passes with >= min_reacquisition_marks well-spread marks (min_layout_spread,
 //    max_layout_*_sigma) and the fit's chi-square(3n - 6). Hypotheses outside the body's region
 //    (set_region) are excluded; plausible hypotheses, well posed or not, with the same pose

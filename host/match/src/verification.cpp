@@ -1,4 +1,4 @@
-// Multi-view check: the reprojection chi-square of host/triangulate (Hartley & Zisserman,
+// Multi-view check: the reprojection chi-square of estimation/triangulate (Hartley & Zisserman,
 // "Multiple View Geometry", 2nd ed., ch. 12; for two views the epipolar constraint with its
 // uncertainty), with removal of a unique inconsistent view.
 #include "matcher_work.hpp"
@@ -10,10 +10,10 @@ namespace storetrack::match {
 bool MarkMatcher::triangulate(Work& w, const std::vector<int>& obs, const Vec3& initial, Vec3& p_w,
                               Mat3& cov_w, double& chi2) const {
   if (obs.size() < 2) return false;
-  // host/triangulate's Gauss-Newton on the raw-pixel reprojection error, started at the mark's
-  // prediction (inside its gate, i.e. close), weighted by each observation's full information
-  // (sigma^2 I + calibration part, the latter evaluated at the prediction during gating: it
-  // varies negligibly over the gate). Its chi2 is the multi-view consistency statistic.
+  // estimation/triangulate's Gauss-Newton on the raw-pixel reprojection error, started at the
+  // mark's prediction (inside its gate, i.e. close), weighted by each observation's full
+  // information (sigma^2 I + calibration part, the latter evaluated at the prediction during
+  // gating: it varies negligibly over the gate). Its chi2 is the multi-view consistency statistic.
   auto& views = w.tri_views;
   views.clear();
   for (int o : obs) {

@@ -149,10 +149,8 @@ bool resect_body(std::span<ResectionView> views, Transform T_w_b,
   for (ResectionView& v : views) {
     camera::ProjectionJacobians J;
     if (!camera::project_body_point(*v.camera, T_w_b, v.p_b, nullptr, &J)) return false;
-    const geometry::Mat2 S =
-        v.sigma_px * v.sigma_px * geometry::Mat2::Identity() +
-        J.d_intrinsics * v.camera->intrinsic_covariance * J.d_intrinsics.transpose() +
-        J.d_pose * v.camera->extrinsic_covariance * J.d_pose.transpose();
+    const geometry::Mat2 S = v.sigma_px * v.sigma_px * geometry::Mat2::Identity() +
+                             uncertainty::pixel_covariance(factors, v.slot, J);
     if (!uncertainty::inverse_spd<2>(S, v.W)) return false;
   }
   Mat6 info;

@@ -1,7 +1,7 @@
 // End-to-end honesty (issue 10): the product's promise as a test. Where test_uncertainty.cpp
 // feeds the processor the simulator's true mark ids and fast-mode observations whose noise IS
 // the stated sigma, this runs what the instrument runs: the simulator's rendered frames (shot
-// and read noise, quantisation, blur) -> the camera unit's centroider (firmware/centroid, the
+// and read noise, quantisation, blur) -> the camera unit's centroider (estimation/centroid, the
 // unit's default configuration; its own sigma_px) -> MarkObservations as the unit fills them ->
 // the host's ExposureProcessor with its MarkMatcher (host/match: acquisition from the
 // installation survey's prior poses, tracking) -> triangulation, rigid-body checks and the pose

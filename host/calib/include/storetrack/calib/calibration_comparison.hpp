@@ -7,7 +7,7 @@
 // points are mapped from a's world frame to b's by ONE rigid motion fitted over all cameras
 // (so a common shift of the whole rig, e.g. another world registration, does not count), and
 // projected with b. Triangulated difference: the same pixels triangulated with a and with b
-// (host/triangulate), against both predicted calibration covariances.
+// (estimation/triangulate), against both predicted calibration covariances.
 #pragma once
 
 #include <array>

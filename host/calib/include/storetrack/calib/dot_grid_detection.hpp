@@ -1,5 +1,5 @@
 // Dot-grid observations from images, measured with the camera unit's own centroider
-// (firmware/centroid), so calibration marks and flight marks share one centroid model and its
+// (estimation/centroid), so calibration marks and flight marks share one centroid model and its
 // sigma (docs/calibration.md, "Dot grids"). Two boards:
 //  - kDots: a symmetric cols x rows grid of dots, the whole grid in view, indexed by OpenCV's
 //    findCirclesGrid run on the centroider's dots (OpenCV's order and 180-degree convention);

@@ -1,5 +1,5 @@
 // Predicted uncertainty of a triangulated point from a rig calibration and its (joint)
-// covariance: the host's triangulation (host/triangulate) and its first-order propagation
+// covariance: the host's triangulation (estimation/triangulate) and its first-order propagation
 // dp/dtheta = -K_i dpixel_i/dtheta (docs/uncertainty.md), shared by `register`, `compare` and
 // `uncertainty-map` (docs/calibration.md).
 #pragma once

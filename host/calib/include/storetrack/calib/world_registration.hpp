@@ -1,10 +1,10 @@
 // World registration: S_r (reference camera, camera 0) -> S_w (aircraft) from marks surveyed by
 // a total station in S_w and seen by the rig's cameras (docs/calibration.md, "Register").
 //
-// Each mark is triangulated in S_r (host/triangulate) through the rig calibration, with its
+// Each mark is triangulated in S_r (estimation/triangulate) through the rig calibration, with its
 // covariance from the centroid sigma and from the calibration's (joint) covariance; T_r_w is
-// fitted by host/pose (weighted absolute orientation, then Gauss-Newton with each mark weighted
-// by its triangulation covariance plus its survey covariance). The covariance of T_r_w is
+// fitted by estimation/pose (weighted absolute orientation, then Gauss-Newton with each mark
+// weighted by its triangulation covariance plus its survey covariance). The covariance of T_r_w is
 // propagated from all three sources, keeping the correlation between marks that share the
 // calibration. Every camera's T_c_w = T_c_r T_r_w with the joint covariance of the result.
 #pragma once

@@ -45,6 +45,7 @@
 #include "storetrack/msg/messages.hpp"
 #include "storetrack/survey/survey.hpp"
 #include "storetrack/time/time.hpp"
+#include "storetrack/uncertainty/calibration_factors.hpp"
 
 namespace storetrack::match {
 
@@ -242,6 +243,12 @@ class MarkMatcher {
   const std::vector<survey::RigidBodySurvey>& bodies() const { return bodies_; }
   const MatcherConfig& config() const { return config_; }
 
+  /// The calibration's covariance of camera `slot`'s pixel of a world point, which the gates
+  /// add to the centroid's (zero with use_calibration_covariance off or the point not imaged):
+  /// uncertainty::pixel_covariance over the calibration factors the processor states the
+  /// marks' uncertainty with, cross terms included.
+  geometry::Mat2 calibration_pixel_covariance(int slot, const geometry::Vec3& p_w) const;
+
  private:
   struct MarkInfo {
     int id;
@@ -297,7 +304,6 @@ class MarkMatcher {
   };
 
   void compute_calibration_bounds();
-  geometry::Mat2 calibration_pixel_covariance(int slot, const geometry::Vec3& p_w) const;
   double calibration_bound(int slot, double z_cam) const;
   void predict(Work& w, double t_s) const;
   void gate_and_assign(Work& w) const;
@@ -330,6 +336,7 @@ class MarkMatcher {
   void verify_against_reacquired_pose(Work& w, int b) const;
 
   camera::RigCalibration rig_;
+  uncertainty::CalibrationFactors factors_;  ///< of rig_: the gates' pixel covariances
   std::vector<survey::RigidBodySurvey> bodies_;
   MatcherConfig config_;
   std::vector<MarkInfo> marks_;  ///< all marks of all bodies
@@ -352,8 +359,8 @@ class MarkMatcher {
 };
 
 /// Pose T_w_b of a body from the world positions of some of its marks (e.g. the installation
-/// survey's initial mark positions, for set_prior_pose) by absolute orientation (host/pose), and
-/// its 6x6 covariance (left perturbation) for positions of standard uncertainty `sigma_m` per
+/// survey's initial mark positions, for set_prior_pose) by absolute orientation (estimation/pose),
+/// and its 6x6 covariance (left perturbation) for positions of standard uncertainty `sigma_m` per
 /// axis (plus each mark's survey sigma). Ids not in the survey are ignored. Returns false with
 /// fewer than 3 of the body's marks or nearly collinear ones (no defined pose).
 bool fit_body_pose(const survey::RigidBodySurvey& body,

@@ -31,6 +31,11 @@ namespace storetrack::uncertainty {
 using Loadings3 = Eigen::Matrix<double, 3, Eigen::Dynamic, Eigen::RowMajor>;
 /// Loadings of a 6-vector (pose perturbation) on the common factors z (6 x num_factors).
 using Loadings6 = Eigen::Matrix<double, 6, Eigen::Dynamic, Eigen::RowMajor>;
+/// Covariance of one camera's parameters in the joint layout (13 packed intrinsics, then the
+/// left perturbation of T_c_w), with the intrinsic-extrinsic cross term.
+using CameraCovariance = Eigen::Matrix<double, camera::kJointBlockSize, camera::kJointBlockSize>;
+/// d(point)/d(one camera's parameters), joint layout (3 x 19).
+using CameraSensitivity = Eigen::Matrix<double, 3, camera::kJointBlockSize>;
 
 class CalibrationFactors {
  public:
@@ -62,9 +67,23 @@ class CalibrationFactors {
   /// Column range [begin, begin + count) of one source (kCentroid/kSurvey/kProcess have none: count
   /// 0).
   std::pair<int, int> range(Source s) const { return ranges_[static_cast<size_t>(index(s))]; }
+  /// One camera's parameter covariance F_c F_c^T, from the factors themselves (so a pixel
+  /// covariance from it and a mark's loadings describe the same calibration errors): the
+  /// file's 19 x 19 block, intrinsic-extrinsic cross term included, to the eigenvalue floor.
+  const CameraCovariance& camera_covariance(int slot) const {
+    return camera_covariances_[static_cast<size_t>(slot)];
+  }
+  /// True when the camera's intrinsic and extrinsic errors are correlated (a joint covariance
+  /// with that cross term).
+  bool intrinsic_extrinsic_correlated(int slot) const {
+    return !camera_covariance(slot)
+                .block<6, camera::kNumIntrinsics>(camera::kNumIntrinsics, 0)
+                .isZero(0.0);
+  }
 
  private:
   std::vector<CameraFactors> cameras_;
+  std::vector<CameraCovariance> camera_covariances_;
   std::array<std::pair<int, int>, kNumSources> ranges_{};
   int num_factors_ = 0;
   bool coupled_ = false;
@@ -72,7 +91,33 @@ class CalibrationFactors {
   void factor_per_camera(const camera::RigCalibration& rig, double relative_floor);
   void factor_jointly(const camera::RigCalibration& rig, double relative_floor);
   void add_sync_factors(const camera::RigCalibration& rig);
+  void compute_camera_covariances();
 };
+
+/// The calibration's covariance of one camera's pixel of a point, J Sigma_c J^T with J = [d
+/// pixel / d intrinsics, d pixel / d pose] and Sigma_c = f.camera_covariance(slot) (cross term
+/// included). The one implementation: the matcher's gates and the processor's resection weights.
+inline Eigen::Matrix2d pixel_covariance(const CalibrationFactors& f, int slot,
+                                        const camera::ProjectionJacobians& J) {
+  Eigen::Matrix<double, 2, camera::kJointBlockSize> Jc;
+  Jc << J.d_intrinsics, J.d_pose;
+  // Coefficient-based (lazy) products: Eigen's blocked GEMM costs more than the arithmetic.
+  const Eigen::Matrix<double, 2, camera::kJointBlockSize> JS =
+      Jc.lazyProduct(f.camera_covariance(slot));
+  return JS.lazyProduct(Jc.transpose());
+}
+
+/// d(point)/d(camera parameters) of one observation of a triangulated point: -K [d pixel /
+/// d intrinsics, d pixel / d pose] (K = d point / d pixel, the triangulation's gain). The one
+/// implementation of a point's calibration sensitivity: the loadings below (G F) and the
+/// calibration tools' raw-parameter propagation (G Sigma G^T) are built from it.
+inline CameraSensitivity point_sensitivity(const Eigen::Matrix<double, 3, 2>& K,
+                                           const camera::ProjectionJacobians& J) {
+  CameraSensitivity G;
+  G.leftCols<camera::kNumIntrinsics>().noalias() = -K * J.d_intrinsics;
+  G.rightCols<6>().noalias() = -K * J.d_pose;
+  return G;
+}
 
 /// One camera's observation of a triangulated point: its loadings on the calibration factors,
 /// dp/dtheta F with dp/dtheta = -K dproj/dtheta (K = dp/d(pixel), the triangulation's gain; J
@@ -86,18 +131,17 @@ inline void add_observation_loadings(const CalibrationFactors& f, int slot,
                                      Eigen::Matrix3d& cov_intrinsic,
                                      Eigen::Matrix3d& cov_extrinsic) {
   const auto& cf = f.camera(slot);
-  // B = -K (dpi/dtheta) F: the fixed-size 3 x 13 (3 x 6) sensitivity first, then one
-  // coefficient-based product into the loadings (no temporaries, no heap).
+  // B = G F: the fixed-size 3 x 19 sensitivity first, then one coefficient-based product per
+  // parameter group into the loadings (no temporaries, no heap).
+  const CameraSensitivity G = point_sensitivity(K, J);
   if (cf.intrinsic.cols() > 0) {
-    const Eigen::Matrix<double, 3, camera::kNumIntrinsics> G = -K * J.d_intrinsics;
     auto B = loadings.middleCols(cf.intrinsic_begin, cf.intrinsic.cols());
-    B.noalias() += G.lazyProduct(cf.intrinsic);
+    B.noalias() += G.leftCols<camera::kNumIntrinsics>().lazyProduct(cf.intrinsic);
     if (!f.coupled()) cov_intrinsic.noalias() += B.lazyProduct(B.transpose());
   }
   if (cf.extrinsic.cols() > 0) {
-    const Eigen::Matrix<double, 3, 6> G = -K * J.d_pose;
     auto B = loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols());
-    B.noalias() += G.lazyProduct(cf.extrinsic);
+    B.noalias() += G.rightCols<6>().lazyProduct(cf.extrinsic);
     if (!f.coupled()) cov_extrinsic.noalias() += B.lazyProduct(B.transpose());
   }
 }

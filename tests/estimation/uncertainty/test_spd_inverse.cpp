@@ -1,4 +1,4 @@
-// The one SPD inverse (host/uncertainty/spd_inverse.hpp), at every size it is used with: 2x2
+// The one SPD inverse (estimation/uncertainty/spd_inverse.hpp), at every size it is used with: 2x2
 // (pixel covariances), 3x3 (mark covariances), 6x6 (pose normal matrices) and dynamic (joint
 // calibration). Reference: matrices built as Q diag(lambda) Q^T from a random rotation Q and
 // chosen eigenvalues, whose inverse Q diag(1/lambda) Q^T is known independently of any solver.

@@ -30,7 +30,7 @@ bool inverse_spd(const Eigen::Matrix<double, N, N>& H, Eigen::Matrix<double, N, 
     // 3x3: positive definite by Sylvester's criterion (leading minors > 0), inverse by
     // cofactors (closed form, a few dozen operations). Not backward stable: relative error
     // ~ cond (lambda_max / lambda_mid) eps instead of Cholesky's ~ cond eps (2e-4 at cond 1e8,
-    // 1e-10 at 1e4; tests/host/uncertainty/test_spd_inverse.cpp): ample for covariances.
+    // 1e-10 at 1e4; tests/estimation/uncertainty/test_spd_inverse.cpp): ample for covariances.
     // Zero-initialised: GCC -O3 cannot see computeInverseAndDetWithCheck writes every entry.
     Eigen::Matrix<double, 3, 3> inv = Eigen::Matrix<double, 3, 3>::Zero();
     double det = 0;

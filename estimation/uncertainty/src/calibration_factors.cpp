@@ -63,6 +63,22 @@ CalibrationFactors::CalibrationFactors(const camera::RigCalibration& rig, double
   else
     factor_per_camera(rig, relative_floor);
   add_sync_factors(rig);
+  compute_camera_covariances();
+}
+
+void CalibrationFactors::compute_camera_covariances() {
+  constexpr int kI = camera::kNumIntrinsics;
+  camera_covariances_.assign(cameras_.size(), CameraCovariance::Zero());
+  for (size_t c = 0; c < cameras_.size(); ++c) {
+    const CameraFactors& cf = cameras_[c];
+    // The camera's parameter rows over all factor columns: P P^T = F_c F_c^T.
+    Eigen::MatrixXd P = Eigen::MatrixXd::Zero(camera::kJointBlockSize, num_factors_);
+    if (cf.intrinsic.cols() > 0)
+      P.block(0, cf.intrinsic_begin, kI, cf.intrinsic.cols()) = cf.intrinsic;
+    if (cf.extrinsic.cols() > 0)
+      P.block(kI, cf.extrinsic_begin, 6, cf.extrinsic.cols()) = cf.extrinsic;
+    camera_covariances_[c] = P * P.transpose();
+  }
 }
 
 void CalibrationFactors::factor_per_camera(const camera::RigCalibration& rig,
