@@ -588,10 +588,21 @@ time::MonotonicNs ExposureAligner::deadline_of(const Pending& p) const {
   return std::max(waited, time::saturating_add_ns(last_placed_, config_.max_wait_ns));
 }
 
+bool ExposureAligner::forces_older(const Pending& p) const {
+  return all_mask_ == 1u || std::popcount(p.present_mask) >= 2;
+}
+
 time::MonotonicNs ExposureAligner::next_deadline() const {
+  // The deadlines that make something happen: the oldest exposure's, those that force older ones
+  // out, and those of unconfirmed exposures (taken back). A lone exposure behind the oldest waits
+  // for it whatever its own deadline says.
   time::MonotonicNs earliest = INT64_MAX;
-  for (const auto& [key, p] : pending_)
-    earliest = std::min(earliest, deadline_of(p));
+  for (auto it = pending_.begin(); it != pending_.end(); ++it) {
+    const Pending& p = it->second;
+    if (it == pending_.begin() || forces_older(p) ||
+        (lone_unjudged(p) && p.opening == Opening::kByArrivalTime))
+      earliest = std::min(earliest, deadline_of(p));
+  }
   return earliest;
 }
 
@@ -605,9 +616,7 @@ void ExposureAligner::release_ready(time::MonotonicNs now,
   take_back_expired_unconfirmed(now);
   auto newest_expired = pending_.end();
   for (auto it = pending_.begin(); it != pending_.end(); ++it)
-    if (now >= deadline_of(it->second) &&
-        (all_mask_ == 1u || std::popcount(it->second.present_mask) >= 2))
-      newest_expired = it;
+    if (now >= deadline_of(it->second) && forces_older(it->second)) newest_expired = it;
   while (!pending_.empty()) {
     auto it = pending_.begin();
     const bool complete = it->second.present_mask == all_mask_;

@@ -68,6 +68,8 @@ Outcome run(const ForgedCase& fc) {
   for (int k = 0; k <= kExposures; ++k) {
     const std::int64_t now = 1'000'000'000 + k * fc.delivery_ns;
     aligner.poll(now, r.out);
+    // Nothing overdue is kept (the host loop sleeps until next_deadline()).
+    EXPECT_GT(aligner.next_deadline(), now);
     if (k == fc.at) inject(k, now);
     if (k == kExposures) break;  // after the last exposure: only the flush can take it back
     for (int cam = 0; cam < kCameras; ++cam)
@@ -175,6 +177,7 @@ TEST(ExposureAlignerForged, CameraRunningAheadInSlowMotionIsNotTakenForAForgery)
                    [](const auto& a, const auto& b) { return a.first < b.first; });
   for (const auto& [now, o] : arrivals) {
     aligner.poll(now, out);
+    EXPECT_GT(aligner.next_deadline(), now) << "an overdue exposure was kept";
     aligner.push(o, now, out);
   }
   aligner.flush(out);

@@ -143,7 +143,8 @@ class ExposureAligner {
   void poll(time::MonotonicNs now, std::vector<pipeline::AlignedExposure>& out);
   /// Releases everything pending and drops held observations (end of input).
   void flush(std::vector<pipeline::AlignedExposure>& out);
-  /// Host time at which the oldest pending exposure times out; INT64_MAX when none pending.
+  /// Host time at which the next pending exposure times out and something is released or taken
+  /// back; INT64_MAX when none pending.
   time::MonotonicNs next_deadline() const;
 
   std::size_t pending() const { return pending_.size(); }
@@ -213,6 +214,7 @@ class ExposureAligner {
   bool gap_explained(std::int64_t key, time::TaiNs mid, time::MonotonicNs now) const;
   bool continues_own_stream(int cam, std::int64_t key, time::MonotonicNs now) const;
   bool lone_unjudged(const Pending& p) const;
+  bool forces_older(const Pending& p) const;
   void take_back(PendingMap::iterator it);
   void take_back_expired_unconfirmed(time::MonotonicNs now);
   bool on_grid_over_gap(std::int64_t key, time::TaiNs mid) const;
