@@ -17,8 +17,8 @@ gives (run both: --lead 0 is the reference run), no sample anywhere (CSV, Chapte
 has cameras_used 0 or fewer than min_cameras, the outputs agree sample for sample, and the host
 accounts for every exposure: released = processed = written + withheld by reason.
 
-The replay is paced (--fps, default 50: the main job's units deliver about 20-50 exposures/s of
-host time on two cores); the exposures keep their 400 fps time stamps.
+The replay is paced (--fps, default 100; the main job's units deliver about 20-50 exposures/s of
+host time on two cores): slow motion, the exposures keep their 400 fps time stamps.
 
 Usage: run_forged.py SIM HOST ROOT OUT [--settings S] [--lead N] [--fps F] [--max-lost N]
 """
@@ -40,7 +40,7 @@ ap.add_argument("root")
 ap.add_argument("out")
 ap.add_argument("--settings", choices=("testpoint", "production", "gate"), default="testpoint")
 ap.add_argument("--leads", default="600", help="comma-separated leads; 0 = no forged datagram")
-ap.add_argument("--fps", type=float, default=50.0)
+ap.add_argument("--fps", type=float, default=100.0)
 ap.add_argument("--max-lost", type=int, default=5)
 ap.add_argument("--ch10-dump", default="",
                 help="rig_ch10_dump (the project's independent Chapter 10 reader): also check "
@@ -144,6 +144,8 @@ def run(groups, sim_dir, lead):
             "--log-level", "warn"]
     if a.settings == "gate":
         args += ["--min-cameras", "3"]
+    else:  # every exposure is processed: stop at the last one rather than after the idle time
+        args += ["--expect-exposures", str(len(groups))]
     host = subprocess.Popen(args, stdout=open(os.path.join(out, "host.log"), "w"),
                             stderr=subprocess.STDOUT)
     try:
