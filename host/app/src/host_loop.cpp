@@ -32,6 +32,9 @@ void HostLoop::process(const pipeline::AlignedExposure& e) {
   pipeline::ExposureResult r = p_.processor.process(e);  // matcher + geometry
   p_.pose_tracker.update(r);  // an unsolved T_p_s: extrapolated over a short gap, or invalid
   ++totals_.exposures;
+  if (!totals_.withheld.admit(judge_sample(r.cameras_used, p_.aligner.config().min_cameras)))
+    return;  // no output, iNET-X or file, carries an exposure too few cameras measured
+  ++totals_.samples_written;
   const msg::FtiSample& s = r.sample;
   if (s.status & msg::fti_status::kValid) ++totals_.valid_samples;
   if (p_.inetx) p_.inetx->send(s);

@@ -13,6 +13,7 @@
 
 #include "latency.hpp"
 #include "recording_writer.hpp"
+#include "sample_gate.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/ingest/receivers.hpp"
 #include "storetrack/output/inetx.hpp"
@@ -30,7 +31,10 @@ struct LoopLimits {
 };
 
 struct LoopTotals {
-  std::uint64_t exposures = 0, valid_samples = 0, health_messages = 0;
+  /// exposures: processed (every exposure the aligner released); samples_written: sent to the
+  /// outputs; exposures = samples_written + withheld.total().
+  std::uint64_t exposures = 0, samples_written = 0, valid_samples = 0, health_messages = 0;
+  SamplesWithheld withheld;
   std::map<int, nlohmann::json> unit_health;  // keyed by the 8-bit unit id: <= 256 entries
   LatencyStats latency_complete, latency_all, latency_processing;
 };

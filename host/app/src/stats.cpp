@@ -219,6 +219,11 @@ nlohmann::json outputs_stats_json(const output::InetxSender& inetx,
 nlohmann::json host_stats_json(const StatsSources& s) {
   nlohmann::json stats;
   stats["exposures_processed"] = s.totals.exposures;
+  // exposures_processed = samples_written + every samples_withheld reason (sample_gate.hpp)
+  stats["samples_written"] = s.totals.samples_written;
+  stats["samples_withheld"] = {
+      {"no_camera_used", s.totals.withheld.no_camera_used},
+      {"fewer_cameras_than_min_cameras", s.totals.withheld.fewer_cameras_than_min}};
   stats["valid_samples"] = s.totals.valid_samples;
   stats["wall_time_s"] = s.wall_time_s;
   stats["udp"] = udp_stats_json(s.udp);
@@ -274,8 +279,11 @@ void print_summary(const StatsSources& s) {
               ", unmatched %" PRIu64 ")\n",
               ic.identified, ic.observations, ic.ambiguous_observation + ic.ambiguous_mark,
               ic.unmatched);
-  std::printf("  samples valid/total        %9" PRIu64 " / %" PRIu64 "\n", t.valid_samples,
-              t.exposures);
+  std::printf("  samples valid/written      %9" PRIu64 " / %" PRIu64 " of %" PRIu64
+              " exposures (withheld: no camera used %" PRIu64 ", fewer than min_cameras %" PRIu64
+              ")\n",
+              t.valid_samples, t.samples_written, t.exposures, t.withheld.no_camera_used,
+              t.withheld.fewer_cameras_than_min);
   if (s.recording.ch10_open()) {
     const auto& cc = s.recording.ch10().counters();
     std::printf("  Chapter 10: %zu file(s), %" PRIu64 " samples written, %" PRIu64

@@ -157,11 +157,27 @@ std::optional<std::int64_t> ExposureAligner::exposure_at_time(time::TaiNs mid) c
 }
 
 std::int64_t ExposureAligner::lead_limit() const {
-  // Exposures the wait can span: further ahead, an exposure times out before the other cameras
-  // reach it. Before the period is measured, the fastest trigger is assumed.
+  // The units' latency differences, in exposures: a fixed time, not the wait (a 5 s wait would
+  // make a datagram 2000 exposures ahead look like a camera legitimately ahead). Before the
+  // period is measured, the fastest trigger is assumed.
   const auto configured = static_cast<std::int64_t>(config_.max_sequence_lead);
   const std::int64_t period = grid_period_ns_ > 0 ? grid_period_ns_ : kFastestTriggerPeriodNs;
-  return std::max<std::int64_t>(1, std::min(configured, config_.max_wait_ns / period));
+  const std::int64_t window_ns = std::min(config_.max_wait_ns, kMaxLeadTimeNs);
+  return std::max<std::int64_t>(1, std::min(configured, window_ns / period));
+}
+
+bool ExposureAligner::continues_own_stream(int cam, std::int64_t key, time::MonotonicNs now) const {
+  // A jump ahead of the newest exposure that the camera's own stream explains: no further than
+  // the trigger can have run (one exposure per period) since its newest placed observation
+  // arrived, plus the lead window. One datagram from the future, arriving now, is not.
+  const CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
+  if (!cs.placed_any) return false;
+  const std::int64_t period = grid_period_ns_ > 0 ? grid_period_ns_ : kFastestTriggerPeriodNs;
+  const std::int64_t elapsed =
+      std::max<std::int64_t>(0, time::saturating_sub_ns(now, cs.frontier_arrival));
+  const std::int64_t ran = std::min<std::int64_t>(
+      elapsed / period, static_cast<std::int64_t>(config_.max_sequence_lead));
+  return key - cs.frontier_key <= lead_limit() + ran;
 }
 
 bool ExposureAligner::on_grid_over_gap(std::int64_t key, time::TaiNs mid) const {
@@ -179,10 +195,12 @@ bool ExposureAligner::gap_explained(std::int64_t key, time::TaiNs mid,
   // A jump ahead past the lead window, as when every camera's datagrams were lost together: its
   // time lies on the grid at its sequence, and it does not arrive before it could have (a forged
   // or glitched datagram consistent with a future edge arrives that far early).
+  // The tolerance is the lead window's time, not the wait.
   const time::MonotonicNs baseline = std::min(lag_min_current_, lag_min_previous_);
   if (baseline == INT64_MAX) return false;
-  return on_grid_over_gap(key, mid) && time::saturating_sub_ns(now, mid) >=
-                                           time::saturating_sub_ns(baseline, config_.max_wait_ns);
+  const time::MonotonicNs tolerance = std::min(config_.max_wait_ns, kMaxLeadTimeNs);
+  return on_grid_over_gap(key, mid) &&
+         time::saturating_sub_ns(now, mid) >= time::saturating_sub_ns(baseline, tolerance);
 }
 
 bool ExposureAligner::held_on_grid(int cam) const {
@@ -234,7 +252,8 @@ void ExposureAligner::place(int cam, const msg::MarkObservations& obs, time::Mon
   const Released* entry = released ? released_entry(key) : nullptr;
   // Does the sequence name a place an exposure can be (pending, a released one still in the
   // history, or a new one the others can reach within the wait), and does the time agree?
-  bool plausible = true, time_agrees = true, opens_gap = false;
+  bool plausible = true, time_agrees = true;
+  Opening opening = Opening::kJudged;
   if (it != pending_.end()) {
     time_agrees = abs_diff(mid, it->second.reference_mid_tai_ns) <= config_.max_mid_time_spread_ns;
   } else if (released) {
@@ -244,8 +263,15 @@ void ExposureAligner::place(int cam, const msg::MarkObservations& obs, time::Mon
     // A new exposure, anywhere (ahead, in a gap, behind the oldest pending): its time must not
     // be another exposure's. An offset re-learned since (a restart) maps a replayed datagram
     // onto a new index; opening it would release that exposure a second time.
-    opens_gap = have_key_ && key - newest_key_ > lead_limit();
-    if (opens_gap) plausible = gap_confirmed || gap_explained(key, mid, now);
+    // Past the lead window: the camera's own stream or a majority holding the same gap judge
+    // the jump; the grid and the arrival time alone let it open an exposure that other cameras
+    // must confirm. The first datagram of a run has nothing to be judged by.
+    if (!have_key_) opening = Opening::kFirstOfRun;
+    if (have_key_ && key - newest_key_ > lead_limit() && !gap_confirmed &&
+        !continues_own_stream(cam, key, now)) {
+      opening = Opening::kByArrivalTime;
+      plausible = gap_explained(key, mid, now);
+    }
     time_agrees = on_grid(key, mid) && !names_other_exposure();
   }
   // A disagreeing time is a clock fault (the majority judges it at release) when the unit's
@@ -265,7 +291,7 @@ void ExposureAligner::place(int cam, const msg::MarkObservations& obs, time::Mon
     if (have_key_ && newest_key_ - key > lead_limit()) evict_lone_exposures_ahead_of(key);
     it = pending_.try_emplace(key).first;
     it->second.first_arrival = now;
-    it->second.after_gap = opens_gap;
+    it->second.opening = opening;
     it->second.cameras.reserve(config_.camera_ids.size());
     newest_key_ = have_key_ ? std::max(newest_key_, key) : key;
     have_key_ = true;
@@ -285,6 +311,12 @@ void ExposureAligner::add_to_pending(PendingMap::iterator it, int cam,
   p.cameras.push_back(obs);
   p.present_mask |= bit;
   p.last_arrival = std::max(p.last_arrival, now);
+  CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
+  if (!cs.placed_any || it->first >= cs.frontier_key) {
+    cs.placed_any = true;
+    cs.frontier_key = it->first;
+    cs.frontier_arrival = now;
+  }
   advance_stream_clock(now);
   if (p.cameras.size() == 1) p.stream_ns_at_open = stream_ns_;
   remember_delivered(cam, obs);
@@ -311,31 +343,63 @@ void ExposureAligner::remember_delivered(int cam, const msg::MarkObservations& o
   }
 }
 
-// A fitting observation more than the lead window behind the newest exposure: newer exposures
-// that hold one camera only were opened by a sequence nothing could judge yet (the first
-// datagram of a run, forged or glitched far ahead). They are taken back, counted as
-// quarantined, so their timeout cannot release past the exposures the rig is exposing. One
-// opened past a gap of every camera was judged (grid and arrival time) and stays.
-void ExposureAligner::evict_lone_exposures_ahead_of(std::int64_t key) {
-  while (!pending_.empty()) {
-    const auto last = std::prev(pending_.end());
-    if (last->first - key <= lead_limit() || std::popcount(last->second.present_mask) != 1 ||
-        last->second.after_gap)
-      break;
-    const auto cam = static_cast<std::size_t>(std::countr_zero(last->second.present_mask));
-    // Not delivered after all: the camera's true observation of that exposure is still to come.
-    CameraState& cs = cameras_[cam];
-    const msg::MarkObservations& o = last->second.cameras.front();
-    const DeliveredId id{o.trigger_seq, o.exposure_start_tai_ns};
-    if (cs.delivered.erase(id) != 0)
-      cs.delivered_order.erase(std::find(cs.delivered_order.begin(), cs.delivered_order.end(), id));
-    ++counters_.dropped_quarantined;
-    ++camera_counters_[cam].quarantined;
-    pending_.erase(last);
-  }
-  newest_key_ = key;
+bool ExposureAligner::lone_unjudged(const Pending& p) const {
+  return all_mask_ != 1u && p.opening != Opening::kJudged && std::popcount(p.present_mask) == 1;
+}
+
+// Takes back an exposure that one camera opened and no other confirmed: its observation is
+// counted as quarantined, and is no longer "delivered" (the camera's true observation of that
+// exposure is still to come) nor the camera's newest.
+void ExposureAligner::take_back(PendingMap::iterator it) {
+  const auto cam = static_cast<std::size_t>(std::countr_zero(it->second.present_mask));
+  CameraState& cs = cameras_[cam];
+  const msg::MarkObservations& o = it->second.cameras.front();
+  const DeliveredId id{o.trigger_seq, o.exposure_start_tai_ns};
+  if (cs.delivered.erase(id) != 0)
+    cs.delivered_order.erase(std::find(cs.delivered_order.begin(), cs.delivered_order.end(), id));
+  if (cs.placed_any && cs.frontier_key == it->first) cs.placed_any = false;
+  ++counters_.dropped_quarantined;
+  ++camera_counters_[cam].quarantined;
+  pending_.erase(it);
+}
+
+void ExposureAligner::recompute_newest_key(std::int64_t floor_key) {
+  newest_key_ = floor_key;
   if (!pending_.empty()) newest_key_ = std::max(newest_key_, std::prev(pending_.end())->first);
   if (released_any_) newest_key_ = std::max(newest_key_, released_through_);
+}
+
+// A fitting observation more than the lead window behind the newest exposure: newer exposures
+// that one camera opened unconfirmed (the first datagram of a run, or a jump accepted by grid
+// and arrival time alone: forged or glitched far ahead) are taken back, so they cannot hold the
+// newest index. Exposures a camera's own stream or several cameras opened stay.
+void ExposureAligner::evict_lone_exposures_ahead_of(std::int64_t key) {
+  auto it = pending_.end();
+  while (it != pending_.begin()) {
+    const auto before = std::prev(it);
+    if (before->first - key <= lead_limit()) break;
+    if (lone_unjudged(before->second))
+      take_back(before);  // `it` stays valid: a map erases only the element
+    else
+      it = before;
+  }
+  recompute_newest_key(key);
+}
+
+void ExposureAligner::take_back_expired_unconfirmed(time::MonotonicNs now) {
+  // An unconfirmed exposure whose wait ended is never released: released, it would make every
+  // exposure before it late, and become a sample no other camera took.
+  bool taken = false;
+  for (auto it = pending_.begin(); it != pending_.end();) {
+    const auto next = std::next(it);
+    if (lone_unjudged(it->second) && it->second.opening == Opening::kByArrivalTime &&
+        now >= deadline_of(it->second)) {
+      take_back(it);
+      taken = true;
+    }
+    it = next;
+  }
+  if (taken && (!pending_.empty() || released_any_)) recompute_newest_key(INT64_MIN);
 }
 
 void ExposureAligner::drop_known(std::int64_t key, int cam) {
@@ -495,8 +559,13 @@ void ExposureAligner::poll(time::MonotonicNs now, std::vector<pipeline::AlignedE
 }
 
 void ExposureAligner::flush(std::vector<pipeline::AlignedExposure>& out) {
-  while (!pending_.empty())
-    release(pending_.begin(), ReleaseReason::kFlush, out);
+  while (!pending_.empty()) {
+    const Pending& p = pending_.begin()->second;
+    if (lone_unjudged(p) && p.opening == Opening::kByArrivalTime)
+      take_back(pending_.begin());
+    else
+      release(pending_.begin(), ReleaseReason::kFlush, out);
+  }
   for (std::size_t i = 0; i < cameras_.size(); ++i)
     drop_held(static_cast<int>(i));
 }
@@ -519,10 +588,21 @@ time::MonotonicNs ExposureAligner::deadline_of(const Pending& p) const {
   return std::max(waited, time::saturating_add_ns(last_placed_, config_.max_wait_ns));
 }
 
+bool ExposureAligner::forces_older(const Pending& p) const {
+  return all_mask_ == 1u || std::popcount(p.present_mask) >= 2;
+}
+
 time::MonotonicNs ExposureAligner::next_deadline() const {
+  // The deadlines that make something happen: the oldest exposure's, those that force older ones
+  // out, and those of unconfirmed exposures (taken back). A lone exposure behind the oldest waits
+  // for it whatever its own deadline says.
   time::MonotonicNs earliest = INT64_MAX;
-  for (const auto& [key, p] : pending_)
-    earliest = std::min(earliest, deadline_of(p));
+  for (auto it = pending_.begin(); it != pending_.end(); ++it) {
+    const Pending& p = it->second;
+    if (it == pending_.begin() || forces_older(p) ||
+        (lone_unjudged(p) && p.opening == Opening::kByArrivalTime))
+      earliest = std::min(earliest, deadline_of(p));
+  }
   return earliest;
 }
 
@@ -531,14 +611,17 @@ void ExposureAligner::release_ready(time::MonotonicNs now,
   // In sequence order: an exposure waits for older ones (each bounded by its own deadline), so
   // the processor's tracking always sees time move forward. A timed-out exposure also releases
   // everything older than it, whatever their own deadlines (a release moves no deadline).
+  // Only an exposure of two cameras or more forces older ones out: a single camera never
+  // releases or times out the other cameras' exposures (a lone one waits for them, then goes).
+  take_back_expired_unconfirmed(now);
   auto newest_expired = pending_.end();
   for (auto it = pending_.begin(); it != pending_.end(); ++it)
-    if (now >= deadline_of(it->second)) newest_expired = it;
+    if (now >= deadline_of(it->second) && forces_older(it->second)) newest_expired = it;
   while (!pending_.empty()) {
     auto it = pending_.begin();
     const bool complete = it->second.present_mask == all_mask_;
     const bool forced = newest_expired != pending_.end() && it->first <= newest_expired->first;
-    if (!complete && !forced) break;
+    if (!complete && !forced && now < deadline_of(it->second)) break;
     if (newest_expired == it) newest_expired = pending_.end();
     release(it, complete ? ReleaseReason::kComplete : ReleaseReason::kTimeout, out);
   }

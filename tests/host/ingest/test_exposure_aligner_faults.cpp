@@ -497,10 +497,15 @@ TEST(ExposureAlignerFaults, ReplayedOldObservationIsNotReleasedAgain) {
   aligner.push(later, 1'029'812'660, out);
   aligner.push(first, 1'036'789'967, out);
   aligner.flush(out);
+  // Exposure 3839 arrives 15 ms of host time after exposure 0, 9.6 s of trigger time ahead: past
+  // the lead window (10 exposures before the period is known), a jump nothing vouches for (issue
+  // 31), it is held; the one camera is the rig's majority, so it is taken as the trigger's
+  // restart and placed after exposure 0.
   ASSERT_EQ(out.size(), 2u);
   EXPECT_EQ(out[0].trigger_seq, 0u);
   EXPECT_EQ(out[1].trigger_seq, 3839u);
-  EXPECT_EQ(aligner.counters().sequence_restarts, 0u);
+  EXPECT_EQ(test::times_released(out, 0), 1);
+  EXPECT_EQ(aligner.counters().sequence_restarts, 1u);
   EXPECT_EQ(aligner.counters().observations_used, 2u);
   // The bit-identical replay is now known as a duplicate of camera 10's (sequence, start) before
   // the restart guard sees it; ReplayWithACorruptDurationIsNotATriggerRestart tests that guard.

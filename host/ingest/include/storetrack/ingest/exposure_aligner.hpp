@@ -58,8 +58,13 @@ inline constexpr std::int64_t kMaxMidTimeSpreadNs = time::kNsPerSecond;
 inline constexpr std::size_t kMaxAlignerPending = 4096;
 inline constexpr std::uint32_t kMaxSequenceLead = 100'000;
 /// The fastest trigger the aligner assumes before it has measured the period (1000 fps): until
-/// then the lead is limited to max_wait / this, the most exposures the wait can span.
+/// then the lead window is counted in exposures of this period.
 inline constexpr time::MonotonicNs kFastestTriggerPeriodNs = 1'000'000;
+/// The lead window in trigger time, whatever the wait: a camera may open an exposure at most
+/// min(max_wait, this) / period ahead of the newest one without judging the jump. A longer wait
+/// (tools/testpoint's 5 s) must not let one forged datagram thousands of exposures ahead count as
+/// a camera legitimately ahead. 10 ms: the production wait, the units' latency differences.
+inline constexpr time::MonotonicNs kMaxLeadTimeNs = 10'000'000;
 /// Exposure start times outside [0, kMaxExposureStartTaiNs] are refused: 2^62 ns is year 2116,
 /// and within this range every sum and difference of two times fits int64.
 inline constexpr time::TaiNs kMaxExposureStartTaiNs = std::int64_t{1} << 62;
@@ -80,10 +85,9 @@ struct AlignerConfig {
   std::size_t max_pending = 64;
   /// Exposures with fewer delivered cameras are dropped (counted), not released. 1..cameras.
   int min_cameras = 1;
-  /// A camera may open a new exposure at most this far ahead of the newest one; beyond it its
-  /// sequence is quarantined. Once the trigger period is known the lead is also limited to
-  /// max_wait / period: an exposure further ahead would time out before the other cameras reach
-  /// it and, released, make their observations of every exposure in between late. 1..100000.
+  /// A camera may open a new exposure at most this far ahead of the newest one without its jump
+  /// being judged (its own continuity, the grid and its arrival time); the window is also at
+  /// most min(max_wait, kMaxLeadTimeNs) / period, so it does not grow with the wait. 1..100000.
   std::uint32_t max_sequence_lead = kMaxSequenceLead;
 };
 
@@ -103,11 +107,13 @@ struct AlignerCounters {
   std::uint64_t dropped_duplicate = 0;          ///< same camera, same exposure, seen before
   std::uint64_t dropped_late = 0;               ///< exposure already released without it
   std::uint64_t dropped_time_mismatch = 0;      ///< mid-time disagrees with the majority
-  std::uint64_t dropped_quarantined = 0;        ///< sequence did not fit and was not confirmed
-  std::uint64_t dropped_too_few_cameras = 0;    ///< observations of exposures below min_cameras
-  std::uint64_t sequence_offset_changes = 0;    ///< a camera's offset re-learned from time
-  std::uint64_t sequence_restarts = 0;          ///< a majority of cameras restarted together
-  std::uint64_t camera_missing_total = 0;       ///< sum over released exposures of missing cameras
+  /// Sequence did not fit and was not confirmed, or opened an exposure alone past a jump that no
+  /// other camera confirmed before its wait ended (taken back, never released).
+  std::uint64_t dropped_quarantined = 0;
+  std::uint64_t dropped_too_few_cameras = 0;  ///< observations of exposures below min_cameras
+  std::uint64_t sequence_offset_changes = 0;  ///< a camera's offset re-learned from time
+  std::uint64_t sequence_restarts = 0;        ///< a majority of cameras restarted together
+  std::uint64_t camera_missing_total = 0;     ///< sum over released exposures of missing cameras
 };
 
 struct CameraCounters {
@@ -137,7 +143,8 @@ class ExposureAligner {
   void poll(time::MonotonicNs now, std::vector<pipeline::AlignedExposure>& out);
   /// Releases everything pending and drops held observations (end of input).
   void flush(std::vector<pipeline::AlignedExposure>& out);
-  /// Host time at which the oldest pending exposure times out; INT64_MAX when none pending.
+  /// Host time at which the next pending exposure times out and something is released or taken
+  /// back; INT64_MAX when none pending.
   time::MonotonicNs next_deadline() const;
 
   std::size_t pending() const { return pending_.size(); }
@@ -148,13 +155,21 @@ class ExposureAligner {
   const AlignerConfig& config() const { return config_; }
 
  private:
+  enum class Opening : std::uint8_t {
+    kJudged,         // within the lead window, or a jump its camera's stream or a majority vouches
+    kFirstOfRun,     // the first exposure: nothing to judge it by
+    kByArrivalTime,  // a jump on the grid, not from the future: other cameras must confirm it
+  };
   struct Pending {
     std::vector<msg::MarkObservations> cameras;  // at most one per rig camera
     std::uint32_t present_mask = 0;
     time::MonotonicNs first_arrival = 0;
     time::MonotonicNs last_arrival = 0;
     time::TaiNs reference_mid_tai_ns = 0;  // majority mid-time of the cameras so far
-    bool after_gap = false;  // opened past the lead window, judged by grid and arrival time
+    // How its first observation was judged. While it holds that camera alone, an
+    // exposure not kJudged is taken back (quarantined) when a camera places an observation more
+    // than the lead window behind it; one kByArrivalTime also when its wait ends or at flush.
+    Opening opening = Opening::kJudged;
     std::int64_t stream_ns_at_open = 0;  // the stream clock when its first camera was placed
   };
   using DeliveredId = std::pair<std::uint32_t, time::TaiNs>;  // trigger_seq, exposure start
@@ -169,6 +184,12 @@ class ExposureAligner {
     // the unit's TAI stepped (a clock fault), not its sequence.
     bool have_clock_baseline = false;
     std::int64_t tai_minus_mono_ns = 0;
+    // The newest exposure index this camera placed an observation in, and when (host time): a
+    // camera's own stream vouches for a jump ahead of it only as far as the trigger can have run
+    // since (one exposure per period) plus the lead window.
+    bool placed_any = false;
+    std::int64_t frontier_key = 0;
+    time::MonotonicNs frontier_arrival = 0;
     // (trigger_seq, start) of its last kRecentDelivered placed observations, oldest first.
     std::set<DeliveredId> delivered;
     std::deque<DeliveredId> delivered_order;
@@ -191,6 +212,11 @@ class ExposureAligner {
   void place(int cam, const msg::MarkObservations& obs, time::MonotonicNs now,
              bool gap_confirmed = false);
   bool gap_explained(std::int64_t key, time::TaiNs mid, time::MonotonicNs now) const;
+  bool continues_own_stream(int cam, std::int64_t key, time::MonotonicNs now) const;
+  bool lone_unjudged(const Pending& p) const;
+  bool forces_older(const Pending& p) const;
+  void take_back(PendingMap::iterator it);
+  void take_back_expired_unconfirmed(time::MonotonicNs now);
   bool on_grid_over_gap(std::int64_t key, time::TaiNs mid) const;
   bool held_on_grid(int cam) const;
   void advance_stream_clock(time::MonotonicNs now);
@@ -205,6 +231,7 @@ class ExposureAligner {
                       time::MonotonicNs now);
   void drop_known(std::int64_t key, int cam);
   void evict_lone_exposures_ahead_of(std::int64_t key);
+  void recompute_newest_key(std::int64_t floor_key);
   void quarantine(int cam, const msg::MarkObservations& obs, std::int64_t unwrapped,
                   time::MonotonicNs now);
   void try_trigger_restart(time::MonotonicNs now);

@@ -1,0 +1,260 @@
+#!/usr/bin/python3
+"""One forged datagram, end to end (issue 31): storetrack-sim's observations of the main job's
+test point (store_separation, 220 exposures, 4 cameras on units 0 and 1) replayed into the real
+storetrack-host from the units' own address, with ONE extra datagram: a copy of camera 1's
+observation (unit 0, correct framing and CRC) renumbered LEAD exposures ahead, its times moved
+with it (the worst case: sequence and time agree with a future trigger edge).
+
+Settings (--settings):
+  testpoint   tools/testpoint's host: aligner max_wait 5 s, max_pending = the run
+  production  the host's defaults: 10 ms wait, 64 pending
+  gate        production, --min-cameras 3, and three exposures made too weak to be samples: one
+              only camera 0 sent (the aligner drops it), one whose cameras all saw nothing
+              (cameras_used 0), one where only cameras 0 and 1 saw marks (cameras_used <= 2)
+
+Checked: the forged datagram costs at most --max-lost of the samples the same run without it
+gives (run both: --lead 0 is the reference run), no sample anywhere (CSV, Chapter 10, iNET-X)
+has cameras_used 0 or fewer than min_cameras, the outputs agree sample for sample, and the host
+accounts for every exposure: released = processed = written + withheld by reason.
+
+The replay is paced (--fps, default 100; the main job's units deliver about 20-50 exposures/s of
+host time on two cores): slow motion, the exposures keep their 400 fps time stamps.
+
+Usage: run_forged.py SIM HOST ROOT OUT [--settings S] [--lead N] [--fps F] [--max-lost N]
+"""
+import argparse
+import json
+import os
+import socket
+import struct
+import subprocess
+import sys
+import threading
+import time
+import zlib
+
+ap = argparse.ArgumentParser()
+ap.add_argument("sim")
+ap.add_argument("host")
+ap.add_argument("root")
+ap.add_argument("out")
+ap.add_argument("--settings", choices=("testpoint", "production", "gate"), default="testpoint")
+ap.add_argument("--leads", default="600", help="comma-separated leads; 0 = no forged datagram")
+ap.add_argument("--fps", type=float, default=100.0)
+ap.add_argument("--max-lost", type=int, default=5)
+ap.add_argument("--ch10-dump", default="",
+                help="rig_ch10_dump (the project's independent Chapter 10 reader): also check "
+                     "every recorded sample's cameras_used and trigger_seq")
+a = ap.parse_args()
+sys.path.insert(0, os.path.join(a.root, "tools"))
+sys.path.insert(0, os.path.join(a.root, "host", "report"))
+import sim_setup  # noqa: E402
+from storetrack_report import Checks, read_ch10, read_csv  # noqa: E402
+
+HDR = 12
+PERIOD_NS = 2_500_000
+FORGED_AT = 50          # injected before this exposure's observations
+FORGED_CAMERA = 1       # unit 0
+WEAK = {100: "one_camera", 120: "no_marks", 140: "two_cameras_marks"}  # --settings gate
+os.makedirs(a.out, exist_ok=True)
+
+
+def crc(b):
+    return bytes(b) + struct.pack(">I", zlib.crc32(bytes(b)) & 0xFFFFFFFF)
+
+
+def read_observations(path):
+    groups, last = [], None
+    data = open(path, "rb").read()
+    i = 0
+    while i + 4 <= len(data):
+        n = struct.unpack_from(">I", data, i)[0]
+        d = data[i + 4:i + 4 + n]
+        i += 4 + n
+        if len(d) < HDR + 30 or d[3] != 0x01:
+            continue
+        seq = struct.unpack_from(">I", d, HDR + 2)[0]
+        if seq != last:
+            groups.append([])
+            last = seq
+        groups[-1].append(bytearray(d[:-4]))
+    return groups
+
+
+def without_marks(b):
+    """The same observation with no mark (the camera saw nothing): 46 bytes."""
+    e = bytearray(b[:HDR + 30])
+    e[HDR + 29] = 0
+    struct.pack_into(">H", e, 6, len(e) + 4)
+    return e
+
+
+def forged_copy(d, lead):
+    f = bytearray(d)
+    struct.pack_into(">I", f, HDR + 2, struct.unpack_from(">I", f, HDR + 2)[0] + lead)
+    for off in (HDR + 6, HDR + 14):
+        struct.pack_into(">q", f, off, struct.unpack_from(">q", f, off)[0] + lead * PERIOD_NS)
+    return f
+
+
+def setup(sim_dir):
+    s = json.load(open(os.path.join(a.root, "common", "sim", "scenarios", "store_separation.json")))
+    json.dump(s, open(os.path.join(a.out, "scenario.json"), "w"))
+    if not os.path.exists(os.path.join(sim_dir, "observations.udp")):
+        subprocess.run([a.sim, "--scenario", os.path.join(a.out, "scenario.json"), "--seed", "1",
+                        "--out", sim_dir, "--mode", "observations"], check=True,
+                       stdout=subprocess.DEVNULL)
+    sim_setup.write_initial_marks(os.path.join(sim_dir, "truth_marks.csv"),
+                                  os.path.join(a.out, "initial_marks.json"))
+    return read_observations(os.path.join(sim_dir, "observations.udp"))
+
+
+def listen_inetx(sock, packets, stop):
+    sock.settimeout(0.2)
+    while not stop.is_set():
+        try:
+            packets.append(sock.recv(2048))
+        except socket.timeout:
+            pass
+
+
+def run(groups, sim_dir, lead):
+    out = os.path.join(a.out, "%s-lead%d" % (a.settings, lead))
+    os.makedirs(out, exist_ok=True)
+    for f in os.listdir(out):
+        os.remove(os.path.join(out, f))  # the host never overwrites a recording
+    port = 21000 + os.getpid() % 800 * 4
+    inetx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    inetx.bind(("127.0.0.1", port + 1))
+    packets, stop = [], threading.Event()
+    listener = threading.Thread(target=listen_inetx, args=(inetx, packets, stop))
+    listener.start()
+    config = {"aligner": {"max_wait_ms": 5000, "max_pending": len(groups)}} \
+        if a.settings == "testpoint" else {}
+    json.dump(config, open(os.path.join(out, "host.json"), "w"))
+    args = [a.host, "--calibration", os.path.join(sim_dir, "rig_calibrated.json"),
+            "--pylon-survey", os.path.join(sim_dir, "survey_pylon.json"),
+            "--store-survey", os.path.join(sim_dir, "survey_store.json"),
+            "--initial-marks", os.path.join(a.out, "initial_marks.json"),
+            "--udp-port", str(port), "--udp-bind", "127.0.0.1",
+            "--udp-source", "0@127.0.0.1", "--udp-source", "1@127.0.0.1",
+            "--inetx", "127.0.0.1:%d" % (port + 1), "--csv", os.path.join(out, "fti.csv"),
+            "--ch10", os.path.join(out, "out.ch10"), "--stats-json", os.path.join(out, "stats.json"),
+            "--config", os.path.join(out, "host.json"), "--idle-exit-s", "6" if a.settings == "testpoint" else "1",
+            "--log-level", "warn"]
+    if a.settings == "gate":
+        args += ["--min-cameras", "3"]
+    else:  # every exposure is processed: stop at the last one rather than after the idle time
+        args += ["--expect-exposures", str(len(groups))]
+    host = subprocess.Popen(args, stdout=open(os.path.join(out, "host.log"), "w"),
+                            stderr=subprocess.STDOUT)
+    try:
+        time.sleep(1.0)
+        tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        dseq = {}
+        t0 = time.monotonic() + 0.05
+
+        def send(b):
+            u = b[HDR]
+            struct.pack_into(">I", b, 8, dseq.get(u, 0) & 0xFFFFFFFF)
+            dseq[u] = dseq.get(u, 0) + 1
+            tx.sendto(crc(b), ("127.0.0.1", port))
+
+        for k, g in enumerate(groups):
+            due = t0 + k / a.fps
+            if due > time.monotonic():
+                time.sleep(due - time.monotonic())
+            if k == FORGED_AT and lead > 0:
+                send(forged_copy(g[FORGED_CAMERA], lead))
+            for c, d in enumerate(g):
+                weak = WEAK.get(k) if a.settings == "gate" else None
+                if weak == "one_camera" and c != 0:
+                    continue
+                if weak == "no_marks" or (weak == "two_cameras_marks" and c >= 2):
+                    d = without_marks(d)
+                send(bytearray(d))
+        host.wait(timeout=60)
+    finally:
+        if host.poll() is None:
+            host.kill()
+            host.wait()
+        time.sleep(0.3)
+        stop.set()
+        listener.join()
+    return out, host.returncode, packets
+
+
+def check_run(ok, out, rc, packets, lead, groups):
+    s = json.load(open(os.path.join(out, "stats.json")))
+    al = s["aligner"]
+    fti = read_csv(os.path.join(out, "fti.csv"))
+    n = len(fti["trigger_seq"]) if fti else 0
+    ch10 = read_ch10(os.path.join(out, "out.ch10"))
+    min_cameras = 3 if a.settings == "gate" else 1
+    tag = "[%s, lead %d] " % (a.settings, lead)
+    ok(rc == 0, tag + "host exited 0")
+    released = al["exposures_complete"] + al["exposures_partial_timeout"] + al["exposures_partial_overflow"]
+    withheld = s["samples_withheld"]
+    ok(released == s["exposures_processed"] == s["samples_written"] + sum(withheld.values()),
+       tag + "released %d = processed %d = written %d + withheld %s"
+       % (released, s["exposures_processed"], s["samples_written"], withheld))
+    ok(n == s["samples_written"] and ch10 is not None and ch10["messages"] == n and len(packets) == n,
+       tag + "one sample per written exposure in every output: CSV %d, Chapter 10 %s, iNET-X %d, written %d"
+       % (n, ch10 and ch10["messages"], len(packets), s["samples_written"]))
+    dropped = sum(v for k, v in al.items() if k.startswith("dropped_"))
+    ok(al["observations_in"] == al["observations_used"] + dropped,
+       tag + "every observation used or dropped by a counted reason")
+    used_csv = [int(x) for x in fti["cameras_used"]] if n else []
+    used_inetx = [p[-152 + 13] for p in packets]  # FTI parameter block: the packet's last 152 bytes
+    ok(all(u >= max(1, min_cameras) for u in used_csv + used_inetx),
+       tag + "no sample with cameras_used below %d (CSV min %s, iNET-X min %s)"
+       % (max(1, min_cameras), min(used_csv, default=None), min(used_inetx, default=None)))
+    seq0 = struct.unpack_from(">I", groups[0][0], HDR + 2)[0]
+    seqs = [int(x) for x in fti["trigger_seq"]] if n else []
+    if a.ch10_dump:
+        dump = json.loads(subprocess.run([a.ch10_dump, os.path.join(out, "out.ch10")], check=True,
+                                         capture_output=True, text=True).stdout)
+        rec = dump["samples"]
+        ok(dump["fti_block_errors"] == 0 and [r["trigger_seq"] for r in rec] == seqs
+           and all(r["cameras_used"] >= max(1, min_cameras) for r in rec),
+           tag + "Chapter 10 (independent reader): the CSV's %d samples, none with cameras_used "
+           "below %d" % (len(rec), max(1, min_cameras)))
+    ok(all(seq0 <= q < seq0 + len(groups) for q in seqs), tag + "every sample is an exposure the rig took")
+    valid = int(sum((int(x) & 1) for x in fti["status"])) if n else 0
+    print("%s%d samples written, %d valid of %d exposures; aligner: quarantined %d, late %d, "
+          "partial %d, too few cameras %d; withheld %s"
+          % (tag, n, valid, len(groups), al["dropped_quarantined"], al["dropped_late"],
+             al["exposures_partial_timeout"] + al["exposures_partial_overflow"],
+             al["exposures_dropped_too_few_cameras"], withheld))
+    if a.settings == "gate":
+        weak_seqs = {seq0 + k for k in WEAK}
+        ok(not weak_seqs & set(seqs), tag + "none of the three weak exposures is a sample")
+        ok(al["exposures_dropped_too_few_cameras"] >= 1 and withheld["no_camera_used"] >= 1
+           and sum(withheld.values()) >= 2,
+           tag + "counted by reason: aligner too few cameras %d, withheld %s"
+           % (al["exposures_dropped_too_few_cameras"], withheld))
+    return valid
+
+
+def main():
+    sim_dir = os.path.join(a.out, "sim")
+    groups = setup(sim_dir)
+    if len(groups) != 220 or any(len(g) != 4 for g in groups):
+        sys.exit("run_forged.py: expected 220 exposures of 4 cameras from the simulator")
+    ok = Checks()
+    valid = {}
+    for lead in [int(x) for x in a.leads.split(",")]:
+        out, rc, packets = run(groups, sim_dir, lead)
+        valid[lead] = check_run(ok, out, rc, packets, lead, groups)
+    if 0 in valid:
+        for lead, v in valid.items():
+            if lead:
+                ok(valid[0] - v <= a.max_lost,
+                   "[%s] lead %d: %d valid samples, %d without the forged datagram (at most %d lost)"
+                   % (a.settings, lead, v, valid[0], a.max_lost))
+    json.dump(valid, open(os.path.join(a.out, "valid_%s.json" % a.settings), "w"))
+    return 1 if ok.failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
