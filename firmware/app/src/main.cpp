@@ -80,7 +80,8 @@ void add_common(cli::Command* app, Overrides& o) {
       .positive();
   app->option("--sim-background-pool", o.sim_background_pool,
               "sim: render N backgrounds at start and only the spots per exposure (default 8 "
-              "with --realtime, where whole frames are too slow to render; 0: whole frames)")
+              "with --realtime at the scenario's rate, where whole frames are too slow to "
+              "render; 0: whole frames)")
       .range(0, 64);
   app->option("--sim-tai-step", o.tai_step,
               "sim fault: FROM,TO,NS: TAI clock off by NS for exposures [FROM, TO)")

@@ -40,8 +40,10 @@ bool make_simulated_camera(const SimSourceConfig& config, SimulatedCamera& out,
   out.first_trigger_seq = t0.trigger_seq;
   // Paced at the frame rate, a whole frame per exposure is too slow to render (docs:
   // SimFrameSource); the pool of backgrounds keeps the spots exact and the unit on time.
+  // Slow motion (--sim-pace-hz) has time for whole frames: they stay exact.
+  const bool full_rate = config.realtime && config.pace_hz <= 0;
   const int pool = config.background_pool >= 0 ? config.background_pool
-                   : config.realtime           ? kRealtimeBackgroundPool
+                   : full_rate                 ? kRealtimeBackgroundPool
                                                : 0;
   auto source =
       std::make_unique<sim::SimFrameSource>(*simulator, config.camera_index, 4, config.realtime,

@@ -41,7 +41,8 @@ struct SimSourceConfig {
   /// With realtime: pace at this rate [Hz] instead of the scenario's (slow motion); 0: scenario.
   double pace_hz = 0;
   /// Backgrounds rendered at start, the spots drawn over them per exposure
-  /// (sim::SimFrameSource); 0: every frame rendered whole; -1: 8 with realtime, else 0.
+  /// (sim::SimFrameSource); 0: every frame rendered whole; -1: 8 with realtime at the
+  /// scenario's rate (no pace_hz), else 0.
   int background_pool = -1;
   /// Fault injection (tests): the unit's TAI clock steps by tai_step_ns for the exposures
   /// [tai_step_from, tai_step_to) and back after (a PTP step), its monotonic clock does not.
