@@ -323,11 +323,9 @@ void SpotRenderer::build_background_table(const SensorModel& sensor) {
 }
 
 template <typename Pixel>
-void SpotRenderer::render_noisy(std::span<const Spot> spots, const SensorModel& sensor,
-                                std::mt19937_64& rng, Pixel* image, int width, int height,
-                                int stride) {
+void SpotRenderer::render_background_noisy(const SensorModel& sensor, std::mt19937_64& rng,
+                                           Pixel* image, int width, int height, int stride) {
   build_background_table(sensor);
-  prepare_signal(spots, width, height);
   // Background pixels: alias-method draw from the exact quantised distribution (fast path);
   // the high 32 bits pick the column, the low 32 bits decide column vs alias.
   const std::uint64_t levels = alias_prob_.size();
@@ -340,6 +338,13 @@ void SpotRenderer::render_noisy(std::span<const Spot> spots, const SensorModel& 
       row[x] = static_cast<Pixel>(u < alias_prob_[k] ? k : alias_index_[k]);
     }
   }
+}
+
+template <typename Pixel>
+void SpotRenderer::render_spots_noisy(std::span<const Spot> spots, const SensorModel& sensor,
+                                      std::mt19937_64& rng, Pixel* image, int width, int height,
+                                      int stride) {
+  prepare_signal(spots, width, height);
   // Spot pixels (overlapping boxes are drawn again from the same total mean: still exact).
   std::normal_distribution<double> read_noise(0.0, 1.0);
   for (const PixelBox& box : boxes_) {
@@ -357,6 +362,60 @@ void SpotRenderer::render_noisy(std::span<const Spot> spots, const SensorModel& 
                 signal_.begin() + static_cast<std::ptrdiff_t>(y) * width + box.x1, 0.0f);
     }
   }
+}
+
+void SpotRenderer::render_spots_gaussian(std::span<const Spot> spots, const SensorModel& sensor,
+                                         std::span<const float> unit_normals, std::size_t offset,
+                                         std::uint8_t* image, int width, int height, int stride) {
+  SensorModel s = sensor;
+  s.full_scale_dn = std::min(s.full_scale_dn, 255);
+  prepare_signal(spots, width, height);
+  const double read_var = s.read_noise_e * s.read_noise_e;
+  const std::size_t n = unit_normals.size();
+  offset %= n;
+  for (const PixelBox& box : boxes_) {
+    for (int y = box.y0; y < box.y1; ++y) {
+      std::uint8_t* row = image + static_cast<std::size_t>(y) * stride;
+      const float* sig = signal_.data() + static_cast<std::size_t>(y) * width;
+      for (int x = box.x0; x < box.x1; ++x) {
+        const double mu = s.background_e + sig[x];
+        // Shot + read noise as one Gaussian of the exact mean and variance.
+        const double z = unit_normals[offset];
+        if (++offset == n) offset = 0;
+        row[x] = to_dn<std::uint8_t>(mu + std::sqrt(mu + read_var) * z, s);
+      }
+    }
+  }
+  for (const PixelBox& box : boxes_) {
+    for (int y = box.y0; y < box.y1; ++y) {
+      std::fill(signal_.begin() + static_cast<std::ptrdiff_t>(y) * width + box.x0,
+                signal_.begin() + static_cast<std::ptrdiff_t>(y) * width + box.x1, 0.0f);
+    }
+  }
+}
+
+// Background first, then the spots: the draws of render() since the simulator's first version.
+template <typename Pixel>
+void SpotRenderer::render_noisy(std::span<const Spot> spots, const SensorModel& sensor,
+                                std::mt19937_64& rng, Pixel* image, int width, int height,
+                                int stride) {
+  render_background_noisy(sensor, rng, image, width, height, stride);
+  render_spots_noisy(spots, sensor, rng, image, width, height, stride);
+}
+
+void SpotRenderer::render_background(const SensorModel& sensor, std::mt19937_64& rng,
+                                     std::uint8_t* image, int width, int height, int stride) {
+  SensorModel s = sensor;
+  s.full_scale_dn = std::min(s.full_scale_dn, 255);
+  render_background_noisy(s, rng, image, width, height, stride);
+}
+
+void SpotRenderer::render_spots(std::span<const Spot> spots, const SensorModel& sensor,
+                                std::mt19937_64& rng, std::uint8_t* image, int width, int height,
+                                int stride) {
+  SensorModel s = sensor;
+  s.full_scale_dn = std::min(s.full_scale_dn, 255);
+  render_spots_noisy(spots, s, rng, image, width, height, stride);
 }
 
 void SpotRenderer::render(std::span<const Spot> spots, const SensorModel& sensor,

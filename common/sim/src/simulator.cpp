@@ -20,6 +20,8 @@ enum BodyKind { kPylon = 0, kStore = 1, kPendulum = 2, kScaleBar = 3 };
 constexpr std::uint64_t kFlightCentroidNoise = 4;
 constexpr std::uint64_t kRegistrationSurveyNoise = 6;
 constexpr std::uint64_t kRegistrationCentroidNoise = 7;
+constexpr std::uint64_t kPooledBackgroundNoise = 8;
+constexpr std::uint64_t kPooledSpotNoise = 9;
 
 // splitmix64 finaliser: independent, reproducible random streams per (purpose, k, camera).
 std::uint64_t mix(std::uint64_t z) {
@@ -488,6 +490,33 @@ void Simulator::render_into(int k, int camera_index, std::uint8_t* image, int st
   std::mt19937_64 rng(
       stream_seed(3, static_cast<std::uint64_t>(k), static_cast<std::uint64_t>(camera_index)));
   renderer.render(spot_list, sc_.optics.sensor, rng, image, in.width, in.height, stride);
+}
+
+void Simulator::render_background_into(int pool_index, int camera_index, std::uint8_t* image,
+                                       int stride, SpotRenderer& renderer) const {
+  const camera::Intrinsics& in =
+      true_rig_.cameras[static_cast<std::size_t>(camera_index)].model.intrinsics();
+  std::mt19937_64 rng(stream_seed(kPooledBackgroundNoise, static_cast<std::uint64_t>(pool_index),
+                                  static_cast<std::uint64_t>(camera_index)));
+  renderer.render_background(sc_.optics.sensor, rng, image, in.width, in.height, stride);
+}
+
+void Simulator::render_spots_into(int k, int camera_index, std::uint8_t* image, int stride,
+                                  SpotRenderer& renderer,
+                                  std::span<const float> unit_normals) const {
+  thread_local std::vector<Spot> spot_list;
+  spots(k, camera_index, spot_list);
+  const camera::Intrinsics& in =
+      true_rig_.cameras[static_cast<std::size_t>(camera_index)].model.intrinsics();
+  std::mt19937_64 rng(stream_seed(kPooledSpotNoise, static_cast<std::uint64_t>(k),
+                                  static_cast<std::uint64_t>(camera_index)));
+  if (!unit_normals.empty()) {
+    renderer.render_spots_gaussian(spot_list, sc_.optics.sensor, unit_normals,
+                                   static_cast<std::size_t>(rng() % unit_normals.size()), image,
+                                   in.width, in.height, stride);
+    return;
+  }
+  renderer.render_spots(spot_list, sc_.optics.sensor, rng, image, in.width, in.height, stride);
 }
 
 void Simulator::render(int k, int camera_index, std::vector<std::uint8_t>& image) const {

@@ -45,6 +45,8 @@ struct Overrides {
   long frames = 0;
   int start_exposure = 0;
   double sim_pace_hz = 0;
+  int sim_background_pool = -1;
+  std::int64_t sim_pace_origin = 0;
   std::vector<std::int64_t> tai_step;
   std::vector<std::string> udp, can;
   std::string modbus, stats_json, edges_csv;
@@ -52,6 +54,7 @@ struct Overrides {
   std::int64_t ptp4l_lock_threshold_ns = 0;
   double ptp4l_holdover_s = 0;
   bool ptp4l_measure_only = false;
+  bool keep_numbering = false;
   bool realtime = false, no_links = false, no_modbus = false, maintenance = false, verbose = false,
        replay_loop = false, triggered_only = false;
 };
@@ -66,9 +69,20 @@ void add_common(cli::Command* app, Overrides& o) {
   app->option("--sim-start-exposure", o.start_exposure,
               "sim fault: start at this exposure, trigger numbering from 0 (a restarted unit)")
       .non_negative();
+  app->flag("--sim-keep-numbering", o.keep_numbering,
+            "sim fault: with --sim-start-exposure, keep the rig's trigger numbering (not from 0)");
   app->option("--sim-pace-hz", o.sim_pace_hz,
               "sim: with --realtime, pace at this rate instead of the scenario's (slow motion)")
       .positive();
+  app->option("--sim-pace-origin-mono-ns", o.sim_pace_origin,
+              "sim: with --realtime, exposure 0 is due at this CLOCK_MONOTONIC time [ns] (one "
+              "schedule for the units of a run, restarted ones too; default: the unit's start)")
+      .positive();
+  app->option("--sim-background-pool", o.sim_background_pool,
+              "sim: render N backgrounds at start and only the spots per exposure (default 8 "
+              "with --realtime at the scenario's rate, where whole frames are too slow to "
+              "render; 0: whole frames)")
+      .range(0, 64);
   app->option("--sim-tai-step", o.tai_step,
               "sim fault: FROM,TO,NS: TAI clock off by NS for exposures [FROM, TO)")
       .delimiter(',')
@@ -134,7 +148,10 @@ UnitConfig build_config(cli::Command* app, const Overrides& o) {
   if (given(app, "--seed")) c.sim.seed = o.seed;
   if (o.realtime) c.sim.realtime = true;
   if (given(app, "--sim-start-exposure")) c.sim.start_exposure = o.start_exposure;
+  if (o.keep_numbering) c.sim.keep_numbering = true;
   if (given(app, "--sim-pace-hz")) c.sim.pace_hz = o.sim_pace_hz;
+  if (given(app, "--sim-background-pool")) c.sim.background_pool = o.sim_background_pool;
+  if (given(app, "--sim-pace-origin-mono-ns")) c.sim.pace_origin_mono_ns = o.sim_pace_origin;
   if (o.tai_step.size() == 3) {
     if (o.tai_step[0] < 0 || o.tai_step[1] <= o.tai_step[0] || o.tai_step[1] > (1 << 30))
       throw ConfigError("--sim-tai-step: need 0 <= FROM < TO (exposure indices)");
@@ -268,6 +285,8 @@ int do_run(cli::Command* cmd, const Overrides& o) {
                              : !runner.stop_reason().empty() ? runner.stop_reason()
                                                              : "runtime error";
   if (!runner.stop_reason().empty()) std::fprintf(stderr, "storetrack-unit: %s\n", reason.c_str());
+  if (const std::string verdict = runner.realtime_verdict(); !verdict.empty())
+    std::fprintf(stderr, "storetrack-unit: %s\n", verdict.c_str());
   runner.shutdown();
   if (write_stats(runner, config.stats_json, reason, code) < 0 && code == kExitOk) {
     return kExitRuntimeError;

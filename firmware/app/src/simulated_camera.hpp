@@ -15,6 +15,14 @@
 
 namespace storetrack::unit {
 
+/// How far a paced simulated source fell behind its schedule (frames handed out more than one
+/// frame period after their due time are late).
+struct SimulatedPacing {
+  std::int64_t max_behind_ns = 0;
+  std::int64_t frames_late = 0;
+  double frame_period_ns = 0;
+};
+
 /// A simulated camera: its frame source and the facts the unit would otherwise configure.
 struct SimulatedCamera {
   std::shared_ptr<const void> simulation;      ///< what `source` renders from; outlives it
@@ -27,6 +35,7 @@ struct SimulatedCamera {
   std::int64_t tai_minus_mono_ns = 0;  ///< the simulated unit's fixed clock offset
   double frame_rate_hz = 0;            ///< the scenario's (trigger mode sim)
   std::uint32_t first_trigger_seq = 0;
+  std::function<SimulatedPacing()> pacing;  ///< set when the source is paced (realtime)
 };
 
 /// Builds the simulated camera `sim` describes. Returns false with `error` set on a bad

@@ -10,6 +10,8 @@
 namespace storetrack::unit {
 namespace {
 
+constexpr int kRealtimeBackgroundPool = 8;
+
 bool make_simulated_camera(const SimSourceConfig& config, SimulatedCamera& out,
                            std::string& error) {
   const sim::Scenario scenario = sim::load_scenario(config.scenario);
@@ -36,8 +38,25 @@ bool make_simulated_camera(const SimSourceConfig& config, SimulatedCamera& out,
   out.tai_minus_mono_ns = t0.reported_start_tai_ns - t0.reported_start_mono_ns;
   out.frame_rate_hz = scenario.frame_rate_hz;
   out.first_trigger_seq = t0.trigger_seq;
-  out.source = std::make_unique<sim::SimFrameSource>(
-      *simulator, config.camera_index, 4, config.realtime, config.start_exposure, config.pace_hz);
+  // Paced at the frame rate, a whole frame per exposure is too slow to render (docs:
+  // SimFrameSource); the pool of backgrounds keeps the spots exact and the unit on time.
+  // Slow motion (--sim-pace-hz) has time for whole frames: they stay exact.
+  const bool full_rate = config.realtime && config.pace_hz <= 0;
+  const int pool = config.background_pool >= 0 ? config.background_pool
+                   : full_rate                 ? kRealtimeBackgroundPool
+                                               : 0;
+  auto source =
+      std::make_unique<sim::SimFrameSource>(*simulator, config.camera_index, 4, config.realtime,
+                                            config.start_exposure, config.pace_hz, pool);
+  if (config.realtime) {
+    if (config.pace_origin_mono_ns > 0) source->set_pace_origin(config.pace_origin_mono_ns);
+    const sim::SimFrameSource* paced = source.get();
+    out.pacing = [paced] {
+      const sim::SimFrameSource::Pacing p = paced->pacing();
+      return SimulatedPacing{p.max_behind_ns, p.frames_late, p.frame_period_ns};
+    };
+  }
+  out.source = std::move(source);
   out.simulation = std::move(simulator);
   return true;
 }

@@ -32,8 +32,18 @@ struct SimSourceConfig {
   /// Fault injection (tests): start at this exposure as a unit (re)started mid-run does; its
   /// trigger numbering then starts from 0, not from the simulator's sequence.
   int start_exposure = 0;
+  /// With start_exposure: the restarted unit keeps the rig's trigger numbering (a unit that
+  /// persisted its edge count, or a slave of a master that kept counting) instead of 0.
+  bool keep_numbering = false;
+  /// With realtime: CLOCK_MONOTONIC time [ns] exposure 0 is due at, shared by the units of one
+  /// run so they keep one schedule (a restarted unit too); 0: each unit's own start.
+  std::int64_t pace_origin_mono_ns = 0;
   /// With realtime: pace at this rate [Hz] instead of the scenario's (slow motion); 0: scenario.
   double pace_hz = 0;
+  /// Backgrounds rendered at start, the spots drawn over them per exposure
+  /// (sim::SimFrameSource); 0: every frame rendered whole; -1: 8 with realtime at the
+  /// scenario's rate (no pace_hz), else 0.
+  int background_pool = -1;
   /// Fault injection (tests): the unit's TAI clock steps by tai_step_ns for the exposures
   /// [tai_step_from, tai_step_to) and back after (a PTP step), its monotonic clock does not.
   int tai_step_from = -1;

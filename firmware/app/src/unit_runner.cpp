@@ -94,6 +94,7 @@ int UnitRunner::setup(std::string& error) {
           config_.trigger.rate_hz = camera.frame_rate_hz;
         sim_first_trigger_seq_ = camera.first_trigger_seq;
         simulation_ = std::move(camera.simulation);
+        sim_pacing_ = std::move(camera.pacing);
         source_ = std::move(camera.source);
         break;
       }
@@ -591,8 +592,10 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
   if (trigger_) {
     if (sim_trigger_) {
       if (!pairer_) {
-        // A unit started mid-run counts its trigger edges from 0, as a restarted unit does.
-        make_pairer(config_.sim.start_exposure > 0 ? 0u : frame.sequence);
+        // A unit started mid-run counts its trigger edges from 0, as a restarted unit does,
+        // unless it kept the rig's numbering.
+        make_pairer(config_.sim.start_exposure > 0 && !config_.sim.keep_numbering ? 0u
+                                                                                  : frame.sequence);
         sim_trigger_->set_origin(frame.timestamp_mono_ns - pairer_config_.latency_ns);
       }
       sim_trigger_->advance_to(frame.timestamp_mono_ns - pairer_config_.latency_ns +
@@ -916,6 +919,32 @@ void UnitRunner::shutdown() {
   }
 }
 
+namespace {
+// A unit that renders slower than its rate falls behind without bound; one that keeps up is
+// late only by the scheduler's jitter (a few ms on a loaded 2-core machine).
+constexpr std::int64_t kRealtimeToleranceNs = 100'000'000;
+}  // namespace
+
+std::string UnitRunner::realtime_verdict() const {
+  if (!sim_pacing_) return "";
+  const SimulatedPacing p = sim_pacing_();
+  char line[256];
+  if (p.max_behind_ns <= kRealtimeToleranceNs) {
+    std::snprintf(line, sizeof line,
+                  "real time kept: at most %.1f ms behind the frame schedule (tolerance %.0f ms); "
+                  "%lld frames more than one frame period (%.2f ms) late",
+                  static_cast<double>(p.max_behind_ns) / 1e6, kRealtimeToleranceNs / 1e6,
+                  static_cast<long long>(p.frames_late), p.frame_period_ns / 1e6);
+  } else {
+    std::snprintf(line, sizeof line,
+                  "NOT real time: fell up to %.1f ms behind the frame schedule; %lld of %lld "
+                  "frames more than one frame period (%.2f ms) late",
+                  static_cast<double>(p.max_behind_ns) / 1e6, static_cast<long long>(p.frames_late),
+                  static_cast<long long>(run_.frames), p.frame_period_ns / 1e6);
+  }
+  return line;
+}
+
 std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code) const {
   nlohmann::json j;
   j["exit_code"] = exit_code;
@@ -949,6 +978,13 @@ std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code
                                {"failed_reopens", f.failed_reopens},
                                {"corrupted", f.corrupted},
                                {"frames_lost_disconnected", f.frames_lost_disconnected}};
+  }
+  if (sim_pacing_) {
+    const SimulatedPacing p = sim_pacing_();
+    j["sim_pacing"] = {{"max_behind_ms", static_cast<double>(p.max_behind_ns) / 1e6},
+                       {"frames_late", p.frames_late},
+                       {"frame_period_ms", p.frame_period_ns / 1e6},
+                       {"realtime_kept", p.max_behind_ns <= kRealtimeToleranceNs}};
   }
   j["centroid_errors"] = run_.centroid_errors;
   j["marks_total"] = run_.marks;

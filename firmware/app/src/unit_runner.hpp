@@ -8,6 +8,7 @@
 #include <atomic>
 #include <cstdint>
 #include <cstdio>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -88,6 +89,9 @@ class UnitRunner {
 
   /// Counters as JSON (--stats-json).
   std::string stats_json(const std::string& exit_reason, int exit_code) const;
+  /// Paced simulated source: whether it kept its schedule ("real time kept ...") or by how much
+  /// it fell behind ("NOT real time ..."); empty when the source is not paced.
+  std::string realtime_verdict() const;
   const UnitConfig& config() const { return config_; }
   const centroid::CentroidConfig& centroid_config() const { return centroid_->config(); }
   const std::string& notes() const { return notes_; }
@@ -156,6 +160,7 @@ class UnitRunner {
   std::int64_t tai_minus_mono_ns_ = 0;
   bool tai_from_source_ = false;  // sim: fixed offset set at setup
   std::uint32_t sim_first_trigger_seq_ = 0;
+  std::function<SimulatedPacing()> sim_pacing_;  // source sim, paced: its schedule kept?
   std::uint8_t clock_state_ = 0;
   time::MonotonicNs start_mono_ns_ = 0;
   time::MonotonicNs last_health_ns_ = 0;

@@ -163,6 +163,17 @@ class Simulator {
   /// The same into a caller buffer (no allocation once the renderer is warm).
   void render_into(int k, int camera_index, std::uint8_t* image, int stride,
                    SpotRenderer& renderer) const;
+  /// A background frame of this camera (every pixel from the no-spot distribution), the
+  /// pool_index-th of its own random stream: a source that cannot render whole frames at the
+  /// frame rate keeps a pool of these and draws only each exposure's spots over one.
+  void render_background_into(int pool_index, int camera_index, std::uint8_t* image, int stride,
+                              SpotRenderer& renderer) const;
+  /// The spots of exposure k (their boxes' pixels, shot + read noise) drawn over the background
+  /// already in `image`; renderer.drawn_boxes() then names the pixels written.
+  /// With `unit_normals`: the Gaussian approximation (SpotRenderer::render_spots_gaussian) read
+  /// from a random offset of that table.
+  void render_spots_into(int k, int camera_index, std::uint8_t* image, int stride,
+                         SpotRenderer& renderer, std::span<const float> unit_normals = {}) const;
   /// Spots of every visible mark (the scene as the renderer sees it).
   void spots(int k, int camera_index, std::vector<Spot>& out,
              std::vector<int>* mark_ids = nullptr) const;
