@@ -334,8 +334,8 @@ const std::string kEnd = "<!-- END GENERATED canfd:busload -->";
 int check_or_update(const std::string& path, bool update) {
   std::string text;
   try {
-    text = jsonfile::read_text_file(path);
-  } catch (const jsonfile::FileReadError& e) {
+    text = storetrack::jsonfile::read_text_file(path);
+  } catch (const storetrack::jsonfile::FileReadError& e) {
     std::fprintf(stderr, "%s\n", e.what());
     return 2;
   }
