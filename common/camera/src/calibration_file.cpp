@@ -6,13 +6,15 @@
 
 #include <cmath>
 #include <fstream>
+#include <limits>
 #include <set>
-#include <sstream>
 #include <stdexcept>
 
 #include <nlohmann/json.hpp>
 
 #include "storetrack/geometry/symmetric_eigen.hpp"
+#include "storetrack/json/strict_reader.hpp"
+#include "storetrack/json/text_file.hpp"
 
 namespace storetrack::camera {
 
@@ -23,247 +25,183 @@ using nlohmann::json;
 constexpr const char* kFormatName = "storetrack-rig-calibration";
 constexpr int kFormatVersion = 2;  // written; 1 and 2 are read
 
-/// Walks a JSON document keeping the JSON path (RFC 6901 pointer) for error messages.
-class Reader {
- public:
-  explicit Reader(std::string origin) : origin_(std::move(origin)) {}
+using jsonfile::Object;
+using jsonfile::Range;
+using jsonfile::Value;
 
-  [[noreturn]] void fail(const std::string& path, const std::string& reason) const {
-    throw CalibrationFileError(origin_ + ": " + (path.empty() ? std::string("/") : path) + ": " +
-                               reason);
-  }
+std::string index_path(const std::string& path, Eigen::Index r, Eigen::Index c) {
+  return path + "[" + std::to_string(r) + "][" + std::to_string(c) + "]";
+}
 
-  const json& member(const json& obj, const std::string& path, const char* key) const {
-    const auto it = obj.find(key);
-    if (it == obj.end()) fail(path, std::string("missing required key \"") + key + "\"");
-    return *it;
-  }
+// Every object of the file may carry a "comment" (docs/calibration-file.md).
+Object object_of(const Value& v) {
+  Object o = v.object();
+  o.known({"comment"});
+  return o;
+}
 
-  void expect_object(const json& j, const std::string& path) const {
-    if (!j.is_object()) fail(path, std::string("expected an object, got ") + j.type_name());
-  }
-
-  void only_keys(const json& obj, const std::string& path,
-                 std::initializer_list<const char*> allowed) const {
-    for (const auto& [key, value] : obj.items()) {
-      (void)value;
-      bool ok = key == "comment";
-      for (const char* a : allowed)
-        ok = ok || key == a;
-      if (!ok)
-        fail(path + "/" + key,
-             "unknown key (typo?); allowed keys are listed in "
-             "docs/calibration-file.md");
+/// Symmetric (relative 1e-9) and positive semi-definite. PSD is judged on the correlation
+/// matrix so that parameters of very different units (px^2 next to rad^2) are held to the same
+/// relative tolerance.
+void check_covariance(const Eigen::MatrixXd& cov, const Value& v) {
+  const auto fail = [&](Eigen::Index r, Eigen::Index c, const std::string& reason) {
+    throw jsonfile::FieldError(v.file(), index_path(v.path(), r, c), reason);
+  };
+  const Eigen::Index n = cov.rows();
+  for (Eigen::Index r = 0; r < n; ++r)
+    if (cov(r, r) < 0) fail(r, r, "covariance is not positive semi-definite (negative variance)");
+  for (Eigen::Index r = 0; r < n; ++r)
+    for (Eigen::Index c = r + 1; c < n; ++c) {
+      const double tol = 1e-9 * std::sqrt(cov(r, r) * cov(c, c)) + 1e-300;
+      if (std::abs(cov(r, c) - cov(c, r)) > tol) fail(r, c, "covariance is not symmetric");
     }
-  }
+  Eigen::VectorXd inv_sd(n);
+  for (Eigen::Index r = 0; r < n; ++r)
+    inv_sd(r) = cov(r, r) > 0 ? 1.0 / std::sqrt(cov(r, r)) : 0.0;
+  for (Eigen::Index r = 0; r < n; ++r)  // a zero variance with a nonzero covariance
+    for (Eigen::Index c = 0; c < n; ++c)
+      if ((cov(r, r) == 0 || cov(c, c) == 0) && r != c && cov(r, c) != 0)
+        fail(r, c, "covariance is not positive semi-definite (covariance with a zero variance)");
+  const Eigen::MatrixXd correlation = inv_sd.asDiagonal() * cov * inv_sd.asDiagonal();
+  const Eigen::VectorXd eigenvalues =
+      geometry::symmetric_eigen(Eigen::MatrixXd{0.5 * (correlation + correlation.transpose())},
+                                /*with_vectors=*/false)
+          .values;
+  if (n > 0 && eigenvalues.minCoeff() < -1e-9)
+    v.fail(
+        "covariance is not positive semi-definite (smallest eigenvalue of the correlation "
+        "matrix " +
+        std::to_string(eigenvalues.minCoeff()) + ")");
+}
 
-  double number(const json& j, const std::string& path) const {
-    if (!j.is_number()) fail(path, std::string("expected a number, got ") + j.type_name());
-    const double v = j.get<double>();
-    if (!std::isfinite(v)) fail(path, "number is not finite");
-    return v;
-  }
-
-  double number(const json& obj, const std::string& path, const char* key) const {
-    return number(member(obj, path, key), path + "/" + key);
-  }
-
-  int integer(const json& obj, const std::string& path, const char* key, int lo, int hi) const {
-    const json& j = member(obj, path, key);
-    const std::string p = path + "/" + key;
-    if (!j.is_number_integer()) fail(p, std::string("expected an integer, got ") + j.type_name());
-    const auto v = j.get<long long>();
-    if (v < lo || v > hi)
-      fail(p, "value " + std::to_string(v) + " outside [" + std::to_string(lo) + ", " +
-                  std::to_string(hi) + "]");
-    return static_cast<int>(v);
-  }
-
-  std::vector<double> vector(const json& j, const std::string& path, size_t min_size,
-                             size_t max_size) const {
-    if (!j.is_array()) fail(path, std::string("expected an array, got ") + j.type_name());
-    if (j.size() < min_size || j.size() > max_size)
-      fail(path,
-           "expected " +
-               (min_size == max_size ? std::to_string(min_size)
-                                     : std::to_string(min_size) + ".." + std::to_string(max_size)) +
-               " numbers, got " + std::to_string(j.size()));
-    std::vector<double> out;
-    for (size_t i = 0; i < j.size(); ++i)
-      out.push_back(number(j[i], path + "/" + std::to_string(i)));
-    return out;
-  }
-
-  /// A covariance: either full rows [[...], ...] (n x n) or {"standard_deviations": [n]}
-  /// (uncorrelated). Must be symmetric and positive semi-definite.
-  Eigen::MatrixXd covariance(const json& j, const std::string& path, int n) const {
-    Eigen::MatrixXd cov = Eigen::MatrixXd::Zero(n, n);
-    if (j.is_object()) {
-      only_keys(j, path, {"standard_deviations"});
-      const auto sd = vector(member(j, path, "standard_deviations"), path + "/standard_deviations",
-                             static_cast<size_t>(n), static_cast<size_t>(n));
-      for (int i = 0; i < n; ++i) {
-        if (sd[static_cast<size_t>(i)] < 0)
-          fail(path + "/standard_deviations/" + std::to_string(i), "negative");
-        cov(i, i) = sd[static_cast<size_t>(i)] * sd[static_cast<size_t>(i)];
-      }
-      return cov;
-    }
-    if (!j.is_array() || j.size() != static_cast<size_t>(n))
-      fail(path, "expected a " + std::to_string(n) + "x" + std::to_string(n) +
-                     " array of rows or {\"standard_deviations\": [...]}");
-    for (int r = 0; r < n; ++r) {
-      const auto row = vector(j[static_cast<size_t>(r)], path + "/" + std::to_string(r),
-                              static_cast<size_t>(n), static_cast<size_t>(n));
-      for (int c = 0; c < n; ++c)
-        cov(r, c) = row[static_cast<size_t>(c)];
-    }
-    check_covariance(cov, path);
+/// A covariance: either full rows [[...], ...] (n x n) or {"standard_deviations": [n]}
+/// (uncorrelated). Must be symmetric and positive semi-definite.
+Eigen::MatrixXd covariance(const Value& v, int n) {
+  Eigen::MatrixXd cov = Eigen::MatrixXd::Zero(n, n);
+  const auto size = static_cast<std::size_t>(n);
+  if (v.json().is_object()) {
+    Object o = object_of(v);
+    const std::vector<Value> sd = o.at("standard_deviations").array(size, size);
+    o.finish();
+    for (int i = 0; i < n; ++i)
+      cov(i, i) = std::pow(sd[static_cast<std::size_t>(i)].number(Range::at_least(0)), 2);
     return cov;
   }
-
-  /// Symmetric (relative 1e-9) and positive semi-definite. PSD is judged on the correlation
-  /// matrix so that parameters of very different units (px^2 next to rad^2) are held to the
-  /// same relative tolerance.
-  void check_covariance(const Eigen::MatrixXd& cov, const std::string& path) const {
-    const Eigen::Index n = cov.rows();
-    for (Eigen::Index r = 0; r < n; ++r)
-      if (cov(r, r) < 0)
-        fail(path + "/" + std::to_string(r) + "/" + std::to_string(r),
-             "covariance is not positive semi-definite (negative variance)");
-    for (Eigen::Index r = 0; r < n; ++r)
-      for (Eigen::Index c = r + 1; c < n; ++c) {
-        const double tol = 1e-9 * std::sqrt(cov(r, r) * cov(c, c)) + 1e-300;
-        if (std::abs(cov(r, c) - cov(c, r)) > tol)
-          fail(path + "/" + std::to_string(r) + "/" + std::to_string(c),
-               "covariance is not symmetric");
-      }
-    Eigen::VectorXd inv_sd(n);
-    for (Eigen::Index r = 0; r < n; ++r)
-      inv_sd(r) = cov(r, r) > 0 ? 1.0 / std::sqrt(cov(r, r)) : 0.0;
-    for (Eigen::Index r = 0; r < n; ++r)  // a zero variance with a nonzero covariance
-      for (Eigen::Index c = 0; c < n; ++c)
-        if ((cov(r, r) == 0 || cov(c, c) == 0) && r != c && cov(r, c) != 0)
-          fail(path + "/" + std::to_string(r) + "/" + std::to_string(c),
-               "covariance is not positive semi-definite (covariance with a zero variance)");
-    const Eigen::MatrixXd correlation = inv_sd.asDiagonal() * cov * inv_sd.asDiagonal();
-    const Eigen::VectorXd eigenvalues =
-        geometry::symmetric_eigen(Eigen::MatrixXd{0.5 * (correlation + correlation.transpose())},
-                                  /*with_vectors=*/false)
-            .values;
-    if (n > 0 && eigenvalues.minCoeff() < -1e-9)
-      fail(path,
-           "covariance is not positive semi-definite (smallest eigenvalue of the "
-           "correlation matrix " +
-               std::to_string(eigenvalues.minCoeff()) + ")");
+  if (!v.json().is_array() || v.json().size() != size)
+    v.fail("expected a " + std::to_string(n) + "x" + std::to_string(n) +
+           " array of rows or {\"standard_deviations\": [...]}");
+  const std::vector<Value> rows = v.array();
+  for (int r = 0; r < n; ++r) {
+    const std::vector<double> row = rows[static_cast<std::size_t>(r)].numbers(size);
+    for (int c = 0; c < n; ++c)
+      cov(r, c) = row[static_cast<std::size_t>(c)];
   }
+  check_covariance(cov, v);
+  return cov;
+}
 
- private:
-  std::string origin_;
-};
+Intrinsics parse_intrinsics(Object ij, Intrinsics in) {
+  in.fx = ij.at("fx").number(Range::above(0));
+  in.fy = ij.at("fy").number(Range::above(0));
+  in.cx = ij.at("cx").number();
+  in.cy = ij.at("cy").number();
+  if (const auto skew = ij.find("skew")) in.skew = skew->number();
+  // OpenCV accepts 4, 5 or 8 coefficients (k1, k2, p1, p2[, k3[, k4, k5, k6]]).
+  const Value dist = ij.at("distortion");
+  const std::vector<Value> coefficients = dist.array(4, 8);
+  if (coefficients.size() == 6 || coefficients.size() == 7)
+    dist.fail("expected 4, 5 or 8 coefficients (OpenCV order k1 k2 p1 p2 [k3 [k4 k5 k6]])");
+  for (std::size_t i = 0; i < coefficients.size(); ++i)
+    in.dist[i] = coefficients[i].number();
+  ij.finish();
+  return in;
+}
 
-CalibratedCamera parse_camera(const Reader& rd, const json& j, const std::string& path) {
-  rd.expect_object(j, path);
-  rd.only_keys(j, path,
-               {"camera_id", "unit_id", "image_size", "intrinsics", "intrinsic_covariance", "T_c_w",
-                "extrinsic_covariance", "exposure_offset_ns", "exposure_offset_sigma_ns"});
+CalibratedCamera parse_camera(const Value& v) {
+  Object j = object_of(v);
   CalibratedCamera cam;
-  cam.camera_id = rd.integer(j, path, "camera_id", 0, 255);
-  cam.unit_id = rd.integer(j, path, "unit_id", 0, 255);
+  cam.camera_id = static_cast<int>(j.at("camera_id").integer(0, 255));
+  cam.unit_id = static_cast<int>(j.at("unit_id").integer(0, 255));
 
   Intrinsics in;
-  const std::string size_path = path + "/image_size";
-  const json& size = rd.member(j, path, "image_size");
-  rd.expect_object(size, size_path);
-  rd.only_keys(size, size_path, {"width", "height"});
-  in.width = rd.integer(size, size_path, "width", 1, 65535);
-  in.height = rd.integer(size, size_path, "height", 1, 65535);
+  Object size = object_of(j.at("image_size"));
+  in.width = static_cast<int>(size.at("width").integer(1, 65535));
+  in.height = static_cast<int>(size.at("height").integer(1, 65535));
+  size.finish();
+  cam.model = CameraModel(parse_intrinsics(object_of(j.at("intrinsics")), in));
+  cam.intrinsic_covariance = covariance(j.at("intrinsic_covariance"), kNumIntrinsics);
 
-  const std::string in_path = path + "/intrinsics";
-  const json& ij = rd.member(j, path, "intrinsics");
-  rd.expect_object(ij, in_path);
-  rd.only_keys(ij, in_path, {"fx", "fy", "cx", "cy", "skew", "distortion"});
-  in.fx = rd.number(ij, in_path, "fx");
-  in.fy = rd.number(ij, in_path, "fy");
-  if (!(in.fx > 0)) rd.fail(in_path + "/fx", "focal length must be > 0");
-  if (!(in.fy > 0)) rd.fail(in_path + "/fy", "focal length must be > 0");
-  in.cx = rd.number(ij, in_path, "cx");
-  in.cy = rd.number(ij, in_path, "cy");
-  in.skew = ij.contains("skew") ? rd.number(ij, in_path, "skew") : 0.0;
-  // OpenCV accepts 4, 5 or 8 coefficients (k1, k2, p1, p2[, k3[, k4, k5, k6]]).
-  const std::string dist_path = in_path + "/distortion";
-  const auto dist = rd.vector(rd.member(ij, in_path, "distortion"), dist_path, 4, 8);
-  if (dist.size() == 6 || dist.size() == 7)
-    rd.fail(dist_path,
-            "expected 4, 5 or 8 coefficients (OpenCV order k1 k2 p1 p2 [k3 [k4 k5 k6]])");
-  for (size_t i = 0; i < dist.size(); ++i)
-    in.dist[i] = dist[i];
-  cam.model = CameraModel(in);
-
-  cam.intrinsic_covariance = rd.covariance(rd.member(j, path, "intrinsic_covariance"),
-                                           path + "/intrinsic_covariance", kNumIntrinsics);
-
-  const std::string pose_path = path + "/T_c_w";
-  const json& pj = rd.member(j, path, "T_c_w");
-  rd.expect_object(pj, pose_path);
-  rd.only_keys(pj, pose_path, {"rotation_vector_rad", "translation_m"});
-  const auto rv = rd.vector(rd.member(pj, pose_path, "rotation_vector_rad"),
-                            pose_path + "/rotation_vector_rad", 3, 3);
-  const auto tv =
-      rd.vector(rd.member(pj, pose_path, "translation_m"), pose_path + "/translation_m", 3, 3);
+  Object pose = object_of(j.at("T_c_w"));
+  const std::vector<double> rv = pose.at("rotation_vector_rad").numbers(3);
+  const std::vector<double> tv = pose.at("translation_m").numbers(3);
+  pose.finish();
   cam.T_c_w = geometry::make_transform(geometry::Vec3(rv[0], rv[1], rv[2]),
                                        geometry::Vec3(tv[0], tv[1], tv[2]));
-
-  cam.extrinsic_covariance =
-      rd.covariance(rd.member(j, path, "extrinsic_covariance"), path + "/extrinsic_covariance", 6);
-
-  cam.exposure_offset_ns =
-      j.contains("exposure_offset_ns") ? rd.number(j, path, "exposure_offset_ns") : 0.0;
-  cam.exposure_offset_sigma_ns =
-      j.contains("exposure_offset_sigma_ns") ? rd.number(j, path, "exposure_offset_sigma_ns") : 0.0;
-  if (cam.exposure_offset_sigma_ns < 0)
-    rd.fail(path + "/exposure_offset_sigma_ns", "standard uncertainty must be >= 0");
+  cam.extrinsic_covariance = covariance(j.at("extrinsic_covariance"), 6);
+  j.get("exposure_offset_ns", cam.exposure_offset_ns);
+  j.get("exposure_offset_sigma_ns", cam.exposure_offset_sigma_ns, Range::at_least(0));
+  j.finish();
   return cam;
 }
 
 /// Version 2's top-level "joint_covariance": {"camera_ids": [...], "matrix": rows}, the
-/// cameras in the order of /cameras; its diagonal blocks must equal the cameras' blocks.
-Eigen::MatrixXd parse_joint_covariance(const Reader& rd, const json& j,
+/// cameras in the order of "cameras"; its diagonal blocks must equal the cameras' blocks.
+Eigen::MatrixXd parse_joint_covariance(const Value& v,
                                        const std::vector<CalibratedCamera>& cameras) {
-  const std::string path = "/joint_covariance";
-  rd.expect_object(j, path);
-  rd.only_keys(j, path, {"camera_ids", "matrix"});
-  const std::string ids_path = path + "/camera_ids";
-  const auto ids =
-      rd.vector(rd.member(j, path, "camera_ids"), ids_path, cameras.size(), cameras.size());
-  for (size_t i = 0; i < cameras.size(); ++i)
-    if (ids[i] != cameras[i].camera_id)
-      rd.fail(ids_path + "/" + std::to_string(i), "expected camera_id " +
-                                                      std::to_string(cameras[i].camera_id) +
-                                                      " (the cameras in the order of /cameras)");
+  Object j = object_of(v);
+  const std::vector<Value> ids = j.at("camera_ids").array(cameras.size(), cameras.size());
+  for (std::size_t i = 0; i < cameras.size(); ++i)
+    if (ids[i].integer(0, 255) != cameras[i].camera_id)
+      ids[i].fail("expected camera_id " + std::to_string(cameras[i].camera_id) +
+                  " (the cameras in the order of \"cameras\")");
   const int n = kJointBlockSize * static_cast<int>(cameras.size());
-  const std::string matrix_path = path + "/matrix";
-  const Eigen::MatrixXd joint = rd.covariance(rd.member(j, path, "matrix"), matrix_path, n);
+  const Value matrix = j.at("matrix");
+  const Eigen::MatrixXd joint = covariance(matrix, n);
+  j.finish();
   // The per-camera blocks are the marginals of the joint: they must agree (a stale block would
   // make a v1 reader of the same file see another calibration).
   const auto check_block = [&](int at, const Eigen::MatrixXd& block, const std::string& name) {
     for (Eigen::Index r = 0; r < block.rows(); ++r)
       for (Eigen::Index c = 0; c < block.cols(); ++c) {
-        const double v = joint(at + r, at + c);
+        const double x = joint(at + r, at + c);
         const double tol = 1e-9 * std::sqrt(joint(at + r, at + r) * joint(at + c, at + c)) + 1e-300;
-        if (std::abs(v - block(r, c)) > tol)
-          rd.fail(matrix_path + "/" + std::to_string(at + r) + "/" + std::to_string(at + c),
-                  "differs from " + name + "/" + std::to_string(r) + "/" + std::to_string(c));
+        if (std::abs(x - block(r, c)) > tol)
+          throw jsonfile::FieldError(matrix.file(), index_path(matrix.path(), at + r, at + c),
+                                     "differs from " + index_path(name, r, c));
       }
   };
-  for (size_t i = 0; i < cameras.size(); ++i) {
+  for (std::size_t i = 0; i < cameras.size(); ++i) {
     const int at = kJointBlockSize * static_cast<int>(i);
-    const std::string cam_path = "/cameras/" + std::to_string(i);
-    check_block(at, cameras[i].intrinsic_covariance, cam_path + "/intrinsic_covariance");
+    const std::string cam_path = "cameras[" + std::to_string(i) + "]";
+    check_block(at, cameras[i].intrinsic_covariance, cam_path + ".intrinsic_covariance");
     check_block(at + kNumIntrinsics, cameras[i].extrinsic_covariance,
-                cam_path + "/extrinsic_covariance");
+                cam_path + ".extrinsic_covariance");
   }
   return joint;
+}
+
+RigCalibration read_calibration_document(const Value& root) {
+  Object doc = object_of(root);
+  if (const Value fmt = doc.at("format"); fmt.json() != kFormatName)
+    fmt.fail(std::string("expected \"") + kFormatName + "\"");
+  const Value version_value = doc.at("version");
+  const auto version = version_value.integer(0, 1000000);
+  if (version != 1 && version != 2)
+    version_value.fail("unsupported version " + std::to_string(version) + " (this reader: 1, 2)");
+  RigCalibration rig;
+  std::set<int> ids;
+  for (const Value& c : doc.at("cameras").array(1, std::numeric_limits<std::size_t>::max())) {
+    rig.cameras.push_back(parse_camera(c));
+    if (!ids.insert(rig.cameras.back().camera_id).second)
+      c.fail_member("camera_id",
+                    "duplicate camera_id " + std::to_string(rig.cameras.back().camera_id));
+  }
+  if (const auto joint = doc.find("joint_covariance")) {
+    if (version < 2) joint->fail("needs version 2 (version 1 has no cross-camera covariance)");
+    rig.joint_covariance = parse_joint_covariance(*joint, rig.cameras);
+  }
+  doc.finish();
+  return rig;
 }
 
 template <typename Derived>
@@ -325,48 +263,22 @@ void set_joint_covariance(RigCalibration& rig, const Eigen::MatrixXd& joint) {
 }
 
 RigCalibration parse_rig_calibration(const std::string& json_text, const std::string& origin) {
-  const Reader rd(origin);
-  json doc;
   try {
-    doc = json::parse(json_text);
-  } catch (const json::exception& e) {  // parse_error, or out_of_range for number overflow
-    rd.fail("", std::string("JSON syntax error: ") + e.what());
+    const jsonfile::Document doc = jsonfile::Document::parse(json_text, origin);
+    return read_calibration_document(doc.root());
+  } catch (const jsonfile::FieldError& e) {
+    throw CalibrationFileError(e.what());
   }
-  rd.expect_object(doc, "");
-  rd.only_keys(doc, "", {"format", "version", "cameras", "joint_covariance"});
-  const json& fmt = rd.member(doc, "", "format");
-  if (!fmt.is_string() || fmt.get<std::string>() != kFormatName)
-    rd.fail("/format", std::string("expected \"") + kFormatName + "\"");
-  const int version = rd.integer(doc, "", "version", 0, 1000000);
-  if (version != 1 && version != 2)
-    rd.fail("/version", "unsupported version " + std::to_string(version) + " (this reader: 1, 2)");
-  const json& cams = rd.member(doc, "", "cameras");
-  if (!cams.is_array() || cams.empty()) rd.fail("/cameras", "expected a non-empty array");
-
-  RigCalibration rig;
-  std::set<int> ids;
-  for (size_t i = 0; i < cams.size(); ++i) {
-    const std::string path = "/cameras/" + std::to_string(i);
-    rig.cameras.push_back(parse_camera(rd, cams[i], path));
-    if (!ids.insert(rig.cameras.back().camera_id).second)
-      rd.fail(path + "/camera_id",
-              "duplicate camera_id " + std::to_string(rig.cameras.back().camera_id));
-  }
-  if (doc.contains("joint_covariance")) {
-    if (version < 2)
-      rd.fail("/joint_covariance", "needs version 2 (version 1 has no cross-camera covariance)");
-    rig.joint_covariance = parse_joint_covariance(rd, doc["joint_covariance"], rig.cameras);
-  }
-  return rig;
 }
 
 RigCalibration read_rig_calibration(const std::string& path) {
-  std::ifstream file(path, std::ios::binary);
-  if (!file) throw CalibrationFileError(path + ": cannot open file");
-  std::ostringstream text;
-  text << file.rdbuf();
-  if (file.bad()) throw CalibrationFileError(path + ": read error");
-  return parse_rig_calibration(text.str(), path);
+  std::string text;
+  try {
+    text = jsonfile::read_text_file(path);
+  } catch (const jsonfile::FileReadError& e) {
+    throw CalibrationFileError(e.what());
+  }
+  return parse_rig_calibration(text, path);
 }
 
 std::string format_rig_calibration(const RigCalibration& rig) {

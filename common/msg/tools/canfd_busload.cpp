@@ -24,6 +24,7 @@
 #include <string>
 #include <vector>
 
+#include "storetrack/json/text_file.hpp"
 #include "storetrack/msg/canfd_codec.hpp"
 
 namespace msg = storetrack::msg;
@@ -331,14 +332,13 @@ const std::string kBegin = "<!-- BEGIN GENERATED canfd:busload -->\n";
 const std::string kEnd = "<!-- END GENERATED canfd:busload -->";
 
 int check_or_update(const std::string& path, bool update) {
-  std::ifstream in(path);
-  if (!in) {
-    std::fprintf(stderr, "cannot read %s\n", path.c_str());
+  std::string text;
+  try {
+    text = storetrack::jsonfile::read_text_file(path);
+  } catch (const storetrack::jsonfile::FileReadError& e) {
+    std::fprintf(stderr, "%s\n", e.what());
     return 2;
   }
-  std::stringstream ss;
-  ss << in.rdbuf();
-  const std::string text = ss.str();
   const auto b = text.find(kBegin);
   const auto e = text.find(kEnd);
   if (b == std::string::npos || e == std::string::npos || e < b) {

@@ -2,98 +2,83 @@
 // the evaluation with the file and field, never yield a silently wrong length error.
 #include "storetrack/survey/scale_bars.hpp"
 
-#include <cmath>
 #include <fstream>
 #include <limits>
 #include <set>
-#include <sstream>
 
 #include <nlohmann/json.hpp>
 
-#include "json_fields.hpp"
+#include "storetrack/json/text_file.hpp"
 
 namespace storetrack::survey {
 namespace {
 
-using nlohmann::json;
+using jsonfile::Object;
+using jsonfile::Range;
+using jsonfile::Value;
 
-using detail::fail;
-using detail::require;
-
-int mark_id(const json& v, const std::string& origin, const std::string& path) {
-  if (!v.is_number_integer() || v.get<long long>() < 0 ||
-      v.get<long long>() > std::numeric_limits<int>::max())
-    fail(origin, path, "expected a mark id (a non-negative integer)");
-  return v.get<int>();
+int mark_id(const Value& v) {
+  return static_cast<int>(v.integer(0, std::numeric_limits<int>::max()));
 }
 
-double positive(const json& v, const std::string& origin, const std::string& path, bool zero_ok) {
-  if (!v.is_number()) fail(origin, path, "expected a number [m]");
-  const double d = v.get<double>();
-  if (!std::isfinite(d) || d < 0 || (!zero_ok && d == 0))
-    fail(origin, path, zero_ok ? "must be finite and >= 0" : "must be finite and > 0");
-  return d;
-}
-
-ScaleBar parse_bar(const json& b, const std::string& origin, const std::string& path) {
-  if (!b.is_object()) fail(origin, path, "expected an object");
+ScaleBar parse_bar(const Value& value) {
+  Object b = value.object();
   ScaleBar bar;
-  const json& id = require(b, "id", origin, path + ".");
-  if (!id.is_string() || id.get<std::string>().empty())
-    fail(origin, path + ".id", "expected a non-empty string");
-  bar.id = id.get<std::string>();
-  bar.mark_a = mark_id(require(b, "mark_a", origin, path + "."), origin, path + ".mark_a");
-  bar.mark_b = mark_id(require(b, "mark_b", origin, path + "."), origin, path + ".mark_b");
-  if (bar.mark_a == bar.mark_b) fail(origin, path + ".mark_b", "the same mark as mark_a");
-  bar.length_m =
-      positive(require(b, "length_m", origin, path + "."), origin, path + ".length_m", false);
-  bar.u_length_m =
-      positive(require(b, "u_length_m", origin, path + "."), origin, path + ".u_length_m", true);
+  bar.id = b.at("id").non_empty_string();
+  bar.mark_a = mark_id(b.at("mark_a"));
+  const Value mark_b = b.at("mark_b");
+  bar.mark_b = mark_id(mark_b);
+  if (bar.mark_a == bar.mark_b) mark_b.fail("the same mark as mark_a");
+  bar.length_m = b.at("length_m").number(Range::above(0));
+  bar.u_length_m = b.at("u_length_m").number(Range::at_least(0));
+  b.finish();
   return bar;
+}
+
+ScaleBarSet read_scale_bars(const Value& value) {
+  Object root = value.object();
+  if (const Value f = root.at("format"); f.json() != "storetrack-scale-bars")
+    f.fail("expected \"storetrack-scale-bars\"");
+  if (const Value v = root.at("version"); v.json() != 1) v.fail("unsupported version (expected 1)");
+  ScaleBarSet set;
+  root.get("name", set.name);
+  std::set<std::string> ids;
+  std::set<int> marks;
+  for (const Value& entry : root.at("bars").array(1, std::numeric_limits<std::size_t>::max())) {
+    ScaleBar bar = parse_bar(entry);
+    if (!ids.insert(bar.id).second) entry.fail_member("id", "duplicate bar id '" + bar.id + "'");
+    // A mark shared by two bars would make their length errors correlated through one centroid.
+    if (!marks.insert(bar.mark_a).second) entry.fail_member("mark_a", "mark used by two bars");
+    if (!marks.insert(bar.mark_b).second) entry.fail_member("mark_b", "mark used by two bars");
+    set.bars.push_back(std::move(bar));
+  }
+  root.finish();
+  return set;
 }
 
 }  // namespace
 
 ScaleBarSet parse_scale_bars(const std::string& json_text, const std::string& origin) {
-  json root;
   try {
-    root = json::parse(json_text);
-  } catch (const json::exception& e) {
-    throw SurveyFileError(origin + ": not valid JSON: " + e.what());
+    const jsonfile::Document doc = jsonfile::Document::parse(json_text, origin);
+    return read_scale_bars(doc.root());
+  } catch (const jsonfile::FieldError& e) {
+    throw SurveyFileError(e.what());
   }
-  if (!root.is_object()) fail(origin, "$", "expected a JSON object");
-  if (root.value("format", std::string()) != "storetrack-scale-bars")
-    fail(origin, "format", "expected \"storetrack-scale-bars\"");
-  if (const auto it = root.find("version"); it == root.end() || *it != 1)
-    fail(origin, "version", "unsupported or missing version (expected 1)");
-  ScaleBarSet set;
-  if (const auto it = root.find("name"); it != root.end() && it->is_string())
-    set.name = it->get<std::string>();
-  const json& bars = require(root, "bars", origin, "");
-  if (!bars.is_array() || bars.empty()) fail(origin, "bars", "expected a non-empty array");
-  std::set<std::string> ids;
-  std::set<int> marks;
-  for (size_t i = 0; i < bars.size(); ++i) {
-    const std::string path = "bars[" + std::to_string(i) + "]";
-    ScaleBar bar = parse_bar(bars[i], origin, path);
-    if (!ids.insert(bar.id).second) fail(origin, path + ".id", "duplicate bar id '" + bar.id + "'");
-    // A mark shared by two bars would make their length errors correlated through one centroid.
-    if (!marks.insert(bar.mark_a).second) fail(origin, path + ".mark_a", "mark used by two bars");
-    if (!marks.insert(bar.mark_b).second) fail(origin, path + ".mark_b", "mark used by two bars");
-    set.bars.push_back(std::move(bar));
-  }
-  return set;
 }
 
 ScaleBarSet read_scale_bars(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw SurveyFileError(path + ": cannot open the scale-bar file");
-  std::stringstream buf;
-  buf << in.rdbuf();
-  return parse_scale_bars(buf.str(), path);
+  std::string text;
+  try {
+    text = jsonfile::read_text_file(path);
+  } catch (const jsonfile::FileReadError& e) {
+    throw SurveyFileError(std::string(e.what()) + " (scale-bar file)");
+  }
+  return parse_scale_bars(text, path);
 }
 
 std::string format_scale_bars(const ScaleBarSet& set) {
+  using nlohmann::json;
   json bars = json::array();
   for (const ScaleBar& b : set.bars)
     bars.push_back({{"id", b.id},

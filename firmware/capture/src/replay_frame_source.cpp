@@ -13,6 +13,7 @@
 
 #include "storetrack/capture/pgm.hpp"
 #include "storetrack/csv/fields.hpp"
+#include "storetrack/json/text_file.hpp"
 #include "storetrack/time/saturating.hpp"
 
 namespace storetrack::capture {
@@ -105,11 +106,11 @@ int ReplayFrameSource::start() {
   }
   const fs::path index = dir / "triggers.csv";
   if (fs::exists(index, ec)) {
-    std::ifstream in(index);
-    std::stringstream ss;
-    ss << in.rdbuf();
     try {
-      records_ = parse_trigger_csv(ss.str());
+      records_ = parse_trigger_csv(jsonfile::read_text_file(index.string()));
+    } catch (const jsonfile::FileReadError& e) {
+      error_ = e.what();
+      return -EIO;
     } catch (const std::exception& e) {
       error_ = index.string() + ": " + e.what();
       return -EINVAL;

@@ -9,6 +9,7 @@
 
 #include "storetrack/calib/observations.hpp"
 #include "storetrack/csv/fields.hpp"
+#include "storetrack/json/text_file.hpp"
 
 namespace storetrack::calib {
 namespace {
@@ -173,11 +174,13 @@ ObservationSet parse_observations_csv(const std::string& text, const std::string
 }
 
 ObservationSet read_observations_csv(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw ObservationFileError(path + ": cannot open for reading");
-  std::ostringstream text;
-  text << in.rdbuf();
-  return parse_observations_csv(text.str(), path);
+  std::string text;
+  try {
+    text = jsonfile::read_text_file(path);
+  } catch (const jsonfile::FileReadError& e) {
+    throw ObservationFileError(e.what());
+  }
+  return parse_observations_csv(text, path);
 }
 
 std::string format_observations_csv(const ObservationSet& set) {

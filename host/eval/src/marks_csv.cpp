@@ -15,6 +15,7 @@
 #include "storetrack/eval/marks_csv.hpp"
 
 #include "storetrack/csv/fields.hpp"
+#include "storetrack/json/text_file.hpp"
 
 namespace storetrack::eval {
 namespace {
@@ -216,11 +217,13 @@ MarksRecording parse_marks_csv(const std::string& text, const std::string& origi
 }
 
 MarksRecording read_marks_csv(const std::string& path) {
-  std::ifstream file(path, std::ios::binary);
-  if (!file) throw EvalInputError(path + ": cannot open the marks CSV");
-  std::ostringstream text;
-  text << file.rdbuf();
-  return parse_marks_csv(text.str(), path);
+  std::string text;
+  try {
+    text = jsonfile::read_text_file(path);
+  } catch (const jsonfile::FileReadError& e) {
+    throw EvalInputError(std::string(e.what()) + " (marks CSV)");
+  }
+  return parse_marks_csv(text, path);
 }
 
 }  // namespace storetrack::eval

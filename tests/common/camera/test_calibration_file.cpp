@@ -162,61 +162,63 @@ void expect_error(const std::function<void(json&)>& edit, const std::string& pat
 }
 
 TEST(CalibrationFile, MalformedFilesAreRejectedWithPathAndReason) {
-  expect_error([](json& d) { d["format"] = "opencv"; }, "/format", "expected");
-  expect_error([](json& d) { d["version"] = 3; }, "/version", "unsupported version");
-  expect_error([](json& d) { d.erase("cameras"); }, "/", "missing required key \"cameras\"");
-  expect_error([](json& d) { d["cameras"] = json::array(); }, "/cameras", "non-empty");
-  expect_error([](json& d) { d["camaras"] = 1; }, "/camaras", "unknown key");
-  expect_error([](json& d) { d["cameras"][1].erase("T_c_w"); }, "/cameras/1",
-               "missing required key \"T_c_w\"");
+  expect_error([](json& d) { d["format"] = "opencv"; }, "format",
+               "expected \"storetrack-rig-calibration\"");
+  expect_error([](json& d) { d["version"] = 3; }, "version", "unsupported version 3");
+  expect_error([](json& d) { d.erase("cameras"); }, ": cameras", "missing");
+  expect_error([](json& d) { d["cameras"] = json::array(); }, ": cameras",
+               "expected an array of at least 1 elements, got 0");
+  expect_error([](json& d) { d["camaras"] = 1; }, "camaras", "unknown key (did you mean cameras?)");
+  expect_error([](json& d) { d["cameras"][1].erase("T_c_w"); }, "cameras[1].T_c_w", "missing");
   expect_error([](json& d) { d["cameras"][0]["intrinsics"]["fx"] = "1450"; },
-               "/cameras/0/intrinsics/fx", "expected a number");
+               "cameras[0].intrinsics.fx", "expected a number in > 0");
   expect_error([](json& d) { d["cameras"][0]["intrinsics"]["fy"] = -3; },
-               "/cameras/0/intrinsics/fy", "must be > 0");
+               "cameras[0].intrinsics.fy", "expected a number in > 0, got -3");
   expect_error(
       [](json& d) {
         d["cameras"][2]["intrinsics"]["distortion"] = {0.1, 0.2, 0.0};
       },
-      "/cameras/2/intrinsics/distortion", "expected 4..8 numbers");
+      "cameras[2].intrinsics.distortion", "expected an array of 4 to 8 elements, got 3");
   expect_error(
       [](json& d) { d["cameras"][2]["intrinsics"]["distortion"] = {0.1, 0.2, 0, 0, 0, 0}; },
-      "/cameras/2/intrinsics/distortion", "4, 5 or 8");
+      "cameras[2].intrinsics.distortion", "4, 5 or 8");
   expect_error(
       [](json& d) {
         d["cameras"][0]["T_c_w"]["translation_m"] = {1, 2};
       },
-      "/cameras/0/T_c_w/translation_m", "expected 3 numbers");
+      "cameras[0].T_c_w.translation_m", "expected an array of 3 elements, got 2");
   expect_error([](json& d) { d["cameras"][0]["T_c_w"]["rotation_vector_rad"][1] = nullptr; },
-               "/cameras/0/T_c_w/rotation_vector_rad/1", "expected a number");
+               "cameras[0].T_c_w.rotation_vector_rad[1]", "expected a number, got null");
   expect_error([](json& d) { d["cameras"][1]["camera_id"] = d["cameras"][0]["camera_id"]; },
-               "/cameras/1/camera_id", "duplicate camera_id");
-  expect_error([](json& d) { d["cameras"][1]["camera_id"] = 300; }, "/cameras/1/camera_id",
-               "outside [0, 255]");
-  expect_error([](json& d) { d["cameras"][1]["camera_id"] = 1.5; }, "/cameras/1/camera_id",
-               "expected an integer");
+               "cameras[1].camera_id", "duplicate camera_id");
+  expect_error([](json& d) { d["cameras"][1]["camera_id"] = 300; }, "cameras[1].camera_id",
+               "expected an integer in [0, 255], got 300");
+  expect_error([](json& d) { d["cameras"][1]["camera_id"] = 1.5; }, "cameras[1].camera_id",
+               "expected an integer in [0, 255], got 1.5");
   expect_error([](json& d) { d["cameras"][0]["image_size"]["width"] = 0; },
-               "/cameras/0/image_size/width", "outside");
+               "cameras[0].image_size.width", "expected an integer in [1, 65535], got 0");
   expect_error([](json& d) { d["cameras"][0]["extrinsic_covariance"][2][3] = 1.0; },
-               "/cameras/0/extrinsic_covariance/2/3", "not symmetric");
+               "cameras[0].extrinsic_covariance[2][3]", "not symmetric");
   expect_error(
       [](json& d) {
         auto& c = d["cameras"][0]["extrinsic_covariance"];
         c[0][0] = -1.0;
       },
-      "/cameras/0/extrinsic_covariance", "not positive semi-definite");
+      "cameras[0].extrinsic_covariance[0][0]", "not positive semi-definite (negative variance)");
   expect_error([](json& d) { d["cameras"][0]["intrinsic_covariance"].erase(12); },
-               "/cameras/0/intrinsic_covariance", "13x13");
+               "cameras[0].intrinsic_covariance", "13x13");
   expect_error([](json& d) { d["cameras"][0]["intrinsic_covariance"][4].erase(0); },
-               "/cameras/0/intrinsic_covariance/4", "expected 13 numbers");
+               "cameras[0].intrinsic_covariance[4]", "expected an array of 13 elements, got 12");
   expect_error(
       [](json& d) {
         d["cameras"][0]["extrinsic_covariance"] = {{"standard_deviations", {1, 1, 1, 1, -1, 1}}};
       },
-      "/cameras/0/extrinsic_covariance/standard_deviations/4", "negative");
+      "cameras[0].extrinsic_covariance.standard_deviations[4]",
+      "expected a number in >= 0, got -1");
   expect_error([](json& d) { d["cameras"][0]["exposure_offset_sigma_ns"] = -1; },
-               "/cameras/0/exposure_offset_sigma_ns", ">= 0");
+               "cameras[0].exposure_offset_sigma_ns", "expected a number in >= 0, got -1");
   expect_error([](json& d) { d["cameras"][0]["intrinsics"]["k1"] = 0.1; },
-               "/cameras/0/intrinsics/k1", "unknown key");
+               "cameras[0].intrinsics.k1", "unknown key");
 }
 
 TEST(CalibrationFile, Version2JointCovarianceRoundTrip) {
@@ -273,15 +275,15 @@ void expect_joint_error(const std::function<void(json&)>& edit, const std::strin
 TEST(CalibrationFile, BadJointCovarianceIsRejectedNamingTheField) {
   // 3 cameras: 57 x 57.
   expect_joint_error([](json& d) { d["joint_covariance"]["matrix"].erase(56); },
-                     "/joint_covariance/matrix: ", "expected a 57x57");
+                     "joint_covariance.matrix: ", "expected a 57x57");
   expect_joint_error([](json& d) { d["joint_covariance"]["matrix"][20].erase(3); },
-                     "/joint_covariance/matrix/20: ", "expected 57 numbers, got 56");
+                     "joint_covariance.matrix[20]: ", "expected an array of 57 elements, got 56");
   expect_joint_error(
       [](json& d) {
         auto& m = d["joint_covariance"]["matrix"];
         m[40][2] = m[40][2].get<double>() * 1.5 + 1e-6;
       },
-      "/joint_covariance/matrix/2/40: ", "not symmetric");
+      "joint_covariance.matrix[2][40]: ", "not symmetric");
   expect_joint_error(
       [](json& d) {
         // Correlation 1.5 between camera 0's fx and camera 2's tz: indefinite.
@@ -290,28 +292,28 @@ TEST(CalibrationFile, BadJointCovarianceIsRejectedNamingTheField) {
         m[0][56] = v;
         m[56][0] = v;
       },
-      "/joint_covariance/matrix: ", "not positive semi-definite");
+      "joint_covariance.matrix: ", "not positive semi-definite");
   expect_joint_error(
       [](json& d) {
         d["joint_covariance"]["camera_ids"] = {1, 5, 3};
       },
-      "/joint_covariance/camera_ids/1: ", "expected camera_id 3");
+      "joint_covariance.camera_ids[1]: ", "expected camera_id 3");
   expect_joint_error(
       [](json& d) {
         d["joint_covariance"]["camera_ids"] = {1, 3};
       },
-      "/joint_covariance/camera_ids: ", "expected 3 numbers");
+      "joint_covariance.camera_ids: ", "expected an array of 3 elements, got 2");
   expect_joint_error(
       [](json& d) {
         d["cameras"][1]["extrinsic_covariance"][0][0] =
             d["cameras"][1]["extrinsic_covariance"][0][0].get<double>() * 2;
       },
-      "/joint_covariance/matrix/32/32: ", "differs from /cameras/1/extrinsic_covariance/0/0");
-  expect_joint_error([](json& d) { d["version"] = 1; }, "/joint_covariance: ", "needs version 2");
+      "joint_covariance.matrix[32][32]: ", "differs from cameras[1].extrinsic_covariance[0][0]");
+  expect_joint_error([](json& d) { d["version"] = 1; }, "joint_covariance: ", "needs version 2");
   expect_joint_error([](json& d) { d["joint_covariance"].erase("matrix"); },
-                     "/joint_covariance: ", "missing required key \"matrix\"");
+                     "joint_covariance.matrix: ", "missing");
   expect_joint_error([](json& d) { d["joint_covariance"]["layout"] = 1; },
-                     "/joint_covariance/layout: ", "unknown key");
+                     "joint_covariance.layout: ", "unknown key");
 }
 
 TEST(CalibrationFile, SyntaxErrorNamesFile) {
@@ -320,7 +322,7 @@ TEST(CalibrationFile, SyntaxErrorNamesFile) {
     FAIL() << "no exception";
   } catch (const CalibrationFileError& e) {
     EXPECT_NE(std::string(e.what()).find("broken.json"), std::string::npos);
-    EXPECT_NE(std::string(e.what()).find("JSON syntax error"), std::string::npos);
+    EXPECT_NE(std::string(e.what()).find("broken.json: not valid JSON: "), std::string::npos);
   }
 }
 

@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "storetrack/json/text_file.hpp"
 #include "storetrack/sim/scenario.hpp"
 #include "storetrack/survey/survey.hpp"
 
@@ -104,16 +105,32 @@ TEST(SurveyFile, FuzzFindingsAreErrorsNamingTheFile) {
   expect_survey_error(text, "not valid JSON");
   nlohmann::json j = nlohmann::json::parse(format_survey(example_survey()));
   j["marks"][1]["id"] = 4294967396u;  // 2^32 + 100: was read as a duplicate of mark 100
-  expect_survey_error(j.dump(), "range of int");
+  expect_survey_error(j.dump(), "marks[1].id: expected an integer in [-2147483648, 2147483647]");
   j["marks"][1]["id"] = -2147483649ll;
-  expect_survey_error(j.dump(), "range of int");
+  expect_survey_error(j.dump(), "marks[1].id: expected an integer in [-2147483648, 2147483647]");
+}
+
+// Issue 31: a pylon survey with a misspelt key ran with the defaults. A misspelt optional key is
+// an unknown key with the nearest known one; a misspelt required key is missing, naming the key
+// that was given instead.
+TEST(SurveyFile, TyposAreRefusedByName) {
+  const nlohmann::json good = nlohmann::json::parse(format_survey(example_survey()));
+  auto j = good;
+  j["versoin"] = j["version"];
+  j.erase("version");
+  expect_survey_error(j.dump(), "bad_survey.json: versoin: unknown key (did you mean version?)");
+  j = good;
+  j["marks"][1]["sigma"] = j["marks"][1]["sigma_m"];
+  j["marks"][1].erase("sigma_m");
+  expect_survey_error(j.dump(),
+                      "bad_survey.json: marks[1].sigma_m: missing (is sigma a typo of it?)");
+  j = good;
+  j["marks"][0]["comment"] = "painted over";
+  expect_survey_error(j.dump(), "bad_survey.json: marks[0].comment: unknown key (known keys: ");
 }
 
 std::string scenario_text() {
-  std::ifstream in(std::string(STORETRACK_SIM_SCENARIO_DIR) + "/static.json");
-  std::stringstream buf;
-  buf << in.rdbuf();
-  return buf.str();
+  return jsonfile::read_text_file(STORETRACK_SIM_SCENARIO_DIR "/static.json");
 }
 
 void expect_scenario_error(const nlohmann::json& j, const std::string& needle) {
@@ -156,7 +173,13 @@ TEST(ScenarioFile, BadFilesNameFileAndField) {
   expect_scenario_error(j, "marks[3].sigma_m");
   j = good;
   j["optics"]["sensor"]["bits"] = 20;
-  expect_scenario_error(j, "optics.sensor.bits");
+  expect_scenario_error(j, "optics.sensor.bits: expected an integer in [8, 16], got 20");
+  j = good;
+  j["pylon_survey"]["marks"][0]["p_body"] = j["pylon_survey"]["marks"][0]["p_body_m"];
+  expect_scenario_error(j, "pylon_survey.marks[0].p_body: unknown key (did you mean p_body_m?)");
+  j = good;
+  j["timing"]["frame_rate"] = 100;
+  expect_scenario_error(j, "timing.frame_rate: unknown key (did you mean frame_rate_hz?)");
   EXPECT_THROW(load_scenario("/nonexistent.json"), ScenarioError);
 }
 

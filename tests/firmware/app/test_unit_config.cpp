@@ -158,6 +158,37 @@ TEST(UnitConfig, NumbersAreReadExactlyOrRefused) {
   EXPECT_EQ(c.trigger.lines, (std::vector<unsigned>{0, 4294967295u}));
 }
 
+// Issue 31: the refusal of unit_id stated the range of int, [-2147483648, 2147483647], where the
+// unit accepts 0..254 (the Modbus holding register's range); typos name the nearest key.
+TEST(UnitConfig, RefusalsStateTheTrueRangeAndTheNearestKey) {
+  const auto message = [](const std::string& json) {
+    UnitConfig c;
+    try {
+      parse_config_json(json, "unit.json", c);
+    } catch (const ConfigError& e) {
+      return std::string(e.what());
+    }
+    return std::string("accepted");
+  };
+  EXPECT_EQ(message(R"({"unit_id": 255})"),
+            "unit.json: unit_id: expected an integer in [0, 254], got 255");
+  EXPECT_EQ(message(R"({"unit_id": 4294967296})"),
+            "unit.json: unit_id: expected an integer in [0, 254], got 4294967296");
+  EXPECT_EQ(message(R"({"camera_id": -1})"),
+            "unit.json: camera_id: expected an integer in [0, 254], got -1");
+  EXPECT_EQ(message(R"({"ptp4l": {"domain_number": 128}})"),
+            "unit.json: ptp4l.domain_number: expected an integer in [0, 127], got 128");
+  EXPECT_EQ(message(R"({"ptp4l": {"holdover_s": 3601}})"),
+            "unit.json: ptp4l.holdover_s: expected a number in [0, 3600], got 3601");
+  EXPECT_EQ(message(R"({"unit_idd": 3})"),
+            "unit.json: unit_idd: unknown key (did you mean unit_id?)");
+  EXPECT_EQ(message(R"({"trigger": {"rate": 100}})"),
+            "unit.json: trigger.rate: unknown key (did you mean rate_hz?)");
+  EXPECT_EQ(message(R"({"links": {"udp": [{"destinaton": "239.1.1.1:5"}]}})"),
+            "unit.json: links.udp[0].destinaton: unknown key (did you mean destination?)");
+  EXPECT_EQ(message(R"({"unit_id": 254, "camera_id": 0})"), "accepted");
+}
+
 TEST(UnitConfig, PulseWidthAndDurationsSurvivePrintConfig) {
   // Found by fuzz_unit_config: 1.001 us was held as 1000 ns (1.001 * 1000 truncated), and
   // print-config wrote 1 us back; 0.3 s of holdover became 299999999 ns.

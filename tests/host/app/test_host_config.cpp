@@ -161,14 +161,45 @@ TEST(HostConfig, FuzzFindingsInitialMarkIdsAreIntegersAndUnique) {
   const std::string xyz = R"(, "p_w_m": [1, 2, 3]})";
   for (const char* id : {"1e300", "2.5", "-1", "4294967296"})
     EXPECT_NE(initial_marks_error(std::string(R"({"marks": [{"id": )") + id + xyz + "]}")
-                  .find("/marks/id"),
+                  .find("marks[0].id: expected an integer in [0, 1000000]"),
               std::string::npos)
         << id;
   // A second entry with the same id silently replaced the first.
   EXPECT_NE(initial_marks_error(R"({"marks": [{"id": 4)" + xyz + R"(, {"id": 4)" + xyz + "]}")
-                .find("duplicate mark id 4"),
+                .find("marks[1]: duplicate mark id 4"),
             std::string::npos);
   EXPECT_EQ(initial_marks_error(R"({"marks": [{"id": 4)" + xyz + R"(, {"id": 5)" + xyz + "]}"), "");
+}
+
+// Issue 31: these typos ran with exit 0 and the defaults. Each is refused naming the file, the
+// key's path and the nearest known key (the program's own refusal: test_host_config_typos).
+TEST(HostConfig, TyposAreRefusedWithTheNearestKnownKey) {
+  struct Case {
+    const char* json;
+    const char* message;
+  };
+  const Case cases[] = {
+      {R"({"aligner": {"max_wait": 10}})",
+       ": aligner.max_wait: unknown key (did you mean max_wait_ms?)"},
+      {R"({"algner": {"max_wait_ms": 10}})", ": algner: unknown key (did you mean aligner?)"},
+      {R"({"udp": {"prot": 5}})", ": udp.prot: unknown key (did you mean port?)"},
+      {R"({"aligner": [1, 2]})", ": aligner: expected an object, got an array"},
+      {R"({"processor": {"store_id": 1, "coverage_facter": 2}})",
+       ": processor.coverage_facter: unknown key (did you mean coverage_factor?)"},
+      {R"({"identifier": {"store_region": {"min_offset_m": [0, 0, 0], "max_offset_m": [1, 1, 1],
+           "max_rotation": 10}}})",
+       ": identifier.store_region.max_rotation: unknown key (did you mean max_rotation_deg?)"},
+      {R"({"recording": {"queue": 16}})",
+       ": recording.queue: unknown key (did you mean queue_items?)"},
+  };
+  for (const Case& k : cases) {
+    const std::string msg = load(k.json);
+    EXPECT_NE(msg.find(".json"), std::string::npos) << msg;  // the file
+    EXPECT_NE(msg.find(k.message), std::string::npos) << k.json << " -> '" << msg << "'";
+  }
+  EXPECT_NE(initial_marks_error(R"({"marks": [{"id": 4, "p_w": [1, 2, 3]}]})")
+                .find("marks[0].p_w_m: missing (is p_w a typo of it?)"),
+            std::string::npos);
 }
 
 TEST(HostConfig, RecordingQueueBoundIsChecked) {
@@ -191,34 +222,45 @@ TEST(HostConfig, EverySectionNamesTheKeyOfABadValue) {
     const char* key;
   };
   const Case cases[] = {
-      {R"([1, 2])", "top level must be an object"},
-      {R"({"udp": {"group": 5}})", "/udp/group"},
-      {R"({"udp": {"sources": {"unit_id": 1}}})", "/udp/sources must be an array"},
-      {R"({"udp": {"sources": [7]}})", "/udp/sources: entries must be objects"},
-      {R"({"udp": {"sources": [{"unit_id": 1}]}})", "/udp/sources: every entry needs"},
-      {R"({"can_interfaces": "can0"})", "can_interfaces"},
-      {R"({"processor": {"coverage_factor": "two"}})", "/processor/coverage_factor"},
-      {R"({"processor": {"store_id": 255}})", "/processor/store_id"},
+      {R"([1, 2])", "(top level): expected an object, got an array"},
+      {R"({"udp": {"group": 5}})", "udp.group: expected a string"},
+      {R"({"udp": {"sources": {"unit_id": 1}}})", "udp.sources: expected an array"},
+      {R"({"udp": {"sources": [7]}})", "udp.sources[0]: expected an object"},
+      {R"({"udp": {"sources": [{"unit_id": 1}]}})", "udp.sources[0].address: missing"},
+      {R"({"can_interfaces": "can0"})", "can_interfaces: expected an array"},
+      {R"({"processor": {"coverage_factor": "two"}})",
+       "processor.coverage_factor: expected a number in > 0"},
+      {R"({"processor": {"store_id": 255}})",
+       "processor.store_id: expected an integer in [0, 254]"},
       {R"({"processor": {"max_pose_rotation_sigma_rad": 0}})",
-       "/processor/max_pose_rotation_sigma_rad"},
-      {R"({"pose_tracker": {"max_gap_s": -1}})", "/pose_tracker: max_gap_s"},
-      {R"({"pose_tracker": {"accel_sigma_m_s2": "x"}})", "/pose_tracker/accel_sigma_m_s2"},
-      {R"({"pose_tracker": {"mean_accel_p_m_s2": [0, 9.8]}})", "/pose_tracker/mean_accel_p_m_s2"},
-      {R"({"identifier": {"gate_px": 3}})", "/identifier/gate_px: no longer exists"},
-      {R"({"identifier": {"gate_probability": 1}})", "/identifier/gate_probability"},
-      {R"({"identifier": {"keep_single_view": 3}})", "/identifier/keep_single_view"},
-      {R"({"identifier": {"initial_marks_sigma_m": 0}})", "/identifier/initial_marks_sigma_m"},
-      {R"({"identifier": {"min_reacquisition_marks": 2}})", "/identifier/min_reacquisition_marks"},
-      {R"({"identifier": {"reacquisition_retry_s": -1}})", "/identifier/reacquisition_retry_s"},
+       "processor.max_pose_rotation_sigma_rad: expected a number in > 0"},
+      {R"({"pose_tracker": {"max_gap_s": -1}})",
+       "pose_tracker.max_gap_s: expected a number in >= 0"},
+      {R"({"pose_tracker": {"accel_sigma_m_s2": "x"}})",
+       "pose_tracker.accel_sigma_m_s2: expected a number in > 0"},
+      {R"({"pose_tracker": {"mean_accel_p_m_s2": [0, 9.8]}})",
+       "pose_tracker.mean_accel_p_m_s2: expected an array of 3"},
+      {R"({"identifier": {"gate_px": 3}})", "identifier.gate_px: no longer exists"},
+      {R"({"identifier": {"gate_probability": 1}})",
+       "identifier.gate_probability: expected a number in (0, 1)"},
+      {R"({"identifier": {"keep_single_view": 3}})",
+       "identifier.keep_single_view: expected true or false"},
+      {R"({"identifier": {"initial_marks_sigma_m": 0}})",
+       "identifier.initial_marks_sigma_m: expected a number in > 0"},
+      {R"({"identifier": {"min_reacquisition_marks": 2}})",
+       "identifier.min_reacquisition_marks: expected an integer in [3, 64]"},
+      {R"({"identifier": {"reacquisition_retry_s": -1}})",
+       "identifier.reacquisition_retry_s: expected a number in [0, 10]"},
       {R"({"identifier": {"store_region": {"max_offset_m": [1, 1, 1]}}})",
-       "/identifier/store_region/min_offset_m is required"},
+       "identifier.store_region.min_offset_m: missing"},
       {R"({"identifier": {"store_region": {"min_offset_m": [0, 0, 2], "max_offset_m": [1, 1, 1]}}})",
-       "/identifier/store_region: min_offset_m must be <= max_offset_m"},
+       "identifier.store_region: min_offset_m must be <= max_offset_m"},
       {R"({"identifier": {"store_region": {"max_rotation_deg": 0, "min_offset_m": [0, 0, 0],
            "max_offset_m": [1, 1, 1]}}})",
-       "/identifier/store_region/max_rotation_deg"},
-      {R"({"chapter10": {"data_checksum": "yes"}})", "/chapter10/data_checksum"},
-      {R"({"chapter10": {"test_point": 12}})", "/chapter10/test_point"},
+       "identifier.store_region.max_rotation_deg: expected a number in (0, 180]"},
+      {R"({"chapter10": {"data_checksum": "yes"}})",
+       "chapter10.data_checksum: expected true or false"},
+      {R"({"chapter10": {"test_point": 12}})", "chapter10.test_point: expected a string"},
   };
   for (const Case& k : cases) {
     const std::string msg = load(k.json);

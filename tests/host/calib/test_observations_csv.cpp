@@ -93,7 +93,8 @@ TEST(ObservationCsv, MissingFileNamed) {
     read_observations_csv("/nonexistent/obs.csv");
     FAIL() << "accepted";
   } catch (const ObservationFileError& e) {
-    EXPECT_EQ(std::string(e.what()), "/nonexistent/obs.csv: cannot open for reading");
+    EXPECT_EQ(std::string(e.what()),
+              "/nonexistent/obs.csv: cannot open (No such file or directory)");
   }
 }
 

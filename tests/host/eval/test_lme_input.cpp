@@ -228,8 +228,7 @@ TEST(LmeInput, MalformedBarFileNamesField) {
             {"id": "b", "mark_a": 3, "mark_b": 4, "u_length_m": 0}]})",
         "bars.json");
   });
-  EXPECT_NE(missing.find("bars.json: field 'bars[1].length_m': missing"), std::string::npos)
-      << missing;
+  EXPECT_NE(missing.find("bars.json: bars[1].length_m: missing"), std::string::npos) << missing;
   const std::string shared = error_of([] {
     survey::parse_scale_bars(
         R"({"format": "storetrack-scale-bars", "version": 1, "bars": [
@@ -237,14 +236,16 @@ TEST(LmeInput, MalformedBarFileNamesField) {
             {"id": "b", "mark_a": 2, "mark_b": 4, "length_m": 1, "u_length_m": 0}]})",
         "bars.json");
   });
-  EXPECT_NE(shared.find("'bars[1].mark_a': mark used by two bars"), std::string::npos) << shared;
+  EXPECT_NE(shared.find("bars.json: bars[1].mark_a: mark used by two bars"), std::string::npos)
+      << shared;
   const std::string negative = error_of([] {
     survey::parse_scale_bars(
         R"({"format": "storetrack-scale-bars", "version": 1, "bars": [
             {"id": "a", "mark_a": 1, "mark_b": 2, "length_m": -1, "u_length_m": 0}]})",
         "bars.json");
   });
-  EXPECT_NE(negative.find("'bars[0].length_m': must be finite and > 0"), std::string::npos)
+  EXPECT_NE(negative.find("bars.json: bars[0].length_m: expected a number in > 0, got -1"),
+            std::string::npos)
       << negative;
 }
 

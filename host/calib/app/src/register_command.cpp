@@ -12,6 +12,7 @@
 #include "storetrack/calib/intrinsic_calibration.hpp"  // CalibrationError
 #include "storetrack/calib/observations.hpp"
 #include "storetrack/camera/calibration_file.hpp"
+#include "storetrack/json/text_file.hpp"
 
 namespace storetrack::calibapp {
 namespace {
@@ -27,11 +28,11 @@ std::string fixed(double v, int decimals) {
 }
 
 std::string text_of(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw camera::CalibrationFileError(path + ": cannot open");
-  std::stringstream buf;
-  buf << in.rdbuf();
-  return buf.str();
+  try {
+    return jsonfile::read_text_file(path);
+  } catch (const jsonfile::FileReadError& e) {
+    throw camera::CalibrationFileError(e.what());
+  }
 }
 
 void print_summary(const calib::RegistrationResult& r, const std::string& covariance_source,

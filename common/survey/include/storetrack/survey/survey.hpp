@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "storetrack/geometry/transform.hpp"
+#include "storetrack/json/strict_reader.hpp"
 
 namespace storetrack::survey {
 
@@ -42,6 +43,9 @@ class SurveyFileError : public std::runtime_error {
 RigidBodySurvey read_survey(const std::string& path);
 /// Parses JSON text; `origin` (file name) is used in error messages.
 RigidBodySurvey parse_survey(const std::string& json_text, const std::string& origin);
+/// A survey held in a larger file (a scenario's "pylon_survey"): refusals throw
+/// jsonfile::FieldError with the survey's path in that file.
+RigidBodySurvey read_survey(const jsonfile::Value& value);
 std::string format_survey(const RigidBodySurvey& survey);
 /// Writes the survey; throws SurveyFileError when the file cannot be written.
 void write_survey(const RigidBodySurvey& survey, const std::string& path);
