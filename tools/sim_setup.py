@@ -19,10 +19,35 @@ import json
 import os
 import random
 import shutil
+import struct
 import sys
 
 SURVEY_SIGMA_M = 1e-3
 SURVEY_SEED = 12345
+# MarkObservations on the wire (docs/icd.md): a 12-byte UDP frame header, then the message
+# (id 0x01; trigger_seq at +2), a CRC-32 last.
+UDP_HEADER_BYTES = 12
+OBSERVATION_FIXED_BYTES = 30
+
+
+def read_observation_groups(observations_udp):
+    """The simulator's observations.udp (each datagram behind a big-endian u32 length) as one list
+    per exposure of its MarkObservations datagrams, in file order, each without its CRC."""
+    groups, last = [], None
+    data = open(observations_udp, "rb").read()
+    i = 0
+    while i + 4 <= len(data):
+        n = struct.unpack_from(">I", data, i)[0]
+        d = data[i + 4:i + 4 + n]
+        i += 4 + n
+        if len(d) < UDP_HEADER_BYTES + OBSERVATION_FIXED_BYTES or d[3] != 0x01:
+            continue
+        seq = struct.unpack_from(">I", d, UDP_HEADER_BYTES + 2)[0]
+        if seq != last:
+            groups.append([])
+            last = seq
+        groups[-1].append(bytearray(d[:-4]))
+    return groups
 
 
 def initial_marks(truth_marks_csv, sigma_m=SURVEY_SIGMA_M):

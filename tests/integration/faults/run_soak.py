@@ -105,24 +105,6 @@ def scenario():
     json.dump(s, open(os.path.join(OUT, "scenario.json"), "w"))
 
 
-def read_observations(path):
-    groups, out, last = [], [], None
-    data = open(path, "rb").read()
-    i = 0
-    while i + 4 <= len(data):
-        n = struct.unpack_from(">I", data, i)[0]
-        d = data[i + 4:i + 4 + n]
-        i += 4 + n
-        if len(d) < HDR + 30 or d[3] != 0x01:
-            continue
-        seq = struct.unpack_from(">I", d, HDR + 2)[0]
-        if seq != last:
-            groups.append([])
-            last = seq
-        groups[-1].append(bytearray(d[:-4]))
-    return groups
-
-
 def rss_kib(pid):
     try:
         for line in open("/proc/%d/status" % pid):
@@ -140,7 +122,7 @@ def main():
                     sim_dir, "--mode", "observations"], check=True, stdout=subprocess.DEVNULL)
     sim_setup.write_initial_marks(os.path.join(sim_dir, "truth_marks.csv"),
                                   os.path.join(OUT, "initial_marks.json"))
-    groups = read_observations(os.path.join(sim_dir, "observations.udp"))
+    groups = sim_setup.read_observation_groups(os.path.join(sim_dir, "observations.udp"))
     if len(groups) < 10 or any(len(g) != CAMERAS for g in groups):
         sys.exit("run_soak.py: expected %d observations per exposure from the simulator" % CAMERAS)
     marks_per_msg = [g[c][HDR + 29] for g in groups for c in range(CAMERAS)]

@@ -63,24 +63,6 @@ def crc(b):
     return bytes(b) + struct.pack(">I", zlib.crc32(bytes(b)) & 0xFFFFFFFF)
 
 
-def read_observations(path):
-    groups, last = [], None
-    data = open(path, "rb").read()
-    i = 0
-    while i + 4 <= len(data):
-        n = struct.unpack_from(">I", data, i)[0]
-        d = data[i + 4:i + 4 + n]
-        i += 4 + n
-        if len(d) < HDR + 30 or d[3] != 0x01:
-            continue
-        seq = struct.unpack_from(">I", d, HDR + 2)[0]
-        if seq != last:
-            groups.append([])
-            last = seq
-        groups[-1].append(bytearray(d[:-4]))
-    return groups
-
-
 def without_marks(b):
     """The same observation with no mark (the camera saw nothing): 46 bytes."""
     e = bytearray(b[:HDR + 30])
@@ -106,7 +88,7 @@ def setup(sim_dir):
                        stdout=subprocess.DEVNULL)
     sim_setup.write_initial_marks(os.path.join(sim_dir, "truth_marks.csv"),
                                   os.path.join(a.out, "initial_marks.json"))
-    return read_observations(os.path.join(sim_dir, "observations.udp"))
+    return sim_setup.read_observation_groups(os.path.join(sim_dir, "observations.udp"))
 
 
 def listen_inetx(sock, packets, stop):
