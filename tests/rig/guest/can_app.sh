@@ -34,8 +34,12 @@ candump -L vcan0 > $T/candump.log & DUMP=$!
 HOSTP=$!
 # both candump and the host have a receiver on vcan0 (python-free wait: TCG is slow)
 waitfor "[ \$(grep -c vcan0 /proc/net/can/rcvlist_all) -ge 2 ]" 400 || echo "note: receivers not seen in rcvlist_all"
+# Paced at 10 exposures/s, so the stream lasts ~10 s and spans the faults below (3-6.5 s) however
+# fast the unit renders: at the scenario's 400 Hz the real-time source's background pool sends
+# all 100 exposures in the first seconds, before the interface goes down.
 "$UNIT" run --source sim --scenario "$SCEN" --camera-index 0 --seed 1 --trigger sim --can vcan0 \
-  --no-modbus --unit-id 1 --camera-id 0 --duration-s 12 --realtime --stats-json $T/unit.json \
+  --no-modbus --unit-id 1 --camera-id 0 --duration-s 12 --realtime --sim-pace-hz 10 \
+  --stats-json $T/unit.json \
   > $T/unit.out 2>&1 & UNITP=$!
 # mid-stream: malformed frames, then the interface goes down and comes back
 sleep 3
