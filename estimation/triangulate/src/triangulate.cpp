@@ -109,12 +109,24 @@ bool refine(std::span<const Observation> observations, const Options& options, V
                     : out.residual_px[i].squaredNorm() / (obs.sigma_px * obs.sigma_px);
     H.noalias() += out.gain[i] * out.jacobians[i].d_point_world;
   }
-  if (!uncertainty::inverse_spd<3>(H, out.cov_centroid)) return false;
-  for (size_t i = 0; i < n; ++i)
-    out.gain[i] = out.cov_centroid * out.gain[i];
+  if (!uncertainty::inverse_spd<3>(H, out.cov_weighted)) return false;
+  bool sigma_weights = true;
+  for (size_t i = 0; i < n; ++i) {
+    out.gain[i] = out.cov_weighted * out.gain[i];
+    sigma_weights = sigma_weights && !observations[i].information_px;
+  }
+  if (sigma_weights) {
+    out.cov_centroid = out.cov_weighted;
+  } else {
+    out.cov_centroid.setZero();
+    for (size_t i = 0; i < n; ++i) {
+      const double s2 = observations[i].sigma_px * observations[i].sigma_px;
+      out.cov_centroid.noalias() += s2 * out.gain[i] * out.gain[i].transpose();
+    }
+  }
   out.p_w = X;
   out.iterations = it;
-  return out.p_w.allFinite() && out.cov_centroid.allFinite();
+  return out.p_w.allFinite() && out.cov_weighted.allFinite();
 }
 
 }  // namespace

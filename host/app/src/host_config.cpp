@@ -148,7 +148,8 @@ void parse_processor(Object p, HostConfig& c) {
   p.get("min_cameras_per_mark", pc.min_cameras_per_mark, 1,
         static_cast<std::int64_t>(ingest::kMaxAlignerCameras));
   p.get("min_pose_marks", pc.min_pose_marks, 3, 1024);
-  p.get("reference_camera_id", pc.reference_camera_id, -1, 254);
+  // The reference time is the matcher's (it triangulates at it): processor section, its rule.
+  p.get("reference_camera_id", pc.matcher.reference_camera_id, -1, 254);
   p.get("rigid_false_alarm_probability", pc.rigid_false_alarm_probability, Range{0, 1, true, true});
   p.get("max_pose_rotation_sigma_rad", pc.max_pose_rotation_sigma_rad, Range::above(0));
   p.finish();
@@ -161,7 +162,7 @@ geometry::Vec3 vec3(const Value& v) {
 
 // Extrapolation of T_p_s over short gaps (host/pipeline PoseTracker, docs/uncertainty.md).
 void parse_pose_tracker(Object t, HostConfig& c) {
-  auto& pt = c.pose_tracker;
+  auto& pt = c.processor.pose_tracker;
   t.get("max_gap_s", pt.max_gap_s, Range::at_least(0));  // 0: never extrapolate
   t.get("max_velocity_baseline_s", pt.max_velocity_baseline_s, Range::above(0));
   t.get("accel_sigma_m_s2", pt.accel_sigma_m_s2, Range::above(0));

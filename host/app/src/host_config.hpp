@@ -41,7 +41,6 @@ struct HostConfig {
   // processing
   ingest::AlignerConfig aligner;  // camera_ids filled from the calibration
   pipeline::ProcessorConfig processor;
-  pipeline::PoseTrackerConfig pose_tracker;  // extrapolation over short gaps (status bit)
   // mark identification: processor.matcher (host/match MarkMatcher); its prior poses are fitted
   // to the initial mark positions, whose standard uncertainty per axis is this [m]
   double initial_marks_sigma_m = 0.005;

@@ -29,8 +29,8 @@ void HostLoop::on_message(const msg::AnyMessage& m) {
 
 void HostLoop::process(const pipeline::AlignedExposure& e) {
   const time::MonotonicNs t0 = time::monotonic_now_ns();
-  pipeline::ExposureResult r = p_.processor.process(e);  // matcher + geometry
-  p_.pose_tracker.update(r);  // an unsolved T_p_s: extrapolated over a short gap, or invalid
+  // Matcher, geometry, extrapolation over short gaps, the sample.
+  const pipeline::ExposureResult r = p_.processor.process(e);
   ++totals_.exposures;
   if (!totals_.withheld.admit(judge_sample(r.cameras_used, p_.aligner.config().min_cameras)))
     return;  // no output, iNET-X or file, carries an exposure too few cameras measured

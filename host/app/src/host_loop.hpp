@@ -18,7 +18,6 @@
 #include "storetrack/ingest/receivers.hpp"
 #include "storetrack/output/inetx.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
-#include "storetrack/pipeline/pose_tracker.hpp"
 #include "storetrack/time/time.hpp"
 
 namespace storetrack::hostapp {
@@ -45,7 +44,6 @@ struct LoopParts {
   std::vector<std::unique_ptr<ingest::CanFdReceiver>>& cans;
   ingest::ExposureAligner& aligner;
   pipeline::ExposureProcessor& processor;
-  pipeline::PoseTracker& pose_tracker;
   output::InetxSender* inetx;  ///< nullptr: no iNET-X
   RecordingWriter& recording;
 };

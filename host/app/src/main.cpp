@@ -30,7 +30,6 @@
 #include "storetrack/match/mark_matcher.hpp"
 #include "storetrack/output/inetx.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
-#include "storetrack/pipeline/pose_tracker.hpp"
 #include "storetrack/survey/survey.hpp"
 #include "storetrack/time/time.hpp"
 
@@ -226,13 +225,10 @@ int main(int argc, char** argv) {
 
   // Processing chain.
   std::unique_ptr<st::pipeline::ExposureProcessor> processor;
-  std::unique_ptr<st::pipeline::PoseTracker> pose_tracker;
   std::unique_ptr<st::ingest::ExposureAligner> aligner;
   try {
     processor = std::make_unique<st::pipeline::ExposureProcessor>(in.rig, in.pylon, in.store,
                                                                   cfg.processor);
-    pose_tracker =
-        std::make_unique<st::pipeline::PoseTracker>(processor->factors(), cfg.pose_tracker);
     aligner = std::make_unique<st::ingest::ExposureAligner>(cfg.aligner);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "storetrack-host: bad configuration: %s\n", e.what());
@@ -256,16 +252,14 @@ int main(int argc, char** argv) {
                cans.empty() ? "" : fmt::format("{} CAN interface(s)", cans.size()));
   const st::time::MonotonicNs t_start = st::time::monotonic_now_ns();
   st::hostapp::HostLoop loop(
-      {udp, cans, *aligner, *processor, *pose_tracker, inetx_open ? &inetx : nullptr, recording});
+      {udp, cans, *aligner, *processor, inetx_open ? &inetx : nullptr, recording});
   int exit_code = loop.run(options.limits, g_stop);
   recording.stop();
 
   const st::hostapp::StatsSources sources{
-      cfg,           udp,
-      cans,          *aligner,
-      *processor,    *pose_tracker,
-      inetx,         recording,
-      loop.totals(), static_cast<double>(st::time::monotonic_now_ns() - t_start) * 1e-9};
+      cfg,       udp,           cans,
+      *aligner,  *processor,    inetx,
+      recording, loop.totals(), static_cast<double>(st::time::monotonic_now_ns() - t_start) * 1e-9};
   st::hostapp::print_summary(sources);
   if (!options.stats_json_path.empty() &&
       !st::hostapp::write_stats_json(st::hostapp::host_stats_json(sources),

@@ -124,16 +124,17 @@ nlohmann::json identifier_stats_json(const pipeline::ExposureProcessor& processo
           {"reacquisition_inconsistent", ic.reacquisition_inconsistent},
           {"reacquisition_too_few_marks", ic.reacquisition_too_few_marks},
           {"reacquisition_outside_region", ic.reacquisition_outside_region},
-          {"reacquisition_deferred", ic.reacquisition_deferred}};
+          {"reacquisition_deferred", ic.reacquisition_deferred},
+          {"duplicate_id", ic.duplicate_id},
+          {"given_ids_of_no_body", ic.given_ids_of_no_body},
+          {"triangulation_failed", ic.triangulation_failed}};
 }
 
 nlohmann::json processor_stats_json(const pipeline::ExposureProcessor& processor) {
   const auto& pc = processor.counters();
   return {{"exposures", pc.exposures},
           {"unknown_camera", pc.unknown_camera},
-          {"bad_observation", pc.bad_observation},
-          {"rejected_by_flags", pc.rejected_by_flags},
-          {"ambiguous_ids", pc.ambiguous_ids},
+          {"id_out_of_range", pc.id_out_of_range},
           {"too_few_cameras", pc.too_few_cameras},
           {"triangulation_failed", pc.triangulation_failed},
           {"marks_excluded", pc.marks_excluded},
@@ -232,7 +233,7 @@ nlohmann::json host_stats_json(const StatsSources& s) {
   stats["cameras"] = camera_stats_json(s.aligner, s.cfg.aligner.camera_ids);
   stats["identifier"] = identifier_stats_json(s.processor);
   stats["processor"] = processor_stats_json(s.processor);
-  const auto& tc = s.pose_tracker.counters();
+  const auto& tc = s.processor.pose_tracker().counters();
   stats["pose_tracker"] = {{"solved", tc.solved},
                            {"extrapolated", tc.extrapolated},
                            {"not_extrapolated", tc.not_extrapolated}};

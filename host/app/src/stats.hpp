@@ -16,7 +16,6 @@
 #include "storetrack/ingest/receivers.hpp"
 #include "storetrack/output/inetx.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
-#include "storetrack/pipeline/pose_tracker.hpp"
 
 namespace storetrack::hostapp {
 
@@ -27,7 +26,6 @@ struct StatsSources {
   const std::vector<std::unique_ptr<ingest::CanFdReceiver>>& cans;
   const ingest::ExposureAligner& aligner;
   const pipeline::ExposureProcessor& processor;
-  const pipeline::PoseTracker& pose_tracker;
   const output::InetxSender& inetx;
   const RecordingWriter& recording;
   const LoopTotals& totals;

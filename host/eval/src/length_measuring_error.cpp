@@ -67,7 +67,7 @@ uncertainty::Loadings3 calibration_loadings(const MarkSample& s, const SharedCal
                                             const std::string& path) {
   std::vector<int> slots;
   const std::vector<triangulate::Observation> obs =
-      detail::rig_observations(s, *cal.rig, path, "calibration", &slots);
+      detail::rig_observations(s, *cal.rig, cal.factors, path, "calibration", &slots);
   triangulate::Options options;
   options.initial_p_w = s.p_w;
   triangulate::Result tri;

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <map>
+#include <optional>
 #include <set>
 
 #include "noise_floor_parts.hpp"
@@ -64,13 +65,14 @@ namespace {
 }
 
 /// The stated centroid-only covariance of one sample: its observations triangulated again with
-/// the host's own triangulator and the rig (the host weights by the centroid sigma alone, so
-/// this is the host's cov_centroid). Also the distance to the CSV's position.
+/// the host's own triangulator, rig and weights (so this is the host's cov_centroid, the
+/// centroid noise through the estimator's gains). Also the distance to the CSV's position.
 std::optional<Mat3> centroid_covariance(const MarkSample& s, const camera::RigCalibration& rig,
+                                        const uncertainty::CalibrationFactors& factors,
                                         const std::string& record_path, const std::string& rig_path,
                                         double& offset_m) {
   const std::vector<triangulate::Observation> obs =
-      detail::rig_observations(s, rig, record_path, rig_path);
+      detail::rig_observations(s, rig, factors, record_path, rig_path);
   if (obs.size() < 2) return std::nullopt;
   triangulate::Options options;
   options.calibration_jacobians = false;
@@ -265,6 +267,7 @@ NoiseFloorResult evaluate_noise_floor(const MarksRecording& record,
   std::vector<int> ids;
   std::set<std::uint32_t> exposures;
   std::int64_t t_first = INT64_MAX, t_last = 0;
+  std::optional<uncertainty::CalibrationFactors> factors;
   for (auto& [id, m] : series) {
     if (static_cast<int>(m.samples.size()) < options.min_samples) {
       r.marks_with_too_few_samples.push_back(id);
@@ -277,9 +280,11 @@ NoiseFloorResult evaluate_noise_floor(const MarksRecording& record,
       t_last = std::max(t_last, s->reference_mid_tai_ns);
     }
     if (!rig || !record.has_observations) continue;
+    if (!factors) factors.emplace(*rig);  // once: the host's weights need the calibration's
     for (const MarkSample* s : m.samples) {
       double offset = 0;
-      const std::optional<Mat3> cov = centroid_covariance(*s, *rig, record.path, rig_path, offset);
+      const std::optional<Mat3> cov =
+          centroid_covariance(*s, *rig, *factors, record.path, rig_path, offset);
       if (!cov) {
         m.cov_centroid.clear();  // this mark's stated centroid u stays unknown
         break;

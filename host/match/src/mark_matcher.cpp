@@ -17,6 +17,7 @@
 #include <stdexcept>
 #include <unordered_map>
 
+#include "storetrack/uncertainty/spd_inverse.hpp"
 #include "storetrack/uncertainty/statistics.hpp"
 
 namespace storetrack::match {
@@ -80,6 +81,12 @@ MarkMatcher::MarkMatcher(const camera::RigCalibration& rig,
         double& d = min_mark_spacing_[marks_[i].body];
         d = std::min(d, (marks_[i].p_body - marks_[j].p_body).norm());
       }
+  if (config_.reference_camera_id >= 0 &&
+      std::none_of(rig_.cameras.begin(), rig_.cameras.end(),
+                   [&](const auto& c) { return c.camera_id == config_.reference_camera_id; }))
+    throw std::invalid_argument("MatcherConfig.reference_camera_id " +
+                                std::to_string(config_.reference_camera_id) + " is not in the rig");
+  if (rig_.cameras.empty()) throw std::invalid_argument("MarkMatcher: empty rig");
   compute_calibration_bounds();
   chi2_gate_.assign(kMaxDof + 1, 0.0);
   chi2_competitor_gate_.assign(kMaxDof + 1, 0.0);
@@ -127,20 +134,19 @@ void MarkMatcher::reset_tracking() {
   refused_in_a_row_.assign(bodies_.size(), 0);
 }
 
-MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
-  Work& w = *work_.work;  // buffers reused across exposures (no per-call reallocation)
+void MarkMatcher::load_exposure(Work& w, std::span<const msg::MarkObservations> cameras,
+                                MatchResult& out) {
   w.obs.clear();
   w.cams.clear();
+  w.others.clear();
   w.acquired = false;
   w.counts = {};
-  MatchResult out;
   out.ids.resize(cameras.size());
   ++w.counts.exposures;
-
-  // Observations: validate, undistort; exposure time = mean calibrated mid-point.
-  double t_sum_ns = 0;
-  int t_count = 0;
-  time::TaiNs t_ref = 0;
+  const int ref_id = config_.reference_camera_id >= 0 ? config_.reference_camera_id
+                                                      : rig_.cameras.front().camera_id;
+  bool ref_delivered = false;
+  const double q2 = config_.pixel_quantisation_px * config_.pixel_quantisation_px / 12;
   for (int e = 0; e < static_cast<int>(cameras.size()); ++e) {
     const msg::MarkObservations& mo = cameras[e];
     const int count = std::min<int>(mo.mark_count, static_cast<int>(mo.marks.size()));
@@ -161,14 +167,21 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
       continue;
     }
     const auto& cal = rig_.cameras[slot];
-    const double mid_ns = static_cast<double>(mo.exposure_duration_ns) / 2 + cal.exposure_offset_ns;
-    if (t_count == 0) t_ref = mo.exposure_start_tai_ns;
-    t_sum_ns += static_cast<double>(mo.exposure_start_tai_ns - t_ref) + mid_ns;
-    ++t_count;
     Work::Cam cam;
     cam.slot = slot;
     cam.span_index = e;
-    const double q2 = config_.pixel_quantisation_px * config_.pixel_quantisation_px / 12;
+    // Integer ns: TAI ns since 1970 do not fit a double's mantissa at ns resolution.
+    cam.mid_tai_ns = mo.exposure_start_tai_ns +
+                     static_cast<time::TaiNs>(mo.exposure_duration_ns / 2) +
+                     static_cast<time::TaiNs>(std::llround(cal.exposure_offset_ns));
+    if (mo.camera_id == ref_id) {
+      out.reference_mid_tai_ns = cam.mid_tai_ns;
+      ref_delivered = true;
+    } else if (!ref_delivered &&
+               (!out.has_reference_time || cam.mid_tai_ns < out.reference_mid_tai_ns)) {
+      out.reference_mid_tai_ns = cam.mid_tai_ns;
+    }
+    out.has_reference_time = true;
     for (int j = 0; j < count; ++j) {
       const msg::MarkObservation& mk = mo.marks[j];
       if (!std::isfinite(mk.x_px) || !std::isfinite(mk.y_px)) {
@@ -204,15 +217,16 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
     }
     w.cams.push_back(std::move(cam));
   }
+  for (Work::Cam& cam : w.cams)
+    cam.dt_s = static_cast<double>(cam.mid_tai_ns - out.reference_mid_tai_ns) * 1e-9;
   out.observations = static_cast<int>(w.obs.size());
-  if (t_count > 0)
-    out.t_mid_tai_ns = t_ref + static_cast<time::TaiNs>(std::llround(t_sum_ns / t_count));
-  if (!have_time_origin_ && t_count > 0) {
+  if (!have_time_origin_ && out.has_reference_time) {
     have_time_origin_ = true;
-    time_origin_ns_ = out.t_mid_tai_ns;
+    time_origin_ns_ = out.reference_mid_tai_ns;
   }
-  const double t_s = static_cast<double>(out.t_mid_tai_ns - time_origin_ns_) * 1e-9;
+}
 
+void MarkMatcher::start_exposure_state(Work& w) const {
   w.assigned.resize(marks_.size());
   for (auto& as : w.assigned)
     as.clear();
@@ -220,15 +234,35 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
   w.cal_cache.resize(marks_.size() * rig_.cameras.size());
   w.dirty.assign(marks_.size(), false);
   w.tri.assign(marks_.size(), {});
+  w.motion.assign(marks_.size(), {});
   w.fitted.assign(bodies_.size(), false);
   w.T_w_b.assign(bodies_.size(), Transform::Identity());
   w.cov_b.assign(bodies_.size(), Mat6::Zero());
   w.body.assign(bodies_.size(), {});
   w.reacquired.assign(bodies_.size(), false);
   w.search_refused.assign(bodies_.size(), false);
+}
 
-  if (t_count > 0) {
+void MarkMatcher::mark_velocities(Work& w, double t_s) const {
+  for (size_t m = 0; m < marks_.size(); ++m) {
+    const MarkTrack& mt = mark_tracks_[m];
+    if (mt.count == 2 && mt.t_s[1] > mt.t_s[0] && t_s - mt.t_s[1] <= config_.track_max_gap_s) {
+      w.motion[m].valid = true;
+      w.motion[m].v_w = (mt.p_w[1] - mt.p_w[0]) / (mt.t_s[1] - mt.t_s[0]);
+    }
+  }
+}
+
+MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
+  Work& w = *work_.work;  // buffers reused across exposures (no per-call reallocation)
+  MatchResult out;
+  load_exposure(w, cameras, out);
+  start_exposure_state(w);
+  const double t_s = static_cast<double>(out.reference_mid_tai_ns - time_origin_ns_) * 1e-9;
+
+  if (out.has_reference_time) {
     predict(w, t_s);
+    mark_velocities(w, t_s);
     gate_and_assign(w);
     verify_views(w);
     verify_layouts(w);
@@ -277,34 +311,6 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
       ++w.counts.single_view;
     }
   }
-
-  // Result.
-  for (size_t m = 0; m < marks_.size(); ++m) {
-    const auto& as = w.assigned[m];
-    if (as.empty()) continue;
-    MatchedMark mm;
-    mm.id = marks_[m].id;
-    mm.body = marks_[m].body;
-    mm.source = w.pred[m].source;
-    for (int o : as) {
-      const auto& ob = w.obs[o];
-      const auto& cal = rig_.cameras[ob.slot];
-      mm.observations.push_back({cal.camera_id, ob.span_index, ob.mark_index, ob.raw,
-                                 cal.model.ideal_pixel(ob.xy), ob.xy, ob.sigma});
-      out.ids[ob.span_index][ob.mark_index] = mm.id;
-    }
-    std::sort(mm.observations.begin(), mm.observations.end(),
-              [](const MatchedObservation& a, const MatchedObservation& b) {
-                return a.camera_index < b.camera_index;
-              });
-    mm.triangulated = w.tri[m].valid;
-    mm.p_w = w.tri[m].p;
-    mm.cov_w = w.tri[m].cov;
-    mm.epipolar_chi2 = w.tri[m].chi2;
-    out.marks.push_back(std::move(mm));
-    out.identified += static_cast<int>(as.size());
-  }
-  w.counts.identified += static_cast<std::uint64_t>(out.identified);
   for (const auto& ob : w.obs) {
     if (ob.state == ObsState::kAmbiguous) {
       ++w.counts.ambiguous_observation;
@@ -319,24 +325,182 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
     w.counts.ambiguous_mark += static_cast<std::uint64_t>(n_amb);
     out.ambiguous += n_amb;
   }
-  out.acquired_from_prior = w.acquired;
-  if (w.acquired) ++w.counts.acquisitions;
-  out.T_w_b = w.T_w_b;
-  out.cov_b = w.cov_b;
-  out.fitted = w.fitted;
-  out.reacquired = w.reacquired;
-
-  if (t_count > 0) update_tracks(w, t_s);
+  finish_exposure(w, t_s, out);
   for (size_t b = 0; b < bodies_.size(); ++b) {
     if (w.reacquired[b]) refused_in_a_row_[b] = 0;
     if (!w.search_refused[b]) continue;
     const int doublings = std::min(refused_in_a_row_[b]++, MatcherConfig::kMaxRetryDoublings);
     next_search_s_[b] = t_s + config_.reacquisition_retry_s * static_cast<double>(1 << doublings);
   }
+  accumulate(w.counts);
+  return out;
+}
 
-  // Accumulate counters.
+MatchResult MarkMatcher::estimate_identified(std::span<const msg::MarkObservations> cameras,
+                                             const std::vector<std::vector<int>>& ids) {
+  if (ids.size() != cameras.size())
+    throw std::invalid_argument("MarkMatcher::estimate_identified: one id list per camera");
+  Work& w = *work_.work;
+  MatchResult out;
+  load_exposure(w, cameras, out);
+  start_exposure_state(w);
+  const double t_s = static_cast<double>(out.reference_mid_tai_ns - time_origin_ns_) * 1e-9;
+  if (out.has_reference_time) {
+    predict(w, t_s);
+    mark_velocities(w, t_s);
+  }
+  // Assign the given ids; an id twice in one camera is an identification ambiguity: neither.
+  std::vector<int>* members = nullptr;
+  for (int o = 0; o < static_cast<int>(w.obs.size()); ++o) {
+    Work::Obs& ob = w.obs[o];
+    const auto& given = ids[ob.span_index];
+    if (ob.mark_index >= static_cast<int>(given.size()))
+      throw std::invalid_argument("MarkMatcher::estimate_identified: ids shorter than mark_count");
+    const int id = given[ob.mark_index];
+    if (id < 0) continue;
+    const auto it = std::lower_bound(marks_.begin(), marks_.end(), id,
+                                     [](const MarkInfo& mi, int v) { return mi.id < v; });
+    if (it != marks_.end() && it->id == id) {
+      ob.mark = static_cast<int>(it - marks_.begin());
+      members = &w.assigned[ob.mark];
+    } else {
+      auto other = std::find_if(w.others.begin(), w.others.end(),
+                                [id](const Work::OtherMark& x) { return x.id == id; });
+      if (other == w.others.end()) {
+        w.others.emplace_back();
+        w.others.back().id = id;
+        other = w.others.end() - 1;
+      }
+      members = &other->obs;
+    }
+    const auto same_camera = [&](int k) { return w.obs[k].cam == ob.cam; };
+    if (std::any_of(members->begin(), members->end(), same_camera)) {
+      ++w.counts.duplicate_id;
+      for (int k : *members)
+        if (same_camera(k)) w.obs[k].state = ObsState::kAmbiguous;
+      std::erase_if(*members, same_camera);
+      ob.state = ObsState::kAmbiguous;
+      continue;
+    }
+    // Ambiguous already (a third sighting in that camera): stays out.
+    if (ob.state == ObsState::kAmbiguous) continue;
+    ob.state = ObsState::kAssigned;
+    members->push_back(o);
+  }
+  for (auto& ob : w.obs)
+    if (ob.state == ObsState::kAmbiguous) ob.mark = -1;
+  auto accepted = [](const triangulate::Result& r) {
+    return Work::Tri{true, r.p_w, r.cov_weighted, r.chi2, r};
+  };
+  for (int m = 0; m < static_cast<int>(marks_.size()); ++m)
+    if (w.assigned[m].size() >= 2 && triangulate_identified(w, m, w.assigned[m]))
+      w.tri[m] = accepted(w.tri_result);
+  for (Work::OtherMark& other : w.others) {
+    ++w.counts.given_ids_of_no_body;
+    if (other.obs.size() >= 2 && triangulate_identified(w, -1, other.obs))
+      other.tri = accepted(w.tri_result);
+  }
+  for (int m = 0; m < static_cast<int>(marks_.size()); ++m)
+    if (w.assigned[m].size() == 1) ++w.counts.single_view;
+  finish_exposure(w, t_s, out);
+  accumulate(w.counts);
+  return out;
+}
+
+bool MarkMatcher::triangulate_identified(Work& w, int m, std::span<const int> obs) const {
+  // Weights at the prediction when the tracks give one (as the gates do), else at the linear
+  // point; then THE triangulation (verification.cpp) without a test.
+  std::optional<Vec3> at;
+  if (m >= 0 && w.pred[m].valid) at = w.pred[m].p;
+  if (!at) {
+    auto& views = w.tri_views;
+    views.clear();
+    for (int o : obs) {
+      const auto& cal = rig_.cameras[w.obs[o].slot];
+      triangulate::Observation v;
+      v.model = &cal.model;
+      v.T_c_w = cal.T_c_w;
+      v.pixel_px = w.obs[o].raw;
+      views.push_back(v);
+    }
+    at = triangulate::triangulate_linear(views);
+  }
+  bool ok = at.has_value();
+  for (int o : obs) {
+    if (!ok) break;
+    auto& ob = w.obs[o];
+    if (config_.use_calibration_covariance)
+      ok = uncertainty::view_information(factors_, ob.slot, rig_.cameras[ob.slot], *at, ob.sigma,
+                                         ob.W);
+    else
+      ob.W = Mat2::Identity() / (ob.sigma * ob.sigma);
+  }
+  if (!ok || !triangulate(w, m, obs, *at)) {
+    ++w.counts.triangulation_failed;
+    return false;
+  }
+  return true;
+}
+
+void MarkMatcher::finish_exposure(Work& w, double t_s, MatchResult& out) {
+  auto add_mark = [&](int id, int body, PredictionSource source, std::vector<int>& as,
+                      const Work::Tri& tri, const Work::Motion& motion) {
+    std::sort(as.begin(), as.end());  // camera order (the estimate's views are in it already)
+    MatchedMark mm;
+    mm.id = id;
+    mm.body = body;
+    mm.source = source;
+    for (int o : as) {
+      const auto& ob = w.obs[o];
+      const auto& cal = rig_.cameras[ob.slot];
+      mm.observations.push_back({cal.camera_id, ob.span_index, ob.mark_index, ob.raw,
+                                 cal.model.ideal_pixel(ob.xy), ob.xy, ob.sigma, ob.W,
+                                 w.cams[ob.cam].dt_s});
+      out.ids[ob.span_index][ob.mark_index] = id;
+    }
+    mm.triangulated = tri.valid;
+    if (tri.valid) mm.estimate = tri.estimate;
+    mm.velocity_w = motion.v_w;
+    mm.velocity_valid = motion.valid;
+    mm.motion_corrected = motion.valid;
+    out.marks.push_back(std::move(mm));
+    out.identified += static_cast<int>(as.size());
+  };
+  for (size_t m = 0; m < marks_.size(); ++m) {
+    auto& as = w.assigned[m];
+    if (as.empty()) continue;
+    Work::Motion motion = w.motion[m];
+    const MarkTrack& mt = mark_tracks_[m];
+    if (!motion.valid && w.tri[m].valid && mt.count > 0) {
+      // Second exposure of a track: the velocity from the previous position states the
+      // time-offset uncertainty; this estimate stays uncorrected (at rest: no bias).
+      const double dt = t_s - mt.t_s[mt.count - 1];
+      if (dt > 0 && dt <= config_.track_max_gap_s) {
+        add_mark(marks_[m].id, marks_[m].body, w.pred[m].source, as, w.tri[m], {});
+        out.marks.back().velocity_w = (w.tri[m].p - mt.p_w[mt.count - 1]) / dt;
+        out.marks.back().velocity_valid = true;
+        continue;
+      }
+    }
+    add_mark(marks_[m].id, marks_[m].body, w.pred[m].source, as, w.tri[m], motion);
+  }
+  for (Work::OtherMark& other : w.others)
+    if (!other.obs.empty())
+      add_mark(other.id, -1, PredictionSource::kNone, other.obs, other.tri, {});
+  std::sort(out.marks.begin(), out.marks.end(),
+            [](const MatchedMark& a, const MatchedMark& b) { return a.id < b.id; });
+  w.counts.identified += static_cast<std::uint64_t>(out.identified);
+  out.acquired_from_prior = w.acquired;
+  if (w.acquired) ++w.counts.acquisitions;
+  out.T_w_b = w.T_w_b;
+  out.cov_b = w.cov_b;
+  out.fitted = w.fitted;
+  out.reacquired = w.reacquired;
+  if (out.has_reference_time) update_tracks(w, t_s);
+}
+
+void MarkMatcher::accumulate(const MatchCounters& d) {
   auto& c = counters_;
-  const auto& d = w.counts;
   c.exposures += d.exposures;
   c.observations += d.observations;
   c.identified += d.identified;
@@ -362,7 +526,9 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
   c.reacquisition_too_few_marks += d.reacquisition_too_few_marks;
   c.reacquisition_outside_region += d.reacquisition_outside_region;
   c.reacquisition_deferred += d.reacquisition_deferred;
-  return out;
+  c.duplicate_id += d.duplicate_id;
+  c.given_ids_of_no_body += d.given_ids_of_no_body;
+  c.triangulation_failed += d.triangulation_failed;
 }
 
 }  // namespace storetrack::match

@@ -96,7 +96,9 @@ struct MarkMatcher::Work {
   struct Cam {
     int slot = -1;
     int span_index = -1;
-    std::vector<int> obs;  ///< indices into Work::obs
+    time::TaiNs mid_tai_ns = 0;  ///< calibrated exposure mid-point
+    double dt_s = 0;             ///< mid-point minus the exposure's reference time
+    std::vector<int> obs;        ///< indices into Work::obs
   };
   struct Pred {
     bool valid = false;
@@ -107,8 +109,20 @@ struct MarkMatcher::Work {
   struct Tri {
     bool valid = false;
     Vec3 p = Vec3::Zero();
-    Mat3 cov = Mat3::Zero();
+    Mat3 cov = Mat3::Zero();  ///< estimate.cov_weighted (gates, layouts, tracks)
     double chi2 = 0;
+    triangulate::Result estimate;  ///< THE estimate (MatchedMark::estimate)
+  };
+  /// Per mark: velocity from its track's last two positions (corrects the cameras' time offsets).
+  struct Motion {
+    bool valid = false;
+    Vec3 v_w = Vec3::Zero();
+  };
+  /// estimate_identified(): a given id in no body's survey (e.g. a scale bar's mark).
+  struct OtherMark {
+    int id = -1;
+    std::vector<int> obs;
+    Tri tri;
   };
   std::vector<Obs> obs;
   std::vector<Cam> cams;
@@ -137,7 +151,9 @@ struct MarkMatcher::Work {
   std::vector<CalCache> cal_cache;
   std::vector<Cand> cand;
   std::vector<int> free_obs, mark_hits, mark_hit, obs_hits, obs_hit;
-  std::vector<Tri> tri;                             ///< per mark
+  std::vector<Tri> tri;        ///< per mark
+  std::vector<Motion> motion;  ///< per mark
+  std::vector<OtherMark> others;
   std::vector<triangulate::Observation> tri_views;  ///< triangulation scratch
   triangulate::Result tri_result;
   std::vector<Vec3> layout_q_b, layout_p_w;  ///< layout fit scratch

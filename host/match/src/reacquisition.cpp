@@ -357,7 +357,7 @@ bool MarkMatcher::triangulate_free(Work& w, std::span<const int> obs, const Vec3
   options.calibration_jacobians = false;
   if (!triangulate::triangulate(views, options, w.tri_result)) return false;
   p_w = w.tri_result.p_w;
-  cov_w = w.tri_result.cov_centroid;
+  cov_w = w.tri_result.cov_weighted;
   chi2 = w.tri_result.chi2;
   return std::isfinite(chi2) && p_w.allFinite();
 }

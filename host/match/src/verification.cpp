@@ -3,17 +3,20 @@
 // uncertainty), with removal of a unique inconsistent view.
 #include "matcher_work.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 namespace storetrack::match {
 
-bool MarkMatcher::triangulate(Work& w, const std::vector<int>& obs, const Vec3& initial, Vec3& p_w,
-                              Mat3& cov_w, double& chi2) const {
+bool MarkMatcher::triangulate(Work& w, int m, std::span<const int> obs, const Vec3& initial) const {
   if (obs.size() < 2) return false;
   // estimation/triangulate's Gauss-Newton on the raw-pixel reprojection error, started at the
   // mark's prediction (inside its gate, i.e. close), weighted by each observation's full
-  // information (sigma^2 I + calibration part, the latter evaluated at the prediction during
-  // gating: it varies negligibly over the gate). Its chi2 is the multi-view consistency statistic.
+  // information (sigma^2 I + calibration part, evaluated at the prediction during gating: it
+  // varies negligibly over the gate), each view corrected for the mark's motion between the
+  // reference time and its camera's exposure. Its chi2 is the multi-view consistency statistic;
+  // the same solution, with its calibration Jacobians and gains, is the mark's estimate.
+  const bool moving = m >= 0 && w.motion[m].valid;
   auto& views = w.tri_views;
   views.clear();
   for (int o : obs) {
@@ -25,41 +28,35 @@ bool MarkMatcher::triangulate(Work& w, const std::vector<int>& obs, const Vec3& 
     v.pixel_px = ob.raw;
     v.sigma_px = ob.sigma;
     v.information_px = ob.W;
+    if (moving) v.displacement_w = w.motion[m].v_w * w.cams[ob.cam].dt_s;
     views.push_back(v);
   }
   triangulate::Options options;
   options.initial_p_w = initial;
-  options.calibration_jacobians = false;  // the matcher needs the point and its covariance only
-  options.max_iterations = 6;
-  // Gauss-Newton converges quadratically from inside the gate: after a step s the remaining error
-  // is ~ s^2 / depth, so stopping on a 1 mm step leaves ~1 um at >= 1 m depth (marks' sigma is
-  // >= 50 um); chi2 and the covariance are then evaluated at the returned point, not
-  // extrapolated from the previous one.
-  options.step_tolerance_m = 1e-3;
+  // Gauss-Newton converges quadratically from inside the gate (2-4 iterations); 0.1 um is far
+  // below any mark's sigma (>= 50 um), so the estimate does not depend on where it started.
+  options.step_tolerance_m = 1e-7;
   if (!triangulate::triangulate(views, options, w.tri_result)) return false;
-  p_w = w.tri_result.p_w;
-  cov_w = w.tri_result.cov_centroid;
-  chi2 = w.tri_result.chi2;
-  return std::isfinite(chi2);
+  return std::isfinite(w.tri_result.chi2);
 }
 
 void MarkMatcher::verify_views(Work& w) const {
+  auto accepted = [](const triangulate::Result& r) {
+    return Work::Tri{true, r.p_w, r.cov_weighted, r.chi2, r};
+  };
   for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
     // Only marks whose assignments changed since they were last verified.
     if (!w.dirty[m]) continue;
     w.dirty[m] = false;
     auto& as = w.assigned[m];
+    std::sort(as.begin(), as.end());  // camera order: the estimate's views are in it
     auto& tri = w.tri[m];
     tri = {};
     if (as.size() < 2) continue;
-    Vec3 p;
-    Mat3 cov;
-    double chi2 = 0;
     const int n = static_cast<int>(as.size());
     const Vec3 initial = w.pred[m].p;
-    const bool ok = triangulate(w, as, initial, p, cov, chi2);
-    if (ok && chi2 <= chi2_gate_[2 * n - 3]) {
-      tri = {true, p, cov, chi2};
+    if (triangulate(w, m, as, initial) && w.tri_result.chi2 <= chi2_gate_[2 * n - 3]) {
+      tri = accepted(w.tri_result);
       continue;
     }
     // Inconsistent views. With >= 3 views, drop the one observation whose removal makes the
@@ -70,11 +67,10 @@ void MarkMatcher::verify_views(Work& w) const {
       for (int k = 0; k < n; ++k) {
         std::vector<int> rest = as;
         rest.erase(rest.begin() + k);
-        double c2 = 0;
-        if (triangulate(w, rest, initial, p, cov, c2) && c2 <= chi2_gate_[2 * (n - 1) - 3]) {
+        if (triangulate(w, m, rest, initial) && w.tri_result.chi2 <= chi2_gate_[2 * (n - 1) - 3]) {
           ++passing;
           culprit = k;
-          best = {true, p, cov, c2};
+          best = accepted(w.tri_result);
         }
       }
     }

@@ -50,12 +50,6 @@ constexpr int kSurvey = uncertainty::index(Source::kSurvey);
 
 using uncertainty::Loadings6;
 
-// Mid-exposure time of one camera [TAI ns], corrected by its calibrated trigger latency.
-// Integer arithmetic: TAI ns since 1970 do not fit a double's mantissa at ns resolution.
-time::TaiNs camera_mid_ns(const msg::MarkObservations& obs, const camera::CalibratedCamera& cam) {
-  return exposure_mid_tai_ns(obs) + static_cast<time::TaiNs>(std::llround(cam.exposure_offset_ns));
-}
-
 // A body's fitted pose with its error model: xi = sum over marks, loadings on common factors,
 // independent (centroid, survey) covariances.
 struct BodySolution {
@@ -231,25 +225,21 @@ struct ExposureProcessor::Prepared {
     int mark_index = -1;
     Vec2 pixel_px = Vec2::Zero();
     double sigma_px = 0;
+    geometry::Mat2 information_px = geometry::Mat2::Identity();  ///< the matcher's weight
   };
   struct Mark {
     int id = -1;
     char body = '?';
-    std::vector<Obs> obs;
+    std::vector<Obs> obs;  ///< camera order: the estimate's views
     Vec3 velocity_w = Vec3::Zero();
     bool velocity_valid = false;
-    /// Previous position of a track without velocity yet: the velocity comes from it and this
-    /// exposure's first triangulation (then the mark is triangulated again, compensated).
-    bool has_previous = false;
-    Vec3 previous_p_w = Vec3::Zero();
-    double previous_dt_s = 0;
-    /// Position predicted by the track for the reference time: starts the triangulation's
-    /// Gauss-Newton refinement (skips the linear initialisation).
-    bool has_prediction = false;
-    Vec3 predicted_p_w = Vec3::Zero();
+    bool motion_corrected = false;
+    const triangulate::Result* estimate = nullptr;  ///< the matcher's (>= 2 views)
   };
   std::vector<Mark> marks;
   std::vector<double> dt_s;  ///< per rig slot: camera mid-time - reference time
+  /// Per rig slot: a Monte Carlo draw's error of that camera's time offset (0 nominal).
+  std::vector<double> sync_error_s;
   std::vector<bool> slot_used;
   int cameras_used = 0;
   bool clock_not_locked = false;
@@ -273,7 +263,8 @@ ExposureProcessor::ExposureProcessor(const camera::RigCalibration& rig,
       store_(store),
       config_(config),
       factors_(rig),
-      matcher_(rig, {pylon, store}, config.matcher) {
+      matcher_(rig, {pylon, store}, config.matcher),
+      tracker_(factors_, config.pose_tracker) {
   if (rig_.cameras.empty()) throw std::invalid_argument("ExposureProcessor: empty rig");
   if (config_.min_cameras_per_mark < 2)
     throw std::invalid_argument("ExposureProcessor: min_cameras_per_mark must be >= 2");
@@ -292,158 +283,90 @@ ExposureProcessor::ExposureProcessor(const camera::RigCalibration& rig,
       throw std::invalid_argument("ExposureProcessor: duplicate camera_id in the rig");
     slot_of_camera_id_[static_cast<size_t>(id)] = static_cast<int>(s);
   }
-  if (config_.reference_camera_id >= 0 &&
-      (static_cast<size_t>(config_.reference_camera_id) >= slot_of_camera_id_.size() ||
-       slot_of_camera_id_[static_cast<size_t>(config_.reference_camera_id)] < 0))
-    throw std::invalid_argument("ExposureProcessor: reference_camera_id not in the rig");
   for (const auto* survey : {&pylon_, &store_})
     for (const survey::SurveyedMark& m : survey->marks)
       if (m.id < 0 || m.id > config_.max_mark_id || !(m.sigma_m >= 0))
         throw std::invalid_argument("ExposureProcessor: survey '" + survey->name +
                                     "' has a mark id out of range or a negative sigma");
-  tracks_.resize(static_cast<size_t>(config_.max_mark_id) + 1);
 }
 
 void ExposureProcessor::reset_tracking() {
-  for (Track& t : tracks_)
-    t = Track{};
+  pose_hint_ = {};
   matcher_.reset_tracking();
+  tracker_.reset();
 }
 
 ExposureResult ExposureProcessor::process(const AlignedExposure& exposure) {
-  const match::MatchResult m = matcher_.match(exposure.cameras);
-  // The matcher's poses of this exposure (bodies {pylon, store}) start a single-view resection.
-  for (size_t b = 0; b < pose_hint_.size() && b < m.fitted.size(); ++b)
-    if (m.fitted[b]) pose_hint_[b] = {m.T_w_b[b], m.t_mid_tai_ns};
-  return process(exposure, m.ids);
+  return process(exposure, matcher_.match(exposure.cameras));
+}
+
+match::MatchResult ExposureProcessor::identify(const AlignedExposure& exposure,
+                                               const MarkIds& ids) {
+  if (ids.size() != exposure.cameras.size())
+    throw std::invalid_argument("ExposureProcessor: ids must have one entry per camera");
+  MarkIds usable = ids;
+  for (std::vector<int>& camera : usable)
+    for (int& id : camera)
+      if (id > config_.max_mark_id) {
+        ++counters_.id_out_of_range;
+        id = -1;
+      }
+  return matcher_.estimate_identified(exposure.cameras, usable);
+}
+
+ExposureResult ExposureProcessor::process(const AlignedExposure& exposure, const MarkIds& ids) {
+  return process(exposure, identify(exposure, ids));
 }
 
 ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& exposure,
-                                                       const MarkIds& ids,
+                                                       const match::MatchResult& marks,
                                                        ProcessorCounters& counters) const {
-  if (ids.size() != exposure.cameras.size())
-    throw std::invalid_argument("ExposureProcessor: ids must have one entry per camera");
   Prepared prep;
   prep.dt_s.assign(rig_.cameras.size(), 0.0);
+  prep.sync_error_s.assign(rig_.cameras.size(), 0.0);
   prep.slot_used.assign(rig_.cameras.size(), false);
-
-  // Reference time: the reference camera's mid-exposure, else the earliest delivered camera.
-  const int ref_id =
-      config_.reference_camera_id >= 0 ? config_.reference_camera_id : rig_.cameras[0].camera_id;
-  bool have_ref = false;
-  bool first = true;
-  std::vector<int> slot_of_entry(exposure.cameras.size(), -1);
-  for (size_t e = 0; e < exposure.cameras.size(); ++e) {
-    const msg::MarkObservations& obs = exposure.cameras[e];
+  if (marks.has_reference_time) prep.t_ref_tai_ns = marks.reference_mid_tai_ns;
+  for (const msg::MarkObservations& obs : exposure.cameras) {
     const size_t cid = obs.camera_id;
     const int slot = cid < slot_of_camera_id_.size() ? slot_of_camera_id_[cid] : -1;
     if (slot < 0 || prep.slot_used[static_cast<size_t>(slot)]) {
       ++counters.unknown_camera;  // unknown or delivered twice: the aligner should not do that
       continue;
     }
-    slot_of_entry[e] = slot;
     prep.slot_used[static_cast<size_t>(slot)] = true;
-    const time::TaiNs t = camera_mid_ns(obs, rig_.cameras[static_cast<size_t>(slot)]);
-    if (obs.camera_id == ref_id) {
-      prep.t_ref_tai_ns = t;
-      have_ref = true;
-      first = false;
-    } else if (!have_ref && (first || t < prep.t_ref_tai_ns)) {
-      prep.t_ref_tai_ns = t;
-      first = false;
-    }
     if (obs.clock_state != static_cast<std::uint8_t>(time::ClockState::kLocked))
       prep.clock_not_locked = true;
   }
-
-  // Index of a mark id in prep.marks: a linear search over the few marks of an exposure is
-  // cheaper than clearing an id-indexed table for every exposure.
-  auto find_mark = [&prep](int id) {
-    for (size_t i = 0; i < prep.marks.size(); ++i)
-      if (prep.marks[i].id == id) return static_cast<int>(i);
-    return -1;
-  };
-  for (size_t e = 0; e < exposure.cameras.size(); ++e) {
-    const int slot = slot_of_entry[e];
-    if (slot < 0) continue;
-    const msg::MarkObservations& obs = exposure.cameras[e];
-    prep.dt_s[static_cast<size_t>(slot)] =
-        static_cast<double>(camera_mid_ns(obs, rig_.cameras[static_cast<size_t>(slot)]) -
-                            prep.t_ref_tai_ns) *
-        1e-9;
-    const size_t count = std::min<size_t>(obs.mark_count, obs.marks.size());
-    if (ids[e].size() < count)
-      throw std::invalid_argument("ExposureProcessor: ids shorter than a camera's mark_count");
-    bool contributed = false;
-    for (size_t j = 0; j < count; ++j) {
-      const int id = ids[e][j];
-      if (id < 0) continue;
-      const msg::MarkObservation& mo = obs.marks[j];
-      if (id > config_.max_mark_id || !std::isfinite(mo.x_px) || !std::isfinite(mo.y_px) ||
-          !(mo.sigma_px > 0) || !std::isfinite(mo.sigma_px)) {
-        ++counters.bad_observation;
-        continue;
-      }
-      if ((mo.flags & config_.rejected_mark_flags) != 0) {
-        ++counters.rejected_by_flags;
-        continue;
-      }
-      int mi = find_mark(id);
-      if (mi < 0) {
-        mi = static_cast<int>(prep.marks.size());
-        Prepared::Mark m;
-        m.obs.reserve(rig_.cameras.size());  // one allocation per mark
-        m.id = id;
-        if (pylon_.find(id) != nullptr) {
-          m.body = 'p';
-        } else if (store_.find(id) != nullptr) {
-          m.body = 's';
-        }
-        const Track& tr = tracks_[static_cast<size_t>(id)];
-        const double since_s = static_cast<double>(prep.t_ref_tai_ns - tr.t_ns) * 1e-9;
-        if (tr.valid && since_s > 0 && since_s <= config_.tracking_max_gap_s) {
-          m.has_prediction = true;
-          m.predicted_p_w = tr.velocity_valid ? Vec3(tr.p_w + tr.velocity_w * since_s) : tr.p_w;
-          if (tr.velocity_valid) {
-            m.velocity_w = tr.velocity_w;
-            m.velocity_valid = true;
-          } else {
-            m.has_previous = true;
-            m.previous_p_w = tr.p_w;
-            m.previous_dt_s = since_s;
-          }
-        }
-        prep.marks.push_back(std::move(m));
-      }
-      Prepared::Mark& mark = prep.marks[static_cast<size_t>(mi)];
-      bool duplicate = false;
-      for (Prepared::Obs& o : mark.obs)
-        if (o.slot == slot) duplicate = true;
-      if (duplicate) {
-        // The same id twice in one camera is an identification ambiguity: use neither.
-        ++counters.ambiguous_ids;
-        mark.obs.erase(std::remove_if(mark.obs.begin(), mark.obs.end(),
-                                      [slot](const Prepared::Obs& o) { return o.slot == slot; }),
-                       mark.obs.end());
-        continue;
-      }
-      Prepared::Obs o;
-      o.slot = slot;
-      o.camera_id = obs.camera_id;
-      o.mark_index = static_cast<int>(j);
-      o.pixel_px = Vec2(mo.x_px, mo.y_px);
-      // The wire carries 1/256 px steps: add the quantisation variance (uniform, step^2 / 12).
-      o.sigma_px = std::sqrt(static_cast<double>(mo.sigma_px) * mo.sigma_px +
-                             config_.pixel_quantisation_px * config_.pixel_quantisation_px / 12.0);
-      mark.obs.push_back(o);
-      contributed = true;
+  std::vector<bool> contributed(rig_.cameras.size(), false);
+  prep.marks.reserve(marks.marks.size());
+  for (const match::MatchedMark& mm : marks.marks) {
+    Prepared::Mark m;
+    m.id = mm.id;
+    m.body = mm.body == 0 ? 'p' : mm.body == 1 ? 's' : '?';  // bodies {pylon, store}
+    m.velocity_w = mm.velocity_w;
+    m.velocity_valid = mm.velocity_valid;
+    m.motion_corrected = mm.motion_corrected;
+    if (mm.triangulated) m.estimate = &mm.estimate;
+    m.obs.reserve(mm.observations.size());
+    for (const match::MatchedObservation& mo : mm.observations) {
+      const int slot = slot_of_camera_id_[static_cast<size_t>(mo.camera_id)];
+      m.obs.push_back(
+          {slot, mo.camera_id, mo.mark_index, mo.raw_px, mo.sigma_px, mo.information_px});
+      prep.dt_s[static_cast<size_t>(slot)] = mo.time_offset_s;
+      contributed[static_cast<size_t>(slot)] = true;
     }
-    if (contributed) ++prep.cameras_used;
+    prep.marks.push_back(std::move(m));
   }
+  prep.cameras_used = static_cast<int>(std::count(contributed.begin(), contributed.end(), true));
   for (size_t b = 0; b < pose_hint_.size(); ++b) {
+    // The matcher's pose of this exposure, else the body's last solved one (if recent).
+    if (b < marks.fitted.size() && marks.fitted[b]) {
+      prep.initial_T_w_b[b] = marks.T_w_b[b];
+      continue;
+    }
     const PoseHint& hint = pose_hint_[b];
     const double age_s = static_cast<double>(prep.t_ref_tai_ns - hint.t_ns) * 1e-9;
-    if (hint.T_w_b && std::abs(age_s) <= config_.tracking_max_gap_s)
+    if (hint.T_w_b && std::abs(age_s) <= config_.matcher.track_max_gap_s)
       prep.initial_T_w_b[b] = hint.T_w_b;
   }
   return prep;
@@ -459,51 +382,54 @@ void ExposureProcessor::solve(const Prepared& prep,
   out.marks.clear();
   out.marks.reserve(prep.marks.size());
   std::vector<triangulate::Observation> tri_obs;
-  triangulate::Result tri;
-  triangulate::Options tri_options;
+  triangulate::Result drawn;
   for (const Prepared::Mark& mark : prep.marks) {
     if (static_cast<int>(mark.obs.size()) < config_.min_cameras_per_mark) {
       ++counters.too_few_cameras;
       continue;
     }
-    tri_obs.clear();
-    for (const Prepared::Obs& o : mark.obs) {
-      const camera::CalibratedCamera& cam = cameras[static_cast<size_t>(o.slot)];
-      triangulate::Observation t;
-      t.model = &cam.model;
-      t.T_c_w = cam.T_c_w;
-      t.pixel_px = o.pixel_px;
-      t.sigma_px = o.sigma_px;
-      t.displacement_w = mark.velocity_w * prep.dt_s[static_cast<size_t>(o.slot)];
-      tri_obs.push_back(t);
-    }
-    tri_options.initial_p_w.reset();
-    if (mark.has_prediction) tri_options.initial_p_w = mark.predicted_p_w;
-    if (!triangulate::triangulate(tri_obs, tri_options, tri)) {
-      ++counters.triangulation_failed;
-      continue;
-    }
-    Vec3 velocity_w = mark.velocity_w;
-    bool velocity_valid = mark.velocity_valid;
-    if (!velocity_valid && mark.has_previous) {
-      // Second exposure of a track: velocity from the previous position, then the
-      // motion-compensated triangulation (the sync term needs the velocity).
-      velocity_w = (tri.p_w - mark.previous_p_w) / mark.previous_dt_s;
-      velocity_valid = true;
-      for (size_t i = 0; i < mark.obs.size(); ++i)
-        tri_obs[i].displacement_w = velocity_w * prep.dt_s[static_cast<size_t>(mark.obs[i].slot)];
-      tri_options.initial_p_w = tri.p_w;
-      if (!triangulate::triangulate(tri_obs, tri_options, tri)) {
+    if (mark.estimate == nullptr) continue;  // the matcher could not triangulate it (counted)
+    // The nominal solution is the matcher's estimate; a Monte Carlo draw repeats the same
+    // estimator (weights, motion correction, start) on its drawn pixels and calibration.
+    const triangulate::Result* estimate = mark.estimate;
+    if (fixed_exclusions != nullptr) {
+      tri_obs.clear();
+      for (const Prepared::Obs& o : mark.obs) {
+        const camera::CalibratedCamera& cam = cameras[static_cast<size_t>(o.slot)];
+        triangulate::Observation t;
+        t.model = &cam.model;
+        t.T_c_w = cam.T_c_w;
+        t.pixel_px = o.pixel_px;
+        t.sigma_px = o.sigma_px;
+        t.information_px = o.information_px;
+        // The estimator corrects by velocity * stated offset (when motion_corrected); the mark
+        // really moved by velocity * (offset + its error).
+        const auto slot = static_cast<size_t>(o.slot);
+        if (mark.velocity_valid)
+          t.displacement_w = mark.velocity_w * ((mark.motion_corrected ? prep.dt_s[slot] : 0.0) +
+                                                prep.sync_error_s[slot]);
+        tri_obs.push_back(t);
+      }
+      triangulate::Options options;
+      options.initial_p_w = mark.estimate->p_w;
+      options.step_tolerance_m = 1e-7;
+      options.calibration_jacobians = false;
+      if (!triangulate::triangulate(tri_obs, options, drawn)) {
         ++counters.triangulation_failed;
         continue;
       }
+      estimate = &drawn;
     }
+    const triangulate::Result& tri = *estimate;
+    const Vec3 velocity_w = mark.velocity_w;
+    const bool velocity_valid = mark.velocity_valid;
     MarkResult m;
     m.id = mark.id;
     m.body = mark.body;
     m.p_w = tri.p_w;
     m.velocity_w = velocity_w;
     m.velocity_valid = velocity_valid;
+    m.motion_corrected = mark.motion_corrected;
     m.chi2 = tri.chi2;
     m.observations.resize(mark.obs.size());
     for (size_t i = 0; i < mark.obs.size(); ++i) {
@@ -511,6 +437,7 @@ void ExposureProcessor::solve(const Prepared& prep,
       m.observations[i].mark_index = mark.obs[i].mark_index;
       m.observations[i].residual_px = tri.residual_px[i];
       m.observations[i].sigma_px = mark.obs[i].sigma_px;
+      m.observations[i].information_px = mark.obs[i].information_px;
     }
     if (with_uncertainty) {
       // dp/dtheta = -K_i dproj_i/dtheta for the parameters of observation i's camera (each
@@ -726,6 +653,9 @@ void ExposureProcessor::fill_sample(const AlignedExposure& exposure, const Prepa
     status |= msg::fti_status::kValid;
     if (out.single_view_pose) status |= msg::fti_status::kSingleView;
     write_pose_fields(out.xyz_ypr, out.cov_xyz_ypr, out.cov_xyz_ypr_by_source, s);
+  } else if (out.extrapolated) {
+    status |= msg::fti_status::kValid | msg::fti_status::kExtrapolated;
+    write_pose_fields(out.xyz_ypr, out.cov_xyz_ypr, out.cov_xyz_ypr_by_source, s);
   } else {
     clear_pose_fields(s);
   }
@@ -744,9 +674,10 @@ void ExposureProcessor::fill_sample(const AlignedExposure& exposure, const Prepa
   s.status = status;
 }
 
-ExposureResult ExposureProcessor::process(const AlignedExposure& exposure, const MarkIds& ids) {
+ExposureResult ExposureProcessor::process(const AlignedExposure& exposure,
+                                          const match::MatchResult& marks) {
   ++counters_.exposures;
-  const Prepared prep = prepare(exposure, ids, counters_);
+  const Prepared prep = prepare(exposure, marks, counters_);
   ExposureResult out;
   out.trigger_seq = exposure.trigger_seq;
   out.reference_mid_tai_ns = prep.t_ref_tai_ns;
@@ -755,30 +686,17 @@ ExposureResult ExposureProcessor::process(const AlignedExposure& exposure, const
   if (!out.T_p_s.valid) ++counters_.pose_failed;
   if (out.T_w_p.valid) pose_hint_[0] = {out.T_w_p.T, prep.t_ref_tai_ns};
   if (out.T_w_s.valid) pose_hint_[1] = {out.T_w_s.T, prep.t_ref_tai_ns};
+  tracker_.update(out);  // an unsolved T_p_s: extrapolated over a short gap, or invalid
   fill_sample(exposure, prep, out);
-
-  // Tracking: velocity from the previous exposure's position of the same mark.
-  for (MarkResult& m : out.marks) {
-    Track& tr = tracks_[static_cast<size_t>(m.id)];
-    const double dt = static_cast<double>(prep.t_ref_tai_ns - tr.t_ns) * 1e-9;
-    if (tr.valid && dt > 0 && dt <= config_.tracking_max_gap_s) {
-      tr.velocity_w = (m.p_w - tr.p_w) / dt;
-      tr.velocity_valid = true;
-    } else {
-      tr.velocity_valid = false;
-    }
-    tr.valid = true;
-    tr.t_ns = prep.t_ref_tai_ns;
-    tr.p_w = m.p_w;
-  }
   return out;
 }
 
-MonteCarloResult ExposureProcessor::monte_carlo(const AlignedExposure& exposure, const MarkIds& ids,
-                                                int draws, std::uint64_t seed) const {
+MonteCarloResult ExposureProcessor::monte_carlo(const AlignedExposure& exposure,
+                                                const match::MatchResult& marks, int draws,
+                                                std::uint64_t seed) const {
   if (draws < 2) throw std::invalid_argument("monte_carlo: need at least 2 draws");
   ProcessorCounters scratch;
-  const Prepared prep = prepare(exposure, ids, scratch);
+  const Prepared prep = prepare(exposure, marks, scratch);
   ExposureResult nominal;
   solve(prep, rig_.cameras, pylon_, store_, true, nullptr, nominal, scratch);
 
@@ -821,7 +739,7 @@ MonteCarloResult ExposureProcessor::monte_carlo(const AlignedExposure& exposure,
       if (cf.extrinsic.cols() > 0)
         cams[c].T_c_w = geometry::perturb_left(
             cams[c].T_c_w, cf.extrinsic * z.segment(cf.extrinsic_begin, cf.extrinsic.cols()));
-      if (cf.sync_column >= 0) p.dt_s[c] += cf.sync_sigma_s * z(cf.sync_column);
+      if (cf.sync_column >= 0) p.sync_error_s[c] = cf.sync_sigma_s * z(cf.sync_column);
     }
     for (Prepared::Mark& m : p.marks)
       for (Prepared::Obs& o : m.obs)

@@ -119,8 +119,6 @@ bool PoseTracker::update(ExposureResult& r) {
   r.cov_xyz_ypr = J * cov * J.transpose();
   for (size_t s = 0; s < by_source.size(); ++s)
     r.cov_xyz_ypr_by_source[s] = J * by_source[s] * J.transpose();
-  write_pose_fields(r.xyz_ypr, r.cov_xyz_ypr, r.cov_xyz_ypr_by_source, r.sample);
-  r.sample.status |= msg::fti_status::kValid | msg::fti_status::kExtrapolated;
   ++counters_.extrapolated;
   return true;
 }

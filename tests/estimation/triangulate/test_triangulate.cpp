@@ -144,11 +144,11 @@ TEST(Triangulate, FullInformationMatrixCovarianceIsHonest) {
       const geometry::Mat2 L = C[i].llt().matrixL();
       obs[i].pixel_px += L * Vec2(n01(rng), n01(rng));
       obs[i].information_px = C[i].inverse();
-      obs[i].sigma_px = 1e3;  // must be ignored when the information matrix is set
+      obs[i].sigma_px = 1e3;  // cov_weighted and chi2 ignore it when the information is set
     }
     Result r;
     ASSERT_TRUE(triangulate(std::span(obs.data(), n), Options{}, r));
-    acc.add(r.p_w - p, r.cov_centroid);
+    acc.add(r.p_w - p, r.cov_weighted);
     chi2_sum += r.chi2;
     dof_sum += 2.0 * static_cast<double>(n) - 3;
   }
@@ -243,6 +243,35 @@ TEST(Triangulate, RejectsDegenerateInput) {
   EXPECT_FALSE(triangulate(std::span(obs.data(), 1), Options{}, r));
   obs[1] = obs[0];  // same camera twice: parallel rays
   EXPECT_FALSE(triangulate_linear(std::span(obs.data(), 2)).has_value());
+}
+
+TEST(Triangulate, CentroidPartThroughGainsIsHonestUnderCalibrationWeights) {
+  // The host weighs each view by (sigma^2 I + S_cal)^-1 but states the centroid part alone:
+  // with pixel noise of sigma only (no calibration error drawn), cov_centroid = sum K sigma^2
+  // K^T must match the scatter (NEES 3, 4000 trials: mean within +-0.15 is > 5 sigma of its
+  // spread sqrt(6 / 4000) = 0.039), while cov_weighted, which adds the calibration part, must
+  // overstate it.
+  const auto rig = test::synthetic_rig();
+  std::mt19937_64 rng(6);
+  std::uniform_real_distribution<double> u(-0.4, 0.4);
+  const auto S = pixel_covariances(rig.cameras.size());
+  const double sigma = 0.1;
+  uncertainty::ConsistencyAccumulator<3> centroid, weighted;
+  for (int trial = 0; trial < 4000; ++trial) {
+    const Vec3 p(u(rng), u(rng), 2.0 + u(rng));
+    auto obs = observe(rig, p, sigma, &rng);
+    const size_t n = 2 + static_cast<size_t>(trial % 3);
+    for (size_t i = 0; i < obs.size(); ++i)
+      obs[i].information_px = (sigma * sigma * geometry::Mat2::Identity() + S[i]).inverse();
+    Result r;
+    ASSERT_TRUE(triangulate(std::span(obs.data(), n), Options{}, r));
+    centroid.add(r.p_w - p, r.cov_centroid);
+    weighted.add(r.p_w - p, r.cov_weighted);
+  }
+  EXPECT_NEAR(centroid.mean_nees(), 3.0, 0.15);
+  for (int a = 0; a < 3; ++a)
+    EXPECT_NEAR(centroid.coverage(a), 0.9545, 0.012);
+  EXPECT_LT(weighted.mean_nees(), 2.0);
 }
 
 }  // namespace

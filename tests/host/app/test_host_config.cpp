@@ -279,8 +279,9 @@ TEST(HostConfig, EverySectionNamesTheKeyOfABadValue) {
             "");
   EXPECT_EQ(c.processor.coverage_factor, 3);
   EXPECT_EQ(c.processor.store_id, 9);
-  EXPECT_EQ(c.pose_tracker.max_gap_s, 0.05);
-  EXPECT_EQ(c.pose_tracker.mean_accel_p_m_s2, geometry::Vec3(0, 0, 4.9));  // a 0.5 g test point
+  EXPECT_EQ(c.processor.pose_tracker.max_gap_s, 0.05);
+  EXPECT_EQ(c.processor.pose_tracker.mean_accel_p_m_s2,
+            geometry::Vec3(0, 0, 4.9));  // a 0.5 g test point
   EXPECT_EQ(c.processor.matcher.gate_probability, 0.999);
   EXPECT_EQ(c.initial_marks_sigma_m, 0.01);
   EXPECT_TRUE(c.store_region.valid);

@@ -37,7 +37,7 @@ void check_ranges(const app::HostConfig& c) {
   const auto& m = c.processor.matcher;
   if (!(m.gate_probability > 0 && m.gate_probability < 1)) std::abort();
   if (!(c.initial_marks_sigma_m > 0)) std::abort();
-  const auto& t = c.pose_tracker;
+  const auto& t = c.processor.pose_tracker;
   if (!(t.max_gap_s >= 0) || !(t.max_velocity_baseline_s > 0) || !(t.accel_sigma_m_s2 > 0) ||
       !(t.angular_accel_sigma_rad_s2 > 0) || !t.mean_accel_p_m_s2.allFinite())
     std::abort();

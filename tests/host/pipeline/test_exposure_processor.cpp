@@ -116,13 +116,14 @@ TEST(ExposureProcessor, WithMatcherIdentifiesAndTracksTheStore) {
 TEST(ExposureProcessor, MonteCarloAgreesWithFirstOrder) {
   Fixture f("store_separation", 11);
   const int k = f.sim.num_exposures() / 2;
-  ExposureResult r;
-  for (int j = k - 2; j <= k; ++j) {  // tracking gives velocities for the sync term
+  for (int j = k - 2; j < k; ++j) {  // tracking gives velocities for the sync term
     const auto in = test::make_exposure(f.sim, j);
-    r = f.proc.process(in.exposure, in.ids);
+    f.proc.process(in.exposure, in.ids);
   }
   const auto in = test::make_exposure(f.sim, k);
-  const MonteCarloResult mc = f.proc.monte_carlo(in.exposure, in.ids, 800, 99);
+  const match::MatchResult marks = f.proc.identify(in.exposure, in.ids);
+  const ExposureResult r = f.proc.process(in.exposure, marks);
+  const MonteCarloResult mc = f.proc.monte_carlo(in.exposure, marks, 800, 99);
   ASSERT_GE(mc.draws, 790);
   // 800 draws: a sample standard deviation is within ~2.5 % (1 sigma) of the true one; the
   // first-order value must agree within 10 % on every pose axis and on mark positions.
@@ -161,7 +162,8 @@ TEST(ExposureProcessor, SingleCameraResectionMonteCarloAgreesWithFirstOrder) {
       in.ids.erase(in.ids.begin() + static_cast<long>(e));
     }
   ASSERT_EQ(in.exposure.cameras.size(), 1u);
-  const ExposureResult r = f.proc.process(in.exposure, in.ids);
+  const match::MatchResult marks = f.proc.identify(in.exposure, in.ids);
+  const ExposureResult r = f.proc.process(in.exposure, marks);
   ASSERT_TRUE(r.T_p_s.valid);
   EXPECT_TRUE(r.single_view_pose);
   EXPECT_TRUE(r.sample.status & msg::fti_status::kSingleView);
@@ -169,7 +171,7 @@ TEST(ExposureProcessor, SingleCameraResectionMonteCarloAgreesWithFirstOrder) {
   const Vec3 e = T_true.translation() - r.T_p_s.T.translation();
   for (int a = 0; a < 3; ++a)
     EXPECT_LT(std::abs(e(a)), 5 * std::sqrt(r.cov_xyz_ypr(a, a))) << "axis " << a;
-  const MonteCarloResult mc = f.proc.monte_carlo(in.exposure, in.ids, 800, 98);
+  const MonteCarloResult mc = f.proc.monte_carlo(in.exposure, marks, 800, 98);
   ASSERT_GE(mc.draws, 790);
   // 800 draws: a sample standard deviation within ~2.5 % (1 sigma) of the true one; the
   // first-order value must agree within 10 % on every pose axis (as for the triangulated path).
@@ -225,12 +227,17 @@ TEST(ExposureProcessor, BorderCutBlobIsNotUsedEvenWithGivenIds) {
         j_cut = j;
       }
   ASSERT_GE(target, 0);
+  // The matcher counts every flagged observation of the exposure, identified or not: the
+  // unmodified exposure's count is the baseline.
+  Fixture unmodified("static");
+  unmodified.proc.process(in.exposure, in.ids);
+  const std::uint64_t baseline = unmodified.proc.matcher().counters().rejected_by_flags;
   msg::MarkObservation& cut = in.exposure.cameras[e_cut].marks[j_cut];
   ASSERT_FALSE(cut.flags & msg::mark_flags::kBorder);
   cut.flags |= msg::mark_flags::kBorder;
   cut.x_px += 3.0f;  // the pull of a cut blob (docs/performance.md: 3 px at u = 1917.6)
   const ExposureResult r = f.proc.process(in.exposure, in.ids);
-  EXPECT_EQ(f.proc.counters().rejected_by_flags, 1u);
+  EXPECT_EQ(f.proc.matcher().counters().rejected_by_flags, baseline + 1);
   for (const MarkResult& m : r.marks)
     for (const MarkResult::ObservationResidual& o : m.observations)
       EXPECT_FALSE(o.camera_id == in.exposure.cameras[e_cut].camera_id &&
@@ -276,12 +283,14 @@ TEST(ExposureProcessor, BadInputIsCountedNotUsed) {
   const size_t j0 = first_identified(0), j2 = first_identified(2);
   ASSERT_LT(j0, in.ids[0].size());
   ASSERT_LT(j2, in.ids[2].size());
-  in.exposure.cameras[0].marks[j0].sigma_px = std::nanf("");
-  in.exposure.cameras[1].camera_id = 200;  // not in the calibration
-  in.ids[2][j2] = 5000;                    // id out of range
+  in.exposure.cameras[0].marks[j0].sigma_px = std::nanf("");  // the matcher's fallback sigma
+  in.exposure.cameras[1].camera_id = 200;                     // not in the calibration
+  in.ids[2][j2] = 5000;                                       // id out of range
   const ExposureResult r = f.proc.process(in.exposure, in.ids);
   EXPECT_EQ(f.proc.counters().unknown_camera, 1u);
-  EXPECT_EQ(f.proc.counters().bad_observation, 2u);
+  EXPECT_EQ(f.proc.matcher().counters().unknown_camera, 1u);
+  EXPECT_EQ(f.proc.matcher().counters().fallback_sigma, 1u);
+  EXPECT_EQ(f.proc.counters().id_out_of_range, 1u);
   EXPECT_TRUE(r.sample.status & msg::fti_status::kCameraMissing);
   EXPECT_TRUE(r.sample.status & msg::fti_status::kDegradedGeometry);
   // Before release each store mark is seen by one camera pair (0+1 or 2+3): without camera 1

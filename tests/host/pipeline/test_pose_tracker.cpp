@@ -113,28 +113,37 @@ void draw_dynamics(sim::Scenario& sc, std::mt19937_64& rng) {
   }
 }
 
-// Scores one extrapolated or past-the-gap exposure of one tracker; checks its flags.
-void score_hidden(const sim::Simulator& sim, ExposureResult r, PoseTracker& tracker,
-                  time::TaiNs last_solved_ns, double frame_s, GapScores& g) {
-  const bool did = tracker.update(r);
+// The processor's sample of an unsolved exposure carries what its own tracker predicted (one
+// writer): valid | extrapolated with the prediction's pose and uncertainty, else invalid.
+void check_sample_of_hidden(const ExposureResult& r) {
   const std::uint16_t status = r.sample.status;
-  ASSERT_EQ(did, r.extrapolated);
-  const double tau = static_cast<double>(r.reference_mid_tai_ns - last_solved_ns) * 1e-9;
-  if (tau > tracker.config().max_gap_s) {
-    // Beyond the gap: invalid, no flag, no pose.
-    EXPECT_FALSE(did);
+  if (!r.extrapolated) {
     EXPECT_FALSE(status & msg::fti_status::kValid);
     EXPECT_FALSE(status & msg::fti_status::kExtrapolated);
     EXPECT_TRUE(std::isnan(r.sample.x_m));
+    return;
+  }
+  EXPECT_EQ(status & (msg::fti_status::kValid | msg::fti_status::kExtrapolated),
+            msg::fti_status::kValid | msg::fti_status::kExtrapolated);
+  EXPECT_FLOAT_EQ(static_cast<float>(r.xyz_ypr(2)), r.sample.z_m);
+  EXPECT_FLOAT_EQ(r.sample.u_z_m, static_cast<float>(std::sqrt(r.cov_xyz_ypr(2, 2))));
+}
+
+// Scores one extrapolated or past-the-gap exposure of one tracker variant (on its own copy of
+// the processor's result: the variant's prediction replaces the processor's tracker's).
+void score_hidden(const sim::Simulator& sim, ExposureResult r, PoseTracker& tracker,
+                  time::TaiNs last_solved_ns, double frame_s, GapScores& g) {
+  const bool did = tracker.update(r);
+  ASSERT_EQ(did, r.extrapolated);
+  const double tau = static_cast<double>(r.reference_mid_tai_ns - last_solved_ns) * 1e-9;
+  if (tau > tracker.config().max_gap_s) {
+    EXPECT_FALSE(did);  // beyond the gap: no prediction
     ++g.invalid_after_gap;
     return;
   }
   ASSERT_TRUE(did) << "tau " << tau;
-  EXPECT_EQ(status & (msg::fti_status::kValid | msg::fti_status::kExtrapolated),
-            msg::fti_status::kValid | msg::fti_status::kExtrapolated);
   EXPECT_NEAR(r.extrapolation_horizon_s, tau, 1e-12);
-  EXPECT_TRUE(std::isfinite(r.sample.z_m));
-  EXPECT_FLOAT_EQ(r.sample.u_z_m, static_cast<float>(std::sqrt(r.cov_xyz_ypr(2, 2))));
+  EXPECT_TRUE(std::isfinite(r.xyz_ypr(2)));
   ++g.extrapolated;
   const Vec6 e = error_to_truth(sim, r);
   const auto C_pos = r.cov_xyz_ypr.topLeftCorner<3, 3>();
@@ -144,11 +153,11 @@ void score_hidden(const sim::Simulator& sim, ExposureResult r, PoseTracker& trac
   if (tau < 1.5 * frame_s) {
     g.position_short.add(e.head<3>(), C_pos);
     g.attitude_short.add(e.tail<3>(), C_att);
-    g.sum_u_z_short += r.sample.u_z_m;
+    g.sum_u_z_short += std::sqrt(r.cov_xyz_ypr(2, 2));
   } else if (tau > 6.5 * frame_s) {
     g.position_long.add(e.head<3>(), C_pos);
     g.attitude_long.add(e.tail<3>(), C_att);
-    g.sum_u_z_long += r.sample.u_z_m;
+    g.sum_u_z_long += std::sqrt(r.cov_xyz_ypr(2, 2));
   }
 }
 
@@ -205,6 +214,7 @@ void run_gaps(std::vector<TrackerVariant>& variants, int seeds,
         continue;
       }
       ASSERT_FALSE(r.T_p_s.valid);  // no store marks: the pose cannot be solved
+      check_sample_of_hidden(r);
       for (size_t i = 0; i < variants.size(); ++i)
         score_hidden(sim, r, trackers[i], last_solved_ns, frame_s, variants[i].scores);
     }
@@ -303,12 +313,13 @@ TEST(PoseTracker, ExtrapolatesHonestlyWithinTheGapAndStopsAfterIt) {
 TEST(PoseTracker, ExtrapolatedBudgetAddsUpWithTheProcessNoiseInIt) {
   const sim::Scenario scenario = sim::load_scenario(test::scenario_path("store_separation"));
   const sim::Simulator sim(scenario, 23);
-  ExposureProcessor proc(sim.calibrated_rig(), sim.pylon_survey(), sim.store_survey(),
-                         ProcessorConfig{});
   PoseTrackerConfig config;
   config.accel_sigma_m_s2 = 12.5;  // not the default: the closed form must follow the setting
   config.angular_accel_sigma_rad_s2 = 3.0;
-  PoseTracker tracker(proc.factors(), config);
+  ProcessorConfig processor_config;
+  processor_config.pose_tracker = config;
+  ExposureProcessor proc(sim.calibrated_rig(), sim.pylon_survey(), sim.store_survey(),
+                         processor_config);
   const double frame_s = 1.0 / scenario.frame_rate_hz;
   const int k0 = static_cast<int>(std::ceil(0.1 / frame_s));  // after the ejector stroke
   // Rounding bound of sum(budget^2) - (u_x^2 + u_y^2 + u_z^2), both exactly equal in real
@@ -322,8 +333,8 @@ TEST(PoseTracker, ExtrapolatedBudgetAddsUpWithTheProcessNoiseInIt) {
     test::SimExposure in = test::make_exposure(sim, k);
     const bool hidden = k >= k0 + kSolvedBefore;
     if (hidden) hide_store_marks(in);
-    ExposureResult r = proc.process(in.exposure, in.ids);
-    const bool did = tracker.update(r);
+    const ExposureResult r = proc.process(in.exposure, in.ids);
+    const bool did = r.extrapolated;  // the processor's own tracker, with `config`
     const msg::FtiSample& s = r.sample;
     if (!(s.status & msg::fti_status::kValid)) continue;  // past the gap
     const double total2 =
@@ -405,15 +416,15 @@ TEST(PoseTracker, NoVelocityNoExtrapolation) {
   const sim::Simulator sim(scenario, 17);
   ExposureProcessor proc(sim.calibrated_rig(), sim.pylon_survey(), sim.store_survey(),
                          ProcessorConfig{});
-  PoseTracker tracker(proc.factors());
+  const PoseTracker& tracker = proc.pose_tracker();
   // One solved exposure only: no velocity, so the next unsolved one is not extrapolated.
   test::SimExposure in = test::make_exposure(sim, 60);
   ExposureResult r = proc.process(in.exposure, in.ids);
-  EXPECT_FALSE(tracker.update(r));
+  EXPECT_FALSE(r.extrapolated);
   in = test::make_exposure(sim, 61);
   hide_store_marks(in);
   r = proc.process(in.exposure, in.ids);
-  EXPECT_FALSE(tracker.update(r));
+  EXPECT_FALSE(r.extrapolated);
   EXPECT_FALSE(r.sample.status & msg::fti_status::kValid);
   EXPECT_FALSE(r.sample.status & msg::fti_status::kExtrapolated);
   EXPECT_EQ(tracker.counters().not_extrapolated, 1u);

@@ -74,7 +74,8 @@ TEST(UncertaintyReference, FastPathMatchesDenseReference) {
     ASSERT_TRUE(r.T_p_s.valid);
     std::vector<MarkReference> refs;
     for (const MarkResult& m : r.marks) {
-      // Re-triangulate from the same observations (motion-compensated with the same velocity).
+      // Re-triangulate from the same observations (same weights; motion-compensated with the
+      // same velocity where the host was).
       std::vector<triangulate::Observation> obs;
       std::vector<int> slot;
       for (const auto& o : m.observations) {
@@ -93,8 +94,10 @@ TEST(UncertaintyReference, FastPathMatchesDenseReference) {
         t.T_c_w = cam.T_c_w;
         t.pixel_px = geometry::Vec2(mo.x_px, mo.y_px);
         t.sigma_px = o.sigma_px;
-        t.displacement_w =
-            m.velocity_w * (static_cast<double>(t_cam - r.reference_mid_tai_ns) * 1e-9);
+        t.information_px = o.information_px;  // the matcher's weight
+        if (m.motion_corrected)
+          t.displacement_w =
+              m.velocity_w * (static_cast<double>(t_cam - r.reference_mid_tai_ns) * 1e-9);
         obs.push_back(t);
         slot.push_back(c);
       }

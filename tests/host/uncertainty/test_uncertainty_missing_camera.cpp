@@ -162,7 +162,7 @@ void run_draws(const std::string& scenario_name, int draws, std::vector<Subset>&
         const test::SimExposure in = without_cameras(f, s.removed_mask, rig);
         r = proc.process(in.exposure, in.ids);
       }
-      s.rejected_by_flags += proc.counters().rejected_by_flags;
+      s.rejected_by_flags += proc.matcher().counters().rejected_by_flags;
       score(sim, r, pick, s);
     }
   }

@@ -47,8 +47,15 @@ struct Options {
 
 struct Result {
   geometry::Vec3 p_w = geometry::Vec3::Zero();
-  geometry::Mat3 cov_centroid = geometry::Mat3::Zero();  ///< (J^T W J)^-1 [m^2]
-  double chi2 = 0;                                       ///< sum of weighted squared residuals
+  /// (J^T W J)^-1 [m^2]: the point's covariance under the weights' own error model (centroid
+  /// plus, where information_px carries it, the calibration's pixel part); the matcher's gates
+  /// and tracks use it.
+  geometry::Mat3 cov_weighted = geometry::Mat3::Zero();
+  /// sum_k K_k sigma_k^2 K_k^T [m^2]: the centroid noise alone through the estimator's gains
+  /// (equal to cov_weighted when every weight is sigma_px^-2 I); the calibration's part is
+  /// propagated separately through the same gains (estimation/uncertainty).
+  geometry::Mat3 cov_centroid = geometry::Mat3::Zero();
+  double chi2 = 0;  ///< sum of weighted squared residuals
   int iterations = 0;
   /// Per observation, in input order:
   std::vector<geometry::Vec2> residual_px;             ///< observed - predicted

@@ -22,6 +22,7 @@
 #include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/camera/camera_model.hpp"
 #include "storetrack/uncertainty/sources.hpp"
+#include "storetrack/uncertainty/spd_inverse.hpp"
 
 namespace storetrack::uncertainty {
 
@@ -105,6 +106,19 @@ inline Eigen::Matrix2d pixel_covariance(const CalibrationFactors& f, int slot,
   const Eigen::Matrix<double, 2, camera::kJointBlockSize> JS =
       Jc.lazyProduct(f.camera_covariance(slot));
   return JS.lazyProduct(Jc.transpose());
+}
+
+/// The weight of camera `slot`'s view of world point p_w in the host's triangulation:
+/// (sigma_px^2 I + pixel_covariance at the point)^-1 [px^-2]. False (W untouched) when the point
+/// is not imaged or the sum is not positive definite.
+inline bool view_information(const CalibrationFactors& f, int slot,
+                             const camera::CalibratedCamera& camera, const Eigen::Vector3d& p_w,
+                             double sigma_px, Eigen::Matrix2d& W) {
+  camera::ProjectionJacobians J;
+  if (!camera.model.project_world(camera.T_c_w, p_w, &J)) return false;
+  const Eigen::Matrix2d S =
+      sigma_px * sigma_px * Eigen::Matrix2d::Identity() + pixel_covariance(f, slot, J);
+  return inverse_spd<2>(S, W);
 }
 
 /// d(point)/d(camera parameters) of one observation of a triangulated point: -K [d pixel /

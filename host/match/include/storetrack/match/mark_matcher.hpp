@@ -45,6 +45,7 @@
 #include "storetrack/msg/messages.hpp"
 #include "storetrack/survey/survey.hpp"
 #include "storetrack/time/time.hpp"
+#include "storetrack/triangulate/triangulate.hpp"
 #include "storetrack/uncertainty/calibration_factors.hpp"
 
 namespace storetrack::match {
@@ -109,6 +110,10 @@ struct MatcherConfig {
   /// (docs/matching.md). 0: every exposure.
   double reacquisition_retry_s = 0.01;
   static constexpr int kMaxRetryDoublings = 5;
+  /// Camera whose calibrated exposure mid-point is the exposure's reference time (the time of
+  /// the triangulated points, the tracks and the sample); -1: the rig's first camera. When it
+  /// did not deliver, the earliest delivered camera's mid-point.
+  int reference_camera_id = -1;
 };
 
 /// Where a body can be relative to a reference body (e.g. the store relative to its pylon during
@@ -146,6 +151,11 @@ struct MatchedObservation {
   geometry::Vec2 undistorted_px = geometry::Vec2::Zero();  ///< ideal pinhole pixel
   geometry::Vec2 xy = geometry::Vec2::Zero();              ///< normalised image point (Z = 1)
   double sigma_px = 0;  ///< per-axis standard uncertainty used (incl. quantisation) [px]
+  /// Weight of the view in the triangulation: (sigma_px^2 I + calibration pixel covariance at
+  /// the mark)^-1 [px^-2].
+  geometry::Mat2 information_px = geometry::Mat2::Identity();
+  /// This camera's calibrated exposure mid-point minus the reference time [s].
+  double time_offset_s = 0;
 };
 
 struct MatchedMark {
@@ -153,17 +163,29 @@ struct MatchedMark {
   int body = -1;  ///< index into the bodies given to the matcher
   PredictionSource source = PredictionSource::kNone;
   std::vector<MatchedObservation> observations;  ///< ascending camera_index
-  /// Triangulated position (>= 2 views; Gauss-Newton on the reprojection error) and its
-  /// covariance from the observation and calibration sigmas. Valid when views >= 2.
+  /// THE position of the mark at the reference time (>= 2 views; estimation/triangulate's
+  /// Gauss-Newton weighted by each view's information_px, corrected for the mark's motion
+  /// between the reference time and each camera's exposure, with calibration Jacobians and
+  /// gains in the order of `observations`): the processor propagates its uncertainty, nothing
+  /// triangulates it again. estimate.chi2 is the multi-view test's statistic (dof 2 views - 3),
+  /// estimate.cov_weighted the covariance the gates and tracks use.
   bool triangulated = false;
-  geometry::Vec3 p_w = geometry::Vec3::Zero();
-  geometry::Mat3 cov_w = geometry::Mat3::Zero();
-  double epipolar_chi2 = 0;  ///< reprojection chi-square, dof = 2 views - 3
+  triangulate::Result estimate;
+  /// Velocity of the mark [m/s] from its track (its last two positions), when it has one;
+  /// corrects the estimate for the cameras' time offsets. At the second exposure of a track it
+  /// is this exposure's position minus the previous one (then used for the time-offset
+  /// uncertainty only, not to correct this estimate: motion_corrected false).
+  geometry::Vec3 velocity_w = geometry::Vec3::Zero();
+  bool velocity_valid = false;
+  bool motion_corrected = false;
 };
 
 /// Result of one exposure.
 struct MatchResult {
-  time::TaiNs t_mid_tai_ns = 0;    ///< mean calibrated exposure mid-point of the cameras
+  /// Reference time of the exposure (MatcherConfig::reference_camera_id's rule), TAI ns; valid
+  /// when has_reference_time (some camera of the rig delivered).
+  time::TaiNs reference_mid_tai_ns = 0;
+  bool has_reference_time = false;
   std::vector<MatchedMark> marks;  ///< ascending id
   /// ids[e][j]: mark id of cameras[e].marks[j], -1 when not identified (pipeline::MarkIds).
   std::vector<std::vector<int>> ids;
@@ -213,6 +235,11 @@ struct MatchCounters {
   std::uint64_t reacquisition_outside_region = 0;  ///< the only passing ones are outside the region
   /// Searches not run: within reacquisition_retry_s of the body's last refused one.
   std::uint64_t reacquisition_deferred = 0;
+  /// estimate_identified(): an id given twice in one camera (both observations dropped), ids
+  /// of no body (triangulated, no track) and marks whose views could not be triangulated.
+  std::uint64_t duplicate_id = 0;
+  std::uint64_t given_ids_of_no_body = 0;
+  std::uint64_t triangulation_failed = 0;
 };
 
 class MarkMatcher {
@@ -233,8 +260,16 @@ class MarkMatcher {
   bool set_region(const std::string& body_name, const BodyRegion& region);
 
   /// Identifies the marks of one exposure (all cameras that delivered it, any order, missing
-  /// cameras simply absent) and updates the tracks.
+  /// cameras simply absent), triangulates them and updates the tracks.
   MatchResult match(std::span<const msg::MarkObservations> cameras);
+
+  /// The same for marks already identified elsewhere (ids[e][j]: id of cameras[e].marks[j], -1
+  /// none; e.g. the simulator's truth): no gates, no multi-view or layout test, no body fit;
+  /// the marks are triangulated exactly as match() does (weights at the tracks' prediction,
+  /// else at the linear point; motion correction) and the mark tracks updated. Ids in no
+  /// body's survey (scale bars) are triangulated too, body -1, without a track.
+  MatchResult estimate_identified(std::span<const msg::MarkObservations> cameras,
+                                  const std::vector<std::vector<int>>& ids);
 
   /// Forgets all tracks (next exposure starts from the priors).
   void reset_tracking();
@@ -318,8 +353,20 @@ class MarkMatcher {
                                geometry::Mat2& W) const;
   /// Measurement dimension of a filter update: 3 per triangulated mark, 2 per single view.
   static int measurement_dof(const Work& w, const std::vector<int>& members);
-  bool triangulate(Work& w, const std::vector<int>& obs, const geometry::Vec3& initial,
-                   geometry::Vec3& p_w, geometry::Mat3& cov_w, double& chi2) const;
+  /// THE triangulation of mark m (index in marks_, -1: a mark of no body) from observations
+  /// `obs` (Work::obs indices, weights Work::Obs::W), motion-corrected with the mark's
+  /// velocity; fills w.tri_result. False when it fails or its chi2 is not finite.
+  bool triangulate(Work& w, int m, std::span<const int> obs, const geometry::Vec3& initial) const;
+  /// Validates and undistorts one exposure's observations into the Work; the reference time.
+  void load_exposure(Work& w, std::span<const msg::MarkObservations> cameras, MatchResult& out);
+  void start_exposure_state(Work& w) const;
+  /// Per-mark velocities from the tracks (before triangulation).
+  void mark_velocities(Work& w, double t_s) const;
+  void finish_exposure(Work& w, double t_s, MatchResult& out);
+  /// estimate_identified(): weights at the prediction (else the linear point), then THE
+  /// triangulation into w.tri_result; false (counted) when it fails.
+  bool triangulate_identified(Work& w, int m, std::span<const int> obs) const;
+  void accumulate(const MatchCounters& d);
   void update_tracks(const Work& w, double t_s);
   // Re-acquisition of lost bodies (reacquisition.cpp).
   enum class SearchOutcome : std::uint8_t;

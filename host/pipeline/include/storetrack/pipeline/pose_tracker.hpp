@@ -2,10 +2,10 @@
 // store marks (FtiSample status bit "extrapolated", common/msg/schema/fti_sample.yaml), with an
 // honest covariance (docs/uncertainty.md, "Extrapolation").
 //
-// The ExposureProcessor solves each exposure on its own; the tracker keeps the last two solved
-// poses. When an exposure has no solved T_p_s (fewer than 3 non-collinear store marks, or no
-// pylon frame) and the last solved pose is at most `max_gap_s` old, the sample carries the
-// constant-velocity prediction (translation and rotation) with status valid | extrapolated;
+// The ExposureProcessor solves each exposure on its own and owns the tracker, which keeps the
+// last two solved poses. When an exposure has no solved T_p_s (fewer than 3 non-collinear store
+// marks, or no pylon frame) and the last solved pose is at most `max_gap_s` old, the sample carries
+// the constant-velocity prediction (translation and rotation) with status valid | extrapolated;
 // beyond the gap the sample stays invalid. The prediction's covariance is first-order: the two
 // poses' calibration errors are the same factors (loadings combine, they largely cancel in the
 // velocity), their centroid errors are independent, the survey error is common, and the
@@ -16,7 +16,7 @@
 
 #include <cstdint>
 
-#include "storetrack/pipeline/exposure_processor.hpp"
+#include "storetrack/pipeline/exposure_result.hpp"
 
 namespace storetrack::pipeline {
 
@@ -52,12 +52,12 @@ class PoseTracker {
   explicit PoseTracker(const uncertainty::CalibrationFactors& factors,
                        const PoseTrackerConfig& config = {});
 
-  /// Call once per exposure, in time order, with the ExposureProcessor's result (host app:
-  /// `ExposureResult r = processor.process(exposure); tracker.update(r); output(r.sample);`). A
-  /// solved T_p_s updates the track. An unsolved one is replaced, when the track allows, by the
-  /// prediction: result.extrapolated, T_p_s_extrapolated, cov_T_p_s_extrapolated, xyz_ypr,
-  /// cov_xyz_ypr(_by_source) and the sample's pose fields, status |= kValid | kExtrapolated.
-  /// Returns true when it extrapolated.
+  /// Call once per exposure, in time order, with the exposure's solution (the ExposureProcessor
+  /// owns one and calls it before it writes the sample). A solved T_p_s updates the track. An
+  /// unsolved one is replaced, when the track allows, by the prediction: result.extrapolated,
+  /// T_p_s_extrapolated, cov_T_p_s_extrapolated, xyz_ypr and cov_xyz_ypr(_by_source); the
+  /// processor's sample then carries it with status kValid | kExtrapolated. Returns true when
+  /// it extrapolated.
   bool update(ExposureResult& result);
 
   /// Forgets the track (e.g. after ExposureProcessor::reset_tracking()).
