@@ -13,6 +13,7 @@
 #include "storetrack/eval/marks_csv.hpp"
 #include "storetrack/survey/survey.hpp"
 #include "storetrack/triangulate/triangulate.hpp"
+#include "storetrack/uncertainty/calibration_factors.hpp"
 
 namespace storetrack::test {
 
@@ -36,9 +37,11 @@ inline survey::RigidBodySurvey true_static_survey(const sim::Simulator& sim) {
 }
 
 /// Where the host's point settles without centroid noise: the true pixels of the cameras that
-/// saw the mark in `sample`, weighted by their stated sigma, triangulated with `rig`.
+/// saw the mark in `sample`, weighted as the host weighs them ((sigma^2 I + the calibration's
+/// pixel covariance at the sample's position)^-1, `factors` of `rig`), triangulated with `rig`.
 inline geometry::Vec3 noise_free_position(const sim::Simulator& sim,
                                           const camera::RigCalibration& rig,
+                                          const uncertainty::CalibrationFactors& factors,
                                           const eval::MarkSample& sample) {
   const sim::ExposureTruth truth = sim.truth(0);
   const sim::MarkTruth* mark = nullptr;
@@ -54,6 +57,10 @@ inline geometry::Vec3 noise_free_position(const sim::Simulator& sim,
     t.T_c_w = rig.cameras[index].T_c_w;
     t.pixel_px = mark->cameras[index].pixel;
     t.sigma_px = o.sigma_px;
+    geometry::Mat2 W;
+    if (uncertainty::view_information(factors, static_cast<int>(index), rig.cameras[index],
+                                      sample.p_w, o.sigma_px, W))
+      t.information_px = W;
     obs.push_back(t);
   }
   triangulate::Result r;

@@ -104,9 +104,10 @@ void run(bool perfect) {
     ASSERT_EQ(r.exposures, 100);
     // The predicted bias of each mark (truth), from one of its samples.
     std::map<int, Vec3> predicted;
+    const uncertainty::CalibrationFactors factors(rig);
     for (const eval::MarkSample& s : record.samples)
       if (!predicted.count(s.mark_id) && s.observations.size() >= 2)
-        predicted[s.mark_id] = test::noise_free_position(sim, rig, s);
+        predicted[s.mark_id] = test::noise_free_position(sim, rig, factors, s);
     for (const eval::MarkNoise& m : r.marks) {
       const Vec3 truth = reference.find(m.mark_id)->p_body;
       const Vec3 expected_bias = perfect ? Vec3::Zero() : Vec3(predicted.at(m.mark_id) - truth);
