@@ -312,6 +312,7 @@ void ExposureAligner::add_to_pending(PendingMap::iterator it, int cam,
   p.present_mask |= bit;
   p.last_arrival = std::max(p.last_arrival, now);
   CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
+  cs.placed_with_offset = true;
   if (!cs.placed_any || it->first >= cs.frontier_key) {
     cs.placed_any = true;
     cs.frontier_key = it->first;
@@ -436,6 +437,7 @@ void ExposureAligner::quarantine(int cam, const msg::MarkObservations& obs, std:
     // Two observations in a row agree on where this camera's sequence now sits (a restarted
     // unit, a re-numbered trigger): re-learn the offset and place both.
     cs.offset = *implied;
+    cs.placed_with_offset = false;
     cs.last_unwrapped = unwrapped;
     cs.holding = false;
     ++counters_.sequence_offset_changes;
@@ -497,6 +499,7 @@ void ExposureAligner::try_trigger_restart(time::MonotonicNs now) {
     CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
     const std::int64_t unwrapped = unwrap(cs, cs.held.trigger_seq);
     cs.offset = new_key - unwrapped;
+    cs.placed_with_offset = false;
     cs.last_unwrapped = unwrapped;
     cs.holding = false;
     camera_counters_[static_cast<std::size_t>(cam)].sequence_offset = cs.offset;
@@ -506,26 +509,28 @@ void ExposureAligner::try_trigger_restart(time::MonotonicNs now) {
   restarting_ = false;
 }
 
-std::uint32_t ExposureAligner::majority_sequence(
-    const std::vector<msg::MarkObservations>& kept) const {
-  // The trigger sequence most cameras of the exposure carry; a tie goes to the cameras whose
-  // offset changed least often (a restarted unit's new numbering does not rename the exposure).
-  std::uint32_t best = kept.front().trigger_seq;
+std::uint32_t ExposureAligner::rig_sequence(std::int64_t key) {
+  // The numbering most cameras of the rig share, counted over cameras that placed an observation
+  // with their current offset (a camera still in another numbering, not yet re-learned, has no
+  // say). Not the sequences of this exposure's own cameras: with one camera of each numbering a
+  // vote among them is a tie, and a host restarted behind a unit renumbered from 0 indexes its
+  // exposures by whichever camera it heard first (the fault campaign's duplicate numbers).
+  std::optional<std::int64_t> best;
   std::size_t best_votes = 0;
-  std::uint64_t best_changes = UINT64_MAX;
-  for (const auto& o : kept) {
-    const auto votes = static_cast<std::size_t>(std::count_if(
-        kept.begin(), kept.end(),
-        [&](const msg::MarkObservations& x) { return x.trigger_seq == o.trigger_seq; }));
-    const std::uint64_t changes =
-        camera_counters_[static_cast<std::size_t>(camera_index(o.camera_id))].offset_changes;
-    if (votes > best_votes || (votes == best_votes && changes < best_changes)) {
-      best = o.trigger_seq;
+  for (const CameraState& candidate : cameras_) {
+    if (!candidate.placed_with_offset) continue;
+    const auto votes = static_cast<std::size_t>(
+        std::count_if(cameras_.begin(), cameras_.end(), [&](const CameraState& cs) {
+          return cs.placed_with_offset && cs.offset == candidate.offset;
+        }));
+    // A tie keeps the numbering chosen before.
+    if (votes > best_votes || (votes == best_votes && candidate.offset == rig_offset_)) {
+      best = candidate.offset;
       best_votes = votes;
-      best_changes = changes;
     }
   }
-  return best;
+  if (best) rig_offset_ = best;
+  return static_cast<std::uint32_t>(key - rig_offset_.value_or(0));
 }
 
 ExposureAligner::Majority ExposureAligner::majority(
@@ -713,7 +718,7 @@ void ExposureAligner::release(PendingMap::iterator it, ReleaseReason reason,
     ++counters_.exposures_partial_timeout;
   counters_.camera_missing_total += static_cast<std::uint64_t>(std::popcount(missing));
   pipeline::AlignedExposure e;
-  e.trigger_seq = majority_sequence(kept);
+  e.trigger_seq = rig_sequence(key);
   e.missing_camera_mask = missing;
   e.closed_by_timeout = missing != 0;
   e.last_arrival_mono_ns = last_arrival;

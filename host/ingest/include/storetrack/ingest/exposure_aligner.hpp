@@ -24,6 +24,10 @@
 //    wait left out) or nothing was placed for max_wait: a host
 //    that was descheduled and now reads the socket's backlog (its clock jumped, the datagrams
 //    did not) does not release exposures whose cameras are still in the backlog.
+//  - A released exposure is numbered in the rig's trigger numbering: the one most cameras share
+//    (their offset onto the exposure index), not a vote among that exposure's own cameras. A
+//    unit renumbered from 0 is one camera of the rig even when an exposure holds it and one other
+//    camera only, and even when a restarted host heard it first and indexed exposures by it.
 //  - An exposure's reference mid-time is the majority of its cameras (the mid-time most of them
 //    agree with, ties broken by the trigger grid), never the first to arrive; the others are
 //    dropped as time mismatches.
@@ -177,6 +181,7 @@ class ExposureAligner {
     bool seen = false;
     std::int64_t last_unwrapped = 0;  // unwrapped trigger_seq of the last placed observation
     std::int64_t offset = 0;          // exposure index = unwrapped trigger_seq + offset
+    bool placed_with_offset = false;  // placed an observation since `offset` was last set
     bool holding = false;             // an observation in quarantine
     msg::MarkObservations held{};
     std::optional<std::int64_t> held_offset;  // the offset its mid-time implies, if any
@@ -226,7 +231,7 @@ class ExposureAligner {
   std::int64_t lead_limit() const;
   std::int64_t match_tolerance() const;
   bool clock_stepped(const CameraState& cs, const msg::MarkObservations& obs) const;
-  std::uint32_t majority_sequence(const std::vector<msg::MarkObservations>& kept) const;
+  std::uint32_t rig_sequence(std::int64_t key);
   void add_to_pending(PendingMap::iterator it, int cam, const msg::MarkObservations& obs,
                       time::MonotonicNs now);
   void drop_known(std::int64_t key, int cam);
@@ -252,6 +257,9 @@ class ExposureAligner {
   std::uint32_t all_mask_ = 0;
   std::size_t restart_quorum_ = 1;  // cameras that must agree on a trigger restart
   bool restarting_ = false;
+  // The offset of the rig's numbering (the one most cameras map their sequence with), as last
+  // chosen: kept on a tie, so the numbering of the samples does not flip between exposures.
+  std::optional<std::int64_t> rig_offset_;
   PendingMap pending_;
   bool have_key_ = false;
   std::int64_t newest_key_ = 0;        // newest exposure index opened
