@@ -276,7 +276,13 @@ void host_restart_behind_renumbered_unit(bool renumbered_first) {
   };
   ExposureAligner aligner(rig_config(4));
   const auto out = run(s, aligner);
-  ASSERT_GE(out.size(), 390u) << "renumbered first " << renumbered_first;
+  const auto& c = aligner.counters();
+  // Until a third camera is placed, the host has heard one camera of each numbering: those
+  // exposures (at most the first two: a camera's offset is re-learned from its second
+  // observation) are dropped as numbering unknown, never numbered by a guess.
+  EXPECT_LE(c.exposures_dropped_numbering_unknown, 2u);
+  EXPECT_GE(out.size() + c.exposures_dropped_numbering_unknown, 398u)
+      << "renumbered first " << renumbered_first;
   for (const auto& e : out) {
     const int k = exposure_index(e);
     EXPECT_EQ(e.trigger_seq, kSeq0 + static_cast<std::uint32_t>(k))
@@ -284,7 +290,7 @@ void host_restart_behind_renumbered_unit(bool renumbered_first) {
         << renumbered_first;
   }
   expect_consistent(out, s);
-  test::expect_every_observation_accounted(aligner.counters());
+  test::expect_every_observation_accounted(c);
 }
 
 TEST(ExposureAlignerFaults, RestartedHostNumbersSamplesInTheRigsNumberingBehindARenumberedUnit) {
