@@ -63,6 +63,7 @@ nlohmann::json aligner_stats_json(const ingest::ExposureAligner& aligner) {
           {"exposures_partial_timeout", ac.exposures_partial_timeout},
           {"exposures_partial_overflow", ac.exposures_partial_overflow},
           {"exposures_dropped_too_few_cameras", ac.exposures_dropped_too_few_cameras},
+          {"exposures_dropped_numbering_unknown", ac.exposures_dropped_numbering_unknown},
           {"dropped_unknown_camera", ac.dropped_unknown_camera},
           {"dropped_spoofed", ac.dropped_spoofed},
           {"dropped_invalid", ac.dropped_invalid},
@@ -72,6 +73,7 @@ nlohmann::json aligner_stats_json(const ingest::ExposureAligner& aligner) {
           {"dropped_time_mismatch", ac.dropped_time_mismatch},
           {"dropped_quarantined", ac.dropped_quarantined},
           {"dropped_too_few_cameras", ac.dropped_too_few_cameras},
+          {"dropped_numbering_unknown", ac.dropped_numbering_unknown},
           {"sequence_offset_changes", ac.sequence_offset_changes},
           {"sequence_restarts", ac.sequence_restarts}};
 }
@@ -259,9 +261,10 @@ void print_summary(const StatsSources& s) {
   std::printf("storetrack-host summary\n");
   std::printf("  observations in/used      %10" PRIu64 " / %" PRIu64 "\n", ac.observations_in,
               ac.observations_used);
-  std::printf("  exposures complete/partial %9" PRIu64 " / %" PRIu64 " (dropped %" PRIu64 ")\n",
+  std::printf("  exposures complete/partial %9" PRIu64 " / %" PRIu64 " (dropped %" PRIu64
+              ", numbering unknown %" PRIu64 ")\n",
               ac.exposures_complete, ac.exposures_partial_timeout + ac.exposures_partial_overflow,
-              ac.exposures_dropped_too_few_cameras);
+              ac.exposures_dropped_too_few_cameras, ac.exposures_dropped_numbering_unknown);
   std::printf("  dropped: duplicate %" PRIu64 ", late %" PRIu64 ", time mismatch %" PRIu64
               ", unknown camera %" PRIu64 ", invalid %" PRIu64 "\n",
               ac.dropped_duplicate, ac.dropped_late, ac.dropped_time_mismatch,

@@ -312,6 +312,10 @@ void ExposureAligner::add_to_pending(PendingMap::iterator it, int cam,
   p.present_mask |= bit;
   p.last_arrival = std::max(p.last_arrival, now);
   CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
+  if (!cs.placed_with_offset) {
+    cs.placed_with_offset = true;
+    note_rig_numbering();
+  }
   if (!cs.placed_any || it->first >= cs.frontier_key) {
     cs.placed_any = true;
     cs.frontier_key = it->first;
@@ -436,6 +440,7 @@ void ExposureAligner::quarantine(int cam, const msg::MarkObservations& obs, std:
     // Two observations in a row agree on where this camera's sequence now sits (a restarted
     // unit, a re-numbered trigger): re-learn the offset and place both.
     cs.offset = *implied;
+    cs.placed_with_offset = false;
     cs.last_unwrapped = unwrapped;
     cs.holding = false;
     ++counters_.sequence_offset_changes;
@@ -497,6 +502,7 @@ void ExposureAligner::try_trigger_restart(time::MonotonicNs now) {
     CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
     const std::int64_t unwrapped = unwrap(cs, cs.held.trigger_seq);
     cs.offset = new_key - unwrapped;
+    cs.placed_with_offset = false;
     cs.last_unwrapped = unwrapped;
     cs.holding = false;
     camera_counters_[static_cast<std::size_t>(cam)].sequence_offset = cs.offset;
@@ -506,26 +512,52 @@ void ExposureAligner::try_trigger_restart(time::MonotonicNs now) {
   restarting_ = false;
 }
 
-std::uint32_t ExposureAligner::majority_sequence(
-    const std::vector<msg::MarkObservations>& kept) const {
-  // The trigger sequence most cameras of the exposure carry; a tie goes to the cameras whose
-  // offset changed least often (a restarted unit's new numbering does not rename the exposure).
-  std::uint32_t best = kept.front().trigger_seq;
-  std::size_t best_votes = 0;
-  std::uint64_t best_changes = UINT64_MAX;
-  for (const auto& o : kept) {
-    const auto votes = static_cast<std::size_t>(std::count_if(
-        kept.begin(), kept.end(),
-        [&](const msg::MarkObservations& x) { return x.trigger_seq == o.trigger_seq; }));
-    const std::uint64_t changes =
-        camera_counters_[static_cast<std::size_t>(camera_index(o.camera_id))].offset_changes;
-    if (votes > best_votes || (votes == best_votes && changes < best_changes)) {
-      best = o.trigger_seq;
-      best_votes = votes;
-      best_changes = changes;
+std::size_t ExposureAligner::numbering_votes(std::int64_t offset) const {
+  return static_cast<std::size_t>(std::count_if(
+      cameras_.begin(), cameras_.end(),
+      [&](const CameraState& cs) { return cs.placed_with_offset && cs.offset == offset; }));
+}
+
+ExposureAligner::NumberingVote ExposureAligner::numbering_vote() const {
+  // Over cameras that placed an observation with their current offset: a camera still in
+  // another numbering, not yet re-learned, has no say.
+  NumberingVote v;
+  for (const CameraState& candidate : cameras_) {
+    if (!candidate.placed_with_offset || candidate.offset == v.leader) continue;
+    const std::size_t votes = numbering_votes(candidate.offset);
+    if (votes > v.votes) {
+      v.leader = candidate.offset;
+      v.votes = votes;
+      v.tied = false;
+    } else if (votes == v.votes) {
+      v.tied = true;
     }
   }
-  return best;
+  return v;
+}
+
+void ExposureAligner::note_rig_numbering() {
+  // Chosen when one numbering leads with two cameras or more (a lone camera heard first is no
+  // evidence: it may be the renumbered one), or with the one camera of a one-camera rig.
+  const NumberingVote v = numbering_vote();
+  if (v.leader && !v.tied && (v.votes >= 2 || cameras_.size() == 1)) rig_offset_ = v.leader;
+}
+
+std::optional<std::uint32_t> ExposureAligner::rig_sequence(std::int64_t key) {
+  // The numbering most cameras of the rig share; on a tie, the one chosen before if it is among
+  // the leaders. Not the sequences of this exposure's own cameras: with one camera of each
+  // numbering a vote among them is a tie, and a host restarted behind a unit renumbered from 0
+  // indexes its exposures by whichever camera it heard first (the fault campaign's duplicate
+  // numbers). No leader and none chosen: unknown, never a guess.
+  note_rig_numbering();
+  const NumberingVote v = numbering_vote();
+  std::optional<std::int64_t> offset;
+  if (v.leader && !v.tied)
+    offset = v.leader;
+  else if (rig_offset_ && numbering_votes(*rig_offset_) == v.votes)
+    offset = rig_offset_;
+  if (!offset) return std::nullopt;
+  return static_cast<std::uint32_t>(key - *offset);
 }
 
 ExposureAligner::Majority ExposureAligner::majority(
@@ -702,6 +734,12 @@ void ExposureAligner::release(PendingMap::iterator it, ReleaseReason reason,
     counters_.dropped_too_few_cameras += kept.size();
     return;
   }
+  const std::optional<std::uint32_t> trigger_seq = rig_sequence(key);
+  if (!trigger_seq) {
+    ++counters_.exposures_dropped_numbering_unknown;
+    counters_.dropped_numbering_unknown += kept.size();
+    return;
+  }
   counters_.observations_used += kept.size();
   for (const auto& o : kept)
     ++camera_counters_[static_cast<std::size_t>(camera_index(o.camera_id))].used;
@@ -713,7 +751,7 @@ void ExposureAligner::release(PendingMap::iterator it, ReleaseReason reason,
     ++counters_.exposures_partial_timeout;
   counters_.camera_missing_total += static_cast<std::uint64_t>(std::popcount(missing));
   pipeline::AlignedExposure e;
-  e.trigger_seq = majority_sequence(kept);
+  e.trigger_seq = *trigger_seq;
   e.missing_camera_mask = missing;
   e.closed_by_timeout = missing != 0;
   e.last_arrival_mono_ns = last_arrival;

@@ -145,7 +145,11 @@ int Chapter10Writer::open(const std::string& path, const Chapter10Config& config
   const int rc = create_file(config_.existing == Chapter10Existing::kNumberNewFile ? 0 : -1);
   if (rc != 0) return rc;
   if (const int r = write_file_header(true); r != 0) {
-    abandon_file();
+    // It holds no sample (at most the TMATS, when only its fdatasync failed): the file this
+    // open() created is removed, so a host restarted again and again on a full disk leaves no
+    // trail of empty numbered files, and the requested path is free once the disk has room.
+    close_file();
+    if (::unlink(files_.back().c_str()) == 0) files_.pop_back();
     return r;
   }
   opened_ = true;

@@ -127,7 +127,8 @@ void check_released(const AlignedExposure& e, const ingest::AlignerConfig& c, Au
 std::uint64_t dropped_total(const ingest::AlignerCounters& k) {
   return k.dropped_unknown_camera + k.dropped_spoofed + k.dropped_invalid +
          k.dropped_time_out_of_range + k.dropped_duplicate + k.dropped_late +
-         k.dropped_time_mismatch + k.dropped_quarantined + k.dropped_too_few_cameras;
+         k.dropped_time_mismatch + k.dropped_quarantined + k.dropped_too_few_cameras +
+         k.dropped_numbering_unknown;
 }
 
 }  // namespace

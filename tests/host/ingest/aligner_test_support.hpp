@@ -42,7 +42,8 @@ inline msg::MarkObservations make_observation(int unit_id, int camera_id, std::u
 inline std::uint64_t total_dropped(const AlignerCounters& c) {
   return c.dropped_unknown_camera + c.dropped_spoofed + c.dropped_invalid +
          c.dropped_time_out_of_range + c.dropped_duplicate + c.dropped_late +
-         c.dropped_time_mismatch + c.dropped_quarantined + c.dropped_too_few_cameras;
+         c.dropped_time_mismatch + c.dropped_quarantined + c.dropped_too_few_cameras +
+         c.dropped_numbering_unknown;
 }
 
 /// Nothing lost silently: each observation pushed was used or counted as dropped.

@@ -357,6 +357,29 @@ TEST(Chapter10Recording, LastingWriteFaultDropsCountedAndLeavesNoEmptyFiles) {
   fs::remove_all(dir);
 }
 
+TEST(Chapter10Recording, OpenOnAFullDiskLeavesNoFileAndARestartFindsThePathFree) {
+  // The disk is full when the host starts (or restarts: the fault campaign restarts a host that
+  // exited): the file is created but its TMATS cannot be written. open() says so, and removes
+  // the empty file it created, so three restarts leave no trail of empty numbered files (each
+  // would be a "recording" without its TMATS; 999 restarts would use up every number) and the
+  // requested path is free for the next open once the disk has room.
+  const fs::path dir = fresh_dir("st_ch10_full_at_open");
+  for (int restart = 0; restart < 3; ++restart) {
+    g_faults = {.write_fail_at = 1, .sticky_write = true};
+    Chapter10Writer w;
+    w.set_file_ops(faulty_ops());
+    EXPECT_EQ(w.open((dir / "out.ch10").string(), test_config(5)), -ENOSPC);
+    EXPECT_EQ(w.write(samples(1)[0]), -EBADF) << "nothing is written after a failed open";
+    EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 0)
+        << "restart " << restart;
+  }
+  const Recorded r = record(dir / "out.ch10", samples(20), {});
+  ASSERT_EQ(r.files.size(), 1u);
+  EXPECT_EQ(fs::path(r.files[0]).filename(), "out.ch10");
+  EXPECT_EQ(read_whole_file(r.files[0]), seqs_of(samples(20)));
+  fs::remove_all(dir);
+}
+
 TEST(Chapter10Recording, MessagesPerPacketBoundedByTheCsdwCount) {
   // 70 000 messages asked per packet; the CSDW counts 16 bits (65 535): more would spill into
   // the packet-type bits 17-16 and make the packet unreadable.

@@ -24,6 +24,12 @@
 //    wait left out) or nothing was placed for max_wait: a host
 //    that was descheduled and now reads the socket's backlog (its clock jumped, the datagrams
 //    did not) does not release exposures whose cameras are still in the backlog.
+//  - A released exposure is numbered in the rig's trigger numbering: the one most cameras share
+//    (their offset onto the exposure index), not a vote among that exposure's own cameras. A
+//    unit renumbered from 0 is one camera of the rig even when an exposure holds it and one other
+//    camera only, and even when a restarted host heard it first and indexed exposures by it.
+//    Once chosen, a tie keeps it; while no numbering has more cameras than every other (a host
+//    that so far heard one camera of each), an exposure is dropped and counted, not guessed.
 //  - An exposure's reference mid-time is the majority of its cameras (the mid-time most of them
 //    agree with, ties broken by the trigger grid), never the first to arrive; the others are
 //    dropped as time mismatches.
@@ -100,6 +106,10 @@ struct AlignerCounters {
   std::uint64_t exposures_partial_timeout = 0;   ///< released on the deadline, cameras missing
   std::uint64_t exposures_partial_overflow = 0;  ///< released early: too many pending
   std::uint64_t exposures_dropped_too_few_cameras = 0;
+  /// Released before the rig's numbering was known: the cameras heard so far map their sequences
+  /// with different offsets, as many cameras with each (a host started behind a unit renumbered
+  /// from 0 hears one camera of each numbering). Never numbered by a guess.
+  std::uint64_t exposures_dropped_numbering_unknown = 0;
   std::uint64_t dropped_unknown_camera = 0;     ///< camera_id not in the rig
   std::uint64_t dropped_spoofed = 0;            ///< unit_id is not the camera's calibrated unit
   std::uint64_t dropped_invalid = 0;            ///< invalid sequence or mark count
@@ -111,6 +121,8 @@ struct AlignerCounters {
   /// other camera confirmed before its wait ended (taken back, never released).
   std::uint64_t dropped_quarantined = 0;
   std::uint64_t dropped_too_few_cameras = 0;  ///< observations of exposures below min_cameras
+  std::uint64_t dropped_numbering_unknown =
+      0;  ///< observations of exposures_dropped_numbering_unknown
   std::uint64_t sequence_offset_changes = 0;  ///< a camera's offset re-learned from time
   std::uint64_t sequence_restarts = 0;        ///< a majority of cameras restarted together
   std::uint64_t camera_missing_total = 0;     ///< sum over released exposures of missing cameras
@@ -177,6 +189,7 @@ class ExposureAligner {
     bool seen = false;
     std::int64_t last_unwrapped = 0;  // unwrapped trigger_seq of the last placed observation
     std::int64_t offset = 0;          // exposure index = unwrapped trigger_seq + offset
+    bool placed_with_offset = false;  // placed an observation since `offset` was last set
     bool holding = false;             // an observation in quarantine
     msg::MarkObservations held{};
     std::optional<std::int64_t> held_offset;  // the offset its mid-time implies, if any
@@ -226,7 +239,15 @@ class ExposureAligner {
   std::int64_t lead_limit() const;
   std::int64_t match_tolerance() const;
   bool clock_stepped(const CameraState& cs, const msg::MarkObservations& obs) const;
-  std::uint32_t majority_sequence(const std::vector<msg::MarkObservations>& kept) const;
+  struct NumberingVote {
+    std::optional<std::int64_t> leader;  // the offset most cameras map their sequence with
+    std::size_t votes = 0;
+    bool tied = false;  // another offset has as many cameras
+  };
+  std::size_t numbering_votes(std::int64_t offset) const;
+  NumberingVote numbering_vote() const;
+  void note_rig_numbering();
+  std::optional<std::uint32_t> rig_sequence(std::int64_t key);
   void add_to_pending(PendingMap::iterator it, int cam, const msg::MarkObservations& obs,
                       time::MonotonicNs now);
   void drop_known(std::int64_t key, int cam);
@@ -252,6 +273,10 @@ class ExposureAligner {
   std::uint32_t all_mask_ = 0;
   std::size_t restart_quorum_ = 1;  // cameras that must agree on a trigger restart
   bool restarting_ = false;
+  // The offset of the rig's numbering, chosen when one leads with two cameras or more (at each
+  // camera's first placement with a new offset, and at each release): kept on a tie, so the
+  // numbering of the samples does not flip between exposures.
+  std::optional<std::int64_t> rig_offset_;
   PendingMap pending_;
   bool have_key_ = false;
   std::int64_t newest_key_ = 0;        // newest exposure index opened
