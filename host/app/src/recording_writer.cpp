@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 #include <algorithm>
+#include <chrono>
 
 namespace storetrack::hostapp {
 
@@ -87,6 +88,7 @@ bool RecordingWriter::push_raw(const msg::RawObservation& record,
     ++counters_.raw_queued;
     counters_.raw_queue_max_items =
         std::max<std::uint64_t>(counters_.raw_queue_max_items, raw_queue_.size());
+    if (raw_queue_.size() < kRawWakeItems) return true;
   }
   cv_.notify_one();
   return true;
@@ -95,7 +97,10 @@ bool RecordingWriter::push_raw(const msg::RawObservation& record,
 void RecordingWriter::run() {
   std::unique_lock<std::mutex> lock(mutex_);
   for (;;) {
-    cv_.wait(lock, [this] { return stopping_ || !queue_.empty() || !raw_queue_.empty(); });
+    // Raw observations alone wake it only in bulk (push_raw); the timeout bounds their wait.
+    cv_.wait_for(lock, std::chrono::milliseconds(kRawMaxWaitMs), [this] {
+      return stopping_ || !queue_.empty() || raw_queue_.size() >= kRawWakeItems;
+    });
     while (!queue_.empty() || !raw_queue_.empty()) {
       // The observations queued so far first: an exposure's sample is pushed after them.
       while (!raw_queue_.empty()) {
