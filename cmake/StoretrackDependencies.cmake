@@ -14,6 +14,9 @@ if(NOT STORETRACK_FIRMWARE_ONLY)
   find_package(CLI11 REQUIRED)
   find_package(fmt REQUIRED)
   find_package(spdlog REQUIRED)
+  # SHA-256 of the recorded inputs (common/digest): libcrypto, the FIPS-validated implementation
+  # Debian ships (libssl-dev), not a hand-written one.
+  find_package(OpenSSL 3 REQUIRED COMPONENTS Crypto)
   if(STORETRACK_BENCHMARKS)
     find_package(benchmark REQUIRED)
     pkg_check_modules(SEP IMPORTED_TARGET sep)

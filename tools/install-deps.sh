@@ -12,7 +12,7 @@ PKGS=(
   build-essential cmake ninja-build ccache pkg-config git python3 python3-yaml
   libeigen3-dev libopencv-dev libopencv-contrib-dev libceres-dev libgpiod-dev gpiod libmodbus-dev linux-libc-dev
   libgtest-dev libgmock-dev libbenchmark-dev libsep-dev
-  libcli11-dev libspdlog-dev libfmt-dev nlohmann-json3-dev libyaml-cpp-dev libpng-dev
+  libcli11-dev libspdlog-dev libfmt-dev nlohmann-json3-dev libyaml-cpp-dev libpng-dev libssl-dev
   python3-matplotlib python3-numpy clang-format clang libclang-rt-14-dev tshark mbpoll python3-pymodbus can-utils v4l-utils
   iproute2 linuxptp
 )

@@ -27,7 +27,8 @@ import sys
 import yaml
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-SCHEMA_FILES = ["mark_observations.yaml", "unit_health.yaml", "fti_sample.yaml"]
+SCHEMA_FILES = ["mark_observations.yaml", "unit_health.yaml", "fti_sample.yaml",
+                "raw_observation.yaml", "recorded_input.yaml"]
 
 # Scalar wire types: (C++ type, bytes, put_/get_ suffix of storetrack/bytes/byte_cursor.hpp).
 SCALARS = {
@@ -130,6 +131,14 @@ def load_schemas(schema_dir):
                 rf["_shift"] = shift
                 rf["_mask"] = (1 << rf["bits"]) - 1
             s["_max_bytes"] = offset + rep["max_count"] * rep["packed_bits"] // 8
+        elif s.get("tail"):
+            # A byte string after the fixed fields, as long as the sum of its length fields.
+            tail = s["tail"]
+            names = [f["name"] for f in s["fields"]]
+            for lf in tail["length_fields"]:
+                if lf not in names:
+                    fail("%s: tail length field %r is not a field" % (f, lf))
+            s["_max_bytes"] = offset + tail["max_bytes"]
         else:
             s["_max_bytes"] = offset
         schemas.append(s)
@@ -161,6 +170,7 @@ FLAG_NAMESPACES = {
     ("MarkObservations", "flags"): "exposure_flags",
     ("UnitHealth", "status"): "unit_status",
     ("FtiSample", "status"): "fti_status",
+    ("RawObservation", "flags"): "raw_observation_flags",
 }
 
 
@@ -296,7 +306,84 @@ def gen_field_info(lines, s):
     lines.append("")
 
 
+def gen_tail_codec(lines, s):
+    """Codec of a message whose fixed fields are followed by a byte string (`tail`) as long as
+    the sum of its length fields. The struct holds the fixed fields; the tail is a span."""
+    msg = s["message"]
+    tail = s["tail"]
+    total = " + ".join("std::size_t{m.%s}" % lf for lf in tail["length_fields"])
+    lines.append("// ---- %s payload (big-endian, schema order), then the %s bytes ----" %
+                 (msg, tail["name"]))
+    lines.append("inline constexpr std::size_t k%sFixedBytes = %d;" % (msg, s["_fixed_bytes"]))
+    lines.append("inline constexpr std::size_t k%sMaxTailBytes = %d;  ///< the %s" %
+                 (msg, tail["max_bytes"], tail["name"]))
+    lines.append("inline constexpr std::size_t k%sMaxPayloadBytes = %d;" % (msg, s["_max_bytes"]))
+    sizes = " + ".join("sizeof(%s)%s" % (SCALARS[f["_scalar"]][0],
+                                          " * %d" % f["_count"] if f["_count"] else "")
+                       for f in s["fields"])
+    lines.append("static_assert(k%sFixedBytes == %s, \"wire layout size\");" % (msg, sizes))
+    lines.append("")
+    lines.append("/// Bytes of the %s that follow the fixed fields (the sum of %s)." %
+                 (tail["name"], ", ".join(tail["length_fields"])))
+    lines.append("inline std::size_t tail_bytes(const %s& m) {" % msg)
+    lines.append("  return %s;" % total)
+    lines.append("}")
+    lines.append("/// Payload bytes of this message (fixed fields and %s)." % tail["name"])
+    lines.append("inline std::size_t payload_size(const %s& m) {" % msg)
+    lines.append("  return k%sFixedBytes + tail_bytes(m);" % msg)
+    lines.append("}")
+    lines.append("")
+    lines.append("/// Writes the fixed fields, then `%s`, whose size must be tail_bytes(m). 0, -ENOSPC"
+                 "\n/// (writer too small) or -ERANGE (%s of another size, or above k%sMaxTailBytes)." %
+                 (tail["name"], tail["name"], msg))
+    lines.append("inline int pack_payload(const %s& m, std::span<const std::uint8_t> %s,"
+                 " bytes::BigEndianWriter& w) {" % (msg, tail["name"]))
+    lines.append("  if (%s.size() != tail_bytes(m) || %s.size() > k%sMaxTailBytes) return -ERANGE;" %
+                 (tail["name"], tail["name"], msg))
+    lines.append("  if (w.remaining() < payload_size(m)) return -ENOSPC;")
+    for f in s["fields"]:
+        sfx = SCALARS[f["_scalar"]][2]
+        if "constant" in f:
+            lines.append("  w.put_%s(%s);  // %s" % (sfx, constant_cpp(s, f), f["name"]))
+        elif f["_count"]:
+            lines.append("  for (const auto& v : m.%s) w.put_%s(v);" % (f["name"], sfx))
+        else:
+            lines.append("  w.put_%s(m.%s);" % (sfx, f["name"]))
+    lines.append("  w.put_bytes(%s);" % tail["name"])
+    lines.append("  return w.ok() ? 0 : -ENOSPC;")
+    lines.append("}")
+    lines.append("")
+    lines.append("/// Reads and validates one whole payload (`in` holds exactly one); `%s` then views"
+                 "\n/// the bytes after the fixed fields inside `in`. On error `m` must not be used." %
+                 tail["name"])
+    lines.append("inline DecodeError unpack_payload(std::span<const std::uint8_t> in, %s& m,"
+                 " std::span<const std::uint8_t>& %s) {" % (msg, tail["name"]))
+    lines.append("  bytes::BigEndianReader r(in);")
+    lines.append("  if (r.remaining() < k%sFixedBytes) return DecodeError::kBadLength;" % msg)
+    for f in s["fields"]:
+        sfx = SCALARS[f["_scalar"]][2]
+        if "constant" in f:
+            lines.append("  if (r.get_%s() != %s) return DecodeError::kBadVersion;  // %s" %
+                         (sfx, constant_cpp(s, f), f["name"]))
+        elif f["_count"]:
+            lines.append("  for (auto& v : m.%s) v = r.get_%s();" % (f["name"], sfx))
+        else:
+            lines.append("  m.%s = r.get_%s();" % (f["name"], sfx))
+    for f in s["fields"]:
+        if "max" in f:
+            lines.append("  if (m.%s > %d && m.%s != %s) return DecodeError::kOutOfRange;" %
+                         (f["name"], f["max"], f["name"], invalid_cpp(f["invalid"], f["_scalar"])))
+    lines.append("  if (tail_bytes(m) > k%sMaxTailBytes) return DecodeError::kOutOfRange;" % msg)
+    lines.append("  if (r.remaining() != tail_bytes(m)) return DecodeError::kBadLength;")
+    lines.append("  %s = in.subspan(k%sFixedBytes);" % (tail["name"], msg))
+    lines.append("  return r.ok() ? DecodeError::kNone : DecodeError::kBadLength;")
+    lines.append("}")
+    lines.append("")
+
+
 def gen_payload_codec(lines, s):
+    if s.get("tail"):
+        return gen_tail_codec(lines, s)
     msg = s["message"]
     rep = s.get("repeated")
     lines.append("// ---- %s payload (big-endian, schema order) ----" % msg)
@@ -395,7 +482,7 @@ def generate_header(schemas):
     L.append("#pragma once")
     L.append("")
     for inc in ["<algorithm>", "<array>", "<cerrno>", "<cmath>", "<cstddef>", "<cstdint>",
-                "<limits>", "<string_view>"]:
+                "<limits>", "<span>", "<string_view>"]:
         L.append("#include %s" % inc)
     L.append("")
     L.append('#include "storetrack/bytes/byte_cursor.hpp"')
@@ -464,6 +551,8 @@ def generate_header(schemas):
         L.append("/// Invalid (\"not available\") values per field, from the schema.")
         L.append("namespace %s_invalid {" % camel_to_snake(s["message"]))
         for f in member_fields(s):
+            if f["invalid"] == "-":  # no invalid value (a digest, a byte array)
+                continue
             L.append("inline constexpr %s k%s = %s;" % (SCALARS[f["_scalar"]][0],
                                                       snake_to_camel(f["name"]),
                                                       invalid_cpp(f["invalid"], f["_scalar"])))
@@ -476,8 +565,10 @@ def generate_header(schemas):
             gen_mark_codec(L, s)
     for s in schemas:
         gen_payload_codec(L, s)
+    # The largest message on a link (UDP, CAN FD): recording-only messages never travel there.
     L.append("inline constexpr std::size_t kMaxPayloadBytes = std::max({%s});" %
-             ", ".join("k%sMaxPayloadBytes" % s["message"] for s in schemas))
+             ", ".join("k%sMaxPayloadBytes" % s["message"] for s in schemas
+                       if not s.get("recording_only")))
     L.append("")
     L.append("}  // namespace storetrack::msg")
     L.append("")
@@ -516,6 +607,19 @@ def icd_blocks(schemas):
             rows.append("")
             rows.append("Payload size: %d + 8 x mark_count bytes, at most %d bytes (mark_count <= %d)."
                         % (s["_fixed_bytes"], s["_max_bytes"], rep["max_count"]))
+        elif s.get("tail"):
+            tail = s["tail"]
+            rows.append("| %d | %s | `%s` | u8[] | bytes | - | - | %s |" % (
+                s["_fixed_bytes"], " + ".join("`%s`" % lf for lf in tail["length_fields"]),
+                tail["name"], md(tail["doc"])))
+            rows.append("")
+            rows.append("Payload size: %d + %s bytes, at most %d bytes (%s <= %d)." % (
+                s["_fixed_bytes"], " + ".join(tail["length_fields"]), s["_max_bytes"],
+                tail["name"], tail["max_bytes"]))
+            if s.get("recording_only"):
+                rows.append("")
+                rows.append("Recording only: never sent on a link (UDP or CAN FD); "
+                            "docs/fti-output.md, \"IRIG 106 Chapter 10 file\".")
         else:
             rows.append("")
             rows.append("Payload size: %d bytes." % s["_fixed_bytes"])

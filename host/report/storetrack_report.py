@@ -15,6 +15,7 @@ import html
 import json
 import math
 import os
+import re
 import struct
 import sys
 
@@ -66,9 +67,13 @@ def read_csv(path):
 
 
 def read_ch10(path):
-    """Minimal independent Chapter 10 pass: packet count by data type, checksums, messages."""
+    """Minimal independent Chapter 10 pass: packet count by data type, checksums, messages of
+    the sample channel, the raw channel's observations (RawObservation records, the channel TMATS
+    names RAWOBS) and the recorded inputs (RecordedInput records in Computer-Generated F0
+    packets, chunks joined), decoded from docs/icd.md's tables."""
     out = {"packets": 0, "by_type": {}, "messages": 0, "header_checksum_errors": 0,
-           "truncated_bytes": 0, "first_type": None}
+           "truncated_bytes": 0, "first_type": None, "raw_channel": None,
+           "raw_observations": [], "inputs": []}
     if not os.path.exists(path):
         return None
     data = open(path, "rb").read()
@@ -84,8 +89,43 @@ def read_ch10(path):
             out["first_type"] = dtype
         out["packets"] += 1
         out["by_type"][dtype] = out["by_type"].get(dtype, 0) + 1
-        if dtype == 0x30:
-            out["messages"] += struct.unpack_from("<I", data, at + 24)[0] & 0xFFFF
+        body = data[at + 24:at + 24 + dlen]
+        if dtype == 0x01 and out["raw_channel"] is None:
+            tmats = body[4:].decode("ascii", "replace")
+            m = re.search(r"R-1\\DSI-(\d+):RAWOBS;", tmats)
+            t = m and re.search(r"R-1\\TK1-%s:(\d+);" % m.group(1), tmats)
+            out["raw_channel"] = int(t.group(1)) if t else -1
+        if dtype == 0x30 and chan == out["raw_channel"]:
+            count = struct.unpack_from("<I", body, 0)[0] & 0xFFFF
+            p = 4
+            for _ in range(count):
+                rtc = struct.unpack_from("<Q", body, p)[0] & 0xFFFFFFFFFFFF
+                iph = struct.unpack_from("<I", body, p + 8)[0]
+                n = iph & 0xFFFF
+                rec = body[p + 12:p + 12 + n]
+                (version, kind, arrival, address, port, unit, camera, rflags, error, received,
+                 length) = struct.unpack_from(">BBqIHBBBBIH", rec, 0)
+                out["raw_observations"].append({
+                    "rtc": rtc, "version": version, "source_kind": kind, "arrival_tai_ns": arrival,
+                    "source_address": address, "source_port": port, "unit_id": unit,
+                    "camera_id": camera, "flags": rflags, "decode_error": error,
+                    "received_bytes": received, "bytes": rec[26:26 + length],
+                    "data_error": bool(iph >> 31)})
+                p += 12 + n + (n & 1)
+        elif dtype == 0x30:
+            out["messages"] += struct.unpack_from("<I", body, 0)[0] & 0xFFFF
+        elif dtype == 0x00 and len(body) >= 52:
+            rec = body[4:]
+            version, kind = rec[0], rec[1]
+            sha = rec[2:34].hex()
+            total, offset, chunk, name_bytes = struct.unpack_from(">IIIH", rec, 34)
+            name = rec[48:48 + name_bytes].decode("utf-8", "replace")
+            content = rec[48 + name_bytes:48 + name_bytes + chunk]
+            if offset == 0:
+                out["inputs"].append({"version": version, "kind": kind, "name": name,
+                                      "sha256": sha, "total_bytes": total, "bytes": b""})
+            if out["inputs"] and out["inputs"][-1]["sha256"] == sha:
+                out["inputs"][-1]["bytes"] += content
         at += plen
     out["truncated_bytes"] = len(data) - at
     return out

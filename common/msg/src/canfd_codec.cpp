@@ -168,6 +168,7 @@ DecodeError CanFdReassembler::push(const CanFdFrame& frame, std::optional<AnyMes
 DecodeError CanFdReassembler::push(const CanFdFrame& frame, std::int64_t now_ns,
                                    std::optional<AnyMessage>& completed) {
   completed.reset();
+  finished_ = false;
   ++counters_.frames;
   expire(now_ns);
   // ---- frame checks: everything needed before the frame may touch a slot ----
@@ -260,6 +261,8 @@ DecodeError CanFdReassembler::finish(Slot& slot, std::int64_t now_ns,
   const std::size_t available = (count - 1) * kCanFdFragmentPayloadBytes + slot.last_len;
   const std::span<const std::uint8_t> stream(slot.stream.data(), available);
   release(slot, false);  // the stream stays readable until the next push
+  finished_ = true;
+  finished_transfer_ = FinishedTransfer{key.can_id, stream};
 
   const bool marks =
       canid::fid(key.can_id) == static_cast<std::uint8_t>(MessageId::kMarkObservations);

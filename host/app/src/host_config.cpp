@@ -219,6 +219,7 @@ void parse_chapter10(Object o, HostConfig& c) {
 
 void parse_recording(Object r, HostConfig& c) {
   r.get("queue_items", c.recording_queue_items, 1, 4096);
+  r.get("raw_observations", c.record_raw_observations);
   r.finish();
 }
 

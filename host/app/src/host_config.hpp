@@ -62,6 +62,9 @@ struct HostConfig {
   // the recording thread's queue: at most this many exposures waiting for the files, 1..4096
   // (~10 s at 400 exposures/s); beyond it a sample is counted as dropped, never blocks the loop
   std::size_t recording_queue_items = 4096;
+  // recording.raw_observations: every observation message received, as received, in the
+  // Chapter 10 file's raw channel (docs/fti-output.md); on by default
+  bool record_raw_observations = true;
 };
 
 /// Applies the JSON file's values onto `config` (fields not in the file keep their value).

@@ -70,6 +70,15 @@ int HostLoop::run(const LoopLimits& limits, const std::atomic<bool>& stop) {
   for (const auto& c : p_.cans)
     fds.push_back({c->fd(), POLLIN, 0});
   auto handler = [this](const msg::AnyMessage& m) { on_message(m); };
+  // Every observation message as received, valid or not, into the raw channel.
+  if (p_.recording.wants_raw()) {
+    auto raw = [this](const msg::RawObservation& r, std::span<const std::uint8_t> bytes) {
+      p_.recording.push_raw(r, bytes);  // never blocks; a full queue is counted there
+    };
+    p_.udp.set_raw_handler(raw);
+    for (auto& c : p_.cans)
+      c->set_raw_handler(raw);
+  }
   const time::MonotonicNs t_start = time::monotonic_now_ns();
   time::MonotonicNs t_last_progress = t_start;
   int exit_code = 0;

@@ -18,6 +18,7 @@ struct HostOptions {
   double max_wait_ms = 0;
   int min_cameras = 0;
   LoopLimits limits;
+  std::vector<std::string> command_line;  // argv as given: recorded with the inputs
 };
 
 /// Parses argv into `o`; returns -1 to go on, else the exit code (0 for --help, 2 for an error).

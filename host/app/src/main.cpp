@@ -27,6 +27,7 @@
 #include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/ingest/receivers.hpp"
+#include "storetrack/json/text_file.hpp"
 #include "storetrack/match/mark_matcher.hpp"
 #include "storetrack/output/inetx.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
@@ -92,6 +93,35 @@ int load_inputs(st::hostapp::HostOptions& o, InputFiles& in) {
   cfg.ch10.existing = o.ch10_existing == "refuse" ? st::output::Chapter10Existing::kRefuse
                                                   : st::output::Chapter10Existing::kNumberNewFile;
   cfg.ch10.stores = {{cfg.processor.store_id, in.store.name}};
+  cfg.ch10.raw_observations = cfg.record_raw_observations;
+  // What reprocessing needs, in every Chapter 10 file: the input files' bytes as read (again,
+  // after they parsed) and the command line (each argument followed by a NUL, as
+  // /proc/PID/cmdline has it).
+  if (!cfg.ch10_path.empty()) {
+    using Kind = st::output::RecordedInputKind;
+    const std::pair<Kind, const std::string*> files[] = {
+        {Kind::kCalibration, &o.calibration_path},
+        {Kind::kPylonSurvey, &o.pylon_path},
+        {Kind::kStoreSurvey, &o.store_path},
+        {Kind::kHostConfig, &o.config_path},
+        {Kind::kInitialMarks, &o.initial_marks_path}};
+    try {
+      for (const auto& [kind, path] : files) {
+        if (path->empty()) continue;
+        const std::string text = st::jsonfile::read_text_file(*path);
+        cfg.ch10.inputs.push_back({kind, *path, {text.begin(), text.end()}});
+      }
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "storetrack-host: %s\n", e.what());
+      return 2;
+    }
+    st::output::RecordedInputFile argv{Kind::kCommandLine, "argv", {}};
+    for (const auto& arg : o.command_line) {
+      argv.bytes.insert(argv.bytes.end(), arg.begin(), arg.end());
+      argv.bytes.push_back(0);
+    }
+    cfg.ch10.inputs.push_back(std::move(argv));
+  }
   return 0;
 }
 
@@ -218,6 +248,7 @@ int open_sinks(const HostConfig& cfg, st::output::InetxSender& inetx, bool& inet
 int main(int argc, char** argv) {
   st::hostapp::HostOptions options;
   if (const int rc = st::hostapp::parse_host_options(argc, argv, options); rc >= 0) return rc;
+  options.command_line.assign(argv, argv + argc);
   spdlog::set_level(spdlog::level::from_str(options.log_level));
   InputFiles in;
   if (const int rc = load_inputs(options, in); rc != 0) return rc;

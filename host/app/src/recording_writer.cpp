@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 #include <algorithm>
+#include <chrono>
 
 namespace storetrack::hostapp {
 
@@ -15,6 +16,7 @@ RecordingWriter::~RecordingWriter() {
 int RecordingWriter::open_ch10(const std::string& path, const output::Chapter10Config& config) {
   const int rc = ch10_.open(path, config);
   ch10_open_ = rc == 0;
+  raw_enabled_ = config.raw_observations;
   return rc;
 }
 namespace {
@@ -69,11 +71,47 @@ bool RecordingWriter::push(RecordingItem&& item) {
   return true;
 }
 
+bool RecordingWriter::push_raw(const msg::RawObservation& record,
+                               std::span<const std::uint8_t> bytes) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (stopping_ || raw_queue_.size() >= kRawQueueItems) {
+      ++counters_.raw_dropped_queue_full;
+      return false;
+    }
+    if (raw_queued_bytes_ + bytes.size() > kRawQueueBytes) {
+      ++counters_.raw_dropped_queue_bytes;
+      return false;
+    }
+    raw_queue_.push_back(RawRecordingItem{record, {bytes.begin(), bytes.end()}});
+    raw_queued_bytes_ += bytes.size();
+    ++counters_.raw_queued;
+    counters_.raw_queue_max_items =
+        std::max<std::uint64_t>(counters_.raw_queue_max_items, raw_queue_.size());
+    if (raw_queue_.size() < kRawWakeItems) return true;
+  }
+  cv_.notify_one();
+  return true;
+}
+
 void RecordingWriter::run() {
   std::unique_lock<std::mutex> lock(mutex_);
   for (;;) {
-    cv_.wait(lock, [this] { return stopping_ || !queue_.empty(); });
-    while (!queue_.empty()) {
+    // Raw observations alone wake it only in bulk (push_raw); the timeout bounds their wait.
+    cv_.wait_for(lock, std::chrono::milliseconds(kRawMaxWaitMs), [this] {
+      return stopping_ || !queue_.empty() || raw_queue_.size() >= kRawWakeItems;
+    });
+    while (!queue_.empty() || !raw_queue_.empty()) {
+      // The observations queued so far first: an exposure's sample is pushed after them.
+      while (!raw_queue_.empty()) {
+        RawRecordingItem raw = std::move(raw_queue_.front());
+        raw_queue_.pop_front();
+        raw_queued_bytes_ -= raw.bytes.size();
+        lock.unlock();
+        write_raw(raw);
+        lock.lock();
+      }
+      if (queue_.empty()) break;
       RecordingItem item = std::move(queue_.front());
       queue_.pop_front();
       queued_text_bytes_ -= item.marks_rows.size() + item.rigid_rows.size();
@@ -99,6 +137,13 @@ void RecordingWriter::write(const RecordingItem& item) {
   counters_.csv_write_errors += d.csv_write_errors;
   counters_.marks_csv_write_errors += d.marks_csv_write_errors;
   counters_.rigid_csv_write_errors += d.rigid_csv_write_errors;
+}
+
+void RecordingWriter::write_raw(const RawRecordingItem& item) {
+  if (ch10_open_ && ch10_.write_raw(item.record, item.bytes) != 0) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++counters_.raw_write_errors;
+  }
 }
 
 void RecordingWriter::stop() {
@@ -141,7 +186,11 @@ bool RecordingWriter::had_errors() const {
                                   cc.write_errors,
                                   cc.sync_errors,
                                   cc.close_errors,
-                                  cc.messages_dropped};
+                                  cc.messages_dropped,
+                                  c.raw_dropped_queue_full,
+                                  c.raw_dropped_queue_bytes,
+                                  c.raw_write_errors,
+                                  cc.raw_messages_dropped};
   for (std::uint64_t n : losses)
     if (n != 0) return true;
   return false;

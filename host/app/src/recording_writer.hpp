@@ -10,8 +10,10 @@
 #include <cstdint>
 #include <deque>
 #include <mutex>
+#include <span>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "diagnostic_csv.hpp"
 #include "storetrack/msg/messages.hpp"
@@ -25,6 +27,12 @@ struct RecordingItem {
   msg::FtiSample sample{};
   std::string marks_rows;  ///< formatted --marks-csv rows (empty when that file is off)
   std::string rigid_rows;  ///< formatted --rigid-csv rows
+};
+
+/// One observation message as received, for the Chapter 10 raw channel.
+struct RawRecordingItem {
+  msg::RawObservation record{};
+  std::vector<std::uint8_t> bytes;
 };
 
 // One counter per file and kind of failure: a full disk under the marks CSV never shows as an
@@ -43,12 +51,26 @@ struct RecordingCounters {
   std::uint64_t marks_csv_close_errors = 0;
   std::uint64_t rigid_csv_write_errors = 0;
   std::uint64_t rigid_csv_close_errors = 0;
+  // Raw observations (their own queue bound, so a burst of them never crowds out samples).
+  std::uint64_t raw_queued = 0;
+  std::uint64_t raw_dropped_queue_full = 0;   ///< the raw queue held kRawQueueItems already
+  std::uint64_t raw_dropped_queue_bytes = 0;  ///< ... or kRawQueueBytes of message bytes
+  std::uint64_t raw_queue_max_items = 0;
+  std::uint64_t raw_write_errors = 0;  ///< write_raw() failed (the writer counts which packet)
 };
 
 class RecordingWriter {
  public:
   static constexpr std::size_t kQueueItems = 4096;           // ~10 s at 400 exposures/s
   static constexpr std::size_t kQueueTextBytes = 64u << 20;  // 64 MiB of CSV text
+  // Raw observations: ~10 s of 8 cameras at 400 fps, and at most 64 MiB of their bytes.
+  static constexpr std::size_t kRawQueueItems = 32768;
+  static constexpr std::size_t kRawQueueBytes = 64u << 20;
+  // The writer thread is woken for raw observations only once this many wait (else the next
+  // exposure's push, or its own 20 ms timeout, picks them up): a wake-up per datagram cost the
+  // real-time thread a futex call and the 2 cores a context switch each.
+  static constexpr std::size_t kRawWakeItems = 256;
+  static constexpr int kRawMaxWaitMs = 20;
   explicit RecordingWriter(std::size_t max_items = kQueueItems,
                            std::size_t max_text_bytes = kQueueTextBytes);
   ~RecordingWriter();
@@ -67,6 +89,12 @@ class RecordingWriter {
   void start();
   /// Never blocks; false (and counted) when the queue is full.
   bool push(RecordingItem&& item);
+  /// True when the Chapter 10 file records raw observations (push_raw() takes them).
+  bool wants_raw() const { return ch10_open_ && raw_enabled_; }
+  /// Copies one received observation message into the raw queue; never blocks, false (and
+  /// counted by reason) when that queue is full. Written in arrival order, before the samples
+  /// queued after it.
+  bool push_raw(const msg::RawObservation& record, std::span<const std::uint8_t> bytes);
   /// Writes what is queued, closes every file, joins the thread. Safe to call twice.
   void stop();
 
@@ -85,9 +113,11 @@ class RecordingWriter {
  private:
   void run();
   void write(const RecordingItem& item);
+  void write_raw(const RawRecordingItem& item);
 
   output::Chapter10Writer ch10_;
   bool ch10_open_ = false;
+  bool raw_enabled_ = false;
   output::FtiCsvWriter csv_;
   bool csv_open_ = false;
   CsvFile marks_, rigid_;
@@ -96,6 +126,8 @@ class RecordingWriter {
   mutable std::mutex mutex_;
   std::condition_variable cv_;
   std::deque<RecordingItem> queue_;
+  std::deque<RawRecordingItem> raw_queue_;
+  std::size_t raw_queued_bytes_ = 0;
   std::size_t queued_text_bytes_ = 0;
   RecordingCounters counters_;
   bool stopping_ = false, started_ = false, stopped_ = false;

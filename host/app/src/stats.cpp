@@ -179,7 +179,14 @@ nlohmann::json recording_stats_json(const RecordingWriter& recording,
                          {"close_errors", cc.close_errors},
                          {"directory_sync_errors", cc.directory_sync_errors},
                          {"open_errors", cc.open_errors},
-                         {"samples_out_of_order", cc.samples_out_of_order}};
+                         {"samples_out_of_order", cc.samples_out_of_order},
+                         {"input_packets", cc.input_packets},
+                         {"raw_packets", cc.raw_packets},
+                         {"raw_messages_written", cc.raw_messages_written},
+                         {"raw_bytes_written", cc.raw_bytes_written},
+                         {"raw_packets_dropped", cc.raw_packets_dropped},
+                         {"raw_messages_dropped", cc.raw_messages_dropped},
+                         {"raw_refused", cc.raw_refused}};
   nlohmann::json out = {{"queue",
                          {{"max_items", RecordingWriter::kQueueItems},
                           {"max_text_bytes", RecordingWriter::kQueueTextBytes},
@@ -192,7 +199,20 @@ nlohmann::json recording_stats_json(const RecordingWriter& recording,
                          {{"csv", recording.csv_path()},
                           {"marks_csv", recording.marks_csv_path()},
                           {"rigid_csv", recording.rigid_csv_path()}}},
-                        {"ch10_sample_write_errors", rc.ch10_sample_write_errors}};
+                        {"ch10_sample_write_errors", rc.ch10_sample_write_errors},
+                        {"raw_observations",
+                         {{"enabled", recording.wants_raw()},
+                          {"max_queue_items", RecordingWriter::kRawQueueItems},
+                          {"max_queue_bytes", RecordingWriter::kRawQueueBytes},
+                          {"queued", rc.raw_queued},
+                          {"dropped_queue_full", rc.raw_dropped_queue_full},
+                          {"dropped_queue_bytes", rc.raw_dropped_queue_bytes},
+                          {"max_depth_items", rc.raw_queue_max_items},
+                          {"write_errors", rc.raw_write_errors},
+                          {"packets_written", cc.raw_packets},
+                          {"messages_written", cc.raw_messages_written},
+                          {"packets_dropped", cc.raw_packets_dropped},
+                          {"messages_dropped", cc.raw_messages_dropped}}}};
   out.update(csv_counters_json(rc));
   return out;
 }
@@ -203,18 +223,22 @@ nlohmann::json outputs_stats_json(const output::InetxSender& inetx,
   const RecordingCounters rc = recording.counters();
   // One key per output and kind of failure (docs/fti-output.md, "Counters"); the details are
   // under "recording".
-  nlohmann::json out = {{"inetx_sent", inetx.counters().packets_sent},
-                        {"inetx_send_errors", inetx.counters().send_errors},
-                        {"ch10_packets", cc.packets_written},
-                        {"ch10_messages", cc.messages_written},
-                        {"ch10_time_packets", cc.time_packets},
-                        {"ch10_bytes", cc.bytes_written},
-                        {"ch10_write_errors", cc.write_errors},
-                        {"ch10_sync_errors", cc.sync_errors},
-                        {"ch10_close_errors", cc.close_errors},
-                        {"ch10_messages_dropped", cc.messages_dropped},
-                        {"file_queue_dropped", rc.items_dropped_queue_full},
-                        {"file_queue_max_depth", rc.queue_max_items}};
+  nlohmann::json out = {
+      {"inetx_sent", inetx.counters().packets_sent},
+      {"inetx_send_errors", inetx.counters().send_errors},
+      {"ch10_packets", cc.packets_written},
+      {"ch10_messages", cc.messages_written},
+      {"ch10_time_packets", cc.time_packets},
+      {"ch10_bytes", cc.bytes_written},
+      {"ch10_write_errors", cc.write_errors},
+      {"ch10_sync_errors", cc.sync_errors},
+      {"ch10_close_errors", cc.close_errors},
+      {"ch10_messages_dropped", cc.messages_dropped},
+      {"ch10_raw_messages", cc.raw_messages_written},
+      {"ch10_raw_messages_dropped",
+       cc.raw_messages_dropped + rc.raw_dropped_queue_full + rc.raw_dropped_queue_bytes},
+      {"file_queue_dropped", rc.items_dropped_queue_full},
+      {"file_queue_max_depth", rc.queue_max_items}};
   out.update(csv_counters_json(rc));
   return out;
 }

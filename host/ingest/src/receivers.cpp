@@ -215,20 +215,48 @@ int UdpReceiver::receive(const MessageHandler& handler, int max_datagrams) {
     }
     ++counters_.datagrams;
     counters_.bytes += static_cast<std::uint64_t>(n);
-    if (static_cast<std::size_t>(n) > buf.size()) {  // larger than any storetrack datagram
+    const bool truncated = static_cast<std::size_t>(n) > buf.size();
+    const std::span<const std::uint8_t> received(buf.data(),
+                                                 std::min(buf.size(), static_cast<std::size_t>(n)));
+    // The raw record of this datagram, whatever the verdict (recorded before the handler runs).
+    auto record_raw = [&](std::uint8_t verdict, bool accepted) {
+      if (!raw_) return;
+      msg::RawObservation r{};
+      r.source_kind = 0;
+      r.arrival_tai_ns = time::tai_now_ns();
+      r.source_address = ntohl(from.sin_addr.s_addr);
+      r.source_port = ntohs(from.sin_port);
+      r.unit_id = received.size() > 5 ? received[5] : 0xFF;  // as the header claims it
+      r.camera_id = 0xFF;
+      if (accepted)
+        if (const auto* m = std::get_if<msg::MarkObservations>(&message))
+          r.camera_id = m->camera_id;
+      r.flags = static_cast<std::uint8_t>((accepted ? msg::raw_observation_flags::kAccepted : 0) |
+                                          (truncated ? msg::raw_observation_flags::kTruncated : 0));
+      r.decode_error = verdict;
+      r.received_bytes = static_cast<std::uint32_t>(n);
+      r.message_bytes = static_cast<std::uint16_t>(received.size());
+      raw_(r, received);
+    };
+    if (truncated) {  // larger than any storetrack datagram
       counters_.decode_errors.record(msg::DecodeError::kBadLength);
+      record_raw(static_cast<std::uint8_t>(msg::DecodeError::kBadLength), false);
       continue;
     }
     msg::DatagramHeader header;
-    const msg::DecodeError e = msg::decode_datagram(
-        std::span<const std::uint8_t>(buf.data(), static_cast<std::size_t>(n)), message, &header);
+    const msg::DecodeError e = msg::decode_datagram(received, message, &header);
     counters_.decode_errors.record(e);
-    if (e != msg::DecodeError::kNone) continue;
+    if (e != msg::DecodeError::kNone) {
+      record_raw(static_cast<std::uint8_t>(e), false);
+      continue;
+    }
     const std::uint8_t u = header.unit_id;
     if (!allowed_.empty() && !source_allowed(u, from.sin_addr.s_addr)) {
       ++counters_.spoofed_source;  // before the gap count: a forger cannot disturb it
+      record_raw(kRawSpoofedSource, false);
       continue;
     }
+    record_raw(0, true);
     // Per-unit datagram counter: forward gaps are datagrams lost on the way.
     if (seen_unit_[u]) {
       const auto gap = static_cast<std::int32_t>(header.datagram_seq - last_seq_[u] - 1);
@@ -261,6 +289,7 @@ int CanFdReceiver::open(const std::string& interface_name) {
   close();
   const unsigned index = if_nametoindex(interface_name.c_str());
   if (index == 0) return -ENODEV;
+  interface_index_ = index;
   fd_ = ::socket(PF_CAN, SOCK_RAW | SOCK_NONBLOCK | SOCK_CLOEXEC, CAN_RAW);
   if (fd_ < 0) return -errno;
   const int enable = 1;
@@ -304,6 +333,26 @@ int CanFdReceiver::receive(const MessageHandler& handler, int max_frames) {
     }
     const msg::DecodeError e = reassembler_.push(frame, time::monotonic_now_ns(), completed);
     counters_.decode_errors.record(e);
+    if (raw_) {
+      if (const auto t = reassembler_.finished_transfer()) {
+        const std::size_t kept = std::min(t->stream.size(), msg::kRawObservationMaxTailBytes);
+        msg::RawObservation r{};
+        r.source_kind = 1;
+        r.arrival_tai_ns = time::tai_now_ns();
+        r.source_address = t->can_id;
+        r.source_port = static_cast<std::uint16_t>(interface_index_);
+        r.unit_id = msg::canid::unit(t->can_id);
+        r.camera_id = msg::canid::camera(t->can_id);
+        const bool accepted = completed.has_value();
+        r.flags = static_cast<std::uint8_t>(
+            (accepted ? msg::raw_observation_flags::kAccepted : 0) |
+            (kept < t->stream.size() ? msg::raw_observation_flags::kTruncated : 0));
+        r.decode_error = static_cast<std::uint8_t>(e);
+        r.received_bytes = static_cast<std::uint32_t>(t->stream.size());
+        r.message_bytes = static_cast<std::uint16_t>(kept);
+        raw_(r, t->stream.first(kept));
+      }
+    }
     if (completed) {
       ++counters_.decoded;
       ++decoded;

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <bit>
 #include <chrono>
+#include <cstdlib>
 #include <fstream>
 #include <iterator>
 #include <stdexcept>
@@ -221,6 +222,136 @@ std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> b, std::s
     f.budget[i] = be_float(b, 128 + 4 * static_cast<std::size_t>(i));
   f.coverage_factor = be_float(b, 148);
   return f;
+}
+
+std::optional<RawObservation> decode_raw_observation(std::span<const std::uint8_t> b,
+                                                     std::string* error) {
+  // RawObservation version 1 (docs/icd.md): 26 bytes of fields, big-endian, then the message.
+  constexpr std::size_t kFixed = 26;
+  auto fail = [&](std::string why) -> std::optional<RawObservation> {
+    if (error) *error = std::move(why);
+    return std::nullopt;
+  };
+  if (b.size() < kFixed)
+    return fail("raw observation of " + std::to_string(b.size()) + " bytes, needs at least 26");
+  RawObservation r;
+  r.version = b[0];
+  if (r.version != 1)
+    return fail("raw observation version " + std::to_string(r.version) +
+                ": this reader decodes version 1 only");
+  r.source_kind = b[1];
+  r.arrival_tai_ns = static_cast<std::int64_t>(be_u(b, 2, 8));
+  r.source_address = static_cast<std::uint32_t>(be_u(b, 10, 4));
+  r.source_port = static_cast<std::uint16_t>(be_u(b, 14, 2));
+  r.unit_id = b[16];
+  r.camera_id = b[17];
+  r.flags = b[18];
+  r.decode_error = b[19];
+  r.received_bytes = static_cast<std::uint32_t>(be_u(b, 20, 4));
+  const auto n = static_cast<std::size_t>(be_u(b, 24, 2));
+  if (b.size() - kFixed != n)
+    return fail("raw observation says " + std::to_string(n) + " message bytes, holds " +
+                std::to_string(b.size() - kFixed));
+  r.bytes.assign(b.begin() + kFixed, b.end());
+  return r;
+}
+
+int raw_channel_id(const File& file) {
+  for (const Packet& p : file.packets) {
+    const auto tmats = decode_tmats(p);
+    if (!tmats) continue;
+    // R-1\DSI-n:RAWOBS; names the channel R-1\TK1-n:<id>;
+    const std::string key = "R-1\\DSI-";
+    for (std::size_t at = tmats->find(key); at != std::string::npos;
+         at = tmats->find(key, at + 1)) {
+      const std::size_t colon = tmats->find(':', at);
+      const std::size_t semi = tmats->find(';', at);
+      if (colon == std::string::npos || semi == std::string::npos || semi < colon) break;
+      if (tmats->compare(colon + 1, semi - colon - 1, "RAWOBS") != 0) continue;
+      const std::string n = tmats->substr(at + key.size(), colon - at - key.size());
+      const std::string tk = "R-1\\TK1-" + n + ":";
+      const std::size_t t = tmats->find(tk);
+      if (t == std::string::npos) return -1;
+      return std::atoi(tmats->c_str() + t + tk.size());
+    }
+    return -1;  // the first setup record describes the file
+  }
+  return -1;
+}
+
+std::vector<RawObservation> raw_observations(const File& file, std::string* error) {
+  std::vector<RawObservation> out;
+  const int channel = raw_channel_id(file);
+  if (channel < 0) {
+    if (error) *error = "no raw channel in TMATS (no R-1\\DSI-n:RAWOBS)";
+    return out;
+  }
+  for (const Packet& p : file.packets) {
+    if (p.channel_id != channel || p.data_type != 0x30) continue;
+    std::string why;
+    const auto messages = decode_message_f0(p, &why);
+    if (!messages) {
+      if (error) *error = "raw packet at offset " + std::to_string(p.file_offset) + ": " + why;
+      return out;
+    }
+    for (const Message& m : *messages) {
+      auto r = decode_raw_observation(m.bytes, &why);
+      if (!r) {
+        if (error) *error = "raw packet at offset " + std::to_string(p.file_offset) + ": " + why;
+        return out;
+      }
+      r->packet_offset = p.file_offset;
+      r->intra_packet_time = m.intra_packet_time;
+      r->subchannel = m.subchannel;
+      r->data_error = m.data_error;
+      r->format_error = m.format_error;
+      out.push_back(std::move(*r));
+    }
+  }
+  return out;
+}
+
+std::vector<RecordedInput> recorded_inputs(const File& file, std::string* error) {
+  // Computer-Generated Data Format 0 (0x00): CSDW (reserved), then one RecordedInput version 1
+  // (docs/icd.md): 48 bytes of fields, big-endian, then the name and the chunk.
+  constexpr std::size_t kFixed = 48;
+  std::vector<RecordedInput> out;
+  auto fail = [&](const Packet& p, const std::string& why) {
+    if (error) *error = "input packet at offset " + std::to_string(p.file_offset) + ": " + why;
+    return out;
+  };
+  for (const Packet& p : file.packets) {
+    if (p.data_type != 0x00) continue;
+    if (p.data.size() < 4 + kFixed) return fail(p, "shorter than a recorded input");
+    const std::span<const std::uint8_t> b = std::span<const std::uint8_t>(p.data).subspan(4);
+    if (b[0] != 1) return fail(p, "recorded input version " + std::to_string(b[0]));
+    std::array<std::uint8_t, 32> sha{};
+    std::copy(b.begin() + 2, b.begin() + 34, sha.begin());
+    const auto total = static_cast<std::uint32_t>(be_u(b, 34, 4));
+    const auto offset = static_cast<std::uint32_t>(be_u(b, 38, 4));
+    const auto chunk = static_cast<std::size_t>(be_u(b, 42, 4));
+    const auto name_bytes = static_cast<std::size_t>(be_u(b, 46, 2));
+    if (b.size() - kFixed != name_bytes + chunk) return fail(p, "lengths disagree with the packet");
+    const auto name_at = b.begin() + kFixed;
+    const auto data_at = name_at + static_cast<std::ptrdiff_t>(name_bytes);
+    if (offset == 0) {
+      RecordedInput in;
+      in.channel_id = p.channel_id;
+      in.kind = b[1];
+      in.sha256 = sha;
+      in.total_bytes = total;
+      in.name.assign(name_at, data_at);
+      out.push_back(std::move(in));
+    } else if (out.empty() || out.back().complete || out.back().sha256 != sha ||
+               out.back().bytes.size() != offset) {
+      return fail(p, "chunk at " + std::to_string(offset) + " continues no input");
+    }
+    RecordedInput& in = out.back();
+    in.bytes.insert(in.bytes.end(), data_at, data_at + static_cast<std::ptrdiff_t>(chunk));
+    if (in.bytes.size() > in.total_bytes) return fail(p, "more bytes than the input's size");
+    in.complete = in.bytes.size() == in.total_bytes;
+  }
+  return out;
 }
 
 }  // namespace storetrack::ch10read

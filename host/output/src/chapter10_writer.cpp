@@ -14,6 +14,7 @@
 #include <filesystem>
 
 #include "storetrack/bytes/byte_cursor.hpp"
+#include "storetrack/digest/sha256.hpp"
 #include "storetrack/output/fti_parameter_block.hpp"
 
 namespace storetrack::output {
@@ -21,6 +22,7 @@ namespace {
 
 constexpr std::uint16_t kSync = 0xEB25;                // 11.2.1.1 a
 constexpr std::uint8_t kDataTypeVersion106_17 = 0x08;  // 11.2.1.1 e: RCC 106-17
+constexpr std::uint8_t kTypeComputerF0 = 0x00;         // Computer-Generated Data, Format 0
 constexpr std::uint8_t kTypeTmats = 0x01;              // Computer-Generated Data, Format 1
 constexpr std::uint8_t kTypeTimeF1 = 0x11;             // Time Data, Format 1
 constexpr std::uint8_t kTypeMessageF0 = 0x30;          // Message Data, Format 0
@@ -44,7 +46,56 @@ std::int64_t floor_div(std::int64_t a, std::int64_t b) {
   return q;
 }
 
+// A recorded input's name is cut to the schema's bound; the content is split into chunks.
+constexpr std::size_t kMaxInputNameBytes = 1024;
+constexpr std::size_t kInputChunkBytes = 192 * 1024;  // + name + header < the 256 KiB tail bound
+static_assert(kInputChunkBytes + kMaxInputNameBytes <= msg::kRecordedInputMaxTailBytes);
+
+// Computer-Generated Data Format 0 bodies (CSDW = 0, reserved) of one input: one RecordedInput
+// record per chunk, each with the SHA-256 of the whole file.
+void input_bodies(const RecordedInputFile& in, std::vector<std::vector<std::uint8_t>>& out) {
+  const digest::Sha256 sha = digest::sha256(in.bytes);
+  const std::string name = in.name.substr(0, kMaxInputNameBytes);
+  std::size_t at = 0;
+  do {
+    const std::size_t n = std::min(kInputChunkBytes, in.bytes.size() - at);
+    msg::RecordedInput r{};
+    r.kind = static_cast<std::uint8_t>(in.kind);
+    r.sha256 = sha;
+    r.total_bytes = static_cast<std::uint32_t>(in.bytes.size());
+    r.chunk_offset = static_cast<std::uint32_t>(at);
+    r.chunk_bytes = static_cast<std::uint32_t>(n);
+    r.name_bytes = static_cast<std::uint16_t>(name.size());
+    std::vector<std::uint8_t> tail(name.begin(), name.end());
+    tail.insert(tail.end(), in.bytes.begin() + static_cast<std::ptrdiff_t>(at),
+                in.bytes.begin() + static_cast<std::ptrdiff_t>(at + n));
+    std::vector<std::uint8_t> body(4 + msg::payload_size(r), 0);  // CSDW 0, then the record
+    bytes::BigEndianWriter w{std::span(body).subspan(4)};
+    msg::pack_payload(r, tail, w);  // sizes are consistent by construction
+    out.push_back(std::move(body));
+    at += n;
+  } while (at < in.bytes.size());
+}
+
 }  // namespace
+
+const char* to_string(RecordedInputKind kind) {
+  switch (kind) {
+    case RecordedInputKind::kCalibration:
+      return "calibration";
+    case RecordedInputKind::kPylonSurvey:
+      return "pylon survey";
+    case RecordedInputKind::kStoreSurvey:
+      return "store survey";
+    case RecordedInputKind::kHostConfig:
+      return "host configuration";
+    case RecordedInputKind::kInitialMarks:
+      return "initial marks";
+    case RecordedInputKind::kCommandLine:
+      return "command line";
+  }
+  return "unknown";
+}
 
 UtcCalendar utc_calendar_from_tai(time::TaiNs t_tai) {
   const std::int64_t utc_ns = t_tai - time::kTaiMinusUtcSeconds * time::kNsPerSecond;
@@ -95,7 +146,8 @@ std::string Chapter10Writer::tmats_text() const {
            std::to_string(kFtiParameterBlockBytes) + " bytes)");
   line("R-1\\ID", "STORETRACK");
   line("R-1\\RID", "STORETRACK-HOST");
-  line("R-1\\N", "2");
+  const bool raw = config_.raw_observations;
+  line("R-1\\N", raw ? "3" : "2");
   line("R-1\\TK1-1", std::to_string(config_.time_channel_id));
   line("R-1\\CHE-1", "T");
   line("R-1\\DSI-1", "TIME");
@@ -106,9 +158,29 @@ std::string Chapter10Writer::tmats_text() const {
   line("R-1\\DSI-2", "FTISAMPLE");
   line("R-1\\CDT-2", "MSGIN");
   line("R-1\\CDLN-2", "FTISAMPLE");
+  if (raw) {
+    // Every observation message as received (RawObservation records, docs/fti-output.md).
+    line("R-1\\TK1-3", std::to_string(config_.raw_channel_id));
+    line("R-1\\CHE-3", "T");
+    line("R-1\\DSI-3", "RAWOBS");
+    line("R-1\\CDT-3", "MSGIN");
+    line("R-1\\CDLN-3", "RAWOBS");
+  }
   for (const auto& s : config_.stores) {
     line("G\\COM", "channel " + std::to_string(config_.message_channel_id) + " subchannel " +
                        std::to_string(s.store_id) + " = store " + s.name);
+  }
+  if (raw) {
+    line("G\\COM", "channel " + std::to_string(config_.raw_channel_id) +
+                       " = every observation message received (RawObservation v" +
+                       std::to_string(msg::kRawObservationVersion) +
+                       ", big-endian, docs/icd.md), subchannel = sending unit id");
+  }
+  for (const auto& in : config_.inputs) {
+    line("G\\COM", "channel " + std::to_string(config_.inputs_channel_id) + " input " +
+                       to_string(in.kind) + " '" + in.name.substr(0, kMaxInputNameBytes) + "' " +
+                       std::to_string(in.bytes.size()) + " bytes sha256 " +
+                       digest::to_hex(digest::sha256(in.bytes)));
   }
   return t;
 }
@@ -135,8 +207,16 @@ int Chapter10Writer::open(const std::string& path, const Chapter10Config& config
   sequence_.assign(65536, 0);
   last_time_packet_utc_s_ = INT64_MIN;
   last_sample_tai_ns_ = INT64_MIN;
+  config_.max_raw_messages_per_packet =
+      std::clamp(config_.max_raw_messages_per_packet, 1, kMaxChapter10MessagesPerPacket);
+  config_.max_held_raw_messages = std::max(config_.max_held_raw_messages, 1);
   pending_body_.clear();
   pending_messages_ = 0;
+  pending_raw_body_.clear();
+  pending_raw_.clear();
+  input_bodies_.clear();
+  for (const auto& in : config_.inputs)
+    input_bodies(in, input_bodies_);
   requested_path_ = path;
   files_.clear();
   next_number_ = 1;
@@ -196,6 +276,14 @@ int Chapter10Writer::write_file_header(bool repeat_time_packet) {
   body.insert(body.end(), tmats.begin(), tmats.end());
   bool written = false;
   if (int rc = append(build_packet(0, kTypeTmats, 0, body), written); rc != 0) return rc;
+  // The inputs follow the setup record in every file, so each file alone can be reprocessed.
+  for (const auto& input : input_bodies_) {
+    if (int rc =
+            append(build_packet(config_.inputs_channel_id, kTypeComputerF0, 0, input), written);
+        rc != 0)
+      return rc;
+    ++counters_.input_packets;
+  }
   if (!repeat_time_packet || last_time_packet_utc_s_ == INT64_MIN) return 0;
   const std::int64_t s = last_time_packet_utc_s_;
   const time::TaiNs tai = (s + time::kTaiMinusUtcSeconds) * time::kNsPerSecond;
@@ -319,7 +407,7 @@ int Chapter10Writer::append(const std::vector<std::uint8_t>& packet, bool& writt
 // Returns 0, or the first error met (also when the continuation file then took the packet).
 int Chapter10Writer::write_packet(std::uint16_t channel_id, std::uint8_t data_type,
                                   std::uint64_t rtc, const std::vector<std::uint8_t>& body,
-                                  int messages) {
+                                  int messages, Payload payload) {
   if (!opened_) return -EBADF;
   const std::vector<std::uint8_t> packet = build_packet(channel_id, data_type, rtc, body);
   int rc = 0;
@@ -329,7 +417,7 @@ int Chapter10Writer::write_packet(std::uint16_t channel_id, std::uint8_t data_ty
     if (rc != 0) abandon_file();  // after an fdatasync error the file is not trusted either
   }
   if (!written) {
-    if (const int r = start_continuation_file(data_type != kTypeTimeF1); r != 0) {
+    if (const int r = start_continuation_file(payload != Payload::kTime); r != 0) {
       if (rc == 0) rc = -EIO;  // no usable file since an earlier failure
     } else if (const int r2 = append(packet, written); r2 != 0) {
       abandon_file();
@@ -337,17 +425,27 @@ int Chapter10Writer::write_packet(std::uint16_t channel_id, std::uint8_t data_ty
       if (rc == 0) rc = r2;
     }
   }
+  const auto n = static_cast<std::uint64_t>(messages);
   if (written) {
-    if (data_type == kTypeMessageF0) {
+    if (payload == Payload::kSamples) {
       ++file_data_packets_;
       ++counters_.message_packets;
-      counters_.messages_written += static_cast<std::uint64_t>(messages);
-    } else if (data_type == kTypeTimeF1) {
+      counters_.messages_written += n;
+    } else if (payload == Payload::kRaw) {
+      ++file_data_packets_;
+      ++counters_.raw_packets;
+      counters_.raw_messages_written += n;
+    } else if (payload == Payload::kTime) {
       ++counters_.time_packets;
     }
   } else {
     ++counters_.packets_dropped;
-    counters_.messages_dropped += static_cast<std::uint64_t>(messages);
+    if (payload == Payload::kRaw) {
+      ++counters_.raw_packets_dropped;
+      counters_.raw_messages_dropped += n;
+    } else {
+      counters_.messages_dropped += n;
+    }
   }
   return rc;
 }
@@ -371,32 +469,33 @@ std::vector<std::uint8_t> Chapter10Writer::time_body(std::int64_t utc_second) co
 
 int Chapter10Writer::write_time_packet(std::int64_t utc_second) {
   const time::TaiNs tai = (utc_second + time::kTaiMinusUtcSeconds) * time::kNsPerSecond;
-  return write_packet(config_.time_channel_id, kTypeTimeF1, rtc_of(tai), time_body(utc_second), 0);
+  return write_packet(config_.time_channel_id, kTypeTimeF1, rtc_of(tai), time_body(utc_second), 0,
+                      Payload::kTime);
 }
 
 int Chapter10Writer::write(const msg::FtiSample& sample) {
   if (!opened_) return -EBADF;
   const time::TaiNs t = sample.exposure_mid_tai_ns;
-  if (start_tai_ns_ == kRtcEpochFirstSample) {
-    start_tai_ns_ =
-        floor_div(t - time::kTaiMinusUtcSeconds * time::kNsPerSecond, time::kNsPerSecond) *
-            time::kNsPerSecond +
-        time::kTaiMinusUtcSeconds * time::kNsPerSecond;
-  }
+  int rc = 0;
+  const bool release_held_raw = start_tai_ns_ == kRtcEpochFirstSample;
+  if (release_held_raw) set_epoch_from(t);
   if (last_sample_tai_ns_ != INT64_MIN && t < last_sample_tai_ns_) ++counters_.samples_out_of_order;
   last_sample_tai_ns_ = t;
-  int rc = 0;
   const std::int64_t utc_s =
       floor_div(t - time::kTaiMinusUtcSeconds * time::kNsPerSecond, time::kNsPerSecond);
   current_utc_s_ = utc_s;
   if (utc_s != last_time_packet_utc_s_) {
     // A new second: close the running message packet so time packets stay in time order.
-    if (int r = flush(); r != 0) rc = r;
+    if (int r = flush_samples(); r != 0) rc = r;
     if (int r = write_time_packet(utc_s); r != 0) rc = r;
     last_time_packet_utc_s_ = utc_s;
   }
+  // The observations held until the first sample fixed the time base, after its time packet.
+  if (release_held_raw) {
+    if (int r = flush_raw(false); r != 0) rc = r;
+  }
   if (pending_messages_ > 0 && t - pending_first_tai_ns_ > config_.max_packet_span_ns) {
-    if (int r = flush(); r != 0) rc = r;
+    if (int r = flush_samples(); r != 0) rc = r;
   }
   if (pending_messages_ == 0) pending_first_tai_ns_ = t;
   // Intra-packet header (11.2.1.1, Message Data F0): 8-byte time stamp (48-bit RTC in the low
@@ -412,12 +511,114 @@ int Chapter10Writer::write(const msg::FtiSample& sample) {
   encode_fti_parameter_block(sample, std::span(pending_body_).last(kFtiParameterBlockBytes));
   ++pending_messages_;
   if (pending_messages_ >= config_.max_messages_per_packet) {
-    if (int r = flush(); r != 0) rc = r;
+    if (int r = flush_samples(); r != 0) rc = r;
   }
   return rc;
 }
 
+void Chapter10Writer::set_epoch_from(time::TaiNs t) {
+  start_tai_ns_ =
+      floor_div(t - time::kTaiMinusUtcSeconds * time::kNsPerSecond, time::kNsPerSecond) *
+          time::kNsPerSecond +
+      time::kTaiMinusUtcSeconds * time::kNsPerSecond;
+}
+
+int Chapter10Writer::write_raw(const msg::RawObservation& record,
+                               std::span<const std::uint8_t> message) {
+  if (!opened_) return -EBADF;
+  if (!config_.raw_observations || message.size() != record.message_bytes ||
+      message.size() > msg::kRawObservationMaxTailBytes) {
+    ++counters_.raw_refused;
+    return -EINVAL;
+  }
+  int rc = 0;
+  const time::TaiNs t = record.arrival_tai_ns;
+  if (!pending_raw_.empty() && start_tai_ns_ != kRtcEpochFirstSample &&
+      t - pending_raw_.front().arrival > config_.max_packet_span_ns) {
+    if (int r = flush_raw(false); r != 0) rc = r;
+  }
+  // Intra-packet header as for the samples: the 8-byte time stamp (filled in at flush), then
+  // bits 15-0 message length, bits 29-16 subchannel = the unit the message claims, bit 30 format
+  // error = the message was longer than the receive buffer (truncated), bit 31 data error = the
+  // receiver refused it. An odd-length message is followed by its filler byte.
+  const std::size_t length = msg::payload_size(record);
+  pending_raw_.push_back({pending_raw_body_.size(), t, message.size()});
+  bytes::LittleEndianWriter w = grow(pending_raw_body_, 12);
+  w.put_u64(0);
+  const bool accepted = (record.flags & msg::raw_observation_flags::kAccepted) != 0;
+  const bool truncated = (record.flags & msg::raw_observation_flags::kTruncated) != 0;
+  w.put_u32(static_cast<std::uint32_t>(length) | (std::uint32_t{record.unit_id} << 16) |
+            (truncated ? 1u << 30 : 0u) | (accepted ? 0u : 1u << 31));
+  const std::size_t at = pending_raw_body_.size();
+  pending_raw_body_.resize(at + length + (length & 1), 0);
+  bytes::BigEndianWriter bw{std::span(pending_raw_body_).subspan(at, length)};
+  msg::pack_payload(record, message, bw);  // sizes checked above
+  const auto held = pending_raw_.size();
+  if (start_tai_ns_ == kRtcEpochFirstSample) {
+    // No sample yet fixed the time base: hold (bounded), then take it from the observations.
+    if (held >= static_cast<std::size_t>(config_.max_held_raw_messages)) {
+      if (int r = flush_raw(true); r != 0) rc = r;
+    }
+  } else if (held >= static_cast<std::size_t>(config_.max_raw_messages_per_packet)) {
+    if (int r = flush_raw(false); r != 0) rc = r;
+  }
+  return rc;
+}
+
+// Writes the held observations in packets of at most max_raw_messages_per_packet. Without an
+// RTC epoch they stay held unless `force` (then the first arrival sets the epoch).
+int Chapter10Writer::flush_raw(bool force) {
+  if (!opened_ || pending_raw_.empty()) return 0;
+  int rc = 0;
+  if (start_tai_ns_ == kRtcEpochFirstSample) {
+    if (!force) return 0;
+    // No sample at all (yet): the observations' arrival sets the time base and its time packet.
+    const time::TaiNs t = pending_raw_.front().arrival;
+    set_epoch_from(t);
+    const std::int64_t utc_s =
+        floor_div(t - time::kTaiMinusUtcSeconds * time::kNsPerSecond, time::kNsPerSecond);
+    current_utc_s_ = utc_s;
+    if (int r = write_time_packet(utc_s); r != 0) rc = r;
+    last_time_packet_utc_s_ = utc_s;
+  }
+  const std::size_t total = pending_raw_.size();
+  const auto per_packet = static_cast<std::size_t>(config_.max_raw_messages_per_packet);
+  for (std::size_t first = 0; first < total; first += per_packet) {
+    const std::size_t last = std::min(total, first + per_packet);  // one past
+    const std::size_t from = pending_raw_[first].offset;
+    const std::size_t to = last < total ? pending_raw_[last].offset : pending_raw_body_.size();
+    std::uint64_t message_bytes = 0;
+    for (std::size_t i = first; i < last; ++i) {
+      bytes::LittleEndianWriter stamp{
+          std::span(pending_raw_body_).subspan(pending_raw_[i].offset, 8)};
+      stamp.put_u64(rtc_of(pending_raw_[i].arrival));
+      message_bytes += pending_raw_[i].message_bytes;
+    }
+    std::vector<std::uint8_t> body;
+    body.reserve(to - from + 4);
+    grow(body, 4).put_u32(static_cast<std::uint32_t>(last - first));  // CSDW: count, complete
+    body.insert(body.end(), pending_raw_body_.begin() + static_cast<std::ptrdiff_t>(from),
+                pending_raw_body_.begin() + static_cast<std::ptrdiff_t>(to));
+    const std::uint64_t written_before = counters_.raw_packets;
+    if (int r = write_packet(config_.raw_channel_id, kTypeMessageF0,
+                             rtc_of(pending_raw_[first].arrival), body,
+                             static_cast<int>(last - first), Payload::kRaw);
+        r != 0 && rc == 0)
+      rc = r;
+    if (counters_.raw_packets != written_before) counters_.raw_bytes_written += message_bytes;
+  }
+  pending_raw_body_.clear();
+  pending_raw_.clear();
+  return rc;
+}
+
 int Chapter10Writer::flush() {
+  const int rc = flush_samples();
+  const int r = flush_raw(true);
+  return rc != 0 ? rc : r;
+}
+
+int Chapter10Writer::flush_samples() {
   if (!opened_ || pending_messages_ == 0) return 0;
   std::vector<std::uint8_t> body;
   body.reserve(pending_body_.size() + 4);
@@ -425,8 +626,9 @@ int Chapter10Writer::flush() {
   // packet type 00 = complete messages.
   grow(body, 4).put_u32(static_cast<std::uint32_t>(pending_messages_));
   body.insert(body.end(), pending_body_.begin(), pending_body_.end());
-  const int rc = write_packet(config_.message_channel_id, kTypeMessageF0,
-                              rtc_of(pending_first_tai_ns_), body, pending_messages_);
+  const int rc =
+      write_packet(config_.message_channel_id, kTypeMessageF0, rtc_of(pending_first_tai_ns_), body,
+                   pending_messages_, Payload::kSamples);
   pending_body_.clear();
   pending_messages_ = 0;
   return rc;

@@ -247,6 +247,41 @@ TEST(MsgCanFd, CorruptedFragmentIsDetectedNotDelivered) {
   EXPECT_EQ(c.crc_errors + c.out_of_range + c.bad_length, detected);
 }
 
+TEST(MsgCanFd, FinishedTransferIsTheStreamAsReceivedValidOrNot) {
+  // Raw recording of CAN FD: once a transfer's fragments are all in, its stream (the frames'
+  // bytes after their 3-byte headers, in fragment order) is available, whether the transfer
+  // then decodes or not; never before, never for a duplicate.
+  std::mt19937_64 rng(21);
+  CanFdReassembler reassembler;
+  std::int64_t now = 0;
+  for (int i = 0; i < 50; ++i) {
+    MarkObservations m = test::random_observations(rng, 1 + i % 40);
+    m.trigger_seq = static_cast<std::uint32_t>(i);
+    auto frames = encode(m);
+    const bool corrupt = i % 3 == 1;
+    if (corrupt) frames[0].data[kCanFdFragmentHeaderBytes + 2] ^= 0x10;
+    std::vector<std::uint8_t> stream;
+    for (const CanFdFrame& f : frames)
+      stream.insert(stream.end(), f.data + kCanFdFragmentHeaderBytes, f.data + f.len);
+    std::optional<AnyMessage> done;
+    for (std::size_t k = 0; k < frames.size(); ++k) {
+      const DecodeError e = reassembler.push(frames[k], now += 10'000, done);
+      const auto t = reassembler.finished_transfer();
+      if (k + 1 < frames.size()) {
+        EXPECT_FALSE(t);
+        continue;
+      }
+      ASSERT_TRUE(t);
+      EXPECT_EQ(t->can_id, frames[0].can_id);
+      EXPECT_TRUE(std::equal(t->stream.begin(), t->stream.end(), stream.begin(), stream.end()));
+      EXPECT_EQ(done.has_value(), !corrupt);
+      EXPECT_EQ(e == DecodeError::kNone, !corrupt);
+    }
+    reassembler.push(frames.back(), now += 10'000, done);  // a late duplicate
+    EXPECT_FALSE(reassembler.finished_transfer());
+  }
+}
+
 TEST(MsgCanFd, LateDuplicatesAndSlotExhaustion) {
   std::mt19937_64 rng(16);
   CanFdReassembler reassembler;

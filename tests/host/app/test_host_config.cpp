@@ -213,6 +213,22 @@ TEST(HostConfig, RecordingQueueBoundIsChecked) {
   EXPECT_EQ(defaults.recording_queue_items, 4096u);  // RecordingWriter::kQueueItems
 }
 
+TEST(HostConfig, RawObservationRecordingSwitch) {
+  HostConfig defaults;
+  EXPECT_TRUE(defaults.record_raw_observations);  // on unless the configuration says otherwise
+  HostConfig c;
+  ASSERT_EQ(load(R"({"recording": {"raw_observations": false}})", &c), "");
+  EXPECT_FALSE(c.record_raw_observations);
+  for (const char* v : {"0", "1", "\"false\"", "null", "[true]"})
+    EXPECT_NE(load(std::string(R"({"recording": {"raw_observations": )") + v + "}}")
+                  .find("recording.raw_observations"),
+              std::string::npos)
+        << v;
+  EXPECT_NE(load(R"({"recording": {"raw_observation": false}})")
+                .find("recording.raw_observation: unknown key (did you mean raw_observations?)"),
+            std::string::npos);
+}
+
 TEST(HostConfig, EverySectionNamesTheKeyOfABadValue) {
   // Paths through each section's reader that the range tests above do not reach: a wrong JSON
   // type, a value outside a (0, x) bound, a removed key, a malformed list. The message names the

@@ -16,6 +16,7 @@
 #include <filesystem>
 #include <fstream>
 #include <thread>
+#include <vector>
 
 #include "recording_writer.hpp"
 #include "stats.hpp"
@@ -250,6 +251,56 @@ TEST(RecordingWriter, RestartNeverOverwritesTheCsvFiles) {
   EXPECT_EQ(second.first, (dir / "fti.001.csv").string());
   EXPECT_EQ(second.second, (dir / "marks.001.csv").string());
   EXPECT_EQ(lines(dir / "fti.001.csv"), 8u);
+  fs::remove_all(dir);
+}
+
+TEST(RecordingWriter, RawObservationsReachTheFileInArrivalOrderWithAndWithoutSamples) {
+  // Raw observations wake the writer only in bulk, with a sample, or after kRawMaxWaitMs: every
+  // one must still reach the file, in the order pushed, whether samples follow them or not.
+  const fs::path dir = fresh_dir("st_recording_raw");
+  for (const bool with_samples : {true, false}) {
+    SCOPED_TRACE(with_samples);
+    const fs::path path = dir / (with_samples ? "with.ch10" : "without.ch10");
+    RecordingWriter w;
+    output::Chapter10Config cfg;
+    cfg.sync = output::Chapter10Sync::kNone;
+    cfg.raw_observations = true;
+    ASSERT_EQ(w.open_ch10(path.string(), cfg), 0);
+    ASSERT_TRUE(w.wants_raw());
+    w.start();
+    std::vector<std::vector<std::uint8_t>> sent;
+    for (std::uint32_t k = 0; k < 300; ++k) {
+      for (std::uint32_t c = 0; c < 4; ++c) {
+        std::vector<std::uint8_t> bytes(20 + (k * 4 + c) % 50, static_cast<std::uint8_t>(k + c));
+        msg::RawObservation r{};
+        r.arrival_tai_ns = 1'900'000'000'000'000'000LL + k * 2'500'000LL + c * 1000;
+        r.unit_id = static_cast<std::uint8_t>(c);
+        r.flags = msg::raw_observation_flags::kAccepted;
+        r.received_bytes = static_cast<std::uint32_t>(bytes.size());
+        r.message_bytes = static_cast<std::uint16_t>(bytes.size());
+        ASSERT_TRUE(w.push_raw(r, bytes));
+        sent.push_back(bytes);
+      }
+      if (with_samples) {
+        RecordingItem it;
+        it.sample.trigger_seq = k;
+        it.sample.store_id = 1;
+        it.sample.exposure_mid_tai_ns = 1'900'000'000'000'000'000LL + k * 2'500'000LL;
+        ASSERT_TRUE(w.push(std::move(it)));
+      }
+      if (k == 100) std::this_thread::sleep_for(std::chrono::milliseconds(60));  // the timeout
+    }
+    w.stop();
+    EXPECT_FALSE(w.had_errors());
+    const auto c = w.counters();
+    EXPECT_EQ(c.raw_queued, sent.size());
+    EXPECT_EQ(c.raw_dropped_queue_full + c.raw_dropped_queue_bytes + c.raw_write_errors, 0u);
+    EXPECT_EQ(w.ch10().counters().raw_messages_written, sent.size());
+    const auto got = ch10read::raw_observations(ch10read::read_file(path.string()));
+    ASSERT_EQ(got.size(), sent.size());
+    for (std::size_t i = 0; i < sent.size(); ++i)
+      EXPECT_EQ(got[i].bytes, sent[i]) << i;
+  }
   fs::remove_all(dir);
 }
 

@@ -7,7 +7,9 @@
 //  - a Message F0 packet that decodes accounts for its body: CSDW + 12-byte headers + messages
 //    padded to 16 bits = the data length, with as many messages as the CSDW counts; a decode
 //    failure always says why;
-//  - the other decoders (Time F1, TMATS, FTI parameter block) return or refuse without UB.
+//  - the other decoders (Time F1, TMATS, FTI parameter block) return or refuse without UB;
+//  - the raw channel and the recorded inputs: a refusal says why, a joined input never holds
+//    more than its stated size, a complete one exactly that.
 // The input is the file itself (the seeds are real files). When its checksums are wrong the
 // harness also checks a copy whose header checksums (and 32-bit data checksums) it rewrote for
 // every packet it can walk to, so the fuzzer also reaches the length checks and the data
@@ -97,6 +99,13 @@ void check(const std::vector<std::uint8_t>& file) {
     if (p.data_type == 0x30) check_message_f0(p);
     (void)ch10::decode_time_f1(p);
     (void)ch10::decode_tmats(p);
+  }
+  std::string why;
+  (void)ch10::raw_observations(f, &why);
+  std::string input_error;
+  for (const auto& in : ch10::recorded_inputs(f, &input_error)) {
+    if (in.bytes.size() > in.total_bytes) std::abort();
+    if (in.complete != (in.bytes.size() == in.total_bytes)) std::abort();
   }
 }
 

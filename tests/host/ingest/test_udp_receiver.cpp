@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "storetrack/ingest/receivers.hpp"
+#include "storetrack/time/time.hpp"
 
 namespace storetrack::ingest {
 namespace {
@@ -99,6 +100,65 @@ TEST(UdpReceiver, DeliversValidDatagramsAndCountsBadOnes) {
   EXPECT_EQ(c.decode_errors.count(msg::DecodeError::kBadCrc), 1u);
   EXPECT_EQ(c.decode_errors.count(msg::DecodeError::kTooShort), 1u);
   EXPECT_EQ(c.datagram_seq_gaps, 1u);
+}
+
+TEST(UdpReceiver, RawHandlerSeesEveryDatagramAsSentWithItsVerdict) {
+  // Raw recording: every datagram the socket delivers, valid, corrupted, too short or from a
+  // sender that is not allowed, byte for byte as the sender sent it, before the decoded message.
+  UdpReceiver rx;
+  ASSERT_EQ(rx.open("127.0.0.1", 0), 0);
+  ASSERT_EQ(rx.allow_source(1, "127.0.0.1"), 0);
+  struct Raw {
+    msg::RawObservation r;
+    std::vector<std::uint8_t> bytes;
+  };
+  std::vector<Raw> raws;
+  rx.set_raw_handler([&](const msg::RawObservation& r, std::span<const std::uint8_t> b) {
+    raws.push_back({r, {b.begin(), b.end()}});
+  });
+  std::vector<std::vector<std::uint8_t>> sent;
+  std::array<std::uint8_t, msg::kMaxDatagramBytes> buf{};
+  auto send_from = [&](const char* from, std::vector<std::uint8_t> d) {
+    Sender(rx.port(), from).send(d);
+    sent.push_back(std::move(d));
+  };
+  for (std::uint32_t k = 0; k < 5; ++k) {
+    const int n = msg::encode_datagram(observation(k), buf, k);
+    send_from("127.0.0.1", {buf.begin(), buf.begin() + n});
+  }
+  int n = msg::encode_datagram(observation(5), buf, 5);
+  std::vector<std::uint8_t> corrupt(buf.begin(), buf.begin() + n);
+  corrupt[10] ^= 0x01;
+  send_from("127.0.0.1", corrupt);
+  send_from("127.0.0.1", {1, 2, 3});
+  n = msg::encode_datagram(observation(6), buf, 6);
+  send_from("127.0.0.2", {buf.begin(), buf.begin() + n});  // valid, from a foreign address
+  std::vector<msg::MarkObservations> got;
+  drain(rx, got, static_cast<int>(sent.size()));
+  ASSERT_EQ(got.size(), 5u);
+  ASSERT_EQ(raws.size(), sent.size());
+  const std::int64_t now = time::tai_now_ns();
+  for (std::size_t i = 0; i < sent.size(); ++i) {
+    SCOPED_TRACE(i);
+    const auto& r = raws[i].r;
+    EXPECT_EQ(raws[i].bytes, sent[i]);
+    EXPECT_EQ(r.message_bytes, sent[i].size());
+    EXPECT_EQ(r.received_bytes, sent[i].size());
+    EXPECT_EQ(r.source_kind, 0);
+    EXPECT_EQ(r.source_address, i == 7 ? 0x7F000002u : 0x7F000001u);
+    EXPECT_NE(r.source_port, 0);
+    EXPECT_LE(r.arrival_tai_ns, now);
+    EXPECT_GT(r.arrival_tai_ns, now - 10'000'000'000LL);
+    const bool accepted = i < 5;
+    EXPECT_EQ((r.flags & msg::raw_observation_flags::kAccepted) != 0, accepted);
+    EXPECT_EQ(r.flags & msg::raw_observation_flags::kTruncated, 0);
+    EXPECT_EQ(r.camera_id, accepted ? 3 : 0xFF);
+  }
+  EXPECT_EQ(raws[0].r.unit_id, 1);
+  EXPECT_EQ(raws[5].r.decode_error, static_cast<std::uint8_t>(msg::DecodeError::kBadCrc));
+  EXPECT_EQ(raws[6].r.decode_error, static_cast<std::uint8_t>(msg::DecodeError::kTooShort));
+  EXPECT_EQ(raws[6].r.unit_id, 0xFF);  // too short to claim a unit
+  EXPECT_EQ(raws[7].r.decode_error, kRawSpoofedSource);
 }
 
 TEST(UdpReceiver, BadAddressesAreErrorsNotCrashes) {

@@ -53,4 +53,38 @@ check(ch10["header_checksum_errors"] == 0 and ch10["truncated_bytes"] == 0, "Cha
 check(ch10["messages"] == n, "Chapter 10 messages %d == samples %d" % (ch10["messages"], n))
 check(ch10["by_type"].get(0x11, 0) >= 1, "Chapter 10 time packets present")
 check(stats["outputs"]["inetx_sent"] == n, "one iNET-X packet per sample")
+
+# Raw channel: exactly the datagrams the units sent (their own counters: observations and
+# health reports on the UDP link, none failed), each as sent, read with this independent parser.
+sent = 0
+for c in range(4):
+    unit = json.load(open(os.path.join(out, "unit_cam%d.json" % c)))
+    for link in unit["links"]:
+        check(link["tx_errors"] == 0, "unit %d link %s: no send errors" % (c, link["name"]))
+        sent += link["observations_sent"] + link["health_sent"]
+raw = ch10["raw_observations"]
+check(ch10["raw_channel"] == 3, "TMATS names the raw channel RAWOBS (channel %s)" % ch10["raw_channel"])
+check(len(raw) == sent, "raw channel holds %d datagrams == %d the units sent" % (len(raw), sent))
+check(len(raw) == stats["udp"]["datagrams"], "raw channel == host datagrams received (%d)" % stats["udp"]["datagrams"])
+check(sum(1 for r in raw if r["flags"] & 1) == stats["udp"]["decoded"], "accepted raw observations == host decoded")
+check(all(r["bytes"][:2] == b"ST" and len(r["bytes"]) == r["received_bytes"] for r in raw),
+      "every raw observation is a whole storetrack datagram")
+check(all(raw[i]["arrival_tai_ns"] <= raw[i + 1]["arrival_tai_ns"] for i in range(len(raw) - 1)),
+      "raw observations in arrival order")
+rs = stats["recording"]["raw_observations"]
+check(rs["dropped_queue_full"] == 0 and rs["messages_dropped"] == 0, "no raw observation dropped")
+
+# Inputs channel: the files given, byte for byte, with their SHA-256 (hashlib here).
+import hashlib  # noqa: E402
+given = {0: os.path.join(out, "sim", "rig_calibrated.json"), 1: os.path.join(out, "sim", "survey_pylon.json"),
+         2: os.path.join(out, "sim", "survey_store.json"), 4: os.path.join(out, "initial_marks.json")}
+inputs = {i["kind"]: i for i in ch10["inputs"]}
+for kind, path in given.items():
+    want = open(path, "rb").read()
+    got = inputs.get(kind)
+    check(got is not None and got["bytes"] == want and got["total_bytes"] == len(want),
+          "input %d (%s): recorded bytes == the file" % (kind, os.path.basename(path)))
+    check(got is not None and got["sha256"] == hashlib.sha256(want).hexdigest(),
+          "input %d: recorded SHA-256 == hashlib's" % kind)
+check(5 in inputs and b"--ch10\0" in inputs[5]["bytes"], "the command line is recorded")
 sys.exit(1 if failures else 0)

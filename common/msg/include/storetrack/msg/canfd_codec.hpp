@@ -138,6 +138,19 @@ class CanFdReassembler {
   const CanReassemblyCounters& counters() const { return counters_; }
   std::size_t in_flight() const;
 
+  /// A transfer whose fragments were all in, as reassembled (payload, CRC-32 and the last
+  /// frame's padding), before any check of its content.
+  struct FinishedTransfer {
+    std::uint32_t can_id = 0;  ///< the frames' identifier
+    std::span<const std::uint8_t> stream;
+  };
+  /// The transfer the last push() finished, valid or not (the push's result says which), or
+  /// nullopt. The view stays valid until the next push (raw recording of every message).
+  std::optional<FinishedTransfer> finished_transfer() const {
+    if (!finished_) return std::nullopt;
+    return finished_transfer_;
+  }
+
  private:
   struct Key {
     std::uint32_t can_id = 0;  ///< identifies message/unit/camera
@@ -168,6 +181,8 @@ class CanFdReassembler {
   std::array<RecentKey, kRecentKeys> recent_{};
   std::size_t recent_next_ = 0;
   std::size_t recent_size_ = 0;
+  bool finished_ = false;
+  FinishedTransfer finished_transfer_;
 };
 
 }  // namespace storetrack::msg

@@ -10,6 +10,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -20,6 +21,13 @@
 namespace storetrack::ingest {
 
 using MessageHandler = std::function<void(const msg::AnyMessage&)>;
+/// Every observation message as received, valid or not (raw recording, docs/fti-output.md):
+/// the record (arrival time, source, the receiver's verdict) and the bytes, a view valid only
+/// during the call. Called before the MessageHandler of the same message.
+using RawObservationHandler =
+    std::function<void(const msg::RawObservation&, std::span<const std::uint8_t>)>;
+/// The RawObservation.decode_error of a valid datagram from a sender that is not allowed.
+inline constexpr std::uint8_t kRawSpoofedSource = 0xFE;
 
 /// Most datagrams one UdpReceiver::receive() call reads: 256 is 80 ms of the nominal 8 cameras
 /// x 400 fps and 8 ms of a 10x flood, so one loop turn never holds alignment longer than that.
@@ -77,6 +85,9 @@ class UdpReceiver {
   /// Reads until the socket is empty or `max_datagrams` were read; returns messages decoded or
   /// -errno.
   int receive(const MessageHandler& handler, int max_datagrams = kMaxDatagramsPerReceive);
+  /// Hands every datagram read (its bytes as received, up to the receive buffer) to `raw`
+  /// too; an empty function turns it off.
+  void set_raw_handler(RawObservationHandler raw) { raw_ = std::move(raw); }
   void close();
   const UdpReceiverCounters& counters() const { return counters_; }
   /// The bound port (useful with port 0).
@@ -91,6 +102,7 @@ class UdpReceiver {
 
   int fd_ = -1;
   UdpReceiverCounters counters_;
+  RawObservationHandler raw_;
   std::vector<AllowedSource> allowed_;  // one per configured (unit, address); empty: any
   std::uint32_t last_seq_[256] = {};
   bool seen_unit_[256] = {};
@@ -120,6 +132,8 @@ class CanFdReceiver {
   /// Reads until the socket is empty or `max_frames` were read; returns messages completed or
   /// -errno.
   int receive(const MessageHandler& handler, int max_frames = kMaxCanFramesPerReceive);
+  /// Hands every reassembled transfer (all fragments in, valid or not) to `raw` too.
+  void set_raw_handler(RawObservationHandler raw) { raw_ = std::move(raw); }
   /// Expires stale partial transfers (call when idle).
   void expire(std::int64_t now_ns) { reassembler_.expire(now_ns); }
   void close();
@@ -128,6 +142,8 @@ class CanFdReceiver {
 
  private:
   int fd_ = -1;
+  unsigned interface_index_ = 0;
+  RawObservationHandler raw_;
   msg::CanFdReassembler reassembler_;
   CanReceiverCounters counters_;
 };

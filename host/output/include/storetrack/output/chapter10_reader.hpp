@@ -5,6 +5,7 @@
 // everything before it.
 #pragma once
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <optional>
@@ -84,5 +85,49 @@ struct FtiBlock {
 /// naming the version found.
 std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> bytes,
                                          std::string* error = nullptr);
+
+/// One record of the raw channel (RawObservation, docs/icd.md "Recording-only messages"): an
+/// observation message as the host received it.
+struct RawObservation {
+  std::size_t packet_offset = 0;        ///< file offset of the packet that holds it
+  std::uint64_t intra_packet_time = 0;  ///< RTC of the arrival
+  std::uint16_t subchannel = 0;         ///< the unit id the message claims
+  bool data_error = false;              ///< the receiver refused it
+  bool format_error = false;            ///< truncated to the receive buffer
+  int version = 0;
+  int source_kind = 0;  ///< 0 UDP, 1 CAN FD
+  std::int64_t arrival_tai_ns = 0;
+  std::uint32_t source_address = 0;  ///< UDP: IPv4 (a.b.c.d = 0xaabbccdd); CAN: 29-bit identifier
+  std::uint16_t source_port = 0;     ///< UDP: port; CAN: interface index
+  int unit_id = 0, camera_id = 0;
+  std::uint8_t flags = 0;  ///< bit 0 accepted, bit 1 truncated
+  int decode_error = 0;
+  std::uint32_t received_bytes = 0;
+  std::vector<std::uint8_t> bytes;  ///< the message as received
+};
+/// Decodes one raw-channel message body (version 1 only), or nullopt with `error`.
+std::optional<RawObservation> decode_raw_observation(std::span<const std::uint8_t> bytes,
+                                                     std::string* error = nullptr);
+/// The channel TMATS names as the data source RAWOBS (R-1\DSI-n:RAWOBS, R-1\TK1-n), or -1.
+int raw_channel_id(const File& file);
+/// Every raw observation of the file in file order (the TMATS-named channel); a malformed packet
+/// or record stops the list and sets `error`.
+std::vector<RawObservation> raw_observations(const File& file, std::string* error = nullptr);
+
+/// One input the recording carries (RecordedInput, Computer-Generated Data Format 0 packets),
+/// its chunks joined.
+struct RecordedInput {
+  std::uint16_t channel_id = 0;
+  int kind = 0;  ///< 0 calibration, 1 pylon survey, 2 store survey, 3 host config, 4 initial
+                 ///< marks, 5 command line
+  std::array<std::uint8_t, 32> sha256{};  ///< as recorded (the reader does not compute it)
+  std::uint32_t total_bytes = 0;
+  std::string name;
+  std::vector<std::uint8_t> bytes;
+  bool complete = false;  ///< every chunk present: bytes.size() == total_bytes
+};
+/// The inputs of the file in file order; a malformed record or a chunk out of order stops the
+/// list and sets `error`.
+std::vector<RecordedInput> recorded_inputs(const File& file, std::string* error = nullptr);
 
 }  // namespace storetrack::ch10read

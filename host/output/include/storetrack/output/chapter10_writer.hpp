@@ -1,11 +1,14 @@
 // IRIG 106-17 Chapter 10 file writer (recorder side of the FTI output).
 //
-// File = TMATS setup record (Computer-Generated Data Format 1, channel 0) first, then
-// Time Data Format 1 packets (one per UTC second of exposure time) and Message Data Format 0
-// packets carrying FTI parameter blocks, one subchannel per store. Every packet is built whole in
-// memory and written with ONE write() on an O_APPEND descriptor, then fdatasync()ed (policy), so a
-// crash or power loss loses at most the packet being written and the file stays readable up to
-// the last whole packet. Layout byte by byte: docs/fti-output.md.
+// File = TMATS setup record (Computer-Generated Data Format 1, channel 0) first, then the
+// recorded inputs (Computer-Generated Data Format 0, channel 4: calibration, surveys, host
+// configuration... byte for byte with their SHA-256), then Time Data Format 1 packets (one per
+// UTC second of exposure time), Message Data Format 0 packets carrying FTI parameter blocks, one
+// subchannel per store (channel 2), and, when enabled, Message Data Format 0 packets carrying
+// every observation message the host received as it arrived (channel 3, RawObservation). Every
+// packet is built whole in memory and written with ONE write() on an O_APPEND descriptor, then
+// fdatasync()ed (policy), so a crash or power loss loses at most the packet being written and the
+// file stays readable up to the last whole packet. Layout byte by byte: docs/fti-output.md.
 //
 // A recording is never overwritten: an existing path is refused or a new numbered file is
 // created next to it (out.ch10 -> out.001.ch10). A failed write is cut back to the last whole
@@ -19,6 +22,7 @@
 #include <climits>
 #include <cstddef>
 #include <cstdint>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -30,6 +34,24 @@ namespace storetrack::output {
 struct Chapter10StoreInfo {
   std::uint8_t store_id = 1;  ///< FtiSample::store_id, also the message subchannel id
   std::string name = "store";
+};
+
+/// What a recorded input is (RecordedInput.kind, docs/fti-output.md).
+enum class RecordedInputKind : std::uint8_t {
+  kCalibration = 0,
+  kPylonSurvey = 1,
+  kStoreSurvey = 2,
+  kHostConfig = 3,
+  kInitialMarks = 4,
+  kCommandLine = 5,
+};
+const char* to_string(RecordedInputKind kind);
+
+/// One input file the recording carries (at the start of every file, continuation files too).
+struct RecordedInputFile {
+  RecordedInputKind kind = RecordedInputKind::kCalibration;
+  std::string name;                 ///< the path as given (at most 1024 bytes are recorded)
+  std::vector<std::uint8_t> bytes;  ///< the content, byte for byte
 };
 
 enum class Chapter10Sync : std::uint8_t {
@@ -51,6 +73,16 @@ constexpr int kMaxChapter10FileNumber = 999;
 struct Chapter10Config {
   std::uint16_t time_channel_id = 1;
   std::uint16_t message_channel_id = 2;
+  std::uint16_t raw_channel_id = 3;     ///< RawObservation messages (when raw_observations)
+  std::uint16_t inputs_channel_id = 4;  ///< RecordedInput packets (when inputs is not empty)
+  /// The raw channel is described in TMATS and write_raw() records; off: write_raw() refuses.
+  bool raw_observations = false;
+  int max_raw_messages_per_packet = 64;  ///< raw messages per F0 packet, 1 .. 65535 (clamped)
+  /// Observations held while the RTC epoch is unknown (no sample yet); past this many the epoch
+  /// is taken from the first observation's arrival instead.
+  int max_held_raw_messages = 8192;
+  /// Inputs written at the start of every file; their SHA-256 is computed by open().
+  std::vector<RecordedInputFile> inputs;
   std::vector<Chapter10StoreInfo> stores{Chapter10StoreInfo{}};
   bool data_checksum = true;                     ///< 32-bit data checksum trailer on every packet
   int max_messages_per_packet = 10;              ///< messages per F0 packet, 1 .. 65535 (clamped)
@@ -80,6 +112,14 @@ struct Chapter10Counters {
   std::uint64_t open_errors = 0;            ///< a continuation file could not be created
   std::uint64_t packets_dropped = 0;        ///< packets in no file (message and time packets)
   std::uint64_t messages_dropped = 0;       ///< samples in no file
+  // The raw channel (RawObservation messages), apart from the samples.
+  std::uint64_t raw_packets = 0;           ///< raw-channel packets written
+  std::uint64_t raw_messages_written = 0;  ///< observations in those packets
+  std::uint64_t raw_bytes_written = 0;     ///< observation bytes (as received) in those packets
+  std::uint64_t raw_packets_dropped = 0;   ///< raw-channel packets that reached no file
+  std::uint64_t raw_messages_dropped = 0;  ///< observations in those packets
+  std::uint64_t raw_refused = 0;    ///< write_raw() refused: channel off, or the message too long
+  std::uint64_t input_packets = 0;  ///< RecordedInput packets written (every file repeats them)
 };
 
 /// The system calls the writer makes on an open file; tests replace them to inject faults.
@@ -113,7 +153,13 @@ class Chapter10Writer {
   /// exposure time enters a new UTC second, and a message packet when the batch is full.
   /// Returns 0 or -errno of the failing write (also counted).
   int write(const msg::FtiSample& sample);
-  /// Writes any queued messages as a packet now.
+  /// Queues one received observation message (`message`: its bytes as received, at most
+  /// msg::kRawObservationMaxTailBytes; `record.message_bytes` must equal its size) for the raw
+  /// channel; a packet is written when the batch is full or spans max_packet_span_ns of arrival
+  /// time. Returns 0, -EINVAL (raw channel off, or the sizes disagree: counted raw_refused) or
+  /// -errno of the failing write (also counted).
+  int write_raw(const msg::RawObservation& record, std::span<const std::uint8_t> message);
+  /// Writes any queued messages (samples and raw observations) as packets now.
   int flush();
   /// Flushes, fdatasyncs and closes; returns the first error. Safe to call twice.
   int close();
@@ -129,8 +175,12 @@ class Chapter10Writer {
  private:
   std::vector<std::uint8_t> build_packet(std::uint16_t channel_id, std::uint8_t data_type,
                                          std::uint64_t rtc, const std::vector<std::uint8_t>& body);
+  enum class Payload : std::uint8_t { kSetup, kTime, kSamples, kRaw };
   int write_packet(std::uint16_t channel_id, std::uint8_t data_type, std::uint64_t rtc,
-                   const std::vector<std::uint8_t>& body, int messages);
+                   const std::vector<std::uint8_t>& body, int messages, Payload payload);
+  int flush_samples();
+  int flush_raw(bool force);
+  void set_epoch_from(time::TaiNs t);
   int append(const std::vector<std::uint8_t>& packet, bool& written);
   std::vector<std::uint8_t> time_body(std::int64_t utc_second) const;
   int write_time_packet(std::int64_t utc_second);
@@ -159,6 +209,16 @@ class Chapter10Writer {
   std::vector<std::uint8_t> pending_body_;  // message F0 body without CSDW
   int pending_messages_ = 0;
   time::TaiNs pending_first_tai_ns_ = 0;
+  // Raw channel: message F0 body without CSDW; the 8-byte time stamps are filled in at flush
+  // (the RTC epoch may not be known yet when the first observations arrive).
+  std::vector<std::uint8_t> pending_raw_body_;
+  struct HeldRaw {
+    std::size_t offset;         // of its intra-packet header in pending_raw_body_
+    time::TaiNs arrival;        // its time stamp, once the epoch is known
+    std::size_t message_bytes;  // as received
+  };
+  std::vector<HeldRaw> pending_raw_;
+  std::vector<std::vector<std::uint8_t>> input_bodies_;  // CG F0 bodies of the inputs
   Chapter10Counters counters_;
 };
 
