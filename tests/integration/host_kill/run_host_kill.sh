@@ -69,7 +69,13 @@ ch10_of_run() { [ "$1" -eq 0 ] && echo "$OUT/out.ch10" || echo "$OUT/out.$(print
 RANDOM=$$
 for run in $(seq 0 $(( KILLS - 1 ))); do
   F=$(ch10_of_run "$run")
-  for _ in $(seq 600); do [ "$(stat -c %s "$F" 2>/dev/null || echo 0)" -gt 2000 ] && break; sleep 0.1; done
+  # Its first sample packet (not its size: TMATS and the recorded inputs at the file's start
+  # are tens of kilobytes before any sample).
+  for _ in $(seq 600); do
+    n=$("$CHECK" "$F" 2>/dev/null | /usr/bin/python3 -c "import json,sys; print(len(json.load(sys.stdin)['samples']))" 2>/dev/null || echo 0)
+    [ "$n" -gt 0 ] && break
+    sleep 0.1
+  done
   [ -f "$F" ] || { ls -l "$OUT"; echo "FAIL run $run never created $F (an earlier file overwritten?)"; exit 1; }
   sleep "$(( 2 + RANDOM % 11 ))e-1"
   kill -9 "$HOST_PID"; wait "$HOST_PID" 2>/dev/null || true
