@@ -41,9 +41,6 @@ bool MarkMatcher::triangulate(Work& w, int m, std::span<const int> obs, const Ve
 }
 
 void MarkMatcher::verify_views(Work& w) const {
-  auto accepted = [](const triangulate::Result& r) {
-    return Work::Tri{true, r.p_w, r.cov_weighted, r.chi2, r};
-  };
   for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
     // Only marks whose assignments changed since they were last verified.
     if (!w.dirty[m]) continue;
@@ -56,7 +53,7 @@ void MarkMatcher::verify_views(Work& w) const {
     const int n = static_cast<int>(as.size());
     const Vec3 initial = w.pred[m].p;
     if (triangulate(w, m, as, initial) && w.tri_result.chi2 <= chi2_gate_[2 * n - 3]) {
-      tri = accepted(w.tri_result);
+      tri = Work::Tri::accepted(w.tri_result);
       continue;
     }
     // Inconsistent views. With >= 3 views, drop the one observation whose removal makes the
@@ -70,7 +67,7 @@ void MarkMatcher::verify_views(Work& w) const {
         if (triangulate(w, m, rest, initial) && w.tri_result.chi2 <= chi2_gate_[2 * (n - 1) - 3]) {
           ++passing;
           culprit = k;
-          best = accepted(w.tri_result);
+          best = Work::Tri::accepted(w.tri_result);
         }
       }
     }
