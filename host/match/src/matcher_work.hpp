@@ -8,6 +8,7 @@
 
 #include <Eigen/Core>
 
+#include "storetrack/match/mark_estimator.hpp"
 #include "storetrack/match/mark_matcher.hpp"
 #include "storetrack/pose/body_pose.hpp"
 #include "storetrack/triangulate/triangulate.hpp"
