@@ -30,9 +30,15 @@ Vec3 contact_normal(const MeshPair& pair) {
   return c.distance > 0 ? Vec3((c.p_a - c.p_b) / c.distance) : pair.aircraft_face_normal;
 }
 
+/// sqrt(J C J^T); NaN (not 0) when the covariance has a NaN.
+double standard_uncertainty(const Vec6& J, const Mat6& cov) {
+  const double variance = J.dot(cov * J);
+  return std::isnan(variance) ? variance : std::sqrt(std::max(0.0, variance));
+}
+
 double distance_uncertainty(const MeshPair& pair, const Vec3& t_p_s, const Mat6& cov) {
-  const Vec6 J = distance_jacobian(pair.closest.p_a, t_p_s, contact_normal(pair));
-  return std::sqrt(std::max(0.0, J.dot(cov * J)));
+  return standard_uncertainty(distance_jacobian(pair.closest.p_a, t_p_s, contact_normal(pair)),
+                              cov);
 }
 
 }  // namespace
@@ -132,6 +138,7 @@ PartClearance ClearanceModel::evaluate_part(const Part& part, const geometry::Tr
   r.lower_bound_m = r.distance_m - kCoverageFactor * r.u_distance_m;
   if (!std::isfinite(r.lower_bound_m)) return r;
 
+  const double single = r.lower_bound_m;
   candidates_.clear();
   for (const Part& s : store_) {
     const double u_bound = std::sqrt(lambda_max * (1 + s.tree.radius() * s.tree.radius()));
@@ -141,7 +148,10 @@ PartClearance ClearanceModel::evaluate_part(const Part& part, const geometry::Tr
     pairs_within(s.tree, T_p_s, part.tree, reach, pairs_);
     for (const MeshPair& pair : pairs_) {
       const Vec6 J = distance_jacobian(pair.closest.p_a, t, contact_normal(pair));
-      candidates_.push_back({pair.closest.distance, std::sqrt(std::max(0.0, J.dot(cov * J))), J});
+      const double u = standard_uncertainty(J, cov);
+      // Its term at any b <= the single bound is below Phi(-kCandidateReachSigmas): left out.
+      if (pair.closest.distance - kCandidateReachSigmas * u >= single) continue;
+      candidates_.push_back({pair.closest.distance, u, J});
     }
   }
   r.candidate_pairs = std::max<int>(1, static_cast<int>(candidates_.size()));
@@ -160,8 +170,8 @@ PartClearance ClearanceModel::evaluate_part(const Part& part, const geometry::Tr
     if (!same) features_.push_back(c);
   }
   r.features = static_cast<int>(features_.size());
-  const double single = features_.front().distance - kCoverageFactor * features_.front().u;
-  r.lower_bound_m = features_.size() == 1 ? single : union_lower_bound(features_, single);
+  const double lowest = features_.front().distance - kCoverageFactor * features_.front().u;
+  r.lower_bound_m = features_.size() == 1 ? lowest : union_lower_bound(features_, lowest);
   return r;
 }
 

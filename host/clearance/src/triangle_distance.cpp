@@ -121,7 +121,10 @@ ClosestPair triangle_distance(const Triangle& a, const Triangle& b) {
       consider(on_a, on_b, Feature::kEdgeEdge);
     }
   best.distance = std::sqrt(best2);
-  if (best.distance == 0) return best;
+  if (best.distance == 0) {  // touching counts as penetration: no clearance is left
+    best.feature = Feature::kPenetration;
+    return best;
+  }
   // Not touching at a feature: they intersect only if an edge of one crosses the other.
   Vec3 x;
   for (int i = 0; i < 3; ++i) {

@@ -21,8 +21,9 @@ inline constexpr double kLowerBoundMiss = 0.022750131948179209;
 /// two such variables under-counts the miss probability by at most 4 % of kLowerBoundMiss
 /// (docs/clearance.md, "Feature switch").
 inline constexpr double kSameFeatureCorrelation = 0.999;
-/// Pairs farther than this many u_bound beyond the bound are left out of its sum: each would
-/// add less than Phi(-4) = 3.2e-5.
+/// A pair is left out of the bound's sum when its distance is more than this many of its own u
+/// beyond the single-feature bound d_min - 2 u_min: its term would be below Phi(-4) = 3.2e-5.
+/// Pairs are searched within this many u_bound (a bound on every pair's u) of that bound.
 inline constexpr double kCandidateReachSigmas = 4.0;
 
 /// d(distance)/d(xi) for a left perturbation xi = (rx, ry, rz, tx, ty, tz) of T_p_s

@@ -18,7 +18,7 @@ enum class Feature : std::uint8_t {
   kVertexFace,   ///< a vertex of a against the face of b (its interior or boundary)
   kFaceVertex,   ///< the face of a against a vertex of b
   kEdgeEdge,     ///< an edge of a against an edge of b
-  kPenetration,  ///< the triangles intersect (distance 0)
+  kPenetration,  ///< the triangles touch or intersect (distance 0)
 };
 const char* feature_name(Feature f);
 
