@@ -17,6 +17,15 @@ double box_distance(const Vec3& c1, const Vec3& h1, const Vec3& c2, const Vec3& 
   return gap.norm();
 }
 
+/// Distance between the box of a (posed) triangle and another box: a lower bound of the
+/// triangles' distance, which lets a leaf pair skip the exact test.
+double triangle_box_distance(const Triangle& t, const Eigen::AlignedBox3d& box) {
+  const Vec3 lo = t[0].cwiseMin(t[1]).cwiseMin(t[2]);
+  const Vec3 hi = t[0].cwiseMax(t[1]).cwiseMax(t[2]);
+  const Vec3 gap = (lo - box.max()).cwiseMax(box.min() - hi).cwiseMax(0.0);
+  return gap.norm();
+}
+
 Vec3 face_normal(const Triangle& t) {
   return (t[1] - t[0]).cross(t[2] - t[0]).normalized();
 }
@@ -110,8 +119,9 @@ struct ClosestVisitor {
     for (std::int32_t i = sn.first; i < sn.first + sn.count; ++i) {
       const Triangle ts = traversal.posed_triangle(i);
       for (std::int32_t j = an.first; j < an.first + an.count; ++j) {
-        const ClosestPair c =
-            triangle_distance(ts, aircraft.triangles()[static_cast<std::size_t>(j)]);
+        const auto k = static_cast<std::size_t>(j);
+        if (triangle_box_distance(ts, aircraft.triangle_boxes()[k]) >= bound()) continue;
+        const ClosestPair c = triangle_distance(ts, aircraft.triangles()[k]);
         if (c.distance < best.closest.distance) {
           best.closest = c;
           best.store_triangle = store.mesh_index()[static_cast<std::size_t>(i)];
@@ -137,8 +147,9 @@ struct WithinVisitor {
     for (std::int32_t i = sn.first; i < sn.first + sn.count; ++i) {
       const Triangle ts = traversal.posed_triangle(i);
       for (std::int32_t j = an.first; j < an.first + an.count; ++j) {
-        const ClosestPair c =
-            triangle_distance(ts, aircraft.triangles()[static_cast<std::size_t>(j)]);
+        const auto k = static_cast<std::size_t>(j);
+        if (triangle_box_distance(ts, aircraft.triangle_boxes()[k]) >= bound()) continue;
+        const ClosestPair c = triangle_distance(ts, aircraft.triangles()[k]);
         if (c.distance < max_distance)
           out.push_back({c, store.mesh_index()[static_cast<std::size_t>(i)],
                          aircraft.mesh_index()[static_cast<std::size_t>(j)],
@@ -168,8 +179,13 @@ MeshBvh::MeshBvh(const TriangleMesh& mesh) {
   nodes_.emplace_back();
   build(0, 0, static_cast<std::int32_t>(n), by_mesh_index, centroids);
   triangles_.reserve(n);
-  for (const std::int32_t t : mesh_index_)
+  triangle_boxes_.reserve(n);
+  for (const std::int32_t t : mesh_index_) {
     triangles_.push_back(by_mesh_index[static_cast<std::size_t>(t)]);
+    const Triangle& tri = triangles_.back();
+    triangle_boxes_.emplace_back(tri[0].cwiseMin(tri[1]).cwiseMin(tri[2]),
+                                 tri[0].cwiseMax(tri[1]).cwiseMax(tri[2]));
+  }
 }
 
 // Fills nodes_[node] with the triangles mesh_index_[first, first + count); the children of an

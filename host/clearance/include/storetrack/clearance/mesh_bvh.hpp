@@ -30,6 +30,8 @@ class MeshBvh {
   /// Triangles in tree order, and each one's index in the mesh (for reports).
   const std::vector<Triangle>& triangles() const { return triangles_; }
   const std::vector<std::int32_t>& mesh_index() const { return mesh_index_; }
+  /// Each triangle's own box (tree order): lets a leaf pair skip triangles before the exact test.
+  const std::vector<Eigen::AlignedBox3d>& triangle_boxes() const { return triangle_boxes_; }
   /// Largest distance of a vertex from the frame's origin (bounds the lever arm of a rotation).
   double radius() const { return radius_; }
 
@@ -41,6 +43,7 @@ class MeshBvh {
   std::vector<Node> nodes_;
   std::vector<Triangle> triangles_;
   std::vector<std::int32_t> mesh_index_;
+  std::vector<Eigen::AlignedBox3d> triangle_boxes_;
   double radius_ = 0;
 };
 
