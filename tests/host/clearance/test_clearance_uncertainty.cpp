@@ -76,7 +76,7 @@ TEST(DistanceJacobian, MatchesFiniteDifferencesOfASpherePlaneClosedForm) {
 // Monte Carlo: N poses drawn from the covariance about T0, the spread of their distances
 // against the stated u at T0. For Gaussian d, (N - 1) s^2 / u^2 ~ chi-square(N - 1): the ratio
 // s / u lies in [sqrt(q(0.001) / (N - 1)), sqrt(q(0.999) / (N - 1))] (two-sided, 0.1 % per
-// side): N = 4000 gives about [0.953, 1.048]. The mesh (a UV sphere, 48 x 96) adds at most its
+// side): N = 4000 gives about [0.966, 1.035]. The mesh (a UV sphere, 48 x 96) adds at most its
 // sagitta (< 0.2 mm here) to each distance, a variance < (0.06 mm)^2 against u^2 ~ (4 mm)^2.
 TEST(ClearanceUncertainty, StatedUMatchesMonteCarloOfThePose) {
   const Vec3 q_c(1.2, 0.3, 0.1);
