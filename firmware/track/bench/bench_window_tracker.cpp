@@ -12,6 +12,7 @@
 
 #include <cstdint>
 #include <cstring>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -65,8 +66,10 @@ struct Frames {
     f.stride_bytes = width;
     return f;
   }
-  storetrack::centroid::CentroidConfig centroid_config() const {
+  /// refine = false: threshold moments only, to show what the per-mark refinement costs.
+  storetrack::centroid::CentroidConfig centroid_config(bool refine = true) const {
     storetrack::centroid::CentroidConfig config;
+    config.refine = refine;
     config.read_noise_e = sensor.read_noise_e;
     config.gain_e_per_dn = sensor.gain_e_per_dn;
     config.black_level_dn = sensor.black_level_dn;
@@ -96,7 +99,8 @@ void per_frame_counters(benchmark::State& state, const Frames& f) {
 
 void BM_FullFrame(benchmark::State& state) {
   const Frames& f = frames();
-  storetrack::centroid::Centroider centroider(f.centroid_config(), f.width, f.height);
+  storetrack::centroid::Centroider centroider(f.centroid_config(state.range(0) != 0), f.width,
+                                              f.height);
   std::vector<Blob> blobs(128);
   for (auto _ : state) {
     for (int i = 0; i < kFrames; ++i)
@@ -105,11 +109,12 @@ void BM_FullFrame(benchmark::State& state) {
   }
   per_frame_counters(state, f);
 }
-BENCHMARK(BM_FullFrame)->Unit(benchmark::kMillisecond);
+// Arg: 1 the unit's centroider (refinement on), 0 threshold moments only.
+BENCHMARK(BM_FullFrame)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond);
 
 void BM_Windowed(benchmark::State& state) {
   const Frames& f = frames();
-  track::WindowTracker tracker({}, f.centroid_config(), f.width, f.height);
+  track::WindowTracker tracker({}, f.centroid_config(state.range(0) != 0), f.width, f.height);
   std::vector<Blob> blobs(128);
   for (auto _ : state) {
     tracker.reset();
@@ -133,7 +138,23 @@ void BM_Windowed(benchmark::State& state) {
   state.counters["windows_per_frame"] =
       static_cast<double>(st.windows_tried) / std::max<double>(1.0, double(st.windowed_frames));
 }
-BENCHMARK(BM_Windowed)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Windowed)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond);
+
+// What every windowed frame pays before its windows: the centroider's ROI mode with no ROI
+// (its background estimate samples every 32nd row of the whole frame).
+void BM_BackgroundOnly(benchmark::State& state) {
+  const Frames& f = frames();
+  storetrack::centroid::Centroider centroider(f.centroid_config(), f.width, f.height);
+  std::vector<Blob> blobs(128);
+  for (auto _ : state) {
+    for (int i = 0; i < kFrames; ++i)
+      benchmark::DoNotOptimize(
+          centroider.process(f.view(i), std::span<const storetrack::centroid::Roi>(), blobs));
+    benchmark::ClobberMemory();
+  }
+  per_frame_counters(state, f);
+}
+BENCHMARK(BM_BackgroundOnly)->Unit(benchmark::kMillisecond);
 
 // The floor: a memcpy of each frame (the yardstick for the full-frame pass).
 void BM_MemcpyFloor(benchmark::State& state) {
