@@ -253,16 +253,24 @@ void MarkMatcher::mark_velocities(Work& w, double t_s) const {
   }
 }
 
-MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
-  Work& w = *work_.work;  // buffers reused across exposures (no per-call reallocation)
-  MatchResult out;
+double MarkMatcher::begin_exposure(Work& w, std::span<const msg::MarkObservations> cameras,
+                                   MatchResult& out) {
   load_exposure(w, cameras, out);
   start_exposure_state(w);
   const double t_s = static_cast<double>(out.reference_mid_tai_ns - time_origin_ns_) * 1e-9;
-
   if (out.has_reference_time) {
     predict(w, t_s);
     mark_velocities(w, t_s);
+  }
+  return t_s;
+}
+
+MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
+  Work& w = *work_.work;  // buffers reused across exposures (no per-call reallocation)
+  MatchResult out;
+  const double t_s = begin_exposure(w, cameras, out);
+
+  if (out.has_reference_time) {
     gate_and_assign(w);
     verify_views(w);
     verify_layouts(w);
@@ -342,13 +350,7 @@ MatchResult MarkMatcher::estimate_identified(std::span<const msg::MarkObservatio
     throw std::invalid_argument("MarkMatcher::estimate_identified: one id list per camera");
   Work& w = *work_.work;
   MatchResult out;
-  load_exposure(w, cameras, out);
-  start_exposure_state(w);
-  const double t_s = static_cast<double>(out.reference_mid_tai_ns - time_origin_ns_) * 1e-9;
-  if (out.has_reference_time) {
-    predict(w, t_s);
-    mark_velocities(w, t_s);
-  }
+  const double t_s = begin_exposure(w, cameras, out);
   // Assign the given ids; an id twice in one camera is an identification ambiguity: neither.
   std::vector<int>* members = nullptr;
   for (int o = 0; o < static_cast<int>(w.obs.size()); ++o) {
@@ -389,16 +391,13 @@ MatchResult MarkMatcher::estimate_identified(std::span<const msg::MarkObservatio
   }
   for (auto& ob : w.obs)
     if (ob.state == ObsState::kAmbiguous) ob.mark = -1;
-  auto accepted = [](const triangulate::Result& r) {
-    return Work::Tri{true, r.p_w, r.cov_weighted, r.chi2, r};
-  };
   for (int m = 0; m < static_cast<int>(marks_.size()); ++m)
     if (w.assigned[m].size() >= 2 && triangulate_identified(w, m, w.assigned[m]))
-      w.tri[m] = accepted(w.tri_result);
+      w.tri[m] = Work::Tri::accepted(w.tri_result);
   for (Work::OtherMark& other : w.others) {
     ++w.counts.given_ids_of_no_body;
     if (other.obs.size() >= 2 && triangulate_identified(w, -1, other.obs))
-      other.tri = accepted(w.tri_result);
+      other.tri = Work::Tri::accepted(w.tri_result);
   }
   for (int m = 0; m < static_cast<int>(marks_.size()); ++m)
     if (w.assigned[m].size() == 1) ++w.counts.single_view;

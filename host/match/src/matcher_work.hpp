@@ -8,6 +8,7 @@
 
 #include <Eigen/Core>
 
+#include "storetrack/match/mark_estimator.hpp"
 #include "storetrack/match/mark_matcher.hpp"
 #include "storetrack/pose/body_pose.hpp"
 #include "storetrack/triangulate/triangulate.hpp"
@@ -112,6 +113,10 @@ struct MarkMatcher::Work {
     Mat3 cov = Mat3::Zero();  ///< estimate.cov_weighted (gates, layouts, tracks)
     double chi2 = 0;
     triangulate::Result estimate;  ///< THE estimate (MatchedMark::estimate)
+    /// A triangulation that passed (or needed no) test: the mark's point and estimate.
+    static Tri accepted(const triangulate::Result& r) {
+      return Tri{true, r.p_w, r.cov_weighted, r.chi2, r};
+    }
   };
   /// Per mark: velocity from its track's last two positions (corrects the cameras' time offsets).
   struct Motion {

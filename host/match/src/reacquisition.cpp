@@ -344,13 +344,7 @@ bool MarkMatcher::triangulate_free(Work& w, std::span<const int> obs, const Vec3
     }
     Mat2 W;
     if (!uncertainty::inverse_spd<2>(S, W)) return false;
-    triangulate::Observation v;
-    v.model = &cal.model;
-    v.T_c_w = cal.T_c_w;
-    v.pixel_px = ob.raw;
-    v.sigma_px = ob.sigma;
-    v.information_px = W;
-    views.push_back(v);
+    views.push_back(estimator_view(cal, ob.raw, ob.sigma, W));
   }
   triangulate::Options options;
   options.initial_p_w = initial;

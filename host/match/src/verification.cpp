@@ -16,34 +16,19 @@ bool MarkMatcher::triangulate(Work& w, int m, std::span<const int> obs, const Ve
   // varies negligibly over the gate), each view corrected for the mark's motion between the
   // reference time and its camera's exposure. Its chi2 is the multi-view consistency statistic;
   // the same solution, with its calibration Jacobians and gains, is the mark's estimate.
-  const bool moving = m >= 0 && w.motion[m].valid;
+  const Vec3* velocity_w = m >= 0 && w.motion[m].valid ? &w.motion[m].v_w : nullptr;
   auto& views = w.tri_views;
   views.clear();
   for (int o : obs) {
     const auto& ob = w.obs[o];
-    const auto& cal = rig_.cameras[ob.slot];
-    triangulate::Observation v;
-    v.model = &cal.model;
-    v.T_c_w = cal.T_c_w;
-    v.pixel_px = ob.raw;
-    v.sigma_px = ob.sigma;
-    v.information_px = ob.W;
-    if (moving) v.displacement_w = w.motion[m].v_w * w.cams[ob.cam].dt_s;
-    views.push_back(v);
+    views.push_back(estimator_view(rig_.cameras[ob.slot], ob.raw, ob.sigma, ob.W, velocity_w,
+                                   w.cams[ob.cam].dt_s));
   }
-  triangulate::Options options;
-  options.initial_p_w = initial;
-  // Gauss-Newton converges quadratically from inside the gate (2-4 iterations); 0.1 um is far
-  // below any mark's sigma (>= 50 um), so the estimate does not depend on where it started.
-  options.step_tolerance_m = 1e-7;
-  if (!triangulate::triangulate(views, options, w.tri_result)) return false;
+  if (!triangulate::triangulate(views, estimator_options(initial), w.tri_result)) return false;
   return std::isfinite(w.tri_result.chi2);
 }
 
 void MarkMatcher::verify_views(Work& w) const {
-  auto accepted = [](const triangulate::Result& r) {
-    return Work::Tri{true, r.p_w, r.cov_weighted, r.chi2, r};
-  };
   for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
     // Only marks whose assignments changed since they were last verified.
     if (!w.dirty[m]) continue;
@@ -56,7 +41,7 @@ void MarkMatcher::verify_views(Work& w) const {
     const int n = static_cast<int>(as.size());
     const Vec3 initial = w.pred[m].p;
     if (triangulate(w, m, as, initial) && w.tri_result.chi2 <= chi2_gate_[2 * n - 3]) {
-      tri = accepted(w.tri_result);
+      tri = Work::Tri::accepted(w.tri_result);
       continue;
     }
     // Inconsistent views. With >= 3 views, drop the one observation whose removal makes the
@@ -70,7 +55,7 @@ void MarkMatcher::verify_views(Work& w) const {
         if (triangulate(w, m, rest, initial) && w.tri_result.chi2 <= chi2_gate_[2 * (n - 1) - 3]) {
           ++passing;
           culprit = k;
-          best = accepted(w.tri_result);
+          best = Work::Tri::accepted(w.tri_result);
         }
       }
     }

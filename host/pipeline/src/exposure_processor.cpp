@@ -12,6 +12,7 @@
 #include <Eigen/Eigenvalues>
 
 #include "sample_fields.hpp"
+#include "storetrack/match/mark_estimator.hpp"
 #include "storetrack/pose/body_pose.hpp"
 #include "storetrack/triangulate/triangulate.hpp"
 #include "storetrack/uncertainty/spd_inverse.hpp"
@@ -395,24 +396,16 @@ void ExposureProcessor::solve(const Prepared& prep,
     if (fixed_exclusions != nullptr) {
       tri_obs.clear();
       for (const Prepared::Obs& o : mark.obs) {
-        const camera::CalibratedCamera& cam = cameras[static_cast<size_t>(o.slot)];
-        triangulate::Observation t;
-        t.model = &cam.model;
-        t.T_c_w = cam.T_c_w;
-        t.pixel_px = o.pixel_px;
-        t.sigma_px = o.sigma_px;
-        t.information_px = o.information_px;
         // The estimator corrects by velocity * stated offset (when motion_corrected); the mark
         // really moved by velocity * (offset + its error).
         const auto slot = static_cast<size_t>(o.slot);
-        if (mark.velocity_valid)
-          t.displacement_w = mark.velocity_w * ((mark.motion_corrected ? prep.dt_s[slot] : 0.0) +
-                                                prep.sync_error_s[slot]);
-        tri_obs.push_back(t);
+        const double offset_s =
+            (mark.motion_corrected ? prep.dt_s[slot] : 0.0) + prep.sync_error_s[slot];
+        tri_obs.push_back(
+            match::estimator_view(cameras[slot], o.pixel_px, o.sigma_px, o.information_px,
+                                  mark.velocity_valid ? &mark.velocity_w : nullptr, offset_s));
       }
-      triangulate::Options options;
-      options.initial_p_w = mark.estimate->p_w;
-      options.step_tolerance_m = 1e-7;
+      triangulate::Options options = match::estimator_options(mark.estimate->p_w);
       options.calibration_jacobians = false;
       if (!triangulate::triangulate(tri_obs, options, drawn)) {
         ++counters.triangulation_failed;

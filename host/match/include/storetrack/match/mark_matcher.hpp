@@ -357,6 +357,10 @@ class MarkMatcher {
   /// `obs` (Work::obs indices, weights Work::Obs::W), motion-corrected with the mark's
   /// velocity; fills w.tri_result. False when it fails or its chi2 is not finite.
   bool triangulate(Work& w, int m, std::span<const int> obs, const geometry::Vec3& initial) const;
+  /// The start of every exposure (match() and estimate_identified()): loads it, resets the
+  /// per-exposure state and, when it has a reference time, predicts every mark and takes its
+  /// velocity from its track. Returns the exposure's time t_s since the time origin.
+  double begin_exposure(Work& w, std::span<const msg::MarkObservations> cameras, MatchResult& out);
   /// Validates and undistorts one exposure's observations into the Work; the reference time.
   void load_exposure(Work& w, std::span<const msg::MarkObservations> cameras, MatchResult& out);
   void start_exposure_state(Work& w) const;

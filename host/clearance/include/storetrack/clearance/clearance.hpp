@@ -1,0 +1,93 @@
+// Store-to-aircraft clearance per sample: for each aircraft part, the minimum distance to the
+// store posed by T_p_s, the two closest points, the feature pair, the contact normal, the
+// distance's standard uncertainty from the 6x6 covariance of T_p_s, and the k = 2 lower bound
+// with the feature-switch rule of docs/clearance.md.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "storetrack/clearance/geometry_file.hpp"
+#include "storetrack/clearance/mesh_bvh.hpp"
+#include "storetrack/geometry/transform.hpp"
+
+namespace storetrack::clearance {
+
+inline constexpr double kCoverageFactor = 2.0;  ///< k of the lower bound (GUM, docs/conventions.md)
+/// One-sided miss probability of the k = 2 lower bound of one Gaussian feature: Phi(-2).
+inline constexpr double kLowerBoundMiss = 0.022750131948179209;
+/// Two candidate pairs whose distance errors are correlated at least this much are one feature
+/// (the same vertex on several triangles, neighbouring facets of one smooth contact); merging
+/// two such variables under-counts the miss probability by at most 4 % of kLowerBoundMiss
+/// (docs/clearance.md, "Feature switch").
+inline constexpr double kSameFeatureCorrelation = 0.999;
+/// A pair is left out of the bound's sum when its distance is more than this many of its own u
+/// beyond the single-feature bound d_min - 2 u_min: its term would be below Phi(-4) = 3.2e-5.
+/// Pairs are searched within this many u_bound (a bound on every pair's u) of that bound.
+inline constexpr double kCandidateReachSigmas = 4.0;
+
+/// d(distance)/d(xi) for a left perturbation xi = (rx, ry, rz, tx, ty, tz) of T_p_s
+/// (geometry::perturb_left): the store's closest point p moves by -[p - t]x phi + rho, so with
+/// d = n . (p_store - p_aircraft), J = [((p_store - t_p_s) x n)^T, n^T].
+geometry::Vec6 distance_jacobian(const geometry::Vec3& p_store_p, const geometry::Vec3& t_p_s,
+                                 const geometry::Vec3& normal_p);
+
+struct PartClearance {
+  std::string part;          ///< the aircraft part
+  std::string store_part;    ///< the store part closest to it
+  double distance_m = 0;     ///< minimum distance (0 with penetration)
+  bool penetration = false;  ///< the meshes intersect
+  Feature feature = Feature::kVertexFace;
+  geometry::Vec3 p_store_p = geometry::Vec3::Zero();     ///< closest point on the store, frame p
+  geometry::Vec3 p_aircraft_p = geometry::Vec3::Zero();  ///< closest point on the part, frame p
+  geometry::Vec3 q_store_s = geometry::Vec3::Zero();     ///< the store's point in frame s
+  /// Unit contact normal from the part to the store ((p_store - p_aircraft) / d); with
+  /// penetration, the part triangle's face normal (the sign is then arbitrary).
+  geometry::Vec3 normal_p = geometry::Vec3::UnitZ();
+  std::int32_t store_triangle = -1, aircraft_triangle = -1;  ///< indices in their STL files
+  double u_distance_m = 0;  ///< first-order standard uncertainty of distance_m
+  /// The lower bound b of the minimum distance with sum over distinct candidate features g of
+  /// Phi((b - d_g) / u_g) = Phi(-2): d - 2u for one feature, lower where the closest feature can
+  /// switch (docs/clearance.md, "Feature switch").
+  double lower_bound_m = 0;
+  int candidate_pairs = 1;  ///< triangle pairs near enough to be considered
+  int features = 1;         ///< distinct features among them (the terms of the sum)
+};
+
+/// Bodies with their trees. Store parts in frame s, aircraft parts in frame p.
+class ClearanceModel {
+ public:
+  explicit ClearanceModel(std::vector<Body> bodies);
+  /// read_geometry + load_body for each body (T_p_w for aircraft-frame bodies).
+  static ClearanceModel load(const std::string& geometry_path,
+                             const std::optional<geometry::Transform>& T_p_w = std::nullopt);
+
+  /// One entry per aircraft part, in file order. cov_T_p_s over the left perturbation of T_p_s.
+  /// A covariance that is not finite gives NaN uncertainties and bounds (never a throw).
+  std::vector<PartClearance> evaluate(const geometry::Transform& T_p_s,
+                                      const geometry::Mat6& cov_T_p_s);
+
+  std::size_t store_parts() const { return store_.size(); }
+  std::size_t aircraft_parts() const { return aircraft_.size(); }
+
+ private:
+  struct Part {
+    std::string name;
+    MeshBvh tree;
+  };
+  PartClearance evaluate_part(const Part& part, const geometry::Transform& T_p_s,
+                              const geometry::Mat6& cov, double lambda_max);
+
+  std::vector<Part> store_;
+  std::vector<Part> aircraft_;
+  struct Candidate {
+    double distance, u;
+    geometry::Vec6 J;
+  };
+  // Scratch of the feature-switch pass, kept between samples (no allocation once warm).
+  std::vector<MeshPair> pairs_;
+  std::vector<Candidate> candidates_;
+  std::vector<Candidate> features_;
+};
+
+}  // namespace storetrack::clearance

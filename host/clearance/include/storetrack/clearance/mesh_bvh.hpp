@@ -1,0 +1,67 @@
+// An axis-aligned bounding-box tree over a mesh's triangles, in the mesh's own frame, and the
+// exact minimum distance between a posed store mesh and an aircraft mesh through two such trees
+// (docs/clearance.md, "Distance"). Built once per body; a query allocates nothing but the
+// output of pairs_within.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "storetrack/clearance/mesh.hpp"
+#include "storetrack/clearance/triangle_distance.hpp"
+
+namespace storetrack::clearance {
+
+class MeshBvh {
+ public:
+  /// Leaves hold at most kLeafTriangles triangles; split at the median of the triangle centroids
+  /// along the longest side of their bounds.
+  static constexpr int kLeafTriangles = 4;
+
+  explicit MeshBvh(const TriangleMesh& mesh);
+
+  struct Node {
+    geometry::Vec3 centre = geometry::Vec3::Zero();
+    geometry::Vec3 half = geometry::Vec3::Zero();  ///< half side lengths
+    std::int32_t first = 0;                        ///< leaf: first triangle; inner: left child
+    std::int32_t count = 0;                        ///< leaf: triangles; inner: 0 (right = left + 1)
+  };
+  const std::vector<Node>& nodes() const { return nodes_; }
+  /// Triangles in tree order, and each one's index in the mesh (for reports).
+  const std::vector<Triangle>& triangles() const { return triangles_; }
+  const std::vector<std::int32_t>& mesh_index() const { return mesh_index_; }
+  /// Each triangle's own box (tree order): lets a leaf pair skip triangles before the exact test.
+  const std::vector<Eigen::AlignedBox3d>& triangle_boxes() const { return triangle_boxes_; }
+  /// Largest distance of a vertex from the frame's origin (bounds the lever arm of a rotation).
+  double radius() const { return radius_; }
+
+ private:
+  void build(std::int32_t node, std::int32_t first, std::int32_t count,
+             const std::vector<Triangle>& by_mesh_index,
+             const std::vector<geometry::Vec3>& centroids);
+
+  std::vector<Node> nodes_;
+  std::vector<Triangle> triangles_;
+  std::vector<std::int32_t> mesh_index_;
+  std::vector<Eigen::AlignedBox3d> triangle_boxes_;
+  double radius_ = 0;
+};
+
+/// A pair of triangles, store (posed) and aircraft, and their closest points in the aircraft's
+/// frame (the pylon frame p for the clearance).
+struct MeshPair {
+  ClosestPair closest;  ///< p_a on the store, p_b on the aircraft, both in frame p
+  std::int32_t store_triangle = -1;
+  std::int32_t aircraft_triangle = -1;
+  geometry::Vec3 aircraft_face_normal = geometry::Vec3::UnitZ();  ///< unit, frame p
+};
+
+/// Minimum distance between store_s posed by T_p_s and aircraft_p.
+MeshPair closest_pair(const MeshBvh& store_s, const geometry::Transform& T_p_s,
+                      const MeshBvh& aircraft_p);
+
+/// Appends every pair of triangles at a distance below max_distance_m (the feature-switch pass).
+void pairs_within(const MeshBvh& store_s, const geometry::Transform& T_p_s,
+                  const MeshBvh& aircraft_p, double max_distance_m, std::vector<MeshPair>& out);
+
+}  // namespace storetrack::clearance

@@ -1,0 +1,242 @@
+#include "storetrack/clearance/mesh_bvh.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numeric>
+
+namespace storetrack::clearance {
+namespace {
+
+using geometry::Mat3;
+using geometry::Vec3;
+
+/// Distance between two axis-aligned boxes given by centre and half sides (0 when they overlap).
+double box_distance(const Vec3& c1, const Vec3& h1, const Vec3& c2, const Vec3& h2) {
+  const Vec3 gap = ((c1 - c2).cwiseAbs() - h1 - h2).cwiseMax(0.0);
+  return gap.norm();
+}
+
+/// Distance between the box of a (posed) triangle and another box: a lower bound of the
+/// triangles' distance, which lets a leaf pair skip the exact test.
+double triangle_box_distance(const Triangle& t, const Eigen::AlignedBox3d& box) {
+  const Vec3 lo = t[0].cwiseMin(t[1]).cwiseMin(t[2]);
+  const Vec3 hi = t[0].cwiseMax(t[1]).cwiseMax(t[2]);
+  const Vec3 gap = (lo - box.max()).cwiseMax(box.min() - hi).cwiseMax(0.0);
+  return gap.norm();
+}
+
+Vec3 face_normal(const Triangle& t) {
+  return (t[1] - t[0]).cross(t[2] - t[0]).normalized();
+}
+
+/// A store node's box in frame p: the box of its rotated box (centre R c + t, half |R| h).
+struct PosedBox {
+  Vec3 centre, half;
+};
+
+/// Branch and bound over both trees. The visitor's bound() is the distance beyond which a pair
+/// of nodes cannot matter; leaf() tests the triangles of two leaves.
+template <typename Visitor>
+class DualTraversal {
+ public:
+  DualTraversal(const MeshBvh& store, const geometry::Transform& T_p_s, const MeshBvh& aircraft,
+                Visitor& visitor)
+      : store_(store),
+        aircraft_(aircraft),
+        R_(T_p_s.linear()),
+        t_(T_p_s.translation()),
+        abs_R_(R_.cwiseAbs()),
+        visitor_(visitor) {}
+
+  void run() { visit(0, posed(0), 0); }
+
+  Triangle posed_triangle(std::int32_t i) const {
+    const Triangle& q = store_.triangles()[static_cast<std::size_t>(i)];
+    return {R_ * q[0] + t_, R_ * q[1] + t_, R_ * q[2] + t_};
+  }
+
+ private:
+  PosedBox posed(std::int32_t s) const {
+    const MeshBvh::Node& n = store_.nodes()[static_cast<std::size_t>(s)];
+    return {R_ * n.centre + t_, abs_R_ * n.half};
+  }
+
+  double distance(const PosedBox& s, std::int32_t a) const {
+    const MeshBvh::Node& n = aircraft_.nodes()[static_cast<std::size_t>(a)];
+    return box_distance(s.centre, s.half, n.centre, n.half);
+  }
+
+  void visit(std::int32_t s, const PosedBox& sbox, std::int32_t a) {
+    const MeshBvh::Node& sn = store_.nodes()[static_cast<std::size_t>(s)];
+    const MeshBvh::Node& an = aircraft_.nodes()[static_cast<std::size_t>(a)];
+    const bool s_leaf = sn.count > 0, a_leaf = an.count > 0;
+    if (s_leaf && a_leaf) {
+      visitor_.leaf(*this, sn, an);
+      return;
+    }
+    // Descend the larger node (the aircraft's when the store's is a leaf), nearer child first.
+    const bool split_store = !s_leaf && (a_leaf || sn.half.squaredNorm() >= an.half.squaredNorm());
+    if (split_store) {
+      const PosedBox b0 = posed(sn.first), b1 = posed(sn.first + 1);
+      double d0 = distance(b0, a), d1 = distance(b1, a);
+      if (d1 < d0) {
+        if (d1 < visitor_.bound()) visit(sn.first + 1, b1, a);
+        if (d0 < visitor_.bound()) visit(sn.first, b0, a);
+      } else {
+        if (d0 < visitor_.bound()) visit(sn.first, b0, a);
+        if (d1 < visitor_.bound()) visit(sn.first + 1, b1, a);
+      }
+    } else {
+      const double d0 = distance(sbox, an.first), d1 = distance(sbox, an.first + 1);
+      if (d1 < d0) {
+        if (d1 < visitor_.bound()) visit(s, sbox, an.first + 1);
+        if (d0 < visitor_.bound()) visit(s, sbox, an.first);
+      } else {
+        if (d0 < visitor_.bound()) visit(s, sbox, an.first);
+        if (d1 < visitor_.bound()) visit(s, sbox, an.first + 1);
+      }
+    }
+  }
+
+  const MeshBvh& store_;
+  const MeshBvh& aircraft_;
+  const Mat3 R_;
+  const Vec3 t_;
+  const Mat3 abs_R_;
+  Visitor& visitor_;
+};
+
+struct ClosestVisitor {
+  const MeshBvh& store;
+  const MeshBvh& aircraft;
+  MeshPair best;
+
+  double bound() const { return best.closest.distance; }
+
+  template <typename Traversal>
+  void leaf(const Traversal& traversal, const MeshBvh::Node& sn, const MeshBvh::Node& an) {
+    for (std::int32_t i = sn.first; i < sn.first + sn.count; ++i) {
+      const Triangle ts = traversal.posed_triangle(i);
+      for (std::int32_t j = an.first; j < an.first + an.count; ++j) {
+        const auto k = static_cast<std::size_t>(j);
+        if (triangle_box_distance(ts, aircraft.triangle_boxes()[k]) >= bound()) continue;
+        const ClosestPair c = triangle_distance(ts, aircraft.triangles()[k]);
+        if (c.distance < best.closest.distance) {
+          best.closest = c;
+          best.store_triangle = store.mesh_index()[static_cast<std::size_t>(i)];
+          best.aircraft_triangle = aircraft.mesh_index()[static_cast<std::size_t>(j)];
+          best.aircraft_face_normal =
+              face_normal(aircraft.triangles()[static_cast<std::size_t>(j)]);
+        }
+      }
+    }
+  }
+};
+
+struct WithinVisitor {
+  const MeshBvh& store;
+  const MeshBvh& aircraft;
+  double max_distance;
+  std::vector<MeshPair>& out;
+
+  double bound() const { return max_distance; }
+
+  template <typename Traversal>
+  void leaf(const Traversal& traversal, const MeshBvh::Node& sn, const MeshBvh::Node& an) {
+    for (std::int32_t i = sn.first; i < sn.first + sn.count; ++i) {
+      const Triangle ts = traversal.posed_triangle(i);
+      for (std::int32_t j = an.first; j < an.first + an.count; ++j) {
+        const auto k = static_cast<std::size_t>(j);
+        if (triangle_box_distance(ts, aircraft.triangle_boxes()[k]) >= bound()) continue;
+        const ClosestPair c = triangle_distance(ts, aircraft.triangles()[k]);
+        if (c.distance < max_distance)
+          out.push_back({c, store.mesh_index()[static_cast<std::size_t>(i)],
+                         aircraft.mesh_index()[static_cast<std::size_t>(j)],
+                         face_normal(aircraft.triangles()[static_cast<std::size_t>(j)])});
+      }
+    }
+  }
+};
+
+}  // namespace
+
+MeshBvh::MeshBvh(const TriangleMesh& mesh) {
+  const std::size_t n = mesh.triangles.size();
+  if (n == 0) throw MeshError(mesh.source, std::nullopt, "no triangles");
+  std::vector<Triangle> by_mesh_index(n);
+  std::vector<Vec3> centroids(n);
+  for (std::size_t t = 0; t < n; ++t) {
+    for (std::size_t k = 0; k < 3; ++k)
+      by_mesh_index[t][k] = mesh.vertices[static_cast<std::size_t>(mesh.triangles[t][k])];
+    centroids[t] = (by_mesh_index[t][0] + by_mesh_index[t][1] + by_mesh_index[t][2]) / 3.0;
+  }
+  for (const Vec3& p : mesh.vertices)
+    radius_ = std::max(radius_, p.norm());
+  mesh_index_.resize(n);
+  std::iota(mesh_index_.begin(), mesh_index_.end(), 0);
+  nodes_.reserve(2 * n);
+  nodes_.emplace_back();
+  build(0, 0, static_cast<std::int32_t>(n), by_mesh_index, centroids);
+  triangles_.reserve(n);
+  triangle_boxes_.reserve(n);
+  for (const std::int32_t t : mesh_index_) {
+    triangles_.push_back(by_mesh_index[static_cast<std::size_t>(t)]);
+    const Triangle& tri = triangles_.back();
+    triangle_boxes_.emplace_back(tri[0].cwiseMin(tri[1]).cwiseMin(tri[2]),
+                                 tri[0].cwiseMax(tri[1]).cwiseMax(tri[2]));
+  }
+}
+
+// Fills nodes_[node] with the triangles mesh_index_[first, first + count); the children of an
+// inner node are appended as a pair, so that right = left + 1.
+void MeshBvh::build(std::int32_t node, std::int32_t first, std::int32_t count,
+                    const std::vector<Triangle>& by_mesh_index,
+                    const std::vector<Vec3>& centroids) {
+  const auto begin = mesh_index_.begin() + first;
+  const auto end = begin + count;
+  Eigen::AlignedBox3d box, centre_box;
+  for (auto it = begin; it != end; ++it) {
+    for (const Vec3& p : by_mesh_index[static_cast<std::size_t>(*it)])
+      box.extend(p);
+    centre_box.extend(centroids[static_cast<std::size_t>(*it)]);
+  }
+  Node& filled = nodes_[static_cast<std::size_t>(node)];
+  filled.centre = box.center();
+  filled.half = box.sizes() / 2;
+  if (count <= kLeafTriangles) {
+    filled.first = first;
+    filled.count = count;
+    return;
+  }
+  int axis = 0;
+  centre_box.sizes().maxCoeff(&axis);
+  const std::int32_t half_count = count / 2;
+  std::nth_element(begin, begin + half_count, end, [&](std::int32_t x, std::int32_t y) {
+    return centroids[static_cast<std::size_t>(x)](axis) <
+           centroids[static_cast<std::size_t>(y)](axis);
+  });
+  const auto left = static_cast<std::int32_t>(nodes_.size());
+  filled.first = left;
+  filled.count = 0;
+  nodes_.emplace_back();
+  nodes_.emplace_back();
+  build(left, first, half_count, by_mesh_index, centroids);
+  build(left + 1, first + half_count, count - half_count, by_mesh_index, centroids);
+}
+
+MeshPair closest_pair(const MeshBvh& store_s, const geometry::Transform& T_p_s,
+                      const MeshBvh& aircraft_p) {
+  ClosestVisitor visitor{store_s, aircraft_p, {}};
+  visitor.best.closest.distance = std::numeric_limits<double>::infinity();
+  DualTraversal<ClosestVisitor>(store_s, T_p_s, aircraft_p, visitor).run();
+  return visitor.best;
+}
+
+void pairs_within(const MeshBvh& store_s, const geometry::Transform& T_p_s,
+                  const MeshBvh& aircraft_p, double max_distance_m, std::vector<MeshPair>& out) {
+  WithinVisitor visitor{store_s, aircraft_p, max_distance_m, out};
+  DualTraversal<WithinVisitor>(store_s, T_p_s, aircraft_p, visitor).run();
+}
+
+}  // namespace storetrack::clearance
