@@ -103,6 +103,9 @@ def read_ch10(path):
                 iph = struct.unpack_from("<I", body, p + 8)[0]
                 n = iph & 0xFFFF
                 rec = body[p + 12:p + 12 + n]
+                if rec[0] != 2:  # version 2 (docs/icd.md); version 1 had no host_mono_ns
+                    raise ValueError("%s: raw observation version %d at offset %d: this reader "
+                                     "decodes version 2 only" % (path, rec[0], at))
                 (version, kind, arrival, address, port, unit, camera, rflags, error, received,
                  host_mono, length) = struct.unpack_from(">BBqIHBBBBIqH", rec, 0)
                 out["raw_observations"].append({

@@ -285,8 +285,8 @@ DecodeError CanFdReassembler::finish(Slot& slot, std::int64_t now_ns,
   DecodeError e = decode_canfd_stream(key.can_id, stream, message);
   if (e == DecodeError::kNone) {
     const auto* marks_message = std::get_if<MarkObservations>(&message);
-    const std::uint16_t seq = marks_message ? transfer_seq(*marks_message)
-                                            : transfer_seq(std::get<UnitHealth>(message));
+    const std::uint16_t seq =
+        marks_message ? transfer_seq(*marks_message) : transfer_seq(std::get<UnitHealth>(message));
     if (seq != key.seq) e = DecodeError::kOutOfRange;
   }
   if (e != DecodeError::kNone) {

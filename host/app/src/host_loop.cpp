@@ -125,7 +125,8 @@ int HostLoop::run(const LoopLimits& limits, const std::atomic<bool>& stop) {
       ++fi;
     }
     const time::MonotonicNs t_poll = time::monotonic_now_ns();
-    if (p_.aligner.poll(t_poll, ready_)) record_aligner_event(ingest::RawSourceKind::kAlignerDeadline, t_poll);
+    if (p_.aligner.poll(t_poll, ready_))
+      record_aligner_event(ingest::RawSourceKind::kAlignerDeadline, t_poll);
     process_ready();
     now_ = time::monotonic_now_ns();
     if (limits.progress && now_ - t_last_progress >= 1'000'000'000) {

@@ -16,8 +16,10 @@ void load_inputs(HostOptions& o, const InputReader& read, InputFiles& in) {
     parse_host_config(read(RecordedInputKind::kHostConfig, o.config_path), o.config_path, cfg);
   in.rig = camera::parse_rig_calibration(read(RecordedInputKind::kCalibration, o.calibration_path),
                                          o.calibration_path);
-  in.pylon = survey::parse_survey(read(RecordedInputKind::kPylonSurvey, o.pylon_path), o.pylon_path);
-  in.store = survey::parse_survey(read(RecordedInputKind::kStoreSurvey, o.store_path), o.store_path);
+  in.pylon =
+      survey::parse_survey(read(RecordedInputKind::kPylonSurvey, o.pylon_path), o.pylon_path);
+  in.store =
+      survey::parse_survey(read(RecordedInputKind::kStoreSurvey, o.store_path), o.store_path);
   if (!o.initial_marks_path.empty())
     cfg.initial_marks_w = parse_initial_marks(
         read(RecordedInputKind::kInitialMarks, o.initial_marks_path), o.initial_marks_path);

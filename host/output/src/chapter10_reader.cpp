@@ -226,20 +226,22 @@ std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> b, std::s
 
 std::optional<RawObservation> decode_raw_observation(std::span<const std::uint8_t> b,
                                                      std::string* error) {
-  // RawObservation version 1 (docs/icd.md): 34 bytes of fields, big-endian, then the message.
+  // RawObservation version 2 (docs/icd.md): 34 bytes of fields, big-endian, then the message.
   constexpr std::size_t kFixed = 34;
   auto fail = [&](std::string why) -> std::optional<RawObservation> {
     if (error) *error = std::move(why);
     return std::nullopt;
   };
+  if (b.empty()) return fail("empty raw observation");
+  RawObservation r;
+  r.version = b[0];
+  if (r.version != 2)
+    return fail("raw observation version " + std::to_string(r.version) +
+                ": this reader decodes version 2 only (version 1, 26 bytes of fields, has no "
+                "host_mono_ns)");
   if (b.size() < kFixed)
     return fail("raw observation of " + std::to_string(b.size()) + " bytes, needs at least " +
                 std::to_string(kFixed));
-  RawObservation r;
-  r.version = b[0];
-  if (r.version != 1)
-    return fail("raw observation version " + std::to_string(r.version) +
-                ": this reader decodes version 1 only");
   r.source_kind = b[1];
   r.arrival_tai_ns = static_cast<std::int64_t>(be_u(b, 2, 8));
   r.source_address = static_cast<std::uint32_t>(be_u(b, 10, 4));

@@ -106,7 +106,7 @@ struct RawObservation {
   std::int64_t host_mono_ns = 0;    ///< the host loop's time the aligner was given
   std::vector<std::uint8_t> bytes;  ///< the message as received
 };
-/// Decodes one raw-channel message body (version 1 only), or nullopt with `error`.
+/// Decodes one raw-channel message body (version 2 only), or nullopt with `error`.
 std::optional<RawObservation> decode_raw_observation(std::span<const std::uint8_t> bytes,
                                                      std::string* error = nullptr);
 /// The channel TMATS names as the data source `data_source` (R-1\DSI-n:<data_source>,
