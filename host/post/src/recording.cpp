@@ -2,6 +2,8 @@
 
 #include <stdexcept>
 
+#include "storetrack/digest/sha256.hpp"
+
 namespace storetrack::post {
 
 namespace {
@@ -17,7 +19,8 @@ void read_samples(const std::string& path, const ch10read::File& file, Recording
     if (p.channel_id != channel || p.data_type != 0x30) continue;
     std::string why;
     const auto messages = ch10read::decode_message_f0(p, &why);
-    if (!messages) refuse(path, "sample packet at offset " + std::to_string(p.file_offset) + ": " + why);
+    if (!messages)
+      refuse(path, "sample packet at offset " + std::to_string(p.file_offset) + ": " + why);
     for (const ch10read::Message& m : *messages)
       out.samples.push_back({path, p.file_offset, m.subchannel, m.bytes});
   }
@@ -39,17 +42,25 @@ Recording read_recording(const std::vector<std::string>& paths) {
     const ch10read::File file = ch10read::read_file(path);  // throws when unreadable
     if (file.packets.empty()) refuse(path, "no Chapter 10 packet (" + file.stop_reason + ")");
     if (file.truncated || !file.stop_reason.empty())
-      out.torn.push_back(path + ": " + (file.stop_reason.empty() ? "ends inside a packet"
-                                                                 : file.stop_reason) +
+      out.torn.push_back(path + ": " +
+                         (file.stop_reason.empty() ? "ends inside a packet" : file.stop_reason) +
                          " after byte " + std::to_string(file.bytes_in_whole_packets));
     if (ch10read::raw_channel_id(file) < 0)
-      refuse(path, "no raw observation channel (recorded before raw recording, or with "
-                   "recording.raw_observations off): it cannot be reprocessed");
+      refuse(path,
+             "no raw observation channel (recorded before raw recording, or with "
+             "recording.raw_observations off): it cannot be reprocessed");
     std::string why;
     auto inputs = ch10read::recorded_inputs(file, &why);
     if (!why.empty()) refuse(path, why);
-    for (const auto& in : inputs)
+    if (inputs.empty())
+      refuse(path,
+             "no recorded inputs (calibration, surveys, configuration, command line): it "
+             "cannot be reprocessed");
+    for (const auto& in : inputs) {
       if (!in.complete) refuse(path, "recorded input '" + in.name + "' incomplete");
+      if (digest::sha256(in.bytes) != in.sha256)
+        refuse(path, "recorded input '" + in.name + "' does not match its recorded SHA-256");
+    }
     if (out.files.empty()) {
       out.inputs = std::move(inputs);
     } else if (!same_inputs(out.inputs, inputs)) {

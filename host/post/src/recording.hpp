@@ -21,10 +21,10 @@ struct RecordedSample {
 
 struct Recording {
   std::vector<std::string> files;
-  std::vector<ch10read::RawObservation> records;   ///< the raw channel, in file order
-  std::vector<RecordedSample> samples;             ///< the live run's samples, in file order
-  std::vector<ch10read::RecordedInput> inputs;     ///< of the first file (each file repeats them)
-  std::vector<std::string> torn;                   ///< "file: offset" of files cut in a packet
+  std::vector<ch10read::RawObservation> records;  ///< the raw channel, in file order
+  std::vector<RecordedSample> samples;            ///< the live run's samples, in file order
+  std::vector<ch10read::RecordedInput> inputs;    ///< of the first file (each file repeats them)
+  std::vector<std::string> torn;                  ///< "file: offset" of files cut in a packet
 };
 
 /// Reads the files of one host run, in order. Throws std::runtime_error naming the file (and

@@ -44,6 +44,10 @@ void Replay::feed(const ch10read::RawObservation& record) {
   process_ready();
 }
 
+void Replay::finish() {
+  counters_.pending_at_end = aligner_.pending();
+}
+
 // As the host loop: every exposure in release order through the processor; a sample too few
 // cameras measured is withheld.
 void Replay::process_ready() {

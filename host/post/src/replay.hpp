@@ -17,15 +17,16 @@ namespace storetrack::post {
 
 struct ReplayCounters {
   std::uint64_t records = 0;
-  std::uint64_t refused_live = 0;       ///< messages the host's receiver refused: not replayed
-  std::uint64_t undecodable = 0;        ///< accepted live, not decodable now (a damaged record)
-  std::uint64_t observations = 0;       ///< MarkObservations given to the aligner
-  std::uint64_t health_messages = 0;    ///< UnitHealth (not an aligner input)
-  std::uint64_t deadline_events = 0;    ///< ExposureAligner::poll calls repeated
-  std::uint64_t flush_events = 0;       ///< the host's final ExposureAligner::flush
-  std::uint64_t unknown_kind = 0;       ///< records of a kind this replay does not know
-  std::uint64_t exposures = 0;          ///< exposures processed
-  hostapp::SamplesWithheld withheld;    ///< processed, not written (as live)
+  std::uint64_t refused_live = 0;     ///< messages the host's receiver refused: not replayed
+  std::uint64_t undecodable = 0;      ///< accepted live, not decodable now (a damaged record)
+  std::uint64_t observations = 0;     ///< MarkObservations given to the aligner
+  std::uint64_t health_messages = 0;  ///< UnitHealth (not an aligner input)
+  std::uint64_t deadline_events = 0;  ///< ExposureAligner::poll calls repeated
+  std::uint64_t flush_events = 0;     ///< the host's final ExposureAligner::flush
+  std::uint64_t pending_at_end = 0;   ///< exposures still pending after the last record
+  std::uint64_t unknown_kind = 0;     ///< records of a kind this replay does not know
+  std::uint64_t exposures = 0;        ///< exposures processed
+  hostapp::SamplesWithheld withheld;  ///< processed, not written (as live)
 };
 
 class Replay {
@@ -36,6 +37,11 @@ class Replay {
 
   /// One raw-channel record, in recorded order.
   void feed(const ch10read::RawObservation& record);
+  /// After the last record. A recording without the host's final flush (a host killed, a file
+  /// cut) is not flushed here: its samples are then what the live aligner had released by its
+  /// last record, a prefix of the live run's, and what was still pending is counted
+  /// (counters().pending_at_end).
+  void finish();
 
   /// The samples written, in the order the host wrote them.
   const std::vector<msg::FtiSample>& samples() const { return samples_; }
