@@ -104,12 +104,14 @@ std::FILE* create_output(const std::string& path) {
 void print_summary(const Recording& r, const ReplayCounters& c, std::size_t samples) {
   std::printf(
       "storetrack-post: %zu file(s), %llu raw records: %llu observations replayed, %llu refused "
-      "live, %llu undecodable, %llu deadline checks, %llu flush; %llu exposures, %zu samples "
+      "live, %llu undecodable, %llu health, %llu deadline checks, %llu flush; %llu exposures, %zu "
+      "samples "
       "(%llu withheld)\n",
       r.files.size(), static_cast<unsigned long long>(c.records),
       static_cast<unsigned long long>(c.observations),
       static_cast<unsigned long long>(c.refused_live),
       static_cast<unsigned long long>(c.undecodable),
+      static_cast<unsigned long long>(c.health_messages),
       static_cast<unsigned long long>(c.deadline_events),
       static_cast<unsigned long long>(c.flush_events), static_cast<unsigned long long>(c.exposures),
       samples, static_cast<unsigned long long>(c.withheld.total()));

@@ -42,9 +42,9 @@ Recording read_recording(const std::vector<std::string>& paths) {
     const ch10read::File file = ch10read::read_file(path);  // throws when unreadable
     if (file.packets.empty()) refuse(path, "no Chapter 10 packet (" + file.stop_reason + ")");
     if (file.truncated || !file.stop_reason.empty())
-      out.torn.push_back(path + ": " +
-                         (file.stop_reason.empty() ? "ends inside a packet" : file.stop_reason) +
-                         " after byte " + std::to_string(file.bytes_in_whole_packets));
+      out.torn.push_back(
+          path + ": " + (file.stop_reason.empty() ? "ends inside a packet" : file.stop_reason) +
+          " (" + std::to_string(file.bytes_in_whole_packets) + " bytes in whole packets)");
     if (ch10read::raw_channel_id(file) < 0)
       refuse(path,
              "no raw observation channel (recorded before raw recording, or with "
