@@ -122,9 +122,11 @@ void print_summary(const Recording& r, const ReplayCounters& c, std::size_t samp
         static_cast<unsigned long long>(c.pending_at_end));
 }
 
-// --verify: true when every sample is identical and the counts agree (a torn recording: its
-// whole samples are compared, the counts cannot agree and are reported).
-bool report_comparison(const SampleComparison& c, bool torn) {
+// --verify: true when every sample is identical and the counts agree. A recording that ends
+// before the host did (torn, or without the final flush: a host killed or crashed) lost the
+// samples and records in flight: the samples both hold are compared, the counts cannot agree
+// and are reported.
+bool report_comparison(const SampleComparison& c, bool ended_early) {
   std::printf("verify: %zu replayed, %zu recorded: %zu identical, %zu different\n", c.replayed,
               c.recorded, c.identical, c.different);
   for (const SampleDifference& d : c.first_differences)
@@ -135,8 +137,10 @@ bool report_comparison(const SampleComparison& c, bool torn) {
         d.file.c_str(), d.packet_offset, d.first_byte);
   if (c.replayed != c.recorded)
     std::printf("  sample counts differ%s\n",
-                torn ? " (the recording is torn: only the samples both hold are compared)" : "");
-  return c.different == 0 && (c.replayed == c.recorded || torn);
+                ended_early ? " (the recording ends before the host did: only the samples both "
+                              "hold are compared)"
+                            : "");
+  return c.different == 0 && (c.replayed == c.recorded || ended_early);
 }
 
 nlohmann::json stats_json(const Recording& r, const ReplayCounters& c, std::size_t samples,
@@ -215,7 +219,8 @@ int run(const PostOptions& p) {
   SampleComparison compared;
   if (p.verify) {
     compared = compare_samples(replay.samples(), r.samples);
-    if (!report_comparison(compared, !r.torn.empty())) exit_code = 1;
+    const bool ended_early = !r.torn.empty() || replay.counters().flush_events == 0;
+    if (!report_comparison(compared, ended_early)) exit_code = 1;
   }
   if (!p.csv_path.empty() && write_csv(csv, replay.samples()) != 0) exit_code = 1;
   if (stats) {
