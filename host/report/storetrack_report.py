@@ -103,13 +103,17 @@ def read_ch10(path):
                 iph = struct.unpack_from("<I", body, p + 8)[0]
                 n = iph & 0xFFFF
                 rec = body[p + 12:p + 12 + n]
+                if rec[0] != 2:  # version 2 (docs/icd.md); version 1 had no host_mono_ns
+                    raise ValueError("%s: raw observation version %d at offset %d: this reader "
+                                     "decodes version 2 only" % (path, rec[0], at))
                 (version, kind, arrival, address, port, unit, camera, rflags, error, received,
-                 length) = struct.unpack_from(">BBqIHBBBBIH", rec, 0)
+                 host_mono, length) = struct.unpack_from(">BBqIHBBBBIqH", rec, 0)
                 out["raw_observations"].append({
                     "rtc": rtc, "version": version, "source_kind": kind, "arrival_tai_ns": arrival,
                     "source_address": address, "source_port": port, "unit_id": unit,
                     "camera_id": camera, "flags": rflags, "decode_error": error,
-                    "received_bytes": received, "bytes": rec[26:26 + length],
+                    "received_bytes": received, "host_mono_ns": host_mono,
+                    "bytes": rec[34:34 + length],
                     "data_error": bool(iph >> 31)})
                 p += 12 + n + (n & 1)
         elif dtype == 0x30:

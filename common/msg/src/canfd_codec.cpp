@@ -264,6 +264,8 @@ DecodeError CanFdReassembler::finish(Slot& slot, std::int64_t now_ns,
   finished_ = true;
   finished_transfer_ = FinishedTransfer{key.can_id, stream};
 
+  // The transfer's shape: the fragment count and the last frame's DLC must be exactly what the
+  // encoder produces for the length its content gives. Then its content (decode_canfd_stream).
   const bool marks =
       canid::fid(key.can_id) == static_cast<std::uint8_t>(MessageId::kMarkObservations);
   std::size_t payload_bytes = kUnitHealthFixedBytes;
@@ -274,39 +276,54 @@ DecodeError CanFdReassembler::finish(Slot& slot, std::int64_t now_ns,
     payload_bytes = kMarkObservationsFixedBytes + mark_count * kMarkObservationBytes;
   }
   const std::size_t length = payload_bytes + kCanFdTransferCrcBytes;
-  // The fragment count and the last frame's DLC must be exactly what the encoder produces.
   if (frames_for_stream(length) != count) return count_error(DecodeError::kBadLength);
   const std::size_t last_chunk = length - (count - 1) * kCanFdFragmentPayloadBytes;
   if (canfd_round_up_len(kCanFdFragmentHeaderBytes + last_chunk) !=
       kCanFdFragmentHeaderBytes + slot.last_len)
     return count_error(DecodeError::kBadLength);
-  bytes::BigEndianReader crc_reader(stream.subspan(payload_bytes, kCanFdTransferCrcBytes));
-  if (crc_reader.get_u32() != crc32(stream.first(payload_bytes)))
-    return count_error(DecodeError::kBadCrc);
-
-  bytes::BigEndianReader r(stream.first(payload_bytes));
-  DecodeError e = DecodeError::kNone;
-  if (marks) {
-    AnyMessage& any = completed.emplace(std::in_place_type<MarkObservations>);
-    auto& m = std::get<MarkObservations>(any);
-    e = unpack_payload(r, m);
-    if (e == DecodeError::kNone &&
-        (m.unit_id != canid::unit(key.can_id) || m.camera_id != canid::camera(key.can_id) ||
-         transfer_seq(m) != key.seq))
-      e = DecodeError::kOutOfRange;
-  } else {
-    AnyMessage& any = completed.emplace(std::in_place_type<UnitHealth>);
-    auto& m = std::get<UnitHealth>(any);
-    e = unpack_payload(r, m);
-    if (e == DecodeError::kNone &&
-        (m.unit_id != canid::unit(key.can_id) || transfer_seq(m) != key.seq))
-      e = DecodeError::kOutOfRange;
+  AnyMessage message;
+  DecodeError e = decode_canfd_stream(key.can_id, stream, message);
+  if (e == DecodeError::kNone) {
+    const auto* marks_message = std::get_if<MarkObservations>(&message);
+    const std::uint16_t seq =
+        marks_message ? transfer_seq(*marks_message) : transfer_seq(std::get<UnitHealth>(message));
+    if (seq != key.seq) e = DecodeError::kOutOfRange;
   }
   if (e != DecodeError::kNone) {
     completed.reset();
     return count_error(e);
   }
+  completed = std::move(message);
   ++counters_.completed;
+  return DecodeError::kNone;
+}
+
+DecodeError decode_canfd_stream(std::uint32_t can_id, std::span<const std::uint8_t> stream,
+                                AnyMessage& out) {
+  const bool marks = canid::fid(can_id) == static_cast<std::uint8_t>(MessageId::kMarkObservations);
+  std::size_t payload_bytes = kUnitHealthFixedBytes;
+  if (marks) {
+    if (stream.size() <= kMarkCountOffset) return DecodeError::kBadLength;
+    const std::size_t mark_count = stream[kMarkCountOffset];
+    if (mark_count > kMaxMarks) return DecodeError::kOutOfRange;
+    payload_bytes = kMarkObservationsFixedBytes + mark_count * kMarkObservationBytes;
+  }
+  if (stream.size() < payload_bytes + kCanFdTransferCrcBytes) return DecodeError::kBadLength;
+  bytes::BigEndianReader crc_reader(stream.subspan(payload_bytes, kCanFdTransferCrcBytes));
+  if (crc_reader.get_u32() != crc32(stream.first(payload_bytes))) return DecodeError::kBadCrc;
+  bytes::BigEndianReader r(stream.first(payload_bytes));
+  if (marks) {
+    auto& m = out.emplace<MarkObservations>();
+    const DecodeError e = unpack_payload(r, m);
+    if (e != DecodeError::kNone) return e;
+    if (m.unit_id != canid::unit(can_id) || m.camera_id != canid::camera(can_id))
+      return DecodeError::kOutOfRange;
+  } else {
+    auto& m = out.emplace<UnitHealth>();
+    const DecodeError e = unpack_payload(r, m);
+    if (e != DecodeError::kNone) return e;
+    if (m.unit_id != canid::unit(can_id)) return DecodeError::kOutOfRange;
+  }
   return DecodeError::kNone;
 }
 

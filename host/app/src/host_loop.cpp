@@ -58,6 +58,20 @@ void HostLoop::process(const pipeline::AlignedExposure& e) {
   p_.recording.push(std::move(item));  // never blocks; a full queue is counted there
 }
 
+// The aligner's inputs besides the messages, in the raw channel in their order: a replay that
+// gives the aligner the same messages and events at the same times releases the same exposures.
+void HostLoop::record_aligner_event(ingest::RawSourceKind kind, time::MonotonicNs t) {
+  if (!p_.recording.wants_raw()) return;
+  msg::RawObservation r{};
+  r.source_kind = static_cast<std::uint8_t>(kind);
+  r.arrival_tai_ns = time::tai_now_ns();
+  r.unit_id = 0xFF;
+  r.camera_id = 0xFF;
+  r.flags = msg::raw_observation_flags::kAccepted;  // given to the aligner
+  r.host_mono_ns = t;
+  p_.recording.push_raw(r, {});
+}
+
 void HostLoop::process_ready() {
   for (const auto& e : ready_)
     process(e);
@@ -73,7 +87,9 @@ int HostLoop::run(const LoopLimits& limits, const std::atomic<bool>& stop) {
   // Every observation message as received, valid or not, into the raw channel.
   if (p_.recording.wants_raw()) {
     auto raw = [this](const msg::RawObservation& r, std::span<const std::uint8_t> bytes) {
-      p_.recording.push_raw(r, bytes);  // never blocks; a full queue is counted there
+      msg::RawObservation timed = r;
+      timed.host_mono_ns = now_;  // the time on_message gives the aligner with this message
+      p_.recording.push_raw(timed, bytes);  // never blocks; a full queue is counted there
     };
     p_.udp.set_raw_handler(raw);
     for (auto& c : p_.cans)
@@ -108,7 +124,9 @@ int HostLoop::run(const LoopLimits& limits, const std::atomic<bool>& stop) {
         c->expire(now_);
       ++fi;
     }
-    p_.aligner.poll(time::monotonic_now_ns(), ready_);
+    const time::MonotonicNs t_poll = time::monotonic_now_ns();
+    if (p_.aligner.poll(t_poll, ready_))
+      record_aligner_event(ingest::RawSourceKind::kAlignerDeadline, t_poll);
     process_ready();
     now_ = time::monotonic_now_ns();
     if (limits.progress && now_ - t_last_progress >= 1'000'000'000) {
@@ -128,6 +146,7 @@ int HostLoop::run(const LoopLimits& limits, const std::atomic<bool>& stop) {
       break;
   }
   p_.aligner.flush(ready_);
+  record_aligner_event(ingest::RawSourceKind::kAlignerFlush, time::monotonic_now_ns());
   process_ready();
   if (limits.progress) std::fprintf(stderr, "\n");
   return exit_code;

@@ -58,6 +58,7 @@ class HostLoop {
  private:
   void on_message(const msg::AnyMessage& m);
   void process_ready();
+  void record_aligner_event(ingest::RawSourceKind kind, time::MonotonicNs t);
   void process(const pipeline::AlignedExposure& e);
 
   LoopParts p_;

@@ -4,23 +4,24 @@
 
 namespace storetrack::hostapp {
 
-int parse_host_options(int argc, char** argv, HostOptions& o) {
+int parse_host_options(int argc, char** argv, HostOptions& o, InputFileCheck files) {
   cli::Command app{
       "storetrack-host: exposure alignment, 6-DoF store pose with GUM uncertainty, "
       "FTI output (iNET-X, IRIG 106 Chapter 10, CSV)"};
   HostConfig& cfg = o.cfg;
-  app.option("--calibration", o.calibration_path, "Rig calibration JSON")
-      .required()
-      .existing_file();
-  app.option("--pylon-survey", o.pylon_path, "Pylon mark survey JSON").required().existing_file();
-  app.option("--store-survey", o.store_path, "Store (or pendulum board) mark survey JSON")
-      .required()
-      .existing_file();
-  app.option("--config", o.config_path, "Host configuration JSON (values CLI options override)")
-      .existing_file();
-  app.option("--initial-marks", o.initial_marks_path,
-             "Initial mark positions in the world frame (installation survey), JSON")
-      .existing_file();
+  // A recording's command line names files of the machine that recorded it: its inputs channel
+  // holds their bytes (storetrack-post).
+  auto input = [files](cli::Option option) {
+    if (files == InputFileCheck::kExisting) option.existing_file();
+  };
+  input(app.option("--calibration", o.calibration_path, "Rig calibration JSON").required());
+  input(app.option("--pylon-survey", o.pylon_path, "Pylon mark survey JSON").required());
+  input(app.option("--store-survey", o.store_path, "Store (or pendulum board) mark survey JSON")
+            .required());
+  input(app.option("--config", o.config_path,
+                   "Host configuration JSON (values CLI options override)"));
+  input(app.option("--initial-marks", o.initial_marks_path,
+                   "Initial mark positions in the world frame (installation survey), JSON"));
   app.option("--udp-port", cfg.udp_port, "UDP port to receive observations on (0: no UDP)")
       .range(0, 65535);
   app.option("--udp-bind", cfg.udp_bind,

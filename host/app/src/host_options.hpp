@@ -21,7 +21,12 @@ struct HostOptions {
   std::vector<std::string> command_line;  // argv as given: recorded with the inputs
 };
 
+/// kExisting: the input files must exist (the host); kNone: a recorded command line
+/// (storetrack-post reads the files' bytes from the recording).
+enum class InputFileCheck { kExisting, kNone };
+
 /// Parses argv into `o`; returns -1 to go on, else the exit code (0 for --help, 2 for an error).
-int parse_host_options(int argc, char** argv, HostOptions& o);
+int parse_host_options(int argc, char** argv, HostOptions& o,
+                       InputFileCheck files = InputFileCheck::kExisting);
 
 }  // namespace storetrack::hostapp

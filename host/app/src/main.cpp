@@ -22,16 +22,14 @@
 #include "host_config.hpp"
 #include "host_loop.hpp"
 #include "host_options.hpp"
+#include "host_setup.hpp"
 #include "recording_writer.hpp"
 #include "stats.hpp"
-#include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/ingest/receivers.hpp"
 #include "storetrack/json/text_file.hpp"
-#include "storetrack/match/mark_matcher.hpp"
 #include "storetrack/output/inetx.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
-#include "storetrack/survey/survey.hpp"
 #include "storetrack/time/time.hpp"
 
 namespace st = storetrack;
@@ -44,48 +42,20 @@ void on_signal(int) {
   g_stop = true;
 }
 
-struct InputFiles {
-  st::camera::RigCalibration rig;
-  st::survey::RigidBodySurvey pylon, store;
-};
-
 // Reads the input files and applies the options onto the configuration; 0 or exit code 2.
-int load_inputs(st::hostapp::HostOptions& o, InputFiles& in) {
+int load_inputs(st::hostapp::HostOptions& o, st::hostapp::InputFiles& in) {
   HostConfig& cfg = o.cfg;
+  const auto from_disk = [](st::output::RecordedInputKind, const std::string& path) {
+    return st::jsonfile::read_text_file(path);
+  };
   try {
-    if (!o.config_path.empty()) st::hostapp::load_host_config(o.config_path, cfg);
-    in.rig = st::camera::read_rig_calibration(o.calibration_path);
-    in.pylon = st::survey::read_survey(o.pylon_path);
-    in.store = st::survey::read_survey(o.store_path);
-    if (!o.initial_marks_path.empty())
-      cfg.initial_marks_w = st::hostapp::load_initial_marks(o.initial_marks_path);
+    st::hostapp::load_inputs(o, from_disk, in);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "storetrack-host: %s\n", e.what());
-    return 2;
-  }
-  if (in.rig.cameras.empty() || in.rig.cameras.size() > 32) {
-    std::fprintf(stderr, "storetrack-host: %s: the rig needs 1..32 cameras (has %zu)\n",
-                 o.calibration_path.c_str(), in.rig.cameras.size());
     return 2;
   }
   if (cfg.udp_port == 0 && cfg.can_interfaces.empty()) {
     std::fprintf(stderr, "storetrack-host: no input: give --udp-port and/or --can\n");
-    return 2;
-  }
-  try {
-    if (o.max_wait_ms > 0) st::hostapp::set_max_wait_ms(cfg, o.max_wait_ms, "--max-wait-ms");
-    if (o.min_cameras > 0) cfg.aligner.min_cameras = o.min_cameras;
-    for (const auto& text : o.udp_sources)
-      cfg.udp_sources.push_back(st::hostapp::parse_udp_source(text));
-    if (o.no_udp_kernel_filter) cfg.udp_kernel_filter = false;
-    std::vector<int> camera_ids, unit_ids;
-    for (const auto& c : in.rig.cameras) {
-      camera_ids.push_back(c.camera_id);
-      unit_ids.push_back(c.unit_id);
-    }
-    st::hostapp::finish_host_config(cfg, camera_ids, unit_ids);
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "storetrack-host: %s\n", e.what());
     return 2;
   }
   cfg.ch10.sync = o.ch10_sync == "none" ? st::output::Chapter10Sync::kNone
@@ -123,38 +93,6 @@ int load_inputs(st::hostapp::HostOptions& o, InputFiles& in) {
     cfg.ch10.inputs.push_back(std::move(argv));
   }
   return 0;
-}
-
-// Mark identification: the processor's MarkMatcher. Its prior poses (acquisition, and
-// re-acquisition of a body lost for longer than its track gap) are fitted to the installation
-// survey's initial mark positions; without them it cannot acquire a body.
-void set_prior_poses(const HostConfig& cfg, const InputFiles& in,
-                     st::pipeline::ExposureProcessor& processor) {
-  std::vector<st::geometry::Transform> fitted;
-  for (const auto* body : {&in.pylon, &in.store}) {
-    st::geometry::Transform T_w_b;
-    st::geometry::Mat6 cov;
-    if (st::match::fit_body_pose(*body, cfg.initial_marks_w, cfg.initial_marks_sigma_m, T_w_b,
-                                 cov)) {
-      processor.matcher().set_prior_pose(body->name, T_w_b, cov);
-      fitted.push_back(T_w_b);
-    } else {
-      spdlog::warn(
-          "storetrack-host: no prior pose for '{}' (needs >= 3 non-collinear of its marks in "
-          "--initial-marks): its marks cannot be identified",
-          body->name);
-    }
-  }
-  // The store's region relative to the pylon (re-acquisition), around its installation pose.
-  if (cfg.store_region.valid && fitted.size() == 2) {
-    st::match::BodyRegion region;
-    region.reference_body = in.pylon.name;
-    region.T_ref_b_nominal = fitted[0].inverse() * fitted[1];
-    region.max_rotation_rad = cfg.store_region.max_rotation_rad;
-    region.min_offset_m = cfg.store_region.min_offset_m;
-    region.max_offset_m = cfg.store_region.max_offset_m;
-    processor.matcher().set_region(in.store.name, region);
-  }
 }
 
 // Inputs: 0, or the exit code.
@@ -250,22 +188,19 @@ int main(int argc, char** argv) {
   if (const int rc = st::hostapp::parse_host_options(argc, argv, options); rc >= 0) return rc;
   options.command_line.assign(argv, argv + argc);
   spdlog::set_level(spdlog::level::from_str(options.log_level));
-  InputFiles in;
+  st::hostapp::InputFiles in;
   if (const int rc = load_inputs(options, in); rc != 0) return rc;
   const HostConfig& cfg = options.cfg;
 
-  // Processing chain.
-  std::unique_ptr<st::pipeline::ExposureProcessor> processor;
-  std::unique_ptr<st::ingest::ExposureAligner> aligner;
+  st::hostapp::ProcessingChain chain;
   try {
-    processor = std::make_unique<st::pipeline::ExposureProcessor>(in.rig, in.pylon, in.store,
-                                                                  cfg.processor);
-    aligner = std::make_unique<st::ingest::ExposureAligner>(cfg.aligner);
+    chain = st::hostapp::make_processing_chain(cfg, in);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "storetrack-host: bad configuration: %s\n", e.what());
     return 2;
   }
-  set_prior_poses(cfg, in, *processor);
+  st::ingest::ExposureAligner& aligner = *chain.aligner;
+  st::pipeline::ExposureProcessor& processor = *chain.processor;
 
   st::ingest::UdpReceiver udp;
   std::vector<std::unique_ptr<st::ingest::CanFdReceiver>> cans;
@@ -283,13 +218,13 @@ int main(int argc, char** argv) {
                cans.empty() ? "" : fmt::format("{} CAN interface(s)", cans.size()));
   const st::time::MonotonicNs t_start = st::time::monotonic_now_ns();
   st::hostapp::HostLoop loop(
-      {udp, cans, *aligner, *processor, inetx_open ? &inetx : nullptr, recording});
+      {udp, cans, aligner, processor, inetx_open ? &inetx : nullptr, recording});
   int exit_code = loop.run(options.limits, g_stop);
   recording.stop();
 
   const st::hostapp::StatsSources sources{
       cfg,       udp,           cans,
-      *aligner,  *processor,    inetx,
+      aligner,   processor,     inetx,
       recording, loop.totals(), static_cast<double>(st::time::monotonic_now_ns() - t_start) * 1e-9};
   st::hostapp::print_summary(sources);
   if (!options.stats_json_path.empty() &&

@@ -390,7 +390,7 @@ void ExposureAligner::evict_lone_exposures_ahead_of(std::int64_t key) {
   recompute_newest_key(key);
 }
 
-void ExposureAligner::take_back_expired_unconfirmed(time::MonotonicNs now) {
+bool ExposureAligner::take_back_expired_unconfirmed(time::MonotonicNs now) {
   // An unconfirmed exposure whose wait ended is never released: released, it would make every
   // exposure before it late, and become a sample no other camera took.
   bool taken = false;
@@ -404,6 +404,7 @@ void ExposureAligner::take_back_expired_unconfirmed(time::MonotonicNs now) {
     it = next;
   }
   if (taken && (!pending_.empty() || released_any_)) recompute_newest_key(INT64_MIN);
+  return taken;
 }
 
 void ExposureAligner::drop_known(std::int64_t key, int cam) {
@@ -586,8 +587,8 @@ ExposureAligner::Majority ExposureAligner::majority(
   return best;
 }
 
-void ExposureAligner::poll(time::MonotonicNs now, std::vector<pipeline::AlignedExposure>& out) {
-  release_ready(now, out);
+bool ExposureAligner::poll(time::MonotonicNs now, std::vector<pipeline::AlignedExposure>& out) {
+  return release_ready(now, out);
 }
 
 void ExposureAligner::flush(std::vector<pipeline::AlignedExposure>& out) {
@@ -638,14 +639,14 @@ time::MonotonicNs ExposureAligner::next_deadline() const {
   return earliest;
 }
 
-void ExposureAligner::release_ready(time::MonotonicNs now,
+bool ExposureAligner::release_ready(time::MonotonicNs now,
                                     std::vector<pipeline::AlignedExposure>& out) {
   // In sequence order: an exposure waits for older ones (each bounded by its own deadline), so
   // the processor's tracking always sees time move forward. A timed-out exposure also releases
   // everything older than it, whatever their own deadlines (a release moves no deadline).
   // Only an exposure of two cameras or more forces older ones out: a single camera never
   // releases or times out the other cameras' exposures (a lone one waits for them, then goes).
-  take_back_expired_unconfirmed(now);
+  bool changed = take_back_expired_unconfirmed(now);
   auto newest_expired = pending_.end();
   for (auto it = pending_.begin(); it != pending_.end(); ++it)
     if (now >= deadline_of(it->second) && forces_older(it->second)) newest_expired = it;
@@ -656,7 +657,9 @@ void ExposureAligner::release_ready(time::MonotonicNs now,
     if (!complete && !forced && now < deadline_of(it->second)) break;
     if (newest_expired == it) newest_expired = pending_.end();
     release(it, complete ? ReleaseReason::kComplete : ReleaseReason::kTimeout, out);
+    changed = true;
   }
+  return changed;
 }
 
 void ExposureAligner::update_lag_baseline(const Pending& p, time::TaiNs reference_mid,

@@ -222,7 +222,7 @@ int UdpReceiver::receive(const MessageHandler& handler, int max_datagrams) {
     auto record_raw = [&](std::uint8_t verdict, bool accepted) {
       if (!raw_) return;
       msg::RawObservation r{};
-      r.source_kind = 0;
+      r.source_kind = static_cast<std::uint8_t>(RawSourceKind::kUdp);
       r.arrival_tai_ns = time::tai_now_ns();
       r.source_address = ntohl(from.sin_addr.s_addr);
       r.source_port = ntohs(from.sin_port);
@@ -337,7 +337,7 @@ int CanFdReceiver::receive(const MessageHandler& handler, int max_frames) {
       if (const auto t = reassembler_.finished_transfer()) {
         const std::size_t kept = std::min(t->stream.size(), msg::kRawObservationMaxTailBytes);
         msg::RawObservation r{};
-        r.source_kind = 1;
+        r.source_kind = static_cast<std::uint8_t>(RawSourceKind::kCanFd);
         r.arrival_tai_ns = time::tai_now_ns();
         r.source_address = t->can_id;
         r.source_port = static_cast<std::uint16_t>(interface_index_);

@@ -226,19 +226,22 @@ std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> b, std::s
 
 std::optional<RawObservation> decode_raw_observation(std::span<const std::uint8_t> b,
                                                      std::string* error) {
-  // RawObservation version 1 (docs/icd.md): 26 bytes of fields, big-endian, then the message.
-  constexpr std::size_t kFixed = 26;
+  // RawObservation version 2 (docs/icd.md): 34 bytes of fields, big-endian, then the message.
+  constexpr std::size_t kFixed = 34;
   auto fail = [&](std::string why) -> std::optional<RawObservation> {
     if (error) *error = std::move(why);
     return std::nullopt;
   };
-  if (b.size() < kFixed)
-    return fail("raw observation of " + std::to_string(b.size()) + " bytes, needs at least 26");
+  if (b.empty()) return fail("empty raw observation");
   RawObservation r;
   r.version = b[0];
-  if (r.version != 1)
+  if (r.version != 2)
     return fail("raw observation version " + std::to_string(r.version) +
-                ": this reader decodes version 1 only");
+                ": this reader decodes version 2 only (version 1, 26 bytes of fields, has no "
+                "host_mono_ns)");
+  if (b.size() < kFixed)
+    return fail("raw observation of " + std::to_string(b.size()) + " bytes, needs at least " +
+                std::to_string(kFixed));
   r.source_kind = b[1];
   r.arrival_tai_ns = static_cast<std::int64_t>(be_u(b, 2, 8));
   r.source_address = static_cast<std::uint32_t>(be_u(b, 10, 4));
@@ -248,7 +251,8 @@ std::optional<RawObservation> decode_raw_observation(std::span<const std::uint8_
   r.flags = b[18];
   r.decode_error = b[19];
   r.received_bytes = static_cast<std::uint32_t>(be_u(b, 20, 4));
-  const auto n = static_cast<std::size_t>(be_u(b, 24, 2));
+  r.host_mono_ns = static_cast<std::int64_t>(be_u(b, 24, 8));
+  const auto n = static_cast<std::size_t>(be_u(b, 32, 2));
   if (b.size() - kFixed != n)
     return fail("raw observation says " + std::to_string(n) + " message bytes, holds " +
                 std::to_string(b.size() - kFixed));
@@ -256,18 +260,18 @@ std::optional<RawObservation> decode_raw_observation(std::span<const std::uint8_
   return r;
 }
 
-int raw_channel_id(const File& file) {
+int channel_id_of(const File& file, const std::string& data_source) {
   for (const Packet& p : file.packets) {
     const auto tmats = decode_tmats(p);
     if (!tmats) continue;
-    // R-1\DSI-n:RAWOBS; names the channel R-1\TK1-n:<id>;
+    // R-1\DSI-n:<data_source>; names the channel R-1\TK1-n:<id>;
     const std::string key = "R-1\\DSI-";
     for (std::size_t at = tmats->find(key); at != std::string::npos;
          at = tmats->find(key, at + 1)) {
       const std::size_t colon = tmats->find(':', at);
       const std::size_t semi = tmats->find(';', at);
       if (colon == std::string::npos || semi == std::string::npos || semi < colon) break;
-      if (tmats->compare(colon + 1, semi - colon - 1, "RAWOBS") != 0) continue;
+      if (tmats->compare(colon + 1, semi - colon - 1, data_source) != 0) continue;
       const std::string n = tmats->substr(at + key.size(), colon - at - key.size());
       const std::string tk = "R-1\\TK1-" + n + ":";
       const std::size_t t = tmats->find(tk);
@@ -277,6 +281,10 @@ int raw_channel_id(const File& file) {
     return -1;  // the first setup record describes the file
   }
   return -1;
+}
+
+int raw_channel_id(const File& file) {
+  return channel_id_of(file, "RAWOBS");
 }
 
 std::vector<RawObservation> raw_observations(const File& file, std::string* error) {

@@ -100,6 +100,8 @@ std::vector<Observation> observations(int n, std::uint64_t seed) {
     if (k == 17) r.flags |= msg::raw_observation_flags::kTruncated;
     r.decode_error = static_cast<std::uint8_t>(k % 11 == 3 ? 4 : 0);
     r.received_bytes = static_cast<std::uint32_t>(k == 17 ? 3000 : len);
+    // Past 2^32 (all eight bytes carry) and not the arrival time (its own field).
+    r.host_mono_ns = 5'000'000'007 + static_cast<std::int64_t>(k) * 312'501;
     r.message_bytes = static_cast<std::uint16_t>(len);
     out.push_back(std::move(o));
   }
@@ -131,8 +133,9 @@ void write_interleaved(Chapter10Writer& w, int exposures, const std::vector<Obse
 
 void expect_same(const ch10read::RawObservation& got, const Observation& want) {
   const auto& r = want.record;
-  EXPECT_EQ(got.version, 1);
+  EXPECT_EQ(got.version, 2);
   EXPECT_EQ(got.bytes, want.bytes);
+  EXPECT_EQ(got.host_mono_ns, r.host_mono_ns);
   EXPECT_EQ(got.source_kind, r.source_kind);
   EXPECT_EQ(got.arrival_tai_ns, r.arrival_tai_ns);
   EXPECT_EQ(got.source_address, r.source_address);

@@ -62,7 +62,8 @@ for c in range(4):
     for link in unit["links"]:
         check(link["tx_errors"] == 0, "unit %d link %s: no send errors" % (c, link["name"]))
         sent += link["observations_sent"] + link["health_sent"]
-raw = ch10["raw_observations"]
+records = ch10["raw_observations"]
+raw = [r for r in records if r["source_kind"] in (0, 1)]  # messages; 2, 3: the aligner's clock
 check(ch10["raw_channel"] == 3, "TMATS names the raw channel RAWOBS (channel %s)" % ch10["raw_channel"])
 check(len(raw) == sent, "raw channel holds %d datagrams == %d the units sent" % (len(raw), sent))
 check(len(raw) == stats["udp"]["datagrams"], "raw channel == host datagrams received (%d)" % stats["udp"]["datagrams"])
@@ -71,6 +72,10 @@ check(all(r["bytes"][:2] == b"ST" and len(r["bytes"]) == r["received_bytes"] for
       "every raw observation is a whole storetrack datagram")
 check(all(raw[i]["arrival_tai_ns"] <= raw[i + 1]["arrival_tai_ns"] for i in range(len(raw) - 1)),
       "raw observations in arrival order")
+check(all(records[i]["host_mono_ns"] <= records[i + 1]["host_mono_ns"] for i in range(len(records) - 1)),
+      "raw channel records in the order the aligner was given them (host loop time)")
+check(sum(1 for r in records if r["source_kind"] == 3) == 1 and records[-1]["source_kind"] == 3,
+      "the host's final flush is the raw channel's last record")
 rs = stats["recording"]["raw_observations"]
 check(rs["dropped_queue_full"] == 0 and rs["messages_dropped"] == 0, "no raw observation dropped")
 

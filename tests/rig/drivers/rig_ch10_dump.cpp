@@ -119,6 +119,7 @@ int main(int argc, char** argv) {
                       {"flags", r.flags},
                       {"decode_error", r.decode_error},
                       {"received_bytes", r.received_bytes},
+                      {"host_mono_ns", r.host_mono_ns},
                       {"bytes_hex", hex(r.bytes)}});
     out["raw_observations"] = list;
   }

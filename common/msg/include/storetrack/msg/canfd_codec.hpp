@@ -109,6 +109,14 @@ struct CanReassemblyCounters {
   std::uint64_t fragments_lost = 0;      ///< missing fragments of expired/evicted transfers
 };
 
+/// The message of one reassembled transfer stream (payload and CRC-32, as
+/// CanFdReassembler::FinishedTransfer holds it) sent under `can_id`: its length, CRC and content,
+/// and that it names the unit and camera the identifier names. Not the fragment shape or the
+/// transfer sequence (the frames' headers, not in the stream): a recorded transfer the host
+/// accepted is replayed through it (storetrack-post).
+DecodeError decode_canfd_stream(std::uint32_t can_id, std::span<const std::uint8_t> stream,
+                                AnyMessage& out);
+
 struct CanReassemblerConfig {
   std::int64_t timeout_ns = 20'000'000;  ///< incomplete transfer lifetime (8 exposures at 400 fps)
 };

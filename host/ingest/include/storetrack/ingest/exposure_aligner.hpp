@@ -151,8 +151,10 @@ class ExposureAligner {
   /// Adds one observation received at host time `now`; appends released exposures to `out`.
   void push(const msg::MarkObservations& obs, time::MonotonicNs now,
             std::vector<pipeline::AlignedExposure>& out);
-  /// Releases exposures whose wait expired by `now`.
-  void poll(time::MonotonicNs now, std::vector<pipeline::AlignedExposure>& out);
+  /// Releases exposures whose wait expired by `now`. Returns true when it changed anything
+  /// (released or took back an exposure): a call that returns false left the aligner as it was,
+  /// so a replay that repeats only the calls that returned true, at their `now`, is exact.
+  bool poll(time::MonotonicNs now, std::vector<pipeline::AlignedExposure>& out);
   /// Releases everything pending and drops held observations (end of input).
   void flush(std::vector<pipeline::AlignedExposure>& out);
   /// Host time at which the next pending exposure times out and something is released or taken
@@ -229,7 +231,7 @@ class ExposureAligner {
   bool lone_unjudged(const Pending& p) const;
   bool forces_older(const Pending& p) const;
   void take_back(PendingMap::iterator it);
-  void take_back_expired_unconfirmed(time::MonotonicNs now);
+  bool take_back_expired_unconfirmed(time::MonotonicNs now);
   bool on_grid_over_gap(std::int64_t key, time::TaiNs mid) const;
   bool held_on_grid(int cam) const;
   void advance_stream_clock(time::MonotonicNs now);
@@ -264,7 +266,7 @@ class ExposureAligner {
   Majority majority(const std::vector<msg::MarkObservations>& cameras, std::int64_t key) const;
   void release(PendingMap::iterator it, ReleaseReason reason,
                std::vector<pipeline::AlignedExposure>& out);
-  void release_ready(time::MonotonicNs now, std::vector<pipeline::AlignedExposure>& out);
+  bool release_ready(time::MonotonicNs now, std::vector<pipeline::AlignedExposure>& out);
   void remember_released(std::int64_t key, std::uint32_t mask, time::TaiNs mid);
   void update_grid(std::int64_t key, time::TaiNs mid, int agreeing_cameras);
   const Released* released_entry(std::int64_t key) const;

@@ -26,6 +26,14 @@ using MessageHandler = std::function<void(const msg::AnyMessage&)>;
 /// during the call. Called before the MessageHandler of the same message.
 using RawObservationHandler =
     std::function<void(const msg::RawObservation&, std::span<const std::uint8_t>)>;
+/// RawObservation.source_kind: a message (UDP, CAN FD) or one of the aligner's clock events the
+/// host records beside them, so that a replay gives the aligner every input at its time.
+enum class RawSourceKind : std::uint8_t {
+  kUdp = 0,
+  kCanFd = 1,
+  kAlignerDeadline = 2,  ///< ExposureAligner::poll released or took back exposures
+  kAlignerFlush = 3,     ///< ExposureAligner::flush at the host's end
+};
 /// The RawObservation.decode_error of a valid datagram from a sender that is not allowed.
 inline constexpr std::uint8_t kRawSpoofedSource = 0xFE;
 

@@ -95,7 +95,7 @@ struct RawObservation {
   bool data_error = false;              ///< the receiver refused it
   bool format_error = false;            ///< truncated to the receive buffer
   int version = 0;
-  int source_kind = 0;  ///< 0 UDP, 1 CAN FD
+  int source_kind = 0;  ///< 0 UDP, 1 CAN FD, 2 aligner deadline check, 3 aligner flush
   std::int64_t arrival_tai_ns = 0;
   std::uint32_t source_address = 0;  ///< UDP: IPv4 (a.b.c.d = 0xaabbccdd); CAN: 29-bit identifier
   std::uint16_t source_port = 0;     ///< UDP: port; CAN: interface index
@@ -103,12 +103,16 @@ struct RawObservation {
   std::uint8_t flags = 0;  ///< bit 0 accepted, bit 1 truncated
   int decode_error = 0;
   std::uint32_t received_bytes = 0;
+  std::int64_t host_mono_ns = 0;    ///< the host loop's time the aligner was given
   std::vector<std::uint8_t> bytes;  ///< the message as received
 };
-/// Decodes one raw-channel message body (version 1 only), or nullopt with `error`.
+/// Decodes one raw-channel message body (version 2 only), or nullopt with `error`.
 std::optional<RawObservation> decode_raw_observation(std::span<const std::uint8_t> bytes,
                                                      std::string* error = nullptr);
-/// The channel TMATS names as the data source RAWOBS (R-1\DSI-n:RAWOBS, R-1\TK1-n), or -1.
+/// The channel TMATS names as the data source `data_source` (R-1\DSI-n:<data_source>,
+/// R-1\TK1-n), or -1: FTISAMPLE (the samples), RAWOBS (the raw channel).
+int channel_id_of(const File& file, const std::string& data_source);
+/// channel_id_of(file, "RAWOBS").
 int raw_channel_id(const File& file);
 /// Every raw observation of the file in file order (the TMATS-named channel); a malformed packet
 /// or record stops the list and sets `error`.

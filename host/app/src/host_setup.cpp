@@ -1,0 +1,86 @@
+#include "host_setup.hpp"
+
+#include <spdlog/spdlog.h>
+#include <stdexcept>
+#include <vector>
+
+#include "storetrack/match/mark_matcher.hpp"
+
+namespace storetrack::hostapp {
+
+using output::RecordedInputKind;
+
+void load_inputs(HostOptions& o, const InputReader& read, InputFiles& in) {
+  HostConfig& cfg = o.cfg;
+  if (!o.config_path.empty())
+    parse_host_config(read(RecordedInputKind::kHostConfig, o.config_path), o.config_path, cfg);
+  in.rig = camera::parse_rig_calibration(read(RecordedInputKind::kCalibration, o.calibration_path),
+                                         o.calibration_path);
+  in.pylon =
+      survey::parse_survey(read(RecordedInputKind::kPylonSurvey, o.pylon_path), o.pylon_path);
+  in.store =
+      survey::parse_survey(read(RecordedInputKind::kStoreSurvey, o.store_path), o.store_path);
+  if (!o.initial_marks_path.empty())
+    cfg.initial_marks_w = parse_initial_marks(
+        read(RecordedInputKind::kInitialMarks, o.initial_marks_path), o.initial_marks_path);
+  if (in.rig.cameras.empty() || in.rig.cameras.size() > 32)
+    throw std::runtime_error(o.calibration_path + ": the rig needs 1..32 cameras (has " +
+                             std::to_string(in.rig.cameras.size()) + ")");
+  if (o.max_wait_ms > 0) set_max_wait_ms(cfg, o.max_wait_ms, "--max-wait-ms");
+  if (o.min_cameras > 0) cfg.aligner.min_cameras = o.min_cameras;
+  for (const auto& text : o.udp_sources)
+    cfg.udp_sources.push_back(parse_udp_source(text));
+  if (o.no_udp_kernel_filter) cfg.udp_kernel_filter = false;
+  std::vector<int> camera_ids, unit_ids;
+  for (const auto& c : in.rig.cameras) {
+    camera_ids.push_back(c.camera_id);
+    unit_ids.push_back(c.unit_id);
+  }
+  finish_host_config(cfg, camera_ids, unit_ids);
+}
+
+namespace {
+
+// Mark identification: the processor's MarkMatcher. Its prior poses (acquisition, and
+// re-acquisition of a body lost for longer than its track gap) are fitted to the installation
+// survey's initial mark positions; without them it cannot acquire a body.
+void set_prior_poses(const HostConfig& cfg, const InputFiles& in,
+                     pipeline::ExposureProcessor& processor) {
+  std::vector<geometry::Transform> fitted;
+  for (const auto* body : {&in.pylon, &in.store}) {
+    geometry::Transform T_w_b;
+    geometry::Mat6 cov;
+    if (match::fit_body_pose(*body, cfg.initial_marks_w, cfg.initial_marks_sigma_m, T_w_b, cov)) {
+      processor.matcher().set_prior_pose(body->name, T_w_b, cov);
+      fitted.push_back(T_w_b);
+    } else {
+      spdlog::warn(
+          "no prior pose for '{}' (needs >= 3 non-collinear of its marks in --initial-marks): "
+          "its marks cannot be identified",
+          body->name);
+    }
+  }
+  // The store's region relative to the pylon (re-acquisition), around its installation pose.
+  if (cfg.store_region.valid && fitted.size() == 2) {
+    match::BodyRegion region;
+    region.reference_body = in.pylon.name;
+    region.T_ref_b_nominal = fitted[0].inverse() * fitted[1];
+    region.max_rotation_rad = cfg.store_region.max_rotation_rad;
+    region.min_offset_m = cfg.store_region.min_offset_m;
+    region.max_offset_m = cfg.store_region.max_offset_m;
+    processor.matcher().set_region(in.store.name, region);
+  }
+}
+
+}  // namespace
+
+ProcessingChain make_processing_chain(const HostConfig& cfg, const InputFiles& in) {
+  ProcessingChain chain;
+  chain.processor =
+      std::make_unique<pipeline::ExposureProcessor>(in.rig, in.pylon, in.store, cfg.processor);
+  chain.aligner = std::make_unique<ingest::ExposureAligner>(cfg.aligner);
+  set_prior_poses(cfg, in, *chain.processor);
+  return chain;
+}
+
+}  // namespace storetrack::hostapp

@@ -1,0 +1,44 @@
+// What storetrack-host and storetrack-post build from the same inputs: the input files (read
+// from disk by the host, from a recording's inputs channel by storetrack-post), the finished
+// configuration and the processing chain. One setup, so that a replay processes with what the
+// live run processed with.
+#pragma once
+
+#include <functional>
+#include <memory>
+#include <string>
+
+#include "host_options.hpp"
+#include "storetrack/camera/calibration_file.hpp"
+#include "storetrack/ingest/exposure_aligner.hpp"
+#include "storetrack/output/chapter10_writer.hpp"
+#include "storetrack/pipeline/exposure_processor.hpp"
+#include "storetrack/survey/survey.hpp"
+
+namespace storetrack::hostapp {
+
+struct InputFiles {
+  camera::RigCalibration rig;
+  survey::RigidBodySurvey pylon, store;
+};
+
+/// The text of one input file: `kind` names it, `path` is the path the options give.
+/// Throws std::runtime_error naming the file when it cannot.
+using InputReader =
+    std::function<std::string(output::RecordedInputKind kind, const std::string& path)>;
+
+/// Reads the inputs the options name through `read`, and applies the options onto the
+/// configuration (o.cfg), finished for the rig's cameras and units. Throws std::runtime_error
+/// (file and reason, or the option and its range).
+void load_inputs(HostOptions& o, const InputReader& read, InputFiles& in);
+
+/// The processing chain: the aligner and the processor, whose matcher has its prior poses fitted
+/// to the installation survey's initial marks (a warning names a body it cannot fit). Throws
+/// std::invalid_argument on a configuration the parts refuse.
+struct ProcessingChain {
+  std::unique_ptr<ingest::ExposureAligner> aligner;
+  std::unique_ptr<pipeline::ExposureProcessor> processor;
+};
+ProcessingChain make_processing_chain(const HostConfig& cfg, const InputFiles& in);
+
+}  // namespace storetrack::hostapp

@@ -1,0 +1,35 @@
+#include "post_options.hpp"
+
+#include "storetrack/cli/command_line.hpp"
+
+namespace storetrack::post {
+
+int parse_post_options(int argc, char** argv, PostOptions& o) {
+  cli::Command app{
+      "storetrack-post: replays a storetrack-host recording (IRIG 106 Chapter 10 with the raw "
+      "observation channel) through the host's aligner, matcher and processor"};
+  app.option("recording", o.recording_files,
+             "The Chapter 10 files of one host run, in the order the host wrote them")
+      .required()
+      .existing_file();
+  app.flag("--verify", o.verify,
+           "Compare every replayed sample byte for byte with the recorded one (exit 1 on any "
+           "difference or a different count)");
+  app.option("--csv", o.csv_path, "Write the replayed samples to this NEW CSV file");
+  app.option("--stats-json", o.stats_json_path,
+             "Write the replay's counters and the comparison to this NEW JSON file");
+  app.option("--calibration", o.calibration_path, "Use this rig calibration, not the recorded")
+      .existing_file();
+  app.option("--pylon-survey", o.pylon_path, "Use this pylon survey, not the recorded")
+      .existing_file();
+  app.option("--store-survey", o.store_path, "Use this store survey, not the recorded")
+      .existing_file();
+  app.option("--config", o.config_path, "Use this host configuration, not the recorded")
+      .existing_file();
+  app.option("--log-level", o.log_level, "spdlog level")
+      .one_of({"trace", "debug", "info", "warn", "error", "off"})
+      .show_default();
+  return app.parse(argc, argv);
+}
+
+}  // namespace storetrack::post

@@ -1,0 +1,22 @@
+// storetrack-post's command line: the recording's files, the outputs, and the inputs that
+// replace the recorded ones.
+#pragma once
+
+#include <string>
+#include <vector>
+
+namespace storetrack::post {
+
+struct PostOptions {
+  std::vector<std::string> recording_files;  ///< one host run's files, in the order written
+  bool verify = false;
+  std::string csv_path, stats_json_path;
+  /// Read from disk instead of the recording (empty: the recorded one).
+  std::string calibration_path, pylon_path, store_path, config_path;
+  std::string log_level = "warn";
+};
+
+/// Parses argv into `o`; returns -1 to go on, else the exit code (0 for --help, 2 for an error).
+int parse_post_options(int argc, char** argv, PostOptions& o);
+
+}  // namespace storetrack::post

@@ -1,0 +1,254 @@
+#include "post_run.hpp"
+
+#include <spdlog/spdlog.h>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <map>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "host_options.hpp"
+#include "host_setup.hpp"
+#include "recording.hpp"
+#include "replay.hpp"
+#include "sample_compare.hpp"
+#include "storetrack/json/text_file.hpp"
+#include "storetrack/output/csv_writer.hpp"
+
+namespace storetrack::post {
+
+namespace {
+
+using output::RecordedInputKind;
+
+// Bad input (exit 2): the message names the file.
+struct InputError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+// The recorded command line (RecordedInputKind::kCommandLine): each argument followed by a NUL.
+std::vector<std::string> split_command_line(const ch10read::RecordedInput& in,
+                                            const std::string& file) {
+  std::vector<std::string> args;
+  std::string arg;
+  for (const std::uint8_t b : in.bytes) {
+    if (b == 0) {
+      args.push_back(std::move(arg));
+      arg.clear();
+    } else {
+      arg.push_back(static_cast<char>(b));
+    }
+  }
+  if (!arg.empty() || args.empty())
+    throw InputError(file + ": the recorded command line is not a list of NUL-ended arguments");
+  return args;
+}
+
+// The host's options as the live run parsed them (the files it names need not exist here),
+// with the substitutes' paths in place of the recorded ones.
+hostapp::HostOptions recorded_host_options(const Recording& r, const PostOptions& p) {
+  const std::string& first = r.files.front();
+  const auto* recorded = find_input(r, static_cast<int>(RecordedInputKind::kCommandLine));
+  if (!recorded) throw InputError(first + ": no recorded command line in its inputs");
+  std::vector<std::string> args = split_command_line(*recorded, first);
+  std::vector<char*> argv;
+  for (std::string& a : args)
+    argv.push_back(a.data());
+  argv.push_back(nullptr);
+  hostapp::HostOptions o;
+  if (hostapp::parse_host_options(static_cast<int>(args.size()), argv.data(), o,
+                                  hostapp::InputFileCheck::kNone) >= 0)
+    throw InputError(first + ": the recorded command line does not parse (above)");
+  o.command_line = std::move(args);
+  if (!p.calibration_path.empty()) o.calibration_path = p.calibration_path;
+  if (!p.pylon_path.empty()) o.pylon_path = p.pylon_path;
+  if (!p.store_path.empty()) o.store_path = p.store_path;
+  if (!p.config_path.empty()) o.config_path = p.config_path;
+  return o;
+}
+
+// Each input from disk when the options substitute it, else its recorded bytes.
+hostapp::InputReader make_input_reader(const Recording& r, const PostOptions& p) {
+  const std::map<RecordedInputKind, std::string> substitutes{
+      {RecordedInputKind::kCalibration, p.calibration_path},
+      {RecordedInputKind::kPylonSurvey, p.pylon_path},
+      {RecordedInputKind::kStoreSurvey, p.store_path},
+      {RecordedInputKind::kHostConfig, p.config_path}};
+  return [&r, substitutes](RecordedInputKind kind, const std::string& path) -> std::string {
+    if (const auto it = substitutes.find(kind); it != substitutes.end() && !it->second.empty())
+      return jsonfile::read_text_file(it->second);
+    const auto* recorded = find_input(r, static_cast<int>(kind));
+    if (!recorded)
+      throw InputError(r.files.front() + ": the recorded command line names the " +
+                       output::to_string(kind) + " '" + path +
+                       "', which the recording does not carry");
+    return {recorded->bytes.begin(), recorded->bytes.end()};
+  };
+}
+
+// A new file only (never over an existing one, a recording least of all).
+std::FILE* create_output(const std::string& path) {
+  std::string created;
+  std::FILE* f = output::fopen_new_file(path, false, created);
+  if (!f)
+    throw InputError(path + ": " +
+                     (errno == EEXIST ? std::string("exists; storetrack-post writes new files only")
+                                      : std::string(std::strerror(errno))));
+  return f;
+}
+
+void print_summary(const Recording& r, const ReplayCounters& c, std::size_t samples) {
+  std::printf(
+      "storetrack-post: %zu file(s), %llu raw records: %llu observations replayed, %llu refused "
+      "live, %llu undecodable, %llu health, %llu deadline checks, %llu flush; %llu exposures, %zu "
+      "samples "
+      "(%llu withheld)\n",
+      r.files.size(), static_cast<unsigned long long>(c.records),
+      static_cast<unsigned long long>(c.observations),
+      static_cast<unsigned long long>(c.refused_live),
+      static_cast<unsigned long long>(c.undecodable),
+      static_cast<unsigned long long>(c.health_messages),
+      static_cast<unsigned long long>(c.deadline_events),
+      static_cast<unsigned long long>(c.flush_events), static_cast<unsigned long long>(c.exposures),
+      samples, static_cast<unsigned long long>(c.withheld.total()));
+  if (c.flush_events == 0)
+    std::printf(
+        "storetrack-post: no final flush recorded (the host did not end normally): "
+        "%llu exposure(s) left pending, as live\n",
+        static_cast<unsigned long long>(c.pending_at_end));
+}
+
+// --verify: true when every sample is identical and the counts agree. A recording that ends
+// before the host did (torn, or without the final flush: a host killed or crashed) lost the
+// samples and records in flight: the samples both hold are compared, the counts cannot agree
+// and are reported.
+bool report_comparison(const SampleComparison& c, bool ended_early) {
+  std::printf("verify: %zu replayed, %zu recorded: %zu identical, %zu different\n", c.replayed,
+              c.recorded, c.identical, c.different);
+  for (const SampleDifference& d : c.first_differences)
+    std::printf(
+        "  sample %zu (trigger_seq %u replayed, %lld recorded; %s packet at %zu): first "
+        "difference at byte %zu\n",
+        d.index, d.replayed_trigger_seq, static_cast<long long>(d.recorded_trigger_seq),
+        d.file.c_str(), d.packet_offset, d.first_byte);
+  if (c.replayed != c.recorded)
+    std::printf("  sample counts differ%s\n",
+                ended_early ? " (the recording ends before the host did: only the samples both "
+                              "hold are compared)"
+                            : "");
+  return c.different == 0 && (c.replayed == c.recorded || ended_early);
+}
+
+nlohmann::json stats_json(const Recording& r, const ReplayCounters& c, std::size_t samples,
+                          const SampleComparison* compared) {
+  nlohmann::json j;
+  j["files"] = r.files;
+  j["torn"] = r.torn;
+  j["replay"] = {{"records", c.records},
+                 {"observations", c.observations},
+                 {"refused_live", c.refused_live},
+                 {"undecodable", c.undecodable},
+                 {"health_messages", c.health_messages},
+                 {"deadline_events", c.deadline_events},
+                 {"flush_events", c.flush_events},
+                 {"pending_at_end", c.pending_at_end},
+                 {"unknown_kind", c.unknown_kind},
+                 {"exposures", c.exposures},
+                 {"samples", samples},
+                 {"samples_withheld",
+                  {{"no_camera_used", c.withheld.no_camera_used},
+                   {"fewer_cameras_than_min", c.withheld.fewer_cameras_than_min}}}};
+  if (compared)
+    j["verify"] = {{"replayed", compared->replayed},
+                   {"recorded", compared->recorded},
+                   {"identical", compared->identical},
+                   {"different", compared->different}};
+  return j;
+}
+
+struct FileCloser {
+  void operator()(std::FILE* f) const {
+    if (f) std::fclose(f);
+  }
+};
+using FilePtr = std::unique_ptr<std::FILE, FileCloser>;
+
+int write_csv(output::FtiCsvWriter& csv, const std::vector<msg::FtiSample>& samples) {
+  for (const msg::FtiSample& s : samples)
+    if (csv.write(s) != 0) break;
+  if (const int rc = csv.close(); rc != 0 || csv.rows_written() != samples.size()) {
+    std::fprintf(stderr, "storetrack-post: %s: %s (%llu of %zu rows)\n", csv.path().c_str(),
+                 std::strerror(rc < 0 ? -rc : EIO),
+                 static_cast<unsigned long long>(csv.rows_written()), samples.size());
+    return 1;
+  }
+  return 0;
+}
+
+int run(const PostOptions& p) {
+  const Recording r = read_recording(p.recording_files);
+  for (const std::string& torn : r.torn)
+    std::fprintf(stderr, "storetrack-post: %s: replaying up to its last whole packet\n",
+                 torn.c_str());
+  hostapp::HostOptions o = recorded_host_options(r, p);
+  hostapp::InputFiles in;
+  hostapp::load_inputs(o, make_input_reader(r, p), in);
+  hostapp::ProcessingChain chain = hostapp::make_processing_chain(o.cfg, in);
+
+  // Outputs are created before the replay: a refused name costs no replay.
+  output::FtiCsvWriter csv;
+  if (!p.csv_path.empty()) {
+    if (const int rc = csv.open(p.csv_path, false); rc != 0)
+      throw InputError(p.csv_path + ": " +
+                       (rc == -EEXIST ? std::string("exists; storetrack-post writes new files only")
+                                      : std::string(std::strerror(-rc))));
+  }
+  FilePtr stats(p.stats_json_path.empty() ? nullptr : create_output(p.stats_json_path));
+
+  Replay replay(*chain.aligner, *chain.processor, chain.aligner->config().min_cameras);
+  for (const ch10read::RawObservation& record : r.records)
+    replay.feed(record);
+  replay.finish();
+  print_summary(r, replay.counters(), replay.samples().size());
+
+  int exit_code = 0;
+  SampleComparison compared;
+  if (p.verify) {
+    compared = compare_samples(replay.samples(), r.samples);
+    const bool ended_early = !r.torn.empty() || replay.counters().flush_events == 0;
+    if (!report_comparison(compared, ended_early)) exit_code = 1;
+  }
+  if (!p.csv_path.empty() && write_csv(csv, replay.samples()) != 0) exit_code = 1;
+  if (stats) {
+    const std::string text =
+        stats_json(r, replay.counters(), replay.samples().size(), p.verify ? &compared : nullptr)
+            .dump(2) +
+        "\n";
+    if (std::fwrite(text.data(), 1, text.size(), stats.get()) != text.size() ||
+        std::fclose(stats.release()) != 0) {
+      std::fprintf(stderr, "storetrack-post: %s: %s\n", p.stats_json_path.c_str(),
+                   std::strerror(errno));
+      exit_code = 1;
+    }
+  }
+  return exit_code;
+}
+
+}  // namespace
+
+int run_post(const PostOptions& o) {
+  spdlog::set_level(spdlog::level::from_str(o.log_level));
+  try {
+    return run(o);
+  } catch (const std::exception& e) {
+    // Unreadable or refused recordings, inputs and configurations: each names its file.
+    std::fprintf(stderr, "storetrack-post: %s\n", e.what());
+    return 2;
+  }
+}
+
+}  // namespace storetrack::post

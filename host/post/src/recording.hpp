@@ -1,0 +1,40 @@
+// A recording as storetrack-post reads it: one host run's Chapter 10 files, in the order the host
+// wrote them (continuation files after the first), with what a replay needs: the raw channel
+// (every observation message and the aligner's clock events), the live samples, and the inputs
+// the host ran with.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "storetrack/output/chapter10_reader.hpp"
+
+namespace storetrack::post {
+
+struct RecordedSample {
+  std::string file;
+  std::size_t packet_offset = 0;
+  std::uint16_t store_id = 0;       ///< the message's subchannel
+  std::vector<std::uint8_t> block;  ///< the FTI parameter block as recorded
+};
+
+struct Recording {
+  std::vector<std::string> files;
+  std::vector<ch10read::RawObservation> records;  ///< the raw channel, in file order
+  std::vector<RecordedSample> samples;            ///< the live run's samples, in file order
+  std::vector<ch10read::RecordedInput> inputs;    ///< of the first file (each file repeats them)
+  std::vector<std::string> torn;                  ///< "file: offset" of files cut in a packet
+};
+
+/// Reads the files of one host run, in order. Throws std::runtime_error naming the file (and
+/// the packet offset) for an unreadable file, a file without the raw channel or without its
+/// inputs (an older recording), a malformed record, or files of different runs (their inputs
+/// differ). A file that ends inside a packet (a crash) is read to its last whole packet and named
+/// in `torn`.
+Recording read_recording(const std::vector<std::string>& paths);
+
+/// The recorded input of `kind` (output::RecordedInputKind), or nullptr.
+const ch10read::RecordedInput* find_input(const Recording& r, int kind);
+
+}  // namespace storetrack::post

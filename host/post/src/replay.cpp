@@ -1,0 +1,63 @@
+#include "replay.hpp"
+
+#include "storetrack/ingest/receivers.hpp"
+#include "storetrack/msg/canfd_codec.hpp"
+#include "storetrack/msg/udp_codec.hpp"
+
+namespace storetrack::post {
+
+using ingest::RawSourceKind;
+
+void Replay::feed(const ch10read::RawObservation& record) {
+  ++counters_.records;
+  const auto kind = static_cast<RawSourceKind>(record.source_kind);
+  if (kind == RawSourceKind::kAlignerDeadline) {
+    ++counters_.deadline_events;
+    aligner_.poll(record.host_mono_ns, ready_);
+  } else if (kind == RawSourceKind::kAlignerFlush) {
+    ++counters_.flush_events;
+    aligner_.flush(ready_);
+  } else if (kind == RawSourceKind::kUdp || kind == RawSourceKind::kCanFd) {
+    if (!(record.flags & msg::raw_observation_flags::kAccepted)) {
+      ++counters_.refused_live;
+      return;
+    }
+    msg::AnyMessage message;
+    const msg::DecodeError e =
+        kind == RawSourceKind::kUdp
+            ? msg::decode_datagram(record.bytes, message)
+            : msg::decode_canfd_stream(record.source_address, record.bytes, message);
+    if (e != msg::DecodeError::kNone) {
+      ++counters_.undecodable;
+      return;
+    }
+    if (const auto* obs = std::get_if<msg::MarkObservations>(&message)) {
+      ++counters_.observations;
+      aligner_.push(*obs, record.host_mono_ns, ready_);
+    } else {
+      ++counters_.health_messages;
+    }
+  } else {
+    ++counters_.unknown_kind;
+    return;
+  }
+  process_ready();
+}
+
+void Replay::finish() {
+  counters_.pending_at_end = aligner_.pending();
+}
+
+// As the host loop: every exposure in release order through the processor; a sample too few
+// cameras measured is withheld.
+void Replay::process_ready() {
+  for (const auto& e : ready_) {
+    const pipeline::ExposureResult r = processor_.process(e);
+    ++counters_.exposures;
+    if (!counters_.withheld.admit(hostapp::judge_sample(r.cameras_used, min_cameras_))) continue;
+    samples_.push_back(r.sample);
+  }
+  ready_.clear();
+}
+
+}  // namespace storetrack::post

@@ -1,0 +1,61 @@
+// The replay: a recording's raw channel given to the host's own aligner and processor, each
+// message and each of the aligner's clock events at the host loop time it had live. The aligner
+// depends only on those inputs and times, and the processor only on the exposures in release
+// order, so with the recorded inputs the samples are the live run's, bit for bit.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "sample_gate.hpp"
+#include "storetrack/ingest/exposure_aligner.hpp"
+#include "storetrack/msg/messages.hpp"
+#include "storetrack/output/chapter10_reader.hpp"
+#include "storetrack/pipeline/exposure_processor.hpp"
+
+namespace storetrack::post {
+
+struct ReplayCounters {
+  std::uint64_t records = 0;
+  std::uint64_t refused_live = 0;     ///< messages the host's receiver refused: not replayed
+  std::uint64_t undecodable = 0;      ///< accepted live, not decodable now (a damaged record)
+  std::uint64_t observations = 0;     ///< MarkObservations given to the aligner
+  std::uint64_t health_messages = 0;  ///< UnitHealth (not an aligner input)
+  std::uint64_t deadline_events = 0;  ///< ExposureAligner::poll calls repeated
+  std::uint64_t flush_events = 0;     ///< the host's final ExposureAligner::flush
+  std::uint64_t pending_at_end = 0;   ///< exposures still pending after the last record
+  std::uint64_t unknown_kind = 0;     ///< records of a kind this replay does not know
+  std::uint64_t exposures = 0;        ///< exposures processed
+  hostapp::SamplesWithheld withheld;  ///< processed, not written (as live)
+};
+
+class Replay {
+ public:
+  /// `min_cameras`: the aligner's (the host withholds samples of fewer cameras).
+  Replay(ingest::ExposureAligner& aligner, pipeline::ExposureProcessor& processor, int min_cameras)
+      : aligner_(aligner), processor_(processor), min_cameras_(min_cameras) {}
+
+  /// One raw-channel record, in recorded order.
+  void feed(const ch10read::RawObservation& record);
+  /// After the last record. A recording without the host's final flush (a host killed, a file
+  /// cut) is not flushed here: its samples are then what the live aligner had released by its
+  /// last record, a prefix of the live run's, and what was still pending is counted
+  /// (counters().pending_at_end).
+  void finish();
+
+  /// The samples written, in the order the host wrote them.
+  const std::vector<msg::FtiSample>& samples() const { return samples_; }
+  const ReplayCounters& counters() const { return counters_; }
+
+ private:
+  void process_ready();
+
+  ingest::ExposureAligner& aligner_;
+  pipeline::ExposureProcessor& processor_;
+  int min_cameras_;
+  std::vector<pipeline::AlignedExposure> ready_;
+  std::vector<msg::FtiSample> samples_;
+  ReplayCounters counters_;
+};
+
+}  // namespace storetrack::post

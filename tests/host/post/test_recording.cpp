@@ -1,0 +1,161 @@
+// read_recording (host/post): the files of one host run written by the Chapter 10 writer, read
+// back through the independent reader; every refusal names the file.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <stdexcept>
+
+#include "fti_sample_factory.hpp"
+#include "recording.hpp"
+#include "storetrack/output/chapter10_writer.hpp"
+#include "storetrack/output/fti_parameter_block.hpp"
+
+namespace storetrack::post {
+namespace {
+
+namespace fs = std::filesystem;
+using output::RecordedInputKind;
+
+constexpr std::int64_t kT0Tai = (1'803'902'400LL + 37) * 1'000'000'000LL;
+constexpr int kExposures = 40, kObservationsPerExposure = 8;
+
+fs::path fresh_dir(const std::string& name) {
+  const fs::path d = fs::temp_directory_path() / (name + "_" + std::to_string(::getpid()));
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+
+std::vector<std::uint8_t> bytes_of(const std::string& s) {
+  return {s.begin(), s.end()};
+}
+
+output::Chapter10Config config(bool raw, bool inputs, const std::string& calibration = "{}") {
+  output::Chapter10Config cfg;
+  cfg.sync = output::Chapter10Sync::kNone;
+  cfg.existing = output::Chapter10Existing::kRefuse;
+  cfg.raw_observations = raw;
+  if (inputs)
+    cfg.inputs = {{RecordedInputKind::kCalibration, "rig.json", bytes_of(calibration)},
+                  {RecordedInputKind::kCommandLine, "argv", bytes_of(std::string("host\0", 5))}};
+  return cfg;
+}
+
+// Observations (their bytes need not decode here), then the exposure's sample, as the host
+// writes them; returns the samples' blocks as the host encodes them.
+std::vector<std::vector<std::uint8_t>> write_run(const std::string& path,
+                                                 const output::Chapter10Config& cfg) {
+  output::Chapter10Writer w;
+  EXPECT_EQ(w.open(path, cfg), 0);
+  std::mt19937_64 rng(5);
+  std::vector<std::vector<std::uint8_t>> blocks;
+  for (int k = 0; k < kExposures; ++k) {
+    for (int j = 0; cfg.raw_observations && j < kObservationsPerExposure; ++j) {
+      msg::RawObservation r{};
+      const int n = k * kObservationsPerExposure + j;
+      r.arrival_tai_ns = kT0Tai + n * 312'500LL;
+      r.host_mono_ns = 7'000'000'000LL + n;
+      r.flags = msg::raw_observation_flags::kAccepted;
+      const std::vector<std::uint8_t> bytes(1 + n % 50, static_cast<std::uint8_t>(n));
+      r.message_bytes = static_cast<std::uint16_t>(bytes.size());
+      r.received_bytes = r.message_bytes;
+      EXPECT_EQ(w.write_raw(r, bytes), 0);
+    }
+    const msg::FtiSample s =
+        output::testing::make_sample(static_cast<std::uint32_t>(k), kT0Tai, rng);
+    EXPECT_EQ(w.write(s), 0);
+    std::vector<std::uint8_t> block(output::kFtiParameterBlockBytes);
+    output::encode_fti_parameter_block(s, block);
+    blocks.push_back(std::move(block));
+  }
+  EXPECT_EQ(w.close(), 0);
+  return blocks;
+}
+
+// The message of `read_recording(paths)`'s refusal ("" when it reads).
+std::string refusal(const std::vector<std::string>& paths) {
+  try {
+    read_recording(paths);
+  } catch (const std::runtime_error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(PostRecording, ReadsRecordsSamplesAndInputsInOrder) {
+  const fs::path dir = fresh_dir("st_post_rec");
+  const std::string path = (dir / "out.ch10").string();
+  const auto blocks = write_run(path, config(true, true));
+  const Recording r = read_recording({path});
+  EXPECT_TRUE(r.torn.empty());
+  ASSERT_EQ(r.records.size(), static_cast<std::size_t>(kExposures * kObservationsPerExposure));
+  for (std::size_t i = 0; i < r.records.size(); ++i)
+    EXPECT_EQ(r.records[i].host_mono_ns, 7'000'000'000LL + static_cast<std::int64_t>(i));
+  ASSERT_EQ(r.samples.size(), blocks.size());
+  for (std::size_t i = 0; i < blocks.size(); ++i)
+    EXPECT_EQ(r.samples[i].block, blocks[i]) << "sample " << i;
+  ASSERT_NE(find_input(r, static_cast<int>(RecordedInputKind::kCommandLine)), nullptr);
+  EXPECT_EQ(find_input(r, static_cast<int>(RecordedInputKind::kCalibration))->bytes,
+            bytes_of("{}"));
+  fs::remove_all(dir);
+}
+
+TEST(PostRecording, RefusesARecordingWithoutTheRawChannel) {
+  const fs::path dir = fresh_dir("st_post_noraw");
+  const std::string path = (dir / "old.ch10").string();
+  write_run(path, config(false, true));
+  const std::string why = refusal({path});
+  EXPECT_NE(why.find(path + ": no raw observation channel"), std::string::npos) << why;
+  fs::remove_all(dir);
+}
+
+TEST(PostRecording, RefusesARecordingWithoutInputs) {
+  const fs::path dir = fresh_dir("st_post_noinputs");
+  const std::string path = (dir / "bare.ch10").string();
+  write_run(path, config(true, false));
+  const std::string why = refusal({path});
+  EXPECT_NE(why.find(path + ": no recorded inputs"), std::string::npos) << why;
+  fs::remove_all(dir);
+}
+
+TEST(PostRecording, RefusesAnUnreadableFileAndFilesOfAnotherRun) {
+  const fs::path dir = fresh_dir("st_post_other");
+  const std::string missing = (dir / "missing.ch10").string();
+  EXPECT_NE(refusal({missing}).find(missing), std::string::npos) << refusal({missing});
+  const std::string a = (dir / "a.ch10").string(), b = (dir / "b.ch10").string();
+  write_run(a, config(true, true, "{\"rig\": 1}"));
+  write_run(b, config(true, true, "{\"rig\": 2}"));
+  const std::string why = refusal({a, b});
+  EXPECT_NE(why.find(b + ": its recorded inputs differ from " + a), std::string::npos) << why;
+  fs::remove_all(dir);
+}
+
+// A crash cuts the file inside its last packet: what comes before it is read, and said.
+TEST(PostRecording, ReadsATornFileToItsLastWholePacket) {
+  const fs::path dir = fresh_dir("st_post_torn");
+  const std::string whole = (dir / "whole.ch10").string(), torn = (dir / "torn.ch10").string();
+  write_run(whole, config(true, true));
+  const auto size = fs::file_size(whole);
+  fs::copy_file(whole, torn);
+  fs::resize_file(torn, size - 7);
+  const Recording full = read_recording({whole});
+  const Recording cut = read_recording({torn});
+  ASSERT_EQ(cut.torn.size(), 1u);
+  EXPECT_EQ(cut.torn[0].rfind(torn + ": ", 0), 0u) << cut.torn[0];
+  EXPECT_NE(cut.torn[0].find("ends inside"), std::string::npos) << cut.torn[0];
+  // Some records or samples lost with the last packet; the rest exactly the whole file's first.
+  EXPECT_LT(cut.records.size() + cut.samples.size(), full.records.size() + full.samples.size());
+  ASSERT_LE(cut.records.size(), full.records.size());
+  for (std::size_t i = 0; i < cut.records.size(); ++i)
+    EXPECT_EQ(cut.records[i].bytes, full.records[i].bytes) << "record " << i;
+  ASSERT_LE(cut.samples.size(), full.samples.size());
+  for (std::size_t i = 0; i < cut.samples.size(); ++i)
+    EXPECT_EQ(cut.samples[i].block, full.samples[i].block) << "sample " << i;
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace storetrack::post

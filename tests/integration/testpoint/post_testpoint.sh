@@ -1,0 +1,80 @@
+#!/usr/bin/env bash
+# storetrack-post on the recording test_integration_testpoint just made (issue 26): replayed
+# through the host's aligner, matcher and processor, every sample must be the live run's, bit for
+# bit, and as many. The truth is the live run itself: its Chapter 10 sample channel (compared by
+# --verify) and its CSV (written by the host from the same samples, compared with cmp). Then the
+# bad inputs: an existing output (refused, untouched), a torn copy (replayed to its last whole
+# packet, said so, a prefix of the live samples), a file that is not a recording, and a
+# substituted calibration (the same bytes: identical; moved by 2 px: the samples move).
+set -euo pipefail
+POST="$1"; RUN="$2"
+REC="$RUN/out.ch10"; OUT="$RUN/post"
+fail() { echo "FAIL: $*"; exit 1; }
+pass() { echo "ok: $*"; }
+[ -s "$REC" ] || fail "no recording $REC (test_integration_testpoint makes it)"
+rm -rf "$OUT"; mkdir -p "$OUT"
+
+# 1. Bit-identical samples, every one, same count.
+rc=0; "$POST" --verify "$REC" --csv "$OUT/fti.csv" --stats-json "$OUT/stats.json" \
+  >"$OUT/verify.log" 2>&1 || rc=$?
+cat "$OUT/verify.log"
+[ "$rc" -eq 0 ] || fail "storetrack-post --verify exited $rc"
+/usr/bin/python3 - "$OUT/stats.json" "$RUN/stats.json" <<'PY'
+import json, sys
+post, live = json.load(open(sys.argv[1])), json.load(open(sys.argv[2]))
+v, n = post["verify"], live["samples_written"]
+print("samples: %d replayed, %d recorded, %d identical, %d different; live host wrote %d"
+      % (v["replayed"], v["recorded"], v["identical"], v["different"], n))
+assert n > 0 and v["recorded"] == n, "the recording holds the %d samples the host wrote" % n
+assert v["replayed"] == n and v["identical"] == n and v["different"] == 0, "bit-identical"
+assert post["replay"]["flush_events"] == 1, "the host's final flush replayed"
+assert post["replay"]["undecodable"] == 0 and post["replay"]["unknown_kind"] == 0
+PY
+cmp "$RUN/fti.csv" "$OUT/fti.csv" || fail "replayed CSV differs from the live run's"
+pass "every sample bit-identical to the live run's ($(($(wc -l <"$OUT/fti.csv") - 1)) CSV rows identical too)"
+
+# 2. Never over an existing file: refused before the replay, the file untouched.
+before=$(sha256sum <"$RUN/fti.csv")
+rc=0; "$POST" "$REC" --csv "$RUN/fti.csv" >"$OUT/exists.log" 2>&1 || rc=$?
+[ "$rc" -eq 2 ] || fail "an existing --csv: exit $rc, expected 2"
+grep -q "$RUN/fti.csv: exists" "$OUT/exists.log" || fail "no message naming the existing file"
+[ "$(sha256sum <"$RUN/fti.csv")" = "$before" ] || fail "the existing CSV was changed"
+pass "an existing output file is refused and left as it was"
+
+# 3. A torn copy (a crash inside the last packet): replayed to its last whole packet, said so;
+# its samples are the live run's first ones.
+size=$(stat -c %s "$REC")
+head -c $((size - 5)) "$REC" >"$OUT/torn.ch10"
+rc=0; "$POST" --verify "$OUT/torn.ch10" --csv "$OUT/torn.csv" >"$OUT/torn.log" 2>&1 || rc=$?
+cat "$OUT/torn.log"
+[ "$rc" -eq 0 ] || fail "torn copy: exit $rc"
+grep -q "$OUT/torn.ch10: .*ends inside.*: replaying up to its last whole packet" "$OUT/torn.log" \
+  || fail "no message naming the torn file"
+rows=$(wc -l <"$OUT/torn.csv")
+[ "$rows" -gt 100 ] || fail "torn copy: only $rows CSV lines"
+head -n "$rows" "$RUN/fti.csv" | cmp - "$OUT/torn.csv" || fail "torn copy's samples are not the live run's first"
+pass "torn copy: $((rows - 1)) samples, the live run's first, bit-identical"
+
+# 4. Not a recording: exit 2 naming the file.
+printf 'not a chapter 10 file\n' >"$OUT/junk.ch10"
+rc=0; "$POST" "$OUT/junk.ch10" >"$OUT/junk.log" 2>&1 || rc=$?
+[ "$rc" -eq 2 ] && grep -q "$OUT/junk.ch10" "$OUT/junk.log" || fail "junk file: exit $rc: $(cat "$OUT/junk.log")"
+pass "a file that is not a recording: exit 2, named"
+
+# 5. Substitution: the recorded calibration's own bytes change nothing; moved by 2 px they must.
+rc=0; "$POST" --verify "$REC" --calibration "$RUN/sim/rig_calibrated.json" >"$OUT/same.log" 2>&1 || rc=$?
+[ "$rc" -eq 0 ] || fail "the same calibration substituted: exit $rc: $(cat "$OUT/same.log")"
+/usr/bin/python3 - "$RUN/sim/rig_calibrated.json" "$OUT/moved.json" <<'PY'
+import json, sys
+rig = json.load(open(sys.argv[1]))
+rig["cameras"][0]["intrinsics"]["cx"] += 2.0
+json.dump(rig, open(sys.argv[2], "w"))
+PY
+rc=0; "$POST" --verify "$REC" --calibration "$OUT/moved.json" --stats-json "$OUT/moved_stats.json" \
+  >"$OUT/moved.log" 2>&1 || rc=$?
+[ "$rc" -eq 1 ] || fail "a moved calibration substituted: exit $rc, expected 1 (samples differ)"
+/usr/bin/python3 -c "
+import json, sys; v = json.load(open(sys.argv[1]))['verify']
+assert v['different'] > 0, v; print('moved calibration: %d of %d samples differ' % (v['different'], v['replayed']))
+" "$OUT/moved_stats.json"
+pass "substituted calibration used (same bytes: identical; moved: samples differ)"
