@@ -84,6 +84,11 @@ function(storetrack_test)
   cmake_parse_arguments(T "LONG_RUNNING" "NAME;TIMEOUT;COST" "SOURCES;LIBS;LABELS;SPLIT_OUT" ${ARGN})
   add_executable(${T_NAME} ${T_SOURCES})
   target_link_libraries(${T_NAME} PRIVATE ${T_LIBS} GTest::gtest GTest::gtest_main storetrack_warnings)
+  if(STORETRACK_SANITIZE)
+    # Monte Carlo and timing tests size their runs down (a smoke run of the code under the
+    # sanitizers) and leave wall-clock bounds to the Release stage.
+    target_compile_definitions(${T_NAME} PRIVATE STORETRACK_SANITIZE=1)
+  endif()
   if(T_LONG_RUNNING AND STORETRACK_SANITIZE)
     # the tree's -O1; not the shared PCH, which is -O0 there
   else()

@@ -168,7 +168,9 @@ void score_view(const Scene& s, const camera::CalibratedCamera& cam,
     t.partial_rejected += o.accepted ? 0 : 1;
     t.t_partial.push_back(o.seconds);
     EXPECT_FALSE(o.accepted) << name << " (" << inside << " corners inside) accepted";
+#ifndef STORETRACK_SANITIZE  // a Release bound: the sanitizer tree's code is 2-10x slower
     EXPECT_LT(o.seconds, kRejectSecondsBound) << name << ": " << o.reason;
+#endif
   } else {
     ++t.other;
     t.other_accepted += o.accepted ? 1 : 0;

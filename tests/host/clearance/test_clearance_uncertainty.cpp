@@ -22,6 +22,14 @@ using geometry::Vec3;
 using geometry::Vec6;
 
 constexpr double kAlphaPerSide = 0.001;
+// Monte Carlo sizes. Under ASan/UBSan a tenth: the bands below are derived for the n that runs,
+// so they stay exact; the single-feature bound's loss of coverage is asserted only at full size
+// (its power needs the n = 3000 band, see FeatureSwitchRule...).
+#ifdef STORETRACK_SANITIZE
+constexpr int kPoseDraws = 400, kCoverageDraws = 300;
+#else
+constexpr int kPoseDraws = 4000, kCoverageDraws = 3000;
+#endif
 constexpr double kOneSidedCoverageK2 = 1 - kLowerBoundMiss;  // P(N(0,1) <= 2)
 
 Body store_body(TriangleMesh m) {
@@ -87,7 +95,7 @@ TEST(ClearanceUncertainty, StatedUMatchesMonteCarloOfThePose) {
   const Mat6 C = correlated_covariance(sigma);
   const PartClearance nominal = model.evaluate(T0, C).at(0);
   ASSERT_NEAR(nominal.distance_m, 0.6 - 0.15 - 0.1 * 1.0, 0.1);  // sanity of the set-up
-  const int N = 4000;
+  const int N = kPoseDraws;
   PoseNoise noise(C, 27);
   double sum = 0, sum2 = 0;
   for (int i = 0; i < N; ++i) {
@@ -142,7 +150,7 @@ TEST(ClearanceUncertainty, LowerBoundCoverageOfOneFeatureIsInItsBinomialBand) {
   Vec6 sigma;
   sigma << 3e-3, 3e-3, 3e-3, 2e-3, 2e-3, 2e-3;
   const Mat6 C = correlated_covariance(sigma);
-  const int n = 3000;
+  const int n = kCoverageDraws;
   const uncertainty::CountInterval band =
       uncertainty::binomial_interval(n, kOneSidedCoverageK2, kAlphaPerSide);
   const Coverage c = run_coverage(model, T_true, C, n, 4);
@@ -167,7 +175,7 @@ TEST(ClearanceUncertainty, FeatureSwitchRuleKeepsTheCoverageWhereTheSingleBoundL
   const Mat6 C = Mat6(sigma.array().square().matrix().asDiagonal());
   const PartClearance at_truth = model.evaluate(T_true, C).at(0);
   EXPECT_GE(at_truth.features, 2);
-  const int n = 3000;
+  const int n = kCoverageDraws;
   const uncertainty::CountInterval band =
       uncertainty::binomial_interval(n, kOneSidedCoverageK2, kAlphaPerSide);
   const Coverage c = run_coverage(model, T_true, C, n, 5);
@@ -177,7 +185,11 @@ TEST(ClearanceUncertainty, FeatureSwitchRuleKeepsTheCoverageWhereTheSingleBoundL
       c.rule, c.single, n, static_cast<long long>(band.low), static_cast<long long>(band.high),
       1e3 * c.mean_extra_margin_m);
   EXPECT_GE(c.rule, band.low);
+#ifdef STORETRACK_SANITIZE
+  std::printf("single-feature loss of coverage not asserted at n = %d (Release: n = 3000)\n", n);
+#else
   EXPECT_LT(c.single, band.low);
+#endif
 }
 
 TEST(ClearanceUncertainty, PenetrationAndBadCovarianceAreReportedNotThrown) {

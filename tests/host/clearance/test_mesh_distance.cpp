@@ -122,13 +122,21 @@ TEST(MeshDistance, FinTipEdgeAgainstPlane) {
   }
 }
 
+// The exhaustive minimum is 10^5-10^6 triangle pairs a pose: under ASan/UBSan a coarser pair
+// of meshes and fewer poses keep it a smoke run (the trees' code paths are the same).
+#ifdef STORETRACK_SANITIZE
+constexpr int kExhaustivePoses = 2, kMeshSteps = 8;
+#else
+constexpr int kExhaustivePoses = 10, kMeshSteps = 20;
+#endif
+
 TEST(MeshDistance, TreesAgreeWithTheExhaustiveMinimum) {
-  const TriangleMesh store = test::store(3.0, 0.2, 20, 16);
-  const TriangleMesh wing = test::aircraft(20, 20, 0.6);
+  const TriangleMesh store = test::store(3.0, 0.2, kMeshSteps, 16);
+  const TriangleMesh wing = test::aircraft(kMeshSteps, kMeshSteps, 0.6);
   const MeshBvh store_tree(store), wing_tree(wing);
   std::mt19937_64 rng(2027);
   std::uniform_real_distribution<double> u(-1, 1);
-  for (int i = 0; i < 10; ++i) {
+  for (int i = 0; i < kExhaustivePoses; ++i) {
     const Transform T_p_s =
         geometry::make_transform({0.1 * u(rng), 0.1 * u(rng), 0.3 * u(rng)},
                                  {-1.5 + u(rng), 0.5 * u(rng), 0.3 + 0.2 * u(rng)});
