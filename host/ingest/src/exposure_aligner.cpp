@@ -215,6 +215,28 @@ bool ExposureAligner::on_grid(std::int64_t key, time::TaiNs mid) const {
   return !predicted || abs_diff(mid, *predicted) <= config_.max_mid_time_spread_ns;
 }
 
+bool ExposureAligner::in_time_order(std::int64_t key, time::TaiNs mid) const {
+  // Exposures k < k' start at least (k' - k) periods of the fastest trigger apart, within the
+  // spread: checked against every pending exposure not opened by one camera alone unjudged (a
+  // lone first datagram may be the wrong one) and against the newest released exposure.
+  const auto ordered = [&](std::int64_t other_key, time::TaiNs other_mid) {
+    const std::int64_t keys_apart = key - other_key;
+    if (keys_apart == 0) return true;
+    const std::int64_t later = keys_apart > 0 ? time::saturating_sub_ns(mid, other_mid)
+                                              : time::saturating_sub_ns(other_mid, mid);
+    const std::int64_t exposures = keys_apart > 0 ? keys_apart : -keys_apart;
+    const std::int64_t at_least =
+        std::min<std::int64_t>(exposures, kMaxAlignerWaitNs / kFastestTriggerPeriodNs) *
+        kFastestTriggerPeriodNs;
+    return later >= at_least - config_.max_mid_time_spread_ns;
+  };
+  for (const auto& [other_key, p] : pending_)
+    if (!lone_unjudged(p) && !ordered(other_key, p.reference_mid_tai_ns)) return false;
+  if (const Released* r = released_any_ ? released_entry(released_through_) : nullptr)
+    if (!ordered(r->key, r->mid)) return false;
+  return true;
+}
+
 std::int64_t ExposureAligner::match_tolerance() const {
   // Identifying an exposure by time needs a tolerance below half the period, whatever the
   // configured spread: a quarter period leaves margin for the units' latency differences.
@@ -273,6 +295,10 @@ void ExposureAligner::place(int cam, const msg::MarkObservations& obs, time::Mon
       plausible = gap_explained(key, mid, now);
     }
     time_agrees = on_grid(key, mid) && !names_other_exposure();
+    // A sequence whose exposure cannot lie where its time is among the exposures several
+    // cameras hold (a unit renumbered from 0, heard by a fresh host before the grid is known):
+    // the sequence is what is wrong, unless the unit's clock stepped.
+    if (!in_time_order(key, mid) && !clock_stepped(cs, obs)) plausible = false;
   }
   // A disagreeing time is a clock fault (the majority judges it at release) when the unit's
   // TAI stepped, or when it names no other exposure; otherwise the sequence is what is wrong.
@@ -312,10 +338,7 @@ void ExposureAligner::add_to_pending(PendingMap::iterator it, int cam,
   p.present_mask |= bit;
   p.last_arrival = std::max(p.last_arrival, now);
   CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
-  if (!cs.placed_with_offset) {
-    cs.placed_with_offset = true;
-    note_rig_numbering();
-  }
+  if (cs.placements_with_offset++ == 0) note_rig_numbering();
   if (!cs.placed_any || it->first >= cs.frontier_key) {
     cs.placed_any = true;
     cs.frontier_key = it->first;
@@ -362,6 +385,8 @@ void ExposureAligner::take_back(PendingMap::iterator it) {
   if (cs.delivered.erase(id) != 0)
     cs.delivered_order.erase(std::find(cs.delivered_order.begin(), cs.delivered_order.end(), id));
   if (cs.placed_any && cs.frontier_key == it->first) cs.placed_any = false;
+  if (cs.placements_with_offset > 0 && unwrap(cs, o.trigger_seq) + cs.offset == it->first)
+    --cs.placements_with_offset;
   ++counters_.dropped_quarantined;
   ++camera_counters_[cam].quarantined;
   pending_.erase(it);
@@ -441,7 +466,7 @@ void ExposureAligner::quarantine(int cam, const msg::MarkObservations& obs, std:
     // Two observations in a row agree on where this camera's sequence now sits (a restarted
     // unit, a re-numbered trigger): re-learn the offset and place both.
     cs.offset = *implied;
-    cs.placed_with_offset = false;
+    cs.placements_with_offset = 0;
     cs.last_unwrapped = unwrapped;
     cs.holding = false;
     ++counters_.sequence_offset_changes;
@@ -503,7 +528,7 @@ void ExposureAligner::try_trigger_restart(time::MonotonicNs now) {
     CameraState& cs = cameras_[static_cast<std::size_t>(cam)];
     const std::int64_t unwrapped = unwrap(cs, cs.held.trigger_seq);
     cs.offset = new_key - unwrapped;
-    cs.placed_with_offset = false;
+    cs.placements_with_offset = 0;
     cs.last_unwrapped = unwrapped;
     cs.holding = false;
     camera_counters_[static_cast<std::size_t>(cam)].sequence_offset = cs.offset;
@@ -516,7 +541,7 @@ void ExposureAligner::try_trigger_restart(time::MonotonicNs now) {
 std::size_t ExposureAligner::numbering_votes(std::int64_t offset) const {
   return static_cast<std::size_t>(std::count_if(
       cameras_.begin(), cameras_.end(),
-      [&](const CameraState& cs) { return cs.placed_with_offset && cs.offset == offset; }));
+      [&](const CameraState& cs) { return cs.placements_with_offset > 0 && cs.offset == offset; }));
 }
 
 ExposureAligner::NumberingVote ExposureAligner::numbering_vote() const {
@@ -524,7 +549,7 @@ ExposureAligner::NumberingVote ExposureAligner::numbering_vote() const {
   // another numbering, not yet re-learned, has no say.
   NumberingVote v;
   for (const CameraState& candidate : cameras_) {
-    if (!candidate.placed_with_offset || candidate.offset == v.leader) continue;
+    if (candidate.placements_with_offset == 0 || candidate.offset == v.leader) continue;
     const std::size_t votes = numbering_votes(candidate.offset);
     if (votes > v.votes) {
       v.leader = candidate.offset;

@@ -191,8 +191,10 @@ class ExposureAligner {
     bool seen = false;
     std::int64_t last_unwrapped = 0;  // unwrapped trigger_seq of the last placed observation
     std::int64_t offset = 0;          // exposure index = unwrapped trigger_seq + offset
-    bool placed_with_offset = false;  // placed an observation since `offset` was last set
-    bool holding = false;             // an observation in quarantine
+    // Observations placed with the current `offset` and not taken back: only such a camera has a
+    // say in the rig's numbering (one whose lone exposure was taken back placed nothing).
+    std::uint32_t placements_with_offset = 0;
+    bool holding = false;  // an observation in quarantine
     msg::MarkObservations held{};
     std::optional<std::int64_t> held_offset;  // the offset its mid-time implies, if any
     // TAI - unit monotonic time when this camera last agreed with the majority: a change means
@@ -238,6 +240,7 @@ class ExposureAligner {
   time::MonotonicNs deadline_of(const Pending& p) const;
   void update_lag_baseline(const Pending& p, time::TaiNs reference_mid, int agreeing_cameras);
   bool on_grid(std::int64_t key, time::TaiNs mid) const;
+  bool in_time_order(std::int64_t key, time::TaiNs mid) const;
   std::int64_t lead_limit() const;
   std::int64_t match_tolerance() const;
   bool clock_stepped(const CameraState& cs, const msg::MarkObservations& obs) const;
