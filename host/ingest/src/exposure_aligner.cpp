@@ -462,7 +462,9 @@ void ExposureAligner::quarantine(int cam, const msg::MarkObservations& obs, std:
   const bool follows_held =
       cs.holding && obs.trigger_seq != cs.held.trigger_seq &&
       pipeline::exposure_mid_tai_ns(obs) > pipeline::exposure_mid_tai_ns(cs.held);
-  if (implied && follows_held && cs.held_offset == implied) {
+  // An offset the camera already has explains nothing new: they did not fit with it (placing
+  // them again would quarantine them again, without end).
+  if (implied && follows_held && cs.held_offset == implied && *implied != cs.offset) {
     // Two observations in a row agree on where this camera's sequence now sits (a restarted
     // unit, a re-numbered trigger): re-learn the offset and place both.
     cs.offset = *implied;
