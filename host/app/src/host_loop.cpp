@@ -24,6 +24,7 @@ void HostLoop::on_message(const msg::AnyMessage& m) {
         {"clock_state", h->clock_state},       {"frames_captured", h->frames_captured},
         {"frames_dropped", h->frames_dropped}, {"observations_sent", h->observations_sent},
         {"link_tx_errors", h->link_tx_errors}, {"status", h->status}};
+    if (p_.live) p_.live->on_health(*h, now_);
   }
 }
 
@@ -32,14 +33,27 @@ void HostLoop::process(const pipeline::AlignedExposure& e) {
   // Matcher, geometry, extrapolation over short gaps, the sample.
   const pipeline::ExposureResult r = p_.processor.process(e);
   ++totals_.exposures;
-  if (!totals_.withheld.admit(judge_sample(r.cameras_used, p_.aligner.config().min_cameras)))
-    return;  // no output, iNET-X or file, carries an exposure too few cameras measured
+  // No output, iNET-X or file, carries an exposure too few cameras measured.
+  const bool written =
+      totals_.withheld.admit(judge_sample(r.cameras_used, p_.aligner.config().min_cameras));
+  if (written) write_sample(e, r, t0);
+  // After the outputs, so the page's copy is never in the latency; at most once per interval.
+  if (p_.live) {
+    const live::LiveTotals live_totals{totals_.exposures, totals_.samples_written,
+                                       totals_.valid_samples, totals_.withheld.total(),
+                                       totals_.health_messages};
+    p_.live->on_exposure(e, r, written, p_.aligner, live_totals, time::monotonic_now_ns());
+  }
+}
+
+void HostLoop::write_sample(const pipeline::AlignedExposure& e, const pipeline::ExposureResult& r,
+                            time::MonotonicNs t_processing_start) {
   ++totals_.samples_written;
   const msg::FtiSample& s = r.sample;
   if (s.status & msg::fti_status::kValid) ++totals_.valid_samples;
   if (p_.inetx) p_.inetx->send(s);
   const time::MonotonicNs t_sent = time::monotonic_now_ns();
-  totals_.latency_processing.add(t_sent - t0);
+  totals_.latency_processing.add(t_sent - t_processing_start);
   // From the exposure's last observation in (the aligner's clock, this loop's now_) to sent:
   // keyed by the exposure itself, so a unit renumbering its exposures cannot mix them up.
   if (e.last_arrival_mono_ns > 0) {

@@ -16,6 +16,7 @@
 #include "sample_gate.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/ingest/receivers.hpp"
+#include "storetrack/live/live_snapshot.hpp"
 #include "storetrack/output/inetx.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/time/time.hpp"
@@ -46,6 +47,7 @@ struct LoopParts {
   pipeline::ExposureProcessor& processor;
   output::InetxSender* inetx;  ///< nullptr: no iNET-X
   RecordingWriter& recording;
+  live::LivePublisher* live = nullptr;  ///< nullptr: no live page (--live)
 };
 
 class HostLoop {
@@ -60,6 +62,8 @@ class HostLoop {
   void process_ready();
   void record_aligner_event(ingest::RawSourceKind kind, time::MonotonicNs t);
   void process(const pipeline::AlignedExposure& e);
+  void write_sample(const pipeline::AlignedExposure& e, const pipeline::ExposureResult& r,
+                    time::MonotonicNs t_processing_start);
 
   LoopParts p_;
   LoopTotals totals_;

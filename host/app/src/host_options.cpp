@@ -54,6 +54,12 @@ int parse_host_options(int argc, char** argv, HostOptions& o, InputFileCheck fil
              "Stop when no observation arrived for this long after the first one");
   app.option("--expect-exposures", o.limits.expect_exposures,
              "Stop after this many exposures were released (0: no limit)");
+  app.option("--live", o.live_address,
+             "Serve the live page (read-only) on ADDR:PORT, e.g. 127.0.0.1:8080; no default "
+             "address (0.0.0.0 = every interface); port 0 = any free port");
+  app.option("--live-max-clients", o.live_max_clients,
+             "Live page: event streams served at once (more are refused)")
+      .range(1, 256);
   app.option("--stats-json", o.stats_json_path, "Write all counters as JSON at exit");
   app.flag("--progress", o.limits.progress, "Print a progress line every second (stderr)");
   app.option("--log-level", o.log_level, "trace|debug|info|warn|error")

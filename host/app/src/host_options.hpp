@@ -18,6 +18,8 @@ struct HostOptions {
   double max_wait_ms = 0;
   int min_cameras = 0;
   LoopLimits limits;
+  std::string live_address;  ///< --live ADDR:PORT: the live page (host/live); empty: off
+  int live_max_clients = 24;
   std::vector<std::string> command_line;  // argv as given: recorded with the inputs
 };
 

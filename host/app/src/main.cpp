@@ -9,6 +9,7 @@
 //   host_loop.*         the real-time loop    recording_writer.*  all file output, own thread
 //   diagnostic_csv.*    marks / rigid CSVs    stats.*        counters JSON and summary
 //   latency.*           bounded latency statistics
+//   host/live           the live page (--live): snapshot publisher and its server
 #include <signal.h>
 
 #include <spdlog/spdlog.h>
@@ -28,6 +29,7 @@
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/ingest/receivers.hpp"
 #include "storetrack/json/text_file.hpp"
+#include "storetrack/live/live_server.hpp"
 #include "storetrack/output/inetx.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/time/time.hpp"
@@ -181,6 +183,45 @@ int open_sinks(const HostConfig& cfg, st::output::InetxSender& inetx, bool& inet
   return 0;
 }
 
+// The live page (--live ADDR:PORT): its publisher for the loop and its server, started; prints
+// the URL. 0, or exit code 2 (bad address) / 1 (cannot listen).
+int start_live_view(const st::hostapp::HostOptions& o, const st::hostapp::InputFiles& in,
+                    std::unique_ptr<st::live::LivePublisher>& publisher,
+                    std::unique_ptr<st::live::LiveServer>& server) {
+  if (o.live_address.empty()) return 0;
+  st::live::LiveServerConfig config;
+  try {
+    config.address = st::live::parse_live_address(o.live_address);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "storetrack-host: %s\n", e.what());
+    return 2;
+  }
+  config.max_clients = o.live_max_clients;
+  st::live::LiveRig rig;
+  for (const auto& c : in.rig.cameras) {
+    rig.camera_ids.push_back(c.camera_id);
+    rig.unit_ids.push_back(c.unit_id);
+  }
+  try {
+    publisher = std::make_unique<st::live::LivePublisher>(rig);
+    server = std::make_unique<st::live::LiveServer>(
+        config, st::live::LiveScene{in.rig, in.pylon, in.store}, *publisher);
+    server->start();
+  } catch (const std::invalid_argument& e) {
+    std::fprintf(stderr, "storetrack-host: %s\n", e.what());
+    return 2;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "storetrack-host: %s\n", e.what());
+    return 1;
+  }
+  if (config.address.host == "0.0.0.0")
+    spdlog::warn("storetrack-host: the live page is served on every interface (--live 0.0.0.0)");
+  // stdout, flushed: scripts and the operator read the URL while the host runs.
+  std::printf("storetrack-host: live view at %s\n", server->url().c_str());
+  std::fflush(stdout);
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -209,6 +250,9 @@ int main(int argc, char** argv) {
   bool inetx_open = false;
   st::hostapp::RecordingWriter recording(cfg.recording_queue_items);
   if (const int rc = open_sinks(cfg, inetx, inetx_open, recording); rc != 0) return rc;
+  std::unique_ptr<st::live::LivePublisher> live_publisher;
+  std::unique_ptr<st::live::LiveServer> live_server;
+  if (const int rc = start_live_view(options, in, live_publisher, live_server); rc != 0) return rc;
   recording.start();
 
   signal(SIGINT, on_signal);
@@ -217,9 +261,10 @@ int main(int argc, char** argv) {
                in.rig.cameras.size(), cfg.udp_port ? fmt::format("udp:{} ", cfg.udp_port) : "",
                cans.empty() ? "" : fmt::format("{} CAN interface(s)", cans.size()));
   const st::time::MonotonicNs t_start = st::time::monotonic_now_ns();
-  st::hostapp::HostLoop loop(
-      {udp, cans, aligner, processor, inetx_open ? &inetx : nullptr, recording});
+  st::hostapp::HostLoop loop({udp, cans, aligner, processor, inetx_open ? &inetx : nullptr,
+                              recording, live_publisher.get()});
   int exit_code = loop.run(options.limits, g_stop);
+  if (live_server) live_server->stop();
   recording.stop();
 
   const st::hostapp::StatsSources sources{
