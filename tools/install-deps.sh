@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Installs everything storetrack needs from Debian bookworm (and nothing from anywhere else).
 # linuxptp: ptp4l for the clock test (tests/firmware/clock, two namespaces over a veth pair).
+# libcpp-httplib-dev: the live page's HTTP server (host/live); chromium: its browser test
+# (tests/host/live, driven by playwright-core from npm with the machine's Node.js).
 # Idempotent: exits at once when every package is already present.
 #   tools/install-deps.sh            build + test dependencies (host and unit, native)
 #   tools/install-deps.sh --cross    also the aarch64 cross toolchain and arm64 -dev packages
@@ -14,7 +16,7 @@ PKGS=(
   libgtest-dev libgmock-dev libbenchmark-dev libsep-dev
   libcli11-dev libspdlog-dev libfmt-dev nlohmann-json3-dev libyaml-cpp-dev libpng-dev libssl-dev
   python3-matplotlib python3-numpy clang-format clang libclang-rt-14-dev tshark mbpoll python3-pymodbus can-utils v4l-utils
-  iproute2 linuxptp
+  iproute2 linuxptp libcpp-httplib-dev chromium
 )
 CROSS_PKGS=(g++-aarch64-linux-gnu qemu-user-static libc6:arm64 libstdc++6:arm64 libgpiod-dev:arm64 libmodbus-dev:arm64 libgtest-dev:arm64)
 RIG_PKGS=(qemu-system-x86 busybox-static cpio kmod xz-utils gcc-12 make libelf1 libssl3 bc flex bison)
