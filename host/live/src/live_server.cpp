@@ -36,7 +36,8 @@ LiveAddress parse_live_address(const std::string& text) {
                                 expected);
   a.port = std::stoi(port);
   if (a.port > 65535)
-    throw std::invalid_argument("--live '" + text + "': port " + port + " is above 65535");
+    throw std::invalid_argument("--live '" + text + "': port " + port + " is above 65535; " +
+                                expected);
   in_addr ip{};
   if (a.host != "localhost" && inet_pton(AF_INET, a.host.c_str(), &ip) != 1)
     throw std::invalid_argument("--live '" + text + "': '" + a.host +
@@ -232,7 +233,9 @@ void LiveServer::start() {
   // does not arrive within the read timeout frees its worker.
   const std::size_t workers = static_cast<std::size_t>(c.max_clients) + 4;
   m.http.new_task_queue = [workers] { return new httplib::ThreadPool(workers); };
-  m.http.set_keep_alive_max_count(8);
+  // One request per connection: a worker never sits on an idle keep-alive connection while
+  // other clients wait (the page makes five requests; an event stream is one long request).
+  m.http.set_keep_alive_max_count(1);
   m.http.set_keep_alive_timeout(1);
   m.http.set_read_timeout(2, 0);
   const auto timeout_us = static_cast<long>(c.write_timeout_s * 1e6);
@@ -241,10 +244,12 @@ void LiveServer::start() {
   // A small send buffer (accepted sockets inherit the listener's), so a stalled client fills it
   // within seconds and is dropped by the write timeout instead of buffering for minutes.
   const int send_buffer = c.socket_send_buffer > 0 ? c.socket_send_buffer : 64 * 1024;
-  m.http.set_socket_options([send_buffer](int sock) {
+  int listening_socket = -1;
+  m.http.set_socket_options([send_buffer, &listening_socket](int sock) {
     int yes = 1;
     ::setsockopt(sock, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof yes);
     ::setsockopt(sock, SOL_SOCKET, SO_SNDBUF, &send_buffer, sizeof send_buffer);
+    listening_socket = sock;
   });
   errno = 0;
   const std::string where = c.address.host + ":" + std::to_string(c.address.port);
@@ -259,6 +264,10 @@ void LiveServer::start() {
                              (err ? std::strerror(err) : "bind failed") +
                              " (an address of this machine and a free port are needed)");
   }
+  // httplib 0.11 listens with a backlog of 5: a burst of connections (a browser opens six at
+  // once; the bad-input test a hundred) overflowed it, and the kernel dropped the overflow's
+  // handshakes. listen() again on the bound socket sets a backlog the burst fits in.
+  if (listening_socket >= 0) (void)::listen(listening_socket, 256);
   m.listener = std::thread([&m] {
     lower_this_thread(m.config.worker_nice);
     m.http.listen_after_bind();
