@@ -1,6 +1,10 @@
 #include "host_options.hpp"
 
+#include <cstdio>
+#include <stdexcept>
+
 #include "storetrack/cli/command_line.hpp"
+#include "storetrack/live/live_server.hpp"
 
 namespace storetrack::hostapp {
 
@@ -64,7 +68,17 @@ int parse_host_options(int argc, char** argv, HostOptions& o, InputFileCheck fil
   app.flag("--progress", o.limits.progress, "Print a progress line every second (stderr)");
   app.option("--log-level", o.log_level, "trace|debug|info|warn|error")
       .one_of({"trace", "debug", "info", "warn", "error"});
-  return app.parse(argc, argv);
+  if (const int rc = app.parse(argc, argv); rc >= 0) return rc;
+  // Before any input file is read: a live page without a bind address is refused at once.
+  if (!o.live_address.empty()) {
+    try {
+      live::parse_live_address(o.live_address);
+    } catch (const std::invalid_argument& e) {
+      std::fprintf(stderr, "storetrack-host: %s\n", e.what());
+      return 2;
+    }
+  }
+  return -1;
 }
 
 }  // namespace storetrack::hostapp

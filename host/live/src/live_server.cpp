@@ -105,6 +105,11 @@ void LiveServer::Impl::routes() {
   http.Get("/", asset(kLiveIndexHtml, "text/html; charset=utf-8"));
   http.Get("/live.js", asset(kLiveJs, "text/javascript; charset=utf-8"));
   http.Get("/live.css", asset(kLiveCss, "text/css; charset=utf-8"));
+  // Browsers ask for an icon on their own; none is served, without counting it as not found.
+  http.Get("/favicon.ico", [this](const httplib::Request&, httplib::Response& res) {
+    ++requests;
+    res.status = 204;
+  });
   const std::string scene_text = scene_json(scene);
   http.Get("/api/scene", [this, scene_text](const httplib::Request&, httplib::Response& res) {
     ++requests;
