@@ -272,9 +272,12 @@ int main(int argc, char** argv) {
       aligner,   processor,     inetx,
       recording, loop.totals(), static_cast<double>(st::time::monotonic_now_ns() - t_start) * 1e-9};
   st::hostapp::print_summary(sources);
+  nlohmann::json stats = st::hostapp::host_stats_json(sources);
+  if (live_server)
+    stats["live"] =
+        st::hostapp::live_stats_json(live_server->counters(), live_publisher->publications());
   if (!options.stats_json_path.empty() &&
-      !st::hostapp::write_stats_json(st::hostapp::host_stats_json(sources),
-                                     options.stats_json_path)) {
+      !st::hostapp::write_stats_json(stats, options.stats_json_path)) {
     std::fprintf(stderr, "storetrack-host: cannot write '%s'\n", options.stats_json_path.c_str());
     exit_code = 1;
   }

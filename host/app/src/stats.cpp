@@ -344,4 +344,15 @@ bool write_stats_json(const nlohmann::json& stats, const std::string& path) {
   return static_cast<bool>(out);
 }
 
+nlohmann::json live_stats_json(const live::LiveServerCounters& c, std::uint64_t publications) {
+  return {{"snapshots_published", publications},
+          {"snapshots_read", c.snapshots_read},
+          {"requests", c.requests},
+          {"not_found", c.not_found},
+          {"events_sent", c.events_sent},
+          {"clients_peak", c.clients_peak},
+          {"clients_refused", c.clients_refused},
+          {"clients_dropped", c.clients_dropped}};
+}
+
 }  // namespace storetrack::hostapp

@@ -14,6 +14,7 @@
 #include "recording_writer.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/ingest/receivers.hpp"
+#include "storetrack/live/live_server.hpp"
 #include "storetrack/output/inetx.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 
@@ -39,6 +40,8 @@ nlohmann::json recording_stats_json(const RecordingWriter& recording,
 /// One counter per output and kind of failure (stats "outputs"; tools read these keys).
 nlohmann::json outputs_stats_json(const output::InetxSender& inetx,
                                   const RecordingWriter& recording);
+/// The live page's server (stats "live", with --live): requests, clients, refusals, drops.
+nlohmann::json live_stats_json(const live::LiveServerCounters& c, std::uint64_t publications);
 void print_summary(const StatsSources& s);
 /// Writes `stats` to `path`; false when it could not.
 bool write_stats_json(const nlohmann::json& stats, const std::string& path);
