@@ -96,6 +96,11 @@ json camera_json(const LiveCamera& c, const LiveSnapshot& s, const LiveScene& sc
             {"expected_pylon", expected_marks(cam, s.pylon, scene.pylon)},
             {"expected_store", expected_marks(cam, s.store, scene.store)},
             {"counters", camera_counters_json(c.counters)}};
+  if (c.last_seen_mono_ns != 0) {
+    j["last_clock_state"] = c.last_clock_state;
+    j["last_seen_age_ms"] =
+        static_cast<double>(time::monotonic_now_ns() - c.last_seen_mono_ns) * 1e-6;
+  }
   if (c.delivered) {
     j["trigger_seq"] = c.trigger_seq;
     j["exposure_start_tai_ns"] = c.exposure_start_tai_ns;

@@ -47,6 +47,13 @@ bool LivePublisher::on_exposure(const pipeline::AlignedExposure& exposure,
   }
   if (result.T_w_p.valid) pylon_ = {true, exposure.trigger_seq, result.T_w_p.T};
   if (result.T_w_s.valid) store_ = {true, exposure.trigger_seq, result.T_w_s.T};
+  for (const msg::MarkObservations& obs : exposure.cameras) {
+    for (std::size_t c = 0; c < rig_.camera_ids.size(); ++c) {
+      if (rig_.camera_ids[c] != obs.camera_id) continue;
+      last_seen_[c] = {obs.clock_state, now};
+      break;
+    }
+  }
   if (publications_ > 0 && now - last_publication_ns_ < min_interval_ns_) return false;
   last_publication_ns_ = now;
   fill(buffer_.back(), exposure, result, sample_written, aligner, totals, now);
@@ -74,6 +81,8 @@ void LivePublisher::fill(LiveSnapshot& s, const pipeline::AlignedExposure& expos
     cam = LiveCamera{};
     cam.camera_id = rig_.camera_ids[static_cast<std::size_t>(c)];
     cam.unit_id = rig_.unit_ids[static_cast<std::size_t>(c)];
+    cam.last_clock_state = last_seen_[static_cast<std::size_t>(c)].clock_state;
+    cam.last_seen_mono_ns = last_seen_[static_cast<std::size_t>(c)].mono_ns;
     if (static_cast<std::size_t>(c) < camera_counters.size())
       cam.counters = camera_counters[static_cast<std::size_t>(c)];
     for (const msg::MarkObservations& obs : exposure.cameras) {

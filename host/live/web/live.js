@@ -148,14 +148,18 @@ function drawSample(s) {
 
 function drawRig(snap) {
   const rig = document.getElementById('rig');
-  rig.tHead.innerHTML = '<tr><th>camera</th><th>unit</th><th>clock</th><th>marks</th>' +
+  rig.tHead.innerHTML = '<tr><th>camera</th><th>unit</th><th>clock (last seen)</th><th>marks</th>' +
       '<th>received</th><th>used</th><th>missing</th><th>late</th><th>dropped other</th></tr>';
   fillTable(rig.tBodies[0], snap.cameras.map((c) => {
     const k = c.counters;
     const other = k.time_mismatch + k.duplicate + k.spoofed + k.quarantined;
+    // The clock state of the camera's newest observation, and how long ago it was seen.
+    const seen = c.last_seen_age_ms === undefined ? null : c.last_seen_age_ms;
+    const clock = seen === null ? 'never seen'
+        : (CLOCK_STATES[c.last_clock_state] || 'unknown') + ' (' + fixed(seen / 1000, 1) + ' s)';
+    const stale = seen === null || seen > 1000;
     return [String(c.camera_id), String(c.unit_id),
-            { text: c.delivered ? (CLOCK_STATES[c.clock_state] || 'unknown') : 'missing',
-              attrs: { class: !c.delivered ? 'bad' : c.clock_state === 2 ? 'ok' : 'warn' } },
+            { text: clock, attrs: { class: stale ? 'bad' : c.last_clock_state === 2 ? 'ok' : 'warn' } },
             String(c.mark_count), String(k.received), String(k.used),
             { text: String(k.missing), attrs: { class: k.missing ? 'nonzero' : '' } },
             { text: String(k.late), attrs: { class: k.late ? 'nonzero' : '' } },

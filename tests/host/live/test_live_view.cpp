@@ -186,6 +186,9 @@ TEST(LivePublisher, SnapshotHoldsWhatItWasGiven) {
   EXPECT_TRUE(mark.excluded);
   EXPECT_EQ(mark.residual_x_px, 0.25f);
   EXPECT_EQ(mark.residual_y_px, -0.5f);
+  EXPECT_EQ(s.cameras[0].last_clock_state, 2);
+  EXPECT_EQ(s.cameras[0].last_seen_mono_ns, 2'000'000'000);
+  EXPECT_EQ(s.cameras[2].last_seen_mono_ns, 0);  // camera 9: never seen
   EXPECT_FALSE(s.cameras[2].delivered);
   EXPECT_EQ(s.cameras[2].camera_id, 9);
   EXPECT_EQ(s.cameras[2].unit_id, 1);

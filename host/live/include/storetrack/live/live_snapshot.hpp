@@ -47,6 +47,10 @@ struct LiveCamera {
   int mark_count = 0;  ///< marks the unit sent (all of them are in `marks`)
   std::array<LiveMark, kMaxLiveMarks> marks{};
   ingest::CameraCounters counters;  ///< the aligner's, at publication
+  /// The camera's newest observation in any processed exposure (this one or an earlier one):
+  /// its health when this exposure lacks it. last_seen_mono_ns 0: never seen.
+  std::uint8_t last_clock_state = 0xFF;
+  time::MonotonicNs last_seen_mono_ns = 0;
 };
 
 struct LiveUnit {
@@ -165,6 +169,11 @@ class LivePublisher {
   bool has_sample_ = false;
   msg::FtiSample sample_{};
   LiveBodyPose pylon_, store_;
+  struct LastSeen {
+    std::uint8_t clock_state = 0xFF;
+    time::MonotonicNs mono_ns = 0;
+  };
+  std::array<LastSeen, kMaxLiveCameras> last_seen_{};  // rig order
   TripleBuffer<LiveSnapshot> buffer_;
 };
 
