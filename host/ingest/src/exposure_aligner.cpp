@@ -225,6 +225,8 @@ bool ExposureAligner::in_time_order(std::int64_t key, time::TaiNs mid) const {
     const std::int64_t later = keys_apart > 0 ? time::saturating_sub_ns(mid, other_mid)
                                               : time::saturating_sub_ns(other_mid, mid);
     const std::int64_t exposures = keys_apart > 0 ? keys_apart : -keys_apart;
+    // Capped at the longest wait's worth of periods: far apart, order is all that is checked,
+    // and a forged key's distance times the period cannot overflow.
     const std::int64_t at_least =
         std::min<std::int64_t>(exposures, kMaxAlignerWaitNs / kFastestTriggerPeriodNs) *
         kFastestTriggerPeriodNs;
