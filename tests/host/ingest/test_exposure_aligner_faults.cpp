@@ -659,6 +659,47 @@ TEST(ExposureAlignerFaults, DuplicatedOldDatagramDoesNotReLearnTheOffset) {
   test::expect_every_observation_accounted(aligner.counters());
 }
 
+TEST(ExposureAlignerFaults, HeldPairThatFitsNoBetterWithTheOffsetItImpliesEndsHeld) {
+  // Found by fuzz_exposure_aligner in CI (a stack overflow), its reproducer minimised (3-camera
+  // rig, max_pending 1, a 50 s wait): exposures 0 and 11 (times 3-5 ms off the trigger) teach a
+  // grid on which camera 10's exposures 2854 and 2858 fall on slots before the pending exposure
+  // 2816 in sequence but after it in time, so both are quarantined, and both imply the same new
+  // offset. Re-learned, they still did not fit, were held again and "re-learned" the offset the
+  // camera already had, without end. Re-learning must change the offset: the pair is dropped,
+  // counted, and what was released keeps each camera's own numbering.
+  AlignerConfig c = rig_config(3);
+  c.camera_ids = {10, 13, 16};
+  c.unit_ids = {0, 0, 1};
+  c.max_wait_ns = 50'532'974'594;
+  c.max_mid_time_spread_ns = 19'230'976;
+  c.max_pending = 1;
+  c.max_sequence_lead = 65'537;
+  ExposureAligner aligner(c);
+  auto obs = [](int camera, std::uint32_t seq, std::int64_t tai, std::int64_t mono) {
+    msg::MarkObservations o = make_obs(camera, seq, tai);
+    o.unit_id = 0;
+    o.exposure_start_mono_ns = mono;
+    return o;
+  };
+  std::vector<pipeline::AlignedExposure> out;
+  aligner.push(obs(13, 2816, 1'700'000'007'035'000'257, -6'557'228'803'892'969'728), 1'006'977'051,
+               out);
+  aligner.push(obs(10, 2816, 1'700'000'007'036'572'608, 7'037'572'608), 1'006'979'098, out);
+  aligner.push(obs(10, 0, 1'699'999'999'995'131'072, -3'868'928), 1'023'756'058, out);
+  aligner.push(obs(10, 11, 1'700'000'000'024'927'684, 25'927'684), 1'023'758'105, out);
+  aligner.push(obs(10, 2854, 1'700'000'007'132'437'194, 7'133'437'194), 1'041'891'907, out);
+  aligner.push(obs(10, 2858, 1'700'000'007'143'014'782, 7'144'014'782), 1'059'338'557, out);
+  aligner.flush(out);
+  ASSERT_EQ(out.size(), 3u);  // exposures 0, 11 and 2816, each once
+  for (const auto& e : out)
+    for (const auto& o : e.cameras)
+      EXPECT_EQ(o.trigger_seq, e.trigger_seq);
+  EXPECT_EQ(aligner.counters().sequence_offset_changes, 1u);
+  EXPECT_EQ(aligner.counters().dropped_quarantined, 2u);
+  EXPECT_EQ(aligner.held(), 0u);
+  test::expect_every_observation_accounted(aligner.counters());
+}
+
 TEST(ExposureAlignerFaults, ReplayAfterATriggerRestartIsNotANewExposure) {
   // Found by fuzz_exposure_aligner (reproducer now in its seeds: aligner_exposure_released_twice):
   // a 3-camera rig with a wide spread (0.7 s) and a lead of 1. Exposure 0 is pending with
