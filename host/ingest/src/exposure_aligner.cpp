@@ -550,7 +550,8 @@ std::size_t ExposureAligner::numbering_votes(std::int64_t offset) const {
 
 ExposureAligner::NumberingVote ExposureAligner::numbering_vote() const {
   // Over cameras that placed an observation with their current offset: a camera still in
-  // another numbering, not yet re-learned, has no say.
+  // another numbering, not yet re-learned, has no say. Among numberings with as many cameras,
+  // the leader is the one that counted the most trigger edges (the smallest offset).
   NumberingVote v;
   for (const CameraState& candidate : cameras_) {
     if (candidate.placements_with_offset == 0 || candidate.offset == v.leader) continue;
@@ -561,6 +562,7 @@ ExposureAligner::NumberingVote ExposureAligner::numbering_vote() const {
       v.tied = false;
     } else if (votes == v.votes) {
       v.tied = true;
+      v.leader = std::min(*v.leader, candidate.offset);
     }
   }
   return v;
@@ -574,20 +576,20 @@ void ExposureAligner::note_rig_numbering() {
 }
 
 std::optional<std::uint32_t> ExposureAligner::rig_sequence(std::int64_t key) {
-  // The numbering most cameras of the rig share; on a tie, the one chosen before if it is among
-  // the leaders. Not the sequences of this exposure's own cameras: with one camera of each
-  // numbering a vote among them is a tie, and a host restarted behind a unit renumbered from 0
-  // indexes its exposures by whichever camera it heard first (the fault campaign's duplicate
-  // numbers). No leader and none chosen: unknown, never a guess.
+  // The numbering most cameras of the rig share. Not the sequences of this exposure's own
+  // cameras: with one camera of each numbering a vote among them is a tie, and a host restarted
+  // behind a unit renumbered from 0 would index its exposures by whichever camera it heard first
+  // (the fault campaign's duplicate numbers). On a tie, the one chosen before if it is among the
+  // leaders, so the samples' numbering does not flip; else the one that counted the most edges:
+  // a restarted unit counts from 0, so the largest sequence is the unit that ran longest, the
+  // rig's own numbering unless every unit restarted (a fresh host after units of three of four
+  // cameras restarted: the full fault campaign lost every sample for 13 s, dropped as unknown).
   note_rig_numbering();
   const NumberingVote v = numbering_vote();
-  std::optional<std::int64_t> offset;
-  if (v.leader && !v.tied)
-    offset = v.leader;
-  else if (rig_offset_ && numbering_votes(*rig_offset_) == v.votes)
-    offset = rig_offset_;
-  if (!offset) return std::nullopt;
-  return static_cast<std::uint32_t>(key - *offset);
+  if (!v.leader) return std::nullopt;
+  if (v.tied && !(rig_offset_ && numbering_votes(*rig_offset_) == v.votes)) rig_offset_ = v.leader;
+  const std::int64_t offset = v.tied ? *rig_offset_ : *v.leader;
+  return static_cast<std::uint32_t>(key - offset);
 }
 
 ExposureAligner::Majority ExposureAligner::majority(
