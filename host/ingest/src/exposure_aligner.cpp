@@ -579,17 +579,23 @@ std::optional<std::uint32_t> ExposureAligner::rig_sequence(std::int64_t key) {
   // The numbering most cameras of the rig share. Not the sequences of this exposure's own
   // cameras: with one camera of each numbering a vote among them is a tie, and a host restarted
   // behind a unit renumbered from 0 would index its exposures by whichever camera it heard first
-  // (the fault campaign's duplicate numbers). On a tie, the one chosen before if it is among the
-  // leaders, so the samples' numbering does not flip; else the one that counted the most edges:
-  // a restarted unit counts from 0, so the largest sequence is the unit that ran longest, the
-  // rig's own numbering unless every unit restarted (a fresh host after units of three of four
-  // cameras restarted: the full fault campaign lost every sample for 13 s, dropped as unknown).
+  // (the fault campaign's duplicate numbers). Once chosen it is kept until another numbering
+  // leads with two cameras or more: a camera whose unit renumbers is re-learned onto the same
+  // exposure indices, so the rig's numbering goes on when no camera carries it any more (the
+  // last camera that did restarted from 0). Before any choice (a fresh host that heard one
+  // camera of each numbering), the one that counted the most edges: a restarted unit counts
+  // from 0, so the largest sequence is the unit that ran longest, the rig's own unless every
+  // unit restarted since the trigger started. One camera heard alone numbers its exposure but is
+  // not remembered: it may be the renumbered one.
   note_rig_numbering();
-  const NumberingVote v = numbering_vote();
-  if (!v.leader) return std::nullopt;
-  if (v.tied && !(rig_offset_ && numbering_votes(*rig_offset_) == v.votes)) rig_offset_ = v.leader;
-  const std::int64_t offset = v.tied ? *rig_offset_ : *v.leader;
-  return static_cast<std::uint32_t>(key - offset);
+  std::optional<std::int64_t> offset = rig_offset_;
+  if (!offset) {
+    const NumberingVote v = numbering_vote();
+    offset = v.leader;
+    if (v.tied) rig_offset_ = v.leader;
+  }
+  if (!offset) return std::nullopt;
+  return static_cast<std::uint32_t>(key - *offset);
 }
 
 ExposureAligner::Majority ExposureAligner::majority(

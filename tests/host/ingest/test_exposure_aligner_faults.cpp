@@ -325,6 +325,34 @@ TEST(ExposureAlignerFaults, FreshHostHearingFourNumberingsNumbersSamplesInTheLon
   test::expect_every_observation_accounted(c);
 }
 
+// The full fault campaign's misnumbering (600 s, seed 1): a running host whose cameras' units
+// all restart numbering from 0, one after the other (cameras 13, 12, 11, then 10, the last to
+// carry the rig's numbering). Each camera is re-learned onto the host's exposure indices; once
+// the last one restarted no camera carries the rig's numbering, and the host must go on with it,
+// neither dropping exposures as numbering unknown nor taking a renumbered unit's. Truth: every
+// released exposure carries the rig's trigger_seq.
+TEST(ExposureAlignerFaults, RunningHostKeepsTheRigsNumberingWhenEveryUnitRenumbers) {
+  Scenario s;
+  s.exposures = 400;
+  s.seq = [](int c, int k) {
+    constexpr int kRestartAt[4] = {250, 200, 150, 100};  // exposure at which camera c renumbers
+    const int from = kRestartAt[c];
+    return k < from ? kSeq0 + static_cast<std::uint32_t>(k) : static_cast<std::uint32_t>(k - from);
+  };
+  ExposureAligner aligner(rig_config(4));
+  const auto out = run(s, aligner);
+  const auto& c = aligner.counters();
+  EXPECT_EQ(c.exposures_dropped_numbering_unknown, 0u);
+  EXPECT_EQ(c.sequence_offset_changes, 4u);
+  EXPECT_EQ(out.size(), 400u);
+  for (const auto& e : out) {
+    const int k = exposure_index(e);
+    EXPECT_EQ(e.trigger_seq, kSeq0 + static_cast<std::uint32_t>(k)) << "exposure " << k;
+  }
+  expect_consistent(out, s);
+  test::expect_every_observation_accounted(c);
+}
+
 // The defect the seed-23 fault campaign found under load (docs/reliability.md, issue 31): a fresh
 // host first hears camera 11 (rig numbering) for exposure 3, then camera 13 (renumbered from 0
 // at its unit's restart: 4446 behind the rig) for exposures 0..4 alone, then cameras 12 and 10

@@ -279,9 +279,10 @@ class ExposureAligner {
   std::size_t restart_quorum_ = 1;  // cameras that must agree on a trigger restart
   bool restarting_ = false;
   // The offset of the rig's numbering, chosen when one leads with two cameras or more (at each
-  // camera's first placement with a new offset, and at each release), or at a release on a tie
-  // it is not among (the numbering that counted the most edges): kept on a tie, so the
-  // numbering of the samples does not flip between exposures.
+  // camera's first placement with a new offset, and at each release), or at a release before
+  // any choice on a tie (the numbering that counted the most edges); kept until another leads
+  // with two cameras or more, so the numbering of the samples does not flip between exposures
+  // and goes on when every camera that carried it has renumbered.
   std::optional<std::int64_t> rig_offset_;
   PendingMap pending_;
   bool have_key_ = false;
