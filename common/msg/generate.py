@@ -306,6 +306,39 @@ def gen_field_info(lines, s):
     lines.append("")
 
 
+def gen_fixed_fields_pack(lines, s):
+    """Writes the fixed fields of `m` to `w` in schema order (constants from the schema)."""
+    for f in s["fields"]:
+        sfx = SCALARS[f["_scalar"]][2]
+        if "constant" in f:
+            lines.append("  w.put_%s(%s);  // %s" % (sfx, constant_cpp(s, f), f["name"]))
+        elif f["_count"]:
+            lines.append("  for (const auto& v : m.%s) w.put_%s(v);" % (f["name"], sfx))
+        else:
+            lines.append("  w.put_%s(m.%s);" % (sfx, f["name"]))
+
+
+def gen_fixed_fields_unpack(lines, s):
+    """Reads the fixed fields from `r` into `m` in schema order, checking the length first, then
+    the constants (layout version) and each field's range; the tail or repeated part is left to
+    the caller."""
+    msg = s["message"]
+    lines.append("  if (r.remaining() < k%sFixedBytes) return DecodeError::kBadLength;" % msg)
+    for f in s["fields"]:
+        sfx = SCALARS[f["_scalar"]][2]
+        if "constant" in f:
+            lines.append("  if (r.get_%s() != %s) return DecodeError::kBadVersion;  // %s" %
+                         (sfx, constant_cpp(s, f), f["name"]))
+        elif f["_count"]:
+            lines.append("  for (auto& v : m.%s) v = r.get_%s();" % (f["name"], sfx))
+        else:
+            lines.append("  m.%s = r.get_%s();" % (f["name"], sfx))
+    for f in s["fields"]:
+        if "max" in f:
+            lines.append("  if (m.%s > %d && m.%s != %s) return DecodeError::kOutOfRange;" %
+                         (f["name"], f["max"], f["name"], invalid_cpp(f["invalid"], f["_scalar"])))
+
+
 def gen_tail_codec(lines, s):
     """Codec of a message whose fixed fields are followed by a byte string (`tail`) as long as
     the sum of its length fields. The struct holds the fixed fields; the tail is a span."""
@@ -341,14 +374,7 @@ def gen_tail_codec(lines, s):
     lines.append("  if (%s.size() != tail_bytes(m) || %s.size() > k%sMaxTailBytes) return -ERANGE;" %
                  (tail["name"], tail["name"], msg))
     lines.append("  if (w.remaining() < payload_size(m)) return -ENOSPC;")
-    for f in s["fields"]:
-        sfx = SCALARS[f["_scalar"]][2]
-        if "constant" in f:
-            lines.append("  w.put_%s(%s);  // %s" % (sfx, constant_cpp(s, f), f["name"]))
-        elif f["_count"]:
-            lines.append("  for (const auto& v : m.%s) w.put_%s(v);" % (f["name"], sfx))
-        else:
-            lines.append("  w.put_%s(m.%s);" % (sfx, f["name"]))
+    gen_fixed_fields_pack(lines, s)
     lines.append("  w.put_bytes(%s);" % tail["name"])
     lines.append("  return w.ok() ? 0 : -ENOSPC;")
     lines.append("}")
@@ -359,20 +385,7 @@ def gen_tail_codec(lines, s):
     lines.append("inline DecodeError unpack_payload(std::span<const std::uint8_t> in, %s& m,"
                  " std::span<const std::uint8_t>& %s) {" % (msg, tail["name"]))
     lines.append("  bytes::BigEndianReader r(in);")
-    lines.append("  if (r.remaining() < k%sFixedBytes) return DecodeError::kBadLength;" % msg)
-    for f in s["fields"]:
-        sfx = SCALARS[f["_scalar"]][2]
-        if "constant" in f:
-            lines.append("  if (r.get_%s() != %s) return DecodeError::kBadVersion;  // %s" %
-                         (sfx, constant_cpp(s, f), f["name"]))
-        elif f["_count"]:
-            lines.append("  for (auto& v : m.%s) v = r.get_%s();" % (f["name"], sfx))
-        else:
-            lines.append("  m.%s = r.get_%s();" % (f["name"], sfx))
-    for f in s["fields"]:
-        if "max" in f:
-            lines.append("  if (m.%s > %d && m.%s != %s) return DecodeError::kOutOfRange;" %
-                         (f["name"], f["max"], f["name"], invalid_cpp(f["invalid"], f["_scalar"])))
+    gen_fixed_fields_unpack(lines, s)
     lines.append("  if (tail_bytes(m) > k%sMaxTailBytes) return DecodeError::kOutOfRange;" % msg)
     lines.append("  if (r.remaining() != tail_bytes(m)) return DecodeError::kBadLength;")
     lines.append("  %s = in.subspan(k%sFixedBytes);" % (tail["name"], msg))
@@ -424,14 +437,7 @@ def gen_payload_codec(lines, s):
     if rep:
         lines.append("  if (m.%s > %d) return -ERANGE;" % (count_field, rep["max_count"]))
     lines.append("  if (w.remaining() < payload_size(m)) return -ENOSPC;")
-    for f in s["fields"]:
-        sfx = SCALARS[f["_scalar"]][2]
-        if "constant" in f:
-            lines.append("  w.put_%s(%s);  // %s" % (sfx, constant_cpp(s, f), f["name"]))
-        elif f["_count"]:
-            lines.append("  for (const auto& v : m.%s) w.put_%s(v);" % (f["name"], sfx))
-        else:
-            lines.append("  w.put_%s(m.%s);" % (sfx, f["name"]))
+    gen_fixed_fields_pack(lines, s)
     if rep:
         lines.append("  for (std::size_t i = 0; i < m.%s; ++i) {" % count_field)
         lines.append("    std::uint64_t word = 0;")
@@ -445,20 +451,7 @@ def gen_payload_codec(lines, s):
     lines.append("/// Reads and validates the payload; the reader must hold exactly one payload."
                  "\n/// On error `m` is partly written and must not be used.")
     lines.append("inline DecodeError unpack_payload(bytes::BigEndianReader& r, %s& m) {" % msg)
-    lines.append("  if (r.remaining() < k%sFixedBytes) return DecodeError::kBadLength;" % msg)
-    for f in s["fields"]:
-        sfx = SCALARS[f["_scalar"]][2]
-        if "constant" in f:
-            lines.append("  if (r.get_%s() != %s) return DecodeError::kBadVersion;  // %s" %
-                         (sfx, constant_cpp(s, f), f["name"]))
-        elif f["_count"]:
-            lines.append("  for (auto& v : m.%s) v = r.get_%s();" % (f["name"], sfx))
-        else:
-            lines.append("  m.%s = r.get_%s();" % (f["name"], sfx))
-    for f in s["fields"]:
-        if "max" in f:
-            lines.append("  if (m.%s > %d && m.%s != %s) return DecodeError::kOutOfRange;" %
-                         (f["name"], f["max"], f["name"], invalid_cpp(f["invalid"], f["_scalar"])))
+    gen_fixed_fields_unpack(lines, s)
     if rep:
         lines.append("  if (m.%s > %d) return DecodeError::kOutOfRange;" % (count_field, rep["max_count"]))
         lines.append("  if (r.remaining() != m.%s * k%sBytes) return DecodeError::kBadLength;" %

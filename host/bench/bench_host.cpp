@@ -18,6 +18,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 
+#include "simulated_exposures.hpp"
 #include "storetrack/match/mark_matcher.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/sim/simulator.hpp"
@@ -27,39 +28,11 @@ namespace {
 
 using namespace storetrack;
 
-struct Data {
-  Data()
-      : sim(sim::load_scenario(std::string(STORETRACK_SCENARIO_DIR) + "/store_separation.json"),
-            3) {
-    for (int k = 0; k < sim.num_exposures(); ++k) {
-      pipeline::AlignedExposure ex;
-      pipeline::MarkIds ids(static_cast<size_t>(sim.num_cameras()));
-      ex.cameras.resize(ids.size());
-      for (int c = 0; c < sim.num_cameras(); ++c)
-        sim.observe(k, c, ex.cameras[static_cast<size_t>(c)], &ids[static_cast<size_t>(c)]);
-      ex.trigger_seq = ex.cameras[0].trigger_seq;
-      exposures.push_back(ex);
-      truth_ids.push_back(ids);
-    }
-  }
-  sim::Simulator sim;
-  std::vector<pipeline::AlignedExposure> exposures;
-  std::vector<pipeline::MarkIds> truth_ids;
-};
+using Data = bench::SimulatedExposures;
+using bench::make_processor;
 
 const Data& data() {
-  static const Data d;
-  return d;
-}
-
-pipeline::ExposureProcessor make_processor(const sim::Simulator& sim) {
-  pipeline::ExposureProcessor proc(sim.calibrated_rig(), sim.pylon_survey(), sim.store_survey(),
-                                   pipeline::ProcessorConfig{});
-  geometry::Mat6 prior = geometry::Mat6::Identity() * 1e-4;
-  proc.matcher().set_prior_pose("pylon", sim.scenario().T_w_p, prior);
-  proc.matcher().set_prior_pose("store", sim.scenario().T_w_p * sim.scenario().separation.T_p_s0,
-                                prior);
-  return proc;
+  return bench::store_separation();
 }
 
 pipeline::ExposureProcessor make_processor(const Data& d) {

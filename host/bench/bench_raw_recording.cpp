@@ -12,6 +12,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <array>
 #include <filesystem>
 #include <string>
@@ -20,6 +21,7 @@
 #include <benchmark/benchmark.h>
 
 #include "recording_writer.hpp"
+#include "simulated_exposures.hpp"
 #include "storetrack/ingest/receivers.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/sim/simulator.hpp"
@@ -28,46 +30,32 @@ namespace {
 
 using namespace storetrack;
 
-struct Data {
-  Data()
-      : sim(sim::load_scenario(std::string(STORETRACK_SCENARIO_DIR) + "/store_separation.json"),
-            3) {
+using Datagrams = std::vector<std::vector<std::vector<std::uint8_t>>>;  // [exposure][camera]
+
+// The units' datagrams of every exposure of the store-separation run, numbered in sending order.
+const Datagrams& datagrams() {
+  static const Datagrams all = [] {
+    Datagrams out;
     std::uint32_t seq = 0;
-    for (int k = 0; k < sim.num_exposures(); ++k) {
-      pipeline::AlignedExposure ex;
-      ex.cameras.resize(static_cast<size_t>(sim.num_cameras()));
+    for (const pipeline::AlignedExposure& ex : bench::store_separation().exposures) {
       std::vector<std::vector<std::uint8_t>> grams;
-      for (int c = 0; c < sim.num_cameras(); ++c) {
-        auto& obs = ex.cameras[static_cast<size_t>(c)];
-        sim.observe(k, c, obs, nullptr);
+      for (const msg::MarkObservations& obs : ex.cameras) {
         std::array<std::uint8_t, msg::kMaxDatagramBytes> buf{};
         const int n = msg::encode_datagram(obs, buf, seq++);
         grams.emplace_back(buf.begin(), buf.begin() + std::max(n, 0));
       }
-      ex.trigger_seq = ex.cameras[0].trigger_seq;
-      exposures.push_back(ex);
-      datagrams.push_back(grams);
+      out.push_back(grams);
     }
-  }
-  sim::Simulator sim;
-  std::vector<pipeline::AlignedExposure> exposures;
-  std::vector<std::vector<std::vector<std::uint8_t>>> datagrams;  // [exposure][camera]
-};
-
-const Data& data() {
-  static const Data d;
-  return d;
+    return out;
+  }();
+  return all;
 }
 
 void BM_HostExposureWithRecording(benchmark::State& state) {
   const bool raw = state.range(0) != 0;
-  const Data& d = data();
-  pipeline::ExposureProcessor proc(d.sim.calibrated_rig(), d.sim.pylon_survey(),
-                                   d.sim.store_survey(), pipeline::ProcessorConfig{});
-  const geometry::Mat6 prior = geometry::Mat6::Identity() * 1e-4;
-  proc.matcher().set_prior_pose("pylon", d.sim.scenario().T_w_p, prior);
-  proc.matcher().set_prior_pose("store",
-                                d.sim.scenario().T_w_p * d.sim.scenario().separation.T_p_s0, prior);
+  const bench::SimulatedExposures& d = bench::store_separation();
+  const Datagrams& grams = datagrams();
+  pipeline::ExposureProcessor proc = bench::make_processor(d.sim);
 
   const std::filesystem::path dir =
       std::filesystem::temp_directory_path() / ("st_raw_bench_" + std::to_string(::getpid()));
@@ -105,7 +93,7 @@ void BM_HostExposureWithRecording(benchmark::State& state) {
     if (in_batch == kBatch) {  // queue the next 64 exposures' datagrams in the socket
       state.PauseTiming();
       for (std::size_t j = 0; j < kBatch; ++j)
-        for (const auto& g : d.datagrams[(k + j) % d.exposures.size()])
+        for (const auto& g : grams[(k + j) % d.exposures.size()])
           ::sendto(tx, g.data(), g.size(), 0, reinterpret_cast<const sockaddr*>(&dst), sizeof dst);
       in_batch = 0;
       state.ResumeTiming();

@@ -36,7 +36,7 @@ struct PosedBox {
 };
 
 /// Branch and bound over both trees. The visitor's bound() is the distance beyond which a pair
-/// of nodes cannot matter; leaf() tests the triangles of two leaves.
+/// of nodes or triangles cannot matter; accept() takes each triangle pair nearer than bound().
 template <typename Visitor>
 class DualTraversal {
  public:
@@ -57,6 +57,22 @@ class DualTraversal {
   }
 
  private:
+  /// Tests the triangles of two leaves; bound() is asked again for every pair because accept()
+  /// may lower it.
+  void leaf(const MeshBvh::Node& sn, const MeshBvh::Node& an) {
+    for (std::int32_t i = sn.first; i < sn.first + sn.count; ++i) {
+      const Triangle ts = posed_triangle(i);
+      for (std::int32_t j = an.first; j < an.first + an.count; ++j) {
+        const auto k = static_cast<std::size_t>(j);
+        if (triangle_box_distance(ts, aircraft_.triangle_boxes()[k]) >= visitor_.bound()) continue;
+        const ClosestPair c = triangle_distance(ts, aircraft_.triangles()[k]);
+        if (c.distance < visitor_.bound())
+          visitor_.accept({c, store_.mesh_index()[static_cast<std::size_t>(i)],
+                           aircraft_.mesh_index()[k], face_normal(aircraft_.triangles()[k])});
+      }
+    }
+  }
+
   PosedBox posed(std::int32_t s) const {
     const MeshBvh::Node& n = store_.nodes()[static_cast<std::size_t>(s)];
     return {R_ * n.centre + t_, abs_R_ * n.half};
@@ -72,7 +88,7 @@ class DualTraversal {
     const MeshBvh::Node& an = aircraft_.nodes()[static_cast<std::size_t>(a)];
     const bool s_leaf = sn.count > 0, a_leaf = an.count > 0;
     if (s_leaf && a_leaf) {
-      visitor_.leaf(*this, sn, an);
+      leaf(sn, an);
       return;
     }
     // Descend the larger node (the aircraft's when the store's is a leaf), nearer child first.
@@ -108,55 +124,18 @@ class DualTraversal {
 };
 
 struct ClosestVisitor {
-  const MeshBvh& store;
-  const MeshBvh& aircraft;
   MeshPair best;
 
   double bound() const { return best.closest.distance; }
-
-  template <typename Traversal>
-  void leaf(const Traversal& traversal, const MeshBvh::Node& sn, const MeshBvh::Node& an) {
-    for (std::int32_t i = sn.first; i < sn.first + sn.count; ++i) {
-      const Triangle ts = traversal.posed_triangle(i);
-      for (std::int32_t j = an.first; j < an.first + an.count; ++j) {
-        const auto k = static_cast<std::size_t>(j);
-        if (triangle_box_distance(ts, aircraft.triangle_boxes()[k]) >= bound()) continue;
-        const ClosestPair c = triangle_distance(ts, aircraft.triangles()[k]);
-        if (c.distance < best.closest.distance) {
-          best.closest = c;
-          best.store_triangle = store.mesh_index()[static_cast<std::size_t>(i)];
-          best.aircraft_triangle = aircraft.mesh_index()[static_cast<std::size_t>(j)];
-          best.aircraft_face_normal =
-              face_normal(aircraft.triangles()[static_cast<std::size_t>(j)]);
-        }
-      }
-    }
-  }
+  void accept(const MeshPair& pair) { best = pair; }
 };
 
 struct WithinVisitor {
-  const MeshBvh& store;
-  const MeshBvh& aircraft;
   double max_distance;
   std::vector<MeshPair>& out;
 
   double bound() const { return max_distance; }
-
-  template <typename Traversal>
-  void leaf(const Traversal& traversal, const MeshBvh::Node& sn, const MeshBvh::Node& an) {
-    for (std::int32_t i = sn.first; i < sn.first + sn.count; ++i) {
-      const Triangle ts = traversal.posed_triangle(i);
-      for (std::int32_t j = an.first; j < an.first + an.count; ++j) {
-        const auto k = static_cast<std::size_t>(j);
-        if (triangle_box_distance(ts, aircraft.triangle_boxes()[k]) >= bound()) continue;
-        const ClosestPair c = triangle_distance(ts, aircraft.triangles()[k]);
-        if (c.distance < max_distance)
-          out.push_back({c, store.mesh_index()[static_cast<std::size_t>(i)],
-                         aircraft.mesh_index()[static_cast<std::size_t>(j)],
-                         face_normal(aircraft.triangles()[static_cast<std::size_t>(j)])});
-      }
-    }
-  }
+  void accept(const MeshPair& pair) { out.push_back(pair); }
 };
 
 }  // namespace
@@ -227,7 +206,7 @@ void MeshBvh::build(std::int32_t node, std::int32_t first, std::int32_t count,
 
 MeshPair closest_pair(const MeshBvh& store_s, const geometry::Transform& T_p_s,
                       const MeshBvh& aircraft_p) {
-  ClosestVisitor visitor{store_s, aircraft_p, {}};
+  ClosestVisitor visitor{};
   visitor.best.closest.distance = std::numeric_limits<double>::infinity();
   DualTraversal<ClosestVisitor>(store_s, T_p_s, aircraft_p, visitor).run();
   return visitor.best;
@@ -235,7 +214,7 @@ MeshPair closest_pair(const MeshBvh& store_s, const geometry::Transform& T_p_s,
 
 void pairs_within(const MeshBvh& store_s, const geometry::Transform& T_p_s,
                   const MeshBvh& aircraft_p, double max_distance_m, std::vector<MeshPair>& out) {
-  WithinVisitor visitor{store_s, aircraft_p, max_distance_m, out};
+  WithinVisitor visitor{max_distance_m, out};
   DualTraversal<WithinVisitor>(store_s, T_p_s, aircraft_p, visitor).run();
 }
 

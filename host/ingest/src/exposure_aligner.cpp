@@ -225,6 +225,8 @@ bool ExposureAligner::in_time_order(std::int64_t key, time::TaiNs mid) const {
     const std::int64_t later = keys_apart > 0 ? time::saturating_sub_ns(mid, other_mid)
                                               : time::saturating_sub_ns(other_mid, mid);
     const std::int64_t exposures = keys_apart > 0 ? keys_apart : -keys_apart;
+    // Capped at the longest wait's worth of periods: far apart, order is all that is checked,
+    // and a forged key's distance times the period cannot overflow.
     const std::int64_t at_least =
         std::min<std::int64_t>(exposures, kMaxAlignerWaitNs / kFastestTriggerPeriodNs) *
         kFastestTriggerPeriodNs;
@@ -548,7 +550,8 @@ std::size_t ExposureAligner::numbering_votes(std::int64_t offset) const {
 
 ExposureAligner::NumberingVote ExposureAligner::numbering_vote() const {
   // Over cameras that placed an observation with their current offset: a camera still in
-  // another numbering, not yet re-learned, has no say.
+  // another numbering, not yet re-learned, has no say. Among numberings with as many cameras,
+  // the leader is the one that counted the most trigger edges (the smallest offset).
   NumberingVote v;
   for (const CameraState& candidate : cameras_) {
     if (candidate.placements_with_offset == 0 || candidate.offset == v.leader) continue;
@@ -559,6 +562,7 @@ ExposureAligner::NumberingVote ExposureAligner::numbering_vote() const {
       v.tied = false;
     } else if (votes == v.votes) {
       v.tied = true;
+      v.leader = std::min(*v.leader, candidate.offset);
     }
   }
   return v;
@@ -572,18 +576,24 @@ void ExposureAligner::note_rig_numbering() {
 }
 
 std::optional<std::uint32_t> ExposureAligner::rig_sequence(std::int64_t key) {
-  // The numbering most cameras of the rig share; on a tie, the one chosen before if it is among
-  // the leaders. Not the sequences of this exposure's own cameras: with one camera of each
-  // numbering a vote among them is a tie, and a host restarted behind a unit renumbered from 0
-  // indexes its exposures by whichever camera it heard first (the fault campaign's duplicate
-  // numbers). No leader and none chosen: unknown, never a guess.
+  // The numbering most cameras of the rig share. Not the sequences of this exposure's own
+  // cameras: with one camera of each numbering a vote among them is a tie, and a host restarted
+  // behind a unit renumbered from 0 would index its exposures by whichever camera it heard first
+  // (the fault campaign's duplicate numbers). Once chosen it is kept until another numbering
+  // leads with two cameras or more: a camera whose unit renumbers is re-learned onto the same
+  // exposure indices, so the rig's numbering goes on when no camera carries it any more (the
+  // last camera that did restarted from 0). Before any choice (a fresh host that heard one
+  // camera of each numbering), the one that counted the most edges: a restarted unit counts
+  // from 0, so the largest sequence is the unit that ran longest, the rig's own unless every
+  // unit restarted since the trigger started. One camera heard alone numbers its exposure but is
+  // not remembered: it may be the renumbered one.
   note_rig_numbering();
-  const NumberingVote v = numbering_vote();
-  std::optional<std::int64_t> offset;
-  if (v.leader && !v.tied)
+  std::optional<std::int64_t> offset = rig_offset_;
+  if (!offset) {
+    const NumberingVote v = numbering_vote();
     offset = v.leader;
-  else if (rig_offset_ && numbering_votes(*rig_offset_) == v.votes)
-    offset = rig_offset_;
+    if (v.tied) rig_offset_ = v.leader;
+  }
   if (!offset) return std::nullopt;
   return static_cast<std::uint32_t>(key - *offset);
 }

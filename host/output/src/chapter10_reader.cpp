@@ -29,6 +29,29 @@ std::uint64_t be_u(std::span<const std::uint8_t> b, std::size_t at, int width) {
 double be_float(std::span<const std::uint8_t> b, std::size_t at) {
   return static_cast<double>(std::bit_cast<float>(static_cast<std::uint32_t>(be_u(b, at, 4))));
 }
+/// One big-endian field of a record: `width` bytes at offset `at`, stored into `out` (whose type
+/// says what the bytes mean).
+template <typename T>
+struct BeField {
+  std::size_t at;
+  int width;
+  T& out;
+};
+template <typename T>
+BeField<T> be_field(std::size_t at, int width, T& out) {
+  return {at, width, out};
+}
+/// Reads the fixed fields of one record; the caller has checked that `b` holds them all.
+template <typename... T>
+void read_be_fields(std::span<const std::uint8_t> b, BeField<T>... fields) {
+  ((fields.out = static_cast<T>(be_u(b, fields.at, fields.width))), ...);
+}
+/// How a record decoder refuses: `why` into `error` (when the caller asked for it), no record.
+template <typename Record>
+std::optional<Record> refuse(std::string* error, std::string why) {
+  if (error) *error = std::move(why);
+  return std::nullopt;
+}
 int bcd_digit(std::uint32_t word, int shift, int bits) {
   return static_cast<int>((word >> shift) & ((1u << bits) - 1u));
 }
@@ -190,10 +213,7 @@ std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> b, std::s
   // of another layout is refused by its version, never decoded with this one's offsets.
   constexpr std::uint16_t kVersion = 2;
   constexpr std::size_t kBytes = 152;
-  auto fail = [&](std::string why) -> std::optional<FtiBlock> {
-    if (error) *error = std::move(why);
-    return std::nullopt;
-  };
+  auto fail = [&](std::string why) { return refuse<FtiBlock>(error, std::move(why)); };
   if (b.size() < 20)
     return fail("FTI block of " + std::to_string(b.size()) + " bytes: no version field");
   const auto version = static_cast<std::uint16_t>(be_u(b, 18, 2));
@@ -204,13 +224,10 @@ std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> b, std::s
     return fail("FTI block version 2 of " + std::to_string(b.size()) + " bytes, needs " +
                 std::to_string(kBytes));
   FtiBlock f;
-  f.exposure_mid_tai_ns = static_cast<std::int64_t>(be_u(b, 0, 8));
-  f.trigger_seq = static_cast<std::uint32_t>(be_u(b, 8, 4));
-  f.store_id = b[12];
-  f.cameras_used = b[13];
-  f.marks_used = b[14];
-  f.pylon_marks_used = b[15];
-  f.status = static_cast<std::uint16_t>(be_u(b, 16, 2));
+  read_be_fields(b, be_field(0, 8, f.exposure_mid_tai_ns), be_field(8, 4, f.trigger_seq),
+                 be_field(12, 1, f.store_id), be_field(13, 1, f.cameras_used),
+                 be_field(14, 1, f.marks_used), be_field(15, 1, f.pylon_marks_used),
+                 be_field(16, 2, f.status));
   f.version = version;
   for (int i = 0; i < 6; ++i) {
     f.pose[i] = be_float(b, 20 + 4 * static_cast<std::size_t>(i));
@@ -228,10 +245,7 @@ std::optional<RawObservation> decode_raw_observation(std::span<const std::uint8_
                                                      std::string* error) {
   // RawObservation version 2 (docs/icd.md): 34 bytes of fields, big-endian, then the message.
   constexpr std::size_t kFixed = 34;
-  auto fail = [&](std::string why) -> std::optional<RawObservation> {
-    if (error) *error = std::move(why);
-    return std::nullopt;
-  };
+  auto fail = [&](std::string why) { return refuse<RawObservation>(error, std::move(why)); };
   if (b.empty()) return fail("empty raw observation");
   RawObservation r;
   r.version = b[0];
@@ -242,16 +256,11 @@ std::optional<RawObservation> decode_raw_observation(std::span<const std::uint8_
   if (b.size() < kFixed)
     return fail("raw observation of " + std::to_string(b.size()) + " bytes, needs at least " +
                 std::to_string(kFixed));
-  r.source_kind = b[1];
-  r.arrival_tai_ns = static_cast<std::int64_t>(be_u(b, 2, 8));
-  r.source_address = static_cast<std::uint32_t>(be_u(b, 10, 4));
-  r.source_port = static_cast<std::uint16_t>(be_u(b, 14, 2));
-  r.unit_id = b[16];
-  r.camera_id = b[17];
-  r.flags = b[18];
-  r.decode_error = b[19];
-  r.received_bytes = static_cast<std::uint32_t>(be_u(b, 20, 4));
-  r.host_mono_ns = static_cast<std::int64_t>(be_u(b, 24, 8));
+  read_be_fields(b, be_field(1, 1, r.source_kind), be_field(2, 8, r.arrival_tai_ns),
+                 be_field(10, 4, r.source_address), be_field(14, 2, r.source_port),
+                 be_field(16, 1, r.unit_id), be_field(17, 1, r.camera_id), be_field(18, 1, r.flags),
+                 be_field(19, 1, r.decode_error), be_field(20, 4, r.received_bytes),
+                 be_field(24, 8, r.host_mono_ns));
   const auto n = static_cast<std::size_t>(be_u(b, 32, 2));
   if (b.size() - kFixed != n)
     return fail("raw observation says " + std::to_string(n) + " message bytes, holds " +

@@ -331,23 +331,38 @@ TEST(WindowTracker, StoreSeparationFindsEveryMarkTheFullFrameFinds) {
 // Frames of the second half of the run, where the store moves fastest.
 constexpr int kLateFirst = 140, kLateFrames = 60;
 
+/// The mark the spot-editing tests follow: the first of the spot list at frame kLateFirst.
+int first_late_mark(Scene& s) {
+  s.render(kLateFirst);
+  return s.ids().at(0);
+}
+
+/// Where mark `id` stands in a frame's spot list, or -1 when the frame has no spot of it.
+std::ptrdiff_t spot_index(const std::vector<int>& ids, int id) {
+  const auto at = std::find(ids.begin(), ids.end(), id);
+  return at == ids.end() ? -1 : at - ids.begin();
+}
+
+/// Removes mark `id` from the frames k for which hidden(k) holds (as a store fin or a smoke
+/// puff would hide it).
+SpotEdit hide_mark(int id, std::function<bool(int k)> hidden) {
+  return [id, hidden](int k, std::vector<sim::Spot>& spots, std::vector<int>& ids) {
+    if (!hidden(k)) return;
+    const std::ptrdiff_t i = spot_index(ids, id);
+    if (i < 0) return;
+    spots.erase(spots.begin() + i);
+    ids.erase(ids.begin() + i);
+  };
+}
+
 TEST(WindowTracker, MarkHiddenThenReappearingIsCountedAndFoundAgain) {
   Scene& s = scene();
   const WindowTrackerConfig config;
   LockStep run(s, config);
-  // Hide the first mark of the spot list for 10 frames (as a store fin or a smoke puff would).
-  s.render(kLateFirst);
-  const int hidden_id = s.ids().at(0);
+  // Hide the first mark of the spot list for 10 frames.
+  const int hidden_id = first_late_mark(s);
   constexpr int kHideFrom = kLateFirst + 10, kHideTo = kLateFirst + 20;
-  const SpotEdit hide = [&](int k, std::vector<sim::Spot>& spots, std::vector<int>& ids) {
-    if (k < kHideFrom || k >= kHideTo) return;
-    for (std::size_t i = 0; i < ids.size(); ++i) {
-      if (ids[i] != hidden_id) continue;
-      spots.erase(spots.begin() + static_cast<std::ptrdiff_t>(i));
-      ids.erase(ids.begin() + static_cast<std::ptrdiff_t>(i));
-      return;
-    }
-  };
+  const SpotEdit hide = hide_mark(hidden_id, [](int k) { return k >= kHideFrom && k < kHideTo; });
   int reported_while_hidden = 0, found_again_at = -1;
   for (int k = kLateFirst; k < kLateFirst + kLateFrames; ++k) {
     run.step(k, hide);
@@ -378,19 +393,16 @@ TEST(WindowTracker, TwoMarksCrossingForceFullFramesNoWindowReachesAnotherMark) {
   LockStep run(s, config);
   // A second mark (same size and flux as the first of the list) passes over it at 3 px per
   // frame, crossing it half-way through the sequence.
-  s.render(kLateFirst);
-  const int crossed_id = s.ids().at(0);
+  const int crossed_id = first_late_mark(s);
   constexpr int kCrossFrames = 40;
   const SpotEdit add_crossing = [&](int k, std::vector<sim::Spot>& spots, std::vector<int>& ids) {
-    for (std::size_t i = 0; i < ids.size(); ++i) {
-      if (ids[i] != crossed_id) continue;
-      sim::Spot other = spots[i];
-      other.x_px += 3.0 * (k - kLateFirst - kCrossFrames / 2);
-      other.y_px += 1.0;
-      spots.push_back(other);
-      ids.push_back(-7);
-      return;
-    }
+    const std::ptrdiff_t i = spot_index(ids, crossed_id);
+    if (i < 0) return;
+    sim::Spot other = spots[static_cast<std::size_t>(i)];
+    other.x_px += 3.0 * (k - kLateFirst - kCrossFrames / 2);
+    other.y_px += 1.0;
+    spots.push_back(other);
+    ids.push_back(-7);
   };
   int overlapping_windows = 0;
   for (int k = kLateFirst; k < kLateFirst + kCrossFrames; ++k) {
@@ -474,17 +486,7 @@ TEST(WindowTracker, WithoutSameFrameRecoveryALostMarkCostsOneFrame) {
   WindowTrackerConfig config;
   config.recover_in_same_frame = false;
   LockStep run(s, config);
-  s.render(kLateFirst);
-  const int hidden_id = s.ids().at(0);
-  const SpotEdit hide = [&](int k, std::vector<sim::Spot>& spots, std::vector<int>& ids) {
-    if (k != kLateFirst + 12) return;
-    for (std::size_t i = 0; i < ids.size(); ++i) {
-      if (ids[i] != hidden_id) continue;
-      spots.erase(spots.begin() + static_cast<std::ptrdiff_t>(i));
-      ids.erase(ids.begin() + static_cast<std::ptrdiff_t>(i));
-      return;
-    }
-  };
+  const SpotEdit hide = hide_mark(first_late_mark(s), [](int k) { return k == kLateFirst + 12; });
   for (int k = kLateFirst; k < kLateFirst + 20; ++k) {
     run.step(k, hide);
     if (::testing::Test::HasFatalFailure()) return;

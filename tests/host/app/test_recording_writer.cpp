@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "recording_writer.hpp"
+#include "scratch_files.hpp"
 #include "stats.hpp"
 #include "storetrack/output/chapter10_reader.hpp"
 
@@ -27,12 +28,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-fs::path fresh_dir(const std::string& name) {
-  const fs::path d = fs::temp_directory_path() / (name + "_" + std::to_string(::getpid()));
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
+using test::fresh_dir;
 
 // One text line of n - 1 copies of c (built in place: GCC 12 at -O3 warns falsely,
 // -Warray-bounds, on std::string(n, c) + "\n" once inlined into a larger caller).

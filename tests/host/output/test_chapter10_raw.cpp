@@ -12,6 +12,7 @@
 #include <random>
 
 #include "fti_sample_factory.hpp"
+#include "scratch_files.hpp"
 #include "storetrack/output/chapter10_reader.hpp"
 #include "storetrack/output/chapter10_writer.hpp"
 
@@ -32,16 +33,8 @@ constexpr const char* kShaMillionA =
 constexpr const char* kSha448 = "248d6a61d20638b8e5c026930c3e6039a33ce45964ff2167f6ecedd419db06c1";
 constexpr const char* k448Bits = "abcdbcdecdefdefgefghfghighijhijkijkljklmklmnlmnomnopnopq";
 
-fs::path fresh_dir(const std::string& name) {
-  const fs::path d = fs::temp_directory_path() / (name + "_" + std::to_string(::getpid()));
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
-
-std::vector<std::uint8_t> bytes_of(const std::string& s) {
-  return {s.begin(), s.end()};
-}
+using test::bytes_of;
+using test::fresh_dir;
 
 std::string hex(const std::array<std::uint8_t, 32>& d) {
   std::string s;

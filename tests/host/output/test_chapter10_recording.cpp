@@ -17,6 +17,7 @@
 #include <random>
 
 #include "fti_sample_factory.hpp"
+#include "scratch_files.hpp"
 #include "storetrack/output/chapter10_reader.hpp"
 #include "storetrack/output/chapter10_writer.hpp"
 
@@ -29,12 +30,7 @@ constexpr std::int64_t kUtc0 = 1'803'902'400;  // 2027-03-01 12:00:00 UTC
 constexpr std::int64_t kT0Tai = (kUtc0 + 37) * 1'000'000'000LL + 600'000'000;
 
 // A fresh directory per test: the numbered files land next to the requested one.
-fs::path fresh_dir(const std::string& name) {
-  const fs::path d = fs::temp_directory_path() / (name + "_" + std::to_string(::getpid()));
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
+using test::fresh_dir;
 
 Chapter10Config test_config(int per_packet) {
   Chapter10Config cfg;

@@ -1,7 +1,6 @@
 // read_recording (host/post): the files of one host run written by the Chapter 10 writer, read
 // back through the independent reader; every refusal names the file.
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <filesystem>
 #include <fstream>
@@ -10,6 +9,7 @@
 
 #include "fti_sample_factory.hpp"
 #include "recording.hpp"
+#include "scratch_files.hpp"
 #include "storetrack/output/chapter10_writer.hpp"
 #include "storetrack/output/fti_parameter_block.hpp"
 
@@ -22,16 +22,8 @@ using output::RecordedInputKind;
 constexpr std::int64_t kT0Tai = (1'803'902'400LL + 37) * 1'000'000'000LL;
 constexpr int kExposures = 40, kObservationsPerExposure = 8;
 
-fs::path fresh_dir(const std::string& name) {
-  const fs::path d = fs::temp_directory_path() / (name + "_" + std::to_string(::getpid()));
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
-
-std::vector<std::uint8_t> bytes_of(const std::string& s) {
-  return {s.begin(), s.end()};
-}
+using test::bytes_of;
+using test::fresh_dir;
 
 output::Chapter10Config config(bool raw, bool inputs, const std::string& calibration = "{}") {
   output::Chapter10Config cfg;

@@ -106,9 +106,9 @@ struct AlignerCounters {
   std::uint64_t exposures_partial_timeout = 0;   ///< released on the deadline, cameras missing
   std::uint64_t exposures_partial_overflow = 0;  ///< released early: too many pending
   std::uint64_t exposures_dropped_too_few_cameras = 0;
-  /// Released before the rig's numbering was known: the cameras heard so far map their sequences
-  /// with different offsets, as many cameras with each (a host started behind a unit renumbered
-  /// from 0 hears one camera of each numbering). Never numbered by a guess.
+  /// Released while no camera had placed an observation with its current offset (every camera
+  /// heard so far re-learning its numbering): no numbering to write. A tie between numberings is
+  /// not this: it goes to the one that counted the most trigger edges.
   std::uint64_t exposures_dropped_numbering_unknown = 0;
   std::uint64_t dropped_unknown_camera = 0;     ///< camera_id not in the rig
   std::uint64_t dropped_spoofed = 0;            ///< unit_id is not the camera's calibrated unit
@@ -279,8 +279,10 @@ class ExposureAligner {
   std::size_t restart_quorum_ = 1;  // cameras that must agree on a trigger restart
   bool restarting_ = false;
   // The offset of the rig's numbering, chosen when one leads with two cameras or more (at each
-  // camera's first placement with a new offset, and at each release): kept on a tie, so the
-  // numbering of the samples does not flip between exposures.
+  // camera's first placement with a new offset, and at each release), or at a release before
+  // any choice on a tie (the numbering that counted the most edges); kept until another leads
+  // with two cameras or more, so the numbering of the samples does not flip between exposures
+  // and goes on when every camera that carried it has renumbered.
   std::optional<std::int64_t> rig_offset_;
   PendingMap pending_;
   bool have_key_ = false;
