@@ -223,6 +223,22 @@ void parse_recording(Object r, HostConfig& c) {
   r.finish();
 }
 
+// The live page's store envelope (docs/live-view.md, coverage overlay): poses T_p_s.
+void parse_live(Object l, HostConfig& c) {
+  c.live_store_envelope_p.clear();
+  if (const auto e = l.find("store_envelope")) {
+    for (const Value& entry : e->array(1, 256)) {
+      Object pose = entry.object();
+      geometry::Transform T_p_s = geometry::Transform::Identity();
+      T_p_s.translation() = vec3(pose.at("t_m"));
+      T_p_s.linear() = geometry::rotation_from_rotvec(vec3(pose.at("rotvec_rad")));
+      pose.finish();
+      c.live_store_envelope_p.push_back(T_p_s);
+    }
+  }
+  l.finish();
+}
+
 void read_host_config(const Value& root, HostConfig& c) {
   Object top = root.object();
   if (const auto v = top.find("udp")) parse_udp(v->object(), c);
@@ -233,6 +249,7 @@ void read_host_config(const Value& root, HostConfig& c) {
   if (const auto v = top.find("identifier")) parse_identifier(v->object(), c);
   if (const auto v = top.find("chapter10")) parse_chapter10(v->object(), c);
   if (const auto v = top.find("recording")) parse_recording(v->object(), c);
+  if (const auto v = top.find("live")) parse_live(v->object(), c);
   top.finish();
 }
 

@@ -65,6 +65,10 @@ struct HostConfig {
   // recording.raw_observations: every observation message received, as received, in the
   // Chapter 10 file's raw channel (docs/fti-output.md); on by default
   bool record_raw_observations = true;
+  // live.store_envelope: the store's expected poses relative to the pylon (T_p_s), at most 256,
+  // drawn by the live page as where the store's marks will fall in each image (the coverage
+  // overlay, docs/live-view.md); each {"t_m": [x, y, z], "rotvec_rad": [rx, ry, rz]}
+  std::vector<geometry::Transform> live_store_envelope_p;
 };
 
 /// Applies the JSON file's values onto `config` (fields not in the file keep their value).

@@ -205,7 +205,8 @@ int start_live_view(const st::hostapp::HostOptions& o, const st::hostapp::InputF
   try {
     publisher = std::make_unique<st::live::LivePublisher>(rig);
     server = std::make_unique<st::live::LiveServer>(
-        config, st::live::LiveScene{in.rig, in.pylon, in.store}, *publisher);
+        config, st::live::LiveScene{in.rig, in.pylon, in.store, o.cfg.live_store_envelope_p},
+        *publisher);
     server->start();
   } catch (const std::invalid_argument& e) {
     std::fprintf(stderr, "storetrack-host: %s\n", e.what());

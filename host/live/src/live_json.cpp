@@ -4,6 +4,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "storetrack/live/live_coverage.hpp"
 #include "storetrack/live/live_server.hpp"
 
 namespace storetrack::live {
@@ -74,6 +75,27 @@ json expected_marks(const camera::CalibratedCamera* cam, const LiveBodyPose& pos
   return out;
 }
 
+// Pixels to 1/10 px: an outline is drawn, not measured, and there are many of them.
+double deci(double v) {
+  return std::round(v * 10.0) / 10.0;
+}
+
+// The coverage overlay: per envelope pose the store marks' hull through the last valid pylon
+// pose, [{"hull": [[x, y], ...], "leaves_image": bool}, ...]; empty without either.
+json coverage_json(const camera::CalibratedCamera* cam, const LiveBodyPose& pylon,
+                   const LiveScene& scene) {
+  json out = json::array();
+  if (!cam || !pylon.valid || scene.store_envelope_p.empty()) return out;
+  for (const CoverageOutline& o :
+       coverage_outlines(*cam, pylon.T_w_b, scene.store_envelope_p, scene.store)) {
+    json hull = json::array();
+    for (const geometry::Vec2& p : o.hull)
+      hull.push_back({deci(p.x()), deci(p.y())});
+    out.push_back({{"hull", std::move(hull)}, {"leaves_image", o.leaves_image}});
+  }
+  return out;
+}
+
 json camera_json(const LiveCamera& c, const LiveSnapshot& s, const LiveScene& scene) {
   json marks = json::array();
   for (int j = 0; j < c.mark_count; ++j) {
@@ -95,6 +117,7 @@ json camera_json(const LiveCamera& c, const LiveSnapshot& s, const LiveScene& sc
             {"marks", std::move(marks)},
             {"expected_pylon", expected_marks(cam, s.pylon, scene.pylon)},
             {"expected_store", expected_marks(cam, s.store, scene.store)},
+            {"coverage", coverage_json(cam, s.pylon, scene)},
             {"counters", camera_counters_json(c.counters)}};
   if (c.last_seen_mono_ns != 0) {
     j["last_clock_state"] = c.last_clock_state;
@@ -215,7 +238,8 @@ std::string scene_json(const LiveScene& scene) {
   };
   return json{{"cameras", std::move(cameras)},
               {"pylon", {{"name", scene.pylon.name}, {"mark_ids", ids(scene.pylon)}}},
-              {"store", {{"name", scene.store.name}, {"mark_ids", ids(scene.store)}}}}
+              {"store", {{"name", scene.store.name}, {"mark_ids", ids(scene.store)}}},
+              {"store_envelope_poses", scene.store_envelope_p.size()}}
       .dump();
 }
 

@@ -47,6 +47,22 @@ function buildCameras(scene) {
   document.getElementById('chart-seconds').textContent = CHART_SECONDS;
 }
 
+// The coverage overlay, under everything else: the store marks' hull at each pose of the
+// configured envelope (host.json live.store_envelope), red where a mark leaves the image.
+function drawCoverage(g, outlines, X, Y) {
+  for (const o of outlines) {
+    if (o.hull.length === 0) continue;
+    g.beginPath();
+    g.moveTo(X(o.hull[0][0]), Y(o.hull[0][1]));
+    for (const [x, y] of o.hull.slice(1)) g.lineTo(X(x), Y(y));
+    g.closePath();
+    g.fillStyle = o.leaves_image ? 'rgba(255, 107, 107, 0.10)' : 'rgba(89, 183, 255, 0.08)';
+    g.strokeStyle = o.leaves_image ? 'rgba(255, 107, 107, 0.6)' : 'rgba(89, 183, 255, 0.35)';
+    g.fill();
+    g.stroke();
+  }
+}
+
 function drawCamera(view, cam) {
   const { canvas, scale, meta } = view;
   const g = canvas.getContext('2d');
@@ -55,6 +71,8 @@ function drawCamera(view, cam) {
   g.strokeRect(0.5, 0.5, canvas.width - 1, canvas.height - 1);
   // Pixel centres at integers, the image edge at -0.5 (docs/conventions.md).
   const X = (x) => (x + 0.5) / scale, Y = (y) => (y + 0.5) / scale;
+  drawCoverage(g, cam.coverage || [], X, Y);
+  view.canvas.dataset.coverageOutlines = (cam.coverage || []).length;
   g.lineWidth = 1;
   g.strokeStyle = '#8aa0b4';
   for (const [id, x, y] of cam.expected_pylon) {

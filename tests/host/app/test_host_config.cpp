@@ -229,6 +229,35 @@ TEST(HostConfig, RawObservationRecordingSwitch) {
             std::string::npos);
 }
 
+TEST(HostConfig, LiveStoreEnvelopeIsReadAsPylonToStorePoses) {
+  HostConfig c;
+  ASSERT_EQ(load(R"({"live": {"store_envelope": [
+                  {"t_m": [0.1, -0.2, 0.3], "rotvec_rad": [0, 0, 0]},
+                  {"t_m": [0, 0, 0.5], "rotvec_rad": [0, 0.2, 0]}]}})",
+                 &c),
+            "");
+  ASSERT_EQ(c.live_store_envelope_p.size(), 2u);
+  EXPECT_TRUE(c.live_store_envelope_p[0].translation().isApprox(geometry::Vec3(0.1, -0.2, 0.3)));
+  EXPECT_TRUE(c.live_store_envelope_p[0].linear().isIdentity(0));
+  // rotvec (0, 0.2, 0): 0.2 rad about y
+  EXPECT_NEAR(c.live_store_envelope_p[1].linear()(0, 2), std::sin(0.2), 1e-15);
+  EXPECT_NEAR(c.live_store_envelope_p[1].linear()(0, 0), std::cos(0.2), 1e-15);
+  EXPECT_DOUBLE_EQ(c.live_store_envelope_p[1].translation().z(), 0.5);
+  HostConfig defaults;
+  EXPECT_TRUE(defaults.live_store_envelope_p.empty());  // no overlay unless configured
+
+  EXPECT_NE(load(R"({"live": {"store_envelope": []}})").find("live.store_envelope"),
+            std::string::npos);
+  EXPECT_NE(load(R"({"live": {"store_envelope": [{"t_m": [0, 0, 0]}]}})")
+                .find("live.store_envelope[0].rotvec_rad: missing"),
+            std::string::npos);
+  EXPECT_NE(load(R"({"live": {"store_envelope": [{"t_m": [0, 0], "rotvec_rad": [0, 0, 0]}]}})")
+                .find("live.store_envelope[0].t_m"),
+            std::string::npos);
+  EXPECT_NE(load(R"({"live": {"store_envelop": []}})").find("live.store_envelop: unknown key"),
+            std::string::npos);
+}
+
 TEST(HostConfig, EverySectionNamesTheKeyOfABadValue) {
   // Paths through each section's reader that the range tests above do not reach: a wrong JSON
   // type, a value outside a (0, x) bound, a removed key, a malformed list. The message names the

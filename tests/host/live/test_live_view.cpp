@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include <gtest/gtest.h>
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <nlohmann/json.hpp>
@@ -16,6 +17,7 @@
 #include <thread>
 #include <vector>
 
+#include "storetrack/live/live_coverage.hpp"
 #include "storetrack/live/live_server.hpp"
 #include "storetrack/live/live_snapshot.hpp"
 
@@ -530,6 +532,151 @@ TEST(LiveServer, StalledClientIsDroppedWhileAnotherKeepsReceiving) {
       seconds, received, rate);
   ::close(stalled);
   ::close(reading);
+}
+
+// --- the coverage overlay ------------------------------------------------------------------
+
+// A camera 3 m in front of the pylon's origin looking back at it (camera z = world -x), with
+// distortion, so a projection through the wrong frame or without the model would show.
+st::camera::CalibratedCamera coverage_camera() {
+  st::camera::Intrinsics in;
+  in.fx = 1200;
+  in.fy = 1190;
+  in.cx = 950.3;
+  in.cy = 520.7;
+  in.dist = {-0.12, 0.03, 0.001, -0.0005, 0, 0, 0, 0};
+  st::camera::CalibratedCamera cam;
+  cam.camera_id = 3;
+  cam.model = st::camera::CameraModel(in);
+  st::geometry::Mat3 R_c_w;
+  R_c_w << 0, 1, 0,  //
+      0, 0, 1,       //
+      -1, 0, 0;      // camera x = world y, camera y = world z, camera z = world -x
+  cam.T_c_w.linear() = R_c_w;
+  cam.T_c_w.translation() = -R_c_w * st::geometry::Vec3(3.0, 0.1, -0.2);
+  return cam;
+}
+
+st::survey::RigidBodySurvey coverage_store() {
+  st::survey::RigidBodySurvey store;
+  store.name = "store";
+  int id = 20;
+  for (double x : {-0.4, 0.4})
+    for (double y : {-0.1, 0.1})
+      for (double z : {-0.15, 0.15})
+        store.marks.push_back({id++, st::geometry::Vec3(x, y, z), 0.001});
+  store.marks.push_back({id, st::geometry::Vec3(0.01, 0.02, 0.03), 0.001});  // an inside one
+  return store;
+}
+
+st::geometry::Transform pose(const st::geometry::Vec3& rotvec, const st::geometry::Vec3& t) {
+  st::geometry::Transform T = st::geometry::Transform::Identity();
+  T.linear() = st::geometry::rotation_from_rotvec(rotvec);
+  T.translation() = t;
+  return T;
+}
+
+// The pixel of a store point, written out frame by frame (not through project_body_point):
+// p_w = R_w_p (R_p_s p_s + t_p_s) + t_w_p, p_c = R_c_w p_w + t_c_w, then the camera model.
+std::optional<st::geometry::Vec2> pixel_by_hand(const st::camera::CalibratedCamera& cam,
+                                                const st::geometry::Transform& T_w_p,
+                                                const st::geometry::Transform& T_p_s,
+                                                const st::geometry::Vec3& p_s) {
+  const st::geometry::Vec3 p_p = T_p_s.linear() * p_s + T_p_s.translation();
+  const st::geometry::Vec3 p_w = T_w_p.linear() * p_p + T_w_p.translation();
+  const st::geometry::Vec3 p_c = cam.T_c_w.linear() * p_w + cam.T_c_w.translation();
+  return cam.model.project(p_c);
+}
+
+// Every point on or inside the counter-clockwise polygon (image axes, x right, y down: the
+// hull's "counter-clockwise" is in x-y as written, so cross >= 0 for every edge).
+bool inside_or_on(const std::vector<st::geometry::Vec2>& hull, const st::geometry::Vec2& p) {
+  for (std::size_t i = 0; i < hull.size(); ++i) {
+    const auto& a = hull[i];
+    const auto& b = hull[(i + 1) % hull.size()];
+    if ((b.x() - a.x()) * (p.y() - a.y()) - (b.y() - a.y()) * (p.x() - a.x()) < -1e-9) return false;
+  }
+  return true;
+}
+
+TEST(LiveCoverage, OutlinesAreTheStoreMarksProjectedThroughEachEnvelopePose) {
+  const auto cam = coverage_camera();
+  const auto store = coverage_store();
+  const st::geometry::Transform T_w_p = pose({0.02, -0.03, 0.05}, {0.3, -0.1, 0.2});
+  const std::vector<st::geometry::Transform> envelope = {
+      pose({0, 0, 0}, {0, 0, -0.5}), pose({0.1, 0.2, -0.05}, {0.2, 0.1, -0.8}),
+      pose({0, 0, 0.3}, {0.1, 0, -0.9}),
+      pose({0, 0, 0}, {0, 3.0, -0.5}),   // far to the side: out of the image
+      pose({0, 0, 0}, {3.5, 0, -0.5})};  // behind the camera (x > 3 m): out of the image
+  const auto outlines = st::live::coverage_outlines(cam, T_w_p, envelope, store);
+  ASSERT_EQ(outlines.size(), envelope.size());
+  for (std::size_t k = 0; k < 3; ++k) {
+    const auto& o = outlines[k];
+    ASSERT_EQ(o.points.size(), store.marks.size()) << "pose " << k;
+    EXPECT_FALSE(o.leaves_image) << "pose " << k;
+    for (std::size_t i = 0; i < store.marks.size(); ++i) {
+      const auto expected = pixel_by_hand(cam, T_w_p, envelope[k], store.marks[i].p_body);
+      ASSERT_TRUE(expected);
+      EXPECT_NEAR(o.points[i].x(), expected->x(), 1e-9) << "pose " << k << " mark " << i;
+      EXPECT_NEAR(o.points[i].y(), expected->y(), 1e-9) << "pose " << k << " mark " << i;
+      EXPECT_TRUE(inside_or_on(o.hull, o.points[i])) << "pose " << k << " mark " << i;
+    }
+    ASSERT_GE(o.hull.size(), 4u);  // a box seen in perspective: at least 4 corners
+    for (const auto& v : o.hull)   // every corner is one of the marks
+      EXPECT_TRUE(std::any_of(o.points.begin(), o.points.end(),
+                              [&](const st::geometry::Vec2& p) { return p == v; }));
+    // the inside mark (the last) is no corner
+    EXPECT_TRUE(std::none_of(o.hull.begin(), o.hull.end(),
+                             [&](const st::geometry::Vec2& v) { return v == o.points.back(); }));
+  }
+  EXPECT_TRUE(outlines[3].leaves_image);
+  EXPECT_TRUE(outlines[4].leaves_image);
+  EXPECT_LT(outlines[4].points.size(), store.marks.size());  // those behind are not drawn
+}
+
+TEST(LiveCoverage, HullOfASquareDropsInteriorAndCollinearPoints) {
+  using V = st::geometry::Vec2;
+  const auto hull = st::live::convex_hull(
+      {V(0, 0), V(2, 0), V(1, 0), V(2, 2), V(0, 2), V(1, 1), V(0, 1), V(2, 2)});
+  ASSERT_EQ(hull.size(), 4u);
+  EXPECT_EQ(hull[0], V(0, 0));
+  EXPECT_EQ(hull[1], V(2, 0));
+  EXPECT_EQ(hull[2], V(2, 2));
+  EXPECT_EQ(hull[3], V(0, 2));
+  EXPECT_EQ(st::live::convex_hull({V(1, 1), V(1, 1)}).size(), 1u);
+  EXPECT_EQ(st::live::convex_hull({V(0, 0), V(1, 1), V(2, 2)}).size(), 2u);
+}
+
+TEST(LiveCoverage, SnapshotCarriesTheOutlinesOnceThePylonIsSolved) {
+  st::live::LiveScene scene;
+  scene.rig.cameras.push_back(coverage_camera());
+  scene.store = coverage_store();
+  scene.store_envelope_p = {pose({0, 0, 0}, {0, 0, -0.5}), pose({0, 0, 0}, {0, 3.0, -0.5})};
+  auto snapshot = std::make_unique<LiveSnapshot>();
+  snapshot->camera_count = 1;
+  snapshot->cameras[0].camera_id = 3;
+  const st::live::LiveServerCounters counters;
+  auto j = nlohmann::json::parse(st::live::snapshot_json(*snapshot, scene, counters));
+  EXPECT_TRUE(j["cameras"][0]["coverage"].empty());  // no pylon pose yet: nothing to draw
+
+  snapshot->pylon.valid = true;
+  snapshot->pylon.T_w_b = pose({0.02, -0.03, 0.05}, {0.3, -0.1, 0.2});
+  j = nlohmann::json::parse(st::live::snapshot_json(*snapshot, scene, counters));
+  const auto& coverage = j["cameras"][0]["coverage"];
+  ASSERT_EQ(coverage.size(), 2u);
+  const auto outlines = st::live::coverage_outlines(scene.rig.cameras[0], snapshot->pylon.T_w_b,
+                                                    scene.store_envelope_p, scene.store);
+  for (std::size_t k = 0; k < 2; ++k) {
+    EXPECT_EQ(coverage[k]["leaves_image"].get<bool>(), outlines[k].leaves_image);
+    ASSERT_EQ(coverage[k]["hull"].size(), outlines[k].hull.size());
+    for (std::size_t v = 0; v < outlines[k].hull.size(); ++v) {  // 1/10 px in the JSON
+      EXPECT_NEAR(coverage[k]["hull"][v][0].get<double>(), outlines[k].hull[v].x(), 0.05);
+      EXPECT_NEAR(coverage[k]["hull"][v][1].get<double>(), outlines[k].hull[v].y(), 0.05);
+    }
+  }
+  EXPECT_FALSE(coverage[0]["leaves_image"].get<bool>());
+  EXPECT_TRUE(coverage[1]["leaves_image"].get<bool>());
+  EXPECT_EQ(nlohmann::json::parse(st::live::scene_json(scene))["store_envelope_poses"], 2);
 }
 
 }  // namespace

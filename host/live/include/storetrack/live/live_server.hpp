@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "storetrack/camera/calibration_file.hpp"
+#include "storetrack/geometry/transform.hpp"
 #include "storetrack/live/live_snapshot.hpp"
 #include "storetrack/survey/survey.hpp"
 
@@ -39,6 +40,9 @@ struct LiveServerConfig {
 struct LiveScene {
   camera::RigCalibration rig;
   survey::RigidBodySurvey pylon, store;
+  /// The store's expected poses relative to the pylon, T_p_s (host.json "live"
+  /// "store_envelope"); empty: no coverage overlay (live_coverage.hpp).
+  std::vector<geometry::Transform> store_envelope_p;
 };
 
 struct LiveServerCounters {
