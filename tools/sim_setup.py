@@ -5,10 +5,14 @@ tools/testpoint, the integration tests and the VM rig's tests all use.
   sim_setup.py SCENARIO.json SIM_DIR SETUP_DIR
       SETUP_DIR gets rig_calibration.json (the calibrated rig: truth + calibration errors),
       pylon_survey.json and store_survey.json (surveys with survey errors; the pendulum board
-      stands in for the store), initial_marks.json and setup.json (exposures, frame rate,
-      camera/unit ids).
+      stands in for the store), initial_marks.json, setup.json (exposures, frame rate,
+      camera/unit ids) and store_envelope.json (a host.json fragment, below).
   sim_setup.py --initial-marks TRUTH_MARKS.csv OUT.json [SIGMA_M]
       only initial_marks.json.
+  sim_setup.py --store-envelope TRUTH_POSES.csv OUT.json [POSES]
+      only the store envelope: {"live": {"store_envelope": [...]}}, POSES (default 24) poses
+      T_p_s of the scenario's trajectory, evenly spaced over its exposures, first and last
+      included; the live page draws where the store's marks fall along them (docs/live-view.md).
 
 initial_marks.json holds the marks at the first exposure plus Gaussian survey noise, SIGMA_M per
 axis (default 1 mm, seeded: the same file for the same simulator run), as the installation survey
@@ -73,6 +77,25 @@ def write_initial_marks(truth_marks_csv, out_json, sigma_m=SURVEY_SIGMA_M):
         json.dump(initial_marks(truth_marks_csv, sigma_m), f, indent=1)
 
 
+def store_envelope(truth_poses_csv, poses=24):
+    """T_p_s at `poses` exposures of truth_poses.csv spread evenly over the run, as host.json's
+    live.store_envelope entries ({t_m, rotvec_rad})."""
+    with open(truth_poses_csv, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        sys.exit("sim_setup.py: no poses in " + truth_poses_csv)
+    count = max(1, min(poses, len(rows)))
+    picks = sorted({round(k * (len(rows) - 1) / max(1, count - 1)) for k in range(count)})
+    return [{"t_m": [float(rows[k]["T_p_s_" + a]) for a in ("x_m", "y_m", "z_m")],
+             "rotvec_rad": [float(rows[k]["T_p_s_" + a]) for a in ("rx_rad", "ry_rad", "rz_rad")]}
+            for k in picks]
+
+
+def write_store_envelope(truth_poses_csv, out_json, poses=24):
+    with open(out_json, "w") as f:
+        json.dump({"live": {"store_envelope": store_envelope(truth_poses_csv, poses)}}, f, indent=1)
+
+
 def write_setup(scenario_json, sim, setup):
     scenario = json.load(open(scenario_json))
     os.makedirs(setup, exist_ok=True)
@@ -82,6 +105,7 @@ def write_setup(scenario_json, sim, setup):
                 if os.path.exists(os.path.join(sim, f"survey_{n}.json")))
     shutil.copy(os.path.join(sim, f"survey_{body}.json"), os.path.join(setup, "store_survey.json"))
     write_initial_marks(os.path.join(sim, "truth_marks.csv"), os.path.join(setup, "initial_marks.json"))
+    write_store_envelope(os.path.join(sim, "truth_poses.csv"), os.path.join(setup, "store_envelope.json"))
     cams = [{"camera_id": c["camera_id"], "unit_id": c["unit_id"]} for c in scenario["cameras"]]
     with open(os.path.join(setup, "setup.json"), "w") as f:
         json.dump({"num_exposures": scenario["timing"]["num_exposures"],
@@ -91,6 +115,9 @@ def write_setup(scenario_json, sim, setup):
 def main(argv):
     if len(argv) in (3, 4) and argv[0] == "--initial-marks":
         write_initial_marks(argv[1], argv[2], float(argv[3]) if len(argv) == 4 else SURVEY_SIGMA_M)
+        return 0
+    if len(argv) in (3, 4) and argv[0] == "--store-envelope":
+        write_store_envelope(argv[1], argv[2], int(argv[3]) if len(argv) == 4 else 24)
         return 0
     if len(argv) == 3 and not argv[0].startswith("-"):
         write_setup(*argv)

@@ -53,6 +53,15 @@ for i, read in enumerate(reads):
                   % (i, key[0], key[1], c["marks_drawn"], c["mark_count"], want))
 check(compared >= 4 * len(reads) // 2, "marks drawn compared on %d camera views" % compared)
 
+# The coverage overlay: once the pylon is solved every camera draws one outline per pose of
+# the envelope the host was given (host.json live.store_envelope, 12 poses).
+envelope = len(json.load(open(os.path.join(out, "host.json")))["live"]["store_envelope"])
+check(page["scene"].get("store_envelope_poses") == envelope,
+      "the scene names the %d envelope poses (%s)" % (envelope, page["scene"].get("store_envelope_poses")))
+outlines = [c["coverage_outlines"] for c in reads[-1]["cameras"]]
+check(outlines == [envelope] * len(scene_ids),
+      "the last read draws %d coverage outlines per camera (%s)" % (envelope, outlines))
+
 # The displayed sample against the CSV row of its trigger sequence.
 row_of = {int(s): k for k, s in enumerate(fti["trigger_seq"])}
 samples = 0

@@ -36,7 +36,8 @@ try {
     const text = (id) => { const e = document.getElementById(id); return e ? e.textContent : null; };
     const cameras = [...document.querySelectorAll('canvas[data-camera-id]')].map((c) => ({
       camera_id: Number(c.dataset.cameraId), marks_drawn: Number(c.dataset.marksDrawn),
-      mark_count: Number(c.dataset.markCount), trigger_seq: c.dataset.triggerSeq }));
+      mark_count: Number(c.dataset.markCount), trigger_seq: c.dataset.triggerSeq,
+      coverage_outlines: Number(c.dataset.coverageOutlines || 0) }));
     const sample = {};
     for (const k of ['trigger_seq', 'x', 'y', 'z', 'yaw', 'pitch', 'roll',
                      'U_x', 'U_y', 'U_z', 'U_yaw', 'U_pitch', 'U_roll'])

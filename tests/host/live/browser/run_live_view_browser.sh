@@ -49,12 +49,15 @@ json.dump(s, open(sys.argv[2], "w"))
 PY
 "$SIM" --scenario "$OUT/scenario.json" --seed 7 --out "$OUT/sim" --mode observations >/dev/null
 /usr/bin/python3 "$ROOT/tools/sim_setup.py" --initial-marks "$OUT/sim/truth_marks.csv" "$OUT/initial_marks.json"
+# The coverage overlay's envelope: 12 poses of the run's own trajectory (host.json live.store_envelope).
+/usr/bin/python3 "$ROOT/tools/sim_setup.py" --store-envelope "$OUT/sim/truth_poses.csv" "$OUT/host.json" 12
 # The host stays 6 s after the last observation: the page keeps showing the last snapshot.
 "$HOST" --calibration "$OUT/sim/rig_calibrated.json" --pylon-survey "$OUT/sim/survey_pylon.json" \
   --store-survey "$OUT/sim/survey_store.json" --initial-marks "$OUT/initial_marks.json" \
   --udp-port "$PORT" --udp-bind 127.0.0.1 --udp-source 0@127.0.0.1 --udp-source 1@127.0.0.1 \
   --ch10 "$OUT/out.ch10" --csv "$OUT/fti.csv" --stats-json "$OUT/stats.json" \
-  --live 127.0.0.1:0 --max-wait-ms 3000 --idle-exit-s 6 >"$OUT/host.log" 2>&1 &
+  --live 127.0.0.1:0 --config "$OUT/host.json" --max-wait-ms 3000 --idle-exit-s 6 \
+  >"$OUT/host.log" 2>&1 &
 HOST_PID=$!
 UNIT_PIDS=""
 BROWSER_PID=""
