@@ -12,7 +12,7 @@ tools/testpoint, the integration tests and the VM rig's tests all use.
   sim_setup.py --store-envelope TRUTH_POSES.csv OUT.json [POSES]
       only the store envelope: {"live": {"store_envelope": [...]}}, POSES (default 24) poses
       T_p_s of the scenario's trajectory, evenly spaced over its exposures, first and last
-      included; the live page draws where the store's marks fall along them (docs/live-view.md).
+      included, a pose equal to the one before left out (a store at rest); the live page draws where the store's marks fall along them (docs/live-view.md).
 
 initial_marks.json holds the marks at the first exposure plus Gaussian survey noise, SIGMA_M per
 axis (default 1 mm, seeded: the same file for the same simulator run), as the installation survey
@@ -86,9 +86,13 @@ def store_envelope(truth_poses_csv, poses=24):
         sys.exit("sim_setup.py: no poses in " + truth_poses_csv)
     count = max(1, min(poses, len(rows)))
     picks = sorted({round(k * (len(rows) - 1) / max(1, count - 1)) for k in range(count)})
-    return [{"t_m": [float(rows[k]["T_p_s_" + a]) for a in ("x_m", "y_m", "z_m")],
-             "rotvec_rad": [float(rows[k]["T_p_s_" + a]) for a in ("rx_rad", "ry_rad", "rz_rad")]}
-            for k in picks]
+    envelope = []
+    for k in picks:
+        pose = {"t_m": [float(rows[k]["T_p_s_" + a]) for a in ("x_m", "y_m", "z_m")],
+                "rotvec_rad": [float(rows[k]["T_p_s_" + a]) for a in ("rx_rad", "ry_rad", "rz_rad")]}
+        if not envelope or pose != envelope[-1]:  # a store at rest (captive, static) once
+            envelope.append(pose)
+    return envelope
 
 
 def write_store_envelope(truth_poses_csv, out_json, poses=24):

@@ -207,6 +207,14 @@ class InetxReceiver {
   std::thread thread_;
 };
 
+std::string store_envelope_path(const BenchOptions& o) {
+  return o.setup_dir + "/store_envelope.json";
+}
+
+bool has_store_envelope(const BenchOptions& o) {
+  return std::ifstream(store_envelope_path(o)).good();
+}
+
 std::vector<std::string> host_arguments(const BenchOptions& o, const LiveLoad& load,
                                         const std::string& stats_path) {
   const std::string& s = o.setup_dir;
@@ -223,6 +231,9 @@ std::vector<std::string> host_arguments(const BenchOptions& o, const LiveLoad& l
     // plus a stalled one's reconnection before the server has counted its drop.
     const int max_clients = std::max(24, load.readers + load.stalled + 4);
     add({"--live", "127.0.0.1:0", "--live-max-clients", std::to_string(max_clients)});
+    // The store envelope tools/sim_setup.py wrote: the events then carry the coverage overlay
+    // (docs/live-view.md), as they do in a test point.
+    if (has_store_envelope(o)) add({"--config", store_envelope_path(o)});
   }
   return args;
 }
@@ -450,7 +461,10 @@ nlohmann::json run_json(const BenchOptions& o, const Replay& replay, const RunRe
   j["marks_per_exposure_camera0"] = replay.exposures.front()[0].mark_count;
   j["host_writes_chapter10_and_csv"] = !o.ch10_path.empty();
   j["host_exit_ok"] = r.host_exit_ok;
-  if (r.load.live) j["live_clients"] = clients_json(r.clients);
+  if (r.load.live) {
+    j["live_clients"] = clients_json(r.clients);
+    j["live_coverage_overlay"] = has_store_envelope(o);
+  }
   if (!r.host_stats.is_null()) {
     j["host_internal_latency"] = r.host_stats["latency"];
     j["host_valid_samples"] = r.host_stats["valid_samples"];
