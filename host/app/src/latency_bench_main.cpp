@@ -576,6 +576,8 @@ void print_comparison(const nlohmann::json& c, const std::string& base_label,
       "\ndifference of the medians %+.1f us; run-to-run spread %.1f us: %s\n",
       c["p99_difference_of_medians_us"].get<double>(), c["run_to_run_spread_us"].get<double>(),
       c["difference_within_spread"].get<bool>() ? "within the spread" : "OUTSIDE the spread");
+  if (c["p99_ratio_per_round"].size() < 3)
+    std::printf("(fewer than 3 rounds: the spread of so few runs says little; use --compare 3+)\n");
 }
 
 // --compare N: N rounds of (live page without clients, live page with the clients), one
