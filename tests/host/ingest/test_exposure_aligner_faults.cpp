@@ -677,6 +677,20 @@ TEST(ExposureAlignerFaults, ReplayedOldObservationIsNotReleasedAgain) {
   EXPECT_EQ(aligner.counters().observations_in, 2u + total_dropped(aligner.counters()));
 }
 
+// The rig of the fuzzer's reproducers: cameras 10, 13 (unit 0) and 16 (unit 1), one pending
+// exposure, the wait, spread and lead the fuzzer chose.
+AlignerConfig fuzz_reproducer_rig(std::int64_t max_wait_ns, std::int64_t max_mid_time_spread_ns,
+                                  std::uint32_t max_sequence_lead) {
+  AlignerConfig c = rig_config(3);
+  c.camera_ids = {10, 13, 16};
+  c.unit_ids = {0, 0, 1};
+  c.max_wait_ns = max_wait_ns;
+  c.max_mid_time_spread_ns = max_mid_time_spread_ns;
+  c.max_pending = 1;
+  c.max_sequence_lead = max_sequence_lead;
+  return c;
+}
+
 TEST(ExposureAlignerFaults, DuplicatedOldDatagramDoesNotReLearnTheOffset) {
   // Found by fuzz_exposure_aligner, its reproducer (3-camera rig, max_pending 1): exposure 2 of
   // camera 10 is released; later exposure 0 of camera 10 arrives twice (a duplicated, delayed
@@ -684,14 +698,7 @@ TEST(ExposureAlignerFaults, DuplicatedOldDatagramDoesNotReLearnTheOffset) {
   // camera's offset, so a repeat of exposure 2 mapped onto a new exposure and was released a
   // second time. Two observations confirm a new offset only when they are different exposures
   // in time order.
-  AlignerConfig c = rig_config(3);
-  c.camera_ids = {10, 13, 16};
-  c.unit_ids = {0, 0, 1};
-  c.max_wait_ns = 19'511'627'776;
-  c.max_mid_time_spread_ns = 294'967'074;
-  c.max_pending = 1;
-  c.max_sequence_lead = 257;
-  ExposureAligner aligner(c);
+  ExposureAligner aligner(fuzz_reproducer_rig(19'511'627'776, 294'967'074, 257));
   auto obs = [](std::uint32_t seq, std::int64_t tai, std::int64_t mono) {
     msg::MarkObservations o = make_obs(10, seq, tai);
     o.unit_id = 0;
@@ -721,14 +728,7 @@ TEST(ExposureAlignerFaults, HeldPairThatFitsNoBetterWithTheOffsetItImpliesEndsHe
   // offset. Re-learned, they still did not fit, were held again and "re-learned" the offset the
   // camera already had, without end. Re-learning must change the offset: the pair is dropped,
   // counted, and what was released keeps each camera's own numbering.
-  AlignerConfig c = rig_config(3);
-  c.camera_ids = {10, 13, 16};
-  c.unit_ids = {0, 0, 1};
-  c.max_wait_ns = 50'532'974'594;
-  c.max_mid_time_spread_ns = 19'230'976;
-  c.max_pending = 1;
-  c.max_sequence_lead = 65'537;
-  ExposureAligner aligner(c);
+  ExposureAligner aligner(fuzz_reproducer_rig(50'532'974'594, 19'230'976, 65'537));
   auto obs = [](int camera, std::uint32_t seq, std::int64_t tai, std::int64_t mono) {
     msg::MarkObservations o = make_obs(camera, seq, tai);
     o.unit_id = 0;

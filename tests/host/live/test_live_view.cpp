@@ -378,13 +378,26 @@ struct Writer {
   }
 };
 
-TEST(LiveServer, ServesItsPagesAndRefusesTheRest) {
+// A server on a free loopback port fed by a running writer: what every server test starts from.
+struct ServedRig {
+  explicit ServedRig(int max_clients = st::live::LiveServerConfig{}.max_clients)
+      : server(loopback_config(max_clients), three_camera_scene(), writer.publisher) {
+    writer.start();
+    server.start();
+  }
+  static st::live::LiveServerConfig loopback_config(int max_clients) {
+    st::live::LiveServerConfig config;
+    config.address = st::live::parse_live_address("127.0.0.1:0");
+    config.max_clients = max_clients;
+    return config;
+  }
   Writer writer;
-  writer.start();
-  st::live::LiveServerConfig config;
-  config.address = st::live::parse_live_address("127.0.0.1:0");
-  st::live::LiveServer server(config, three_camera_scene(), writer.publisher);
-  server.start();
+  st::live::LiveServer server;
+};
+
+TEST(LiveServer, ServesItsPagesAndRefusesTheRest) {
+  ServedRig served;
+  auto& [writer, server] = served;
   const int port = server.port();
   ASSERT_GT(port, 0);
   EXPECT_EQ(server.url(), "http://127.0.0.1:" + std::to_string(port) + "/");
@@ -425,13 +438,8 @@ TEST(LiveServer, ServesItsPagesAndRefusesTheRest) {
 }
 
 TEST(LiveServer, HundredConnectionsAtOnceAreBoundedAndTheWriterGoesOn) {
-  Writer writer;
-  writer.start();
-  st::live::LiveServerConfig config;
-  config.address = st::live::parse_live_address("127.0.0.1:0");
-  config.max_clients = 4;
-  st::live::LiveServer server(config, three_camera_scene(), writer.publisher);
-  server.start();
+  ServedRig served(4);
+  auto& [writer, server] = served;
   const int port = server.port();
   const std::uint64_t calls_before = writer.calls;
 
@@ -485,12 +493,8 @@ TEST(LiveServer, HundredConnectionsAtOnceAreBoundedAndTheWriterGoesOn) {
 }
 
 TEST(LiveServer, StalledClientIsDroppedWhileAnotherKeepsReceiving) {
-  Writer writer;
-  writer.start();
-  st::live::LiveServerConfig config;
-  config.address = st::live::parse_live_address("127.0.0.1:0");
-  st::live::LiveServer server(config, three_camera_scene(), writer.publisher);
-  server.start();
+  ServedRig served;
+  auto& [writer, server] = served;
   const int port = server.port();
   const std::string events = "GET /events HTTP/1.1\r\nHost: x\r\n\r\n";
   // The stalled client: a small receive buffer, and it never reads.
