@@ -66,13 +66,22 @@ bool update(Step& s, Eigen::Index shared_cols, double& nis) {
   Vec6 y;
   y << s.theta_measured, m.T_p_s.translation();
   const Vec6 innovation = y - s.x_pred.head<6>();
-  nis = innovation.dot(S_inv * innovation);
+  // The step test's chi-square is over the innovation's whole covariance: its noise part S and
+  // the change of the shared error since the prediction, (M_k - H F E_k-1) z (a mark excluded
+  // or a camera lost moves the calibration error of the pose; that is no acceleration step).
+  const SharedLoadings6 M = padded(m.shared, shared_cols);
+  const SharedLoadings6 D = M - s.E.topRows<6>();
+  const Mat6 S_full = S + D * D.transpose();
+  Mat6 S_full_inv;
+  nis = uncertainty::inverse_spd<6>(0.5 * (S_full + S_full.transpose()), S_full_inv)
+            ? innovation.dot(S_full_inv * innovation)
+            : 0.0;
   s.x = s.x_pred + K * innovation;
   StateMatrix I_KH = StateMatrix::Identity();
   I_KH.leftCols<6>() -= K;
   // Joseph form: symmetric and positive semi-definite whatever the rounding.
   s.P = I_KH * s.P_pred * I_KH.transpose() + K * m.cov_noise * K.transpose();
-  s.E = I_KH * s.E + K * padded(m.shared, shared_cols);
+  s.E = I_KH * s.E + K * M;
   return true;
 }
 
