@@ -59,6 +59,7 @@ struct BodySolution {
   Loadings6 loadings;
   Mat6 cov_centroid = Mat6::Zero();
   Mat6 cov_survey = Mat6::Zero();
+  Loadings6 survey_loadings;  ///< whitened, 3 columns per surveyed mark (PoseResult)
   int marks_used = 0;
   double chi2 = 0;
 };
@@ -79,6 +80,7 @@ void fill_pose(const BodySolution& b, const uncertainty::CalibrationFactors& f, 
   for (const Mat6& c : out.cov_by_source)
     out.cov += c;
   out.loadings = b.loadings;
+  out.survey_loadings = b.survey_loadings;
 }
 
 // out += A L for row-major loadings: each output row is a combination of L's contiguous rows
@@ -99,6 +101,7 @@ struct ResectionView {
   double sigma_px = 0;
   Vec3 p_b = Vec3::Zero();
   double survey_sigma_m = 0;
+  int survey_column = -1;  ///< first of its mark's 3 columns in BodySolution::survey_loadings
   /// Weight (sigma^2 I + calibration pixel covariance)^-1: the calibration's pixel errors exceed
   /// the centroid noise, and its chi-square tests the marks against both.
   geometry::Mat2 W = geometry::Mat2::Identity();
@@ -138,7 +141,7 @@ bool resection_normal_equations(std::span<const ResectionView> views, const Tran
 /// independent between views; a camera's common part is largely absorbed by the pose.
 bool resect_body(std::span<ResectionView> views, Transform T_w_b,
                  const uncertainty::CalibrationFactors& factors, const ResectionLimits& limits,
-                 bool with_uncertainty, BodySolution& sol) {
+                 bool with_uncertainty, int survey_columns, BodySolution& sol) {
   const int marks = views.empty() ? 0 : views.back().mark + 1;
   if (marks < limits.min_marks) return false;
   for (ResectionView& v : views) {
@@ -179,6 +182,7 @@ bool resect_body(std::span<ResectionView> views, Transform T_w_b,
   sol.chi2 = chi2;
   if (!with_uncertainty) return true;
   sol.loadings = Loadings6::Zero(6, factors.num_factors());
+  sol.survey_loadings = Loadings6::Zero(6, survey_columns);
   Eigen::Matrix<double, 6, 3> survey_gain = Eigen::Matrix<double, 6, 3>::Zero();
   for (size_t i = 0; i < views.size(); ++i) {
     const ResectionView& v = views[i];
@@ -200,6 +204,7 @@ bool resect_body(std::span<ResectionView> views, Transform T_w_b,
     if (i + 1 == views.size() || views[i + 1].mark != v.mark) {
       sol.cov_survey.noalias() +=
           v.survey_sigma_m * v.survey_sigma_m * survey_gain * survey_gain.transpose();
+      sol.survey_loadings.middleCols<3>(v.survey_column) = v.survey_sigma_m * survey_gain;
       survey_gain.setZero();
     }
   }
@@ -380,6 +385,14 @@ void ExposureProcessor::solve(const Prepared& prep,
                               const Exclusions* fixed_exclusions, ExposureResult& out,
                               ProcessorCounters& counters) const {
   const int nz = factors_.num_factors();
+  // Survey loadings: 3 columns per surveyed mark, the pylon's marks first, then the store's.
+  const int survey_columns =
+      3 * static_cast<int>(pylon_survey.marks.size() + store_survey.marks.size());
+  auto survey_column = [&](char body, const survey::SurveyedMark* s) {
+    const survey::RigidBodySurvey& sv = body == 'p' ? pylon_survey : store_survey;
+    const auto first = body == 'p' ? 0 : pylon_survey.marks.size();
+    return 3 * static_cast<int>(first + static_cast<size_t>(s - sv.marks.data()));
+  };
   out.marks.clear();
   out.marks.reserve(prep.marks.size());
   std::vector<triangulate::Observation> tri_obs;
@@ -517,9 +530,11 @@ void ExposureProcessor::solve(const Prepared& prep,
     std::vector<Vec3> q(idx.size()), p(idx.size());
     std::vector<Mat3> cov(idx.size());
     std::vector<double> sigma(idx.size());
+    std::vector<int> column(idx.size());
     for (size_t k = 0; k < idx.size(); ++k) {
       const MarkResult& m = out.marks[idx[k]];
       const survey::SurveyedMark* s = survey.find(m.id);
+      column[k] = survey_column(body, s);
       q[k] = s->p_body;
       p[k] = m.p_w;
       // Monte Carlo draws reuse the nominal weights, so that every draw runs the same
@@ -549,6 +564,7 @@ void ExposureProcessor::solve(const Prepared& prep,
     sol.chi2 = bf.chi2;
     if (with_uncertainty) {
       sol.loadings = Loadings6::Zero(6, nz);
+      sol.survey_loadings = Loadings6::Zero(6, survey_columns);
       for (size_t k = 0; k < idx.size(); ++k) {
         const MarkResult& m = out.marks[idx[k]];
         add_product(bf.d_pose_d_point[k], m.loadings, sol.loadings);
@@ -556,6 +572,7 @@ void ExposureProcessor::solve(const Prepared& prep,
             bf.d_pose_d_point[k] * m.cov_by_source[kCentroid] * bf.d_pose_d_point[k].transpose();
         sol.cov_survey.noalias() +=
             sigma[k] * sigma[k] * bf.d_pose_d_survey[k] * bf.d_pose_d_survey[k].transpose();
+        sol.survey_loadings.middleCols<3>(column[k]) = sigma[k] * bf.d_pose_d_survey[k];
       }
     }
     return sol;
@@ -581,7 +598,7 @@ void ExposureProcessor::solve(const Prepared& prep,
       single = single || mark.obs.size() == 1;
       for (const Prepared::Obs& o : mark.obs)
         views.push_back({&cameras[static_cast<size_t>(o.slot)], o.slot, marks, o.pixel_px,
-                         o.sigma_px, sm->p_body, sm->sigma_m});
+                         o.sigma_px, sm->p_body, sm->sigma_m, survey_column(body, sm)});
       ++marks;
     }
     if (!initial || !single) continue;
@@ -590,7 +607,7 @@ void ExposureProcessor::solve(const Prepared& prep,
     limits.max_rotation_sigma_rad = config_.max_pose_rotation_sigma_rad;
     limits.false_alarm_probability =
         fixed_exclusions == nullptr ? config_.rigid_false_alarm_probability : 0.0;
-    if (resect_body(views, *initial, factors_, limits, with_uncertainty, *sol)) {
+    if (resect_body(views, *initial, factors_, limits, with_uncertainty, survey_columns, *sol)) {
       out.single_view_pose = true;
       ++counters.single_view_poses;
     } else {
@@ -617,6 +634,9 @@ void ExposureProcessor::solve(const Prepared& prep,
           A_p * pylon.cov_centroid * A_p.transpose() + A_s * store.cov_centroid * A_s.transpose();
       rel.cov_survey =
           A_p * pylon.cov_survey * A_p.transpose() + A_s * store.cov_survey * A_s.transpose();
+      rel.survey_loadings = Loadings6::Zero(6, survey_columns);
+      add_product(A_p, pylon.survey_loadings, rel.survey_loadings);
+      add_product(A_s, store.survey_loadings, rel.survey_loadings);
     }
     fill_pose(rel, factors_, out.T_p_s);
     out.xyz_ypr = xyz_ypr(out.T_p_s.T);

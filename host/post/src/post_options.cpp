@@ -16,6 +16,9 @@ int parse_post_options(int argc, char** argv, PostOptions& o) {
            "Compare every replayed sample byte for byte with the recorded one (exit 1 on any "
            "difference or a different count)");
   app.option("--csv", o.csv_path, "Write the replayed samples to this NEW CSV file");
+  app.option("--smoothed-csv", o.smoothed_csv_path,
+             "Write the smoothed trajectory (pose, velocity, acceleration, angular rate with "
+             "their uncertainty, noise and shared parts) to this NEW CSV file");
   app.option("--stats-json", o.stats_json_path,
              "Write the replay's counters and the comparison to this NEW JSON file");
   app.option("--calibration", o.calibration_path, "Use this rig calibration, not the recorded")

@@ -11,6 +11,7 @@ struct PostOptions {
   std::vector<std::string> recording_files;  ///< one host run's files, in the order written
   bool verify = false;
   std::string csv_path, stats_json_path;
+  std::string smoothed_csv_path;  ///< the fixed-interval smoother's trajectory (new file)
   /// Read from disk instead of the recording (empty: the recorded one).
   std::string calibration_path, pylon_path, store_path, config_path;
   std::string log_level = "warn";

@@ -16,6 +16,7 @@
 #include "recording.hpp"
 #include "replay.hpp"
 #include "sample_compare.hpp"
+#include "smoothed_csv.hpp"
 #include "storetrack/json/text_file.hpp"
 #include "storetrack/output/csv_writer.hpp"
 
@@ -189,6 +190,26 @@ int write_csv(output::FtiCsvWriter& csv, const std::vector<msg::FtiSample>& samp
   return 0;
 }
 
+// The fixed-interval smoother over the replayed samples' poses (host/smooth).
+int write_smoothed(const std::string& path, const Replay& replay, FilePtr f) {
+  smooth::SmootherCounters counters;
+  const std::vector<smooth::SmoothedState> states =
+      smooth::smooth_trajectory(replay.measurements(), smooth::SmootherConfig{}, &counters);
+  std::printf(
+      "smoothed: %llu segment(s), %llu solved poses, %llu exposures predicted inside them, %llu "
+      "outside any segment, %llu interval(s) with an acceleration step\n",
+      static_cast<unsigned long long>(counters.segments),
+      static_cast<unsigned long long>(counters.measurements),
+      static_cast<unsigned long long>(counters.predicted),
+      static_cast<unsigned long long>(counters.left_out),
+      static_cast<unsigned long long>(counters.steps));
+  if (!write_smoothed_csv(f.get(), states) || std::fclose(f.release()) != 0) {
+    std::fprintf(stderr, "storetrack-post: %s: %s\n", path.c_str(), std::strerror(errno));
+    return 1;
+  }
+  return 0;
+}
+
 int run(const PostOptions& p) {
   const Recording r = read_recording(p.recording_files);
   for (const std::string& torn : r.torn)
@@ -208,8 +229,10 @@ int run(const PostOptions& p) {
                                       : std::string(std::strerror(-rc))));
   }
   FilePtr stats(p.stats_json_path.empty() ? nullptr : create_output(p.stats_json_path));
+  FilePtr smoothed(p.smoothed_csv_path.empty() ? nullptr : create_output(p.smoothed_csv_path));
 
   Replay replay(*chain.aligner, *chain.processor, chain.aligner->config().min_cameras);
+  replay.collect_measurements(smoothed != nullptr);
   for (const ch10read::RawObservation& record : r.records)
     replay.feed(record);
   replay.finish();
@@ -223,6 +246,8 @@ int run(const PostOptions& p) {
     if (!report_comparison(compared, ended_early)) exit_code = 1;
   }
   if (!p.csv_path.empty() && write_csv(csv, replay.samples()) != 0) exit_code = 1;
+  if (smoothed && write_smoothed(p.smoothed_csv_path, replay, std::move(smoothed)) != 0)
+    exit_code = 1;
   if (stats) {
     const std::string text =
         stats_json(r, replay.counters(), replay.samples().size(), p.verify ? &compared : nullptr)

@@ -56,6 +56,7 @@ void Replay::process_ready() {
     ++counters_.exposures;
     if (!counters_.withheld.admit(hostapp::judge_sample(r.cameras_used, min_cameras_))) continue;
     samples_.push_back(r.sample);
+    if (collect_) measurements_.push_back(smooth::measurement_from(r));
   }
   ready_.clear();
 }

@@ -12,6 +12,7 @@
 #include "storetrack/msg/messages.hpp"
 #include "storetrack/output/chapter10_reader.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
+#include "storetrack/smooth/pose_smoother.hpp"
 
 namespace storetrack::post {
 
@@ -43,8 +44,13 @@ class Replay {
   /// (counters().pending_at_end).
   void finish();
 
+  /// Keep each written sample's pose solution for the smoother (measurements()).
+  void collect_measurements(bool on) { collect_ = on; }
+
   /// The samples written, in the order the host wrote them.
   const std::vector<msg::FtiSample>& samples() const { return samples_; }
+  /// The written samples' pose solutions as the smoother takes them (collect_measurements).
+  const std::vector<smooth::PoseMeasurement>& measurements() const { return measurements_; }
   const ReplayCounters& counters() const { return counters_; }
 
  private:
@@ -55,6 +61,8 @@ class Replay {
   int min_cameras_;
   std::vector<pipeline::AlignedExposure> ready_;
   std::vector<msg::FtiSample> samples_;
+  bool collect_ = false;
+  std::vector<smooth::PoseMeasurement> measurements_;
   ReplayCounters counters_;
 };
 

@@ -24,6 +24,18 @@ struct Fixture {
   ExposureProcessor proc;
 };
 
+// The survey loadings (issue 26: the smoother carries the survey error shared by all exposures)
+// reproduce the pose's survey covariance: L_s L_s^T = cov_by_source[survey], 3 columns per
+// surveyed mark of both bodies.
+void expect_survey_loadings_reproduce_covariance(const PoseResult& pose, std::size_t marks) {
+  const geometry::Mat6& survey = pose.cov_by_source[static_cast<std::size_t>(
+      uncertainty::index(uncertainty::Source::kSurvey))];
+  ASSERT_EQ(pose.survey_loadings.cols(), static_cast<Eigen::Index>(3 * marks));
+  const geometry::Mat6 from_loadings = pose.survey_loadings * pose.survey_loadings.transpose();
+  EXPECT_GT(survey.norm(), 0);
+  EXPECT_LT((from_loadings - survey).norm(), 1e-12 * survey.norm());
+}
+
 TEST(ExposureProcessor, StoreSeparationPoseAgainstTruth) {
   Fixture f("store_separation");
   int valid = 0;
@@ -32,6 +44,10 @@ TEST(ExposureProcessor, StoreSeparationPoseAgainstTruth) {
     const ExposureResult r = f.proc.process(in.exposure, in.ids);
     ASSERT_TRUE(r.T_p_s.valid) << k;
     ++valid;
+    const std::size_t surveyed =
+        f.sim.pylon_survey().marks.size() + f.sim.store_survey().marks.size();
+    for (const PoseResult* pose : {&r.T_w_p, &r.T_w_s, &r.T_p_s})
+      expect_survey_loadings_reproduce_covariance(*pose, surveyed);
     const geometry::Transform T_true = f.sim.T_p_s_at(r.reference_mid_tai_ns);
     const Vec3 e = T_true.translation() - r.T_p_s.T.translation();
     // Within 5 sigma per axis (the honesty test checks the 2-sigma coverage statistically).
@@ -166,6 +182,8 @@ TEST(ExposureProcessor, SingleCameraResectionMonteCarloAgreesWithFirstOrder) {
   const ExposureResult r = f.proc.process(in.exposure, marks);
   ASSERT_TRUE(r.T_p_s.valid);
   EXPECT_TRUE(r.single_view_pose);
+  expect_survey_loadings_reproduce_covariance(
+      r.T_p_s, f.sim.pylon_survey().marks.size() + f.sim.store_survey().marks.size());
   EXPECT_TRUE(r.sample.status & msg::fti_status::kSingleView);
   const geometry::Transform T_true = f.sim.T_p_s_at(r.reference_mid_tai_ns);
   const Vec3 e = T_true.translation() - r.T_p_s.T.translation();

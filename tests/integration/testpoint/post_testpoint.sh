@@ -78,3 +78,31 @@ import json, sys; v = json.load(open(sys.argv[1]))['verify']
 assert v['different'] > 0, v; print('moved calibration: %d of %d samples differ' % (v['different'], v['replayed']))
 " "$OUT/moved_stats.json"
 pass "substituted calibration used (same bytes: identical; moved: samples differ)"
+
+# 6. The smoothed trajectory (host/smooth): with --verify still bit-identical; a NEW file only;
+# one line per exposure of a tracked segment, units in the header, every u finite and positive,
+# the total at least each of its parts.
+rc=0; "$POST" --verify "$REC" --smoothed-csv "$OUT/smoothed.csv" >"$OUT/smoothed.log" 2>&1 || rc=$?
+cat "$OUT/smoothed.log"
+[ "$rc" -eq 0 ] || fail "--verify with --smoothed-csv: exit $rc"
+grep -q "^smoothed: [1-9][0-9]* segment" "$OUT/smoothed.log" || fail "no smoother summary"
+/usr/bin/python3 - "$OUT/smoothed.csv" "$RUN/fti.csv" <<'PY'
+import csv, math, sys
+rows = list(csv.DictReader(open(sys.argv[1])))
+samples = sum(1 for _ in open(sys.argv[2])) - 1
+assert rows, "no smoothed rows"
+for name in ("x_m", "yaw_rad", "vz_m_s", "az_m_s2", "wy_rad_s", "u_x_m", "u_noise_vz_m_s",
+             "u_shared_pitch_rad"):
+    assert name in rows[0], "header lacks " + name
+for r in rows:
+    for q in ("x_m", "y_m", "z_m", "yaw_rad", "pitch_rad", "roll_rad", "vx_m_s", "wy_rad_s"):
+        u, un, us = float(r["u_" + q]), float(r["u_noise_" + q]), float(r["u_shared_" + q])
+        assert math.isfinite(float(r[q])) and u > 0 and u * (1 + 1e-3) >= max(un, us), (q, r)
+print("smoothed: %d rows (%d samples in the recording), %d measured" %
+      (len(rows), samples, sum(int(r["measured"]) for r in rows)))
+assert len(rows) >= samples // 2, "fewer smoothed rows than half the samples"
+PY
+rc=0; "$POST" "$REC" --smoothed-csv "$OUT/smoothed.csv" >"$OUT/smoothed_exists.log" 2>&1 || rc=$?
+[ "$rc" -eq 2 ] && grep -q "$OUT/smoothed.csv: exists" "$OUT/smoothed_exists.log" \
+  || fail "an existing --smoothed-csv: exit $rc"
+pass "smoothed trajectory written (new file only), samples still bit-identical"

@@ -69,6 +69,13 @@ struct PoseResult {
   /// extrinsic and sync are their column blocks' L L^T. Lets consumers combine poses of
   /// different exposures with their shared calibration errors (PoseTracker).
   uncertainty::Loadings6 loadings;
+  /// Loadings of the pose perturbation on the survey errors of the marks, whitened (column
+  /// 3 i + a: axis a of the i-th mark of the pylon survey, then the store survey's after the
+  /// pylon's 3 n_p columns; coefficient d(pose)/d(q) sigma_q). cov_by_source[survey] is their
+  /// L L^T. Empty in Monte Carlo draws. The survey is one draw for the whole recording: lets
+  /// consumers combine poses of different exposures with their shared survey errors
+  /// (host/smooth).
+  uncertainty::Loadings6 survey_loadings;
 };
 
 struct ExposureResult {
