@@ -7,34 +7,14 @@
 #include <ctime>
 #include <nlohmann/json.hpp>
 
-#include "storetrack/capture/fault_injecting_frame_source.hpp"
-#include "storetrack/capture/replay_frame_source.hpp"
-#include "storetrack/capture/v4l2_frame_source.hpp"
+#include "input/camera.hpp"
+#include "input/input_factory.hpp"
+#include "input/trigger.hpp"
 #include "storetrack/link/canfd_link.hpp"
 #include "storetrack/link/udp_link.hpp"
-#include "storetrack/trigger/gpio_trigger.hpp"
-#include "storetrack/trigger/sim_trigger.hpp"
 
 namespace storetrack::unit {
 namespace {
-
-// The generator never drives a pulse later than half this unit's phase tolerance after its grid
-// time (at most period / 8): the pulse's stamp must land inside the tolerance, or the pairer
-// would call a real exposure an extra edge.
-trigger::GpioMasterConfig master_config(const TriggerConfig& trigger, double rate_hz,
-                                        std::int64_t width_ns) {
-  trigger::GpioMasterConfig mc;
-  mc.chip = trigger.chip;
-  mc.lines = trigger.lines;
-  mc.active_low = trigger.active_low;
-  mc.rate_hz = rate_hz;
-  mc.pulse_width_ns = width_ns;
-  const auto period = static_cast<std::int64_t>(std::llround(1e9 / rate_hz));
-  const std::int64_t tolerance =
-      trigger.edge_phase_tolerance_ns > 0 ? trigger.edge_phase_tolerance_ns : period / 4;
-  mc.max_late_ns = std::max<std::int64_t>(1, std::min(period / 8, tolerance / 2));
-  return mc;
-}
 
 /// The Modbus pulse_width_us register's view of a pulse width (docs/modbus.md: 1..5000 us).
 std::uint16_t pulse_width_register(std::int64_t width_ns) {
@@ -68,98 +48,35 @@ void UnitRunner::make_pairer(std::uint32_t first_sequence) {
 
 int UnitRunner::setup(std::string& error) {
   start_mono_ns_ = time::monotonic_now_ns();
-  // --- frame source -------------------------------------------------------------------------
-  int width = config_.v4l2.device.width;
-  int height = config_.v4l2.device.height;
+  // --- frame source ----------------------------------------------------------------------------
   clock_state_ = parse_clock_state(config_.clock_state);
-  try {
-    switch (config_.source) {
-      case SourceType::kSim: {
-        if (!simulated_) {
-          error =
-              "source sim: this program was built without the simulated mode "
-              "(it links no storetrack_unit_sim)";
-          return kExitUsage;
-        }
-        SimulatedCamera camera;
-        if (!simulated_(config_.sim, camera, error)) return kExitUsage;
-        if (config_.unit_id < 0) config_.unit_id = camera.unit_id;
-        if (config_.camera_id < 0) config_.camera_id = camera.camera_id;
-        width = camera.width;
-        height = camera.height;
-        if (config_.clock_state == "auto") clock_state_ = camera.clock_state;
-        tai_minus_mono_ns_ = camera.tai_minus_mono_ns;
-        tai_from_source_ = true;
-        if (config_.trigger.mode == TriggerMode::kSim)
-          config_.trigger.rate_hz = camera.frame_rate_hz;
-        sim_first_trigger_seq_ = camera.first_trigger_seq;
-        simulation_ = std::move(camera.simulation);
-        sim_pacing_ = std::move(camera.pacing);
-        source_ = std::move(camera.source);
-        break;
-      }
-      case SourceType::kReplay: {
-        capture::ReplayConfig rc;
-        rc.directory = config_.replay.directory;
-        rc.rate_hz = config_.replay.rate_hz;
-        rc.loop = config_.replay.loop;
-        rc.default_period_ns =
-            static_cast<std::int64_t>(std::llround(1e9 / config_.trigger.rate_hz));
-        rc.default_exposure_ns = config_.exposure_us * 1000u;
-        auto r = std::make_unique<capture::ReplayFrameSource>(rc);
-        replay_ = r.get();
-        source_ = std::move(r);
-        tai_from_source_ = true;
-        break;
-      }
-      case SourceType::kV4l2: {
-        capture::V4L2Config vc = config_.v4l2.device;
-        vc.exposure_ns = config_.exposure_us * 1000u;
-        auto v = std::make_unique<capture::V4L2FrameSource>(vc);
-        v4l2_ = v.get();
-        source_ = std::move(v);
-        break;
-      }
-      case SourceType::kNone:
-        break;
-    }
-  } catch (const std::exception& e) {
-    error = std::string("source: ") + e.what();
-    return kExitUsage;
-  }
+  InputFactory inputs(config_, simulated_);
+  CameraFacts facts;
+  if (const int rc = inputs.make_camera(camera_, facts, error); rc != kExitOk) return rc;
+  int width = facts.width;
+  int height = facts.height;
+  if (facts.clock_state) clock_state_ = *facts.clock_state;
   if (config_.unit_id < 0) config_.unit_id = 0;
   if (config_.camera_id < 0) config_.camera_id = 0;
-  if (source_ && !config_.camera_faults.empty()) {
-    capture::CameraFaultPlan plan = config_.camera_faults;
-    const double rate_hz =
-        config_.source == SourceType::kSim && config_.sim.realtime && config_.sim.pace_hz > 0
-            ? config_.sim.pace_hz
-            : config_.trigger.rate_hz;
-    plan.frame_period_ns = rate_hz > 0 ? std::llround(1e9 / rate_hz) : 0;
-    auto f = std::make_unique<capture::FaultInjectingFrameSource>(std::move(source_), plan);
-    faults_ = f.get();
-    source_ = std::move(f);
-  }
   camera_backoff_ns_ = std::int64_t{config_.camera_reopen_first_ms} * 1'000'000;
-  if (source_) {
-    const int rc = source_->start();
+  if (camera_) {
+    const int rc = camera_->start();
     if (rc < 0) {
-      error = std::string("cannot start frame source ") + source_->name() + ": " +
-              (v4l2_     ? v4l2_->error()
-               : replay_ ? replay_->error()
-                         : std::strerror(-rc));
+      error =
+          std::string("cannot start frame source ") + camera_->name() + ": " + camera_->error(rc);
       return kExitStartFailure;
     }
-    if (v4l2_) {
-      width = v4l2_->format().width;
-      height = v4l2_->format().height;
-      if (!v4l2_->notes().empty())
-        notes_ += std::string(v4l2_->name()) + ": " + v4l2_->notes() + "\n";
+    camera_->started_size(width, height);
+    if (const std::string notes = camera_->notes(); !notes.empty())
+      notes_ += std::string(camera_->name()) + ": " + notes + "\n";
+    if (const auto offset = camera_->fixed_tai_minus_mono_ns()) {
+      tai_minus_mono_ns_ = *offset;
+      tai_from_source_ = true;
     }
   }
   if (!tai_from_source_) tai_minus_mono_ns_ = time::tai_now_ns() - time::monotonic_now_ns();
   // Every pixel centre must be encodable, else each exposure with a mark beyond is lost.
-  if (source_) {
+  if (camera_) {
     namespace word = msg::mark_observation_word;
     const auto max_width = static_cast<int>(std::floor(word::kXPxMaxValue)) + 1;
     const auto max_height = static_cast<int>(std::floor(word::kYPxMaxValue)) + 1;
@@ -195,7 +112,7 @@ int UnitRunner::setup(std::string& error) {
   // --- centroider ------------------------------------------------------------------------------
   frame_width_ = width;
   frame_height_ = height;
-  if (source_) {
+  if (camera_) {
     try {
       centroid_ = std::make_unique<centroid::Centroider>(config_.centroid, width, height);
     } catch (const std::exception& e) {
@@ -219,45 +136,7 @@ int UnitRunner::setup(std::string& error) {
     error = std::string("trigger pairing: ") + why;
     return kExitUsage;
   }
-  switch (config_.trigger.mode) {
-    case TriggerMode::kNone:
-      break;
-    case TriggerMode::kSim: {
-      trigger::SimTriggerConfig sc;
-      sc.period_ns = period;
-      sc.jitter_ns = config_.trigger.sim_jitter_ns;
-      sc.drop_every = config_.trigger.sim_drop_every;
-      sc.extra_every = config_.trigger.sim_extra_every;
-      sc.read_error_every = config_.trigger.sim_read_error_every;
-      auto t = std::make_unique<trigger::SimTriggerLine>(sc);
-      sim_trigger_ = t.get();
-      trigger_ = std::move(t);
-      break;
-    }
-    case TriggerMode::kGpioMaster: {
-      auto t = std::make_unique<trigger::GpioMasterTrigger>(
-          master_config(config_.trigger, config_.trigger.rate_hz, config_.trigger.pulse_width_ns));
-      if (t->start() < 0) {
-        error = "trigger: " + t->error();
-        return kExitStartFailure;
-      }
-      trigger_ = std::move(t);
-      break;
-    }
-    case TriggerMode::kGpioSlave: {
-      trigger::GpioSlaveConfig sc;
-      sc.chip = config_.trigger.chip;
-      sc.line = config_.trigger.line;
-      sc.active_low = config_.trigger.active_low;
-      auto t = std::make_unique<trigger::GpioSlaveTrigger>(sc);
-      if (t->start() < 0) {
-        error = "trigger: " + t->error();
-        return kExitStartFailure;
-      }
-      trigger_ = std::move(t);
-      break;
-    }
-  }
+  if (const int rc = inputs.make_trigger(period, trigger_, error); rc != kExitOk) return rc;
   if (trigger_ && config_.trigger.mode != TriggerMode::kSim) make_pairer(0);
   if (!config_.trigger.edges_csv.empty()) {
     edges_csv_ = std::fopen(config_.trigger.edges_csv.c_str(), "w");
@@ -305,7 +184,7 @@ int UnitRunner::setup(std::string& error) {
   }
   std::uint16_t status = msg::unit_status::kCapturing;
   if (config_.maintenance) status |= msg::unit_status::kMaintenanceMode;
-  if (trigger_ && trigger_->is_master() && config_.trigger.mode != TriggerMode::kSim) {
+  if (trigger_ && trigger_->line().is_master() && config_.trigger.mode != TriggerMode::kSim) {
     status |= msg::unit_status::kTriggerMaster;
   }
   counters_.status.store(status);
@@ -332,7 +211,7 @@ int UnitRunner::drain_edges(int timeout_ms) {
   if (!trigger_ || !pairer_) return 0;
   int retries_left = 1;
   for (;;) {
-    const int n = trigger_->read_edges(edges_, timeout_ms);
+    const int n = trigger_->line().read_edges(edges_, timeout_ms);
     if (n < 0 && n != -EAGAIN && n != -EINTR) {
       note_trigger_error();
       if (retries_left-- > 0) continue;
@@ -395,13 +274,13 @@ void UnitRunner::retry_stopped_trigger() {
   const time::MonotonicNs now = time::monotonic_now_ns();
   if (now < trigger_retry_ns_) return;
   trigger_retry_ns_ = now + time::kNsPerSecond;
-  if (trigger_->start() != 0) {
+  if (trigger_->line().start() != 0) {
     note_trigger_error();
     return;
   }
   trigger_down_ = false;
   ++run_.trigger_restarts;
-  std::fprintf(stderr, "storetrack-unit: trigger %s running again\n", trigger_->name());
+  std::fprintf(stderr, "storetrack-unit: trigger %s running again\n", trigger_->line().name());
 }
 
 void UnitRunner::apply_config_changes() {
@@ -446,30 +325,27 @@ void UnitRunner::apply_config_changes() {
 // take the closest valid value instead of refusing): the unit reports and stamps what the
 // camera does, not what was asked, and the holding register shows it.
 void UnitRunner::apply_exposure(std::uint32_t exposure_us) {
-  if (!v4l2_ || config_.v4l2.exposure_control.empty()) {
-    config_.exposure_us = exposure_us;
-    return;
+  std::uint32_t applied_us = exposure_us;
+  switch (camera_ ? camera_->set_exposure_us(exposure_us, applied_us) : ExposureChange::kApplied) {
+    case ExposureChange::kApplied:
+      config_.exposure_us = applied_us;
+      break;
+    case ExposureChange::kRefused:
+      ++run_.config_apply_errors;
+      std::fprintf(stderr, "storetrack-unit: exposure %u us not applied: %s\n", exposure_us,
+                   camera_->error(0).c_str());
+      store_.set(health::HoldingField::kExposureUs,
+                 static_cast<std::uint16_t>(config_.exposure_us));
+      break;
+    case ExposureChange::kClamped:
+      ++run_.config_apply_errors;
+      config_.exposure_us = applied_us;
+      std::fprintf(stderr, "storetrack-unit: exposure %u us clamped by the driver to %u us\n",
+                   exposure_us, config_.exposure_us);
+      store_.set(health::HoldingField::kExposureUs,
+                 static_cast<std::uint16_t>(config_.exposure_us));
+      break;
   }
-  const double unit_us = config_.v4l2.exposure_control_unit_us;
-  const auto wanted = static_cast<std::int32_t>(std::lround(exposure_us / unit_us));
-  std::int32_t applied = wanted;
-  if (v4l2_->set_control(config_.v4l2.exposure_control, wanted, &applied) < 0) {
-    ++run_.config_apply_errors;
-    std::fprintf(stderr, "storetrack-unit: exposure %u us not applied: %s\n", exposure_us,
-                 v4l2_->error().c_str());
-    store_.set(health::HoldingField::kExposureUs, static_cast<std::uint16_t>(config_.exposure_us));
-    return;
-  }
-  config_.exposure_us = exposure_us;
-  if (applied != wanted) {
-    ++run_.config_apply_errors;
-    config_.exposure_us =
-        static_cast<std::uint32_t>(std::clamp<long>(std::lround(applied * unit_us), 1, 65535));
-    std::fprintf(stderr, "storetrack-unit: exposure %u us clamped by the driver to %u us\n",
-                 exposure_us, config_.exposure_us);
-    store_.set(health::HoldingField::kExposureUs, static_cast<std::uint16_t>(config_.exposure_us));
-  }
-  v4l2_->set_reported_exposure_ns(config_.exposure_us * 1000u);
 }
 
 // A new trigger rate or pulse width. On a gpio master the generator is restarted with it; if
@@ -477,29 +353,20 @@ void UnitRunner::apply_exposure(std::uint32_t exposure_us) {
 // the change is counted as not applied.
 void UnitRunner::apply_trigger_change(double rate_hz, std::int64_t width_ns) {
   if (rate_hz == config_.trigger.rate_hz && width_ns == config_.trigger.pulse_width_ns) return;
-  if (config_.trigger.mode == TriggerMode::kGpioMaster && trigger_) {
-    const trigger::GpioMasterConfig mc = master_config(config_.trigger, rate_hz, width_ns);
-    if (trigger::validate(mc, nullptr) < 0) {
+  switch (trigger_ ? trigger_->change(rate_hz, width_ns) : TriggerChange::kApplied) {
+    case TriggerChange::kApplied:
+      break;
+    case TriggerChange::kInvalid:
+    case TriggerChange::kKeptPrevious:
       ++run_.config_apply_errors;
       return;
-    }
-    trigger_->stop();
-    auto fresh = std::make_unique<trigger::GpioMasterTrigger>(mc);
-    if (fresh->start() != 0) {
+    case TriggerChange::kPreviousNotRunning:
       ++run_.config_apply_errors;
-      std::fprintf(stderr,
-                   "storetrack-unit: trigger %.0f Hz / %lld ns not started (%s); "
-                   "the previous trigger goes on\n",
-                   rate_hz, static_cast<long long>(width_ns), fresh->error().c_str());
-      if (trigger_->start() != 0) {
-        ++run_.trigger_restart_failures;
-        trigger_down_ = true;  // retried by retry_stopped_trigger() until it runs again
-        trigger_retry_ns_ = time::monotonic_now_ns() + time::kNsPerSecond;
-        note_trigger_error();
-      }
+      ++run_.trigger_restart_failures;
+      trigger_down_ = true;  // retried by retry_stopped_trigger() until it runs again
+      trigger_retry_ns_ = time::monotonic_now_ns() + time::kNsPerSecond;
+      note_trigger_error();
       return;
-    }
-    trigger_ = std::move(fresh);
   }
   config_.trigger.rate_hz = rate_hz;
   config_.trigger.pulse_width_ns = width_ns;
@@ -518,16 +385,7 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
   ++run_.frames;
   health::UnitCounters::add(counters_.frames_captured);
   // Frame drops: V4L2 sequence gaps, or gaps in a simulated/replayed source's sequence.
-  std::uint64_t dropped_now = 0;
-  if (v4l2_) {
-    const std::uint64_t d = v4l2_->stats().dropped;
-    dropped_now = d - v4l2_dropped_seen_;
-    v4l2_dropped_seen_ = d;
-  } else if (have_source_sequence_ && frame.sequence != last_source_sequence_ + 1) {
-    dropped_now = static_cast<std::uint32_t>(frame.sequence - last_source_sequence_ - 1);
-  }
-  have_source_sequence_ = true;
-  last_source_sequence_ = frame.sequence;
+  const std::uint64_t dropped_now = camera_->frames_lost_before(frame);
   if (dropped_now > 0) {
     health::UnitCounters::add(counters_.frames_dropped, dropped_now);
     frames_dropped_pending_ = true;
@@ -535,7 +393,7 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
 
   // triggered_only: a frame no edge can claim is not centroided at all (the free-running
   // source's frames between triggers: most of them; centroiding them would only cost time).
-  if (config_.trigger.triggered_only && trigger_ && !sim_trigger_) {
+  if (config_.trigger.triggered_only && trigger_ && !trigger_->follows_frames()) {
     drain_edges(0);
     if (!edge_in_window(frame.timestamp_mono_ns, false)) {
       ++run_.skipped_untriggered;
@@ -590,16 +448,16 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
   std::uint32_t seq = frame.sequence;
   time::MonotonicNs start_mono = frame.timestamp_mono_ns;
   if (trigger_) {
-    if (sim_trigger_) {
+    if (trigger_->follows_frames()) {
       if (!pairer_) {
         // A unit started mid-run counts its trigger edges from 0, as a restarted unit does,
         // unless it kept the rig's numbering.
         make_pairer(config_.sim.start_exposure > 0 && !config_.sim.keep_numbering ? 0u
                                                                                   : frame.sequence);
-        sim_trigger_->set_origin(frame.timestamp_mono_ns - pairer_config_.latency_ns);
+        trigger_->set_origin(frame.timestamp_mono_ns - pairer_config_.latency_ns);
       }
-      sim_trigger_->advance_to(frame.timestamp_mono_ns - pairer_config_.latency_ns +
-                               pairer_config_.match_tolerance_ns);
+      trigger_->advance_to(frame.timestamp_mono_ns - pairer_config_.latency_ns +
+                           pairer_config_.match_tolerance_ns);
     }
     drain_edges(0);
     if (config_.trigger.triggered_only && !edge_in_window(frame.timestamp_mono_ns, true)) {
@@ -628,10 +486,11 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
   obs_.camera_id = static_cast<std::uint8_t>(config_.camera_id);
   obs_.trigger_seq = seq;
   obs_.exposure_start_mono_ns = start_mono;
-  if (replay_) {
-    obs_.exposure_start_tai_ns = replay_->tai_ns() + (start_mono - frame.timestamp_mono_ns);
+  if (const auto recorded = camera_->recorded_tai_ns()) {
+    obs_.exposure_start_tai_ns = *recorded + (start_mono - frame.timestamp_mono_ns);
   } else {
-    obs_.exposure_start_tai_ns = start_mono + tai_minus_mono_ns_ + sim_tai_step_ns(frame.sequence);
+    obs_.exposure_start_tai_ns =
+        start_mono + tai_minus_mono_ns_ + camera_->tai_step_ns(frame.sequence);
   }
   obs_.exposure_duration_ns =
       frame.exposure_ns != 0 ? frame.exposure_ns : config_.exposure_us * 1000u;
@@ -658,13 +517,6 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
   }
   if (sent_any) frames_dropped_pending_ = false;
   return 0;
-}
-
-std::int64_t UnitRunner::sim_tai_step_ns(std::uint32_t source_sequence) const {
-  if (!simulation_ || config_.sim.tai_step_ns == 0) return 0;
-  const auto k = static_cast<std::int64_t>(source_sequence - sim_first_trigger_seq_);
-  return k >= config_.sim.tai_step_from && k < config_.sim.tai_step_to ? config_.sim.tai_step_ns
-                                                                       : 0;
 }
 
 void UnitRunner::update_shared_counters() {
@@ -707,7 +559,7 @@ void UnitRunner::send_health(time::MonotonicNs now) {
   // A gpio master's pulses that could not be driven: its own thread counts them. (A reader's
   // line errors are its failed reads, already noted by drain_edges().)
   if (config_.trigger.mode == TriggerMode::kGpioMaster && trigger_) {
-    const std::uint64_t line_errors = trigger_->stats().line_errors;
+    const std::uint64_t line_errors = trigger_->line().stats().line_errors;
     if (line_errors > trigger_line_errors_seen_)
       note_trigger_error(line_errors - trigger_line_errors_seen_);
     trigger_line_errors_seen_ = line_errors;
@@ -786,11 +638,11 @@ void UnitRunner::camera_failed(int rc, time::MonotonicNs now) {
   ++run_.camera_failures;
   counters_.status.fetch_or(msg::unit_status::kCameraError, std::memory_order_relaxed);
   camera_error_reported_ = false;
+  const char* fault = camera_->last_fault();
   std::fprintf(stderr, "storetrack-unit: camera %s failed (%s%s%s); reopening in %lld ms\n",
-               source_->name(), std::strerror(-rc), v4l2_ ? ": " : "",
-               v4l2_ ? v4l2_->last_fault() : "",
+               camera_->name(), std::strerror(-rc), fault ? ": " : "", fault ? fault : "",
                static_cast<long long>(camera_backoff_ns_ / 1'000'000));
-  source_->stop();
+  camera_->stop();
   camera_down_ = true;
   camera_down_since_ns_ = now;
   camera_next_reopen_ns_ = now + camera_backoff_ns_;
@@ -801,7 +653,7 @@ void UnitRunner::service_camera_recovery(time::MonotonicNs now) {
     // Wait for the next try without spinning: edges (gpio slave or master) are still drained.
     const auto wait_ms = static_cast<int>(
         std::clamp<std::int64_t>((camera_next_reopen_ns_ - now) / 1'000'000, 1, 10));
-    if (trigger_ && !sim_trigger_) {
+    if (trigger_ && !trigger_->follows_frames()) {
       drain_edges(wait_ms);
     } else {
       const timespec ts{0, wait_ms * 1'000'000L};
@@ -809,7 +661,7 @@ void UnitRunner::service_camera_recovery(time::MonotonicNs now) {
     }
     return;
   }
-  const int rc = source_->start();
+  const int rc = camera_->start();
   const time::MonotonicNs max_backoff = std::int64_t{config_.camera_reopen_max_ms} * 1'000'000;
   if (rc < 0) {
     ++run_.camera_reopen_failures;
@@ -821,12 +673,12 @@ void UnitRunner::service_camera_recovery(time::MonotonicNs now) {
   ++run_.camera_reopens;
   run_.camera_down_s += static_cast<double>(now - camera_down_since_ns_) * 1e-9;
   camera_backoff_ns_ = std::int64_t{config_.camera_reopen_first_ms} * 1'000'000;
-  std::fprintf(stderr, "storetrack-unit: camera %s back after %.3f s\n", source_->name(),
+  std::fprintf(stderr, "storetrack-unit: camera %s back after %.3f s\n", camera_->name(),
                static_cast<double>(now - camera_down_since_ns_) * 1e-9);
 }
 
 int UnitRunner::run(const std::atomic<bool>& stop) {
-  if (!source_) return run_trigger_only(stop);
+  if (!camera_) return run_trigger_only(stop);
   const time::MonotonicNs deadline =
       config_.duration_s > 0 ? start_mono_ns_ + static_cast<std::int64_t>(config_.duration_s * 1e9)
                              : 0;
@@ -840,10 +692,10 @@ int UnitRunner::run(const std::atomic<bool>& stop) {
       service_camera_recovery(time::monotonic_now_ns());
     } else {
       frame::FrameView frame;
-      const int rc = source_->acquire(frame, 100);
+      const int rc = camera_->acquire(frame, 100);
       if (rc == 0) {
         const int prc = process_frame(frame);
-        if (source_->release(frame) < 0) ++run_.release_errors;
+        if (camera_->release(frame) < 0) ++run_.release_errors;
         consecutive_errors = prc < 0 ? consecutive_errors + 1 : 0;
         if (consecutive_errors > config_.max_consecutive_errors) {
           exit_code = kExitRuntimeError;
@@ -861,7 +713,7 @@ int UnitRunner::run(const std::atomic<bool>& stop) {
       } else if (rc != -EAGAIN) {
         camera_failed(rc, time::monotonic_now_ns());
       }
-      if (trigger_ && !sim_trigger_ && rc == -EAGAIN) drain_edges(0);
+      if (trigger_ && !trigger_->follows_frames() && rc == -EAGAIN) drain_edges(0);
     }
     const time::MonotonicNs now = time::monotonic_now_ns();
     if (now - last_health_ns_ >= std::int64_t{config_.health_period_ms} * 1'000'000)
@@ -878,20 +730,20 @@ int UnitRunner::run(const std::atomic<bool>& stop) {
 }
 
 int UnitRunner::grab(int skip, frame::FrameView& frame, std::span<const centroid::Blob>& blobs) {
-  if (!source_) return -ENODEV;
+  if (!camera_) return -ENODEV;
   if (held_) {
-    source_->release(held_frame_);
+    camera_->release(held_frame_);
     held_ = false;
   }
   for (int i = 0;; ++i) {
     int rc;
     int tries = 0;
     do {
-      rc = source_->acquire(frame, 1000);
+      rc = camera_->acquire(frame, 1000);
     } while (rc == -EAGAIN && ++tries < 10);
     if (rc < 0) return rc;
     if (i >= skip) break;
-    source_->release(frame);
+    camera_->release(frame);
   }
   held_ = true;
   held_frame_ = frame;
@@ -905,12 +757,12 @@ void UnitRunner::shutdown() {
   if (modbus_) modbus_->stop();
   if (clock_monitor_) clock_monitor_->stop();
   if (board_temp_) board_temp_->stop();
-  if (held_ && source_) {
-    source_->release(held_frame_);
+  if (held_ && camera_) {
+    camera_->release(held_frame_);
     held_ = false;
   }
-  if (trigger_) trigger_->stop();
-  if (source_) source_->stop();
+  if (trigger_) trigger_->line().stop();
+  if (camera_) camera_->stop();
   for (auto& l : links_)
     l->close();
   if (edges_csv_ != nullptr) {
@@ -926,8 +778,9 @@ constexpr std::int64_t kRealtimeToleranceNs = 100'000'000;
 }  // namespace
 
 std::string UnitRunner::realtime_verdict() const {
-  if (!sim_pacing_) return "";
-  const SimulatedPacing p = sim_pacing_();
+  const std::optional<SimulatedPacing> pacing = camera_ ? camera_->pacing() : std::nullopt;
+  if (!pacing) return "";
+  const SimulatedPacing p = *pacing;
   char line[256];
   if (p.max_behind_ns <= kRealtimeToleranceNs) {
     std::snprintf(line, sizeof line,
@@ -964,23 +817,9 @@ std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code
                  {"down_s", run_.camera_down_s},
                  {"frames_corrupt", run_.frames_corrupt},
                  {"release_errors", run_.release_errors}};
-  if (v4l2_) {
-    const capture::V4L2Stats v = v4l2_->stats();
-    j["camera"]["v4l2"] = {{"error_buffers", v.error_buffers},
-                           {"short_buffers", v.short_buffers},
-                           {"requeue_errors", v.requeue_errors},
-                           {"sequence_resets", v.sequence_resets},
-                           {"timeouts", v.timeouts}};
-  }
-  if (faults_) {
-    const capture::CameraFaultCounters& f = faults_->counters();
-    j["camera"]["injected"] = {{"disconnects", f.disconnects},
-                               {"failed_reopens", f.failed_reopens},
-                               {"corrupted", f.corrupted},
-                               {"frames_lost_disconnected", f.frames_lost_disconnected}};
-  }
-  if (sim_pacing_) {
-    const SimulatedPacing p = sim_pacing_();
+  if (camera_) camera_->add_stats(j["camera"], j);
+  if (const std::optional<SimulatedPacing> pacing = camera_ ? camera_->pacing() : std::nullopt) {
+    const SimulatedPacing p = *pacing;
     j["sim_pacing"] = {{"max_behind_ms", static_cast<double>(p.max_behind_ns) / 1e6},
                        {"frames_late", p.frames_late},
                        {"frame_period_ms", p.frame_period_ns / 1e6},
@@ -1014,8 +853,8 @@ std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code
                     {"period_ns", pairer_config_.period_ns}};
   }
   if (trigger_) {
-    const trigger::TriggerLineStats ts = trigger_->stats();
-    j["trigger_line"] = {{"name", trigger_->name()},
+    const trigger::TriggerLineStats ts = trigger_->line().stats();
+    j["trigger_line"] = {{"name", trigger_->line().name()},
                          {"edges", ts.edges},
                          {"overruns", ts.overruns},
                          {"max_late_ns", ts.max_late_ns},
@@ -1023,18 +862,6 @@ std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code
                          {"line_errors", ts.line_errors},
                          {"reopens", ts.reopens},
                          {"errors_reported", run_.trigger_errors}};
-  }
-  if (v4l2_) {
-    const capture::V4L2Stats vs = v4l2_->stats();
-    j["v4l2"] = {{"device", config_.v4l2.device.device},
-                 {"fourcc", capture::fourcc_to_string(v4l2_->format().fourcc)},
-                 {"width", v4l2_->format().width},
-                 {"height", v4l2_->format().height},
-                 {"frames", vs.frames},
-                 {"dropped", vs.dropped},
-                 {"error_buffers", vs.error_buffers},
-                 {"timeouts", vs.timeouts},
-                 {"notes", v4l2_->notes()}};
   }
   if (centroid_) {
     const centroid::CentroidStats& cs = centroid_->stats();

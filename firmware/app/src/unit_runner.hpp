@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "exit_codes.hpp"
 #include "simulated_camera.hpp"
 #include "storetrack/centroid/centroider.hpp"
 #include "storetrack/clock/clock_monitor.hpp"
@@ -27,22 +28,10 @@
 #include "storetrack/trigger/trigger_line.hpp"
 #include "unit_config.hpp"
 
-namespace storetrack::capture {
-class V4L2FrameSource;
-class ReplayFrameSource;
-class FaultInjectingFrameSource;
-}  // namespace storetrack::capture
-namespace storetrack::trigger {
-class SimTriggerLine;
-}
-
 namespace storetrack::unit {
 
-/// Process exit codes (docs/unit-config.md).
-inline constexpr int kExitOk = 0;
-inline constexpr int kExitRuntimeError = 1;  ///< source/trigger failed while running
-inline constexpr int kExitUsage = 2;         ///< bad command line or configuration
-inline constexpr int kExitStartFailure = 3;  ///< a device, link or the Modbus server did not start
+class Camera;   // input/camera.hpp
+class Trigger;  // input/trigger.hpp
 
 struct RunCounters {
   std::uint64_t frames = 0;
@@ -116,17 +105,11 @@ class UnitRunner {
   /// The clock state now: the monitor's (clock_state ptp4l, one relaxed load) or the configured.
   std::uint8_t current_clock_state() const;
   void update_clock_counters();
-  /// sim fault injection: the TAI step of the exposure with this source sequence number.
-  std::int64_t sim_tai_step_ns(std::uint32_t source_sequence) const;
 
   UnitConfig config_;
   std::string notes_;
   SimulatedCameraFactory simulated_;
-  std::shared_ptr<const void> simulation_;  // source sim: what source_ renders from
-  std::unique_ptr<frame::FrameSource> source_;
-  capture::V4L2FrameSource* v4l2_ = nullptr;              // = source_ when v4l2
-  capture::ReplayFrameSource* replay_ = nullptr;          // = source_ when replay
-  capture::FaultInjectingFrameSource* faults_ = nullptr;  // wraps the source when configured
+  std::unique_ptr<Camera> camera_;  // null: source none
   // camera recovery: while down, no acquire(); start() is retried at doubling intervals
   bool camera_down_ = false;
   time::MonotonicNs camera_down_since_ns_ = 0;
@@ -138,8 +121,7 @@ class UnitRunner {
   std::uint64_t trigger_line_errors_seen_ = 0;
   bool trigger_down_ = false;               // a master not restarted after a failed change: retried
   time::MonotonicNs trigger_retry_ns_ = 0;  // the master's own line errors, at the last report
-  std::unique_ptr<trigger::TriggerLine> trigger_;
-  trigger::SimTriggerLine* sim_trigger_ = nullptr;  // = trigger_ when sim
+  std::unique_ptr<Trigger> trigger_;        // null: trigger none
   std::optional<trigger::TriggerFramePairer> pairer_;
   trigger::PairerConfig pairer_config_;
   std::unique_ptr<centroid::Centroider> centroid_;
@@ -158,17 +140,12 @@ class UnitRunner {
   msg::MarkObservations obs_{};
   RunCounters run_{};
   std::int64_t tai_minus_mono_ns_ = 0;
-  bool tai_from_source_ = false;  // sim: fixed offset set at setup
-  std::uint32_t sim_first_trigger_seq_ = 0;
-  std::function<SimulatedPacing()> sim_pacing_;  // source sim, paced: its schedule kept?
+  bool tai_from_source_ = false;  // sim, replay: fixed offset set at setup
   std::uint8_t clock_state_ = 0;
   time::MonotonicNs start_mono_ns_ = 0;
   time::MonotonicNs last_health_ns_ = 0;
-  std::uint64_t v4l2_dropped_seen_ = 0;
   std::uint64_t centroid_truncated_seen_ = 0;
   bool frames_dropped_pending_ = false;
-  std::uint32_t last_source_sequence_ = 0;
-  bool have_source_sequence_ = false;
   std::FILE* edges_csv_ = nullptr;
   // trigger.triggered_only: times of accepted edges no frame has claimed yet, oldest first. A
   // frame with no such edge in its window never reaches the pairer: an unmatched frame would
