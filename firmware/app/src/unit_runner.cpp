@@ -41,11 +41,6 @@ UnitRunner::~UnitRunner() {
   shutdown();
 }
 
-void UnitRunner::make_pairer(std::uint32_t first_sequence) {
-  pairer_config_.first_sequence = first_sequence;
-  pairer_.emplace(pairer_config_);
-}
-
 int UnitRunner::setup(std::string& error) {
   start_mono_ns_ = time::monotonic_now_ns();
   // --- frame source ----------------------------------------------------------------------------
@@ -122,30 +117,13 @@ int UnitRunner::setup(std::string& error) {
   }
 
   // --- trigger ---------------------------------------------------------------------------------
+  if (!pairing_.configure(config_.trigger, error)) return kExitUsage;
   const auto period = static_cast<std::int64_t>(std::llround(1e9 / config_.trigger.rate_hz));
-  pairer_config_.period_ns = period;
-  pairer_config_.latency_ns = config_.trigger.latency_ns;
-  pairer_config_.match_tolerance_ns =
-      config_.trigger.match_tolerance_ns > 0 ? config_.trigger.match_tolerance_ns : period / 4;
-  pairer_config_.edge_phase_tolerance_ns = config_.trigger.edge_phase_tolerance_ns > 0
-                                               ? config_.trigger.edge_phase_tolerance_ns
-                                               : period / 4;
-  pairer_config_.trigger_to_exposure_ns = config_.trigger.trigger_to_exposure_ns;
-  const char* why = nullptr;
-  if (trigger::validate(pairer_config_, &why) < 0) {
-    error = std::string("trigger pairing: ") + why;
-    return kExitUsage;
-  }
   if (const int rc = inputs.make_trigger(period, trigger_, error); rc != kExitOk) return rc;
-  if (trigger_ && config_.trigger.mode != TriggerMode::kSim) make_pairer(0);
-  if (!config_.trigger.edges_csv.empty()) {
-    edges_csv_ = std::fopen(config_.trigger.edges_csv.c_str(), "w");
-    if (edges_csv_ == nullptr) {
-      error = config_.trigger.edges_csv + ": " + std::strerror(errno);
-      return kExitStartFailure;
-    }
-    std::fprintf(edges_csv_, "line_count,t_mono_ns,trigger_seq,verdict\n");
-  }
+  if (trigger_ && config_.trigger.mode != TriggerMode::kSim) pairing_.start(0);
+  if (!config_.trigger.edges_csv.empty() &&
+      !pairing_.edge_log().open(config_.trigger.edges_csv, error))
+    return kExitStartFailure;
 
   // --- links -----------------------------------------------------------------------------------
   for (const auto& u : config_.udp)
@@ -204,66 +182,14 @@ void UnitRunner::note_trigger_error(std::uint64_t count) {
   trigger_error_reported_ = false;
 }
 
-// Reads every pending edge into the pairer. A failed read is counted and retried once at once
-// (a transient error: the edges are still queued, and a frame paired without its own edge would
-// be flagged trigger-missing); a second failure in a row is returned.
+// Failed reads are counted by the pairing and flagged here (trigger_error status bit).
 int UnitRunner::drain_edges(int timeout_ms) {
-  if (!trigger_ || !pairer_) return 0;
-  int retries_left = 1;
-  for (;;) {
-    const int n = trigger_->line().read_edges(edges_, timeout_ms);
-    if (n < 0 && n != -EAGAIN && n != -EINTR) {
-      note_trigger_error();
-      if (retries_left-- > 0) continue;
-    }
-    if (n <= 0) return n;
-    for (int i = 0; i < n; ++i) {
-      const trigger::TriggerEdge& e = edges_[static_cast<std::size_t>(i)];
-      const trigger::EdgeVerdict v = pairer_->push_edge(e.t_mono_ns);
-      ++run_.edges;
-      if (config_.trigger.triggered_only && v != trigger::EdgeVerdict::kExtra) {
-        if (unclaimed_count_ == unclaimed_edges_.size()) {  // full: the oldest is lost anyway
-          std::copy(unclaimed_edges_.begin() + 1, unclaimed_edges_.end(), unclaimed_edges_.begin());
-          --unclaimed_count_;
-        }
-        unclaimed_edges_[unclaimed_count_++] = e.t_mono_ns;
-      }
-      if (edges_csv_ != nullptr) {
-        // Extra edges get no sequence number: -1.
-        std::fprintf(
-            edges_csv_, "%u,%lld,%lld,%s\n", e.line_count, static_cast<long long>(e.t_mono_ns),
-            v == trigger::EdgeVerdict::kExtra ? -1LL
-                                              : static_cast<long long>(pairer_->anchor_sequence()),
-            v == trigger::EdgeVerdict::kExtra    ? "extra"
-            : v == trigger::EdgeVerdict::kResync ? "resync"
-                                                 : "accepted");
-      }
-    }
-    timeout_ms = 0;  // only the first read may wait
-    if (n < static_cast<int>(edges_.size())) return 0;
-  }
-}
-
-bool UnitRunner::edge_in_window(time::MonotonicNs t_frame_ns, bool consume) {
-  // The pairer's window (frame_pairer.hpp): edges older than it can never be claimed (dropped
-  // here too); every edge inside it is consumed by the frame that pairs (when `consume`).
-  const trigger::PairerConfig& pc = pairer_->config();
-  const time::MonotonicNs expected = t_frame_ns - pc.latency_ns;
-  const time::MonotonicNs lo = expected - pc.match_tolerance_ns;
-  const time::MonotonicNs hi = expected + pc.match_tolerance_ns;
-  std::size_t old = 0;
-  while (old < unclaimed_count_ && unclaimed_edges_[old] < lo)
-    ++old;
-  std::size_t in_window = old;
-  while (in_window < unclaimed_count_ && unclaimed_edges_[in_window] <= hi)
-    ++in_window;
-  const bool found = in_window > old;
-  const std::size_t consumed = found && consume ? in_window : old;
-  std::copy(unclaimed_edges_.begin() + static_cast<std::ptrdiff_t>(consumed),
-            unclaimed_edges_.begin() + static_cast<std::ptrdiff_t>(unclaimed_count_),
-            unclaimed_edges_.begin());
-  unclaimed_count_ -= consumed;
-  return found;
+  if (!trigger_) return 0;
+  const std::uint64_t errors_before = pairing_.read_errors();
+  const int rc = pairing_.drain(*trigger_, timeout_ms);
+  if (pairing_.read_errors() != errors_before)
+    note_trigger_error(pairing_.read_errors() - errors_before);
+  return rc;
 }
 
 // A master whose generator could not be started again after a failed change (its GPIO chip
@@ -370,15 +296,7 @@ void UnitRunner::apply_trigger_change(double rate_hz, std::int64_t width_ns) {
   }
   config_.trigger.rate_hz = rate_hz;
   config_.trigger.pulse_width_ns = width_ns;
-  const auto period = static_cast<std::int64_t>(std::llround(1e9 / rate_hz));
-  pairer_config_.period_ns = period;
-  pairer_config_.match_tolerance_ns = period / 4;
-  pairer_config_.edge_phase_tolerance_ns = period / 4;
-  // The numbering goes on from the last edge: a rate change must never renumber this unit's
-  // exposures against the others' (before: it restarted at the first sequence).
-  if (pairer_)
-    make_pairer(pairer_->counters().edges_seen > 0 ? pairer_->anchor_sequence() + 1
-                                                   : pairer_config_.first_sequence);
+  pairing_.change_rate(rate_hz);
 }
 
 int UnitRunner::process_frame(const frame::FrameView& frame) {
@@ -395,7 +313,7 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
   // source's frames between triggers: most of them; centroiding them would only cost time).
   if (config_.trigger.triggered_only && trigger_ && !trigger_->follows_frames()) {
     drain_edges(0);
-    if (!edge_in_window(frame.timestamp_mono_ns, false)) {
+    if (!pairing_.edge_in_window(frame.timestamp_mono_ns, false)) {
       ++run_.skipped_untriggered;
       return 0;
     }
@@ -449,23 +367,19 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
   time::MonotonicNs start_mono = frame.timestamp_mono_ns;
   if (trigger_) {
     if (trigger_->follows_frames()) {
-      if (!pairer_) {
-        // A unit started mid-run counts its trigger edges from 0, as a restarted unit does,
-        // unless it kept the rig's numbering.
-        make_pairer(config_.sim.start_exposure > 0 && !config_.sim.keep_numbering ? 0u
-                                                                                  : frame.sequence);
-        trigger_->set_origin(frame.timestamp_mono_ns - pairer_config_.latency_ns);
-      }
-      trigger_->advance_to(frame.timestamp_mono_ns - pairer_config_.latency_ns +
-                           pairer_config_.match_tolerance_ns);
+      // A unit started mid-run counts its trigger edges from 0, as a restarted unit does,
+      // unless it kept the rig's numbering.
+      pairing_.lead(
+          *trigger_, frame.timestamp_mono_ns,
+          config_.sim.start_exposure > 0 && !config_.sim.keep_numbering ? 0u : frame.sequence);
     }
     drain_edges(0);
-    if (config_.trigger.triggered_only && !edge_in_window(frame.timestamp_mono_ns, true)) {
+    if (config_.trigger.triggered_only && !pairing_.edge_in_window(frame.timestamp_mono_ns, true)) {
       ++run_.skipped_untriggered;
       return 0;
     }
     trigger::PairResult pr;
-    pairer_->pair_frame(frame.timestamp_mono_ns, pr);
+    pairing_.pair(frame.timestamp_mono_ns, pr);
     seq = pr.trigger_seq;
     start_mono = pr.exposure_start_mono_ns;
     if (!pr.matched) flags |= msg::exposure_flags::kTriggerMissing;
@@ -473,7 +387,7 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
       ++run_.skipped_untriggered;
       return 0;
     }
-    const trigger::PairerCounters& pc = pairer_->counters();
+    const trigger::PairerCounters& pc = pairing_.counters();
     counters_.triggers_seen.store(pc.edges_seen, std::memory_order_relaxed);
     counters_.triggers_missing.store(pc.frames_unmatched, std::memory_order_relaxed);
     counters_.triggers_extra.store(pc.edges_unmatched + pc.edges_extra, std::memory_order_relaxed);
@@ -617,13 +531,13 @@ int UnitRunner::run_trigger_only(const std::atomic<bool>& stop) {
       const timespec ts{0, 10'000'000};  // counted; the line retries: do not spin meanwhile
       nanosleep(&ts, nullptr);
     }
-    const trigger::PairerCounters& pc = pairer_->counters();
+    const trigger::PairerCounters& pc = pairing_.counters();
     counters_.triggers_seen.store(pc.edges_seen, std::memory_order_relaxed);
     counters_.triggers_extra.store(pc.edges_extra, std::memory_order_relaxed);
     const time::MonotonicNs now = time::monotonic_now_ns();
     if (now - last_health_ns_ >= std::int64_t{config_.health_period_ms} * 1'000'000)
       send_health(now);
-    if (config_.frames > 0 && static_cast<long>(run_.edges) >= config_.frames) break;
+    if (config_.frames > 0 && static_cast<long>(pairing_.edges_read()) >= config_.frames) break;
     if (deadline != 0 && now >= deadline) break;
   }
   send_health(time::monotonic_now_ns());
@@ -765,10 +679,7 @@ void UnitRunner::shutdown() {
   if (camera_) camera_->stop();
   for (auto& l : links_)
     l->close();
-  if (edges_csv_ != nullptr) {
-    std::fclose(edges_csv_);
-    edges_csv_ = nullptr;
-  }
+  pairing_.edge_log().close();
 }
 
 namespace {
@@ -835,23 +746,12 @@ std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code
                             : 0.0;
   j["centroid_time_us_max"] = run_.centroid_us_max;
   j["health_sent"] = run_.health_sent;
-  j["edges_read"] = run_.edges;
+  j["edges_read"] = pairing_.edges_read();
   if (config_.trigger.triggered_only) {
     j["triggered_only"] = {{"skipped_no_marks", run_.skipped_no_marks},
                            {"skipped_untriggered", run_.skipped_untriggered}};
   }
-  if (pairer_) {
-    const auto& pc = pairer_->counters();
-    j["pairing"] = {{"edges_seen", pc.edges_seen},
-                    {"edges_extra", pc.edges_extra},
-                    {"edges_missing", pc.edges_missing},
-                    {"edges_unmatched", pc.edges_unmatched},
-                    {"frames_paired", pc.frames_paired},
-                    {"frames_unmatched", pc.frames_unmatched},
-                    {"ambiguous", pc.ambiguous},
-                    {"resyncs", pc.resyncs},
-                    {"period_ns", pairer_config_.period_ns}};
-  }
+  pairing_.add_stats(j);
   if (trigger_) {
     const trigger::TriggerLineStats ts = trigger_->line().stats();
     j["trigger_line"] = {{"name", trigger_->line().name()},

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "exit_codes.hpp"
+#include "pairing/trigger_pairing.hpp"
 #include "simulated_camera.hpp"
 #include "storetrack/centroid/centroider.hpp"
 #include "storetrack/clock/clock_monitor.hpp"
@@ -40,7 +41,6 @@ struct RunCounters {
   std::uint64_t centroid_errors = 0;
   std::uint64_t source_errors = 0;
   std::uint64_t health_sent = 0;
-  std::uint64_t edges = 0;
   std::uint64_t skipped_no_marks = 0;     ///< triggered_only: frames without marks, not paired
   std::uint64_t skipped_untriggered = 0;  ///< triggered_only: frames no edge claimed, not sent
   std::uint64_t frames_corrupt = 0;       ///< frames the camera gave back as bad (-EBADMSG)
@@ -96,12 +96,10 @@ class UnitRunner {
   void service_camera_recovery(time::MonotonicNs now);
   int run_trigger_only(const std::atomic<bool>& stop);
   int drain_edges(int timeout_ms);
-  bool edge_in_window(time::MonotonicNs t_frame_ns, bool consume);
   void apply_config_changes();
   void apply_trigger_change(double rate_hz, std::int64_t width_ns);
   void send_health(time::MonotonicNs now);
   void update_shared_counters();
-  void make_pairer(std::uint32_t first_sequence);
   /// The clock state now: the monitor's (clock_state ptp4l, one relaxed load) or the configured.
   std::uint8_t current_clock_state() const;
   void update_clock_counters();
@@ -122,8 +120,7 @@ class UnitRunner {
   bool trigger_down_ = false;               // a master not restarted after a failed change: retried
   time::MonotonicNs trigger_retry_ns_ = 0;  // the master's own line errors, at the last report
   std::unique_ptr<Trigger> trigger_;        // null: trigger none
-  std::optional<trigger::TriggerFramePairer> pairer_;
-  trigger::PairerConfig pairer_config_;
+  TriggerPairing pairing_;
   std::unique_ptr<centroid::Centroider> centroid_;
   std::vector<std::unique_ptr<link::ObservationLink>> links_;
   health::UnitCounters counters_;
@@ -136,7 +133,6 @@ class UnitRunner {
   int frame_height_ = 0;
 
   std::array<centroid::Blob, msg::kMaxMarks> blobs_{};
-  std::array<trigger::TriggerEdge, 64> edges_{};
   msg::MarkObservations obs_{};
   RunCounters run_{};
   std::int64_t tai_minus_mono_ns_ = 0;
@@ -146,12 +142,6 @@ class UnitRunner {
   time::MonotonicNs last_health_ns_ = 0;
   std::uint64_t centroid_truncated_seen_ = 0;
   bool frames_dropped_pending_ = false;
-  std::FILE* edges_csv_ = nullptr;
-  // trigger.triggered_only: times of accepted edges no frame has claimed yet, oldest first. A
-  // frame with no such edge in its window never reaches the pairer: an unmatched frame would
-  // take (and so advance) a sequence number the next triggered frame needs.
-  std::array<time::MonotonicNs, trigger::TriggerFramePairer::kCapacity> unclaimed_edges_{};
-  std::size_t unclaimed_count_ = 0;
   bool held_ = false;
   frame::FrameView held_frame_{};
   bool centroid_error_reported_ = true;  // as camera_error_reported_, for the centroid-error bit
