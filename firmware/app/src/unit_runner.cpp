@@ -21,13 +21,6 @@ std::uint16_t pulse_width_register(std::int64_t width_ns) {
   return static_cast<std::uint16_t>(std::clamp<std::int64_t>(width_ns / 1000, 1, 5000));
 }
 
-std::uint8_t parse_clock_state(const std::string& s) {
-  if (s == "locking") return static_cast<std::uint8_t>(time::ClockState::kLocking);
-  if (s == "locked") return static_cast<std::uint8_t>(time::ClockState::kLocked);
-  if (s == "holdover") return static_cast<std::uint8_t>(time::ClockState::kHoldover);
-  return static_cast<std::uint8_t>(time::ClockState::kFreeRunning);
-}
-
 std::uint32_t clamp_u32(std::uint64_t v) {
   return static_cast<std::uint32_t>(v & 0xFFFFFFFFu);
 }
@@ -44,13 +37,13 @@ UnitRunner::~UnitRunner() {
 int UnitRunner::setup(std::string& error) {
   start_mono_ns_ = time::monotonic_now_ns();
   // --- frame source ----------------------------------------------------------------------------
-  clock_state_ = parse_clock_state(config_.clock_state);
+  clock_.configure(config_.clock_state, std::nullopt);
   InputFactory inputs(config_, simulated_);
   CameraFacts facts;
   if (const int rc = inputs.make_camera(camera_, facts, error); rc != kExitOk) return rc;
   int width = facts.width;
   int height = facts.height;
-  if (facts.clock_state) clock_state_ = *facts.clock_state;
+  if (facts.clock_state) clock_.configure(config_.clock_state, facts.clock_state);
   if (config_.unit_id < 0) config_.unit_id = 0;
   if (config_.camera_id < 0) config_.camera_id = 0;
   camera_backoff_ns_ = std::int64_t{config_.camera_reopen_first_ms} * 1'000'000;
@@ -64,12 +57,8 @@ int UnitRunner::setup(std::string& error) {
     camera_->started_size(width, height);
     if (const std::string notes = camera_->notes(); !notes.empty())
       notes_ += std::string(camera_->name()) + ": " + notes + "\n";
-    if (const auto offset = camera_->fixed_tai_minus_mono_ns()) {
-      tai_minus_mono_ns_ = *offset;
-      tai_from_source_ = true;
-    }
   }
-  if (!tai_from_source_) tai_minus_mono_ns_ = time::tai_now_ns() - time::monotonic_now_ns();
+  clock_.follow_source(camera_ ? camera_->fixed_tai_minus_mono_ns() : std::nullopt);
   // Every pixel centre must be encodable, else each exposure with a mark beyond is lost.
   if (camera_) {
     namespace word = msg::mark_observation_word;
@@ -138,15 +127,7 @@ int UnitRunner::setup(std::string& error) {
   }
 
   // --- clock ------------------------------------------------------------------------------------
-  if (config_.clock_state == "ptp4l") {
-    clock::ClockMonitorConfig cc = config_.ptp4l;
-    cc.poll_period_ms = config_.health_period_ms;
-    clock_monitor_ = std::make_unique<clock::ClockMonitor>(cc);
-    if (clock_monitor_->start() < 0) {
-      error = "clock: ptp4l client: " + clock_monitor_->error();
-      return kExitStartFailure;
-    }
-  }
+  if (!clock_.start_monitor(config_, error)) return kExitStartFailure;
 
   // --- Modbus ----------------------------------------------------------------------------------
   if (config_.modbus_enabled) {
@@ -166,7 +147,7 @@ int UnitRunner::setup(std::string& error) {
     status |= msg::unit_status::kTriggerMaster;
   }
   counters_.status.store(status);
-  update_clock_counters();
+  clock_.publish(counters_);
   board_temp_ = std::make_unique<health::BoardTemperatureSampler>(
       config_.board_temp_root, config_.health_period_ms, counters_.board_temp_cdeg);
   board_temp_->start();
@@ -400,17 +381,12 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
   obs_.camera_id = static_cast<std::uint8_t>(config_.camera_id);
   obs_.trigger_seq = seq;
   obs_.exposure_start_mono_ns = start_mono;
-  if (const auto recorded = camera_->recorded_tai_ns()) {
-    obs_.exposure_start_tai_ns = *recorded + (start_mono - frame.timestamp_mono_ns);
-  } else {
-    obs_.exposure_start_tai_ns =
-        start_mono + tai_minus_mono_ns_ + camera_->tai_step_ns(frame.sequence);
-  }
+  obs_.exposure_start_tai_ns = clock_.exposure_start_tai_ns(*camera_, frame, start_mono);
   obs_.exposure_duration_ns =
       frame.exposure_ns != 0 ? frame.exposure_ns : config_.exposure_us * 1000u;
   // The state when this exposure is processed, a few ms after it: the monitor's resolution is
   // its poll period (docs/reliability.md, "Clock").
-  obs_.clock_state = current_clock_state();
+  obs_.clock_state = clock_.state();
   obs_.flags = flags;
   obs_.mark_count = static_cast<std::uint8_t>(n);
   const int shift = frame.format == frame::PixelFormat::kMono16 ? frame.bits_per_pixel - 8 : 0;
@@ -457,17 +433,6 @@ void UnitRunner::update_shared_counters() {
   counters_.status.store(status, std::memory_order_relaxed);
 }
 
-std::uint8_t UnitRunner::current_clock_state() const {
-  return clock_monitor_ ? static_cast<std::uint8_t>(clock_monitor_->state()) : clock_state_;
-}
-
-void UnitRunner::update_clock_counters() {
-  clock_state_ = current_clock_state();
-  counters_.clock_state.store(clock_state_, std::memory_order_relaxed);
-  if (clock_monitor_)
-    counters_.ptp_offset_ns.store(clock_monitor_->offset_ns(), std::memory_order_relaxed);
-}
-
 void UnitRunner::send_health(time::MonotonicNs now) {
   update_shared_counters();
   // A gpio master's pulses that could not be driven: its own thread counts them. (A reader's
@@ -478,13 +443,13 @@ void UnitRunner::send_health(time::MonotonicNs now) {
       note_trigger_error(line_errors - trigger_line_errors_seen_);
     trigger_line_errors_seen_ = line_errors;
   }
-  update_clock_counters();
-  if (!tai_from_source_) tai_minus_mono_ns_ = time::tai_now_ns() - time::monotonic_now_ns();
+  clock_.publish(counters_);
+  clock_.refresh_offset();
   msg::UnitHealth h{};
   h.unit_id = static_cast<std::uint8_t>(config_.unit_id);
-  h.clock_state = clock_state_;
+  h.clock_state = clock_.published_state();
   h.uptime_s = static_cast<std::uint32_t>((now - start_mono_ns_) / time::kNsPerSecond);
-  h.report_tai_ns = now + tai_minus_mono_ns_;
+  h.report_tai_ns = now + clock_.tai_minus_mono_ns();
   h.ptp_offset_ns = counters_.ptp_offset_ns.load();
   h.sensor_temp_cdeg = counters_.sensor_temp_cdeg.load();
   h.board_temp_cdeg = counters_.board_temp_cdeg.load();
@@ -669,7 +634,7 @@ int UnitRunner::grab(int skip, frame::FrameView& frame, std::span<const centroid
 
 void UnitRunner::shutdown() {
   if (modbus_) modbus_->stop();
-  if (clock_monitor_) clock_monitor_->stop();
+  clock_.stop();
   if (board_temp_) board_temp_->stop();
   if (held_ && camera_) {
     camera_->release(held_frame_);
@@ -772,27 +737,7 @@ std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code
                      {"last_background_dn", cs.last_background_dn},
                      {"last_threshold_dn", cs.last_threshold_dn}};
   }
-  j["clock"] = {{"source", config_.clock_state == "ptp4l" ? "ptp4l" : "configured"},
-                {"state", static_cast<int>(current_clock_state())},
-                {"ptp_offset_ns", counters_.ptp_offset_ns.load()}};
-  if (clock_monitor_) {
-    const clock::ClockMonitorStats cs = clock_monitor_->stats();
-    j["clock"]["ptp4l"] = {{"polls", cs.polls},
-                           {"answered_polls", cs.answered_polls},
-                           {"transitions", cs.transitions},
-                           {"port_state", clock::to_string(cs.port_state)},
-                           {"gm_present", cs.gm_present},
-                           {"time_traceable", cs.time_traceable},
-                           {"master_offset_ns", cs.master_offset_ns},
-                           {"requests", cs.client.requests},
-                           {"replies", cs.client.replies},
-                           {"timeouts", cs.client.timeouts},
-                           {"send_errors", cs.client.send_errors},
-                           {"malformed", cs.client.malformed},
-                           {"stale", cs.client.stale},
-                           {"error_status", cs.client.error_status},
-                           {"last_errno", cs.client.last_errno}};
-  }
+  clock_.add_stats(j, config_.clock_state, counters_.ptp_offset_ns.load());
   nlohmann::json links = nlohmann::json::array();
   for (const auto& l : links_) {
     const link::LinkStats s = l->stats();

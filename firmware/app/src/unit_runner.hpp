@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "clock/unit_clock.hpp"
 #include "exit_codes.hpp"
 #include "pairing/trigger_pairing.hpp"
 #include "simulated_camera.hpp"
@@ -100,9 +101,6 @@ class UnitRunner {
   void apply_trigger_change(double rate_hz, std::int64_t width_ns);
   void send_health(time::MonotonicNs now);
   void update_shared_counters();
-  /// The clock state now: the monitor's (clock_state ptp4l, one relaxed load) or the configured.
-  std::uint8_t current_clock_state() const;
-  void update_clock_counters();
 
   UnitConfig config_;
   std::string notes_;
@@ -126,7 +124,7 @@ class UnitRunner {
   health::UnitCounters counters_;
   health::ConfigStore store_;
   std::unique_ptr<health::ModbusHealthServer> modbus_;
-  std::unique_ptr<clock::ClockMonitor> clock_monitor_;           // clock_state ptp4l
+  UnitClock clock_;
   std::unique_ptr<health::BoardTemperatureSampler> board_temp_;  // off the capture loop
   std::uint32_t seen_generation_ = 0;
   int frame_width_ = 0;
@@ -135,9 +133,6 @@ class UnitRunner {
   std::array<centroid::Blob, msg::kMaxMarks> blobs_{};
   msg::MarkObservations obs_{};
   RunCounters run_{};
-  std::int64_t tai_minus_mono_ns_ = 0;
-  bool tai_from_source_ = false;  // sim, replay: fixed offset set at setup
-  std::uint8_t clock_state_ = 0;
   time::MonotonicNs start_mono_ns_ = 0;
   time::MonotonicNs last_health_ns_ = 0;
   std::uint64_t centroid_truncated_seen_ = 0;
