@@ -10,8 +10,6 @@
 #include "input/camera.hpp"
 #include "input/input_factory.hpp"
 #include "input/trigger.hpp"
-#include "storetrack/link/canfd_link.hpp"
-#include "storetrack/link/udp_link.hpp"
 
 namespace storetrack::unit {
 namespace {
@@ -115,16 +113,7 @@ int UnitRunner::setup(std::string& error) {
     return kExitStartFailure;
 
   // --- links -----------------------------------------------------------------------------------
-  for (const auto& u : config_.udp)
-    links_.push_back(std::make_unique<link::UdpLink>(u));
-  for (const auto& c : config_.canfd)
-    links_.push_back(std::make_unique<link::CanFdLink>(c));
-  for (auto& l : links_) {
-    if (l->open() < 0) {
-      error = std::string("link: ") + l->error();
-      return kExitStartFailure;
-    }
-  }
+  if (!links_.open(config_, error)) return kExitStartFailure;
 
   // --- clock ------------------------------------------------------------------------------------
   if (!clock_.start_monitor(config_, error)) return kExitStartFailure;
@@ -401,40 +390,12 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
     m.diameter_px = b.diameter_px;
     m.flags = b.flags & msg::mark_flags::kAllKnown;
   }
-  bool sent_any = links_.empty();
-  for (auto& l : links_) {
-    if (l->send(obs_) == 0) sent_any = true;
-  }
-  if (sent_any) frames_dropped_pending_ = false;
+  if (links_.send(obs_)) frames_dropped_pending_ = false;
   return 0;
 }
 
-void UnitRunner::update_shared_counters() {
-  std::uint64_t sent = 0, errors = 0, dropped = 0, bus_off = 0, error_frames = 0;
-  bool any_bus_off = false;
-  for (const auto& l : links_) {
-    l->service();
-    const link::LinkStats s = l->stats();
-    sent = std::max(sent, s.observations_sent);  // an exposure counts once, whatever the links
-    errors += s.tx_errors + s.encode_errors;
-    dropped += s.dropped_exposures;
-    bus_off += s.bus_off_events;
-    error_frames += s.error_frames;
-    any_bus_off = any_bus_off || s.bus_off;
-  }
-  counters_.observations_sent.store(sent, std::memory_order_relaxed);
-  counters_.link_tx_errors.store(errors, std::memory_order_relaxed);
-  counters_.link_tx_dropped.store(dropped, std::memory_order_relaxed);
-  counters_.can_bus_off_count.store(bus_off, std::memory_order_relaxed);
-  counters_.can_error_frames.store(error_frames, std::memory_order_relaxed);
-  std::uint16_t status = counters_.status.load(std::memory_order_relaxed);
-  status = any_bus_off ? status | msg::unit_status::kCanBusOff
-                       : status & static_cast<std::uint16_t>(~msg::unit_status::kCanBusOff);
-  counters_.status.store(status, std::memory_order_relaxed);
-}
-
 void UnitRunner::send_health(time::MonotonicNs now) {
-  update_shared_counters();
+  links_.service(counters_);
   // A gpio master's pulses that could not be driven: its own thread counts them. (A reader's
   // line errors are its failed reads, already noted by drain_edges().)
   if (config_.trigger.mode == TriggerMode::kGpioMaster && trigger_) {
@@ -466,8 +427,7 @@ void UnitRunner::send_health(time::MonotonicNs now) {
   h.centroid_time_us_max = static_cast<std::uint16_t>(
       std::min<std::uint32_t>(counters_.centroid_time_us_max.exchange(0), 0xFFFE));
   h.status = counters_.status.load();
-  for (auto& l : links_)
-    l->send(h);
+  links_.send(h);
   ++run_.health_sent;
   last_health_ns_ = now;
   // A camera fault is latched until one report carried it; it clears once the camera is back.
@@ -642,8 +602,7 @@ void UnitRunner::shutdown() {
   }
   if (trigger_) trigger_->line().stop();
   if (camera_) camera_->stop();
-  for (auto& l : links_)
-    l->close();
+  links_.close();
   pairing_.edge_log().close();
 }
 
@@ -738,23 +697,7 @@ std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code
                      {"last_threshold_dn", cs.last_threshold_dn}};
   }
   clock_.add_stats(j, config_.clock_state, counters_.ptp_offset_ns.load());
-  nlohmann::json links = nlohmann::json::array();
-  for (const auto& l : links_) {
-    const link::LinkStats s = l->stats();
-    links.push_back({{"name", l->name()},
-                     {"observations_sent", s.observations_sent},
-                     {"health_sent", s.health_sent},
-                     {"tx_errors", s.tx_errors},
-                     {"dropped_exposures", s.dropped_exposures},
-                     {"partial_exposures", s.partial_exposures},
-                     {"encode_errors", s.encode_errors},
-                     {"bus_off_events", s.bus_off_events},
-                     {"error_frames", s.error_frames},
-                     {"bus_off", s.bus_off},
-                     {"link_down", s.link_down},
-                     {"last_errno", s.last_errno}});
-  }
-  j["links"] = links;
+  links_.add_stats(j);
   if (modbus_) {
     const health::ModbusServerStats ms = modbus_->stats();
     j["modbus"] = {{"port", modbus_->bound_port()},

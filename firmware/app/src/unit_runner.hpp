@@ -16,6 +16,7 @@
 
 #include "clock/unit_clock.hpp"
 #include "exit_codes.hpp"
+#include "links/link_set.hpp"
 #include "pairing/trigger_pairing.hpp"
 #include "simulated_camera.hpp"
 #include "storetrack/centroid/centroider.hpp"
@@ -100,7 +101,6 @@ class UnitRunner {
   void apply_config_changes();
   void apply_trigger_change(double rate_hz, std::int64_t width_ns);
   void send_health(time::MonotonicNs now);
-  void update_shared_counters();
 
   UnitConfig config_;
   std::string notes_;
@@ -120,7 +120,7 @@ class UnitRunner {
   std::unique_ptr<Trigger> trigger_;        // null: trigger none
   TriggerPairing pairing_;
   std::unique_ptr<centroid::Centroider> centroid_;
-  std::vector<std::unique_ptr<link::ObservationLink>> links_;
+  LinkSet links_;
   health::UnitCounters counters_;
   health::ConfigStore store_;
   std::unique_ptr<health::ModbusHealthServer> modbus_;
