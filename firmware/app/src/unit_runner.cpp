@@ -14,11 +14,6 @@
 namespace storetrack::unit {
 namespace {
 
-/// The Modbus pulse_width_us register's view of a pulse width (docs/modbus.md: 1..5000 us).
-std::uint16_t pulse_width_register(std::int64_t width_ns) {
-  return static_cast<std::uint16_t>(std::clamp<std::int64_t>(width_ns / 1000, 1, 5000));
-}
-
 std::uint32_t clamp_u32(std::uint64_t v) {
   return static_cast<std::uint32_t>(v & 0xFFFFFFFFu);
 }
@@ -74,22 +69,7 @@ int UnitRunner::setup(std::string& error) {
   }
 
   // --- holding registers from the configuration ------------------------------------------------
-  using health::HoldingField;
-  store_.set(HoldingField::kUnitId, static_cast<std::uint16_t>(config_.unit_id));
-  store_.set(HoldingField::kCameraId, static_cast<std::uint16_t>(config_.camera_id));
-  store_.set(HoldingField::kExposureUs, static_cast<std::uint16_t>(config_.exposure_us));
-  store_.set(HoldingField::kTriggerRateHz,
-             static_cast<std::uint16_t>(std::lround(std::min(config_.trigger.rate_hz, 400.0))));
-  store_.set(HoldingField::kPulseWidthUs, pulse_width_register(config_.trigger.pulse_width_ns));
-  store_.set(HoldingField::kThresholdDn,
-             static_cast<std::uint16_t>(std::clamp(config_.centroid.threshold_dn, 0, 65535)));
-  store_.set(HoldingField::kRoiX, static_cast<std::uint16_t>(config_.roi_x));
-  store_.set(HoldingField::kRoiY, static_cast<std::uint16_t>(config_.roi_y));
-  store_.set(HoldingField::kRoiWidth, static_cast<std::uint16_t>(config_.roi_width));
-  store_.set(HoldingField::kRoiHeight, static_cast<std::uint16_t>(config_.roi_height));
-  seen_generation_ = store_.generation();
-  store_.lock_identity();  // ids change only at a restart (docs/modbus.md)
-  store_.set_limits({width, height});
+  registers_.load(config_, width, height);
 
   // --- centroider ------------------------------------------------------------------------------
   frame_width_ = width;
@@ -119,17 +99,7 @@ int UnitRunner::setup(std::string& error) {
   if (!clock_.start_monitor(config_, error)) return kExitStartFailure;
 
   // --- Modbus ----------------------------------------------------------------------------------
-  if (config_.modbus_enabled) {
-    health::ModbusServerConfig mc;
-    mc.address = config_.modbus_address;
-    mc.port = config_.modbus_port;
-    mc.maintenance = config_.maintenance;
-    modbus_ = std::make_unique<health::ModbusHealthServer>(mc, counters_, store_);
-    if (modbus_->start() < 0) {
-      error = modbus_->error();
-      return kExitStartFailure;
-    }
-  }
+  if (!registers_.start_server(config_, counters_, error)) return kExitStartFailure;
   std::uint16_t status = msg::unit_status::kCapturing;
   if (config_.maintenance) status |= msg::unit_status::kMaintenanceMode;
   if (trigger_ && trigger_->line().is_master() && config_.trigger.mode != TriggerMode::kSim) {
@@ -181,15 +151,10 @@ void UnitRunner::retry_stopped_trigger() {
 
 void UnitRunner::apply_config_changes() {
   retry_stopped_trigger();
-  const std::uint32_t gen = store_.generation();
-  if (gen == seen_generation_) return;
-  seen_generation_ = gen;
-  using health::HoldingField;
-  // Maintenance-mode reconfiguration: may allocate (rare, operator-driven, not per frame). One
-  // snapshot: a multi-register write (rate and pulse width, the search region) is seen whole.
-  const health::ConfigStore::Values v = store_.snapshot();
-  const auto get = [&v](HoldingField f) { return v[static_cast<std::size_t>(f)]; };
-  const int threshold = get(HoldingField::kThresholdDn);
+  // Maintenance-mode reconfiguration: may allocate (rare, operator-driven, not per frame).
+  RegisterSettings wanted;
+  if (!registers_.take_changes(config_, wanted)) return;
+  const int threshold = wanted.threshold_dn;
   if (centroid_ && threshold != centroid_->config().threshold_dn) {
     centroid::CentroidConfig cc = centroid_->config();
     cc.threshold_dn = threshold;
@@ -201,19 +166,12 @@ void UnitRunner::apply_config_changes() {
       ++run_.config_apply_errors;  // the table's range check makes this unreachable
     }
   }
-  const std::uint32_t exposure_us = get(HoldingField::kExposureUs);
-  if (exposure_us != config_.exposure_us) apply_exposure(exposure_us);
-  // The width register holds at most 5000 us: while it still shows the configured width (a
-  // longer one clamped), the configured width stands; a rate write must not shorten it.
-  const std::uint16_t width_us = get(HoldingField::kPulseWidthUs);
-  apply_trigger_change(get(HoldingField::kTriggerRateHz),
-                       width_us == pulse_width_register(config_.trigger.pulse_width_ns)
-                           ? config_.trigger.pulse_width_ns
-                           : std::int64_t{width_us} * 1000);
-  config_.roi_x = get(HoldingField::kRoiX);
-  config_.roi_y = get(HoldingField::kRoiY);
-  config_.roi_width = get(HoldingField::kRoiWidth);
-  config_.roi_height = get(HoldingField::kRoiHeight);
+  if (wanted.exposure_us != config_.exposure_us) apply_exposure(wanted.exposure_us);
+  apply_trigger_change(wanted.trigger_rate_hz, wanted.pulse_width_ns);
+  config_.roi_x = wanted.roi_x;
+  config_.roi_y = wanted.roi_y;
+  config_.roi_width = wanted.roi_width;
+  config_.roi_height = wanted.roi_height;
 }
 
 // A new exposure, written to the camera's exposure control when one is configured. Refused: the
@@ -230,16 +188,14 @@ void UnitRunner::apply_exposure(std::uint32_t exposure_us) {
       ++run_.config_apply_errors;
       std::fprintf(stderr, "storetrack-unit: exposure %u us not applied: %s\n", exposure_us,
                    camera_->error(0).c_str());
-      store_.set(health::HoldingField::kExposureUs,
-                 static_cast<std::uint16_t>(config_.exposure_us));
+      registers_.show_exposure(config_.exposure_us);
       break;
     case ExposureChange::kClamped:
       ++run_.config_apply_errors;
       config_.exposure_us = applied_us;
       std::fprintf(stderr, "storetrack-unit: exposure %u us clamped by the driver to %u us\n",
                    exposure_us, config_.exposure_us);
-      store_.set(health::HoldingField::kExposureUs,
-                 static_cast<std::uint16_t>(config_.exposure_us));
+      registers_.show_exposure(config_.exposure_us);
       break;
   }
 }
@@ -593,7 +549,7 @@ int UnitRunner::grab(int skip, frame::FrameView& frame, std::span<const centroid
 }
 
 void UnitRunner::shutdown() {
-  if (modbus_) modbus_->stop();
+  registers_.stop();
   clock_.stop();
   if (board_temp_) board_temp_->stop();
   if (held_ && camera_) {
@@ -698,21 +654,7 @@ std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code
   }
   clock_.add_stats(j, config_.clock_state, counters_.ptp_offset_ns.load());
   links_.add_stats(j);
-  if (modbus_) {
-    const health::ModbusServerStats ms = modbus_->stats();
-    j["modbus"] = {{"port", modbus_->bound_port()},
-                   {"requests", ms.requests},
-                   {"refused_function", ms.refused_function},
-                   {"refused_write_locked", ms.refused_write_locked},
-                   {"refused_value", ms.refused_value},
-                   {"malformed", ms.malformed},
-                   {"writes_accepted", ms.writes_accepted},
-                   {"refused_identity", ms.refused_identity},
-                   {"connections", ms.connections},
-                   {"evicted", ms.evicted},
-                   {"timeouts", ms.timeouts},
-                   {"idle_closed", ms.idle_closed}};
-  }
+  registers_.add_stats(j);
   j["config_apply_errors"] = run_.config_apply_errors;
   j["trigger_restart_failures"] = run_.trigger_restart_failures;
   j["trigger_restarts"] = run_.trigger_restarts;

@@ -17,6 +17,7 @@
 #include "clock/unit_clock.hpp"
 #include "exit_codes.hpp"
 #include "links/link_set.hpp"
+#include "modbus/unit_registers.hpp"
 #include "pairing/trigger_pairing.hpp"
 #include "simulated_camera.hpp"
 #include "storetrack/centroid/centroider.hpp"
@@ -122,11 +123,9 @@ class UnitRunner {
   std::unique_ptr<centroid::Centroider> centroid_;
   LinkSet links_;
   health::UnitCounters counters_;
-  health::ConfigStore store_;
-  std::unique_ptr<health::ModbusHealthServer> modbus_;
+  UnitRegisters registers_;  // Modbus
   UnitClock clock_;
   std::unique_ptr<health::BoardTemperatureSampler> board_temp_;  // off the capture loop
-  std::uint32_t seen_generation_ = 0;
   int frame_width_ = 0;
   int frame_height_ = 0;
 
