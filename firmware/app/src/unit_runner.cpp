@@ -72,16 +72,7 @@ int UnitRunner::setup(std::string& error) {
   registers_.load(config_, width, height);
 
   // --- centroider ------------------------------------------------------------------------------
-  frame_width_ = width;
-  frame_height_ = height;
-  if (camera_) {
-    try {
-      centroid_ = std::make_unique<centroid::Centroider>(config_.centroid, width, height);
-    } catch (const std::exception& e) {
-      error = std::string("centroid configuration: ") + e.what();
-      return kExitUsage;
-    }
-  }
+  if (camera_ && !marks_.configure(config_.centroid, width, height, error)) return kExitUsage;
 
   // --- trigger ---------------------------------------------------------------------------------
   if (!pairing_.configure(config_.trigger, error)) return kExitUsage;
@@ -155,16 +146,11 @@ void UnitRunner::apply_config_changes() {
   RegisterSettings wanted;
   if (!registers_.take_changes(config_, wanted)) return;
   const int threshold = wanted.threshold_dn;
-  if (centroid_ && threshold != centroid_->config().threshold_dn) {
-    centroid::CentroidConfig cc = centroid_->config();
-    cc.threshold_dn = threshold;
-    try {
-      auto fresh = std::make_unique<centroid::Centroider>(cc, frame_width_, frame_height_);
-      centroid_ = std::move(fresh);
-      config_.centroid = cc;
-    } catch (const std::exception&) {
+  if (marks_.configured() && threshold != marks_.config().threshold_dn) {
+    if (marks_.set_threshold(threshold))
+      config_.centroid = marks_.config();
+    else
       ++run_.config_apply_errors;  // the table's range check makes this unreachable
-    }
   }
   if (wanted.exposure_us != config_.exposure_us) apply_exposure(wanted.exposure_us);
   apply_trigger_change(wanted.trigger_rate_hz, wanted.pulse_width_ns);
@@ -247,24 +233,37 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
 
   std::uint16_t flags = 0;
   if (frames_dropped_pending_) flags |= msg::exposure_flags::kFramesDroppedBefore;
-
-  // Centroiding, on the whole frame or the configured region.
-  frame::FrameView view = frame;
-  centroid::Roi roi[1];
-  const bool use_roi =
-      config_.roi_x > 0 || config_.roi_y > 0 || config_.roi_width > 0 || config_.roi_height > 0;
-  if (use_roi) {
-    roi[0].x = config_.roi_x;
-    roi[0].y = config_.roi_y;
-    roi[0].width = config_.roi_width > 0 ? config_.roi_width : frame.width - config_.roi_x;
-    roi[0].height = config_.roi_height > 0 ? config_.roi_height : frame.height - config_.roi_y;
-    flags |= msg::exposure_flags::kRoiMode;
+  const int n = find_marks(frame, flags);
+  if (n < 0) return n;
+  ++run_.frames_processed;
+  // triggered_only: a frame without marks is not a triggered frame (the free-running source's
+  // dark frames between triggers); it must not claim an edge.
+  if (config_.trigger.triggered_only && n == 0) {
+    ++run_.skipped_no_marks;
+    return 0;
   }
-  const time::MonotonicNs t0 = time::monotonic_now_ns();
-  const int n = use_roi ? centroid_->process(view, std::span<const centroid::Roi>(roi, 1), blobs_)
-                        : centroid_->process(view, blobs_);
-  const time::MonotonicNs t1 = time::monotonic_now_ns();
-  const double us = static_cast<double>(t1 - t0) / 1000.0;
+  ExposureStamp exposure;
+  exposure.flags = flags;
+  if (!pair_exposure(frame, exposure)) return 0;
+  run_.marks += static_cast<std::uint64_t>(n);
+  counters_.marks_last_frame.store(static_cast<std::uint32_t>(n), std::memory_order_relaxed);
+
+  exposure.unit_id = static_cast<std::uint8_t>(config_.unit_id);
+  exposure.camera_id = static_cast<std::uint8_t>(config_.camera_id);
+  exposure.start_tai_ns = clock_.exposure_start_tai_ns(*camera_, frame, exposure.start_mono_ns);
+  exposure.duration_ns = frame.exposure_ns != 0 ? frame.exposure_ns : config_.exposure_us * 1000u;
+  // The state when this exposure is processed, a few ms after it: the monitor's resolution is
+  // its poll period (docs/reliability.md, "Clock").
+  exposure.clock_state = clock_.state();
+  fill_mark_message(exposure, frame, marks_.marks(n), obs_);
+  if (links_.send(obs_)) frames_dropped_pending_ = false;
+  return 0;
+}
+
+int UnitRunner::find_marks(const frame::FrameView& frame, std::uint16_t& flags) {
+  const SearchRegion region{config_.roi_x, config_.roi_y, config_.roi_width, config_.roi_height};
+  const int n = marks_.find(frame, region, flags);
+  const double us = marks_.last_time_us();
   run_.centroid_us_sum += us;
   run_.centroid_us_max = std::max(run_.centroid_us_max, us);
   health::UnitCounters::max(counters_.centroid_time_us_max, static_cast<std::uint32_t>(us));
@@ -273,81 +272,40 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
     health::UnitCounters::add(counters_.centroid_errors);
     counters_.status.fetch_or(msg::unit_status::kCentroidError, std::memory_order_relaxed);
     centroid_error_reported_ = false;
-    return n;
   }
-  const std::uint64_t truncated = centroid_->stats().blobs_truncated;
-  if (truncated != centroid_truncated_seen_) {
-    flags |= msg::exposure_flags::kMarksTruncated;
-    centroid_truncated_seen_ = truncated;
-  }
-  ++run_.frames_processed;
-  // triggered_only: a frame without marks is not a triggered frame (the free-running source's
-  // dark frames between triggers); it must not claim an edge.
-  if (config_.trigger.triggered_only && n == 0) {
-    ++run_.skipped_no_marks;
-    return 0;
-  }
+  return n;
+}
 
-  // Trigger pairing.
-  std::uint32_t seq = frame.sequence;
-  time::MonotonicNs start_mono = frame.timestamp_mono_ns;
-  if (trigger_) {
-    if (trigger_->follows_frames()) {
-      // A unit started mid-run counts its trigger edges from 0, as a restarted unit does,
-      // unless it kept the rig's numbering.
-      pairing_.lead(
-          *trigger_, frame.timestamp_mono_ns,
-          config_.sim.start_exposure > 0 && !config_.sim.keep_numbering ? 0u : frame.sequence);
-    }
-    drain_edges(0);
-    if (config_.trigger.triggered_only && !pairing_.edge_in_window(frame.timestamp_mono_ns, true)) {
-      ++run_.skipped_untriggered;
-      return 0;
-    }
-    trigger::PairResult pr;
-    pairing_.pair(frame.timestamp_mono_ns, pr);
-    seq = pr.trigger_seq;
-    start_mono = pr.exposure_start_mono_ns;
-    if (!pr.matched) flags |= msg::exposure_flags::kTriggerMissing;
-    if (config_.trigger.triggered_only && !pr.matched) {
-      ++run_.skipped_untriggered;
-      return 0;
-    }
-    const trigger::PairerCounters& pc = pairing_.counters();
-    counters_.triggers_seen.store(pc.edges_seen, std::memory_order_relaxed);
-    counters_.triggers_missing.store(pc.frames_unmatched, std::memory_order_relaxed);
-    counters_.triggers_extra.store(pc.edges_unmatched + pc.edges_extra, std::memory_order_relaxed);
+bool UnitRunner::pair_exposure(const frame::FrameView& frame, ExposureStamp& exposure) {
+  exposure.trigger_seq = frame.sequence;
+  exposure.start_mono_ns = frame.timestamp_mono_ns;
+  if (!trigger_) return true;
+  if (trigger_->follows_frames()) {
+    // A unit started mid-run counts its trigger edges from 0, as a restarted unit does,
+    // unless it kept the rig's numbering.
+    pairing_.lead(
+        *trigger_, frame.timestamp_mono_ns,
+        config_.sim.start_exposure > 0 && !config_.sim.keep_numbering ? 0u : frame.sequence);
   }
-  run_.marks += static_cast<std::uint64_t>(n);
-  counters_.marks_last_frame.store(static_cast<std::uint32_t>(n), std::memory_order_relaxed);
-
-  // The message.
-  obs_.unit_id = static_cast<std::uint8_t>(config_.unit_id);
-  obs_.camera_id = static_cast<std::uint8_t>(config_.camera_id);
-  obs_.trigger_seq = seq;
-  obs_.exposure_start_mono_ns = start_mono;
-  obs_.exposure_start_tai_ns = clock_.exposure_start_tai_ns(*camera_, frame, start_mono);
-  obs_.exposure_duration_ns =
-      frame.exposure_ns != 0 ? frame.exposure_ns : config_.exposure_us * 1000u;
-  // The state when this exposure is processed, a few ms after it: the monitor's resolution is
-  // its poll period (docs/reliability.md, "Clock").
-  obs_.clock_state = clock_.state();
-  obs_.flags = flags;
-  obs_.mark_count = static_cast<std::uint8_t>(n);
-  const int shift = frame.format == frame::PixelFormat::kMono16 ? frame.bits_per_pixel - 8 : 0;
-  for (int i = 0; i < n; ++i) {
-    const centroid::Blob& b = blobs_[static_cast<std::size_t>(i)];
-    msg::MarkObservation& m = obs_.marks[static_cast<std::size_t>(i)];
-    m.x_px = static_cast<float>(b.x_px);
-    m.y_px = static_cast<float>(b.y_px);
-    m.sigma_px = static_cast<float>(b.sigma_px);
-    const float peak8 = shift > 0 ? b.peak_dn / static_cast<float>(1 << shift) : b.peak_dn;
-    m.peak = static_cast<std::uint16_t>(std::clamp(peak8, 0.0f, 255.0f));
-    m.diameter_px = b.diameter_px;
-    m.flags = b.flags & msg::mark_flags::kAllKnown;
+  drain_edges(0);
+  if (config_.trigger.triggered_only && !pairing_.edge_in_window(frame.timestamp_mono_ns, true)) {
+    ++run_.skipped_untriggered;
+    return false;
   }
-  if (links_.send(obs_)) frames_dropped_pending_ = false;
-  return 0;
+  trigger::PairResult pr;
+  pairing_.pair(frame.timestamp_mono_ns, pr);
+  exposure.trigger_seq = pr.trigger_seq;
+  exposure.start_mono_ns = pr.exposure_start_mono_ns;
+  if (!pr.matched) exposure.flags |= msg::exposure_flags::kTriggerMissing;
+  if (config_.trigger.triggered_only && !pr.matched) {
+    ++run_.skipped_untriggered;
+    return false;
+  }
+  const trigger::PairerCounters& pc = pairing_.counters();
+  counters_.triggers_seen.store(pc.edges_seen, std::memory_order_relaxed);
+  counters_.triggers_missing.store(pc.frames_unmatched, std::memory_order_relaxed);
+  counters_.triggers_extra.store(pc.edges_unmatched + pc.edges_extra, std::memory_order_relaxed);
+  return true;
 }
 
 void UnitRunner::send_health(time::MonotonicNs now) {
@@ -542,9 +500,10 @@ int UnitRunner::grab(int skip, frame::FrameView& frame, std::span<const centroid
   }
   held_ = true;
   held_frame_ = frame;
-  const int n = centroid_->process(frame, blobs_);
+  std::uint16_t flags = 0;
+  const int n = marks_.find(frame, SearchRegion{}, flags);
   if (n < 0) return n;
-  blobs = std::span<const centroid::Blob>(blobs_.data(), static_cast<std::size_t>(n));
+  blobs = marks_.marks(n);
   return 0;
 }
 
@@ -643,15 +602,7 @@ std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code
                          {"reopens", ts.reopens},
                          {"errors_reported", run_.trigger_errors}};
   }
-  if (centroid_) {
-    const centroid::CentroidStats& cs = centroid_->stats();
-    j["centroid"] = {{"frames", cs.frames},
-                     {"frames_refused", cs.frames_refused},
-                     {"blobs_truncated", cs.blobs_truncated},
-                     {"blobs_too_small", cs.blobs_too_small},
-                     {"last_background_dn", cs.last_background_dn},
-                     {"last_threshold_dn", cs.last_threshold_dn}};
-  }
+  marks_.add_stats(j);
   clock_.add_stats(j, config_.clock_state, counters_.ptp_offset_ns.load());
   links_.add_stats(j);
   registers_.add_stats(j);

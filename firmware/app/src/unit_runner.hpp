@@ -17,6 +17,8 @@
 #include "clock/unit_clock.hpp"
 #include "exit_codes.hpp"
 #include "links/link_set.hpp"
+#include "marks/mark_finder.hpp"
+#include "message/mark_message.hpp"
 #include "modbus/unit_registers.hpp"
 #include "pairing/trigger_pairing.hpp"
 #include "simulated_camera.hpp"
@@ -85,13 +87,18 @@ class UnitRunner {
   /// it fell behind ("NOT real time ..."); empty when the source is not paced.
   std::string realtime_verdict() const;
   const UnitConfig& config() const { return config_; }
-  const centroid::CentroidConfig& centroid_config() const { return centroid_->config(); }
+  const centroid::CentroidConfig& centroid_config() const { return marks_.config(); }
   const std::string& notes() const { return notes_; }
   /// Why run() returned an error exit code, when it knows more than the code says ("" if not).
   const std::string& stop_reason() const { return stop_reason_; }
 
  private:
   int process_frame(const frame::FrameView& frame);
+  /// The marks of the frame, with the time it took counted; their count or -errno.
+  int find_marks(const frame::FrameView& frame, std::uint16_t& flags);
+  /// The exposure's trigger sequence and start from the pairing (the frame's own without a
+  /// trigger). False when triggered_only and no edge claims the frame.
+  bool pair_exposure(const frame::FrameView& frame, ExposureStamp& exposure);
   void camera_failed(int rc, time::MonotonicNs now);
   void note_trigger_error(std::uint64_t count = 1);
   void retry_stopped_trigger();
@@ -120,21 +127,17 @@ class UnitRunner {
   time::MonotonicNs trigger_retry_ns_ = 0;  // the master's own line errors, at the last report
   std::unique_ptr<Trigger> trigger_;        // null: trigger none
   TriggerPairing pairing_;
-  std::unique_ptr<centroid::Centroider> centroid_;
+  MarkFinder marks_;
   LinkSet links_;
   health::UnitCounters counters_;
   UnitRegisters registers_;  // Modbus
   UnitClock clock_;
   std::unique_ptr<health::BoardTemperatureSampler> board_temp_;  // off the capture loop
-  int frame_width_ = 0;
-  int frame_height_ = 0;
 
-  std::array<centroid::Blob, msg::kMaxMarks> blobs_{};
   msg::MarkObservations obs_{};
   RunCounters run_{};
   time::MonotonicNs start_mono_ns_ = 0;
   time::MonotonicNs last_health_ns_ = 0;
-  std::uint64_t centroid_truncated_seen_ = 0;
   bool frames_dropped_pending_ = false;
   bool held_ = false;
   frame::FrameView held_frame_{};
