@@ -12,13 +12,6 @@
 #include "input/trigger.hpp"
 
 namespace storetrack::unit {
-namespace {
-
-std::uint32_t clamp_u32(std::uint64_t v) {
-  return static_cast<std::uint32_t>(v & 0xFFFFFFFFu);
-}
-
-}  // namespace
 
 UnitRunner::UnitRunner(UnitConfig config, SimulatedCameraFactory simulated)
     : config_(std::move(config)), simulated_(std::move(simulated)) {}
@@ -109,8 +102,7 @@ int UnitRunner::setup(std::string& error) {
 // status until a report carried it; the line itself retries and requests its lines again.
 void UnitRunner::note_trigger_error(std::uint64_t count) {
   run_.trigger_errors += count;
-  counters_.status.fetch_or(msg::unit_status::kTriggerError, std::memory_order_relaxed);
-  trigger_error_reported_ = false;
+  status_.raise_trigger_error();
 }
 
 // Failed reads are counted by the pairing and flagged here (trigger_error status bit).
@@ -270,8 +262,7 @@ int UnitRunner::find_marks(const frame::FrameView& frame, std::uint16_t& flags) 
   if (n < 0) {
     ++run_.centroid_errors;
     health::UnitCounters::add(counters_.centroid_errors);
-    counters_.status.fetch_or(msg::unit_status::kCentroidError, std::memory_order_relaxed);
-    centroid_error_reported_ = false;
+    status_.raise_centroid_error();
   }
   return n;
 }
@@ -320,44 +311,15 @@ void UnitRunner::send_health(time::MonotonicNs now) {
   }
   clock_.publish(counters_);
   clock_.refresh_offset();
-  msg::UnitHealth h{};
-  h.unit_id = static_cast<std::uint8_t>(config_.unit_id);
-  h.clock_state = clock_.published_state();
-  h.uptime_s = static_cast<std::uint32_t>((now - start_mono_ns_) / time::kNsPerSecond);
-  h.report_tai_ns = now + clock_.tai_minus_mono_ns();
-  h.ptp_offset_ns = counters_.ptp_offset_ns.load();
-  h.sensor_temp_cdeg = counters_.sensor_temp_cdeg.load();
-  h.board_temp_cdeg = counters_.board_temp_cdeg.load();
-  h.frames_captured = clamp_u32(counters_.frames_captured.load());
-  h.frames_dropped = clamp_u32(counters_.frames_dropped.load());
-  h.triggers_seen = clamp_u32(counters_.triggers_seen.load());
-  h.triggers_missing = clamp_u32(counters_.triggers_missing.load());
-  h.triggers_extra = clamp_u32(counters_.triggers_extra.load());
-  h.observations_sent = clamp_u32(counters_.observations_sent.load());
-  h.link_tx_errors = clamp_u32(counters_.link_tx_errors.load());
-  h.link_tx_dropped = clamp_u32(counters_.link_tx_dropped.load());
-  h.can_bus_off_count = static_cast<std::uint16_t>(counters_.can_bus_off_count.load());
-  h.can_error_frames = static_cast<std::uint16_t>(counters_.can_error_frames.load());
-  h.centroid_time_us_max = static_cast<std::uint16_t>(
-      std::min<std::uint32_t>(counters_.centroid_time_us_max.exchange(0), 0xFFFE));
-  h.status = counters_.status.load();
-  links_.send(h);
+  HealthHeader header;
+  header.unit_id = static_cast<std::uint8_t>(config_.unit_id);
+  header.clock_state = clock_.published_state();
+  header.uptime_s = static_cast<std::uint32_t>((now - start_mono_ns_) / time::kNsPerSecond);
+  header.report_tai_ns = now + clock_.tai_minus_mono_ns();
+  links_.send(health_message(header, counters_));
   ++run_.health_sent;
   last_health_ns_ = now;
-  // A camera fault is latched until one report carried it; it clears once the camera is back.
-  if (!camera_down_ && camera_error_reported_)
-    counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kCameraError),
-                               std::memory_order_relaxed);
-  camera_error_reported_ = true;
-  if (trigger_error_reported_)
-    counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kTriggerError),
-                               std::memory_order_relaxed);
-  trigger_error_reported_ = true;
-  // A refused frame is latched likewise: the next report carries it, one after it clears.
-  if (centroid_error_reported_)
-    counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kCentroidError),
-                               std::memory_order_relaxed);
-  centroid_error_reported_ = true;
+  status_.reported(!camera_down_);
 }
 
 int UnitRunner::run_trigger_only(const std::atomic<bool>& stop) {
@@ -389,8 +351,7 @@ int UnitRunner::run_trigger_only(const std::atomic<bool>& stop) {
 void UnitRunner::camera_failed(int rc, time::MonotonicNs now) {
   ++run_.source_errors;
   ++run_.camera_failures;
-  counters_.status.fetch_or(msg::unit_status::kCameraError, std::memory_order_relaxed);
-  camera_error_reported_ = false;
+  status_.raise_camera_error();
   const char* fault = camera_->last_fault();
   std::fprintf(stderr, "storetrack-unit: camera %s failed (%s%s%s); reopening in %lld ms\n",
                camera_->name(), std::strerror(-rc), fault ? ": " : "", fault ? fault : "",
@@ -461,8 +422,7 @@ int UnitRunner::run(const std::atomic<bool>& stop) {
         break;  // finite source (sim, replay) ended
       } else if (rc == -EBADMSG) {
         ++run_.frames_corrupt;  // one frame lost, given back by the source
-        counters_.status.fetch_or(msg::unit_status::kCameraError, std::memory_order_relaxed);
-        camera_error_reported_ = false;
+        status_.raise_camera_error();
       } else if (rc != -EAGAIN) {
         camera_failed(rc, time::monotonic_now_ns());
       }

@@ -16,6 +16,7 @@
 
 #include "clock/unit_clock.hpp"
 #include "exit_codes.hpp"
+#include "health/health_report.hpp"
 #include "links/link_set.hpp"
 #include "marks/mark_finder.hpp"
 #include "message/mark_message.hpp"
@@ -119,9 +120,6 @@ class UnitRunner {
   time::MonotonicNs camera_down_since_ns_ = 0;
   time::MonotonicNs camera_next_reopen_ns_ = 0;
   time::MonotonicNs camera_backoff_ns_ = 0;
-  // The camera-error and trigger-error status bits stay set until a health report carried them.
-  bool camera_error_reported_ = true;
-  bool trigger_error_reported_ = true;
   std::uint64_t trigger_line_errors_seen_ = 0;
   bool trigger_down_ = false;               // a master not restarted after a failed change: retried
   time::MonotonicNs trigger_retry_ns_ = 0;  // the master's own line errors, at the last report
@@ -130,7 +128,8 @@ class UnitRunner {
   MarkFinder marks_;
   LinkSet links_;
   health::UnitCounters counters_;
-  UnitRegisters registers_;  // Modbus
+  StatusLatches status_{counters_};  // the error bits a health report must carry once
+  UnitRegisters registers_;          // Modbus
   UnitClock clock_;
   std::unique_ptr<health::BoardTemperatureSampler> board_temp_;  // off the capture loop
 
@@ -141,7 +140,6 @@ class UnitRunner {
   bool frames_dropped_pending_ = false;
   bool held_ = false;
   frame::FrameView held_frame_{};
-  bool centroid_error_reported_ = true;  // as camera_error_reported_, for the centroid-error bit
   std::string stop_reason_;
 };
 
