@@ -5,11 +5,11 @@
 #include <cmath>
 #include <cstring>
 #include <ctime>
-#include <nlohmann/json.hpp>
 
 #include "input/camera.hpp"
 #include "input/input_factory.hpp"
 #include "input/trigger.hpp"
+#include "stats/unit_stats.hpp"
 
 namespace storetrack::unit {
 
@@ -481,95 +481,14 @@ void UnitRunner::shutdown() {
   pairing_.edge_log().close();
 }
 
-namespace {
-// A unit that renders slower than its rate falls behind without bound; one that keeps up is
-// late only by the scheduler's jitter (a few ms on a loaded 2-core machine).
-constexpr std::int64_t kRealtimeToleranceNs = 100'000'000;
-}  // namespace
-
 std::string UnitRunner::realtime_verdict() const {
-  const std::optional<SimulatedPacing> pacing = camera_ ? camera_->pacing() : std::nullopt;
-  if (!pacing) return "";
-  const SimulatedPacing p = *pacing;
-  char line[256];
-  if (p.max_behind_ns <= kRealtimeToleranceNs) {
-    std::snprintf(line, sizeof line,
-                  "real time kept: at most %.1f ms behind the frame schedule (tolerance %.0f ms); "
-                  "%lld frames more than one frame period (%.2f ms) late",
-                  static_cast<double>(p.max_behind_ns) / 1e6, kRealtimeToleranceNs / 1e6,
-                  static_cast<long long>(p.frames_late), p.frame_period_ns / 1e6);
-  } else {
-    std::snprintf(line, sizeof line,
-                  "NOT real time: fell up to %.1f ms behind the frame schedule; %lld of %lld "
-                  "frames more than one frame period (%.2f ms) late",
-                  static_cast<double>(p.max_behind_ns) / 1e6, static_cast<long long>(p.frames_late),
-                  static_cast<long long>(run_.frames), p.frame_period_ns / 1e6);
-  }
-  return line;
+  return unit::realtime_verdict(camera_ ? camera_->pacing() : std::nullopt, run_.frames);
 }
 
 std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code) const {
-  nlohmann::json j;
-  j["exit_code"] = exit_code;
-  j["exit_reason"] = exit_reason;
-  j["source"] = to_string(config_.source);
-  j["trigger_mode"] = to_string(config_.trigger.mode);
-  j["unit_id"] = config_.unit_id;
-  j["camera_id"] = config_.camera_id;
-  j["duration_s"] = static_cast<double>(time::monotonic_now_ns() - start_mono_ns_) / 1e9;
-  j["frames_captured"] = run_.frames;
-  j["frames_processed"] = run_.frames_processed;
-  j["frames_dropped"] = counters_.frames_dropped.load();
-  j["source_errors"] = run_.source_errors;
-  j["camera"] = {{"failures", run_.camera_failures},
-                 {"reopens", run_.camera_reopens},
-                 {"reopen_failures", run_.camera_reopen_failures},
-                 {"down_s", run_.camera_down_s},
-                 {"frames_corrupt", run_.frames_corrupt},
-                 {"release_errors", run_.release_errors}};
-  if (camera_) camera_->add_stats(j["camera"], j);
-  if (const std::optional<SimulatedPacing> pacing = camera_ ? camera_->pacing() : std::nullopt) {
-    const SimulatedPacing p = *pacing;
-    j["sim_pacing"] = {{"max_behind_ms", static_cast<double>(p.max_behind_ns) / 1e6},
-                       {"frames_late", p.frames_late},
-                       {"frame_period_ms", p.frame_period_ns / 1e6},
-                       {"realtime_kept", p.max_behind_ns <= kRealtimeToleranceNs}};
-  }
-  j["centroid_errors"] = run_.centroid_errors;
-  j["marks_total"] = run_.marks;
-  j["marks_per_frame_mean"] = run_.frames_processed ? static_cast<double>(run_.marks) /
-                                                          static_cast<double>(run_.frames_processed)
-                                                    : 0.0;
-  j["centroid_time_us_mean"] =
-      run_.frames_processed ? run_.centroid_us_sum / static_cast<double>(run_.frames_processed)
-                            : 0.0;
-  j["centroid_time_us_max"] = run_.centroid_us_max;
-  j["health_sent"] = run_.health_sent;
-  j["edges_read"] = pairing_.edges_read();
-  if (config_.trigger.triggered_only) {
-    j["triggered_only"] = {{"skipped_no_marks", run_.skipped_no_marks},
-                           {"skipped_untriggered", run_.skipped_untriggered}};
-  }
-  pairing_.add_stats(j);
-  if (trigger_) {
-    const trigger::TriggerLineStats ts = trigger_->line().stats();
-    j["trigger_line"] = {{"name", trigger_->line().name()},
-                         {"edges", ts.edges},
-                         {"overruns", ts.overruns},
-                         {"max_late_ns", ts.max_late_ns},
-                         {"dropped_edges", ts.dropped_edges},
-                         {"line_errors", ts.line_errors},
-                         {"reopens", ts.reopens},
-                         {"errors_reported", run_.trigger_errors}};
-  }
-  marks_.add_stats(j);
-  clock_.add_stats(j, config_.clock_state, counters_.ptp_offset_ns.load());
-  links_.add_stats(j);
-  registers_.add_stats(j);
-  j["config_apply_errors"] = run_.config_apply_errors;
-  j["trigger_restart_failures"] = run_.trigger_restart_failures;
-  j["trigger_restarts"] = run_.trigger_restarts;
-  return j.dump(2) + "\n";
+  const double duration_s = static_cast<double>(time::monotonic_now_ns() - start_mono_ns_) / 1e9;
+  return unit_stats_json({config_, run_, counters_, duration_s, camera_.get(), trigger_.get(),
+                          pairing_, marks_, clock_, links_, registers_},
+                         exit_reason, exit_code);
 }
-
 }  // namespace storetrack::unit

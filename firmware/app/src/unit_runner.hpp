@@ -23,6 +23,7 @@
 #include "modbus/unit_registers.hpp"
 #include "pairing/trigger_pairing.hpp"
 #include "simulated_camera.hpp"
+#include "stats/run_counters.hpp"
 #include "storetrack/centroid/centroider.hpp"
 #include "storetrack/clock/clock_monitor.hpp"
 #include "storetrack/frame/frame_source.hpp"
@@ -39,29 +40,6 @@ namespace storetrack::unit {
 
 class Camera;   // input/camera.hpp
 class Trigger;  // input/trigger.hpp
-
-struct RunCounters {
-  std::uint64_t frames = 0;
-  std::uint64_t frames_processed = 0;
-  std::uint64_t marks = 0;
-  std::uint64_t centroid_errors = 0;
-  std::uint64_t source_errors = 0;
-  std::uint64_t health_sent = 0;
-  std::uint64_t skipped_no_marks = 0;     ///< triggered_only: frames without marks, not paired
-  std::uint64_t skipped_untriggered = 0;  ///< triggered_only: frames no edge claimed, not sent
-  std::uint64_t frames_corrupt = 0;       ///< frames the camera gave back as bad (-EBADMSG)
-  std::uint64_t release_errors = 0;       ///< a frame could not be given back to the source
-  std::uint64_t camera_failures = 0;      ///< the device was gone (POLLERR, DQBUF, no buffer)
-  std::uint64_t camera_reopens = 0;       ///< ... and came back after a reopen
-  std::uint64_t camera_reopen_failures = 0;
-  double camera_down_s = 0;                    ///< time without a camera, in all
-  std::uint64_t config_apply_errors = 0;       ///< Modbus changes the unit could not apply
-  std::uint64_t trigger_errors = 0;            ///< failed edge reads + pulses not driven
-  std::uint64_t trigger_restart_failures = 0;  ///< ... and the previous trigger not restarted
-  std::uint64_t trigger_restarts = 0;  ///< a trigger that could not be restarted running again
-  double centroid_us_sum = 0;
-  double centroid_us_max = 0;
-};
 
 class UnitRunner {
  public:
