@@ -32,7 +32,7 @@ int UnitRunner::setup(std::string& error) {
   if (facts.clock_state) clock_.configure(config_.clock_state, facts.clock_state);
   if (config_.unit_id < 0) config_.unit_id = 0;
   if (config_.camera_id < 0) config_.camera_id = 0;
-  camera_backoff_ns_ = std::int64_t{config_.camera_reopen_first_ms} * 1'000'000;
+  recovery_.configure(config_.camera_reopen_first_ms, config_.camera_reopen_max_ms);
   if (camera_) {
     const int rc = camera_->start();
     if (rc < 0) {
@@ -319,7 +319,7 @@ void UnitRunner::send_health(time::MonotonicNs now) {
   links_.send(health_message(header, counters_));
   ++run_.health_sent;
   last_health_ns_ = now;
-  status_.reported(!camera_down_);
+  status_.reported(!recovery_.down());
 }
 
 int UnitRunner::run_trigger_only(const std::atomic<bool>& stop) {
@@ -345,28 +345,10 @@ int UnitRunner::run_trigger_only(const std::atomic<bool>& stop) {
   return kExitOk;
 }
 
-// The camera is gone (V4L2: POLLERR/POLLHUP, a failed VIDIOC_DQBUF, every buffer lost): the
-// device is closed and reopened later with a backoff. The trigger keeps running (a gpio master
-// drives the whole rig's exposures) and health keeps going out with the camera-error bit set.
-void UnitRunner::camera_failed(int rc, time::MonotonicNs now) {
-  ++run_.source_errors;
-  ++run_.camera_failures;
-  status_.raise_camera_error();
-  const char* fault = camera_->last_fault();
-  std::fprintf(stderr, "storetrack-unit: camera %s failed (%s%s%s); reopening in %lld ms\n",
-               camera_->name(), std::strerror(-rc), fault ? ": " : "", fault ? fault : "",
-               static_cast<long long>(camera_backoff_ns_ / 1'000'000));
-  camera_->stop();
-  camera_down_ = true;
-  camera_down_since_ns_ = now;
-  camera_next_reopen_ns_ = now + camera_backoff_ns_;
-}
-
+// While the camera is down: wait for the next try without spinning (edges, gpio slave or master,
+// are still drained), then try.
 void UnitRunner::service_camera_recovery(time::MonotonicNs now) {
-  if (now < camera_next_reopen_ns_) {
-    // Wait for the next try without spinning: edges (gpio slave or master) are still drained.
-    const auto wait_ms = static_cast<int>(
-        std::clamp<std::int64_t>((camera_next_reopen_ns_ - now) / 1'000'000, 1, 10));
+  if (const int wait_ms = recovery_.wait_ms(now); wait_ms > 0) {
     if (trigger_ && !trigger_->follows_frames()) {
       drain_edges(wait_ms);
     } else {
@@ -375,20 +357,7 @@ void UnitRunner::service_camera_recovery(time::MonotonicNs now) {
     }
     return;
   }
-  const int rc = camera_->start();
-  const time::MonotonicNs max_backoff = std::int64_t{config_.camera_reopen_max_ms} * 1'000'000;
-  if (rc < 0) {
-    ++run_.camera_reopen_failures;
-    camera_backoff_ns_ = std::min(max_backoff, camera_backoff_ns_ * 2);
-    camera_next_reopen_ns_ = now + camera_backoff_ns_;
-    return;
-  }
-  camera_down_ = false;
-  ++run_.camera_reopens;
-  run_.camera_down_s += static_cast<double>(now - camera_down_since_ns_) * 1e-9;
-  camera_backoff_ns_ = std::int64_t{config_.camera_reopen_first_ms} * 1'000'000;
-  std::fprintf(stderr, "storetrack-unit: camera %s back after %.3f s\n", camera_->name(),
-               static_cast<double>(now - camera_down_since_ns_) * 1e-9);
+  recovery_.try_restart(*camera_, now);
 }
 
 int UnitRunner::run(const std::atomic<bool>& stop) {
@@ -402,7 +371,7 @@ int UnitRunner::run(const std::atomic<bool>& stop) {
   int exit_code = kExitOk;
   while (!stop.load(std::memory_order_relaxed)) {
     apply_config_changes();
-    if (camera_down_) {
+    if (recovery_.down()) {
       service_camera_recovery(time::monotonic_now_ns());
     } else {
       frame::FrameView frame;
@@ -424,7 +393,9 @@ int UnitRunner::run(const std::atomic<bool>& stop) {
         ++run_.frames_corrupt;  // one frame lost, given back by the source
         status_.raise_camera_error();
       } else if (rc != -EAGAIN) {
-        camera_failed(rc, time::monotonic_now_ns());
+        ++run_.source_errors;
+        status_.raise_camera_error();
+        recovery_.failed(*camera_, rc, time::monotonic_now_ns());
       }
       if (trigger_ && !trigger_->follows_frames() && rc == -EAGAIN) drain_edges(0);
     }
@@ -434,9 +405,7 @@ int UnitRunner::run(const std::atomic<bool>& stop) {
     if (config_.frames > 0 && static_cast<long>(run_.frames) >= config_.frames) break;
     if (deadline != 0 && now >= deadline) break;
   }
-  if (camera_down_)
-    run_.camera_down_s +=
-        static_cast<double>(time::monotonic_now_ns() - camera_down_since_ns_) * 1e-9;
+  recovery_.close(time::monotonic_now_ns());
   counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kCapturing));
   send_health(time::monotonic_now_ns());  // final report with the closing counters
   return exit_code;
@@ -487,8 +456,8 @@ std::string UnitRunner::realtime_verdict() const {
 
 std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code) const {
   const double duration_s = static_cast<double>(time::monotonic_now_ns() - start_mono_ns_) / 1e9;
-  return unit_stats_json({config_, run_, counters_, duration_s, camera_.get(), trigger_.get(),
-                          pairing_, marks_, clock_, links_, registers_},
+  return unit_stats_json({config_, run_, counters_, duration_s, camera_.get(), recovery_.counters(),
+                          trigger_.get(), pairing_, marks_, clock_, links_, registers_},
                          exit_reason, exit_code);
 }
 }  // namespace storetrack::unit

@@ -22,6 +22,7 @@
 #include "message/mark_message.hpp"
 #include "modbus/unit_registers.hpp"
 #include "pairing/trigger_pairing.hpp"
+#include "recovery/camera_recovery.hpp"
 #include "simulated_camera.hpp"
 #include "stats/run_counters.hpp"
 #include "storetrack/centroid/centroider.hpp"
@@ -78,7 +79,6 @@ class UnitRunner {
   /// The exposure's trigger sequence and start from the pairing (the frame's own without a
   /// trigger). False when triggered_only and no edge claims the frame.
   bool pair_exposure(const frame::FrameView& frame, ExposureStamp& exposure);
-  void camera_failed(int rc, time::MonotonicNs now);
   void note_trigger_error(std::uint64_t count = 1);
   void retry_stopped_trigger();
   void apply_exposure(std::uint32_t exposure_us);
@@ -93,11 +93,7 @@ class UnitRunner {
   std::string notes_;
   SimulatedCameraFactory simulated_;
   std::unique_ptr<Camera> camera_;  // null: source none
-  // camera recovery: while down, no acquire(); start() is retried at doubling intervals
-  bool camera_down_ = false;
-  time::MonotonicNs camera_down_since_ns_ = 0;
-  time::MonotonicNs camera_next_reopen_ns_ = 0;
-  time::MonotonicNs camera_backoff_ns_ = 0;
+  CameraRecovery recovery_;         // while the camera is down, no acquire()
   std::uint64_t trigger_line_errors_seen_ = 0;
   bool trigger_down_ = false;               // a master not restarted after a failed change: retried
   time::MonotonicNs trigger_retry_ns_ = 0;  // the master's own line errors, at the last report

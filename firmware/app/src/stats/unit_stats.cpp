@@ -47,10 +47,10 @@ std::string unit_stats_json(const UnitStatsSources& s, const std::string& exit_r
   j["frames_processed"] = run.frames_processed;
   j["frames_dropped"] = s.counters.frames_dropped.load();
   j["source_errors"] = run.source_errors;
-  j["camera"] = {{"failures", run.camera_failures},
-                 {"reopens", run.camera_reopens},
-                 {"reopen_failures", run.camera_reopen_failures},
-                 {"down_s", run.camera_down_s},
+  j["camera"] = {{"failures", s.recovery.failures},
+                 {"reopens", s.recovery.reopens},
+                 {"reopen_failures", s.recovery.reopen_failures},
+                 {"down_s", s.recovery.down_s},
                  {"frames_corrupt", run.frames_corrupt},
                  {"release_errors", run.release_errors}};
   if (s.camera) s.camera->add_stats(j["camera"], j);

@@ -13,6 +13,7 @@
 #include "marks/mark_finder.hpp"
 #include "modbus/unit_registers.hpp"
 #include "pairing/trigger_pairing.hpp"
+#include "recovery/camera_recovery.hpp"
 #include "simulated_camera.hpp"
 #include "stats/run_counters.hpp"
 #include "storetrack/health/unit_state.hpp"
@@ -28,6 +29,7 @@ struct UnitStatsSources {
   const health::UnitCounters& counters;
   double duration_s;
   const Camera* camera;
+  const CameraRecoveryCounters& recovery;
   const Trigger* trigger;
   const TriggerPairing& pairing;
   const MarkFinder& marks;
