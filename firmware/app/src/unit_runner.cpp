@@ -119,17 +119,17 @@ int UnitRunner::drain_edges(int timeout_ms) {
 // away): nothing drives the rig's trigger, so it is tried again once a second until it runs,
 // the trigger_error bit held meanwhile.
 void UnitRunner::retry_stopped_trigger() {
-  if (!trigger_down_) return;
-  const time::MonotonicNs now = time::monotonic_now_ns();
-  if (now < trigger_retry_ns_) return;
-  trigger_retry_ns_ = now + time::kNsPerSecond;
-  if (trigger_->line().start() != 0) {
-    note_trigger_error();
-    return;
+  if (!trigger_) return;
+  switch (trigger_->retry_stopped()) {
+    case TriggerRetry::kNothingToDo:
+      break;
+    case TriggerRetry::kStillDown:
+      note_trigger_error();
+      break;
+    case TriggerRetry::kRunning:
+      ++run_.trigger_restarts;
+      break;
   }
-  trigger_down_ = false;
-  ++run_.trigger_restarts;
-  std::fprintf(stderr, "storetrack-unit: trigger %s running again\n", trigger_->line().name());
 }
 
 void UnitRunner::apply_config_changes() {
@@ -192,9 +192,7 @@ void UnitRunner::apply_trigger_change(double rate_hz, std::int64_t width_ns) {
       return;
     case TriggerChange::kPreviousNotRunning:
       ++run_.config_apply_errors;
-      ++run_.trigger_restart_failures;
-      trigger_down_ = true;  // retried by retry_stopped_trigger() until it runs again
-      trigger_retry_ns_ = time::monotonic_now_ns() + time::kNsPerSecond;
+      ++run_.trigger_restart_failures;  // retried by retry_stopped_trigger() until it runs
       note_trigger_error();
       return;
   }
@@ -301,13 +299,9 @@ bool UnitRunner::pair_exposure(const frame::FrameView& frame, ExposureStamp& exp
 
 void UnitRunner::send_health(time::MonotonicNs now) {
   links_.service(counters_);
-  // A gpio master's pulses that could not be driven: its own thread counts them. (A reader's
-  // line errors are its failed reads, already noted by drain_edges().)
-  if (config_.trigger.mode == TriggerMode::kGpioMaster && trigger_) {
-    const std::uint64_t line_errors = trigger_->line().stats().line_errors;
-    if (line_errors > trigger_line_errors_seen_)
-      note_trigger_error(line_errors - trigger_line_errors_seen_);
-    trigger_line_errors_seen_ = line_errors;
+  if (trigger_) {
+    if (const std::uint64_t pulse_errors = trigger_->new_pulse_errors(); pulse_errors > 0)
+      note_trigger_error(pulse_errors);
   }
   clock_.publish(counters_);
   clock_.refresh_offset();

@@ -92,12 +92,9 @@ class UnitRunner {
   UnitConfig config_;
   std::string notes_;
   SimulatedCameraFactory simulated_;
-  std::unique_ptr<Camera> camera_;  // null: source none
-  CameraRecovery recovery_;         // while the camera is down, no acquire()
-  std::uint64_t trigger_line_errors_seen_ = 0;
-  bool trigger_down_ = false;               // a master not restarted after a failed change: retried
-  time::MonotonicNs trigger_retry_ns_ = 0;  // the master's own line errors, at the last report
-  std::unique_ptr<Trigger> trigger_;        // null: trigger none
+  std::unique_ptr<Camera> camera_;    // null: source none
+  CameraRecovery recovery_;           // while the camera is down, no acquire()
+  std::unique_ptr<Trigger> trigger_;  // null: trigger none
   TriggerPairing pairing_;
   MarkFinder marks_;
   LinkSet links_;

@@ -177,15 +177,39 @@ class GpioMaster final : public Trigger {
                    "storetrack-unit: trigger %.0f Hz / %lld ns not started (%s); "
                    "the previous trigger goes on\n",
                    rate_hz, static_cast<long long>(width_ns), fresh->error().c_str());
-      return line_->start() != 0 ? TriggerChange::kPreviousNotRunning
-                                 : TriggerChange::kKeptPrevious;
+      if (line_->start() != 0) {
+        down_ = true;
+        retry_ns_ = time::monotonic_now_ns() + time::kNsPerSecond;
+        return TriggerChange::kPreviousNotRunning;
+      }
+      return TriggerChange::kKeptPrevious;
     }
     line_ = std::move(fresh);
     return TriggerChange::kApplied;
   }
+  TriggerRetry retry_stopped() override {
+    if (!down_) return TriggerRetry::kNothingToDo;
+    const time::MonotonicNs now = time::monotonic_now_ns();
+    if (now < retry_ns_) return TriggerRetry::kNothingToDo;
+    retry_ns_ = now + time::kNsPerSecond;
+    if (line_->start() != 0) return TriggerRetry::kStillDown;
+    down_ = false;
+    std::fprintf(stderr, "storetrack-unit: trigger %s running again\n", line_->name());
+    return TriggerRetry::kRunning;
+  }
+  std::uint64_t new_pulse_errors() override {
+    const std::uint64_t line_errors = line_->stats().line_errors;
+    const std::uint64_t fresh =
+        line_errors > line_errors_seen_ ? line_errors - line_errors_seen_ : 0;
+    line_errors_seen_ = line_errors;
+    return fresh;
+  }
 
  private:
   TriggerConfig config_;  // the lines; rate and width come with each change
+  bool down_ = false;     // not started again after a failed change: retried
+  time::MonotonicNs retry_ns_ = 0;
+  std::uint64_t line_errors_seen_ = 0;  // at the last new_pulse_errors()
 };
 
 }  // namespace

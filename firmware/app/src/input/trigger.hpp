@@ -17,7 +17,14 @@ enum class TriggerChange {
   kApplied,             ///< running with it (or nothing to restart: the pairing follows it)
   kInvalid,             ///< refused before anything stopped
   kKeptPrevious,        ///< the new one did not start; the previous one runs again
-  kPreviousNotRunning,  ///< ... and the previous one did not start again either
+  kPreviousNotRunning,  ///< ... and the previous one did not start again: retried
+};
+
+/// A stopped generator's retry (retry_stopped()).
+enum class TriggerRetry {
+  kNothingToDo,  ///< running, or not yet time to try again
+  kStillDown,    ///< tried, did not start
+  kRunning,      ///< running again
 };
 
 class Trigger {
@@ -40,6 +47,12 @@ class Trigger {
   virtual TriggerChange change(double /*rate_hz*/, std::int64_t /*width_ns*/) {
     return TriggerChange::kApplied;
   }
+  /// A generator not started again after a failed change (kPreviousNotRunning): nothing drives
+  /// the rig's trigger, so it is tried again once a second until it runs.
+  virtual TriggerRetry retry_stopped() { return TriggerRetry::kNothingToDo; }
+  /// Pulses the trigger could not drive since the last call (a gpio master's own thread counts
+  /// them; a reader's line errors are its failed reads, counted by the pairing).
+  virtual std::uint64_t new_pulse_errors() { return 0; }
 
  protected:
   std::unique_ptr<trigger::TriggerLine> line_;
