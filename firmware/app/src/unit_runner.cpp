@@ -20,15 +20,12 @@ UnitRunner::~UnitRunner() {
   shutdown();
 }
 
-int UnitRunner::setup(std::string& error) {
-  start_mono_ns_ = time::monotonic_now_ns();
-  // --- frame source ----------------------------------------------------------------------------
-  clock_.configure(config_.clock_state, std::nullopt);
-  InputFactory inputs(config_, simulated_);
+// The camera: made, started, its size known, the clock told whether it keeps its own time.
+int UnitRunner::setup_camera(InputFactory& inputs, int& width, int& height, std::string& error) {
   CameraFacts facts;
   if (const int rc = inputs.make_camera(camera_, facts, error); rc != kExitOk) return rc;
-  int width = facts.width;
-  int height = facts.height;
+  width = facts.width;
+  height = facts.height;
   if (facts.clock_state) clock_.configure(config_.clock_state, facts.clock_state);
   if (config_.unit_id < 0) config_.unit_id = 0;
   if (config_.camera_id < 0) config_.camera_id = 0;
@@ -45,21 +42,19 @@ int UnitRunner::setup(std::string& error) {
       notes_ += std::string(camera_->name()) + ": " + notes + "\n";
   }
   clock_.follow_source(camera_ ? camera_->fixed_tai_minus_mono_ns() : std::nullopt);
-  // Every pixel centre must be encodable, else each exposure with a mark beyond is lost.
-  if (camera_) {
-    namespace word = msg::mark_observation_word;
-    const auto max_width = static_cast<int>(std::floor(word::kXPxMaxValue)) + 1;
-    const auto max_height = static_cast<int>(std::floor(word::kYPxMaxValue)) + 1;
-    if (width > max_width || height > max_height) {
-      char why[256];
-      std::snprintf(why, sizeof why,
-                    "sensor %d x %d px: mark coordinates are encodable only up to %.2f x %.2f px "
-                    "(MarkObservations x_px, y_px), i.e. frames of at most %d x %d px",
-                    width, height, word::kXPxMaxValue, word::kYPxMaxValue, max_width, max_height);
-      error = why;
-      return kExitUsage;
-    }
-  }
+  if (camera_ && !frame_fits_message(width, height, error)) return kExitUsage;
+  return kExitOk;
+}
+
+// Each part in turn; the first that cannot start says why. Everything the loop needs is
+// allocated here.
+int UnitRunner::setup(std::string& error) {
+  start_mono_ns_ = time::monotonic_now_ns();
+  clock_.configure(config_.clock_state, std::nullopt);
+  InputFactory inputs(config_, simulated_);
+  int width = 0;
+  int height = 0;
+  if (const int rc = setup_camera(inputs, width, height, error); rc != kExitOk) return rc;
 
   // --- holding registers from the configuration ------------------------------------------------
   registers_.load(config_, width, height);

@@ -41,6 +41,7 @@ namespace storetrack::unit {
 
 class Camera;   // input/camera.hpp
 class Trigger;  // input/trigger.hpp
+class InputFactory;
 
 class UnitRunner {
  public:
@@ -73,6 +74,7 @@ class UnitRunner {
   const std::string& stop_reason() const { return stop_reason_; }
 
  private:
+  int setup_camera(InputFactory& inputs, int& width, int& height, std::string& error);
   int process_frame(const frame::FrameView& frame);
   /// The marks of the frame, with the time it took counted; their count or -errno.
   int find_marks(const frame::FrameView& frame, std::uint16_t& flags);

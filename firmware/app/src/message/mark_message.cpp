@@ -1,8 +1,24 @@
 #include "message/mark_message.hpp"
 
 #include <algorithm>
+#include <cmath>
+#include <cstdio>
 
 namespace storetrack::unit {
+
+bool frame_fits_message(int width, int height, std::string& why) {
+  namespace word = msg::mark_observation_word;
+  const auto max_width = static_cast<int>(std::floor(word::kXPxMaxValue)) + 1;
+  const auto max_height = static_cast<int>(std::floor(word::kYPxMaxValue)) + 1;
+  if (width <= max_width && height <= max_height) return true;
+  char line[256];
+  std::snprintf(line, sizeof line,
+                "sensor %d x %d px: mark coordinates are encodable only up to %.2f x %.2f px "
+                "(MarkObservations x_px, y_px), i.e. frames of at most %d x %d px",
+                width, height, word::kXPxMaxValue, word::kYPxMaxValue, max_width, max_height);
+  why = line;
+  return false;
+}
 
 void fill_mark_message(const ExposureStamp& exposure, const frame::FrameView& frame,
                        std::span<const centroid::Blob> marks, msg::MarkObservations& out) {

@@ -5,6 +5,7 @@
 
 #include <cstdint>
 #include <span>
+#include <string>
 
 #include "storetrack/centroid/centroider.hpp"
 #include "storetrack/frame/frame_source.hpp"
@@ -23,6 +24,10 @@ struct ExposureStamp {
   std::uint8_t clock_state = 0;
   std::uint16_t flags = 0;  ///< msg::exposure_flags
 };
+
+/// Whether every pixel centre of a frame this size is encodable (MarkObservations x_px, y_px);
+/// else each exposure with a mark beyond would be lost. False with the reason in `why`.
+bool frame_fits_message(int width, int height, std::string& why);
 
 /// Fills `out` with the exposure and its marks (at most msg::kMaxMarks).
 void fill_mark_message(const ExposureStamp& exposure, const frame::FrameView& frame,
