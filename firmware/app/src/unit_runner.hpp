@@ -1,18 +1,17 @@
-// UnitRunner: the camera unit's capture loop.
-//   FrameSource -> (pair with trigger edge) -> Centroider -> msg::MarkObservations -> link(s)
-// plus the periodic UnitHealth message and the Modbus server thread. setup() allocates
-// everything; the per-frame path (run()) allocates nothing and throws nothing.
+// UnitRunner: the camera unit's capture loop, wiring its parts (docs/architecture.md, "The
+// unit runner"):
+//   Camera -> TriggerPairing (with the Trigger's edges) -> MarkFinder -> fill_mark_message
+//   -> LinkSet
+// plus the periodic UnitHealth report, the Modbus registers (UnitRegisters) and the clock
+// (UnitClock). setup() allocates everything; the per-frame path (run()) allocates nothing and
+// throws nothing.
 #pragma once
 
-#include <array>
 #include <atomic>
 #include <cstdint>
-#include <cstdio>
-#include <functional>
 #include <memory>
-#include <optional>
+#include <span>
 #include <string>
-#include <vector>
 
 #include "clock/unit_clock.hpp"
 #include "exit_codes.hpp"
@@ -26,15 +25,10 @@
 #include "simulated_camera.hpp"
 #include "stats/run_counters.hpp"
 #include "storetrack/centroid/centroider.hpp"
-#include "storetrack/clock/clock_monitor.hpp"
 #include "storetrack/frame/frame_source.hpp"
 #include "storetrack/health/board_temperature.hpp"
-#include "storetrack/health/modbus_server.hpp"
 #include "storetrack/health/unit_state.hpp"
-#include "storetrack/link/observation_link.hpp"
 #include "storetrack/msg/messages.hpp"
-#include "storetrack/trigger/frame_pairer.hpp"
-#include "storetrack/trigger/trigger_line.hpp"
 #include "unit_config.hpp"
 
 namespace storetrack::unit {
