@@ -5,54 +5,13 @@
 #include <cmath>
 #include <cstring>
 #include <ctime>
-#include <nlohmann/json.hpp>
 
-#include "storetrack/capture/fault_injecting_frame_source.hpp"
-#include "storetrack/capture/replay_frame_source.hpp"
-#include "storetrack/capture/v4l2_frame_source.hpp"
-#include "storetrack/link/canfd_link.hpp"
-#include "storetrack/link/udp_link.hpp"
-#include "storetrack/trigger/gpio_trigger.hpp"
-#include "storetrack/trigger/sim_trigger.hpp"
+#include "input/camera.hpp"
+#include "input/input_factory.hpp"
+#include "input/trigger.hpp"
+#include "stats/unit_stats.hpp"
 
 namespace storetrack::unit {
-namespace {
-
-// The generator never drives a pulse later than half this unit's phase tolerance after its grid
-// time (at most period / 8): the pulse's stamp must land inside the tolerance, or the pairer
-// would call a real exposure an extra edge.
-trigger::GpioMasterConfig master_config(const TriggerConfig& trigger, double rate_hz,
-                                        std::int64_t width_ns) {
-  trigger::GpioMasterConfig mc;
-  mc.chip = trigger.chip;
-  mc.lines = trigger.lines;
-  mc.active_low = trigger.active_low;
-  mc.rate_hz = rate_hz;
-  mc.pulse_width_ns = width_ns;
-  const auto period = static_cast<std::int64_t>(std::llround(1e9 / rate_hz));
-  const std::int64_t tolerance =
-      trigger.edge_phase_tolerance_ns > 0 ? trigger.edge_phase_tolerance_ns : period / 4;
-  mc.max_late_ns = std::max<std::int64_t>(1, std::min(period / 8, tolerance / 2));
-  return mc;
-}
-
-/// The Modbus pulse_width_us register's view of a pulse width (docs/modbus.md: 1..5000 us).
-std::uint16_t pulse_width_register(std::int64_t width_ns) {
-  return static_cast<std::uint16_t>(std::clamp<std::int64_t>(width_ns / 1000, 1, 5000));
-}
-
-std::uint8_t parse_clock_state(const std::string& s) {
-  if (s == "locking") return static_cast<std::uint8_t>(time::ClockState::kLocking);
-  if (s == "locked") return static_cast<std::uint8_t>(time::ClockState::kLocked);
-  if (s == "holdover") return static_cast<std::uint8_t>(time::ClockState::kHoldover);
-  return static_cast<std::uint8_t>(time::ClockState::kFreeRunning);
-}
-
-std::uint32_t clamp_u32(std::uint64_t v) {
-  return static_cast<std::uint32_t>(v & 0xFFFFFFFFu);
-}
-
-}  // namespace
 
 UnitRunner::UnitRunner(UnitConfig config, SimulatedCameraFactory simulated)
     : config_(std::move(config)), simulated_(std::move(simulated)) {}
@@ -61,255 +20,72 @@ UnitRunner::~UnitRunner() {
   shutdown();
 }
 
-void UnitRunner::make_pairer(std::uint32_t first_sequence) {
-  pairer_config_.first_sequence = first_sequence;
-  pairer_.emplace(pairer_config_);
-}
-
-int UnitRunner::setup(std::string& error) {
-  start_mono_ns_ = time::monotonic_now_ns();
-  // --- frame source -------------------------------------------------------------------------
-  int width = config_.v4l2.device.width;
-  int height = config_.v4l2.device.height;
-  clock_state_ = parse_clock_state(config_.clock_state);
-  try {
-    switch (config_.source) {
-      case SourceType::kSim: {
-        if (!simulated_) {
-          error =
-              "source sim: this program was built without the simulated mode "
-              "(it links no storetrack_unit_sim)";
-          return kExitUsage;
-        }
-        SimulatedCamera camera;
-        if (!simulated_(config_.sim, camera, error)) return kExitUsage;
-        if (config_.unit_id < 0) config_.unit_id = camera.unit_id;
-        if (config_.camera_id < 0) config_.camera_id = camera.camera_id;
-        width = camera.width;
-        height = camera.height;
-        if (config_.clock_state == "auto") clock_state_ = camera.clock_state;
-        tai_minus_mono_ns_ = camera.tai_minus_mono_ns;
-        tai_from_source_ = true;
-        if (config_.trigger.mode == TriggerMode::kSim)
-          config_.trigger.rate_hz = camera.frame_rate_hz;
-        sim_first_trigger_seq_ = camera.first_trigger_seq;
-        simulation_ = std::move(camera.simulation);
-        sim_pacing_ = std::move(camera.pacing);
-        source_ = std::move(camera.source);
-        break;
-      }
-      case SourceType::kReplay: {
-        capture::ReplayConfig rc;
-        rc.directory = config_.replay.directory;
-        rc.rate_hz = config_.replay.rate_hz;
-        rc.loop = config_.replay.loop;
-        rc.default_period_ns =
-            static_cast<std::int64_t>(std::llround(1e9 / config_.trigger.rate_hz));
-        rc.default_exposure_ns = config_.exposure_us * 1000u;
-        auto r = std::make_unique<capture::ReplayFrameSource>(rc);
-        replay_ = r.get();
-        source_ = std::move(r);
-        tai_from_source_ = true;
-        break;
-      }
-      case SourceType::kV4l2: {
-        capture::V4L2Config vc = config_.v4l2.device;
-        vc.exposure_ns = config_.exposure_us * 1000u;
-        auto v = std::make_unique<capture::V4L2FrameSource>(vc);
-        v4l2_ = v.get();
-        source_ = std::move(v);
-        break;
-      }
-      case SourceType::kNone:
-        break;
-    }
-  } catch (const std::exception& e) {
-    error = std::string("source: ") + e.what();
-    return kExitUsage;
-  }
+// The camera: made, started, its size known, the clock told whether it keeps its own time.
+int UnitRunner::setup_camera(InputFactory& inputs, int& width, int& height, std::string& error) {
+  CameraFacts facts;
+  if (const int rc = inputs.make_camera(camera_, facts, error); rc != kExitOk) return rc;
+  width = facts.width;
+  height = facts.height;
+  if (facts.clock_state) clock_.configure(config_.clock_state, facts.clock_state);
   if (config_.unit_id < 0) config_.unit_id = 0;
   if (config_.camera_id < 0) config_.camera_id = 0;
-  if (source_ && !config_.camera_faults.empty()) {
-    capture::CameraFaultPlan plan = config_.camera_faults;
-    const double rate_hz =
-        config_.source == SourceType::kSim && config_.sim.realtime && config_.sim.pace_hz > 0
-            ? config_.sim.pace_hz
-            : config_.trigger.rate_hz;
-    plan.frame_period_ns = rate_hz > 0 ? std::llround(1e9 / rate_hz) : 0;
-    auto f = std::make_unique<capture::FaultInjectingFrameSource>(std::move(source_), plan);
-    faults_ = f.get();
-    source_ = std::move(f);
-  }
-  camera_backoff_ns_ = std::int64_t{config_.camera_reopen_first_ms} * 1'000'000;
-  if (source_) {
-    const int rc = source_->start();
+  recovery_.configure(config_.camera_reopen_first_ms, config_.camera_reopen_max_ms);
+  if (camera_) {
+    const int rc = camera_->start();
     if (rc < 0) {
-      error = std::string("cannot start frame source ") + source_->name() + ": " +
-              (v4l2_     ? v4l2_->error()
-               : replay_ ? replay_->error()
-                         : std::strerror(-rc));
+      error =
+          std::string("cannot start frame source ") + camera_->name() + ": " + camera_->error(rc);
       return kExitStartFailure;
     }
-    if (v4l2_) {
-      width = v4l2_->format().width;
-      height = v4l2_->format().height;
-      if (!v4l2_->notes().empty())
-        notes_ += std::string(v4l2_->name()) + ": " + v4l2_->notes() + "\n";
-    }
+    camera_->started_size(width, height);
+    if (const std::string notes = camera_->notes(); !notes.empty())
+      notes_ += std::string(camera_->name()) + ": " + notes + "\n";
   }
-  if (!tai_from_source_) tai_minus_mono_ns_ = time::tai_now_ns() - time::monotonic_now_ns();
-  // Every pixel centre must be encodable, else each exposure with a mark beyond is lost.
-  if (source_) {
-    namespace word = msg::mark_observation_word;
-    const auto max_width = static_cast<int>(std::floor(word::kXPxMaxValue)) + 1;
-    const auto max_height = static_cast<int>(std::floor(word::kYPxMaxValue)) + 1;
-    if (width > max_width || height > max_height) {
-      char why[256];
-      std::snprintf(why, sizeof why,
-                    "sensor %d x %d px: mark coordinates are encodable only up to %.2f x %.2f px "
-                    "(MarkObservations x_px, y_px), i.e. frames of at most %d x %d px",
-                    width, height, word::kXPxMaxValue, word::kYPxMaxValue, max_width, max_height);
-      error = why;
-      return kExitUsage;
-    }
-  }
+  clock_.follow_source(camera_ ? camera_->fixed_tai_minus_mono_ns() : std::nullopt);
+  if (camera_ && !frame_fits_message(width, height, error)) return kExitUsage;
+  return kExitOk;
+}
+
+// Each part in turn; the first that cannot start says why. Everything the loop needs is
+// allocated here.
+int UnitRunner::setup(std::string& error) {
+  start_mono_ns_ = time::monotonic_now_ns();
+  clock_.configure(config_.clock_state, std::nullopt);
+  InputFactory inputs(config_, simulated_);
+  int width = 0;
+  int height = 0;
+  if (const int rc = setup_camera(inputs, width, height, error); rc != kExitOk) return rc;
 
   // --- holding registers from the configuration ------------------------------------------------
-  using health::HoldingField;
-  store_.set(HoldingField::kUnitId, static_cast<std::uint16_t>(config_.unit_id));
-  store_.set(HoldingField::kCameraId, static_cast<std::uint16_t>(config_.camera_id));
-  store_.set(HoldingField::kExposureUs, static_cast<std::uint16_t>(config_.exposure_us));
-  store_.set(HoldingField::kTriggerRateHz,
-             static_cast<std::uint16_t>(std::lround(std::min(config_.trigger.rate_hz, 400.0))));
-  store_.set(HoldingField::kPulseWidthUs, pulse_width_register(config_.trigger.pulse_width_ns));
-  store_.set(HoldingField::kThresholdDn,
-             static_cast<std::uint16_t>(std::clamp(config_.centroid.threshold_dn, 0, 65535)));
-  store_.set(HoldingField::kRoiX, static_cast<std::uint16_t>(config_.roi_x));
-  store_.set(HoldingField::kRoiY, static_cast<std::uint16_t>(config_.roi_y));
-  store_.set(HoldingField::kRoiWidth, static_cast<std::uint16_t>(config_.roi_width));
-  store_.set(HoldingField::kRoiHeight, static_cast<std::uint16_t>(config_.roi_height));
-  seen_generation_ = store_.generation();
-  store_.lock_identity();  // ids change only at a restart (docs/modbus.md)
-  store_.set_limits({width, height});
+  registers_.load(config_, width, height);
 
   // --- centroider ------------------------------------------------------------------------------
-  frame_width_ = width;
-  frame_height_ = height;
-  if (source_) {
-    try {
-      centroid_ = std::make_unique<centroid::Centroider>(config_.centroid, width, height);
-    } catch (const std::exception& e) {
-      error = std::string("centroid configuration: ") + e.what();
-      return kExitUsage;
-    }
-  }
+  if (camera_ && !marks_.configure(config_.centroid, width, height, error)) return kExitUsage;
 
   // --- trigger ---------------------------------------------------------------------------------
+  if (!pairing_.configure(config_.trigger, error)) return kExitUsage;
   const auto period = static_cast<std::int64_t>(std::llround(1e9 / config_.trigger.rate_hz));
-  pairer_config_.period_ns = period;
-  pairer_config_.latency_ns = config_.trigger.latency_ns;
-  pairer_config_.match_tolerance_ns =
-      config_.trigger.match_tolerance_ns > 0 ? config_.trigger.match_tolerance_ns : period / 4;
-  pairer_config_.edge_phase_tolerance_ns = config_.trigger.edge_phase_tolerance_ns > 0
-                                               ? config_.trigger.edge_phase_tolerance_ns
-                                               : period / 4;
-  pairer_config_.trigger_to_exposure_ns = config_.trigger.trigger_to_exposure_ns;
-  const char* why = nullptr;
-  if (trigger::validate(pairer_config_, &why) < 0) {
-    error = std::string("trigger pairing: ") + why;
-    return kExitUsage;
-  }
-  switch (config_.trigger.mode) {
-    case TriggerMode::kNone:
-      break;
-    case TriggerMode::kSim: {
-      trigger::SimTriggerConfig sc;
-      sc.period_ns = period;
-      sc.jitter_ns = config_.trigger.sim_jitter_ns;
-      sc.drop_every = config_.trigger.sim_drop_every;
-      sc.extra_every = config_.trigger.sim_extra_every;
-      sc.read_error_every = config_.trigger.sim_read_error_every;
-      auto t = std::make_unique<trigger::SimTriggerLine>(sc);
-      sim_trigger_ = t.get();
-      trigger_ = std::move(t);
-      break;
-    }
-    case TriggerMode::kGpioMaster: {
-      auto t = std::make_unique<trigger::GpioMasterTrigger>(
-          master_config(config_.trigger, config_.trigger.rate_hz, config_.trigger.pulse_width_ns));
-      if (t->start() < 0) {
-        error = "trigger: " + t->error();
-        return kExitStartFailure;
-      }
-      trigger_ = std::move(t);
-      break;
-    }
-    case TriggerMode::kGpioSlave: {
-      trigger::GpioSlaveConfig sc;
-      sc.chip = config_.trigger.chip;
-      sc.line = config_.trigger.line;
-      sc.active_low = config_.trigger.active_low;
-      auto t = std::make_unique<trigger::GpioSlaveTrigger>(sc);
-      if (t->start() < 0) {
-        error = "trigger: " + t->error();
-        return kExitStartFailure;
-      }
-      trigger_ = std::move(t);
-      break;
-    }
-  }
-  if (trigger_ && config_.trigger.mode != TriggerMode::kSim) make_pairer(0);
-  if (!config_.trigger.edges_csv.empty()) {
-    edges_csv_ = std::fopen(config_.trigger.edges_csv.c_str(), "w");
-    if (edges_csv_ == nullptr) {
-      error = config_.trigger.edges_csv + ": " + std::strerror(errno);
-      return kExitStartFailure;
-    }
-    std::fprintf(edges_csv_, "line_count,t_mono_ns,trigger_seq,verdict\n");
-  }
+  if (const int rc = inputs.make_trigger(period, trigger_, error); rc != kExitOk) return rc;
+  if (trigger_ && config_.trigger.mode != TriggerMode::kSim) pairing_.start(0);
+  if (!config_.trigger.edges_csv.empty() &&
+      !pairing_.edge_log().open(config_.trigger.edges_csv, error))
+    return kExitStartFailure;
 
   // --- links -----------------------------------------------------------------------------------
-  for (const auto& u : config_.udp)
-    links_.push_back(std::make_unique<link::UdpLink>(u));
-  for (const auto& c : config_.canfd)
-    links_.push_back(std::make_unique<link::CanFdLink>(c));
-  for (auto& l : links_) {
-    if (l->open() < 0) {
-      error = std::string("link: ") + l->error();
-      return kExitStartFailure;
-    }
-  }
+  if (!links_.open(config_, error)) return kExitStartFailure;
 
   // --- clock ------------------------------------------------------------------------------------
-  if (config_.clock_state == "ptp4l") {
-    clock::ClockMonitorConfig cc = config_.ptp4l;
-    cc.poll_period_ms = config_.health_period_ms;
-    clock_monitor_ = std::make_unique<clock::ClockMonitor>(cc);
-    if (clock_monitor_->start() < 0) {
-      error = "clock: ptp4l client: " + clock_monitor_->error();
-      return kExitStartFailure;
-    }
-  }
+  if (!clock_.start_monitor(config_, error)) return kExitStartFailure;
 
   // --- Modbus ----------------------------------------------------------------------------------
-  if (config_.modbus_enabled) {
-    health::ModbusServerConfig mc;
-    mc.address = config_.modbus_address;
-    mc.port = config_.modbus_port;
-    mc.maintenance = config_.maintenance;
-    modbus_ = std::make_unique<health::ModbusHealthServer>(mc, counters_, store_);
-    if (modbus_->start() < 0) {
-      error = modbus_->error();
-      return kExitStartFailure;
-    }
-  }
+  if (!registers_.start_server(config_, counters_, error)) return kExitStartFailure;
   std::uint16_t status = msg::unit_status::kCapturing;
   if (config_.maintenance) status |= msg::unit_status::kMaintenanceMode;
-  if (trigger_ && trigger_->is_master() && config_.trigger.mode != TriggerMode::kSim) {
+  if (trigger_ && trigger_->line().is_master() && config_.trigger.mode != TriggerMode::kSim) {
     status |= msg::unit_status::kTriggerMaster;
   }
   counters_.status.store(status);
-  update_clock_counters();
+  clock_.publish(counters_);
   board_temp_ = std::make_unique<health::BoardTemperatureSampler>(
       config_.board_temp_root, config_.health_period_ms, counters_.board_temp_cdeg);
   board_temp_->start();
@@ -321,124 +97,54 @@ int UnitRunner::setup(std::string& error) {
 // status until a report carried it; the line itself retries and requests its lines again.
 void UnitRunner::note_trigger_error(std::uint64_t count) {
   run_.trigger_errors += count;
-  counters_.status.fetch_or(msg::unit_status::kTriggerError, std::memory_order_relaxed);
-  trigger_error_reported_ = false;
+  status_.raise_trigger_error();
 }
 
-// Reads every pending edge into the pairer. A failed read is counted and retried once at once
-// (a transient error: the edges are still queued, and a frame paired without its own edge would
-// be flagged trigger-missing); a second failure in a row is returned.
+// Failed reads are counted by the pairing and flagged here (trigger_error status bit).
 int UnitRunner::drain_edges(int timeout_ms) {
-  if (!trigger_ || !pairer_) return 0;
-  int retries_left = 1;
-  for (;;) {
-    const int n = trigger_->read_edges(edges_, timeout_ms);
-    if (n < 0 && n != -EAGAIN && n != -EINTR) {
-      note_trigger_error();
-      if (retries_left-- > 0) continue;
-    }
-    if (n <= 0) return n;
-    for (int i = 0; i < n; ++i) {
-      const trigger::TriggerEdge& e = edges_[static_cast<std::size_t>(i)];
-      const trigger::EdgeVerdict v = pairer_->push_edge(e.t_mono_ns);
-      ++run_.edges;
-      if (config_.trigger.triggered_only && v != trigger::EdgeVerdict::kExtra) {
-        if (unclaimed_count_ == unclaimed_edges_.size()) {  // full: the oldest is lost anyway
-          std::copy(unclaimed_edges_.begin() + 1, unclaimed_edges_.end(), unclaimed_edges_.begin());
-          --unclaimed_count_;
-        }
-        unclaimed_edges_[unclaimed_count_++] = e.t_mono_ns;
-      }
-      if (edges_csv_ != nullptr) {
-        // Extra edges get no sequence number: -1.
-        std::fprintf(
-            edges_csv_, "%u,%lld,%lld,%s\n", e.line_count, static_cast<long long>(e.t_mono_ns),
-            v == trigger::EdgeVerdict::kExtra ? -1LL
-                                              : static_cast<long long>(pairer_->anchor_sequence()),
-            v == trigger::EdgeVerdict::kExtra    ? "extra"
-            : v == trigger::EdgeVerdict::kResync ? "resync"
-                                                 : "accepted");
-      }
-    }
-    timeout_ms = 0;  // only the first read may wait
-    if (n < static_cast<int>(edges_.size())) return 0;
-  }
-}
-
-bool UnitRunner::edge_in_window(time::MonotonicNs t_frame_ns, bool consume) {
-  // The pairer's window (frame_pairer.hpp): edges older than it can never be claimed (dropped
-  // here too); every edge inside it is consumed by the frame that pairs (when `consume`).
-  const trigger::PairerConfig& pc = pairer_->config();
-  const time::MonotonicNs expected = t_frame_ns - pc.latency_ns;
-  const time::MonotonicNs lo = expected - pc.match_tolerance_ns;
-  const time::MonotonicNs hi = expected + pc.match_tolerance_ns;
-  std::size_t old = 0;
-  while (old < unclaimed_count_ && unclaimed_edges_[old] < lo)
-    ++old;
-  std::size_t in_window = old;
-  while (in_window < unclaimed_count_ && unclaimed_edges_[in_window] <= hi)
-    ++in_window;
-  const bool found = in_window > old;
-  const std::size_t consumed = found && consume ? in_window : old;
-  std::copy(unclaimed_edges_.begin() + static_cast<std::ptrdiff_t>(consumed),
-            unclaimed_edges_.begin() + static_cast<std::ptrdiff_t>(unclaimed_count_),
-            unclaimed_edges_.begin());
-  unclaimed_count_ -= consumed;
-  return found;
+  if (!trigger_) return 0;
+  const std::uint64_t errors_before = pairing_.read_errors();
+  const int rc = pairing_.drain(*trigger_, timeout_ms);
+  if (pairing_.read_errors() != errors_before)
+    note_trigger_error(pairing_.read_errors() - errors_before);
+  return rc;
 }
 
 // A master whose generator could not be started again after a failed change (its GPIO chip
 // away): nothing drives the rig's trigger, so it is tried again once a second until it runs,
 // the trigger_error bit held meanwhile.
 void UnitRunner::retry_stopped_trigger() {
-  if (!trigger_down_) return;
-  const time::MonotonicNs now = time::monotonic_now_ns();
-  if (now < trigger_retry_ns_) return;
-  trigger_retry_ns_ = now + time::kNsPerSecond;
-  if (trigger_->start() != 0) {
-    note_trigger_error();
-    return;
+  if (!trigger_) return;
+  switch (trigger_->retry_stopped()) {
+    case TriggerRetry::kNothingToDo:
+      break;
+    case TriggerRetry::kStillDown:
+      note_trigger_error();
+      break;
+    case TriggerRetry::kRunning:
+      ++run_.trigger_restarts;
+      break;
   }
-  trigger_down_ = false;
-  ++run_.trigger_restarts;
-  std::fprintf(stderr, "storetrack-unit: trigger %s running again\n", trigger_->name());
 }
 
 void UnitRunner::apply_config_changes() {
   retry_stopped_trigger();
-  const std::uint32_t gen = store_.generation();
-  if (gen == seen_generation_) return;
-  seen_generation_ = gen;
-  using health::HoldingField;
-  // Maintenance-mode reconfiguration: may allocate (rare, operator-driven, not per frame). One
-  // snapshot: a multi-register write (rate and pulse width, the search region) is seen whole.
-  const health::ConfigStore::Values v = store_.snapshot();
-  const auto get = [&v](HoldingField f) { return v[static_cast<std::size_t>(f)]; };
-  const int threshold = get(HoldingField::kThresholdDn);
-  if (centroid_ && threshold != centroid_->config().threshold_dn) {
-    centroid::CentroidConfig cc = centroid_->config();
-    cc.threshold_dn = threshold;
-    try {
-      auto fresh = std::make_unique<centroid::Centroider>(cc, frame_width_, frame_height_);
-      centroid_ = std::move(fresh);
-      config_.centroid = cc;
-    } catch (const std::exception&) {
+  // Maintenance-mode reconfiguration: may allocate (rare, operator-driven, not per frame).
+  RegisterSettings wanted;
+  if (!registers_.take_changes(config_, wanted)) return;
+  const int threshold = wanted.threshold_dn;
+  if (marks_.configured() && threshold != marks_.config().threshold_dn) {
+    if (marks_.set_threshold(threshold))
+      config_.centroid = marks_.config();
+    else
       ++run_.config_apply_errors;  // the table's range check makes this unreachable
-    }
   }
-  const std::uint32_t exposure_us = get(HoldingField::kExposureUs);
-  if (exposure_us != config_.exposure_us) apply_exposure(exposure_us);
-  // The width register holds at most 5000 us: while it still shows the configured width (a
-  // longer one clamped), the configured width stands; a rate write must not shorten it.
-  const std::uint16_t width_us = get(HoldingField::kPulseWidthUs);
-  apply_trigger_change(get(HoldingField::kTriggerRateHz),
-                       width_us == pulse_width_register(config_.trigger.pulse_width_ns)
-                           ? config_.trigger.pulse_width_ns
-                           : std::int64_t{width_us} * 1000);
-  config_.roi_x = get(HoldingField::kRoiX);
-  config_.roi_y = get(HoldingField::kRoiY);
-  config_.roi_width = get(HoldingField::kRoiWidth);
-  config_.roi_height = get(HoldingField::kRoiHeight);
+  if (wanted.exposure_us != config_.exposure_us) apply_exposure(wanted.exposure_us);
+  apply_trigger_change(wanted.trigger_rate_hz, wanted.pulse_width_ns);
+  config_.roi_x = wanted.roi_x;
+  config_.roi_y = wanted.roi_y;
+  config_.roi_width = wanted.roi_width;
+  config_.roi_height = wanted.roi_height;
 }
 
 // A new exposure, written to the camera's exposure control when one is configured. Refused: the
@@ -446,30 +152,25 @@ void UnitRunner::apply_config_changes() {
 // take the closest valid value instead of refusing): the unit reports and stamps what the
 // camera does, not what was asked, and the holding register shows it.
 void UnitRunner::apply_exposure(std::uint32_t exposure_us) {
-  if (!v4l2_ || config_.v4l2.exposure_control.empty()) {
-    config_.exposure_us = exposure_us;
-    return;
+  std::uint32_t applied_us = exposure_us;
+  switch (camera_ ? camera_->set_exposure_us(exposure_us, applied_us) : ExposureChange::kApplied) {
+    case ExposureChange::kApplied:
+      config_.exposure_us = applied_us;
+      break;
+    case ExposureChange::kRefused:
+      ++run_.config_apply_errors;
+      std::fprintf(stderr, "storetrack-unit: exposure %u us not applied: %s\n", exposure_us,
+                   camera_->error(0).c_str());
+      registers_.show_exposure(config_.exposure_us);
+      break;
+    case ExposureChange::kClamped:
+      ++run_.config_apply_errors;
+      config_.exposure_us = applied_us;
+      std::fprintf(stderr, "storetrack-unit: exposure %u us clamped by the driver to %u us\n",
+                   exposure_us, config_.exposure_us);
+      registers_.show_exposure(config_.exposure_us);
+      break;
   }
-  const double unit_us = config_.v4l2.exposure_control_unit_us;
-  const auto wanted = static_cast<std::int32_t>(std::lround(exposure_us / unit_us));
-  std::int32_t applied = wanted;
-  if (v4l2_->set_control(config_.v4l2.exposure_control, wanted, &applied) < 0) {
-    ++run_.config_apply_errors;
-    std::fprintf(stderr, "storetrack-unit: exposure %u us not applied: %s\n", exposure_us,
-                 v4l2_->error().c_str());
-    store_.set(health::HoldingField::kExposureUs, static_cast<std::uint16_t>(config_.exposure_us));
-    return;
-  }
-  config_.exposure_us = exposure_us;
-  if (applied != wanted) {
-    ++run_.config_apply_errors;
-    config_.exposure_us =
-        static_cast<std::uint32_t>(std::clamp<long>(std::lround(applied * unit_us), 1, 65535));
-    std::fprintf(stderr, "storetrack-unit: exposure %u us clamped by the driver to %u us\n",
-                 exposure_us, config_.exposure_us);
-    store_.set(health::HoldingField::kExposureUs, static_cast<std::uint16_t>(config_.exposure_us));
-  }
-  v4l2_->set_reported_exposure_ns(config_.exposure_us * 1000u);
 }
 
 // A new trigger rate or pulse width. On a gpio master the generator is restarted with it; if
@@ -477,57 +178,29 @@ void UnitRunner::apply_exposure(std::uint32_t exposure_us) {
 // the change is counted as not applied.
 void UnitRunner::apply_trigger_change(double rate_hz, std::int64_t width_ns) {
   if (rate_hz == config_.trigger.rate_hz && width_ns == config_.trigger.pulse_width_ns) return;
-  if (config_.trigger.mode == TriggerMode::kGpioMaster && trigger_) {
-    const trigger::GpioMasterConfig mc = master_config(config_.trigger, rate_hz, width_ns);
-    if (trigger::validate(mc, nullptr) < 0) {
+  switch (trigger_ ? trigger_->change(rate_hz, width_ns) : TriggerChange::kApplied) {
+    case TriggerChange::kApplied:
+      break;
+    case TriggerChange::kInvalid:
+    case TriggerChange::kKeptPrevious:
       ++run_.config_apply_errors;
       return;
-    }
-    trigger_->stop();
-    auto fresh = std::make_unique<trigger::GpioMasterTrigger>(mc);
-    if (fresh->start() != 0) {
+    case TriggerChange::kPreviousNotRunning:
       ++run_.config_apply_errors;
-      std::fprintf(stderr,
-                   "storetrack-unit: trigger %.0f Hz / %lld ns not started (%s); "
-                   "the previous trigger goes on\n",
-                   rate_hz, static_cast<long long>(width_ns), fresh->error().c_str());
-      if (trigger_->start() != 0) {
-        ++run_.trigger_restart_failures;
-        trigger_down_ = true;  // retried by retry_stopped_trigger() until it runs again
-        trigger_retry_ns_ = time::monotonic_now_ns() + time::kNsPerSecond;
-        note_trigger_error();
-      }
+      ++run_.trigger_restart_failures;  // retried by retry_stopped_trigger() until it runs
+      note_trigger_error();
       return;
-    }
-    trigger_ = std::move(fresh);
   }
   config_.trigger.rate_hz = rate_hz;
   config_.trigger.pulse_width_ns = width_ns;
-  const auto period = static_cast<std::int64_t>(std::llround(1e9 / rate_hz));
-  pairer_config_.period_ns = period;
-  pairer_config_.match_tolerance_ns = period / 4;
-  pairer_config_.edge_phase_tolerance_ns = period / 4;
-  // The numbering goes on from the last edge: a rate change must never renumber this unit's
-  // exposures against the others' (before: it restarted at the first sequence).
-  if (pairer_)
-    make_pairer(pairer_->counters().edges_seen > 0 ? pairer_->anchor_sequence() + 1
-                                                   : pairer_config_.first_sequence);
+  pairing_.change_rate(rate_hz);
 }
 
 int UnitRunner::process_frame(const frame::FrameView& frame) {
   ++run_.frames;
   health::UnitCounters::add(counters_.frames_captured);
   // Frame drops: V4L2 sequence gaps, or gaps in a simulated/replayed source's sequence.
-  std::uint64_t dropped_now = 0;
-  if (v4l2_) {
-    const std::uint64_t d = v4l2_->stats().dropped;
-    dropped_now = d - v4l2_dropped_seen_;
-    v4l2_dropped_seen_ = d;
-  } else if (have_source_sequence_ && frame.sequence != last_source_sequence_ + 1) {
-    dropped_now = static_cast<std::uint32_t>(frame.sequence - last_source_sequence_ - 1);
-  }
-  have_source_sequence_ = true;
-  last_source_sequence_ = frame.sequence;
+  const std::uint64_t dropped_now = camera_->frames_lost_before(frame);
   if (dropped_now > 0) {
     health::UnitCounters::add(counters_.frames_dropped, dropped_now);
     frames_dropped_pending_ = true;
@@ -535,9 +208,9 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
 
   // triggered_only: a frame no edge can claim is not centroided at all (the free-running
   // source's frames between triggers: most of them; centroiding them would only cost time).
-  if (config_.trigger.triggered_only && trigger_ && !sim_trigger_) {
+  if (config_.trigger.triggered_only && trigger_ && !trigger_->follows_frames()) {
     drain_edges(0);
-    if (!edge_in_window(frame.timestamp_mono_ns, false)) {
+    if (!pairing_.edge_in_window(frame.timestamp_mono_ns, false)) {
       ++run_.skipped_untriggered;
       return 0;
     }
@@ -545,39 +218,8 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
 
   std::uint16_t flags = 0;
   if (frames_dropped_pending_) flags |= msg::exposure_flags::kFramesDroppedBefore;
-
-  // Centroiding, on the whole frame or the configured region.
-  frame::FrameView view = frame;
-  centroid::Roi roi[1];
-  const bool use_roi =
-      config_.roi_x > 0 || config_.roi_y > 0 || config_.roi_width > 0 || config_.roi_height > 0;
-  if (use_roi) {
-    roi[0].x = config_.roi_x;
-    roi[0].y = config_.roi_y;
-    roi[0].width = config_.roi_width > 0 ? config_.roi_width : frame.width - config_.roi_x;
-    roi[0].height = config_.roi_height > 0 ? config_.roi_height : frame.height - config_.roi_y;
-    flags |= msg::exposure_flags::kRoiMode;
-  }
-  const time::MonotonicNs t0 = time::monotonic_now_ns();
-  const int n = use_roi ? centroid_->process(view, std::span<const centroid::Roi>(roi, 1), blobs_)
-                        : centroid_->process(view, blobs_);
-  const time::MonotonicNs t1 = time::monotonic_now_ns();
-  const double us = static_cast<double>(t1 - t0) / 1000.0;
-  run_.centroid_us_sum += us;
-  run_.centroid_us_max = std::max(run_.centroid_us_max, us);
-  health::UnitCounters::max(counters_.centroid_time_us_max, static_cast<std::uint32_t>(us));
-  if (n < 0) {
-    ++run_.centroid_errors;
-    health::UnitCounters::add(counters_.centroid_errors);
-    counters_.status.fetch_or(msg::unit_status::kCentroidError, std::memory_order_relaxed);
-    centroid_error_reported_ = false;
-    return n;
-  }
-  const std::uint64_t truncated = centroid_->stats().blobs_truncated;
-  if (truncated != centroid_truncated_seen_) {
-    flags |= msg::exposure_flags::kMarksTruncated;
-    centroid_truncated_seen_ = truncated;
-  }
+  const int n = find_marks(frame, flags);
+  if (n < 0) return n;
   ++run_.frames_processed;
   // triggered_only: a frame without marks is not a triggered frame (the free-running source's
   // dark frames between triggers); it must not claim an edge.
@@ -585,174 +227,88 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
     ++run_.skipped_no_marks;
     return 0;
   }
-
-  // Trigger pairing.
-  std::uint32_t seq = frame.sequence;
-  time::MonotonicNs start_mono = frame.timestamp_mono_ns;
-  if (trigger_) {
-    if (sim_trigger_) {
-      if (!pairer_) {
-        // A unit started mid-run counts its trigger edges from 0, as a restarted unit does,
-        // unless it kept the rig's numbering.
-        make_pairer(config_.sim.start_exposure > 0 && !config_.sim.keep_numbering ? 0u
-                                                                                  : frame.sequence);
-        sim_trigger_->set_origin(frame.timestamp_mono_ns - pairer_config_.latency_ns);
-      }
-      sim_trigger_->advance_to(frame.timestamp_mono_ns - pairer_config_.latency_ns +
-                               pairer_config_.match_tolerance_ns);
-    }
-    drain_edges(0);
-    if (config_.trigger.triggered_only && !edge_in_window(frame.timestamp_mono_ns, true)) {
-      ++run_.skipped_untriggered;
-      return 0;
-    }
-    trigger::PairResult pr;
-    pairer_->pair_frame(frame.timestamp_mono_ns, pr);
-    seq = pr.trigger_seq;
-    start_mono = pr.exposure_start_mono_ns;
-    if (!pr.matched) flags |= msg::exposure_flags::kTriggerMissing;
-    if (config_.trigger.triggered_only && !pr.matched) {
-      ++run_.skipped_untriggered;
-      return 0;
-    }
-    const trigger::PairerCounters& pc = pairer_->counters();
-    counters_.triggers_seen.store(pc.edges_seen, std::memory_order_relaxed);
-    counters_.triggers_missing.store(pc.frames_unmatched, std::memory_order_relaxed);
-    counters_.triggers_extra.store(pc.edges_unmatched + pc.edges_extra, std::memory_order_relaxed);
-  }
+  ExposureStamp exposure;
+  exposure.flags = flags;
+  if (!pair_exposure(frame, exposure)) return 0;
   run_.marks += static_cast<std::uint64_t>(n);
   counters_.marks_last_frame.store(static_cast<std::uint32_t>(n), std::memory_order_relaxed);
 
-  // The message.
-  obs_.unit_id = static_cast<std::uint8_t>(config_.unit_id);
-  obs_.camera_id = static_cast<std::uint8_t>(config_.camera_id);
-  obs_.trigger_seq = seq;
-  obs_.exposure_start_mono_ns = start_mono;
-  if (replay_) {
-    obs_.exposure_start_tai_ns = replay_->tai_ns() + (start_mono - frame.timestamp_mono_ns);
-  } else {
-    obs_.exposure_start_tai_ns = start_mono + tai_minus_mono_ns_ + sim_tai_step_ns(frame.sequence);
-  }
-  obs_.exposure_duration_ns =
-      frame.exposure_ns != 0 ? frame.exposure_ns : config_.exposure_us * 1000u;
+  exposure.unit_id = static_cast<std::uint8_t>(config_.unit_id);
+  exposure.camera_id = static_cast<std::uint8_t>(config_.camera_id);
+  exposure.start_tai_ns = clock_.exposure_start_tai_ns(*camera_, frame, exposure.start_mono_ns);
+  exposure.duration_ns = frame.exposure_ns != 0 ? frame.exposure_ns : config_.exposure_us * 1000u;
   // The state when this exposure is processed, a few ms after it: the monitor's resolution is
   // its poll period (docs/reliability.md, "Clock").
-  obs_.clock_state = current_clock_state();
-  obs_.flags = flags;
-  obs_.mark_count = static_cast<std::uint8_t>(n);
-  const int shift = frame.format == frame::PixelFormat::kMono16 ? frame.bits_per_pixel - 8 : 0;
-  for (int i = 0; i < n; ++i) {
-    const centroid::Blob& b = blobs_[static_cast<std::size_t>(i)];
-    msg::MarkObservation& m = obs_.marks[static_cast<std::size_t>(i)];
-    m.x_px = static_cast<float>(b.x_px);
-    m.y_px = static_cast<float>(b.y_px);
-    m.sigma_px = static_cast<float>(b.sigma_px);
-    const float peak8 = shift > 0 ? b.peak_dn / static_cast<float>(1 << shift) : b.peak_dn;
-    m.peak = static_cast<std::uint16_t>(std::clamp(peak8, 0.0f, 255.0f));
-    m.diameter_px = b.diameter_px;
-    m.flags = b.flags & msg::mark_flags::kAllKnown;
-  }
-  bool sent_any = links_.empty();
-  for (auto& l : links_) {
-    if (l->send(obs_) == 0) sent_any = true;
-  }
-  if (sent_any) frames_dropped_pending_ = false;
+  exposure.clock_state = clock_.state();
+  fill_mark_message(exposure, frame, marks_.marks(n), obs_);
+  if (links_.send(obs_)) frames_dropped_pending_ = false;
   return 0;
 }
 
-std::int64_t UnitRunner::sim_tai_step_ns(std::uint32_t source_sequence) const {
-  if (!simulation_ || config_.sim.tai_step_ns == 0) return 0;
-  const auto k = static_cast<std::int64_t>(source_sequence - sim_first_trigger_seq_);
-  return k >= config_.sim.tai_step_from && k < config_.sim.tai_step_to ? config_.sim.tai_step_ns
-                                                                       : 0;
-}
-
-void UnitRunner::update_shared_counters() {
-  std::uint64_t sent = 0, errors = 0, dropped = 0, bus_off = 0, error_frames = 0;
-  bool any_bus_off = false;
-  for (const auto& l : links_) {
-    l->service();
-    const link::LinkStats s = l->stats();
-    sent = std::max(sent, s.observations_sent);  // an exposure counts once, whatever the links
-    errors += s.tx_errors + s.encode_errors;
-    dropped += s.dropped_exposures;
-    bus_off += s.bus_off_events;
-    error_frames += s.error_frames;
-    any_bus_off = any_bus_off || s.bus_off;
+int UnitRunner::find_marks(const frame::FrameView& frame, std::uint16_t& flags) {
+  const SearchRegion region{config_.roi_x, config_.roi_y, config_.roi_width, config_.roi_height};
+  const int n = marks_.find(frame, region, flags);
+  const double us = marks_.last_time_us();
+  run_.centroid_us_sum += us;
+  run_.centroid_us_max = std::max(run_.centroid_us_max, us);
+  health::UnitCounters::max(counters_.centroid_time_us_max, static_cast<std::uint32_t>(us));
+  if (n < 0) {
+    ++run_.centroid_errors;
+    health::UnitCounters::add(counters_.centroid_errors);
+    status_.raise_centroid_error();
   }
-  counters_.observations_sent.store(sent, std::memory_order_relaxed);
-  counters_.link_tx_errors.store(errors, std::memory_order_relaxed);
-  counters_.link_tx_dropped.store(dropped, std::memory_order_relaxed);
-  counters_.can_bus_off_count.store(bus_off, std::memory_order_relaxed);
-  counters_.can_error_frames.store(error_frames, std::memory_order_relaxed);
-  std::uint16_t status = counters_.status.load(std::memory_order_relaxed);
-  status = any_bus_off ? status | msg::unit_status::kCanBusOff
-                       : status & static_cast<std::uint16_t>(~msg::unit_status::kCanBusOff);
-  counters_.status.store(status, std::memory_order_relaxed);
+  return n;
 }
 
-std::uint8_t UnitRunner::current_clock_state() const {
-  return clock_monitor_ ? static_cast<std::uint8_t>(clock_monitor_->state()) : clock_state_;
-}
-
-void UnitRunner::update_clock_counters() {
-  clock_state_ = current_clock_state();
-  counters_.clock_state.store(clock_state_, std::memory_order_relaxed);
-  if (clock_monitor_)
-    counters_.ptp_offset_ns.store(clock_monitor_->offset_ns(), std::memory_order_relaxed);
+bool UnitRunner::pair_exposure(const frame::FrameView& frame, ExposureStamp& exposure) {
+  exposure.trigger_seq = frame.sequence;
+  exposure.start_mono_ns = frame.timestamp_mono_ns;
+  if (!trigger_) return true;
+  if (trigger_->follows_frames()) {
+    // A unit started mid-run counts its trigger edges from 0, as a restarted unit does,
+    // unless it kept the rig's numbering.
+    pairing_.lead(
+        *trigger_, frame.timestamp_mono_ns,
+        config_.sim.start_exposure > 0 && !config_.sim.keep_numbering ? 0u : frame.sequence);
+  }
+  drain_edges(0);
+  if (config_.trigger.triggered_only && !pairing_.edge_in_window(frame.timestamp_mono_ns, true)) {
+    ++run_.skipped_untriggered;
+    return false;
+  }
+  trigger::PairResult pr;
+  pairing_.pair(frame.timestamp_mono_ns, pr);
+  exposure.trigger_seq = pr.trigger_seq;
+  exposure.start_mono_ns = pr.exposure_start_mono_ns;
+  if (!pr.matched) exposure.flags |= msg::exposure_flags::kTriggerMissing;
+  if (config_.trigger.triggered_only && !pr.matched) {
+    ++run_.skipped_untriggered;
+    return false;
+  }
+  const trigger::PairerCounters& pc = pairing_.counters();
+  counters_.triggers_seen.store(pc.edges_seen, std::memory_order_relaxed);
+  counters_.triggers_missing.store(pc.frames_unmatched, std::memory_order_relaxed);
+  counters_.triggers_extra.store(pc.edges_unmatched + pc.edges_extra, std::memory_order_relaxed);
+  return true;
 }
 
 void UnitRunner::send_health(time::MonotonicNs now) {
-  update_shared_counters();
-  // A gpio master's pulses that could not be driven: its own thread counts them. (A reader's
-  // line errors are its failed reads, already noted by drain_edges().)
-  if (config_.trigger.mode == TriggerMode::kGpioMaster && trigger_) {
-    const std::uint64_t line_errors = trigger_->stats().line_errors;
-    if (line_errors > trigger_line_errors_seen_)
-      note_trigger_error(line_errors - trigger_line_errors_seen_);
-    trigger_line_errors_seen_ = line_errors;
+  links_.service(counters_);
+  if (trigger_) {
+    if (const std::uint64_t pulse_errors = trigger_->new_pulse_errors(); pulse_errors > 0)
+      note_trigger_error(pulse_errors);
   }
-  update_clock_counters();
-  if (!tai_from_source_) tai_minus_mono_ns_ = time::tai_now_ns() - time::monotonic_now_ns();
-  msg::UnitHealth h{};
-  h.unit_id = static_cast<std::uint8_t>(config_.unit_id);
-  h.clock_state = clock_state_;
-  h.uptime_s = static_cast<std::uint32_t>((now - start_mono_ns_) / time::kNsPerSecond);
-  h.report_tai_ns = now + tai_minus_mono_ns_;
-  h.ptp_offset_ns = counters_.ptp_offset_ns.load();
-  h.sensor_temp_cdeg = counters_.sensor_temp_cdeg.load();
-  h.board_temp_cdeg = counters_.board_temp_cdeg.load();
-  h.frames_captured = clamp_u32(counters_.frames_captured.load());
-  h.frames_dropped = clamp_u32(counters_.frames_dropped.load());
-  h.triggers_seen = clamp_u32(counters_.triggers_seen.load());
-  h.triggers_missing = clamp_u32(counters_.triggers_missing.load());
-  h.triggers_extra = clamp_u32(counters_.triggers_extra.load());
-  h.observations_sent = clamp_u32(counters_.observations_sent.load());
-  h.link_tx_errors = clamp_u32(counters_.link_tx_errors.load());
-  h.link_tx_dropped = clamp_u32(counters_.link_tx_dropped.load());
-  h.can_bus_off_count = static_cast<std::uint16_t>(counters_.can_bus_off_count.load());
-  h.can_error_frames = static_cast<std::uint16_t>(counters_.can_error_frames.load());
-  h.centroid_time_us_max = static_cast<std::uint16_t>(
-      std::min<std::uint32_t>(counters_.centroid_time_us_max.exchange(0), 0xFFFE));
-  h.status = counters_.status.load();
-  for (auto& l : links_)
-    l->send(h);
+  clock_.publish(counters_);
+  clock_.refresh_offset();
+  HealthHeader header;
+  header.unit_id = static_cast<std::uint8_t>(config_.unit_id);
+  header.clock_state = clock_.published_state();
+  header.uptime_s = static_cast<std::uint32_t>((now - start_mono_ns_) / time::kNsPerSecond);
+  header.report_tai_ns = now + clock_.tai_minus_mono_ns();
+  links_.send(health_message(header, counters_));
   ++run_.health_sent;
   last_health_ns_ = now;
-  // A camera fault is latched until one report carried it; it clears once the camera is back.
-  if (!camera_down_ && camera_error_reported_)
-    counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kCameraError),
-                               std::memory_order_relaxed);
-  camera_error_reported_ = true;
-  if (trigger_error_reported_)
-    counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kTriggerError),
-                               std::memory_order_relaxed);
-  trigger_error_reported_ = true;
-  // A refused frame is latched likewise: the next report carries it, one after it clears.
-  if (centroid_error_reported_)
-    counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kCentroidError),
-                               std::memory_order_relaxed);
-  centroid_error_reported_ = true;
+  status_.reported(!recovery_.down());
 }
 
 int UnitRunner::run_trigger_only(const std::atomic<bool>& stop) {
@@ -765,43 +321,24 @@ int UnitRunner::run_trigger_only(const std::atomic<bool>& stop) {
       const timespec ts{0, 10'000'000};  // counted; the line retries: do not spin meanwhile
       nanosleep(&ts, nullptr);
     }
-    const trigger::PairerCounters& pc = pairer_->counters();
+    const trigger::PairerCounters& pc = pairing_.counters();
     counters_.triggers_seen.store(pc.edges_seen, std::memory_order_relaxed);
     counters_.triggers_extra.store(pc.edges_extra, std::memory_order_relaxed);
     const time::MonotonicNs now = time::monotonic_now_ns();
     if (now - last_health_ns_ >= std::int64_t{config_.health_period_ms} * 1'000'000)
       send_health(now);
-    if (config_.frames > 0 && static_cast<long>(run_.edges) >= config_.frames) break;
+    if (config_.frames > 0 && static_cast<long>(pairing_.edges_read()) >= config_.frames) break;
     if (deadline != 0 && now >= deadline) break;
   }
   send_health(time::monotonic_now_ns());
   return kExitOk;
 }
 
-// The camera is gone (V4L2: POLLERR/POLLHUP, a failed VIDIOC_DQBUF, every buffer lost): the
-// device is closed and reopened later with a backoff. The trigger keeps running (a gpio master
-// drives the whole rig's exposures) and health keeps going out with the camera-error bit set.
-void UnitRunner::camera_failed(int rc, time::MonotonicNs now) {
-  ++run_.source_errors;
-  ++run_.camera_failures;
-  counters_.status.fetch_or(msg::unit_status::kCameraError, std::memory_order_relaxed);
-  camera_error_reported_ = false;
-  std::fprintf(stderr, "storetrack-unit: camera %s failed (%s%s%s); reopening in %lld ms\n",
-               source_->name(), std::strerror(-rc), v4l2_ ? ": " : "",
-               v4l2_ ? v4l2_->last_fault() : "",
-               static_cast<long long>(camera_backoff_ns_ / 1'000'000));
-  source_->stop();
-  camera_down_ = true;
-  camera_down_since_ns_ = now;
-  camera_next_reopen_ns_ = now + camera_backoff_ns_;
-}
-
+// While the camera is down: wait for the next try without spinning (edges, gpio slave or master,
+// are still drained), then try.
 void UnitRunner::service_camera_recovery(time::MonotonicNs now) {
-  if (now < camera_next_reopen_ns_) {
-    // Wait for the next try without spinning: edges (gpio slave or master) are still drained.
-    const auto wait_ms = static_cast<int>(
-        std::clamp<std::int64_t>((camera_next_reopen_ns_ - now) / 1'000'000, 1, 10));
-    if (trigger_ && !sim_trigger_) {
+  if (const int wait_ms = recovery_.wait_ms(now); wait_ms > 0) {
+    if (trigger_ && !trigger_->follows_frames()) {
       drain_edges(wait_ms);
     } else {
       const timespec ts{0, wait_ms * 1'000'000L};
@@ -809,24 +346,11 @@ void UnitRunner::service_camera_recovery(time::MonotonicNs now) {
     }
     return;
   }
-  const int rc = source_->start();
-  const time::MonotonicNs max_backoff = std::int64_t{config_.camera_reopen_max_ms} * 1'000'000;
-  if (rc < 0) {
-    ++run_.camera_reopen_failures;
-    camera_backoff_ns_ = std::min(max_backoff, camera_backoff_ns_ * 2);
-    camera_next_reopen_ns_ = now + camera_backoff_ns_;
-    return;
-  }
-  camera_down_ = false;
-  ++run_.camera_reopens;
-  run_.camera_down_s += static_cast<double>(now - camera_down_since_ns_) * 1e-9;
-  camera_backoff_ns_ = std::int64_t{config_.camera_reopen_first_ms} * 1'000'000;
-  std::fprintf(stderr, "storetrack-unit: camera %s back after %.3f s\n", source_->name(),
-               static_cast<double>(now - camera_down_since_ns_) * 1e-9);
+  recovery_.try_restart(*camera_, now);
 }
 
 int UnitRunner::run(const std::atomic<bool>& stop) {
-  if (!source_) return run_trigger_only(stop);
+  if (!camera_) return run_trigger_only(stop);
   const time::MonotonicNs deadline =
       config_.duration_s > 0 ? start_mono_ns_ + static_cast<std::int64_t>(config_.duration_s * 1e9)
                              : 0;
@@ -836,14 +360,14 @@ int UnitRunner::run(const std::atomic<bool>& stop) {
   int exit_code = kExitOk;
   while (!stop.load(std::memory_order_relaxed)) {
     apply_config_changes();
-    if (camera_down_) {
+    if (recovery_.down()) {
       service_camera_recovery(time::monotonic_now_ns());
     } else {
       frame::FrameView frame;
-      const int rc = source_->acquire(frame, 100);
+      const int rc = camera_->acquire(frame, 100);
       if (rc == 0) {
         const int prc = process_frame(frame);
-        if (source_->release(frame) < 0) ++run_.release_errors;
+        if (camera_->release(frame) < 0) ++run_.release_errors;
         consecutive_errors = prc < 0 ? consecutive_errors + 1 : 0;
         if (consecutive_errors > config_.max_consecutive_errors) {
           exit_code = kExitRuntimeError;
@@ -856,12 +380,13 @@ int UnitRunner::run(const std::atomic<bool>& stop) {
         break;  // finite source (sim, replay) ended
       } else if (rc == -EBADMSG) {
         ++run_.frames_corrupt;  // one frame lost, given back by the source
-        counters_.status.fetch_or(msg::unit_status::kCameraError, std::memory_order_relaxed);
-        camera_error_reported_ = false;
+        status_.raise_camera_error();
       } else if (rc != -EAGAIN) {
-        camera_failed(rc, time::monotonic_now_ns());
+        ++run_.source_errors;
+        status_.raise_camera_error();
+        recovery_.failed(*camera_, rc, time::monotonic_now_ns());
       }
-      if (trigger_ && !sim_trigger_ && rc == -EAGAIN) drain_edges(0);
+      if (trigger_ && !trigger_->follows_frames() && rc == -EAGAIN) drain_edges(0);
     }
     const time::MonotonicNs now = time::monotonic_now_ns();
     if (now - last_health_ns_ >= std::int64_t{config_.health_period_ms} * 1'000'000)
@@ -869,239 +394,59 @@ int UnitRunner::run(const std::atomic<bool>& stop) {
     if (config_.frames > 0 && static_cast<long>(run_.frames) >= config_.frames) break;
     if (deadline != 0 && now >= deadline) break;
   }
-  if (camera_down_)
-    run_.camera_down_s +=
-        static_cast<double>(time::monotonic_now_ns() - camera_down_since_ns_) * 1e-9;
+  recovery_.close(time::monotonic_now_ns());
   counters_.status.fetch_and(static_cast<std::uint16_t>(~msg::unit_status::kCapturing));
   send_health(time::monotonic_now_ns());  // final report with the closing counters
   return exit_code;
 }
 
 int UnitRunner::grab(int skip, frame::FrameView& frame, std::span<const centroid::Blob>& blobs) {
-  if (!source_) return -ENODEV;
+  if (!camera_) return -ENODEV;
   if (held_) {
-    source_->release(held_frame_);
+    camera_->release(held_frame_);
     held_ = false;
   }
   for (int i = 0;; ++i) {
     int rc;
     int tries = 0;
     do {
-      rc = source_->acquire(frame, 1000);
+      rc = camera_->acquire(frame, 1000);
     } while (rc == -EAGAIN && ++tries < 10);
     if (rc < 0) return rc;
     if (i >= skip) break;
-    source_->release(frame);
+    camera_->release(frame);
   }
   held_ = true;
   held_frame_ = frame;
-  const int n = centroid_->process(frame, blobs_);
+  std::uint16_t flags = 0;
+  const int n = marks_.find(frame, SearchRegion{}, flags);
   if (n < 0) return n;
-  blobs = std::span<const centroid::Blob>(blobs_.data(), static_cast<std::size_t>(n));
+  blobs = marks_.marks(n);
   return 0;
 }
 
 void UnitRunner::shutdown() {
-  if (modbus_) modbus_->stop();
-  if (clock_monitor_) clock_monitor_->stop();
+  registers_.stop();
+  clock_.stop();
   if (board_temp_) board_temp_->stop();
-  if (held_ && source_) {
-    source_->release(held_frame_);
+  if (held_ && camera_) {
+    camera_->release(held_frame_);
     held_ = false;
   }
-  if (trigger_) trigger_->stop();
-  if (source_) source_->stop();
-  for (auto& l : links_)
-    l->close();
-  if (edges_csv_ != nullptr) {
-    std::fclose(edges_csv_);
-    edges_csv_ = nullptr;
-  }
+  if (trigger_) trigger_->line().stop();
+  if (camera_) camera_->stop();
+  links_.close();
+  pairing_.edge_log().close();
 }
 
-namespace {
-// A unit that renders slower than its rate falls behind without bound; one that keeps up is
-// late only by the scheduler's jitter (a few ms on a loaded 2-core machine).
-constexpr std::int64_t kRealtimeToleranceNs = 100'000'000;
-}  // namespace
-
 std::string UnitRunner::realtime_verdict() const {
-  if (!sim_pacing_) return "";
-  const SimulatedPacing p = sim_pacing_();
-  char line[256];
-  if (p.max_behind_ns <= kRealtimeToleranceNs) {
-    std::snprintf(line, sizeof line,
-                  "real time kept: at most %.1f ms behind the frame schedule (tolerance %.0f ms); "
-                  "%lld frames more than one frame period (%.2f ms) late",
-                  static_cast<double>(p.max_behind_ns) / 1e6, kRealtimeToleranceNs / 1e6,
-                  static_cast<long long>(p.frames_late), p.frame_period_ns / 1e6);
-  } else {
-    std::snprintf(line, sizeof line,
-                  "NOT real time: fell up to %.1f ms behind the frame schedule; %lld of %lld "
-                  "frames more than one frame period (%.2f ms) late",
-                  static_cast<double>(p.max_behind_ns) / 1e6, static_cast<long long>(p.frames_late),
-                  static_cast<long long>(run_.frames), p.frame_period_ns / 1e6);
-  }
-  return line;
+  return unit::realtime_verdict(camera_ ? camera_->pacing() : std::nullopt, run_.frames);
 }
 
 std::string UnitRunner::stats_json(const std::string& exit_reason, int exit_code) const {
-  nlohmann::json j;
-  j["exit_code"] = exit_code;
-  j["exit_reason"] = exit_reason;
-  j["source"] = to_string(config_.source);
-  j["trigger_mode"] = to_string(config_.trigger.mode);
-  j["unit_id"] = config_.unit_id;
-  j["camera_id"] = config_.camera_id;
-  j["duration_s"] = static_cast<double>(time::monotonic_now_ns() - start_mono_ns_) / 1e9;
-  j["frames_captured"] = run_.frames;
-  j["frames_processed"] = run_.frames_processed;
-  j["frames_dropped"] = counters_.frames_dropped.load();
-  j["source_errors"] = run_.source_errors;
-  j["camera"] = {{"failures", run_.camera_failures},
-                 {"reopens", run_.camera_reopens},
-                 {"reopen_failures", run_.camera_reopen_failures},
-                 {"down_s", run_.camera_down_s},
-                 {"frames_corrupt", run_.frames_corrupt},
-                 {"release_errors", run_.release_errors}};
-  if (v4l2_) {
-    const capture::V4L2Stats v = v4l2_->stats();
-    j["camera"]["v4l2"] = {{"error_buffers", v.error_buffers},
-                           {"short_buffers", v.short_buffers},
-                           {"requeue_errors", v.requeue_errors},
-                           {"sequence_resets", v.sequence_resets},
-                           {"timeouts", v.timeouts}};
-  }
-  if (faults_) {
-    const capture::CameraFaultCounters& f = faults_->counters();
-    j["camera"]["injected"] = {{"disconnects", f.disconnects},
-                               {"failed_reopens", f.failed_reopens},
-                               {"corrupted", f.corrupted},
-                               {"frames_lost_disconnected", f.frames_lost_disconnected}};
-  }
-  if (sim_pacing_) {
-    const SimulatedPacing p = sim_pacing_();
-    j["sim_pacing"] = {{"max_behind_ms", static_cast<double>(p.max_behind_ns) / 1e6},
-                       {"frames_late", p.frames_late},
-                       {"frame_period_ms", p.frame_period_ns / 1e6},
-                       {"realtime_kept", p.max_behind_ns <= kRealtimeToleranceNs}};
-  }
-  j["centroid_errors"] = run_.centroid_errors;
-  j["marks_total"] = run_.marks;
-  j["marks_per_frame_mean"] = run_.frames_processed ? static_cast<double>(run_.marks) /
-                                                          static_cast<double>(run_.frames_processed)
-                                                    : 0.0;
-  j["centroid_time_us_mean"] =
-      run_.frames_processed ? run_.centroid_us_sum / static_cast<double>(run_.frames_processed)
-                            : 0.0;
-  j["centroid_time_us_max"] = run_.centroid_us_max;
-  j["health_sent"] = run_.health_sent;
-  j["edges_read"] = run_.edges;
-  if (config_.trigger.triggered_only) {
-    j["triggered_only"] = {{"skipped_no_marks", run_.skipped_no_marks},
-                           {"skipped_untriggered", run_.skipped_untriggered}};
-  }
-  if (pairer_) {
-    const auto& pc = pairer_->counters();
-    j["pairing"] = {{"edges_seen", pc.edges_seen},
-                    {"edges_extra", pc.edges_extra},
-                    {"edges_missing", pc.edges_missing},
-                    {"edges_unmatched", pc.edges_unmatched},
-                    {"frames_paired", pc.frames_paired},
-                    {"frames_unmatched", pc.frames_unmatched},
-                    {"ambiguous", pc.ambiguous},
-                    {"resyncs", pc.resyncs},
-                    {"period_ns", pairer_config_.period_ns}};
-  }
-  if (trigger_) {
-    const trigger::TriggerLineStats ts = trigger_->stats();
-    j["trigger_line"] = {{"name", trigger_->name()},
-                         {"edges", ts.edges},
-                         {"overruns", ts.overruns},
-                         {"max_late_ns", ts.max_late_ns},
-                         {"dropped_edges", ts.dropped_edges},
-                         {"line_errors", ts.line_errors},
-                         {"reopens", ts.reopens},
-                         {"errors_reported", run_.trigger_errors}};
-  }
-  if (v4l2_) {
-    const capture::V4L2Stats vs = v4l2_->stats();
-    j["v4l2"] = {{"device", config_.v4l2.device.device},
-                 {"fourcc", capture::fourcc_to_string(v4l2_->format().fourcc)},
-                 {"width", v4l2_->format().width},
-                 {"height", v4l2_->format().height},
-                 {"frames", vs.frames},
-                 {"dropped", vs.dropped},
-                 {"error_buffers", vs.error_buffers},
-                 {"timeouts", vs.timeouts},
-                 {"notes", v4l2_->notes()}};
-  }
-  if (centroid_) {
-    const centroid::CentroidStats& cs = centroid_->stats();
-    j["centroid"] = {{"frames", cs.frames},
-                     {"frames_refused", cs.frames_refused},
-                     {"blobs_truncated", cs.blobs_truncated},
-                     {"blobs_too_small", cs.blobs_too_small},
-                     {"last_background_dn", cs.last_background_dn},
-                     {"last_threshold_dn", cs.last_threshold_dn}};
-  }
-  j["clock"] = {{"source", config_.clock_state == "ptp4l" ? "ptp4l" : "configured"},
-                {"state", static_cast<int>(current_clock_state())},
-                {"ptp_offset_ns", counters_.ptp_offset_ns.load()}};
-  if (clock_monitor_) {
-    const clock::ClockMonitorStats cs = clock_monitor_->stats();
-    j["clock"]["ptp4l"] = {{"polls", cs.polls},
-                           {"answered_polls", cs.answered_polls},
-                           {"transitions", cs.transitions},
-                           {"port_state", clock::to_string(cs.port_state)},
-                           {"gm_present", cs.gm_present},
-                           {"time_traceable", cs.time_traceable},
-                           {"master_offset_ns", cs.master_offset_ns},
-                           {"requests", cs.client.requests},
-                           {"replies", cs.client.replies},
-                           {"timeouts", cs.client.timeouts},
-                           {"send_errors", cs.client.send_errors},
-                           {"malformed", cs.client.malformed},
-                           {"stale", cs.client.stale},
-                           {"error_status", cs.client.error_status},
-                           {"last_errno", cs.client.last_errno}};
-  }
-  nlohmann::json links = nlohmann::json::array();
-  for (const auto& l : links_) {
-    const link::LinkStats s = l->stats();
-    links.push_back({{"name", l->name()},
-                     {"observations_sent", s.observations_sent},
-                     {"health_sent", s.health_sent},
-                     {"tx_errors", s.tx_errors},
-                     {"dropped_exposures", s.dropped_exposures},
-                     {"partial_exposures", s.partial_exposures},
-                     {"encode_errors", s.encode_errors},
-                     {"bus_off_events", s.bus_off_events},
-                     {"error_frames", s.error_frames},
-                     {"bus_off", s.bus_off},
-                     {"link_down", s.link_down},
-                     {"last_errno", s.last_errno}});
-  }
-  j["links"] = links;
-  if (modbus_) {
-    const health::ModbusServerStats ms = modbus_->stats();
-    j["modbus"] = {{"port", modbus_->bound_port()},
-                   {"requests", ms.requests},
-                   {"refused_function", ms.refused_function},
-                   {"refused_write_locked", ms.refused_write_locked},
-                   {"refused_value", ms.refused_value},
-                   {"malformed", ms.malformed},
-                   {"writes_accepted", ms.writes_accepted},
-                   {"refused_identity", ms.refused_identity},
-                   {"connections", ms.connections},
-                   {"evicted", ms.evicted},
-                   {"timeouts", ms.timeouts},
-                   {"idle_closed", ms.idle_closed}};
-  }
-  j["config_apply_errors"] = run_.config_apply_errors;
-  j["trigger_restart_failures"] = run_.trigger_restart_failures;
-  j["trigger_restarts"] = run_.trigger_restarts;
-  return j.dump(2) + "\n";
+  const double duration_s = static_cast<double>(time::monotonic_now_ns() - start_mono_ns_) / 1e9;
+  return unit_stats_json({config_, run_, counters_, duration_s, camera_.get(), recovery_.counters(),
+                          trigger_.get(), pairing_, marks_, clock_, links_, registers_},
+                         exit_reason, exit_code);
 }
-
 }  // namespace storetrack::unit

@@ -1,72 +1,41 @@
-// UnitRunner: the camera unit's capture loop.
-//   FrameSource -> (pair with trigger edge) -> Centroider -> msg::MarkObservations -> link(s)
-// plus the periodic UnitHealth message and the Modbus server thread. setup() allocates
-// everything; the per-frame path (run()) allocates nothing and throws nothing.
+// UnitRunner: the camera unit's capture loop, wiring its parts (docs/architecture.md, "The
+// unit runner"):
+//   Camera -> TriggerPairing (with the Trigger's edges) -> MarkFinder -> fill_mark_message
+//   -> LinkSet
+// plus the periodic UnitHealth report, the Modbus registers (UnitRegisters) and the clock
+// (UnitClock). setup() allocates everything; the per-frame path (run()) allocates nothing and
+// throws nothing.
 #pragma once
 
-#include <array>
 #include <atomic>
 #include <cstdint>
-#include <cstdio>
-#include <functional>
 #include <memory>
-#include <optional>
+#include <span>
 #include <string>
-#include <vector>
 
+#include "clock/unit_clock.hpp"
+#include "exit_codes.hpp"
+#include "health/health_report.hpp"
+#include "links/link_set.hpp"
+#include "marks/mark_finder.hpp"
+#include "message/mark_message.hpp"
+#include "modbus/unit_registers.hpp"
+#include "pairing/trigger_pairing.hpp"
+#include "recovery/camera_recovery.hpp"
 #include "simulated_camera.hpp"
+#include "stats/run_counters.hpp"
 #include "storetrack/centroid/centroider.hpp"
-#include "storetrack/clock/clock_monitor.hpp"
 #include "storetrack/frame/frame_source.hpp"
 #include "storetrack/health/board_temperature.hpp"
-#include "storetrack/health/modbus_server.hpp"
 #include "storetrack/health/unit_state.hpp"
-#include "storetrack/link/observation_link.hpp"
 #include "storetrack/msg/messages.hpp"
-#include "storetrack/trigger/frame_pairer.hpp"
-#include "storetrack/trigger/trigger_line.hpp"
 #include "unit_config.hpp"
-
-namespace storetrack::capture {
-class V4L2FrameSource;
-class ReplayFrameSource;
-class FaultInjectingFrameSource;
-}  // namespace storetrack::capture
-namespace storetrack::trigger {
-class SimTriggerLine;
-}
 
 namespace storetrack::unit {
 
-/// Process exit codes (docs/unit-config.md).
-inline constexpr int kExitOk = 0;
-inline constexpr int kExitRuntimeError = 1;  ///< source/trigger failed while running
-inline constexpr int kExitUsage = 2;         ///< bad command line or configuration
-inline constexpr int kExitStartFailure = 3;  ///< a device, link or the Modbus server did not start
-
-struct RunCounters {
-  std::uint64_t frames = 0;
-  std::uint64_t frames_processed = 0;
-  std::uint64_t marks = 0;
-  std::uint64_t centroid_errors = 0;
-  std::uint64_t source_errors = 0;
-  std::uint64_t health_sent = 0;
-  std::uint64_t edges = 0;
-  std::uint64_t skipped_no_marks = 0;     ///< triggered_only: frames without marks, not paired
-  std::uint64_t skipped_untriggered = 0;  ///< triggered_only: frames no edge claimed, not sent
-  std::uint64_t frames_corrupt = 0;       ///< frames the camera gave back as bad (-EBADMSG)
-  std::uint64_t release_errors = 0;       ///< a frame could not be given back to the source
-  std::uint64_t camera_failures = 0;      ///< the device was gone (POLLERR, DQBUF, no buffer)
-  std::uint64_t camera_reopens = 0;       ///< ... and came back after a reopen
-  std::uint64_t camera_reopen_failures = 0;
-  double camera_down_s = 0;                    ///< time without a camera, in all
-  std::uint64_t config_apply_errors = 0;       ///< Modbus changes the unit could not apply
-  std::uint64_t trigger_errors = 0;            ///< failed edge reads + pulses not driven
-  std::uint64_t trigger_restart_failures = 0;  ///< ... and the previous trigger not restarted
-  std::uint64_t trigger_restarts = 0;  ///< a trigger that could not be restarted running again
-  double centroid_us_sum = 0;
-  double centroid_us_max = 0;
-};
+class Camera;   // input/camera.hpp
+class Trigger;  // input/trigger.hpp
+class InputFactory;
 
 class UnitRunner {
  public:
@@ -93,91 +62,51 @@ class UnitRunner {
   /// it fell behind ("NOT real time ..."); empty when the source is not paced.
   std::string realtime_verdict() const;
   const UnitConfig& config() const { return config_; }
-  const centroid::CentroidConfig& centroid_config() const { return centroid_->config(); }
+  const centroid::CentroidConfig& centroid_config() const { return marks_.config(); }
   const std::string& notes() const { return notes_; }
   /// Why run() returned an error exit code, when it knows more than the code says ("" if not).
   const std::string& stop_reason() const { return stop_reason_; }
 
  private:
+  int setup_camera(InputFactory& inputs, int& width, int& height, std::string& error);
   int process_frame(const frame::FrameView& frame);
-  void camera_failed(int rc, time::MonotonicNs now);
+  /// The marks of the frame, with the time it took counted; their count or -errno.
+  int find_marks(const frame::FrameView& frame, std::uint16_t& flags);
+  /// The exposure's trigger sequence and start from the pairing (the frame's own without a
+  /// trigger). False when triggered_only and no edge claims the frame.
+  bool pair_exposure(const frame::FrameView& frame, ExposureStamp& exposure);
   void note_trigger_error(std::uint64_t count = 1);
   void retry_stopped_trigger();
   void apply_exposure(std::uint32_t exposure_us);
   void service_camera_recovery(time::MonotonicNs now);
   int run_trigger_only(const std::atomic<bool>& stop);
   int drain_edges(int timeout_ms);
-  bool edge_in_window(time::MonotonicNs t_frame_ns, bool consume);
   void apply_config_changes();
   void apply_trigger_change(double rate_hz, std::int64_t width_ns);
   void send_health(time::MonotonicNs now);
-  void update_shared_counters();
-  void make_pairer(std::uint32_t first_sequence);
-  /// The clock state now: the monitor's (clock_state ptp4l, one relaxed load) or the configured.
-  std::uint8_t current_clock_state() const;
-  void update_clock_counters();
-  /// sim fault injection: the TAI step of the exposure with this source sequence number.
-  std::int64_t sim_tai_step_ns(std::uint32_t source_sequence) const;
 
   UnitConfig config_;
   std::string notes_;
   SimulatedCameraFactory simulated_;
-  std::shared_ptr<const void> simulation_;  // source sim: what source_ renders from
-  std::unique_ptr<frame::FrameSource> source_;
-  capture::V4L2FrameSource* v4l2_ = nullptr;              // = source_ when v4l2
-  capture::ReplayFrameSource* replay_ = nullptr;          // = source_ when replay
-  capture::FaultInjectingFrameSource* faults_ = nullptr;  // wraps the source when configured
-  // camera recovery: while down, no acquire(); start() is retried at doubling intervals
-  bool camera_down_ = false;
-  time::MonotonicNs camera_down_since_ns_ = 0;
-  time::MonotonicNs camera_next_reopen_ns_ = 0;
-  time::MonotonicNs camera_backoff_ns_ = 0;
-  // The camera-error and trigger-error status bits stay set until a health report carried them.
-  bool camera_error_reported_ = true;
-  bool trigger_error_reported_ = true;
-  std::uint64_t trigger_line_errors_seen_ = 0;
-  bool trigger_down_ = false;               // a master not restarted after a failed change: retried
-  time::MonotonicNs trigger_retry_ns_ = 0;  // the master's own line errors, at the last report
-  std::unique_ptr<trigger::TriggerLine> trigger_;
-  trigger::SimTriggerLine* sim_trigger_ = nullptr;  // = trigger_ when sim
-  std::optional<trigger::TriggerFramePairer> pairer_;
-  trigger::PairerConfig pairer_config_;
-  std::unique_ptr<centroid::Centroider> centroid_;
-  std::vector<std::unique_ptr<link::ObservationLink>> links_;
+  std::unique_ptr<Camera> camera_;    // null: source none
+  CameraRecovery recovery_;           // while the camera is down, no acquire()
+  std::unique_ptr<Trigger> trigger_;  // null: trigger none
+  TriggerPairing pairing_;
+  MarkFinder marks_;
+  LinkSet links_;
   health::UnitCounters counters_;
-  health::ConfigStore store_;
-  std::unique_ptr<health::ModbusHealthServer> modbus_;
-  std::unique_ptr<clock::ClockMonitor> clock_monitor_;           // clock_state ptp4l
+  StatusLatches status_{counters_};  // the error bits a health report must carry once
+  UnitRegisters registers_;          // Modbus
+  UnitClock clock_;
   std::unique_ptr<health::BoardTemperatureSampler> board_temp_;  // off the capture loop
-  std::uint32_t seen_generation_ = 0;
-  int frame_width_ = 0;
-  int frame_height_ = 0;
 
-  std::array<centroid::Blob, msg::kMaxMarks> blobs_{};
-  std::array<trigger::TriggerEdge, 64> edges_{};
   msg::MarkObservations obs_{};
   RunCounters run_{};
-  std::int64_t tai_minus_mono_ns_ = 0;
-  bool tai_from_source_ = false;  // sim: fixed offset set at setup
-  std::uint32_t sim_first_trigger_seq_ = 0;
-  std::function<SimulatedPacing()> sim_pacing_;  // source sim, paced: its schedule kept?
-  std::uint8_t clock_state_ = 0;
   time::MonotonicNs start_mono_ns_ = 0;
   time::MonotonicNs last_health_ns_ = 0;
-  std::uint64_t v4l2_dropped_seen_ = 0;
-  std::uint64_t centroid_truncated_seen_ = 0;
   bool frames_dropped_pending_ = false;
-  std::uint32_t last_source_sequence_ = 0;
-  bool have_source_sequence_ = false;
-  std::FILE* edges_csv_ = nullptr;
-  // trigger.triggered_only: times of accepted edges no frame has claimed yet, oldest first. A
-  // frame with no such edge in its window never reaches the pairer: an unmatched frame would
-  // take (and so advance) a sequence number the next triggered frame needs.
-  std::array<time::MonotonicNs, trigger::TriggerFramePairer::kCapacity> unclaimed_edges_{};
-  std::size_t unclaimed_count_ = 0;
   bool held_ = false;
   frame::FrameView held_frame_{};
-  bool centroid_error_reported_ = true;  // as camera_error_reported_, for the centroid-error bit
   std::string stop_reason_;
 };
 
