@@ -18,6 +18,8 @@ namespace {
 // vector extensions: SSE2 on x86-64, NEON on aarch64), and only chunks with a pixel above the
 // threshold are looked at 16 bytes, then one pixel, at a time.
 constexpr int kChunk = 128;
+// Rows scan_region() asks the cache for ahead of the row it scans.
+constexpr int kPrefetchRows = 4;
 
 typedef std::uint8_t VecU8 __attribute__((vector_size(16)));
 typedef std::uint16_t VecU16 __attribute__((vector_size(16)));
@@ -136,6 +138,7 @@ Centroider::Centroider(const CentroidConfig& config, int max_width, int max_heig
   tile_background_.resize(static_cast<size_t>(max_tiles_x) * max_tiles_y);
   tile_threshold_.resize(tile_background_.size());
   sorted_tiles_.resize(tile_background_.size());
+  tile_wanted_.resize(tile_background_.size());
   row_threshold_.resize(max_chunks);
   chunk_tile_.resize(max_chunks);
   for (int c = 0; c < max_chunks; ++c)
@@ -185,7 +188,7 @@ int Centroider::process(const frame::FrameView& frame, std::span<Blob> out) {
   }
   regions_[0] = Region{0, 0, frame.width, frame.height, 0};
   region_count_ = 1;
-  return process_regions(frame, out);
+  return process_regions(frame, true, out);
 }
 
 int Centroider::process(const frame::FrameView& frame, std::span<const Roi> rois,
@@ -207,10 +210,11 @@ int Centroider::process(const frame::FrameView& frame, std::span<const Roi> rois
     if (x1 <= x0 || y1 <= y0) continue;
     regions_[region_count_++] = Region{x0, y0, x1, y1, 0};
   }
-  return process_regions(frame, out);
+  return process_regions(frame, false, out);
 }
 
-int Centroider::process_regions(const frame::FrameView& frame, std::span<Blob> out) {
+int Centroider::process_regions(const frame::FrameView& frame, bool whole_frame,
+                                std::span<Blob> out) {
   const bool mono16 = frame.format == frame::PixelFormat::kMono16;
   max_value_ = (1 << frame.bits_per_pixel) - 1;
   saturation_dn_ =
@@ -220,9 +224,9 @@ int Centroider::process_regions(const frame::FrameView& frame, std::span<Blob> o
   tiles_x_ = (frame.width + tile_px_ - 1) / tile_px_;
   tiles_y_ = (frame.height + tile_px_ - 1) / tile_px_;
   if (mono16) {
-    estimate_background<std::uint16_t>(frame);
+    estimate_background<std::uint16_t>(frame, whole_frame);
   } else {
-    estimate_background<std::uint8_t>(frame);
+    estimate_background<std::uint8_t>(frame, whole_frame);
   }
 
   run_count_ = 0;
@@ -280,91 +284,144 @@ int Centroider::process_regions(const frame::FrameView& frame, std::span<Blob> o
   return written;
 }
 
+namespace {
+// Tile interval and interpolation weight along one axis: tile centres sit at the middle of
+// each tile's pixels (the last tile may be partial); beyond the outer centres the level is
+// extrapolated linearly for up to half a tile, so gradients hold up to the frame edge.
+struct AxisWeight {
+  int t0, t1;
+  double f;
+};
+AxisWeight axis_weight(double x, int tile, int tiles, int extent) {
+  if (tiles < 2) return {0, 0, 0.0};
+  auto centre = [&](int t) { return 0.5 * (t * tile + std::min((t + 1) * tile, extent) - 1); };
+  const int t0 = std::clamp(static_cast<int>(std::floor((x + 0.5) / tile - 0.5)), 0, tiles - 2);
+  const double c0 = centre(t0), c1 = centre(t0 + 1);
+  return {t0, t0 + 1, std::clamp((x - c0) / (c1 - c0), -0.75, 1.75)};
+}
+}  // namespace
+
 template <typename Pixel>
-void Centroider::estimate_background(const frame::FrameView& frame) {
-  // Few rows, many pixels per row: a sampled row costs its cache lines once, so this reads
-  // 1/row_step of the frame's memory for the same number of samples as a square grid.
-  const int row_step = config_.background_row_step_px;
-  const int step = config_.background_column_step_px;
-  const double read_dn = config_.read_noise_e / config_.gain_e_per_dn;
-  std::array<std::uint32_t, 256> histogram{};
-  for (int ty = 0; ty < tiles_y_; ++ty) {
-    const int y0 = ty * tile_px_;
-    const int y1 = std::min(y0 + tile_px_, frame.height);
-    const int ys = y0 + std::min(row_step / 2, (y1 - y0 - 1) / 2);
-    for (int tx = 0; tx < tiles_x_; ++tx) {
-      const int x0 = tx * tile_px_;
-      const int x1 = std::min(x0 + tile_px_, frame.width);
-      const int xs = x0 + std::min(step / 2, (x1 - x0 - 1) / 2);
-      // Median of a sparse grid (robust against the few mark pixels), then the mean of the
-      // samples within +-3 sigma of it: the median of integer DN is only good to ~0.5 DN.
-      double median = 0, clipped_sum = 0;
-      int clipped_n = 0;
-      if constexpr (sizeof(Pixel) == 1) {
-        histogram.fill(0);
-        int n = 0;
-        for (int y = ys; y < y1; y += row_step) {
-          const Pixel* row = row_pointer<Pixel>(frame, y);
-          for (int x = xs; x < x1; x += step)
-            ++histogram[row[x]];
-          n += (x1 - xs + step - 1) / step;
-        }
-        int cumulative = 0, m = 0;
-        while (m < 255 && 2 * (cumulative + static_cast<int>(histogram[m])) < n + 1) {
-          cumulative += static_cast<int>(histogram[m]);
-          ++m;
-        }
-        median = m;
-        const double half = std::max(1.0, 3.0 * std::sqrt(pixel_variance_dn2(median)));
-        const int lo = std::max(0, static_cast<int>(std::ceil(median - half)));
-        const int hi = std::min(255, static_cast<int>(std::floor(median + half)));
-        for (int v = lo; v <= hi; ++v) {
-          clipped_sum += static_cast<double>(v) * histogram[v];
-          clipped_n += static_cast<int>(histogram[v]);
-        }
-      } else {
-        int n = 0;
-        for (int y = ys; y < y1; y += row_step) {
-          const Pixel* row = row_pointer<Pixel>(frame, y);
-          for (int x = xs; x < x1; x += step)
-            samples_[n++] = row[x];
-        }
-        std::nth_element(samples_.begin(), samples_.begin() + n / 2, samples_.begin() + n);
-        median = samples_[n / 2];
-        const double half = std::max(1.0, 3.0 * std::sqrt(pixel_variance_dn2(median)));
-        for (int i = 0; i < n; ++i) {
-          if (std::abs(samples_[i] - median) <= half) {
-            clipped_sum += samples_[i];
-            ++clipped_n;
-          }
-        }
-      }
-      const double background = clipped_n > 0 ? clipped_sum / clipped_n : median;
-      double delta = config_.threshold_dn;
-      if (delta <= 0) {
-        const double signal_e =
-            std::max(background - config_.black_level_dn, 0.0) * config_.gain_e_per_dn;
-        const double noise_dn =
-            std::sqrt(signal_e / (config_.gain_e_per_dn * config_.gain_e_per_dn) +
-                      read_dn * read_dn + 1.0 / 12.0);
-        delta = config_.threshold_sigma * noise_dn;
-      }
-      const int t = ty * tiles_x_ + tx;
-      tile_background_[t] = static_cast<float>(background);
-      tile_threshold_[t] = static_cast<std::int32_t>(
-          std::clamp(std::floor(background + delta), 0.0, static_cast<double>(max_value_)));
-    }
-  }
+void Centroider::estimate_background(const frame::FrameView& frame, bool whole_frame) {
+  // A full frame estimates every tile. ROI mode estimates only the tiles its regions read: the
+  // tiles under them (thresholds, a component's level) and the neighbours the bilinear
+  // interpolation of background_at() uses. Each of those tiles gets the same samples, so the
+  // same level, as in a full frame; the others are neither read nor written.
   const int n_tiles = tiles_x_ * tiles_y_;
-  std::copy(tile_background_.begin(), tile_background_.begin() + n_tiles, sorted_tiles_.begin());
-  std::nth_element(sorted_tiles_.begin(), sorted_tiles_.begin() + n_tiles / 2,
-                   sorted_tiles_.begin() + n_tiles);
-  stats_.last_background_dn = sorted_tiles_[n_tiles / 2];
+  int n_estimated = 0;
+  if (whole_frame) {
+    for (int ty = 0; ty < tiles_y_; ++ty)
+      for (int tx = 0; tx < tiles_x_; ++tx)
+        estimate_tile<Pixel>(frame, tx, ty);
+    std::copy(tile_background_.begin(), tile_background_.begin() + n_tiles, sorted_tiles_.begin());
+    n_estimated = n_tiles;
+  } else {
+    std::fill(tile_wanted_.begin(), tile_wanted_.begin() + n_tiles, std::uint8_t{0});
+    for (int r = 0; r < region_count_; ++r)
+      mark_region_tiles(regions_[r]);
+    for (int t = 0; t < n_tiles; ++t) {
+      if (tile_wanted_[t] == 0) continue;
+      estimate_tile<Pixel>(frame, t % tiles_x_, t / tiles_x_);
+      sorted_tiles_[n_estimated++] = tile_background_[t];
+    }
+    if (n_estimated == 0) return;  // no region: nothing is measured, the levels stay
+  }
+  std::nth_element(sorted_tiles_.begin(), sorted_tiles_.begin() + n_estimated / 2,
+                   sorted_tiles_.begin() + n_estimated);
+  stats_.last_background_dn = sorted_tiles_[n_estimated / 2];
   stats_.last_noise_dn =
       static_cast<float>(std::sqrt(pixel_variance_dn2(stats_.last_background_dn)));
   stats_.last_threshold_dn =
       config_.threshold_dn > 0 ? static_cast<float>(config_.threshold_dn)
                                : static_cast<float>(config_.threshold_sigma) * stats_.last_noise_dn;
+}
+
+void Centroider::mark_region_tiles(const Region& region) {
+  // Along one axis: the tiles holding pixels lo..hi, and those background_at() interpolates
+  // between for a point in that span (axis_weight() is monotonic in the position).
+  auto span = [this](int lo, int hi, int tiles, int extent, int& first, int& last) {
+    const AxisWeight a = axis_weight(lo, tile_px_, tiles, extent);
+    const AxisWeight b = axis_weight(hi, tile_px_, tiles, extent);
+    first = std::min(lo / tile_px_, a.t0);
+    last = std::max(hi / tile_px_, b.t1);
+  };
+  int tx0 = 0, tx1 = 0, ty0 = 0, ty1 = 0;
+  span(region.x0, region.x1 - 1, tiles_x_, frame_width_, tx0, tx1);
+  span(region.y0, region.y1 - 1, tiles_y_, frame_height_, ty0, ty1);
+  for (int ty = ty0; ty <= ty1; ++ty)
+    for (int tx = tx0; tx <= tx1; ++tx)
+      tile_wanted_[ty * tiles_x_ + tx] = 1;
+}
+
+template <typename Pixel>
+void Centroider::estimate_tile(const frame::FrameView& frame, int tx, int ty) {
+  // Few rows, many pixels per row: a sampled row costs its cache lines once, so this reads
+  // 1/row_step of the frame's memory for the same number of samples as a square grid.
+  const int row_step = config_.background_row_step_px;
+  const int step = config_.background_column_step_px;
+  const double read_dn = config_.read_noise_e / config_.gain_e_per_dn;
+  const int y0 = ty * tile_px_;
+  const int y1 = std::min(y0 + tile_px_, frame.height);
+  const int ys = y0 + std::min(row_step / 2, (y1 - y0 - 1) / 2);
+  const int x0 = tx * tile_px_;
+  const int x1 = std::min(x0 + tile_px_, frame.width);
+  const int xs = x0 + std::min(step / 2, (x1 - x0 - 1) / 2);
+  // Median of a sparse grid (robust against the few mark pixels), then the mean of the
+  // samples within +-3 sigma of it: the median of integer DN is only good to ~0.5 DN.
+  double median = 0, clipped_sum = 0;
+  int clipped_n = 0;
+  if constexpr (sizeof(Pixel) == 1) {
+    std::array<std::uint32_t, 256> histogram{};
+    int n = 0;
+    for (int y = ys; y < y1; y += row_step) {
+      const Pixel* row = row_pointer<Pixel>(frame, y);
+      for (int x = xs; x < x1; x += step)
+        ++histogram[row[x]];
+      n += (x1 - xs + step - 1) / step;
+    }
+    int cumulative = 0, m = 0;
+    while (m < 255 && 2 * (cumulative + static_cast<int>(histogram[m])) < n + 1) {
+      cumulative += static_cast<int>(histogram[m]);
+      ++m;
+    }
+    median = m;
+    const double half = std::max(1.0, 3.0 * std::sqrt(pixel_variance_dn2(median)));
+    const int lo = std::max(0, static_cast<int>(std::ceil(median - half)));
+    const int hi = std::min(255, static_cast<int>(std::floor(median + half)));
+    for (int v = lo; v <= hi; ++v) {
+      clipped_sum += static_cast<double>(v) * histogram[v];
+      clipped_n += static_cast<int>(histogram[v]);
+    }
+  } else {
+    int n = 0;
+    for (int y = ys; y < y1; y += row_step) {
+      const Pixel* row = row_pointer<Pixel>(frame, y);
+      for (int x = xs; x < x1; x += step)
+        samples_[n++] = row[x];
+    }
+    std::nth_element(samples_.begin(), samples_.begin() + n / 2, samples_.begin() + n);
+    median = samples_[n / 2];
+    const double half = std::max(1.0, 3.0 * std::sqrt(pixel_variance_dn2(median)));
+    for (int i = 0; i < n; ++i) {
+      if (std::abs(samples_[i] - median) <= half) {
+        clipped_sum += samples_[i];
+        ++clipped_n;
+      }
+    }
+  }
+  const double background = clipped_n > 0 ? clipped_sum / clipped_n : median;
+  double delta = config_.threshold_dn;
+  if (delta <= 0) {
+    const double signal_e =
+        std::max(background - config_.black_level_dn, 0.0) * config_.gain_e_per_dn;
+    const double noise_dn = std::sqrt(signal_e / (config_.gain_e_per_dn * config_.gain_e_per_dn) +
+                                      read_dn * read_dn + 1.0 / 12.0);
+    delta = config_.threshold_sigma * noise_dn;
+  }
+  const int t = ty * tiles_x_ + tx;
+  tile_background_[t] = static_cast<float>(background);
+  tile_threshold_[t] = static_cast<std::int32_t>(
+      std::clamp(std::floor(background + delta), 0.0, static_cast<double>(max_value_)));
 }
 
 int Centroider::find(int run) const {
@@ -397,11 +454,21 @@ int Centroider::scan_region(const frame::FrameView& frame, int region_index) {
     const int tile_row = y / tile_px_;
     if (tile_row != current_tile_row) {
       current_tile_row = tile_row;
-      const int chunks = (frame.width + kChunk - 1) / kChunk;
-      for (int c = 0; c < chunks; ++c)
+      // Only the region's chunks: in ROI mode the other tiles are not estimated.
+      for (int c = region.x0 / kChunk; c <= (region.x1 - 1) / kChunk; ++c)
         row_threshold_[c] = tile_threshold_[tile_row * tiles_x_ + chunk_tile_[c]];
     }
     const Pixel* row = row_pointer<Pixel>(frame, y);
+    if (y + kPrefetchRows < region.y1) {
+      // A window row is one or two cache lines a stride apart, not a stream the hardware
+      // prefetcher follows at once: ask for the row kPrefetchRows ahead.
+      const char* ahead = static_cast<const char*>(
+          static_cast<const void*>(row_pointer<Pixel>(frame, y + kPrefetchRows) + region.x0));
+      const int bytes = (region.x1 - region.x0) * static_cast<int>(sizeof(Pixel));
+      for (int b = 0; b < bytes; b += 64)
+        __builtin_prefetch(ahead + b);
+      __builtin_prefetch(ahead + bytes - 1);
+    }
     const int row_begin = run_count_;
     bool in_run = false;
     int start = 0;
@@ -431,12 +498,9 @@ int Centroider::scan_region(const frame::FrameView& frame, int region_index) {
       const int chunk = x / kChunk;
       const int chunk_end = std::min((chunk + 1) * kChunk, region.x1);
       const Pixel level = static_cast<Pixel>(row_threshold_[chunk]);
-      if (x != chunk * kChunk || chunk_end - x != kChunk) {
-        scalar(chunk_end, level);  // ROI edges and the end of a row
-        continue;
-      }
-      if (!any_above<Pixel, kChunk>(row + x, level)) {
-        // The common case: the whole chunk is background.
+      if (x == chunk * kChunk && chunk_end - x == kChunk &&
+          !any_above<Pixel, kChunk>(row + x, level)) {
+        // The common case of a full frame: the whole chunk is background.
         if (in_run) {
           emit(x - 1);
           in_run = false;
@@ -444,7 +508,18 @@ int Centroider::scan_region(const frame::FrameView& frame, int region_index) {
         x = chunk_end;
         continue;
       }
-      while (x < chunk_end) {
+      // A chunk with foreground, or the part of one inside an ROI (window rows rarely start on
+      // a chunk): 64 then 16 bytes at a time wherever they fit (unaligned loads), one pixel at
+      // a time only where a group has a pixel above the level and for the last few pixels.
+      constexpr int kBlock = 4 * kLanes<Pixel>;
+      while (x + kBlock <= chunk_end && !any_above<Pixel, kBlock>(row + x, level)) {
+        if (in_run) {
+          emit(x - 1);
+          in_run = false;
+        }
+        x += kBlock;
+      }
+      while (x + kLanes<Pixel> <= chunk_end) {
         if (any_above<Pixel, kLanes<Pixel>>(row + x, level)) {
           scalar(x + kLanes<Pixel>, level);
           continue;
@@ -455,6 +530,7 @@ int Centroider::scan_region(const frame::FrameView& frame, int region_index) {
         }
         x += kLanes<Pixel>;
       }
+      scalar(chunk_end, level);
     }
     if (in_run) emit(region.x1 - 1);
     if (run_overflow_) return -EOVERFLOW;
@@ -545,23 +621,6 @@ void Centroider::accumulate(const frame::FrameView& frame) {
     c.ymax = std::max(c.ymax, run.y);
   }
 }
-
-namespace {
-// Tile interval and interpolation weight along one axis: tile centres sit at the middle of
-// each tile's pixels (the last tile may be partial); beyond the outer centres the level is
-// extrapolated linearly for up to half a tile, so gradients hold up to the frame edge.
-struct AxisWeight {
-  int t0, t1;
-  double f;
-};
-AxisWeight axis_weight(double x, int tile, int tiles, int extent) {
-  if (tiles < 2) return {0, 0, 0.0};
-  auto centre = [&](int t) { return 0.5 * (t * tile + std::min((t + 1) * tile, extent) - 1); };
-  const int t0 = std::clamp(static_cast<int>(std::floor((x + 0.5) / tile - 0.5)), 0, tiles - 2);
-  const double c0 = centre(t0), c1 = centre(t0 + 1);
-  return {t0, t0 + 1, std::clamp((x - c0) / (c1 - c0), -0.75, 1.75)};
-}
-}  // namespace
 
 float Centroider::background_at(double x, double y) const {
   const AxisWeight u = axis_weight(x, tile_px_, tiles_x_, frame_width_);
@@ -796,7 +855,10 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
   double sigma = adaptive ? std::max(1.0, 1.3 * threshold_sigma) : config_.window_sigma_px;
   double xc = blob.x_px, yc = blob.y_px;
   const double x_start = xc, y_start = yc;
-  const float background = background_at(xc, yc);
+  // Inside the region: in ROI mode only the tiles its points interpolate between are estimated
+  // (the threshold centroid is inside anyway; the clamp makes that a guarantee).
+  const float background = background_at(std::clamp<double>(xc, region.x0, region.x1 - 1),
+                                         std::clamp<double>(yc, region.y0, region.y1 - 1));
 
   int px0 = 0, py0 = 0, pw = 0, ph = 0, half = 0;
   bool clipped = false;
