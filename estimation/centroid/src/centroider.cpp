@@ -789,12 +789,22 @@ bool Centroider::photon_weighted_step(double sigma, float background, double amp
     const float c_var = static_cast<float>(v0 * inv_s2);
     // The weight is not separable: flatten the patch so that one SIMD loop covers all of it
     // (per-row loops of ~11 pixels would spend their time in scalar tails and reductions).
+    // (Row by row through restrict pointers, so that the copy vectorises too: written through
+    // the vectors it was a scalar loop of three stores a pixel, 40 % of this function's time.)
     const int n = patch_w_ * patch_h_;
-    for (int j = 0, k = 0; j < patch_h_; ++j) {
-      for (int i = 0; i < patch_w_; ++i, ++k) {
-        flat_dx_[k] = dx_[i];
-        flat_dy_[k] = dy_[j];
-        flat_g_[k] = wx_[i] * wy_[j];
+    const float* __restrict row_dx = dx_.data();
+    const float* __restrict row_g = wx_.data();
+    for (int j = 0; j < patch_h_; ++j) {
+      const size_t row_start = static_cast<size_t>(j) * patch_w_;
+      float* __restrict out_dx = flat_dx_.data() + row_start;
+      float* __restrict out_dy = flat_dy_.data() + row_start;
+      float* __restrict out_g = flat_g_.data() + row_start;
+      const float dy = dy_[j], wy = wy_[j];
+#pragma omp simd
+      for (int i = 0; i < patch_w_; ++i) {
+        out_dx[i] = row_dx[i];
+        out_dy[i] = dy;
+        out_g[i] = row_g[i] * wy;
       }
     }
     const float* p = patch_.data();
