@@ -141,6 +141,7 @@ Centroider::Centroider(const CentroidConfig& config, int max_width, int max_heig
   tile_wanted_.resize(tile_background_.size());
   row_threshold_.resize(max_chunks);
   chunk_tile_.resize(max_chunks);
+  column_max_.resize(max_width);
   for (int c = 0; c < max_chunks; ++c)
     chunk_tile_[c] = c * kChunk / tile_px_;
   samples_.resize(static_cast<size_t>(tile_px_ / config.background_row_step_px + 1) *
@@ -630,6 +631,14 @@ float Centroider::background_at(double x, double y) const {
                             v.f * ((1 - u.f) * at(u.t0, v.t1) + u.f * at(u.t1, v.t1)));
 }
 
+namespace {
+/// num / den rounded half away from zero (den > 0): lround(double(num) / den) without the
+/// library call, exact for the small integers of a dip walk.
+int round_div(std::int64_t num, std::int64_t den) {
+  return static_cast<int>(num >= 0 ? (2 * num + den) / (2 * den) : -((2 * -num + den) / (2 * den)));
+}
+}  // namespace
+
 template <typename Pixel>
 bool Centroider::has_separate_maxima(const frame::FrameView& frame, const Candidate& c) const {
   const Region& region = regions_[c.region];
@@ -637,30 +646,30 @@ bool Centroider::has_separate_maxima(const frame::FrameView& frame, const Candid
   const double main_height = c.peak - b;
   const double min_height =
       std::max(config_.merge_peak_fraction * main_height, 0.5 * stats_.last_threshold_dn);
+  // A pixel is a local maximum when no pixel of its 3x3 neighbourhood (inside the region) is
+  // brighter: with column_max_[x] the maximum of rows y-1..y+1 in column x, when it is not below
+  // the maximum of column_max_ over x-1..x+1.
+  const int cx0 = std::max(c.xmin - 1, region.x0), cx1 = std::min(c.xmax + 1, region.x1 - 1);
+  std::uint16_t* column_max = column_max_.data();
   for (int y = c.ymin; y <= c.ymax; ++y) {
     const Pixel* row = row_pointer<Pixel>(frame, y);
+    const Pixel* above = row_pointer<Pixel>(frame, std::max(y - 1, region.y0));
+    const Pixel* below = row_pointer<Pixel>(frame, std::min(y + 1, region.y1 - 1));
+    for (int x = cx0; x <= cx1; ++x)
+      column_max[x - cx0] = std::max({above[x], row[x], below[x]});
     for (int x = c.xmin; x <= c.xmax; ++x) {
       const int value = row[x];
       if (value - b < min_height) continue;
       if (std::max(std::abs(x - c.peak_x), std::abs(y - c.peak_y)) < 2) continue;
-      bool is_max = true;
-      for (int ny = std::max(y - 1, region.y0); ny <= std::min(y + 1, region.y1 - 1) && is_max;
-           ++ny) {
-        const Pixel* nrow = row_pointer<Pixel>(frame, ny);
-        for (int nx = std::max(x - 1, region.x0); nx <= std::min(x + 1, region.x1 - 1); ++nx) {
-          if (nrow[nx] > value) {
-            is_max = false;
-            break;
-          }
-        }
-      }
-      if (!is_max) continue;
+      const int around = std::max({column_max[std::max(x - 1, cx0) - cx0], column_max[x - cx0],
+                                   column_max[std::min(x + 1, cx1) - cx0]});
+      if (around > value) continue;
       // A real second mark has a dip between it and the main peak; noise on a flat top does not.
       const int steps = std::max(std::abs(x - c.peak_x), std::abs(y - c.peak_y));
       int dip = value;
       for (int s = 1; s < steps; ++s) {
-        const int sx = c.peak_x + static_cast<int>(std::lround(double(x - c.peak_x) * s / steps));
-        const int sy = c.peak_y + static_cast<int>(std::lround(double(y - c.peak_y) * s / steps));
+        const int sx = c.peak_x + round_div(std::int64_t{x - c.peak_x} * s, steps);
+        const int sy = c.peak_y + round_div(std::int64_t{y - c.peak_y} * s, steps);
         dip = std::min<int>(dip, row_pointer<Pixel>(frame, sy)[sx]);
       }
       const double height = value - b;

@@ -198,12 +198,13 @@ class Centroider {
   std::vector<std::int32_t> selected_;  // candidates measured this frame, raster order
   int selected_count_ = 0;
   std::vector<float> tile_background_;
-  std::vector<std::int32_t> tile_threshold_;  // absolute: pixel > level is foreground
-  std::vector<std::int32_t> row_threshold_;   // per 32-pixel chunk of the current tile row
-  std::vector<std::int32_t> chunk_tile_;      // tile column of each 32-pixel chunk
-  std::vector<std::uint16_t> samples_;        // one tile's background samples (Mono16)
-  std::vector<float> sorted_tiles_;           // tile levels for the frame median
-  std::vector<std::uint8_t> tile_wanted_;     // ROI mode: 1 for the tiles under the ROIs
+  std::vector<std::int32_t> tile_threshold_;       // absolute: pixel > level is foreground
+  std::vector<std::int32_t> row_threshold_;        // per 128-pixel chunk of the current tile row
+  std::vector<std::int32_t> chunk_tile_;           // tile column of each 128-pixel chunk
+  std::vector<std::uint16_t> samples_;             // one tile's background samples (Mono16)
+  std::vector<float> sorted_tiles_;                // tile levels for the frame median
+  std::vector<std::uint8_t> tile_wanted_;          // ROI mode: 1 for the tiles under the ROIs
+  mutable std::vector<std::uint16_t> column_max_;  // merge check: 3-row maxima of a blob's box
   int patch_x0_ = 0, patch_y0_ = 0, patch_w_ = 0, patch_h_ = 0;
   std::vector<float> patch_;       // refinement patch, background-subtracted [DN]
   std::vector<float> patch_keep_;  // 1: pixel used, 0: it belongs to another mark's box
