@@ -18,7 +18,7 @@ namespace {
 // vector extensions: SSE2 on x86-64, NEON on aarch64), and only chunks with a pixel above the
 // threshold are looked at 16 bytes, then one pixel, at a time.
 constexpr int kChunk = 128;
-// Rows scan_region() asks the cache for ahead of the row it scans.
+// Rows scan_region() asks the cache for ahead of the row it scans (ROI mode).
 constexpr int kPrefetchRows = 4;
 
 typedef std::uint8_t VecU8 __attribute__((vector_size(16)));
@@ -41,6 +41,14 @@ const Pixel* row_pointer(const frame::FrameView& frame, int y) {
   // The frame check guarantees 2-byte alignment of Mono16 rows.
   return static_cast<const Pixel*>(
       static_cast<const void*>(frame.pixels + static_cast<std::ptrdiff_t>(y) * frame.stride_bytes));
+}
+
+/// Asks the cache for the lines holding bytes [p, p + bytes) (bytes > 0).
+inline void prefetch_span(const void* p, int bytes) {
+  const char* first = static_cast<const char*>(p);
+  for (int b = 0; b < bytes; b += 64)
+    __builtin_prefetch(first + b);
+  __builtin_prefetch(first + bytes - 1);
 }
 
 /// True if any of the kPixels pixels at p is above level.
@@ -233,8 +241,8 @@ int Centroider::process_regions(const frame::FrameView& frame, bool whole_frame,
   run_count_ = 0;
   run_overflow_ = false;
   for (int r = 0; r < region_count_; ++r) {
-    const int rc =
-        mono16 ? scan_region<std::uint16_t>(frame, r) : scan_region<std::uint8_t>(frame, r);
+    const int rc = mono16 ? scan_region<std::uint16_t>(frame, r, !whole_frame)
+                          : scan_region<std::uint8_t>(frame, r, !whole_frame);
     if (rc != 0) {
       ++stats_.run_overflows;
       ++stats_.frames_refused;
@@ -446,7 +454,7 @@ void Centroider::unite(int a, int b) {
 }
 
 template <typename Pixel>
-int Centroider::scan_region(const frame::FrameView& frame, int region_index) {
+int Centroider::scan_region(const frame::FrameView& frame, int region_index, bool prefetch) {
   Region& region = regions_[region_index];
   const int max_runs = static_cast<int>(runs_.size());
   int prev_begin = run_count_, prev_end = run_count_;
@@ -460,15 +468,12 @@ int Centroider::scan_region(const frame::FrameView& frame, int region_index) {
         row_threshold_[c] = tile_threshold_[tile_row * tiles_x_ + chunk_tile_[c]];
     }
     const Pixel* row = row_pointer<Pixel>(frame, y);
-    if (y + kPrefetchRows < region.y1) {
+    if (prefetch && y + kPrefetchRows < region.y1) {
       // A window row is one or two cache lines a stride apart, not a stream the hardware
-      // prefetcher follows at once: ask for the row kPrefetchRows ahead.
-      const char* ahead = static_cast<const char*>(
-          static_cast<const void*>(row_pointer<Pixel>(frame, y + kPrefetchRows) + region.x0));
-      const int bytes = (region.x1 - region.x0) * static_cast<int>(sizeof(Pixel));
-      for (int b = 0; b < bytes; b += 64)
-        __builtin_prefetch(ahead + b);
-      __builtin_prefetch(ahead + bytes - 1);
+      // prefetcher follows at once: ask for the row kPrefetchRows ahead. (Not in a full frame:
+      // there the hardware streams, and the prefetches only cost.)
+      prefetch_span(row_pointer<Pixel>(frame, y + kPrefetchRows) + region.x0,
+                    (region.x1 - region.x0) * static_cast<int>(sizeof(Pixel)));
     }
     const int row_begin = run_count_;
     bool in_run = false;
