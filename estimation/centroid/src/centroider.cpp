@@ -637,11 +637,30 @@ float Centroider::background_at(double x, double y) const {
 }
 
 namespace {
-/// num / den rounded half away from zero (den > 0): lround(double(num) / den) without the
-/// library call, exact for the small integers of a dip walk.
-int round_div(std::int64_t num, std::int64_t den) {
-  return static_cast<int>(num >= 0 ? (2 * num + den) / (2 * den) : -((2 * -num + den) / (2 * den)));
-}
+/// Offsets along one axis of the pixels on the line from a peak to a point `delta` away, at
+/// steps 1, 2, ... of `steps` (>= |delta|): round(delta s / steps), half away from zero, as
+/// lround(double(delta) * s / steps) gives it, but by Bresenham's increments (no division or
+/// library call per step).
+class LineAxis {
+ public:
+  LineAxis(int delta, int steps)
+      : sign_(delta < 0 ? -1 : 1), increment_(2 * std::abs(delta)), period_(2 * steps) {
+    const int first = increment_ + steps;  // 2 |delta| s + steps at s = 1
+    quotient_ = first / period_;
+    remainder_ = first % period_;
+  }
+  int offset() const { return sign_ * quotient_; }
+  void next() {
+    remainder_ += increment_;  // increment_ <= period_: at most one carry
+    if (remainder_ >= period_) {
+      remainder_ -= period_;
+      ++quotient_;
+    }
+  }
+
+ private:
+  int sign_, increment_, period_, quotient_ = 0, remainder_ = 0;
+};
 }  // namespace
 
 template <typename Pixel>
@@ -651,6 +670,12 @@ bool Centroider::has_separate_maxima(const frame::FrameView& frame, const Candid
   const double main_height = c.peak - b;
   const double min_height =
       std::max(config_.merge_peak_fraction * main_height, 0.5 * stats_.last_threshold_dn);
+  // The lowest reading with value - b >= min_height, exactly (the test per pixel in integers).
+  int min_value = static_cast<int>(std::clamp(std::ceil(b + min_height), -1.0, 65536.0));
+  while (min_value - 1 - b >= min_height)
+    --min_value;
+  while (min_value - b < min_height)
+    ++min_value;
   // A pixel is a local maximum when no pixel of its 3x3 neighbourhood (inside the region) is
   // brighter: with column_max_[x] the maximum of rows y-1..y+1 in column x, when it is not below
   // the maximum of column_max_ over x-1..x+1.
@@ -664,19 +689,19 @@ bool Centroider::has_separate_maxima(const frame::FrameView& frame, const Candid
       column_max[x - cx0] = std::max({above[x], row[x], below[x]});
     for (int x = c.xmin; x <= c.xmax; ++x) {
       const int value = row[x];
-      if (value - b < min_height) continue;
-      if (std::max(std::abs(x - c.peak_x), std::abs(y - c.peak_y)) < 2) continue;
+      if (value < min_value) continue;
       const int around = std::max({column_max[std::max(x - 1, cx0) - cx0], column_max[x - cx0],
                                    column_max[std::min(x + 1, cx1) - cx0]});
       if (around > value) continue;
-      // A real second mark has a dip between it and the main peak; noise on a flat top does not.
       const int steps = std::max(std::abs(x - c.peak_x), std::abs(y - c.peak_y));
+      if (steps < 2) continue;
+      // A real second mark has a dip between it and the main peak; noise on a flat top does not.
       int dip = value;
-      for (int s = 1; s < steps; ++s) {
-        const int sx = c.peak_x + round_div(std::int64_t{x - c.peak_x} * s, steps);
-        const int sy = c.peak_y + round_div(std::int64_t{y - c.peak_y} * s, steps);
-        dip = std::min<int>(dip, row_pointer<Pixel>(frame, sy)[sx]);
-      }
+      LineAxis along_x(x - c.peak_x, steps), along_y(y - c.peak_y, steps);
+      for (int s = 1; s < steps; ++s, along_x.next(), along_y.next())
+        dip = std::min<int>(
+            dip,
+            row_pointer<Pixel>(frame, c.peak_y + along_y.offset())[c.peak_x + along_x.offset()]);
       const double height = value - b;
       const double dip_height = dip - b;
       if (dip_height < (1.0 - config_.merge_dip_fraction) * height &&
