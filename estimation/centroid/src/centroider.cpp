@@ -591,24 +591,51 @@ void Centroider::accumulate(const frame::FrameView& frame) {
     const Pixel* row = row_pointer<Pixel>(frame, run.y);
     const double b = c.background;
     const double dy = run.y - c.ref_y;
-    double sw = 0, swx = 0, swxx = 0, sv = 0, svx = 0, svxx = 0;
-    for (int x = run.x0; x <= run.x1; ++x) {
-      const int value = row[x];
-      const double w = value - b;
-      const double v = pixel_variance_dn2(value);
-      const double dx = x - c.ref_x;
-      sw += w;
-      swx += w * dx;
-      swxx += w * dx * dx;
-      sv += v;
-      svx += v * dx;
-      svxx += v * dx * dx;
+    // Integer moments of the readings about the run's first pixel (i = x - x0), then the
+    // background-subtracted and variance moments about ref_x from them: the per-pixel work is
+    // three integer multiply-adds. (v = (value - black) k + offset while value >= black: the
+    // noise model is linear in the reading; a run dipping below the black level, not a mark's
+    // in practice, takes the per-pixel path.)
+    const int n = run.x1 - run.x0 + 1;
+    const Pixel* p = row + run.x0;
+    std::int64_t s0 = 0, s1 = 0, s2 = 0;
+    int lowest = max_value_;
+    for (int i = 0; i < n; ++i) {
+      const int value = p[i];
+      s0 += value;
+      s1 += std::int64_t{value} * i;
+      s2 += std::int64_t{value} * i * i;
+      lowest = std::min(lowest, value);
       if (value > c.peak) {
         c.peak = value;
-        c.peak_x = x;
+        c.peak_x = run.x0 + i;
         c.peak_y = run.y;
       }
       if (value >= saturation_dn_) ++c.saturated;
+    }
+    // Sums of 1, i, i^2 over the run, and the moments about ref_x: dx = i + o.
+    const double n0 = n, n1 = 0.5 * n * (n - 1.0), n2 = (n - 1.0) * n * (2.0 * n - 1.0) / 6.0;
+    const double o = run.x0 - c.ref_x;
+    auto about_ref = [o](double m0, double m1, double m2, double& r0, double& r1, double& r2) {
+      r0 = m0;
+      r1 = m1 + o * m0;
+      r2 = m2 + 2.0 * o * m1 + o * o * m0;
+    };
+    double sw = 0, swx = 0, swxx = 0, sv = 0, svx = 0, svxx = 0;
+    about_ref(double(s0) - b * n0, double(s1) - b * n1, double(s2) - b * n2, sw, swx, swxx);
+    if (lowest >= config_.black_level_dn) {
+      const double k = variance_per_dn_, black = config_.black_level_dn;
+      const double off = variance_offset_dn2_;
+      about_ref(k * (double(s0) - black * n0) + off * n0, k * (double(s1) - black * n1) + off * n1,
+                k * (double(s2) - black * n2) + off * n2, sv, svx, svxx);
+    } else {
+      for (int i = 0; i < n; ++i) {
+        const double v = pixel_variance_dn2(p[i]);
+        const double dx = i + o;
+        sv += v;
+        svx += v * dx;
+        svxx += v * dx * dx;
+      }
     }
     c.sw += sw;
     c.swx += swx;
