@@ -825,6 +825,58 @@ bool Centroider::windowed_variance(double sigma, float background, double xc, do
   return true;
 }
 
+namespace {
+struct MlTerms {
+  float v0, ka, c_var, above_black, per_dn, offset;
+};
+struct MlSums {
+  float gx = 0, gy = 0, ddx = 0, ddy = 0, vx = 0, vy = 0, gp = 0, total = 0;
+};
+/// One pass of the ML estimating equation over the flattened patch (photon_weighted_step()):
+/// the score, its derivative and the template fit, and with kLast the variance and flux (only
+/// the last pass's are reported, so the earlier passes skip them).
+template <bool kLast>
+MlSums ml_sums(int n, const float* p, const float* keep, const float* fdx, const float* fdy,
+               const float* fg, const MlTerms& t) {
+  float gx = 0, gy = 0, ddx = 0, ddy = 0, vx = 0, vy = 0, gp = 0, total = 0;
+  if constexpr (kLast) {
+#pragma omp simd reduction(+ : gx, gy, ddx, ddy, vx, vy, gp, total)
+    for (int k = 0; k < n; ++k) {
+      const float g = fg[k];
+      const float inv = 1.0f / (t.v0 + t.ka * g);
+      const float w = g * inv;
+      const float pw = p[k] * w;
+      const float c = t.c_var * inv;  // v0 / (s^2 (v0 + k A g))
+      const float var = keep[k] * (std::max(p[k] + t.above_black, 0.0f) * t.per_dn + t.offset);
+      const float w2v = w * w * var;
+      const float dx2 = fdx[k] * fdx[k], dy2 = fdy[k] * fdy[k];
+      gx += pw * fdx[k];
+      gy += pw * fdy[k];
+      ddx += pw * (1.0f - dx2 * c);
+      ddy += pw * (1.0f - dy2 * c);
+      vx += w2v * dx2;
+      vy += w2v * dy2;
+      gp += g * p[k];
+      total += p[k];
+    }
+  } else {
+#pragma omp simd reduction(+ : gx, gy, ddx, ddy, gp)
+    for (int k = 0; k < n; ++k) {
+      const float g = fg[k];
+      const float inv = 1.0f / (t.v0 + t.ka * g);
+      const float pw = p[k] * (g * inv);
+      const float c = t.c_var * inv;
+      gx += pw * fdx[k];
+      gy += pw * fdy[k];
+      ddx += pw * (1.0f - fdx[k] * fdx[k] * c);
+      ddy += pw * (1.0f - fdy[k] * fdy[k] * c);
+      gp += g * p[k];
+    }
+  }
+  return {gx, gy, ddx, ddy, vx, vy, gp, total};
+}
+}  // namespace
+
 bool Centroider::photon_weighted_step(double sigma, float background, double amplitude, int steps,
                                       double& xc, double& yc, double& var_x, double& var_y,
                                       double& flux) {
@@ -873,31 +925,14 @@ bool Centroider::photon_weighted_step(double sigma, float background, double amp
         out_g[i] = row_g[i] * wy;
       }
     }
-    const float* p = patch_.data();
-    const float* keep = patch_keep_.data();
-    const float* fdx = flat_dx_.data();
-    const float* fdy = flat_dy_.data();
-    const float* fg = flat_g_.data();
-    float gx = 0, gy = 0, ddx = 0, ddy = 0, vx = 0, vy = 0, gp = 0, total = 0;
-#pragma omp simd reduction(+ : gx, gy, ddx, ddy, vx, vy, gp, total)
-    for (int k = 0; k < n; ++k) {
-      const float g = fg[k];
-      const float inv = 1.0f / (v0 + ka * g);
-      const float w = g * inv;
-      const float pw = p[k] * w;
-      const float c = c_var * inv;  // v0 / (s^2 (v0 + k A g))
-      const float var = keep[k] * (std::max(p[k] + above_black, 0.0f) * per_dn + offset);
-      const float w2v = w * w * var;
-      const float dx2 = fdx[k] * fdx[k], dy2 = fdy[k] * fdy[k];
-      gx += pw * fdx[k];
-      gy += pw * fdy[k];
-      ddx += pw * (1.0f - dx2 * c);
-      ddy += pw * (1.0f - dy2 * c);
-      vx += w2v * dx2;
-      vy += w2v * dy2;
-      gp += g * p[k];
-      total += p[k];
-    }
+    const MlTerms terms{v0, ka, c_var, above_black, per_dn, offset};
+    const bool last = pass == steps - 1;
+    const MlSums sums = last ? ml_sums<true>(n, patch_.data(), patch_keep_.data(), flat_dx_.data(),
+                                             flat_dy_.data(), flat_g_.data(), terms)
+                             : ml_sums<false>(n, patch_.data(), patch_keep_.data(), flat_dx_.data(),
+                                              flat_dy_.data(), flat_g_.data(), terms);
+    const float gx = sums.gx, gy = sums.gy, ddx = sums.ddx, ddy = sums.ddy;
+    const float vx = sums.vx, vy = sums.vy, gp = sums.gp, total = sums.total;
     if (!(ddx > 0) || !(ddy > 0)) return false;
     const double step_x = double(gx) / ddx, step_y = double(gy) / ddy;
     // A step beyond half a pixel means the template does not fit: keep the windowed solution.
