@@ -46,8 +46,12 @@ const Pixel* row_pointer(const frame::FrameView& frame, int y) {
 /// Asks the cache for the lines holding bytes [p, p + bytes) (bytes > 0).
 inline void prefetch_span(const void* p, int bytes) {
   const char* first = static_cast<const char*>(p);
-  for (int b = 0; b < bytes; b += 64)
+  for (int b = 0; b < bytes; b += 64) {
     __builtin_prefetch(first + b);
+    // GCC deletes a loop of nothing but prefetches (it has no effect on the program's
+    // semantics): the empty asm that "uses" each address keeps it.
+    asm volatile("" : : "r"(first + b));
+  }
   __builtin_prefetch(first + bytes - 1);
 }
 
@@ -328,6 +332,7 @@ void Centroider::estimate_background(const frame::FrameView& frame, bool whole_f
     std::fill(tile_wanted_.begin(), tile_wanted_.begin() + n_tiles, std::uint8_t{0});
     for (int r = 0; r < region_count_; ++r)
       mark_region_tiles(regions_[r]);
+    prefetch_first_rows<Pixel>(frame);
     for (int t = 0; t < n_tiles; ++t) {
       if (tile_wanted_[t] == 0) continue;
       estimate_tile<Pixel>(frame, t % tiles_x_, t / tiles_x_);
@@ -360,6 +365,32 @@ void Centroider::mark_region_tiles(const Region& region) {
   for (int ty = ty0; ty <= ty1; ++ty)
     for (int tx = tx0; tx <= tx1; ++tx)
       tile_wanted_[ty * tiles_x_ + tx] = 1;
+}
+
+template <typename Pixel>
+void Centroider::prefetch_first_rows(const frame::FrameView& frame) const {
+  // ROI mode reads a few cache lines here and there in a frame that is not in the cache: the
+  // tiles' sample rows and the ROIs' rows. Read one after the other, each costs a memory
+  // latency. So before reading any, ask for every sample row of the tiles to be estimated and
+  // the first rows of every ROI (scan_region() asks for the later ones ahead of its scan).
+  const int row_step = config_.background_row_step_px;
+  const int step = config_.background_column_step_px;
+  for (int t = 0; t < tiles_x_ * tiles_y_; ++t) {
+    if (tile_wanted_[t] == 0) continue;
+    const int y0 = t / tiles_x_ * tile_px_, x0 = t % tiles_x_ * tile_px_;
+    const int y1 = std::min(y0 + tile_px_, frame.height);
+    const int x1 = std::min(x0 + tile_px_, frame.width);
+    const int ys = y0 + std::min(row_step / 2, (y1 - y0 - 1) / 2);
+    const int xs = x0 + std::min(step / 2, (x1 - x0 - 1) / 2);
+    for (int y = ys; y < y1; y += row_step)
+      prefetch_span(row_pointer<Pixel>(frame, y) + xs, (x1 - xs) * static_cast<int>(sizeof(Pixel)));
+  }
+  for (int r = 0; r < region_count_; ++r) {
+    const Region& region = regions_[r];
+    const int bytes = (region.x1 - region.x0) * static_cast<int>(sizeof(Pixel));
+    for (int y = region.y0; y < std::min(region.y0 + kPrefetchRows, region.y1); ++y)
+      prefetch_span(row_pointer<Pixel>(frame, y) + region.x0, bytes);
+  }
 }
 
 template <typename Pixel>

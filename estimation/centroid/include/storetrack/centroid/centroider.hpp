@@ -156,6 +156,8 @@ class Centroider {
   void estimate_tile(const frame::FrameView& frame, int tx, int ty);
   void mark_region_tiles(const Region& region);
   template <typename Pixel>
+  void prefetch_first_rows(const frame::FrameView& frame) const;
+  template <typename Pixel>
   int scan_region(const frame::FrameView& frame, int region_index, bool prefetch);
   template <typename Pixel>
   void accumulate(const frame::FrameView& frame);
