@@ -728,11 +728,12 @@ bool Centroider::has_separate_maxima(const frame::FrameView& frame, const Candid
   const double main_height = c.peak - b;
   const double min_height =
       std::max(config_.merge_peak_fraction * main_height, 0.5 * stats_.last_threshold_dn);
-  // The lowest reading with value - b >= min_height, exactly (the test per pixel in integers).
+  // The lowest reading with value - b >= min_height, exactly (the test per pixel in integers);
+  // -1 passes every reading, 65536 none.
   int min_value = static_cast<int>(std::clamp(std::ceil(b + min_height), -1.0, 65536.0));
-  while (min_value - 1 - b >= min_height)
+  while (min_value > -1 && min_value - 1 - b >= min_height)
     --min_value;
-  while (min_value - b < min_height)
+  while (min_value < 65536 && min_value - b < min_height)
     ++min_value;
   // A pixel is a local maximum when no pixel of its 3x3 neighbourhood (inside the region) is
   // brighter: with column_max_[x] the maximum of rows y-1..y+1 in column x, when it is not below
