@@ -18,6 +18,8 @@ namespace {
 // vector extensions: SSE2 on x86-64, NEON on aarch64), and only chunks with a pixel above the
 // threshold are looked at 16 bytes, then one pixel, at a time.
 constexpr int kChunk = 128;
+// Rows scan_region() asks the cache for ahead of the row it scans (ROI mode).
+constexpr int kPrefetchRows = 4;
 
 typedef std::uint8_t VecU8 __attribute__((vector_size(16)));
 typedef std::uint16_t VecU16 __attribute__((vector_size(16)));
@@ -39,6 +41,18 @@ const Pixel* row_pointer(const frame::FrameView& frame, int y) {
   // The frame check guarantees 2-byte alignment of Mono16 rows.
   return static_cast<const Pixel*>(
       static_cast<const void*>(frame.pixels + static_cast<std::ptrdiff_t>(y) * frame.stride_bytes));
+}
+
+/// Asks the cache for the lines holding bytes [p, p + bytes) (bytes > 0).
+inline void prefetch_span(const void* p, int bytes) {
+  const char* first = static_cast<const char*>(p);
+  for (int b = 0; b < bytes; b += 64) {
+    __builtin_prefetch(first + b);
+    // GCC deletes a loop of nothing but prefetches (it has no effect on the program's
+    // semantics): the empty asm that "uses" each address keeps it.
+    asm volatile("" : : "r"(first + b));
+  }
+  __builtin_prefetch(first + bytes - 1);
 }
 
 /// True if any of the kPixels pixels at p is above level.
@@ -136,8 +150,10 @@ Centroider::Centroider(const CentroidConfig& config, int max_width, int max_heig
   tile_background_.resize(static_cast<size_t>(max_tiles_x) * max_tiles_y);
   tile_threshold_.resize(tile_background_.size());
   sorted_tiles_.resize(tile_background_.size());
+  tile_wanted_.resize(tile_background_.size());
   row_threshold_.resize(max_chunks);
   chunk_tile_.resize(max_chunks);
+  column_max_.resize(max_width);
   for (int c = 0; c < max_chunks; ++c)
     chunk_tile_[c] = c * kChunk / tile_px_;
   samples_.resize(static_cast<size_t>(tile_px_ / config.background_row_step_px + 1) *
@@ -185,7 +201,7 @@ int Centroider::process(const frame::FrameView& frame, std::span<Blob> out) {
   }
   regions_[0] = Region{0, 0, frame.width, frame.height, 0};
   region_count_ = 1;
-  return process_regions(frame, out);
+  return process_regions(frame, true, out);
 }
 
 int Centroider::process(const frame::FrameView& frame, std::span<const Roi> rois,
@@ -207,10 +223,11 @@ int Centroider::process(const frame::FrameView& frame, std::span<const Roi> rois
     if (x1 <= x0 || y1 <= y0) continue;
     regions_[region_count_++] = Region{x0, y0, x1, y1, 0};
   }
-  return process_regions(frame, out);
+  return process_regions(frame, false, out);
 }
 
-int Centroider::process_regions(const frame::FrameView& frame, std::span<Blob> out) {
+int Centroider::process_regions(const frame::FrameView& frame, bool whole_frame,
+                                std::span<Blob> out) {
   const bool mono16 = frame.format == frame::PixelFormat::kMono16;
   max_value_ = (1 << frame.bits_per_pixel) - 1;
   saturation_dn_ =
@@ -220,16 +237,16 @@ int Centroider::process_regions(const frame::FrameView& frame, std::span<Blob> o
   tiles_x_ = (frame.width + tile_px_ - 1) / tile_px_;
   tiles_y_ = (frame.height + tile_px_ - 1) / tile_px_;
   if (mono16) {
-    estimate_background<std::uint16_t>(frame);
+    estimate_background<std::uint16_t>(frame, whole_frame);
   } else {
-    estimate_background<std::uint8_t>(frame);
+    estimate_background<std::uint8_t>(frame, whole_frame);
   }
 
   run_count_ = 0;
   run_overflow_ = false;
   for (int r = 0; r < region_count_; ++r) {
-    const int rc =
-        mono16 ? scan_region<std::uint16_t>(frame, r) : scan_region<std::uint8_t>(frame, r);
+    const int rc = mono16 ? scan_region<std::uint16_t>(frame, r, !whole_frame)
+                          : scan_region<std::uint8_t>(frame, r, !whole_frame);
     if (rc != 0) {
       ++stats_.run_overflows;
       ++stats_.frames_refused;
@@ -280,91 +297,171 @@ int Centroider::process_regions(const frame::FrameView& frame, std::span<Blob> o
   return written;
 }
 
+namespace {
+// Tile interval and interpolation weight along one axis: tile centres sit at the middle of
+// each tile's pixels (the last tile may be partial); beyond the outer centres the level is
+// extrapolated linearly for up to half a tile, so gradients hold up to the frame edge.
+struct AxisWeight {
+  int t0, t1;
+  double f;
+};
+AxisWeight axis_weight(double x, int tile, int tiles, int extent) {
+  if (tiles < 2) return {0, 0, 0.0};
+  auto centre = [&](int t) { return 0.5 * (t * tile + std::min((t + 1) * tile, extent) - 1); };
+  const int t0 = std::clamp(static_cast<int>(std::floor((x + 0.5) / tile - 0.5)), 0, tiles - 2);
+  const double c0 = centre(t0), c1 = centre(t0 + 1);
+  return {t0, t0 + 1, std::clamp((x - c0) / (c1 - c0), -0.75, 1.75)};
+}
+}  // namespace
+
 template <typename Pixel>
-void Centroider::estimate_background(const frame::FrameView& frame) {
-  // Few rows, many pixels per row: a sampled row costs its cache lines once, so this reads
-  // 1/row_step of the frame's memory for the same number of samples as a square grid.
-  const int row_step = config_.background_row_step_px;
-  const int step = config_.background_column_step_px;
-  const double read_dn = config_.read_noise_e / config_.gain_e_per_dn;
-  std::array<std::uint32_t, 256> histogram{};
-  for (int ty = 0; ty < tiles_y_; ++ty) {
-    const int y0 = ty * tile_px_;
-    const int y1 = std::min(y0 + tile_px_, frame.height);
-    const int ys = y0 + std::min(row_step / 2, (y1 - y0 - 1) / 2);
-    for (int tx = 0; tx < tiles_x_; ++tx) {
-      const int x0 = tx * tile_px_;
-      const int x1 = std::min(x0 + tile_px_, frame.width);
-      const int xs = x0 + std::min(step / 2, (x1 - x0 - 1) / 2);
-      // Median of a sparse grid (robust against the few mark pixels), then the mean of the
-      // samples within +-3 sigma of it: the median of integer DN is only good to ~0.5 DN.
-      double median = 0, clipped_sum = 0;
-      int clipped_n = 0;
-      if constexpr (sizeof(Pixel) == 1) {
-        histogram.fill(0);
-        int n = 0;
-        for (int y = ys; y < y1; y += row_step) {
-          const Pixel* row = row_pointer<Pixel>(frame, y);
-          for (int x = xs; x < x1; x += step)
-            ++histogram[row[x]];
-          n += (x1 - xs + step - 1) / step;
-        }
-        int cumulative = 0, m = 0;
-        while (m < 255 && 2 * (cumulative + static_cast<int>(histogram[m])) < n + 1) {
-          cumulative += static_cast<int>(histogram[m]);
-          ++m;
-        }
-        median = m;
-        const double half = std::max(1.0, 3.0 * std::sqrt(pixel_variance_dn2(median)));
-        const int lo = std::max(0, static_cast<int>(std::ceil(median - half)));
-        const int hi = std::min(255, static_cast<int>(std::floor(median + half)));
-        for (int v = lo; v <= hi; ++v) {
-          clipped_sum += static_cast<double>(v) * histogram[v];
-          clipped_n += static_cast<int>(histogram[v]);
-        }
-      } else {
-        int n = 0;
-        for (int y = ys; y < y1; y += row_step) {
-          const Pixel* row = row_pointer<Pixel>(frame, y);
-          for (int x = xs; x < x1; x += step)
-            samples_[n++] = row[x];
-        }
-        std::nth_element(samples_.begin(), samples_.begin() + n / 2, samples_.begin() + n);
-        median = samples_[n / 2];
-        const double half = std::max(1.0, 3.0 * std::sqrt(pixel_variance_dn2(median)));
-        for (int i = 0; i < n; ++i) {
-          if (std::abs(samples_[i] - median) <= half) {
-            clipped_sum += samples_[i];
-            ++clipped_n;
-          }
-        }
-      }
-      const double background = clipped_n > 0 ? clipped_sum / clipped_n : median;
-      double delta = config_.threshold_dn;
-      if (delta <= 0) {
-        const double signal_e =
-            std::max(background - config_.black_level_dn, 0.0) * config_.gain_e_per_dn;
-        const double noise_dn =
-            std::sqrt(signal_e / (config_.gain_e_per_dn * config_.gain_e_per_dn) +
-                      read_dn * read_dn + 1.0 / 12.0);
-        delta = config_.threshold_sigma * noise_dn;
-      }
-      const int t = ty * tiles_x_ + tx;
-      tile_background_[t] = static_cast<float>(background);
-      tile_threshold_[t] = static_cast<std::int32_t>(
-          std::clamp(std::floor(background + delta), 0.0, static_cast<double>(max_value_)));
-    }
-  }
+void Centroider::estimate_background(const frame::FrameView& frame, bool whole_frame) {
+  // A full frame estimates every tile. ROI mode estimates only the tiles its regions read: the
+  // tiles under them (thresholds, a component's level) and the neighbours the bilinear
+  // interpolation of background_at() uses. Each of those tiles gets the same samples, so the
+  // same level, as in a full frame; the others are neither read nor written.
   const int n_tiles = tiles_x_ * tiles_y_;
-  std::copy(tile_background_.begin(), tile_background_.begin() + n_tiles, sorted_tiles_.begin());
-  std::nth_element(sorted_tiles_.begin(), sorted_tiles_.begin() + n_tiles / 2,
-                   sorted_tiles_.begin() + n_tiles);
-  stats_.last_background_dn = sorted_tiles_[n_tiles / 2];
+  int n_estimated = 0;
+  if (whole_frame) {
+    for (int ty = 0; ty < tiles_y_; ++ty)
+      for (int tx = 0; tx < tiles_x_; ++tx)
+        estimate_tile<Pixel>(frame, tx, ty);
+    std::copy(tile_background_.begin(), tile_background_.begin() + n_tiles, sorted_tiles_.begin());
+    n_estimated = n_tiles;
+  } else {
+    std::fill(tile_wanted_.begin(), tile_wanted_.begin() + n_tiles, std::uint8_t{0});
+    for (int r = 0; r < region_count_; ++r)
+      mark_region_tiles(regions_[r]);
+    prefetch_first_rows<Pixel>(frame);
+    for (int t = 0; t < n_tiles; ++t) {
+      if (tile_wanted_[t] == 0) continue;
+      estimate_tile<Pixel>(frame, t % tiles_x_, t / tiles_x_);
+      sorted_tiles_[n_estimated++] = tile_background_[t];
+    }
+    if (n_estimated == 0) return;  // no region: nothing is measured, the levels stay
+  }
+  std::nth_element(sorted_tiles_.begin(), sorted_tiles_.begin() + n_estimated / 2,
+                   sorted_tiles_.begin() + n_estimated);
+  stats_.last_background_dn = sorted_tiles_[n_estimated / 2];
   stats_.last_noise_dn =
       static_cast<float>(std::sqrt(pixel_variance_dn2(stats_.last_background_dn)));
   stats_.last_threshold_dn =
       config_.threshold_dn > 0 ? static_cast<float>(config_.threshold_dn)
                                : static_cast<float>(config_.threshold_sigma) * stats_.last_noise_dn;
+}
+
+void Centroider::mark_region_tiles(const Region& region) {
+  // Along one axis: the tiles holding pixels lo..hi, and those background_at() interpolates
+  // between for a point in that span (axis_weight() is monotonic in the position).
+  auto span = [this](int lo, int hi, int tiles, int extent, int& first, int& last) {
+    const AxisWeight a = axis_weight(lo, tile_px_, tiles, extent);
+    const AxisWeight b = axis_weight(hi, tile_px_, tiles, extent);
+    first = std::min(lo / tile_px_, a.t0);
+    last = std::max(hi / tile_px_, b.t1);
+  };
+  int tx0 = 0, tx1 = 0, ty0 = 0, ty1 = 0;
+  span(region.x0, region.x1 - 1, tiles_x_, frame_width_, tx0, tx1);
+  span(region.y0, region.y1 - 1, tiles_y_, frame_height_, ty0, ty1);
+  for (int ty = ty0; ty <= ty1; ++ty)
+    for (int tx = tx0; tx <= tx1; ++tx)
+      tile_wanted_[ty * tiles_x_ + tx] = 1;
+}
+
+template <typename Pixel>
+void Centroider::prefetch_first_rows(const frame::FrameView& frame) const {
+  // ROI mode reads a few cache lines here and there in a frame that is not in the cache: the
+  // tiles' sample rows and the ROIs' rows. Read one after the other, each costs a memory
+  // latency. So before reading any, ask for every sample row of the tiles to be estimated and
+  // the first rows of every ROI (scan_region() asks for the later ones ahead of its scan).
+  const int row_step = config_.background_row_step_px;
+  const int step = config_.background_column_step_px;
+  for (int t = 0; t < tiles_x_ * tiles_y_; ++t) {
+    if (tile_wanted_[t] == 0) continue;
+    const int y0 = t / tiles_x_ * tile_px_, x0 = t % tiles_x_ * tile_px_;
+    const int y1 = std::min(y0 + tile_px_, frame.height);
+    const int x1 = std::min(x0 + tile_px_, frame.width);
+    const int ys = y0 + std::min(row_step / 2, (y1 - y0 - 1) / 2);
+    const int xs = x0 + std::min(step / 2, (x1 - x0 - 1) / 2);
+    for (int y = ys; y < y1; y += row_step)
+      prefetch_span(row_pointer<Pixel>(frame, y) + xs, (x1 - xs) * static_cast<int>(sizeof(Pixel)));
+  }
+  for (int r = 0; r < region_count_; ++r) {
+    const Region& region = regions_[r];
+    const int bytes = (region.x1 - region.x0) * static_cast<int>(sizeof(Pixel));
+    for (int y = region.y0; y < std::min(region.y0 + kPrefetchRows, region.y1); ++y)
+      prefetch_span(row_pointer<Pixel>(frame, y) + region.x0, bytes);
+  }
+}
+
+template <typename Pixel>
+void Centroider::estimate_tile(const frame::FrameView& frame, int tx, int ty) {
+  // Few rows, many pixels per row: a sampled row costs its cache lines once, so this reads
+  // 1/row_step of the frame's memory for the same number of samples as a square grid.
+  const int row_step = config_.background_row_step_px;
+  const int step = config_.background_column_step_px;
+  const double read_dn = config_.read_noise_e / config_.gain_e_per_dn;
+  const int y0 = ty * tile_px_;
+  const int y1 = std::min(y0 + tile_px_, frame.height);
+  const int ys = y0 + std::min(row_step / 2, (y1 - y0 - 1) / 2);
+  const int x0 = tx * tile_px_;
+  const int x1 = std::min(x0 + tile_px_, frame.width);
+  const int xs = x0 + std::min(step / 2, (x1 - x0 - 1) / 2);
+  // Median of a sparse grid (robust against the few mark pixels), then the mean of the
+  // samples within +-3 sigma of it: the median of integer DN is only good to ~0.5 DN.
+  double median = 0, clipped_sum = 0;
+  int clipped_n = 0;
+  if constexpr (sizeof(Pixel) == 1) {
+    std::array<std::uint32_t, 256> histogram{};
+    int n = 0;
+    for (int y = ys; y < y1; y += row_step) {
+      const Pixel* row = row_pointer<Pixel>(frame, y);
+      for (int x = xs; x < x1; x += step)
+        ++histogram[row[x]];
+      n += (x1 - xs + step - 1) / step;
+    }
+    int cumulative = 0, m = 0;
+    while (m < 255 && 2 * (cumulative + static_cast<int>(histogram[m])) < n + 1) {
+      cumulative += static_cast<int>(histogram[m]);
+      ++m;
+    }
+    median = m;
+    const double half = std::max(1.0, 3.0 * std::sqrt(pixel_variance_dn2(median)));
+    const int lo = std::max(0, static_cast<int>(std::ceil(median - half)));
+    const int hi = std::min(255, static_cast<int>(std::floor(median + half)));
+    for (int v = lo; v <= hi; ++v) {
+      clipped_sum += static_cast<double>(v) * histogram[v];
+      clipped_n += static_cast<int>(histogram[v]);
+    }
+  } else {
+    int n = 0;
+    for (int y = ys; y < y1; y += row_step) {
+      const Pixel* row = row_pointer<Pixel>(frame, y);
+      for (int x = xs; x < x1; x += step)
+        samples_[n++] = row[x];
+    }
+    std::nth_element(samples_.begin(), samples_.begin() + n / 2, samples_.begin() + n);
+    median = samples_[n / 2];
+    const double half = std::max(1.0, 3.0 * std::sqrt(pixel_variance_dn2(median)));
+    for (int i = 0; i < n; ++i) {
+      if (std::abs(samples_[i] - median) <= half) {
+        clipped_sum += samples_[i];
+        ++clipped_n;
+      }
+    }
+  }
+  const double background = clipped_n > 0 ? clipped_sum / clipped_n : median;
+  double delta = config_.threshold_dn;
+  if (delta <= 0) {
+    const double signal_e =
+        std::max(background - config_.black_level_dn, 0.0) * config_.gain_e_per_dn;
+    const double noise_dn = std::sqrt(signal_e / (config_.gain_e_per_dn * config_.gain_e_per_dn) +
+                                      read_dn * read_dn + 1.0 / 12.0);
+    delta = config_.threshold_sigma * noise_dn;
+  }
+  const int t = ty * tiles_x_ + tx;
+  tile_background_[t] = static_cast<float>(background);
+  tile_threshold_[t] = static_cast<std::int32_t>(
+      std::clamp(std::floor(background + delta), 0.0, static_cast<double>(max_value_)));
 }
 
 int Centroider::find(int run) const {
@@ -388,7 +485,7 @@ void Centroider::unite(int a, int b) {
 }
 
 template <typename Pixel>
-int Centroider::scan_region(const frame::FrameView& frame, int region_index) {
+int Centroider::scan_region(const frame::FrameView& frame, int region_index, bool prefetch) {
   Region& region = regions_[region_index];
   const int max_runs = static_cast<int>(runs_.size());
   int prev_begin = run_count_, prev_end = run_count_;
@@ -397,11 +494,18 @@ int Centroider::scan_region(const frame::FrameView& frame, int region_index) {
     const int tile_row = y / tile_px_;
     if (tile_row != current_tile_row) {
       current_tile_row = tile_row;
-      const int chunks = (frame.width + kChunk - 1) / kChunk;
-      for (int c = 0; c < chunks; ++c)
+      // Only the region's chunks: in ROI mode the other tiles are not estimated.
+      for (int c = region.x0 / kChunk; c <= (region.x1 - 1) / kChunk; ++c)
         row_threshold_[c] = tile_threshold_[tile_row * tiles_x_ + chunk_tile_[c]];
     }
     const Pixel* row = row_pointer<Pixel>(frame, y);
+    if (prefetch && y + kPrefetchRows < region.y1) {
+      // A window row is one or two cache lines a stride apart, not a stream the hardware
+      // prefetcher follows at once: ask for the row kPrefetchRows ahead. (Not in a full frame:
+      // there the hardware streams, and the prefetches only cost.)
+      prefetch_span(row_pointer<Pixel>(frame, y + kPrefetchRows) + region.x0,
+                    (region.x1 - region.x0) * static_cast<int>(sizeof(Pixel)));
+    }
     const int row_begin = run_count_;
     bool in_run = false;
     int start = 0;
@@ -431,12 +535,9 @@ int Centroider::scan_region(const frame::FrameView& frame, int region_index) {
       const int chunk = x / kChunk;
       const int chunk_end = std::min((chunk + 1) * kChunk, region.x1);
       const Pixel level = static_cast<Pixel>(row_threshold_[chunk]);
-      if (x != chunk * kChunk || chunk_end - x != kChunk) {
-        scalar(chunk_end, level);  // ROI edges and the end of a row
-        continue;
-      }
-      if (!any_above<Pixel, kChunk>(row + x, level)) {
-        // The common case: the whole chunk is background.
+      if (x == chunk * kChunk && chunk_end - x == kChunk &&
+          !any_above<Pixel, kChunk>(row + x, level)) {
+        // The common case of a full frame: the whole chunk is background.
         if (in_run) {
           emit(x - 1);
           in_run = false;
@@ -444,7 +545,18 @@ int Centroider::scan_region(const frame::FrameView& frame, int region_index) {
         x = chunk_end;
         continue;
       }
-      while (x < chunk_end) {
+      // A chunk with foreground, or the part of one inside an ROI (window rows rarely start on
+      // a chunk): 64 then 16 bytes at a time wherever they fit (unaligned loads), one pixel at
+      // a time only where a group has a pixel above the level and for the last few pixels.
+      constexpr int kBlock = 4 * kLanes<Pixel>;
+      while (x + kBlock <= chunk_end && !any_above<Pixel, kBlock>(row + x, level)) {
+        if (in_run) {
+          emit(x - 1);
+          in_run = false;
+        }
+        x += kBlock;
+      }
+      while (x + kLanes<Pixel> <= chunk_end) {
         if (any_above<Pixel, kLanes<Pixel>>(row + x, level)) {
           scalar(x + kLanes<Pixel>, level);
           continue;
@@ -455,6 +567,7 @@ int Centroider::scan_region(const frame::FrameView& frame, int region_index) {
         }
         x += kLanes<Pixel>;
       }
+      scalar(chunk_end, level);
     }
     if (in_run) emit(region.x1 - 1);
     if (run_overflow_) return -EOVERFLOW;
@@ -509,24 +622,51 @@ void Centroider::accumulate(const frame::FrameView& frame) {
     const Pixel* row = row_pointer<Pixel>(frame, run.y);
     const double b = c.background;
     const double dy = run.y - c.ref_y;
-    double sw = 0, swx = 0, swxx = 0, sv = 0, svx = 0, svxx = 0;
-    for (int x = run.x0; x <= run.x1; ++x) {
-      const int value = row[x];
-      const double w = value - b;
-      const double v = pixel_variance_dn2(value);
-      const double dx = x - c.ref_x;
-      sw += w;
-      swx += w * dx;
-      swxx += w * dx * dx;
-      sv += v;
-      svx += v * dx;
-      svxx += v * dx * dx;
+    // Integer moments of the readings about the run's first pixel (i = x - x0), then the
+    // background-subtracted and variance moments about ref_x from them: the per-pixel work is
+    // three integer multiply-adds. (v = (value - black) k + offset while value >= black: the
+    // noise model is linear in the reading; a run dipping below the black level, not a mark's
+    // in practice, takes the per-pixel path.)
+    const int n = run.x1 - run.x0 + 1;
+    const Pixel* p = row + run.x0;
+    std::int64_t s0 = 0, s1 = 0, s2 = 0;
+    int lowest = max_value_;
+    for (int i = 0; i < n; ++i) {
+      const int value = p[i];
+      s0 += value;
+      s1 += std::int64_t{value} * i;
+      s2 += std::int64_t{value} * i * i;
+      lowest = std::min(lowest, value);
       if (value > c.peak) {
         c.peak = value;
-        c.peak_x = x;
+        c.peak_x = run.x0 + i;
         c.peak_y = run.y;
       }
       if (value >= saturation_dn_) ++c.saturated;
+    }
+    // Sums of 1, i, i^2 over the run, and the moments about ref_x: dx = i + o.
+    const double n0 = n, n1 = 0.5 * n * (n - 1.0), n2 = (n - 1.0) * n * (2.0 * n - 1.0) / 6.0;
+    const double o = run.x0 - c.ref_x;
+    auto about_ref = [o](double m0, double m1, double m2, double& r0, double& r1, double& r2) {
+      r0 = m0;
+      r1 = m1 + o * m0;
+      r2 = m2 + 2.0 * o * m1 + o * o * m0;
+    };
+    double sw = 0, swx = 0, swxx = 0, sv = 0, svx = 0, svxx = 0;
+    about_ref(double(s0) - b * n0, double(s1) - b * n1, double(s2) - b * n2, sw, swx, swxx);
+    if (lowest >= config_.black_level_dn) {
+      const double k = variance_per_dn_, black = config_.black_level_dn;
+      const double off = variance_offset_dn2_;
+      about_ref(k * (double(s0) - black * n0) + off * n0, k * (double(s1) - black * n1) + off * n1,
+                k * (double(s2) - black * n2) + off * n2, sv, svx, svxx);
+    } else {
+      for (int i = 0; i < n; ++i) {
+        const double v = pixel_variance_dn2(p[i]);
+        const double dx = i + o;
+        sv += v;
+        svx += v * dx;
+        svxx += v * dx * dx;
+      }
     }
     c.sw += sw;
     c.swx += swx;
@@ -546,23 +686,6 @@ void Centroider::accumulate(const frame::FrameView& frame) {
   }
 }
 
-namespace {
-// Tile interval and interpolation weight along one axis: tile centres sit at the middle of
-// each tile's pixels (the last tile may be partial); beyond the outer centres the level is
-// extrapolated linearly for up to half a tile, so gradients hold up to the frame edge.
-struct AxisWeight {
-  int t0, t1;
-  double f;
-};
-AxisWeight axis_weight(double x, int tile, int tiles, int extent) {
-  if (tiles < 2) return {0, 0, 0.0};
-  auto centre = [&](int t) { return 0.5 * (t * tile + std::min((t + 1) * tile, extent) - 1); };
-  const int t0 = std::clamp(static_cast<int>(std::floor((x + 0.5) / tile - 0.5)), 0, tiles - 2);
-  const double c0 = centre(t0), c1 = centre(t0 + 1);
-  return {t0, t0 + 1, std::clamp((x - c0) / (c1 - c0), -0.75, 1.75)};
-}
-}  // namespace
-
 float Centroider::background_at(double x, double y) const {
   const AxisWeight u = axis_weight(x, tile_px_, tiles_x_, frame_width_);
   const AxisWeight v = axis_weight(y, tile_px_, tiles_y_, frame_height_);
@@ -571,6 +694,33 @@ float Centroider::background_at(double x, double y) const {
                             v.f * ((1 - u.f) * at(u.t0, v.t1) + u.f * at(u.t1, v.t1)));
 }
 
+namespace {
+/// Offsets along one axis of the pixels on the line from a peak to a point `delta` away, at
+/// steps 1, 2, ... of `steps` (>= |delta|): round(delta s / steps), half away from zero, as
+/// lround(double(delta) * s / steps) gives it, but by Bresenham's increments (no division or
+/// library call per step).
+class LineAxis {
+ public:
+  LineAxis(int delta, int steps)
+      : sign_(delta < 0 ? -1 : 1), increment_(2 * std::abs(delta)), period_(2 * steps) {
+    const int first = increment_ + steps;  // 2 |delta| s + steps at s = 1
+    quotient_ = first / period_;
+    remainder_ = first % period_;
+  }
+  int offset() const { return sign_ * quotient_; }
+  void next() {
+    remainder_ += increment_;  // increment_ <= period_: at most one carry
+    if (remainder_ >= period_) {
+      remainder_ -= period_;
+      ++quotient_;
+    }
+  }
+
+ private:
+  int sign_, increment_, period_, quotient_ = 0, remainder_ = 0;
+};
+}  // namespace
+
 template <typename Pixel>
 bool Centroider::has_separate_maxima(const frame::FrameView& frame, const Candidate& c) const {
   const Region& region = regions_[c.region];
@@ -578,32 +728,39 @@ bool Centroider::has_separate_maxima(const frame::FrameView& frame, const Candid
   const double main_height = c.peak - b;
   const double min_height =
       std::max(config_.merge_peak_fraction * main_height, 0.5 * stats_.last_threshold_dn);
+  // The lowest reading with value - b >= min_height, exactly (the test per pixel in integers);
+  // -1 passes every reading, 65536 none.
+  int min_value = static_cast<int>(std::clamp(std::ceil(b + min_height), -1.0, 65536.0));
+  while (min_value > -1 && min_value - 1 - b >= min_height)
+    --min_value;
+  while (min_value < 65536 && min_value - b < min_height)
+    ++min_value;
+  // A pixel is a local maximum when no pixel of its 3x3 neighbourhood (inside the region) is
+  // brighter: with column_max_[x] the maximum of rows y-1..y+1 in column x, when it is not below
+  // the maximum of column_max_ over x-1..x+1.
+  const int cx0 = std::max(c.xmin - 1, region.x0), cx1 = std::min(c.xmax + 1, region.x1 - 1);
+  std::uint16_t* column_max = column_max_.data();
   for (int y = c.ymin; y <= c.ymax; ++y) {
     const Pixel* row = row_pointer<Pixel>(frame, y);
+    const Pixel* above = row_pointer<Pixel>(frame, std::max(y - 1, region.y0));
+    const Pixel* below = row_pointer<Pixel>(frame, std::min(y + 1, region.y1 - 1));
+    for (int x = cx0; x <= cx1; ++x)
+      column_max[x - cx0] = std::max({above[x], row[x], below[x]});
     for (int x = c.xmin; x <= c.xmax; ++x) {
       const int value = row[x];
-      if (value - b < min_height) continue;
-      if (std::max(std::abs(x - c.peak_x), std::abs(y - c.peak_y)) < 2) continue;
-      bool is_max = true;
-      for (int ny = std::max(y - 1, region.y0); ny <= std::min(y + 1, region.y1 - 1) && is_max;
-           ++ny) {
-        const Pixel* nrow = row_pointer<Pixel>(frame, ny);
-        for (int nx = std::max(x - 1, region.x0); nx <= std::min(x + 1, region.x1 - 1); ++nx) {
-          if (nrow[nx] > value) {
-            is_max = false;
-            break;
-          }
-        }
-      }
-      if (!is_max) continue;
-      // A real second mark has a dip between it and the main peak; noise on a flat top does not.
+      if (value < min_value) continue;
+      const int around = std::max({column_max[std::max(x - 1, cx0) - cx0], column_max[x - cx0],
+                                   column_max[std::min(x + 1, cx1) - cx0]});
+      if (around > value) continue;
       const int steps = std::max(std::abs(x - c.peak_x), std::abs(y - c.peak_y));
+      if (steps < 2) continue;
+      // A real second mark has a dip between it and the main peak; noise on a flat top does not.
       int dip = value;
-      for (int s = 1; s < steps; ++s) {
-        const int sx = c.peak_x + static_cast<int>(std::lround(double(x - c.peak_x) * s / steps));
-        const int sy = c.peak_y + static_cast<int>(std::lround(double(y - c.peak_y) * s / steps));
-        dip = std::min<int>(dip, row_pointer<Pixel>(frame, sy)[sx]);
-      }
+      LineAxis along_x(x - c.peak_x, steps), along_y(y - c.peak_y, steps);
+      for (int s = 1; s < steps; ++s, along_x.next(), along_y.next())
+        dip = std::min<int>(
+            dip,
+            row_pointer<Pixel>(frame, c.peak_y + along_y.offset())[c.peak_x + along_x.offset()]);
       const double height = value - b;
       const double dip_height = dip - b;
       if (dip_height < (1.0 - config_.merge_dip_fraction) * height &&
@@ -700,6 +857,58 @@ bool Centroider::windowed_variance(double sigma, float background, double xc, do
   return true;
 }
 
+namespace {
+struct MlTerms {
+  float v0, ka, c_var, above_black, per_dn, offset;
+};
+struct MlSums {
+  float gx = 0, gy = 0, ddx = 0, ddy = 0, vx = 0, vy = 0, gp = 0, total = 0;
+};
+/// One pass of the ML estimating equation over the flattened patch (photon_weighted_step()):
+/// the score, its derivative and the template fit, and with kLast the variance and flux (only
+/// the last pass's are reported, so the earlier passes skip them).
+template <bool kLast>
+MlSums ml_sums(int n, const float* p, const float* keep, const float* fdx, const float* fdy,
+               const float* fg, const MlTerms& t) {
+  float gx = 0, gy = 0, ddx = 0, ddy = 0, vx = 0, vy = 0, gp = 0, total = 0;
+  if constexpr (kLast) {
+#pragma omp simd reduction(+ : gx, gy, ddx, ddy, vx, vy, gp, total)
+    for (int k = 0; k < n; ++k) {
+      const float g = fg[k];
+      const float inv = 1.0f / (t.v0 + t.ka * g);
+      const float w = g * inv;
+      const float pw = p[k] * w;
+      const float c = t.c_var * inv;  // v0 / (s^2 (v0 + k A g))
+      const float var = keep[k] * (std::max(p[k] + t.above_black, 0.0f) * t.per_dn + t.offset);
+      const float w2v = w * w * var;
+      const float dx2 = fdx[k] * fdx[k], dy2 = fdy[k] * fdy[k];
+      gx += pw * fdx[k];
+      gy += pw * fdy[k];
+      ddx += pw * (1.0f - dx2 * c);
+      ddy += pw * (1.0f - dy2 * c);
+      vx += w2v * dx2;
+      vy += w2v * dy2;
+      gp += g * p[k];
+      total += p[k];
+    }
+  } else {
+#pragma omp simd reduction(+ : gx, gy, ddx, ddy, gp)
+    for (int k = 0; k < n; ++k) {
+      const float g = fg[k];
+      const float inv = 1.0f / (t.v0 + t.ka * g);
+      const float pw = p[k] * (g * inv);
+      const float c = t.c_var * inv;
+      gx += pw * fdx[k];
+      gy += pw * fdy[k];
+      ddx += pw * (1.0f - fdx[k] * fdx[k] * c);
+      ddy += pw * (1.0f - fdy[k] * fdy[k] * c);
+      gp += g * p[k];
+    }
+  }
+  return {gx, gy, ddx, ddy, vx, vy, gp, total};
+}
+}  // namespace
+
 bool Centroider::photon_weighted_step(double sigma, float background, double amplitude, int steps,
                                       double& xc, double& yc, double& var_x, double& var_y,
                                       double& flux) {
@@ -730,39 +939,32 @@ bool Centroider::photon_weighted_step(double sigma, float background, double amp
     const float c_var = static_cast<float>(v0 * inv_s2);
     // The weight is not separable: flatten the patch so that one SIMD loop covers all of it
     // (per-row loops of ~11 pixels would spend their time in scalar tails and reductions).
+    // (Row by row through restrict pointers, so that the copy vectorises too: written through
+    // the vectors it was a scalar loop of three stores a pixel, 40 % of this function's time.)
     const int n = patch_w_ * patch_h_;
-    for (int j = 0, k = 0; j < patch_h_; ++j) {
-      for (int i = 0; i < patch_w_; ++i, ++k) {
-        flat_dx_[k] = dx_[i];
-        flat_dy_[k] = dy_[j];
-        flat_g_[k] = wx_[i] * wy_[j];
+    const float* __restrict row_dx = dx_.data();
+    const float* __restrict row_g = wx_.data();
+    for (int j = 0; j < patch_h_; ++j) {
+      const size_t row_start = static_cast<size_t>(j) * patch_w_;
+      float* __restrict out_dx = flat_dx_.data() + row_start;
+      float* __restrict out_dy = flat_dy_.data() + row_start;
+      float* __restrict out_g = flat_g_.data() + row_start;
+      const float dy = dy_[j], wy = wy_[j];
+#pragma omp simd
+      for (int i = 0; i < patch_w_; ++i) {
+        out_dx[i] = row_dx[i];
+        out_dy[i] = dy;
+        out_g[i] = row_g[i] * wy;
       }
     }
-    const float* p = patch_.data();
-    const float* keep = patch_keep_.data();
-    const float* fdx = flat_dx_.data();
-    const float* fdy = flat_dy_.data();
-    const float* fg = flat_g_.data();
-    float gx = 0, gy = 0, ddx = 0, ddy = 0, vx = 0, vy = 0, gp = 0, total = 0;
-#pragma omp simd reduction(+ : gx, gy, ddx, ddy, vx, vy, gp, total)
-    for (int k = 0; k < n; ++k) {
-      const float g = fg[k];
-      const float inv = 1.0f / (v0 + ka * g);
-      const float w = g * inv;
-      const float pw = p[k] * w;
-      const float c = c_var * inv;  // v0 / (s^2 (v0 + k A g))
-      const float var = keep[k] * (std::max(p[k] + above_black, 0.0f) * per_dn + offset);
-      const float w2v = w * w * var;
-      const float dx2 = fdx[k] * fdx[k], dy2 = fdy[k] * fdy[k];
-      gx += pw * fdx[k];
-      gy += pw * fdy[k];
-      ddx += pw * (1.0f - dx2 * c);
-      ddy += pw * (1.0f - dy2 * c);
-      vx += w2v * dx2;
-      vy += w2v * dy2;
-      gp += g * p[k];
-      total += p[k];
-    }
+    const MlTerms terms{v0, ka, c_var, above_black, per_dn, offset};
+    const bool last = pass == steps - 1;
+    const MlSums sums = last ? ml_sums<true>(n, patch_.data(), patch_keep_.data(), flat_dx_.data(),
+                                             flat_dy_.data(), flat_g_.data(), terms)
+                             : ml_sums<false>(n, patch_.data(), patch_keep_.data(), flat_dx_.data(),
+                                              flat_dy_.data(), flat_g_.data(), terms);
+    const float gx = sums.gx, gy = sums.gy, ddx = sums.ddx, ddy = sums.ddy;
+    const float vx = sums.vx, vy = sums.vy, gp = sums.gp, total = sums.total;
     if (!(ddx > 0) || !(ddy > 0)) return false;
     const double step_x = double(gx) / ddx, step_y = double(gy) / ddy;
     // A step beyond half a pixel means the template does not fit: keep the windowed solution.
@@ -796,7 +998,10 @@ bool Centroider::refine(const frame::FrameView& frame, int candidate_index, Blob
   double sigma = adaptive ? std::max(1.0, 1.3 * threshold_sigma) : config_.window_sigma_px;
   double xc = blob.x_px, yc = blob.y_px;
   const double x_start = xc, y_start = yc;
-  const float background = background_at(xc, yc);
+  // Inside the region: in ROI mode only the tiles its points interpolate between are estimated
+  // (the threshold centroid is inside anyway; the clamp makes that a guarantee).
+  const float background = background_at(std::clamp<double>(xc, region.x0, region.x1 - 1),
+                                         std::clamp<double>(yc, region.y0, region.y1 - 1));
 
   int px0 = 0, py0 = 0, pw = 0, ph = 0, half = 0;
   bool clipped = false;

@@ -140,8 +140,9 @@ void BM_Windowed(benchmark::State& state) {
 }
 BENCHMARK(BM_Windowed)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond);
 
-// What every windowed frame pays before its windows: the centroider's ROI mode with no ROI
-// (its background estimate samples every 32nd row of the whole frame).
+// The centroider's ROI mode with no ROI: the fixed cost of a call. (Before the ROI mode
+// estimated the background only in the tiles under its ROIs, this was the whole frame's
+// background estimate, paid by every windowed frame: 22 us, 0.14x of a full frame.)
 void BM_BackgroundOnly(benchmark::State& state) {
   const Frames& f = frames();
   storetrack::centroid::Centroider centroider(f.centroid_config(), f.width, f.height);

@@ -104,9 +104,11 @@ struct CentroidStats {
   std::uint64_t refine_fallbacks = 0;  ///< windowed centroid failed: threshold moments used
   int last_candidates = 0;
   int last_runs = 0;
-  float last_background_dn = 0;  ///< median over tiles of the background level
-  float last_noise_dn = 0;       ///< background noise of the noise model at that level
-  float last_threshold_dn = 0;   ///< detection level above background at that level
+  /// Median over the tiles estimated (all of them for a full frame; in ROI mode those under
+  /// the ROIs and their interpolation neighbours; unchanged when no ROI is left) of the level.
+  float last_background_dn = 0;
+  float last_noise_dn = 0;      ///< background noise of the noise model at that level
+  float last_threshold_dn = 0;  ///< detection level above background at that level
 };
 
 class Centroider {
@@ -146,12 +148,17 @@ class Centroider {
     float background;
   };
 
-  int process_regions(const frame::FrameView& frame, std::span<Blob> out);
+  int process_regions(const frame::FrameView& frame, bool whole_frame, std::span<Blob> out);
   int check_frame(const frame::FrameView& frame) const;
   template <typename Pixel>
-  void estimate_background(const frame::FrameView& frame);
+  void estimate_background(const frame::FrameView& frame, bool whole_frame);
   template <typename Pixel>
-  int scan_region(const frame::FrameView& frame, int region_index);
+  void estimate_tile(const frame::FrameView& frame, int tx, int ty);
+  void mark_region_tiles(const Region& region);
+  template <typename Pixel>
+  void prefetch_first_rows(const frame::FrameView& frame) const;
+  template <typename Pixel>
+  int scan_region(const frame::FrameView& frame, int region_index, bool prefetch);
   template <typename Pixel>
   void accumulate(const frame::FrameView& frame);
   template <typename Pixel>
@@ -193,11 +200,13 @@ class Centroider {
   std::vector<std::int32_t> selected_;  // candidates measured this frame, raster order
   int selected_count_ = 0;
   std::vector<float> tile_background_;
-  std::vector<std::int32_t> tile_threshold_;  // absolute: pixel > level is foreground
-  std::vector<std::int32_t> row_threshold_;   // per 32-pixel chunk of the current tile row
-  std::vector<std::int32_t> chunk_tile_;      // tile column of each 32-pixel chunk
-  std::vector<std::uint16_t> samples_;        // one tile's background samples (Mono16)
-  std::vector<float> sorted_tiles_;           // tile levels for the frame median
+  std::vector<std::int32_t> tile_threshold_;       // absolute: pixel > level is foreground
+  std::vector<std::int32_t> row_threshold_;        // per 128-pixel chunk of the current tile row
+  std::vector<std::int32_t> chunk_tile_;           // tile column of each 128-pixel chunk
+  std::vector<std::uint16_t> samples_;             // one tile's background samples (Mono16)
+  std::vector<float> sorted_tiles_;                // tile levels for the frame median
+  std::vector<std::uint8_t> tile_wanted_;          // ROI mode: 1 for the tiles under the ROIs
+  mutable std::vector<std::uint16_t> column_max_;  // merge check: 3-row maxima of a blob's box
   int patch_x0_ = 0, patch_y0_ = 0, patch_w_ = 0, patch_h_ = 0;
   std::vector<float> patch_;       // refinement patch, background-subtracted [DN]
   std::vector<float> patch_keep_;  // 1: pixel used, 0: it belongs to another mark's box
