@@ -1,25 +1,33 @@
 #!/usr/bin/env bash
 # kill -9 of storetrack-host itself at random moments during a test point. Four real
-# storetrack-unit processes send as fast as they render; the host is SIGKILLed KILLS times
-# (0.2 .. 1.2 s after its file holds its first message packets) and restarted at once with the SAME --ch10 path, so every run
-# must keep the earlier files and record to the next number; the last run ends normally. Each
-# run sends iNET-X to its own port, where a listener records every trigger_seq sent. Checked
-# with the independent Chapter 10 reader (rig_ch10_dump): every file starts with TMATS,
-# has no checksum error, ends at most in one partial packet, holds no sample twice, and a killed
-# run lost at most the samples in flight: its open message batch (<= 10) + the one being
-# processed + the recording queue (bounded here at 16, 40 ms at 400 fps).
+# storetrack-unit processes send on one schedule, like a triggered rig, in slow motion at PACE_HZ.
+# (Units that send as fast as they render drift apart by tens of exposures on a loaded machine,
+# and a host started fresh then rightly quarantines the cameras far from the first one it hears:
+# in one CI run a restarted host wrote no sample until the units had ended, before its kill. At
+# 400 fps a loaded machine's writer thread falls behind the killed runs' 16-item queue and drops,
+# counted, more than the in-flight bound below.) The host is SIGKILLed KILLS times (0.2 .. 1.2 s
+# after its file holds its first message packets) and restarted at once with the SAME --ch10
+# path, so every run must keep the earlier files and record to the next number; the last run
+# ends normally. Each run sends iNET-X to its own port, where a listener records every
+# trigger_seq sent. Checked with the independent Chapter 10 reader (rig_ch10_dump): every file
+# starts with TMATS, has no checksum error, ends at most in one partial packet, holds no sample
+# twice, and a killed run lost at most the samples in flight: its open message batch (<= 10) +
+# the one being processed + the recording queue (bounded here at 16).
 set -euo pipefail
 SIM="$1"; UNIT="$2"; HOST="$3"; CHECK="$4"; ROOT="$5"; OUT="$6"
-NEXP=400 KILLS=3
+NEXP=1000 PACE_HZ=100 KILLS=3  # 10 s: three kill cycles (~1-2 s each under load) fit in it
 rm -rf "$OUT"; mkdir -p "$OUT/sim"
 PORT=$(( 24000 + $$ % 1000 ))  # below the ephemeral ports (32768-60999)
-/usr/bin/python3 - "$ROOT/common/sim/scenarios/static.json" "$OUT/scenario.json" "$NEXP" <<'PY'
+# The units fly NEXP exposures; the simulator run only gives the surveys and the initial marks
+# (its first exposure), so it simulates 400.
+/usr/bin/python3 - "$ROOT/common/sim/scenarios/static.json" "$OUT" "$NEXP" <<'PY'
 import json, sys
 s = json.load(open(sys.argv[1]))
-s["timing"]["num_exposures"] = int(sys.argv[3])
-json.dump(s, open(sys.argv[2], "w"))
+for name, n in (("scenario.json", int(sys.argv[3])), ("scenario_sim.json", 400)):
+    s["timing"]["num_exposures"] = n
+    json.dump(s, open(sys.argv[2] + "/" + name, "w"))
 PY
-"$SIM" --scenario "$OUT/scenario.json" --seed 3 --out "$OUT/sim" --mode observations >/dev/null
+"$SIM" --scenario "$OUT/scenario_sim.json" --seed 3 --out "$OUT/sim" --mode observations >/dev/null
 /usr/bin/python3 "$ROOT/tools/sim_setup.py" --initial-marks "$OUT/sim/truth_marks.csv" "$OUT/initial_marks.json" 0
 # iNET-X listener: run i sends to PORT+1+i; one line "run trigger_seq" per packet.
 /usr/bin/python3 - "$PORT" "$(( KILLS + 1 ))" "$OUT/inetx_seqs.txt" <<'PY' &
@@ -58,11 +66,13 @@ start_host() {  # $1 = run index
   HOST_PID=$!
 }
 start_host 0
-sleep 0.5
+# Exposure 0 of every unit is due 1 s from now (their start-up).
+PACE_ORIGIN_NS=$(/usr/bin/python3 -c "import time; print(time.monotonic_ns() + 1000000000)")
 for c in 0 1 2 3; do
   "$UNIT" run --source sim --scenario "$OUT/scenario.json" --camera-index "$c" --seed 3 \
-    --trigger sim --udp "127.0.0.1:$PORT" --no-modbus --frames "$NEXP" \
-    >"$OUT/unit_cam$c.log" 2>&1 &
+    --trigger sim --realtime --sim-pace-hz "$PACE_HZ" --sim-pace-origin-mono-ns "$PACE_ORIGIN_NS" \
+    --sim-background-pool 8 \
+    --udp "127.0.0.1:$PORT" --no-modbus --frames "$NEXP" >"$OUT/unit_cam$c.log" 2>&1 &
   PIDS="$PIDS $!"
 done
 ch10_of_run() { [ "$1" -eq 0 ] && echo "$OUT/out.ch10" || echo "$OUT/out.$(printf %03d "$1").ch10"; }
@@ -78,6 +88,11 @@ for run in $(seq 0 $(( KILLS - 1 ))); do
   done
   [ -f "$F" ] || { ls -l "$OUT"; echo "FAIL run $run never created $F (an earlier file overwritten?)"; exit 1; }
   sleep "$(( 2 + RANDOM % 11 ))e-1"
+  kill -0 "$HOST_PID" 2>/dev/null || {
+    tail -n 12 "$OUT/host_run$run.log"
+    echo "FAIL run $run ended before its kill (the units ended first?)"
+    exit 1
+  }
   kill -9 "$HOST_PID"; wait "$HOST_PID" 2>/dev/null || true
   echo "killed run $run"
   start_host $(( run + 1 ))
