@@ -151,6 +151,7 @@ nlohmann::json stats_json(const Recording& r, const ReplayCounters& c, std::size
   nlohmann::json j;
   j["files"] = r.files;
   j["torn"] = r.torn;
+  j["gaps"] = r.gaps;
   j["replay"] = {{"records", c.records},
                  {"observations", c.observations},
                  {"refused_live", c.refused_live},
@@ -243,6 +244,8 @@ int run(const PostOptions& p) {
   for (const std::string& torn : r.torn)
     std::fprintf(stderr, "storetrack-post: %s: replaying up to its last whole packet\n",
                  torn.c_str());
+  for (const std::string& gap : r.gaps)
+    std::fprintf(stderr, "storetrack-post: %s\n", gap.c_str());
   hostapp::HostOptions o = recorded_host_options(r, p);
   hostapp::InputFiles in;
   hostapp::load_inputs(o, make_input_reader(r, p), in);
