@@ -208,5 +208,37 @@ TEST(PostRecording, RefusesAMissingOrMisplacedContinuationFile) {
   fs::remove_all(dir);
 }
 
+// Raw packets missing between two consecutive files (the host could not write them: the
+// setup records are consecutive): replayed, and named in `gaps`. Made by cutting the second
+// file's first raw packet out of it.
+TEST(PostRecording, NamesRawPacketsMissingBetweenConsecutiveFiles) {
+  const fs::path dir = fresh_dir("st_post_gap");
+  std::vector<std::string> f;
+  g_fail_writes = {7};
+  write_run((dir / "out.ch10").string(), config(true, true), &f);
+  g_fail_writes.clear();
+  ASSERT_EQ(f.size(), 2u);
+  const ch10read::File second = ch10read::read_file(f[1]);
+  const int raw = ch10read::raw_channel_id(second);
+  const auto first_raw = std::find_if(second.packets.begin(), second.packets.end(),
+                                      [&](const auto& p) { return p.channel_id == raw; });
+  ASSERT_NE(first_raw, second.packets.end());
+  std::vector<char> bytes(fs::file_size(f[1]));
+  std::ifstream(f[1], std::ios::binary)
+      .read(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  const auto at = bytes.begin() + static_cast<std::ptrdiff_t>(first_raw->file_offset);
+  bytes.erase(at, at + first_raw->packet_length);
+  std::ofstream(f[1], std::ios::binary | std::ios::trunc)
+      .write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+
+  const Recording r = read_recording(f);
+  ASSERT_EQ(r.gaps.size(), 1u);
+  EXPECT_EQ(r.gaps[0].rfind(f[1] + ": its first raw channel packet (offset ", 0), 0u) << r.gaps[0];
+  EXPECT_NE(r.gaps[0].find("1 (mod 256) raw packet(s) missing"), std::string::npos) << r.gaps[0];
+  EXPECT_NE(r.gaps[0].find("packets the host could not write"), std::string::npos) << r.gaps[0];
+  EXPECT_LT(r.records.size(), static_cast<std::size_t>(kExposures * kObservationsPerExposure));
+  fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace storetrack::post
