@@ -19,6 +19,10 @@ int parse_post_options(int argc, char** argv, PostOptions& o) {
   app.option("--smoothed-csv", o.smoothed_csv_path,
              "Write the smoothed trajectory (pose, velocity, acceleration, angular rate with "
              "their uncertainty, noise and shared parts) to this NEW CSV file");
+  app.option("--differences-csv", o.differences_csv_path,
+             "With a substituted input: write per sample and axis how far the pose moved from "
+             "the recorded inputs' (d), the standard uncertainty of that difference (u) and z = "
+             "d / u to this NEW CSV file");
   app.option("--stats-json", o.stats_json_path,
              "Write the replay's counters and the comparison to this NEW JSON file");
   app.option("--calibration", o.calibration_path, "Use this rig calibration, not the recorded")
