@@ -136,6 +136,7 @@ nlohmann::json processor_stats_json(const pipeline::ExposureProcessor& processor
   const auto& pc = processor.counters();
   return {{"exposures", pc.exposures},
           {"unknown_camera", pc.unknown_camera},
+          {"time_sigma_unknown", pc.time_sigma_unknown},
           {"id_out_of_range", pc.id_out_of_range},
           {"too_few_cameras", pc.too_few_cameras},
           {"triangulation_failed", pc.triangulation_failed},

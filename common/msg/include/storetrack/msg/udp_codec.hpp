@@ -22,7 +22,7 @@ inline constexpr std::size_t kUdpCrcBytes = 4;
 inline constexpr std::size_t kMaxDatagramBytes =
     kUdpHeaderBytes + std::max(kMarkObservationsMaxPayloadBytes, kUnitHealthMaxPayloadBytes) +
     kUdpCrcBytes;
-static_assert(kMaxDatagramBytes == 12 + 542 + 4, "wire layout size");
+static_assert(kMaxDatagramBytes == 12 + 546 + 4, "wire layout size");
 static_assert(kMaxDatagramBytes <= 1472,
               "one datagram must fit an Ethernet MTU without IP fragments");
 
