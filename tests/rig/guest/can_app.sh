@@ -44,8 +44,9 @@ waitfor "[ \$(grep -c vcan0 /proc/net/can/rcvlist_all) -ge 2 ]" 400 || echo "not
 # mid-stream: malformed frames, then the interface goes down and comes back
 sleep 3
 cansend vcan0 123#DEADBEEF                                   # classic CAN, 11-bit id
-# unit 1 / camera 0 MarkObservations id (docs/icd.md), one-fragment transfer of garbage: bad CRC
-cansend vcan0 08080801##0FFFF00.00.11.22.33.44.55.66.77.88.99.AA.BB.CC
+# unit 1 / camera 0 MarkObservations id (docs/icd.md; version 2 in bits 2..0), one-fragment
+# transfer of garbage: bad CRC
+cansend vcan0 08080802##0FFFF00.00.11.22.33.44.55.66.77.88.99.AA.BB.CC
 sleep 2
 ip link set vcan0 down; sleep 1.5; ip link set vcan0 up
 wait $UNITP; urc=$?
