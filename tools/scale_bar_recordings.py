@@ -40,7 +40,7 @@ def read_datagrams(path):
 
 def exposure_count(datagrams):
     seqs = {struct.unpack_from(">I", d, HDR + 2)[0] for d in datagrams
-            if len(d) >= HDR + 30 and d[3] == 0x01}
+            if len(d) >= HDR + 34 and d[3] == 0x01}
     return len(seqs)
 
 

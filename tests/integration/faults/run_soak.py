@@ -125,7 +125,7 @@ def main():
     groups = sim_setup.read_observation_groups(os.path.join(sim_dir, "observations.udp"))
     if len(groups) < 10 or any(len(g) != CAMERAS for g in groups):
         sys.exit("run_soak.py: expected %d observations per exposure from the simulator" % CAMERAS)
-    marks_per_msg = [g[c][HDR + 29] for g in groups for c in range(CAMERAS)]
+    marks_per_msg = [g[c][HDR + 33] for g in groups for c in range(CAMERAS)]  # mark_count (ICD v2)
     period = int(round(1e9 / FPS))
     t_first = struct.unpack_from(">q", groups[0][0], HDR + 6)[0]
     loop_ns = struct.unpack_from(">q", groups[-1][0], HDR + 6)[0] - t_first + period

@@ -64,9 +64,10 @@ def crc(b):
 
 
 def without_marks(b):
-    """The same observation with no mark (the camera saw nothing): 46 bytes."""
-    e = bytearray(b[:HDR + 30])
-    e[HDR + 29] = 0
+    """The same observation with no mark (the camera saw nothing): 50 bytes (docs/icd.md,
+    MarkObservations version 2: mark_count at payload offset 33, the marks from 34)."""
+    e = bytearray(b[:HDR + 34])
+    e[HDR + 33] = 0
     struct.pack_into(">H", e, 6, len(e) + 4)
     return e
 

@@ -29,10 +29,10 @@ check(scene_ids == [0, 1, 2, 3], "the scene has the rig's 4 cameras (%s)" % scen
 received = {}
 for r in ch10["raw_observations"]:
     b = r["bytes"]
-    if not (r["flags"] & 1) or len(b) < 12 + 30 or b[3] != 0x01:
+    if not (r["flags"] & 1) or len(b) < 12 + 34 or b[3] != 0x01:  # MarkObservations v2
         continue
     camera, seq = b[12 + 1], struct.unpack_from(">I", b, 12 + 2)[0]
-    received[(camera, seq)] = b[12 + 29]
+    received[(camera, seq)] = b[12 + 33]
 check(len(received) > 0, "raw observations recorded (%d)" % len(received))
 
 compared = 0
