@@ -83,7 +83,10 @@ def forged_copy(d, lead):
 def setup(sim_dir):
     s = json.load(open(os.path.join(a.root, "common", "sim", "scenarios", "store_separation.json")))
     json.dump(s, open(os.path.join(a.out, "scenario.json"), "w"))
-    if not os.path.exists(os.path.join(sim_dir, "observations.udp")):
+    observations = os.path.join(sim_dir, "observations.udp")
+    # Kept between runs of one build tree, but not past a rebuilt simulator (the wire format or
+    # the scenario may have changed).
+    if not os.path.exists(observations) or os.path.getmtime(observations) < os.path.getmtime(a.sim):
         subprocess.run([a.sim, "--scenario", os.path.join(a.out, "scenario.json"), "--seed", "1",
                         "--out", sim_dir, "--mode", "observations"], check=True,
                        stdout=subprocess.DEVNULL)
