@@ -1,6 +1,7 @@
 #include "storetrack/pipeline/calibration_health.hpp"
 
 #include <stdexcept>
+#include <string>
 
 #include "storetrack/camera/camera_model.hpp"
 #include "storetrack/uncertainty/spd_inverse.hpp"
@@ -181,6 +182,102 @@ bool CalibrationHealthMonitor::update(const AlignedExposure& exposure,
     }
   }
   return newly_moved;
+}
+
+camera::RigCalibration corrected_rig(const camera::RigCalibration& rig, int camera_id,
+                                     const Vec6& motion, const Mat6& motion_cov) {
+  camera::RigCalibration out = rig;
+  std::size_t slot = 0;
+  while (slot < out.cameras.size() && out.cameras[slot].camera_id != camera_id)
+    ++slot;
+  if (slot == out.cameras.size())
+    throw std::invalid_argument("corrected_rig: camera " + std::to_string(camera_id) +
+                                " not in the rig");
+  camera::CalibratedCamera& cam = out.cameras[slot];
+  cam.T_c_w = geometry::perturb_left(cam.T_c_w, motion);
+  if (out.joint_covariance.size() > 0) {
+    Eigen::MatrixXd joint = out.full_joint_covariance();
+    const auto e =
+        static_cast<Eigen::Index>(slot) * camera::kJointBlockSize + camera::kNumIntrinsics;
+    joint.block<6, 6>(e, e) += motion_cov;
+    camera::set_joint_covariance(out, joint);
+  } else {
+    cam.extrinsic_covariance += motion_cov;
+  }
+  return out;
+}
+
+CalibrationHealthGuard::CalibrationHealthGuard(const camera::RigCalibration& rig,
+                                               const survey::RigidBodySurvey& pylon,
+                                               const CalibrationHealthConfig& config,
+                                               CalibrationHealthMode mode)
+    : original_(rig),
+      rig_(rig),
+      monitor_(rig, pylon, config),
+      mode_(mode),
+      alarms_seen_(rig.cameras.size(), 0),
+      corrected_(rig.cameras.size(), false),
+      applied_(rig.cameras.size(), Vec6::Zero()),
+      applied_cov_(rig.cameras.size(), Mat6::Zero()) {}
+
+const AlignedExposure& CalibrationHealthGuard::filter(const AlignedExposure& exposure) {
+  if (mode_ != CalibrationHealthMode::kExclude) return exposure;
+  bool any = false;
+  for (const CameraHealth& h : monitor_.cameras())
+    any = any || h.moved;
+  if (!any) return exposure;
+  filtered_ = exposure;  // the vector's capacity is reused
+  for (msg::MarkObservations& obs : filtered_.cameras)
+    for (std::size_t s = 0; s < monitor_.cameras().size(); ++s)
+      if (monitor_.cameras()[s].moved && monitor_.cameras()[s].camera_id == obs.camera_id) {
+        // Delivered, but not used: counted missing, so the sample says so (camera_missing).
+        obs.mark_count = 0;
+        filtered_.missing_camera_mask |= 1u << s;
+      }
+  ++counters_.exposures_excluding;
+  return filtered_;
+}
+
+// A new full-window estimate that the applied correction does not explain.
+bool CalibrationHealthGuard::correction_needed(std::size_t slot) const {
+  const CameraHealth& h = monitor_.cameras()[slot];
+  if (!corrected_[slot]) return true;
+  Mat6 info;
+  if (!uncertainty::inverse_spd<6>(Mat6(h.motion_cov + applied_cov_[slot]), info)) return false;
+  const Vec6 d = h.motion - applied_[slot];
+  return d.dot(info * d) > monitor_.threshold();
+}
+
+bool CalibrationHealthGuard::observe(const AlignedExposure& exposure, ExposureResult& result) {
+  monitor_.update(exposure, result);
+  bool rebuild = false;
+  bool used_moved = false;
+  for (std::size_t s = 0; s < monitor_.cameras().size(); ++s) {
+    const CameraHealth& h = monitor_.cameras()[s];
+    if (!h.moved) continue;
+    for (const msg::MarkObservations& obs : exposure.cameras)
+      used_moved = used_moved || (obs.camera_id == h.camera_id && obs.mark_count > 0);
+    // The first alarm's window is partly before the move: correct from the next ones.
+    const bool new_full_window = h.alarms > alarms_seen_[s] && h.alarms > 1;
+    alarms_seen_[s] = h.alarms;
+    if (mode_ == CalibrationHealthMode::kCorrect && new_full_window && correction_needed(s)) {
+      applied_[s] = h.motion;
+      applied_cov_[s] = h.motion_cov;
+      corrected_[s] = true;
+      rebuild = true;
+    }
+  }
+  if (used_moved) {
+    result.sample.status |= msg::fti_status::kCalibrationMoved;
+    ++counters_.samples_flagged;
+  }
+  if (!rebuild) return false;
+  rig_ = original_;
+  for (std::size_t s = 0; s < corrected_.size(); ++s)
+    if (corrected_[s])
+      rig_ = corrected_rig(rig_, monitor_.cameras()[s].camera_id, applied_[s], applied_cov_[s]);
+  ++counters_.corrections;
+  return true;
 }
 
 }  // namespace storetrack::pipeline

@@ -101,4 +101,58 @@ class CalibrationHealthMonitor {
   std::vector<bool> seen_;                     ///< per slot: contributed to this exposure
 };
 
+/// What the host does with a camera declared moved (`calibration_health.mode`): flag its
+/// samples (FtiSample status calibration_moved); also correct its extrinsic with the estimated
+/// motion and its covariance added; or exclude it from the exposures.
+enum class CalibrationHealthMode { kFlag, kCorrect, kExclude };
+
+/// The calibration `rig` with camera `camera_id`'s T_c_w moved by `motion` (left perturbation)
+/// and `motion_cov` added to its extrinsic covariance (the joint one too, when the rig has it):
+/// the old calibration error remains, the motion's estimate adds its own, independent.
+camera::RigCalibration corrected_rig(const camera::RigCalibration& rig, int camera_id,
+                                     const geometry::Vec6& motion,
+                                     const geometry::Mat6& motion_cov);
+
+struct CalibrationHealthCounters {
+  std::uint64_t samples_flagged = 0;      ///< samples a camera declared moved contributed to
+  std::uint64_t corrections = 0;          ///< rigs corrected (correct mode)
+  std::uint64_t exposures_excluding = 0;  ///< exposures with a moved camera dropped (exclude)
+};
+
+/// The monitor and the mode's policy around ExposureProcessor::process:
+///   e = guard.filter(exposure); r = processor.process(e, ...);
+///   if (guard.observe(e, r)) processor = ExposureProcessor(guard.rig(), ...);
+class CalibrationHealthGuard {
+ public:
+  CalibrationHealthGuard(const camera::RigCalibration& rig, const survey::RigidBodySurvey& pylon,
+                         const CalibrationHealthConfig& config, CalibrationHealthMode mode);
+
+  /// Exclude mode: the exposure without the cameras declared moved (a member copy, reused);
+  /// else `exposure` itself.
+  const AlignedExposure& filter(const AlignedExposure& exposure);
+  /// After processing `exposure` (as filtered): runs the monitor and flags the sample when a
+  /// camera declared moved contributed. True when the processor must be rebuilt on rig():
+  /// correct mode, a full window's motion estimate differing from the correction applied
+  /// (chi-square(6) above the monitor's threshold).
+  bool observe(const AlignedExposure& exposure, ExposureResult& result);
+
+  const camera::RigCalibration& rig() const { return rig_; }  ///< corrected (correct mode)
+  const CalibrationHealthMonitor& monitor() const { return monitor_; }
+  const CalibrationHealthCounters& counters() const { return counters_; }
+  CalibrationHealthMode mode() const { return mode_; }
+
+ private:
+  bool correction_needed(std::size_t slot) const;
+
+  camera::RigCalibration original_, rig_;
+  CalibrationHealthMonitor monitor_;
+  CalibrationHealthMode mode_;
+  CalibrationHealthCounters counters_;
+  std::vector<std::uint64_t> alarms_seen_;  ///< per slot: the monitor's alarm count
+  std::vector<bool> corrected_;             ///< per slot: a correction applied
+  std::vector<geometry::Vec6> applied_;     ///< per slot: the motion applied
+  std::vector<geometry::Mat6> applied_cov_;
+  AlignedExposure filtered_;
+};
+
 }  // namespace storetrack::pipeline
