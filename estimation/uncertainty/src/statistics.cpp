@@ -1,5 +1,7 @@
 #include "storetrack/uncertainty/statistics.hpp"
 
+#include "storetrack/uncertainty/noncentral_chi_square.hpp"
+
 #include <stdexcept>
 
 #include <boost/math/distributions/binomial.hpp>

@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include "storetrack/uncertainty/noncentral_chi_square.hpp"
 #include "storetrack/uncertainty/statistics.hpp"
 
 namespace {

@@ -31,9 +31,6 @@ struct DegreesOfFreedom {
 double chi_square_quantile(Probability p, DegreesOfFreedom dof);
 /// Survival function P(X > x).
 double chi_square_survival(double x, DegreesOfFreedom dof);
-/// Survival function P(X > x) of the noncentral chi-square (noncentrality lambda = |mean|^2 of
-/// the standardised Gaussian): a test's detection probability against a known shift.
-double noncentral_chi_square_survival(double x, DegreesOfFreedom dof, double lambda);
 
 /// Acceptance interval of a count X ~ Binomial(trials, p): the largest `low` and smallest `high`
 /// with P(X < low) <= alpha_per_side and P(X > high) <= alpha_per_side.

@@ -34,6 +34,7 @@ struct CalibrationHealthConfig {
   int baseline_windows = 50;
   double false_alarm_probability = 1e-6;  ///< alpha, per camera and window while it holds
   int min_pylon_marks = 3;  ///< a camera seeing fewer pylon marks in the baseline: not monitored
+  std::vector<int> camera_ids;  ///< the cameras monitored; empty: all (an id not in the rig throws)
 };
 
 /// One camera's state. motion is the estimated change of its extrinsic since the baseline, a
@@ -102,8 +103,8 @@ class CalibrationHealthMonitor {
 };
 
 /// What the host does with a camera declared moved (`calibration_health.mode`): flag its
-/// samples (FtiSample status calibration_moved); also correct its extrinsic with the estimated
-/// motion and its covariance added; or exclude it from the exposures.
+/// samples (counted, log, stats); also correct its extrinsic with the estimated motion and its
+/// covariance added; or exclude it from the exposures.
 enum class CalibrationHealthMode { kFlag, kCorrect, kExclude };
 
 /// The calibration `rig` with camera `camera_id`'s T_c_w moved by `motion` (left perturbation)
@@ -130,11 +131,13 @@ class CalibrationHealthGuard {
   /// Exclude mode: the exposure without the cameras declared moved (a member copy, reused);
   /// else `exposure` itself.
   const AlignedExposure& filter(const AlignedExposure& exposure);
-  /// After processing `exposure` (as filtered): runs the monitor and flags the sample when a
+  /// After processing `exposure` (as filtered): runs the monitor; flagged() tells whether a
   /// camera declared moved contributed. True when the processor must be rebuilt on rig():
   /// correct mode, a full window's motion estimate differing from the correction applied
   /// (chi-square(6) above the monitor's threshold).
-  bool observe(const AlignedExposure& exposure, ExposureResult& result);
+  bool observe(const AlignedExposure& exposure, const ExposureResult& result);
+  /// The last observed exposure used a camera declared moved.
+  bool flagged() const { return flagged_; }
 
   const camera::RigCalibration& rig() const { return rig_; }  ///< corrected (correct mode)
   const CalibrationHealthMonitor& monitor() const { return monitor_; }
@@ -153,6 +156,7 @@ class CalibrationHealthGuard {
   std::vector<geometry::Vec6> applied_;     ///< per slot: the motion applied
   std::vector<geometry::Mat6> applied_cov_;
   AlignedExposure filtered_;
+  bool flagged_ = false;
 };
 
 }  // namespace storetrack::pipeline
