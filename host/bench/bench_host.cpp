@@ -20,6 +20,7 @@
 
 #include "simulated_exposures.hpp"
 #include "storetrack/match/mark_matcher.hpp"
+#include "storetrack/pipeline/calibration_health.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/sim/simulator.hpp"
 #include "storetrack/triangulate/triangulate.hpp"
@@ -103,6 +104,32 @@ void BM_ExposureProcessKnownIds(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations());
 }
 BENCHMARK(BM_ExposureProcessKnownIds);
+
+// The calibration health test per exposure (docs/calibration-health.md): the guard's filter and
+// observe on the processor's results (computed before timing), i.e. what the host adds to
+// BM_ExposureMatchAndProcess. Windows of 10 after 2 (the test runs every 10 exposures).
+void BM_CalibrationHealthObserve(benchmark::State& state) {
+  const Data& d = data();
+  auto proc = make_processor(d);
+  std::vector<pipeline::ExposureResult> results;
+  for (const auto& e : d.exposures)
+    results.push_back(proc.process(e));
+  pipeline::CalibrationHealthConfig config;
+  config.window_exposures = 10;
+  config.baseline_windows = 2;
+  pipeline::CalibrationHealthGuard guard(d.sim.calibrated_rig(), d.sim.pylon_survey(), config,
+                                         pipeline::CalibrationHealthMode::kFlag);
+  size_t k = 0;
+  for (auto _ : state) {
+    const pipeline::AlignedExposure& e = guard.filter(d.exposures[k]);
+    benchmark::DoNotOptimize(guard.observe(e, results[k]));
+    k = (k + 1) % d.exposures.size();
+  }
+  state.counters["windows_tested"] =
+      static_cast<double>(guard.monitor().cameras().front().windows_tested);
+  state.SetItemsProcessed(state.iterations());
+}
+BENCHMARK(BM_CalibrationHealthObserve);
 
 // Two-view points of one exposure (cameras 0 and 1), for the per-point comparison.
 struct TwoView {

@@ -1,5 +1,6 @@
 #include "storetrack/sim/scenario.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <vector>
@@ -80,6 +81,24 @@ void parse_timing(Object t, Scenario& sc) {
   t.finish();
 }
 
+// {"start_s": t, "ramp_s": 0 (step) or the drift's duration, "rotation_deg": [x, y, z],
+//  "translation_m": [x, y, z]} (camera frame).
+CameraMotion parse_motion(Object m) {
+  CameraMotion cm;
+  cm.enabled = true;
+  m.get("start_s", cm.start_s, Range::closed(0, 1e6));
+  m.get("ramp_s", cm.ramp_s, Range::closed(0, 1e6));
+  Vec3 rotation_deg = Vec3::Zero();
+  opt_vec3(m, "rotation_deg", rotation_deg);
+  cm.rotation_rad = rotation_deg * M_PI / 180;
+  opt_vec3(m, "translation_m", cm.translation_m);
+  if (rotation_deg.norm() > 10 || cm.translation_m.norm() > 0.1)
+    m.at(rotation_deg.norm() > 10 ? "rotation_deg" : "translation_m")
+        .fail("a mount shift above 10 deg or 0.1 m is not a small motion");
+  m.finish();
+  return cm;
+}
+
 CameraSetup parse_camera(const Value& v, std::size_t index) {
   Object c = v.object();
   CameraSetup cs;
@@ -97,6 +116,7 @@ CameraSetup parse_camera(const Value& v, std::size_t index) {
   c.get("trigger_latency_ns", cs.trigger_latency_ns, Range::closed(0, 1e8));
   c.get("latency_calibration_sigma_ns", cs.latency_calibration_sigma_ns, Range::closed(0, 1e8));
   c.get("trigger_jitter_sigma_ns", cs.trigger_jitter_sigma_ns, Range::closed(0, 1e8));
+  if (const auto m = c.find("motion")) cs.motion = parse_motion(m->object());
   c.finish();
   return cs;
 }
@@ -236,6 +256,12 @@ Scenario read_scenario(const Value& value) {
 }
 
 }  // namespace
+
+double CameraMotion::fraction(double t) const {
+  if (!enabled || t < start_s) return 0;
+  if (ramp_s <= 0) return 1;
+  return std::min(1.0, (t - start_s) / ramp_s);
+}
 
 const char* to_string(ScenarioKind kind) {
   switch (kind) {

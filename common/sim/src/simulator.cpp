@@ -338,8 +338,12 @@ Vec3 Simulator::mark_position_w(int mark_id, time::TaiNs tai) const {
 }
 
 Transform Simulator::T_w_c_at(int camera_index, double t) const {
-  return sc_.T_w_p * vibration_at(sc_.vibration, vibration_phase_, t) *
-         T_p_c_[static_cast<std::size_t>(camera_index)];
+  const auto i = static_cast<std::size_t>(camera_index);
+  const Transform T_w_c = sc_.T_w_p * vibration_at(sc_.vibration, vibration_phase_, t) * T_p_c_[i];
+  const CameraMotion& motion = sc_.cameras[i].motion;
+  const double f = motion.fraction(t);
+  if (f == 0) return T_w_c;
+  return T_w_c * geometry::make_transform(f * motion.rotation_rad, f * motion.translation_m);
 }
 
 Simulator::CameraTiming Simulator::timing(int k, int camera_index) const {

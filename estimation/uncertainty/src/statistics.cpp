@@ -1,9 +1,12 @@
 #include "storetrack/uncertainty/statistics.hpp"
 
+#include "storetrack/uncertainty/noncentral_chi_square.hpp"
+
 #include <stdexcept>
 
 #include <boost/math/distributions/binomial.hpp>
 #include <boost/math/distributions/chi_squared.hpp>
+#include <boost/math/distributions/non_central_chi_squared.hpp>
 
 namespace storetrack::uncertainty {
 
@@ -18,6 +21,15 @@ double chi_square_survival(double x, DegreesOfFreedom dof) {
   if (!(x > 0)) return 1.0;
   return boost::math::cdf(
       boost::math::complement(boost::math::chi_squared_distribution<double>(dof.value), x));
+}
+
+double noncentral_chi_square_survival(double x, DegreesOfFreedom dof, double lambda) {
+  if (dof.value < 1 || !(lambda >= 0))
+    throw std::invalid_argument("noncentral_chi_square_survival: need dof >= 1, lambda >= 0");
+  if (!(x > 0)) return 1.0;
+  if (lambda == 0) return chi_square_survival(x, dof);
+  return boost::math::cdf(boost::math::complement(
+      boost::math::non_central_chi_squared_distribution<double>(dof.value, lambda), x));
 }
 
 CountInterval binomial_interval(std::int64_t trials, double p, double alpha_per_side) {

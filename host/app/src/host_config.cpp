@@ -2,6 +2,7 @@
 
 #include <arpa/inet.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <numbers>
@@ -42,6 +43,13 @@ void check_address(const std::string& address, const std::string& what) {
   in_addr a{};
   if (inet_pton(AF_INET, address.c_str(), &a) != 1)
     throw HostConfigError(what + " must be an IPv4 address a.b.c.d (got '" + address + "')");
+}
+
+std::string id_list(const std::vector<int>& ids) {
+  std::string out;
+  for (int id : ids)
+    out += (out.empty() ? "" : ", ") + std::to_string(id);
+  return out;
 }
 
 }  // namespace
@@ -94,6 +102,10 @@ void finish_host_config(HostConfig& c, const std::vector<int>& camera_ids,
                             std::to_string(s.unit_id) + ")");
     check_address(s.address, "udp.sources.address (--udp-source)");
   }
+  for (int id : c.calibration_health.camera_ids)
+    if (std::find(camera_ids.begin(), camera_ids.end(), id) == camera_ids.end())
+      throw HostConfigError("calibration_health.cameras: camera " + std::to_string(id) +
+                            " is not in the rig (its cameras: " + id_list(camera_ids) + ")");
 }
 
 namespace {
@@ -210,6 +222,33 @@ void parse_identifier(Object i, HostConfig& c) {
   i.finish();
 }
 
+// The calibration health test (host/pipeline CalibrationHealthMonitor) and its mode.
+void parse_calibration_health(Object h, HostConfig& c) {
+  auto& hc = c.calibration_health;
+  h.get("enabled", c.calibration_health_enabled);
+  if (const auto v = h.find("mode")) {
+    const std::string mode = v->string();
+    if (mode == "flag")
+      c.calibration_health_mode = pipeline::CalibrationHealthMode::kFlag;
+    else if (mode == "correct")
+      c.calibration_health_mode = pipeline::CalibrationHealthMode::kCorrect;
+    else if (mode == "exclude")
+      c.calibration_health_mode = pipeline::CalibrationHealthMode::kExclude;
+    else
+      v->fail("must be one of flag, correct, exclude (got '" + mode + "')");
+  }
+  h.get("window_exposures", hc.window_exposures, 2, 100000);
+  h.get("baseline_windows", hc.baseline_windows, 1, 100000);
+  h.get("false_alarm_probability", hc.false_alarm_probability, Range{0, 0.5, true, true});
+  h.get("min_pylon_marks", hc.min_pylon_marks, 3, 1024);
+  if (const auto v = h.find("cameras")) {
+    hc.camera_ids.clear();
+    for (const Value& id : v->array())
+      hc.camera_ids.push_back(static_cast<int>(id.integer(0, 254)));
+  }
+  h.finish();
+}
+
 void parse_chapter10(Object o, HostConfig& c) {
   o.get("max_messages_per_packet", c.ch10.max_messages_per_packet, 1, 65535);
   o.get("data_checksum", c.ch10.data_checksum);
@@ -247,6 +286,7 @@ void read_host_config(const Value& root, HostConfig& c) {
   if (const auto v = top.find("processor")) parse_processor(v->object(), c);
   if (const auto v = top.find("pose_tracker")) parse_pose_tracker(v->object(), c);
   if (const auto v = top.find("identifier")) parse_identifier(v->object(), c);
+  if (const auto v = top.find("calibration_health")) parse_calibration_health(v->object(), c);
   if (const auto v = top.find("chapter10")) parse_chapter10(v->object(), c);
   if (const auto v = top.find("recording")) parse_recording(v->object(), c);
   if (const auto v = top.find("live")) parse_live(v->object(), c);

@@ -11,6 +11,7 @@
 #include "storetrack/geometry/transform.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/output/chapter10_writer.hpp"
+#include "storetrack/pipeline/calibration_health.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/pipeline/pose_tracker.hpp"
 
@@ -54,6 +55,11 @@ struct HostConfig {
     geometry::Vec3 min_offset_m = geometry::Vec3::Zero();
     geometry::Vec3 max_offset_m = geometry::Vec3::Zero();
   } store_region;
+  // calibration_health (docs/calibration-health.md): the per-camera test of the extrinsics on
+  // the pylon marks, and what a camera declared moved does (flag, correct, exclude)
+  bool calibration_health_enabled = true;
+  pipeline::CalibrationHealthConfig calibration_health;
+  pipeline::CalibrationHealthMode calibration_health_mode = pipeline::CalibrationHealthMode::kFlag;
   // outputs
   std::string ch10_path, csv_path, marks_csv_path, rigid_csv_path;
   std::string inetx_destination;
@@ -81,7 +87,7 @@ void set_max_wait_ms(HostConfig& config, double max_wait_ms, const std::string& 
 UdpSource parse_udp_source(const std::string& text);
 /// Completes the configuration with the rig (camera and unit ids, in rig order) and checks what
 /// depends on it or on several fields: min_cameras within the rig, a UDP bind address when UDP
-/// is on, the source addresses.
+/// is on, the source addresses, the calibration_health cameras in the rig.
 void finish_host_config(HostConfig& config, const std::vector<int>& camera_ids,
                         const std::vector<int>& unit_ids);
 /// Reads {"marks": [{"id": 0, "p_w_m": [x, y, z]}, ...]}.

@@ -28,10 +28,48 @@ void HostLoop::on_message(const msg::AnyMessage& m) {
   }
 }
 
-void HostLoop::process(const pipeline::AlignedExposure& e) {
+// The calibration health test after processing (docs/calibration-health.md): logs a camera
+// whose baseline ended unmonitored and a camera declared moved, rebuilds the processor on the
+// corrected rig in correct mode. Flags r.sample.
+void HostLoop::check_calibration_health(const pipeline::AlignedExposure& e,
+                                        pipeline::ExposureResult& r) {
+  pipeline::CalibrationHealthGuard& guard = *p_.health;
+  const bool rebuild = guard.observe(e, r);
+  const auto& cams = guard.monitor().cameras();
+  health_reported_.resize(cams.size(), false);
+  for (std::size_t s = 0; s < cams.size(); ++s) {
+    const pipeline::CameraHealth& h = cams[s];
+    if (h.baseline_done && !health_reported_[s]) {
+      health_reported_[s] = true;
+      if (!h.monitored)
+        spdlog::warn(
+            "calibration health: camera {} is not monitored ({} pylon marks in its baseline, "
+            "{} needed, or not in calibration_health.cameras)",
+            h.camera_id, h.pylon_marks, guard.monitor().config().min_pylon_marks);
+    }
+    if (h.moved && h.first_alarm_exposure == guard.monitor().exposures() && h.alarms == 1)
+      spdlog::error(
+          "calibration health: camera {} declared MOVED at trigger_seq {} (statistic {:.1f} > "
+          "{:.1f}): rotation [{:.3f} {:.3f} {:.3f}] mrad, translation [{:.3f} {:.3f} {:.3f}] mm "
+          "(camera frame, since the baseline; from a window partly before the move)",
+          h.camera_id, e.trigger_seq, h.last_statistic, guard.monitor().threshold(),
+          h.motion(0) * 1e3, h.motion(1) * 1e3, h.motion(2) * 1e3, h.motion(3) * 1e3,
+          h.motion(4) * 1e3, h.motion(5) * 1e3);
+  }
+  if (rebuild && p_.rebuild_processor) {
+    spdlog::warn("calibration health: processor rebuilt on the corrected rig (correction {})",
+                 guard.counters().corrections);
+    processor_ = &p_.rebuild_processor(guard.rig());
+  }
+}
+
+void HostLoop::process(const pipeline::AlignedExposure& exposure) {
   const time::MonotonicNs t0 = time::monotonic_now_ns();
+  // exclude mode: without the cameras declared moved.
+  const pipeline::AlignedExposure& e = p_.health ? p_.health->filter(exposure) : exposure;
   // Matcher, geometry, extrapolation over short gaps, the sample.
-  const pipeline::ExposureResult r = p_.processor.process(e);
+  pipeline::ExposureResult r = processor_->process(e);
+  if (p_.health) check_calibration_health(e, r);
   ++totals_.exposures;
   // No output, iNET-X or file, carries an exposure too few cameras measured.
   const bool written =

@@ -5,6 +5,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <vector>
@@ -18,6 +19,7 @@
 #include "storetrack/ingest/receivers.hpp"
 #include "storetrack/live/live_snapshot.hpp"
 #include "storetrack/output/inetx.hpp"
+#include "storetrack/pipeline/calibration_health.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/time/time.hpp"
 
@@ -48,11 +50,16 @@ struct LoopParts {
   output::InetxSender* inetx;  ///< nullptr: no iNET-X
   RecordingWriter& recording;
   live::LivePublisher* live = nullptr;  ///< nullptr: no live page (--live)
+  /// nullptr: calibration_health.enabled false.
+  pipeline::CalibrationHealthGuard* health = nullptr;
+  /// calibration_health.mode = correct: replaces the processor with one on the corrected rig
+  /// (main owns it) and returns it.
+  std::function<pipeline::ExposureProcessor&(const camera::RigCalibration&)> rebuild_processor;
 };
 
 class HostLoop {
  public:
-  explicit HostLoop(const LoopParts& parts) : p_(parts) {}
+  explicit HostLoop(const LoopParts& parts) : p_(parts), processor_(&parts.processor) {}
   /// Runs until `stop`, a limit, or a poll() failure; returns the exit code (0 or 1).
   int run(const LoopLimits& limits, const std::atomic<bool>& stop);
   const LoopTotals& totals() const { return totals_; }
@@ -62,10 +69,13 @@ class HostLoop {
   void process_ready();
   void record_aligner_event(ingest::RawSourceKind kind, time::MonotonicNs t);
   void process(const pipeline::AlignedExposure& e);
+  void check_calibration_health(const pipeline::AlignedExposure& e, pipeline::ExposureResult& r);
   void write_sample(const pipeline::AlignedExposure& e, const pipeline::ExposureResult& r,
                     time::MonotonicNs t_processing_start);
 
   LoopParts p_;
+  pipeline::ExposureProcessor* processor_;  ///< p_.processor, or its rebuild (correct mode)
+  std::vector<bool> health_reported_;       ///< per camera: its baseline's end was logged
   LoopTotals totals_;
   std::vector<pipeline::AlignedExposure> ready_;
   time::MonotonicNs now_ = 0, t_first_input_ = 0, t_last_input_ = 0;

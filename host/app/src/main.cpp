@@ -31,6 +31,7 @@
 #include "storetrack/json/text_file.hpp"
 #include "storetrack/live/live_server.hpp"
 #include "storetrack/output/inetx.hpp"
+#include "storetrack/pipeline/calibration_health.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/time/time.hpp"
 
@@ -223,6 +224,33 @@ int start_live_view(const st::hostapp::HostOptions& o, const st::hostapp::InputF
   return 0;
 }
 
+// The calibration health test (docs/calibration-health.md), unless calibration_health.enabled
+// is false: 0, or exit code 2 (a configuration the monitor refuses).
+int start_calibration_health(const HostConfig& cfg, const st::hostapp::InputFiles& in,
+                             std::unique_ptr<st::pipeline::CalibrationHealthGuard>& out) {
+  if (!cfg.calibration_health_enabled) {
+    spdlog::warn("storetrack-host: calibration health test off (calibration_health.enabled)");
+    return 0;
+  }
+  try {
+    out = std::make_unique<st::pipeline::CalibrationHealthGuard>(
+        in.rig, in.pylon, cfg.calibration_health, cfg.calibration_health_mode);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "storetrack-host: bad configuration: %s\n", e.what());
+    return 2;
+  }
+  const auto& hc = cfg.calibration_health;
+  static constexpr const char* kModes[] = {"flag", "correct", "exclude"};
+  spdlog::info(
+      "storetrack-host: calibration health: mode {}, windows of {} exposures, false alarm "
+      "probability {:g} per camera and window (chi-square(6) > {:.1f}), baseline {} exposures; "
+      "cameras seeing fewer than {} pylon marks are named at the baseline's end",
+      kModes[static_cast<int>(cfg.calibration_health_mode)], hc.window_exposures,
+      hc.false_alarm_probability, out->monitor().threshold(),
+      hc.window_exposures * hc.baseline_windows, hc.min_pylon_marks);
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -242,7 +270,8 @@ int main(int argc, char** argv) {
     return 2;
   }
   st::ingest::ExposureAligner& aligner = *chain.aligner;
-  st::pipeline::ExposureProcessor& processor = *chain.processor;
+  std::unique_ptr<st::pipeline::CalibrationHealthGuard> health;
+  if (const int rc = start_calibration_health(cfg, in, health); rc != 0) return rc;
 
   st::ingest::UdpReceiver udp;
   std::vector<std::unique_ptr<st::ingest::CanFdReceiver>> cans;
@@ -262,16 +291,39 @@ int main(int argc, char** argv) {
                in.rig.cameras.size(), cfg.udp_port ? fmt::format("udp:{} ", cfg.udp_port) : "",
                cans.empty() ? "" : fmt::format("{} CAN interface(s)", cans.size()));
   const st::time::MonotonicNs t_start = st::time::monotonic_now_ns();
-  st::hostapp::HostLoop loop({udp, cans, aligner, processor, inetx_open ? &inetx : nullptr,
-                              recording, live_publisher.get()});
+  // correct mode: the same chain on the corrected rig (its matcher's priors fitted again).
+  const auto rebuild =
+      [&](const st::camera::RigCalibration& rig) -> st::pipeline::ExposureProcessor& {
+    st::hostapp::InputFiles corrected = in;
+    corrected.rig = rig;
+    chain.processor = st::hostapp::make_processing_chain(cfg, corrected).processor;
+    return *chain.processor;
+  };
+  const st::hostapp::LoopParts parts{udp,
+                                     cans,
+                                     aligner,
+                                     *chain.processor,
+                                     inetx_open ? &inetx : nullptr,
+                                     recording,
+                                     live_publisher.get(),
+                                     health.get(),
+                                     rebuild};
+  st::hostapp::HostLoop loop(parts);
   int exit_code = loop.run(options.limits, g_stop);
   if (live_server) live_server->stop();
   recording.stop();
 
   const st::hostapp::StatsSources sources{
-      cfg,       udp,           cans,
-      aligner,   processor,     inetx,
-      recording, loop.totals(), static_cast<double>(st::time::monotonic_now_ns() - t_start) * 1e-9};
+      cfg,
+      udp,
+      cans,
+      aligner,
+      *chain.processor,
+      inetx,
+      recording,
+      loop.totals(),
+      static_cast<double>(st::time::monotonic_now_ns() - t_start) * 1e-9,
+      health.get()};
   st::hostapp::print_summary(sources);
   nlohmann::json stats = st::hostapp::host_stats_json(sources);
   if (live_server)

@@ -246,6 +246,40 @@ nlohmann::json outputs_stats_json(const output::InetxSender& inetx,
   return out;
 }
 
+nlohmann::json calibration_health_json(const pipeline::CalibrationHealthGuard& guard) {
+  static constexpr const char* kModes[] = {"flag", "correct", "exclude"};
+  const auto& mon = guard.monitor();
+  const auto& gc = guard.counters();
+  nlohmann::json cams = nlohmann::json::array();
+  nlohmann::json unmonitored = nlohmann::json::array();
+  for (const pipeline::CameraHealth& h : mon.cameras()) {
+    nlohmann::json c = {{"camera_id", h.camera_id}, {"baseline_done", h.baseline_done},
+                        {"monitored", h.monitored}, {"pylon_marks", h.pylon_marks},
+                        {"moved", h.moved},         {"windows_tested", h.windows_tested},
+                        {"alarms", h.alarms},       {"last_statistic", h.last_statistic}};
+    if (h.moved) {
+      // The latest alarm's estimate (left perturbation of T_c_w, camera frame) and its sigmas.
+      const geometry::Vec6 sigma = h.motion_cov.diagonal().cwiseSqrt();
+      c["first_alarm_exposure"] = h.first_alarm_exposure;
+      c["motion_rotation_rad"] = {h.motion(0), h.motion(1), h.motion(2)};
+      c["motion_translation_m"] = {h.motion(3), h.motion(4), h.motion(5)};
+      c["u_motion_rotation_rad"] = {sigma(0), sigma(1), sigma(2)};
+      c["u_motion_translation_m"] = {sigma(3), sigma(4), sigma(5)};
+    }
+    if (h.baseline_done && !h.monitored) unmonitored.push_back(h.camera_id);
+    cams.push_back(std::move(c));
+  }
+  return {{"mode", kModes[static_cast<int>(guard.mode())]},
+          {"threshold", mon.threshold()},
+          {"window_exposures", mon.config().window_exposures},
+          {"false_alarm_probability", mon.config().false_alarm_probability},
+          {"samples_flagged", gc.samples_flagged},
+          {"corrections", gc.corrections},
+          {"exposures_excluding", gc.exposures_excluding},
+          {"unmonitored_cameras", unmonitored},
+          {"cameras", cams}};
+}
+
 nlohmann::json host_stats_json(const StatsSources& s) {
   nlohmann::json stats;
   stats["exposures_processed"] = s.totals.exposures;
@@ -278,6 +312,7 @@ nlohmann::json host_stats_json(const StatsSources& s) {
   for (const auto& [unit, h] : t.unit_health)
     health[std::to_string(unit)] = h;
   stats["unit_health"] = health;
+  if (s.health) stats["calibration_health"] = calibration_health_json(*s.health);
   return stats;
 }
 

@@ -31,9 +31,13 @@ struct StatsSources {
   const RecordingWriter& recording;
   const LoopTotals& totals;
   double wall_time_s = 0;
+  /// nullptr: calibration_health.enabled false.
+  const pipeline::CalibrationHealthGuard* health = nullptr;
 };
 
 nlohmann::json host_stats_json(const StatsSources& s);
+/// Per camera: monitored, moved, windows, alarms, the motion estimate (stats "calibration_health").
+nlohmann::json calibration_health_json(const pipeline::CalibrationHealthGuard& guard);
 /// Chapter 10 counters, the files written and the recording queue (stats "recording").
 nlohmann::json recording_stats_json(const RecordingWriter& recording,
                                     const std::string& requested_ch10_path);

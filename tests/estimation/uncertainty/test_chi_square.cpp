@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include "storetrack/uncertainty/noncentral_chi_square.hpp"
 #include "storetrack/uncertainty/statistics.hpp"
 
 namespace {
@@ -65,6 +66,23 @@ TEST(ChiSquare, EvenDofClosedForm) {
         term *= h / (k + 1);
       }
       EXPECT_NEAR(std::exp(-h) * sum, 1 - p, 1e-13) << dof << " " << p;
+    }
+}
+
+TEST(ChiSquare, NoncentralIsThePoissonMixture) {
+  // P(X > x) = sum_j Pois(j; lambda / 2) P(chi2(dof + 2 j) > x) (Johnson, Kotz & Balakrishnan,
+  // Continuous Univariate Distributions 2, 29.2), summed until the Poisson weights vanish.
+  for (double lambda : {0.0, 0.5, 10.0, 80.0})
+    for (double x : {1.0, 15.0, 35.9}) {
+      double sum = 0, weight = std::exp(-lambda / 2);
+      for (int j = 0; j < 400; ++j) {
+        sum += weight * chi_square_survival(x, DegreesOfFreedom(6 + 2 * j));
+        weight *= lambda / 2 / (j + 1);
+      }
+      EXPECT_NEAR(
+          storetrack::uncertainty::noncentral_chi_square_survival(x, DegreesOfFreedom(6), lambda),
+          sum, 1e-10)
+          << lambda << " " << x;
     }
 }
 

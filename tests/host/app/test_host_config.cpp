@@ -81,6 +81,34 @@ TEST(HostConfig, AlignerIntegersOutsideTheirRangeAreRefused) {
                    "max_sequence_lead", "[1, 100000]");
 }
 
+// calibration_health (docs/calibration-health.md): the mode by name, the ranges, and a camera the
+// rig does not have refused by name.
+TEST(HostConfig, CalibrationHealthKeysAreCheckedByName) {
+  expect_refused(R"({"calibration_health": {"mode": "fix"}})", "calibration_health.mode",
+                 "flag, correct, exclude");
+  expect_refused(R"({"calibration_health": {"cameras": [0, 9]}})", "calibration_health.cameras",
+                 "camera 9 is not in the rig (its cameras: 0, 1, 2, 3)");
+  expect_refused(R"({"calibration_health": {"window_exposures": 1}})", "window_exposures",
+                 "[2, 100000]");
+  expect_refused(R"({"calibration_health": {"false_alarm_probability": 0.5}})",
+                 "false_alarm_probability", "(0, 0.5)");
+  expect_refused(R"({"calibration_health": {"min_pylon_marks": 2}})", "min_pylon_marks",
+                 "[3, 1024]");
+  expect_refused(R"({"calibration_health": {"windows": 3}})", "calibration_health.windows",
+                 "unknown key");
+  HostConfig c;
+  ASSERT_EQ(load(R"({"calibration_health": {"mode": "correct", "window_exposures": 20,
+      "baseline_windows": 10, "false_alarm_probability": 1e-7, "cameras": [1, 3]}})",
+                 &c),
+            "");
+  EXPECT_EQ(c.calibration_health_mode, pipeline::CalibrationHealthMode::kCorrect);
+  EXPECT_EQ(c.calibration_health.window_exposures, 20);
+  EXPECT_EQ(c.calibration_health.baseline_windows, 10);
+  EXPECT_EQ(c.calibration_health.false_alarm_probability, 1e-7);
+  EXPECT_EQ(c.calibration_health.camera_ids, (std::vector<int>{1, 3}));
+  EXPECT_TRUE(c.calibration_health_enabled);
+}
+
 TEST(HostConfig, UdpPortBindAndSourcesAreChecked) {
   // 65536 + 47100 used to wrap to port 47100; -1 to 65535.
   for (const char* v : {"112636", "65536", "-1", "4294967297", "47100.5"})

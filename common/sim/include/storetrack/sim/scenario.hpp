@@ -26,6 +26,20 @@ enum class ScenarioKind { kStoreSeparation, kPendulum, kStatic, kScaleBars };
 const char* to_string(ScenarioKind kind);
 
 /// One camera of the rig, mounted in a pylon pod (rigid with the pylon).
+/// A camera moving in its mount after it was calibrated (a shifted bracket, the ejector's
+/// shock): from start_s its pose in the pylon frame is T_p_c Exp(f(t) (rotation, translation)),
+/// camera frame, f rising linearly from 0 to 1 over ramp_s (0: a step). The calibration stays
+/// the unmoved one (calibration health tests, docs/calibration-health.md).
+struct CameraMotion {
+  bool enabled = false;
+  double start_s = 0;
+  double ramp_s = 0;
+  geometry::Vec3 rotation_rad = geometry::Vec3::Zero();   ///< rotation vector, camera frame
+  geometry::Vec3 translation_m = geometry::Vec3::Zero();  ///< camera frame
+  /// f(t): 0 before start_s, then linear over ramp_s up to 1.
+  double fraction(double t) const;
+};
+
 struct CameraSetup {
   int camera_id = 0;
   int unit_id = 0;
@@ -36,6 +50,7 @@ struct CameraSetup {
   double trigger_latency_ns = 20000;           ///< TRUE trigger-edge-to-exposure-start latency
   double latency_calibration_sigma_ns = 1000;  ///< 1 sigma error of the calibrated latency
   double trigger_jitter_sigma_ns = 1000;       ///< per-exposure latency jitter, 1 sigma
+  CameraMotion motion;                         ///< none unless the scenario gives "motion"
 };
 
 /// 1-sigma errors of the rig calibration (drawn once per Simulator for calibrated_rig()).
