@@ -11,12 +11,12 @@
 #include "intrinsic_covariance.hpp"
 #include "intrinsic_refinement.hpp"
 #include "outlier_gate.hpp"
+#include "view_screening.hpp"
 #include "zhang_initialisation.hpp"
 
 namespace storetrack::calib {
 namespace {
 
-constexpr int kMinPointsPerView = 4;  // a homography needs 4 points
 constexpr int kMaxRejectionRounds = 10;
 // Floor on the largest angle between two board planes. Zhang (2000, sec. 5.1, "performance
 // w.r.t. the orientation of the model plane") finds the calibration degrading fast as the planes
@@ -24,7 +24,7 @@ constexpr int kMaxRejectionRounds = 10;
 constexpr double kMinBoardAngleDeg = 5.0;
 
 std::vector<BoardView> camera_views(const ObservationSet& set, int camera,
-                                    std::vector<int>& frames_skipped) {
+                                    std::vector<SkippedView>& skipped) {
   std::map<int, BoardView> by_frame;
   for (const Observation& o : set.observations) {
     if (o.camera != camera) continue;
@@ -39,11 +39,52 @@ std::vector<BoardView> camera_views(const ObservationSet& set, int camera,
   }
   std::vector<BoardView> views;
   for (auto& [frame, view] : by_frame)
-    if (static_cast<int>(view.points.size()) >= kMinPointsPerView)
+    if (std::string why = degenerate_view_reason(view); why.empty())
       views.push_back(view);
     else
-      frames_skipped.push_back(frame);
+      skipped.push_back({frame, std::move(why)});
   return views;
+}
+
+/// Refuses too few usable views, naming the skipped ones (they are the usual cause).
+void check_view_count(const std::vector<BoardView>& views, const std::vector<SkippedView>& skipped,
+                      int min_views, const std::string& who) {
+  if (static_cast<int>(views.size()) >= min_views) return;
+  std::string named;
+  for (const SkippedView& s : skipped)
+    named += "; frame " + std::to_string(s.frame) + ": " + s.reason;
+  throw CalibrationError(
+      who + "too few usable views: " + std::to_string(views.size()) +
+      " board poses, need at least " + std::to_string(min_views) +
+      (skipped.empty() ? "" : " (" + std::to_string(skipped.size()) + " skipped" + named + ")"));
+}
+
+/// Zhang's start; a view whose start pose is not finite or puts the board behind the camera is
+/// skipped (named) and the start recomputed without it.
+ZhangStart usable_start(std::vector<BoardView>& views, std::vector<SkippedView>& skipped,
+                        const ImageSize& size, const IntrinsicOptions& options, int min_views,
+                        const std::string& who) {
+  static const std::string no_pose =
+      "no board pose from its homography (not finite, or the board behind the camera)";
+  ZhangStart start = zhang_initialisation(views, size, options);
+  std::vector<BoardView> kept;
+  for (size_t i = 0; i < views.size(); ++i) {
+    const geometry::Transform& T = start.T_c_b[i];
+    if (T.matrix().allFinite() && T.translation().z() > 0)
+      kept.push_back(views[i]);
+    else
+      skipped.push_back({views[i].frame, no_pose});
+  }
+  if (kept.size() == views.size()) return start;
+  views = std::move(kept);
+  check_view_count(views, skipped, min_views, who);
+  start = zhang_initialisation(views, size, options);
+  for (const geometry::Transform& T : start.T_c_b)
+    if (!T.matrix().allFinite())
+      throw CalibrationError(who + "no finite start from the remaining views");
+  if (!std::isfinite(start.intrinsics.fx) || !std::isfinite(start.intrinsics.fy))
+    throw CalibrationError(who + "no finite start from the remaining views");
+  return start;
 }
 
 /// Weighted residuals (projected - observed) / sigma of every point, current parameters.
@@ -151,14 +192,12 @@ IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
   if (size == set.image_sizes.end())
     throw CalibrationError(who + "image size unknown (the CSV needs a '# image_size," +
                            std::to_string(camera) + ",W,H' line, or give --image-size)");
-  std::vector<int> frames_skipped;
-  const std::vector<BoardView> views = camera_views(set, camera, frames_skipped);
-  if (static_cast<int>(views.size()) < std::max(options.min_views, 2))
-    throw CalibrationError(who + "too few views: " + std::to_string(views.size()) +
-                           " board poses with >= 4 points, need at least " +
-                           std::to_string(std::max(options.min_views, 2)));
+  std::vector<SkippedView> skipped;
+  std::vector<BoardView> views = camera_views(set, camera, skipped);
+  const int min_views = std::max(options.min_views, 2);
+  check_view_count(views, skipped, min_views, who);
 
-  const ZhangStart start = zhang_initialisation(views, size->second, options);
+  const ZhangStart start = usable_start(views, skipped, size->second, options, min_views, who);
   const IntrinsicParameterMap map(options, start.intrinsics);
   RefinementState state{map.free_values(start.intrinsics), {}};
   for (const auto& T : start.T_c_b) {
@@ -171,9 +210,9 @@ IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
   for (int round = 0; round < kMaxRejectionRounds; ++round) {
     try {
       iterations += refine_intrinsics(views, used, map, state);
-    } catch (const CalibrationError&) {
+    } catch (const CalibrationError& e) {
       check_board_orientations(views, state, who);
-      throw;
+      throw CalibrationError(who + e.what());
     }
     check_board_orientations(views, state, who);
     auto next = outlier_gate(weighted_residuals(views, map, state), options.outlier_false_alarm);
@@ -182,7 +221,9 @@ IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
   }
   IntrinsicResult out = summarise(views, used, map, state);
   out.iterations = iterations;
-  out.frames_skipped = frames_skipped;
+  std::sort(skipped.begin(), skipped.end(),
+            [](const SkippedView& a, const SkippedView& b) { return a.frame < b.frame; });
+  out.views_skipped = std::move(skipped);
   return out;
 }
 

@@ -114,7 +114,12 @@ int solve(ceres::Problem& problem, ceres::ParameterBlockOrdering* ordering) {
   ceres::Solver::Summary summary;
   ceres::Solve(options, &problem, &summary);
   if (!summary.IsSolutionUsable())
-    throw CalibrationError("Levenberg-Marquardt failed: " + summary.message);
+    // Ceres's message names parameter blocks by address: ours names the status only (the caller
+    // names the camera); degenerate views are screened out before (view_screening.hpp).
+    throw CalibrationError(
+        std::string("the least-squares fit (Levenberg-Marquardt) found no usable solution (") +
+        ceres::TerminationTypeToString(summary.termination_type) +
+        "): a parameter or residual is not finite from this start");
   return static_cast<int>(summary.iterations.size());
 }
 

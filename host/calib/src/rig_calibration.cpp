@@ -14,14 +14,14 @@
 #include "outlier_gate.hpp"
 #include "rig_refinement.hpp"
 #include "storetrack/pose/body_pose.hpp"
+#include "view_screening.hpp"
 
 namespace storetrack::calib {
 namespace {
 
-constexpr int kMinPointsPerView = 4;  // as the intrinsic fit: fewer give no homography
 constexpr int kMaxRejectionRounds = 10;
 
-/// One camera's usable views (>= 4 points) by frame, and its intrinsic calibration.
+/// One camera's usable views (view_screening.hpp) by frame, and its intrinsic calibration.
 struct CameraStart {
   int id = 0;
   std::map<int, BoardView> views;
@@ -40,9 +40,16 @@ std::vector<CameraStart> group_by_camera(const ObservationSet& set) {
   }
   std::vector<CameraStart> out;
   for (auto& [id, c] : by_id) {
-    std::erase_if(c.views, [](const auto& fv) {
-      return static_cast<int>(fv.second.points.size()) < kMinPointsPerView;
+    std::string reasons;
+    std::erase_if(c.views, [&reasons](const auto& fv) {
+      const std::string why = degenerate_view_reason(fv.second);
+      if (!why.empty()) reasons += "; frame " + std::to_string(fv.first) + ": " + why;
+      return !why.empty();
     });
+    // Refused here, before the links are sought: "never seen with the reference" would hide why.
+    if (c.views.empty())
+      throw CalibrationError("camera " + std::to_string(id) + ": no usable view (all skipped" +
+                             reasons + ")");
     out.push_back(std::move(c));
   }
   return out;
@@ -110,9 +117,8 @@ std::vector<Link> link_to_reference(const std::vector<CameraStart>& cams, int mi
     throw CalibrationError(
         "camera " + std::to_string(cams[b].id) +
         ": never seen together with the reference camera " + std::to_string(cams[0].id) +
-        ", directly or through another camera (views in common, >= 4 points "
-        "each: " +
-        counts + "; need >= " + std::to_string(min_common) + " with a linked camera)");
+        ", directly or through another camera (usable views in common: " + counts +
+        "; need >= " + std::to_string(min_common) + " with a linked camera)");
   }
   return order;
 }
@@ -220,7 +226,7 @@ RigResult summarise(const RigProblem& p, const std::vector<std::vector<char>>& u
     cam.intrinsics = p.maps[c].intrinsics(p.state.z[c].data());
     cam.T_c_r = pose_transform(p.state.T_c_r[c]);
     cam.start_rms_px = cams[c].intrinsic.rms_px;
-    cam.frames_skipped = cams[c].intrinsic.frames_skipped;
+    cam.views_skipped = cams[c].intrinsic.views_skipped;
     cam.common_views_with_reference = common_views(cams[0], cams[c]);
     std::vector<size_t> which;
     for (size_t i = 0; i < p.views.size(); ++i)
@@ -300,6 +306,8 @@ RigResult calibrate_rig(const ObservationSet& set, const RigOptions& options) {
     c.intrinsic = calibrate_intrinsics(set, c.id, options.intrinsic);  // names the camera
     for (const ViewResult& v : c.intrinsic.views)
       c.T_c_b[v.frame] = v.T_c_b;
+    for (const SkippedView& v : c.intrinsic.views_skipped)  // no start pose: not in the rig
+      c.views.erase(v.frame);
   }
   const auto T_c_r = extrinsics_start(cams, order);
   RigProblem p = build_problem(cams, T_c_r, options.intrinsic);
@@ -307,7 +315,11 @@ RigResult calibrate_rig(const ObservationSet& set, const RigOptions& options) {
   std::vector<std::vector<char>> used = gate_per_camera(p.views, p.maps, p.state, 0);
   int iterations = 0;
   for (int round = 0; round < kMaxRejectionRounds; ++round) {
-    iterations += refine_rig(p.views, used, p.maps, p.state);
+    try {
+      iterations += refine_rig(p.views, used, p.maps, p.state);
+    } catch (const CalibrationError& e) {
+      throw CalibrationError(std::string("rig: ") + e.what());
+    }
     auto next = gate_per_camera(p.views, p.maps, p.state, options.intrinsic.outlier_false_alarm);
     if (next == used) break;
     used = std::move(next);

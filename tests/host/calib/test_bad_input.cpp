@@ -80,7 +80,7 @@ TEST(BadInput, TooFewViewsNamesTheFileAndCamera) {
   const std::string path = write_csv(board_views(0, {0, 1}, rng), "two_views.csv");
   const auto [rc, err] = intrinsic_error(path);
   EXPECT_EQ(rc, 2);
-  EXPECT_NE(err.find("error: " + path + ": camera 0: too few views: 2 board poses"),
+  EXPECT_NE(err.find("error: " + path + ": camera 0: too few usable views: 2 board poses"),
             std::string::npos)
       << err;
 }

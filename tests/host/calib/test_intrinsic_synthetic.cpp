@@ -142,13 +142,15 @@ TEST(IntrinsicSynthetic, ViewWithTooFewPointsSkippedAndNamed) {
   set.observations.push_back(lone);
   const IntrinsicResult r = calibrate_intrinsics(set, 0, IntrinsicOptions{});
   EXPECT_EQ(r.views.size(), 6u);
-  EXPECT_EQ(r.frames_skipped, std::vector<int>{99});
+  ASSERT_EQ(r.views_skipped.size(), 1u);
+  EXPECT_EQ(r.views_skipped[0].frame, 99);
+  EXPECT_EQ(r.views_skipped[0].reason, "1 point, a homography needs >= 4");
 }
 
 TEST(IntrinsicSynthetic, TooFewViewsRefused) {
   std::mt19937_64 rng(1);
   EXPECT_EQ(calibration_error(synthetic_set(2, 0.3, rng)),
-            "camera 0: too few views: 2 board poses with >= 4 points, need at least 3");
+            "camera 0: too few usable views: 2 board poses, need at least 3");
 }
 
 TEST(IntrinsicSynthetic, ParallelBoardsRefusedAsDegenerate) {

@@ -198,7 +198,7 @@ TEST(RigSynthetic, CameraNeverSeenWithTheReferenceRefusedByName) {
   });
   EXPECT_EQ(rig_error(set),
             "camera 1: never seen together with the reference camera 0, directly or through "
-            "another camera (views in common, >= 4 points each: camera 0: 0, camera 2: 6; need "
+            "another camera (usable views in common: camera 0: 0, camera 2: 6; need "
             ">= 3 with a linked camera)");
 }
 
@@ -213,7 +213,7 @@ TEST(RigSynthetic, TooFewCommonViewsRefusedByName) {
   const std::string error = rig_error(set);
   EXPECT_EQ(error,
             "camera 1: never seen together with the reference camera 0, directly or through "
-            "another camera (views in common, >= 4 points each: camera 0: 2; need >= 3 with a "
+            "another camera (usable views in common: camera 0: 2; need >= 3 with a "
             "linked camera)");
   RigOptions two;
   two.min_common_views = 2;

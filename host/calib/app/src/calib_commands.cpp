@@ -137,6 +137,25 @@ std::string intrinsic_calibration_json(const calib::IntrinsicResult& r, int came
   return doc.dump(2) + "\n";
 }
 
+namespace {
+/// The views the calibration left out, each named with its reason, on stderr.
+void warn_skipped(const std::vector<calib::SkippedView>& skipped, int camera, std::ostream& err) {
+  for (const calib::SkippedView& v : skipped)
+    err << "warning: camera " << camera << " frame " << v.frame << " skipped: " << v.reason << "\n";
+}
+
+std::string skipped_count(const std::vector<calib::SkippedView>& skipped) {
+  return skipped.empty() ? "" : ", " + std::to_string(skipped.size()) + " views skipped";
+}
+
+std::vector<calib::SkippedView> all_skipped(const calib::RigResult& result) {
+  std::vector<calib::SkippedView> all;
+  for (const auto& c : result.cameras)
+    all.insert(all.end(), c.views_skipped.begin(), c.views_skipped.end());
+  return all;
+}
+}  // namespace
+
 int run_intrinsic(const IntrinsicArgs& args, std::ostream& out, std::ostream& err) {
   calib::IntrinsicResult result;
   try {
@@ -158,10 +177,9 @@ int run_intrinsic(const IntrinsicArgs& args, std::ostream& out, std::ostream& er
     return 2;
   }
   out << "intrinsic: camera " << args.camera << ", " << result.views.size() << " views, "
-      << result.points_used << " points used, " << result.points_rejected
-      << " rejected as outliers\n";
-  for (int frame : result.frames_skipped)
-    err << "skipped frame " << frame << ": fewer than 4 points of camera " << args.camera << "\n";
+      << result.points_used << " points used, " << result.points_rejected << " rejected as outliers"
+      << skipped_count(result.views_skipped) << "\n";
+  warn_skipped(result.views_skipped, args.camera, err);
   print_intrinsics(result.intrinsics, result.covariance, out);
   out << "  RMS reprojection error " << fixed(result.rms_px, 4) << " px (residual sigma "
       << fixed(result.residual_sigma_px, 4) << " px per axis, " << result.free_parameters
@@ -328,10 +346,9 @@ int run_rig(const RigArgs& args, std::ostream& out, std::ostream& err) {
   }
   out << "rig: " << result.cameras.size() << " cameras, " << result.frames.size()
       << " board poses, " << result.points_used << " points used, " << result.points_rejected
-      << " rejected as outliers\n";
+      << " rejected as outliers" << skipped_count(all_skipped(result)) << "\n";
   for (const auto& c : result.cameras) {
-    for (int frame : c.frames_skipped)
-      err << "skipped frame " << frame << ": fewer than 4 points of camera " << c.camera_id << "\n";
+    warn_skipped(c.views_skipped, c.camera_id, err);
     print_rig_camera(c, out);
   }
   out << "RMS reprojection error " << fixed(result.rms_px, 4) << " px (residual sigma "

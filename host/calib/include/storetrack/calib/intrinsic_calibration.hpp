@@ -4,6 +4,7 @@
 #pragma once
 
 #include <stdexcept>
+#include <string>
 #include <vector>
 
 #include <Eigen/Core>
@@ -41,6 +42,12 @@ struct PointResidual {
   bool rejected = false;
 };
 
+/// A view (frame) of one camera left out before the fit, and why (view_screening.hpp).
+struct SkippedView {
+  int frame = 0;
+  std::string reason;  ///< e.g. "all 6 points on one board column (x = 0.1 m): ..."
+};
+
 struct ViewResult {
   int frame = 0;
   geometry::Transform T_c_b = geometry::Transform::Identity();  ///< board -> camera
@@ -54,7 +61,7 @@ struct IntrinsicResult {
   camera::IntrinsicCovariance covariance = camera::IntrinsicCovariance::Zero();
   std::vector<ViewResult> views;
   std::vector<PointResidual> residuals;
-  std::vector<int> frames_skipped;  ///< frames with fewer than 4 points (no homography): unused
+  std::vector<SkippedView> views_skipped;  ///< no homography or no pose from them: unused
   int points_used = 0, points_rejected = 0;
   int free_parameters = 0;  ///< intrinsic + 6 per view
   double rms_px = 0;        ///< sqrt(SSR / N) over used points, as cv::calibrateCamera's RMS

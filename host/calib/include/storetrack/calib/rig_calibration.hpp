@@ -38,8 +38,8 @@ struct RigCameraResult {
   double baseline_m = 0;        ///< |t_c_r|: distance of the optical centre from S_r's origin
   double baseline_sigma_m = 0;  ///< its standard uncertainty (first order)
   std::vector<RigViewResult> views;
-  std::vector<PointResidual> residuals;  ///< observed - projected, rejected points flagged
-  std::vector<int> frames_skipped;       ///< this camera's frames with fewer than 4 points: unused
+  std::vector<PointResidual> residuals;    ///< observed - projected, rejected points flagged
+  std::vector<SkippedView> views_skipped;  ///< this camera's degenerate views: unused
   int points_used = 0, points_rejected = 0;
   double rms_px = 0;        ///< sqrt(SSR / N) over this camera's used points
   double start_rms_px = 0;  ///< its own intrinsic calibration's (the start; a lower bound)
