@@ -107,6 +107,9 @@ struct SmoothedState {
   bool step = false;  ///< an acceleration step was modelled in the interval before this one
   StateMatrix cov_noise = StateMatrix::Zero();   ///< averaged part (noise and process noise)
   StateMatrix cov_shared = StateMatrix::Zero();  ///< calibration + survey, not averaged
+  /// Its loadings on the recording's shared factors (cov_shared = shared shared^T): lets the
+  /// data product combine states of different times and its own shared errors (the CG's).
+  SharedLoadings shared;
   /// The per-exposure solution's noise covariance (zero when not measured), for comparison.
   geometry::Mat6 cov_noise_per_exposure = geometry::Mat6::Zero();
   StateMatrix cov() const { return cov_noise + cov_shared; }
