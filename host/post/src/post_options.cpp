@@ -19,6 +19,11 @@ int parse_post_options(int argc, char** argv, PostOptions& o) {
   app.option("--smoothed-csv", o.smoothed_csv_path,
              "Write the smoothed trajectory (pose, velocity, acceleration, angular rate with "
              "their uncertainty, noise and shared parts) to this NEW CSV file");
+  app.option("--product-csv", o.product_csv_path,
+             "Write the store-separation data product (time since the detected release t0; CG "
+             "position, displacement from the carriage, Euler angles, CG velocity and "
+             "acceleration, body rates, each with u and U) to this NEW CSV file; needs the "
+             "store survey's \"cg\"");
   app.option("--stats-json", o.stats_json_path,
              "Write the replay's counters and the comparison to this NEW JSON file");
   app.option("--calibration", o.calibration_path, "Use this rig calibration, not the recorded")

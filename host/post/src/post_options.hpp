@@ -12,6 +12,7 @@ struct PostOptions {
   bool verify = false;
   std::string csv_path, stats_json_path;
   std::string smoothed_csv_path;  ///< the fixed-interval smoother's trajectory (new file)
+  std::string product_csv_path;   ///< the store-separation data product (new file)
   /// Read from disk instead of the recording (empty: the recorded one).
   std::string calibration_path, pylon_path, store_path, config_path;
   std::string log_level = "warn";
