@@ -254,7 +254,8 @@ int write_product(const std::string& path, const Replay& replay,
                   FilePtr f) {
   const smooth::ReleaseTime t0 = smooth::estimate_release_time(replay.measurements());
   print_release(t0, replay.measurements().empty() ? 0 : replay.measurements().front().t_ns);
-  const std::vector<smooth::ProductSample> product = smooth::store_product(states, t0, cg);
+  const std::vector<smooth::ProductSample> product =
+      smooth::store_product(states, replay.measurements(), t0, cg);
   if (!write_product_csv(f.get(), product, t0) || std::fclose(f.release()) != 0) {
     std::fprintf(stderr, "storetrack-post: %s: %s\n", path.c_str(), std::strerror(errno));
     return 1;

@@ -43,12 +43,51 @@ int carriage_index(std::span<const SmoothedState> states, const ReleaseTime& rel
   return -1;
 }
 
+void set_nan(ProductSample& p, int row) {
+  p.value.segment<3>(row).setConstant(kNaN);
+  p.u_noise.segment<3>(row).setConstant(kNaN);
+  p.u_shared.segment<3>(row).setConstant(kNaN);
+}
+
+/// The CG and Euler angles in aircraft axes: T_w_p (solved at this exposure) composed with the
+/// state. A left perturbation (phi, rho) of T_w_p moves p_w by -[R_w_p p]x phi + rho and R_w_s
+/// by phi; one of the state's attitude, delta, moves R_w_s by R_w_p delta.
+void aircraft_rows(const SmoothedState& s, const PoseMeasurement& m, const KinematicsByState& J,
+                   const ProductLoadings& state_shared, ProductSample& p) {
+  const Mat3 R_w_p = m.T_w_p.linear();
+  const Vec3 p_cg = p.value.segment<3>(kCgPosition);
+  const Mat3 R_w_s = R_w_p * s.T_p_s.linear();
+  const Mat3 J_ypr = pose::ypr_jacobian(R_w_s);
+  p.value.segment<3>(kCgAircraft) = m.T_w_p * p_cg;
+  p.value.segment<3>(kEulerAircraft) = geometry::ypr_from_rotation(R_w_s);
+  geometry::Mat6 A = geometry::Mat6::Zero();  // by T_w_p's perturbation
+  A.block<3, 3>(0, 0) = -skew(R_w_p * p_cg);
+  A.block<3, 3>(0, 3).setIdentity();
+  A.block<3, 3>(3, 0) = J_ypr;
+  Eigen::Matrix<double, 6, kStateSize> B = Eigen::Matrix<double, 6, kStateSize>::Zero();
+  B.topRows<3>() = R_w_p * J.middleRows<3>(kCgPosition);
+  B.block<3, 3>(3, kAttitude) = J_ypr * R_w_p;
+  const Eigen::Matrix<double, 6, 1> u_pylon =
+      (A * m.pylon_cov_noise * A.transpose()).diagonal().cwiseMax(0).cwiseSqrt();
+  const Eigen::Matrix<double, 6, 1> u_state =
+      (B * s.cov_noise * B.transpose()).diagonal().cwiseMax(0).cwiseSqrt();
+  p.u_noise.segment<6>(kCgAircraft) = u_pylon + u_state;
+  // Shared: the state's (its CG rows already carry the CG offset's columns) plus T_w_p's.
+  Eigen::Matrix<double, 6, Eigen::Dynamic> L(6, state_shared.cols());
+  L.topRows<3>() = R_w_p * state_shared.middleRows<3>(kCgPosition);
+  L.bottomRows<3>().setZero();
+  L.bottomRows<3>().leftCols(s.shared.cols()) = J_ypr * R_w_p * s.shared.topRows<3>();
+  L.leftCols(m.pylon_shared.cols()) += A * m.pylon_shared;
+  p.u_shared.segment<6>(kCgAircraft) = L.rowwise().norm();
+}
+
 }  // namespace
 
 const std::array<const char*, kProductSize> kProductNames = {
-    "cg_x_m",  "cg_y_m",  "cg_z_m",  "yaw_rad", "pitch_rad", "roll_rad",
-    "vx_m_s",  "vy_m_s",  "vz_m_s",  "ax_m_s2", "ay_m_s2",   "az_m_s2",
-    "p_rad_s", "q_rad_s", "r_rad_s", "dcg_x_m", "dcg_y_m",   "dcg_z_m"};
+    "cg_x_m",    "cg_y_m",    "cg_z_m",    "yaw_rad",    "pitch_rad",    "roll_rad",
+    "vx_m_s",    "vy_m_s",    "vz_m_s",    "ax_m_s2",    "ay_m_s2",      "az_m_s2",
+    "p_rad_s",   "q_rad_s",   "r_rad_s",   "dcg_x_m",    "dcg_y_m",      "dcg_z_m",
+    "cg_ac_x_m", "cg_ac_y_m", "cg_ac_z_m", "yaw_ac_rad", "pitch_ac_rad", "roll_ac_rad"};
 
 KinematicsVector store_kinematics(const SmoothedState& s, const Vec3& cg_s,
                                   KinematicsByState* d_state, KinematicsByCg* d_cg) {
@@ -91,11 +130,13 @@ KinematicsVector store_kinematics(const SmoothedState& s, const Vec3& cg_s,
 }
 
 std::vector<ProductSample> store_product(std::span<const SmoothedState> states,
+                                         std::span<const PoseMeasurement> measurements,
                                          const ReleaseTime& release, const CgOffset& cg) {
   std::vector<ProductSample> out(states.size());
   std::vector<ProductLoadings> shared(states.size());
   KinematicsByState J;
   KinematicsByCg D;
+  std::size_t next = 0;
   for (std::size_t k = 0; k < states.size(); ++k) {
     const SmoothedState& s = states[k];
     ProductSample& p = out[k];
@@ -109,21 +150,32 @@ std::vector<ProductSample> store_product(std::span<const SmoothedState> states,
         (J * s.cov_noise * J.transpose()).diagonal().cwiseMax(0).cwiseSqrt();
     shared[k] = shared_loadings(s, J, D, cg.sigma_m);
     p.u_shared.head<kKinematicsSize>() = shared[k].rowwise().norm();
+    // The exposure's own pylon pose (both in time order).
+    while (next < measurements.size() && measurements[next].t_ns < s.t_ns)
+      ++next;
+    const bool pylon = next < measurements.size() && measurements[next].t_ns == s.t_ns &&
+                       measurements[next].pylon_solved &&
+                       measurements[next].pylon_shared.cols() <= s.shared.cols();
+    if (pylon) {
+      aircraft_rows(s, measurements[next], J, shared[k], p);
+    } else {
+      set_nan(p, kCgAircraft);
+      set_nan(p, kEulerAircraft);
+    }
   }
   const int c = carriage_index(states, release);
   for (std::size_t k = 0; k < states.size(); ++k) {
     ProductSample& p = out[k];
     if (c < 0) {
-      p.value.tail<3>().setConstant(kNaN);
-      p.u_noise.tail<3>().setConstant(kNaN);
-      p.u_shared.tail<3>().setConstant(kNaN);
+      set_nan(p, kCgDisplacement);
       continue;
     }
     const auto ci = static_cast<std::size_t>(c);
-    p.value.tail<3>() = p.value.segment<3>(kCgPosition) - out[ci].value.segment<3>(kCgPosition);
-    p.u_noise.tail<3>() =
+    p.value.segment<3>(kCgDisplacement) =
+        p.value.segment<3>(kCgPosition) - out[ci].value.segment<3>(kCgPosition);
+    p.u_noise.segment<3>(kCgDisplacement) =
         p.u_noise.segment<3>(kCgPosition) + out[ci].u_noise.segment<3>(kCgPosition);
-    p.u_shared.tail<3>() =
+    p.u_shared.segment<3>(kCgDisplacement) =
         (shared[k].middleRows<3>(kCgPosition) - shared[ci].middleRows<3>(kCgPosition))
             .rowwise()
             .norm();

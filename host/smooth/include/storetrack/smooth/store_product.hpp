@@ -19,10 +19,11 @@
 
 namespace storetrack::smooth {
 
-/// Rows of the kinematic quantities (store_kinematics) and of the product (then kDisplacement).
-inline constexpr int kKinematicsSize = 15, kProductSize = 18;
+/// Rows of the kinematic quantities (store_kinematics), then the product's further rows: the
+/// displacement from the carriage, and the CG position and Euler angles in aircraft axes.
+inline constexpr int kKinematicsSize = 15, kProductSize = 24;
 inline constexpr int kCgPosition = 0, kEulerYpr = 3, kCgVelocity = 6, kCgAccel = 9, kBodyRates = 12,
-                     kCgDisplacement = 15;
+                     kCgDisplacement = 15, kCgAircraft = 18, kEulerAircraft = 21;
 using KinematicsVector = Eigen::Matrix<double, kKinematicsSize, 1>;
 using KinematicsByState = Eigen::Matrix<double, kKinematicsSize, kStateSize>;
 using KinematicsByCg = Eigen::Matrix<double, kKinematicsSize, 3>;
@@ -49,7 +50,8 @@ struct ProductSample {
   double t_since_t0_s = 0;  ///< NaN without a release time
   int segment = 0;
   bool measured = false, step = false;
-  ProductVector value = ProductVector::Zero();  ///< displacement rows NaN without a carriage
+  /// Displacement rows NaN without a carriage, aircraft rows without a pylon pose.
+  ProductVector value = ProductVector::Zero();
   ProductVector u_noise = ProductVector::Zero(), u_shared = ProductVector::Zero();  ///< k = 1
   ProductVector u() const { return (u_noise.array().square() + u_shared.array().square()).sqrt(); }
 };
@@ -57,8 +59,12 @@ struct ProductSample {
 /// The product of every smoothed state. The carriage CG position is the smoothed one of the
 /// last state of t0's segment before t0 - 2 u(t0); the displacement's shared part is exact (the
 /// difference of loadings), its noise part the bound u_k + u_carriage (the smoother states no
-/// covariance between two times).
+/// covariance between two times). Aircraft axes: the state composed with the pylon pose T_w_p
+/// solved at the same exposure (`measurements`, matched by time; NaN where it has none); shared
+/// part exact (the loadings add), noise part the bound u(T_w_p part) + u(state part) (the
+/// pylon's centroid noise is in both, and the smoother does not carry it apart).
 std::vector<ProductSample> store_product(std::span<const SmoothedState> states,
+                                         std::span<const PoseMeasurement> measurements,
                                          const ReleaseTime& release, const CgOffset& cg);
 
 }  // namespace storetrack::smooth
