@@ -197,6 +197,20 @@ ReleaseTime estimate_release_time(std::span<const PoseMeasurement> measurements,
     r.reason = "the onset fit does not determine t0 (too few solved poses around the alarm)";
     return r;
   }
+  // A t0 inside the captive reference means the store moved there (the recording starts too
+  // late); a fit the model does not explain (chi-square beyond the test's false-alarm quantile)
+  // has no honest u(t0). Either way: no t0.
+  if (t0 <= config.captive_reference_s) {
+    r.reason = "the release lies inside the captive reference (the recording starts too late)";
+    return r;
+  }
+  if (r.fit_chi2 >
+      uncertainty::chi_square_quantile(uncertainty::Probability(1 - config.false_alarm),
+                                       uncertainty::DegreesOfFreedom(r.fit_dof))) {
+    r.reason = "the onset model does not fit the data (chi-square " + std::to_string(r.fit_chi2) +
+               " for " + std::to_string(r.fit_dof) + " degrees of freedom)";
+    return r;
+  }
   r.detected = true;
   r.t0_ns = t_base + static_cast<time::TaiNs>(std::llround(t0 * 1e9));
   r.onset_accel_p = a;

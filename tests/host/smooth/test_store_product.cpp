@@ -69,6 +69,28 @@ TEST(ReleaseTime, CaptiveOnlyIsNotARelease) {
   EXPECT_NE(r.reason.find("no motion"), std::string::npos) << r.reason;
 }
 
+// The store already moving at the first exposure: its "captive reference" moves, and the t0
+// the fit finds lies inside it: refused, not reported.
+TEST(ReleaseTime, ARecordingThatStartsAfterTheReleaseIsNoRelease) {
+  const auto ms = onset_measurements(-0.004, Vec3(0, 0, 80.0), 30);
+  const ReleaseTime r = estimate_release_time(ms);
+  EXPECT_FALSE(r.detected);
+  EXPECT_NE(r.reason.find("starts too late"), std::string::npos) << r.reason;
+}
+
+// Not the onset model (a constant velocity from t0, no acceleration): refused by the fit's
+// chi-square, not reported with a u(t0) that does not hold.
+TEST(ReleaseTime, MotionTheOnsetModelDoesNotExplainIsNoRelease) {
+  auto ms = onset_measurements(1.0, Vec3::Zero(), 30);
+  for (std::size_t k = 0; k < ms.size(); ++k) {
+    const double t = 0.0025 * static_cast<double>(k);
+    ms[k].T_p_s.translation().z() += 2.0 * std::max(0.0, t - 0.0213);  // 2 m/s, from 21.3 ms
+  }
+  const ReleaseTime r = estimate_release_time(ms);
+  EXPECT_FALSE(r.detected);
+  EXPECT_NE(r.reason.find("does not fit"), std::string::npos) << r.reason;
+}
+
 // A store spinning about z at w with its CG 1 m ahead of its origin: v_cg = w x r, a_cg =
 // alpha x r - w^2 r, body rates = R^T w.
 TEST(StoreKinematics, PureRotationAboutTheOrigin) {

@@ -15,6 +15,8 @@
 //    linearly: t0 minimises the profile chi-square. u(t0): the noise part from the information
 //    matrix (J^T W J)^-1, the shared part from the estimate's linear map applied to the
 //    exposures' shared loadings (a constant shared error is absorbed by c: none on t0).
+//    No t0 when it falls inside the captive reference, or when the fit's chi-square exceeds its
+//    (1 - false_alarm) quantile (the model does not explain the data: u(t0) would not hold).
 #pragma once
 
 #include <span>
