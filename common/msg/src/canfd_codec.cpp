@@ -64,8 +64,8 @@ int encode(const Message& m, MessageId id, std::span<CanFdFrame> out) {
   const std::size_t count = frames_for_stream(length);
   if (count > kCanFdMaxFragments) return -ERANGE;
   if (out.size() < count) return -ENOSPC;
-  const std::uint32_t can_id =
-      canid::make(canid::kLccNoc, static_cast<std::uint8_t>(id), m.unit_id, camera_of(m));
+  const std::uint32_t can_id = canid::make(canid::kLccNoc, static_cast<std::uint8_t>(id), m.unit_id,
+                                           camera_of(m), canid::message_version(id));
   for (std::size_t i = 0; i < count; ++i) {
     CanFdFrame& f = out[i];
     const std::size_t begin = i * kCanFdFragmentPayloadBytes;
@@ -175,7 +175,6 @@ DecodeError CanFdReassembler::push(const CanFdFrame& frame, std::int64_t now_ns,
   const std::uint32_t id = frame.can_id;
   if (id > canid::kMask29 || canid::lcc(id) != canid::kLccNoc)
     return count_error(DecodeError::kBadMagic);
-  if (canid::version(id) != canid::kFramingVersion) return count_error(DecodeError::kBadVersion);
   std::size_t max_frames = 0;
   switch (static_cast<MessageId>(canid::fid(id))) {
     case MessageId::kMarkObservations:
@@ -188,6 +187,8 @@ DecodeError CanFdReassembler::push(const CanFdFrame& frame, std::int64_t now_ns,
     default:
       return count_error(DecodeError::kUnknownType);
   }
+  if (canid::version(id) != canid::message_version(static_cast<MessageId>(canid::fid(id))))
+    return count_error(DecodeError::kBadVersion);  // an older unit's layout: refused, counted
   if (frame.len <= kCanFdFragmentHeaderBytes) return count_error(DecodeError::kTooShort);
   if (frame.len > kCanFdMaxData || !is_valid_canfd_len(frame.len))
     return count_error(DecodeError::kBadLength);

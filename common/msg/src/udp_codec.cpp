@@ -68,6 +68,7 @@ DecodeError decode_datagram(std::span<const std::uint8_t> in, AnyMessage& out,
   h.length = r.get_u16();
   h.datagram_seq = r.get_u32();
   if (h.magic != kUdpMagic) return DecodeError::kBadMagic;
+  if (header != nullptr) *header = h;  // as read: a refused version is named by it
   if (h.framing_version != kUdpFramingVersion) return DecodeError::kBadVersion;
   if (h.length != in.size() || in.size() > kMaxDatagramBytes) return DecodeError::kBadLength;
   const std::size_t covered = in.size() - kUdpCrcBytes;
@@ -87,7 +88,6 @@ DecodeError decode_datagram(std::span<const std::uint8_t> in, AnyMessage& out,
     default:  // FtiSample is not sent in this framing (host output, docs/fti-output.md)
       return DecodeError::kUnknownType;
   }
-  if (e == DecodeError::kNone && header != nullptr) *header = h;
   return e;
 }
 

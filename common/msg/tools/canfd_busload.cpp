@@ -292,7 +292,8 @@ std::string render() {
       std::uint8_t data[8];
       for (int b = 0; b < 8; ++b)
         data[b] = static_cast<std::uint8_t>(word >> (56 - 8 * b));
-      const FrameBits fb = classic_frame_bits(msg::canid::make(2, 1, 0, 0) | (k & 0x7), data, 8);
+      const FrameBits fb = classic_frame_bits(
+          msg::canid::make(2, 1, 0, 0, static_cast<std::uint8_t>(k & 0x7)), data, 8);
       mean += fb.nominal;
       worst += fb.nominal_worst;
     }

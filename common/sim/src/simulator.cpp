@@ -615,6 +615,8 @@ void Simulator::observe_with_noise(int k, int camera_index, std::uint64_t noise_
   out.exposure_start_mono_ns = et.reported_start_mono_ns;
   out.exposure_duration_ns = sc_.exposure_ns;
   out.clock_state = static_cast<std::uint8_t>(sc_.clock_state);
+  // The unit's stamp error is drawn from N(0, ptp_offset_sigma_ns) (timing()): its stated figure.
+  out.exposure_time_sigma_ns = static_cast<std::uint32_t>(std::lround(sc_.ptp_offset_sigma_ns));
   if (true_mark_ids) true_mark_ids->clear();
 
   struct Detection {

@@ -1,5 +1,6 @@
 #include "storetrack/uncertainty/calibration_factors.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 
@@ -161,6 +162,14 @@ void CalibrationFactors::add_sync_factors(const camera::RigCalibration& rig) {
       cameras_[c].sync_column = col++;
       cameras_[c].sync_sigma_s = sigma_ns * 1e-9;
     }
+  }
+  std::vector<std::pair<int, int>> unit_columns;  // (unit id, column), in camera order
+  for (size_t c = 0; c < rig.cameras.size(); ++c) {
+    const int unit = rig.cameras[c].unit_id;
+    auto it = std::find_if(unit_columns.begin(), unit_columns.end(),
+                           [unit](const std::pair<int, int>& u) { return u.first == unit; });
+    if (it == unit_columns.end()) it = unit_columns.insert(it, {unit, col++});
+    cameras_[c].clock_column = it->second;
   }
   ranges_[index(Source::kSync)].second = col - ranges_[index(Source::kSync)].first;
   ranges_[index(Source::kCentroid)] = {col, 0};

@@ -31,7 +31,8 @@ struct SimulatedCamera {
   int camera_id = 0;
   int width = 0;
   int height = 0;
-  std::uint8_t clock_state = 0;        ///< the scenario's (clock_state "auto")
+  std::uint8_t clock_state = 0;  ///< the scenario's (clock_state "auto")
+  double clock_sigma_ns = 0;     ///< the scenario's ptp_offset_sigma_ns (time.clock_sigma_ns auto)
   std::int64_t tai_minus_mono_ns = 0;  ///< the simulated unit's fixed clock offset
   double frame_rate_hz = 0;            ///< the scenario's (trigger mode sim)
   std::uint32_t first_trigger_seq = 0;

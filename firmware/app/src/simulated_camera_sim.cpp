@@ -33,6 +33,7 @@ bool make_simulated_camera(const SimSourceConfig& config, SimulatedCamera& out,
   out.width = intrinsics.width;
   out.height = intrinsics.height;
   out.clock_state = static_cast<std::uint8_t>(scenario.clock_state);
+  out.clock_sigma_ns = scenario.ptp_offset_sigma_ns;
   // The simulated unit's clocks: TAI = monotonic + a fixed offset (Simulator timing model).
   const sim::ExposureTiming t0 = simulator->exposure_timing(0, config.camera_index);
   out.tai_minus_mono_ns = t0.reported_start_tai_ns - t0.reported_start_mono_ns;

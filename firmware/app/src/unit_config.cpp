@@ -40,6 +40,9 @@ void parse_ptp4l(Object x, clock::ClockMonitorConfig& c) {
     c.lock.holdover_ns = seconds_to_ns(v->number(Range::closed(0, 3600)));
   if (const auto v = x.find("offset_max_age_s"))
     c.lock.offset_max_age_ns = seconds_to_ns(v->number(Range::closed(0.1, 60)));
+  x.get("offset_window", c.uncertainty.offset_window, 1, clock::kMaxOffsetWindow);
+  if (const auto v = x.find("holdover_drift_ppb"))
+    c.uncertainty.holdover_drift_ppb = v->number(Range::closed(0, 1e6));
   x.get("measure_only", c.lock.measure_only);
   x.get("require_time_traceable", c.lock.require_time_traceable);
   x.finish();
@@ -223,6 +226,15 @@ void parse_links(Object x, UnitConfig& c) {
   x.finish();
 }
 
+void parse_time(Object x, TimeUncertaintyConfig& t) {
+  const Range ns = Range::closed(0, 1e9);
+  if (const auto v = x.find("clock_sigma_ns"))
+    t.clock_sigma_ns = v->json().is_string() && v->string() == "auto" ? -1 : v->number(ns);
+  if (const auto v = x.find("latch_jitter_ns")) t.latch_jitter_ns = v->number(ns);
+  if (const auto v = x.find("sensor_start_jitter_ns")) t.sensor_start_jitter_ns = v->number(ns);
+  x.finish();
+}
+
 void parse_run(Object x, UnitConfig& c) {
   x.get("frames", c.frames);
   x.get("duration_s", c.duration_s);
@@ -265,6 +277,7 @@ void read_config(const Value& root, UnitConfig& c) {
   }
   if (const auto v = j.find("camera")) parse_camera(v->object(), c);
   if (const auto v = j.find("ptp4l")) parse_ptp4l(v->object(), c.ptp4l);
+  if (const auto v = j.find("time")) parse_time(v->object(), c.time);
   if (const auto v = j.find("run")) parse_run(v->object(), c);
   j.finish();
 }
@@ -450,8 +463,16 @@ std::string to_json(const UnitConfig& c) {
                 {"lock_polls", p.lock.lock_polls},
                 {"holdover_s", static_cast<double>(p.lock.holdover_ns) / 1e9},
                 {"offset_max_age_s", static_cast<double>(p.lock.offset_max_age_ns) / 1e9},
+                {"offset_window", p.uncertainty.offset_window},
+                {"holdover_drift_ppb", p.uncertainty.holdover_drift_ppb},
                 {"measure_only", p.lock.measure_only},
                 {"require_time_traceable", p.lock.require_time_traceable}};
+  j["time"] = {{"latch_jitter_ns", c.time.latch_jitter_ns},
+               {"sensor_start_jitter_ns", c.time.sensor_start_jitter_ns}};
+  if (c.time.clock_sigma_ns < 0)
+    j["time"]["clock_sigma_ns"] = "auto";
+  else
+    j["time"]["clock_sigma_ns"] = c.time.clock_sigma_ns;
   j["modbus"] = {{"enabled", c.modbus_enabled},
                  {"address", c.modbus_address},
                  {"port", c.modbus_port},

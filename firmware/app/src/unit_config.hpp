@@ -87,6 +87,17 @@ struct TriggerConfig {
   bool triggered_only = false;
 };
 
+/// What the unit adds to its clock's uncertainty in each observation's exposure_time_sigma_ns
+/// (docs/unit-config.md, "time"). Jitter belongs here only where the calibration's
+/// exposure_offset_sigma_ns leaves it out (the simulator's calibrations include it).
+struct TimeUncertaintyConfig {
+  /// A configured (not ptp4l) clock's uncertainty; -1: auto (the sim scenario's
+  /// ptp_offset_sigma_ns, else 0).
+  double clock_sigma_ns = -1;
+  double latch_jitter_ns = 0;         ///< trigger edge time stamp jitter, 1 sigma
+  double sensor_start_jitter_ns = 0;  ///< the sensor's trigger-to-exposure-start jitter, 1 sigma
+};
+
 struct UnitConfig {
   int unit_id = 0;
   int camera_id = 0;
@@ -112,6 +123,7 @@ struct UnitConfig {
   /// clock_state ptp4l: where ptp4l listens and the lock thresholds (docs/deploy.md, "Clock");
   /// its poll period is health_period_ms.
   clock::ClockMonitorConfig ptp4l;
+  TimeUncertaintyConfig time;
   std::uint32_t exposure_us = 1000;
   // camera recovery: a device that is gone is reopened after reopen_first_ms, then at doubling
   // intervals up to reopen_max_ms, while the trigger keeps running (docs/reliability.md)

@@ -27,6 +27,8 @@ int UnitRunner::setup_camera(InputFactory& inputs, int& width, int& height, std:
   width = facts.width;
   height = facts.height;
   if (facts.clock_state) clock_.configure(config_.clock_state, facts.clock_state);
+  clock_.configure_time(config_.time, facts.clock_sigma_ns,
+                        config_.ptp4l.uncertainty.holdover_drift_ppb);
   if (config_.unit_id < 0) config_.unit_id = 0;
   if (config_.camera_id < 0) config_.camera_id = 0;
   recovery_.configure(config_.camera_reopen_first_ms, config_.camera_reopen_max_ms);
@@ -240,6 +242,9 @@ int UnitRunner::process_frame(const frame::FrameView& frame) {
   // The state when this exposure is processed, a few ms after it: the monitor's resolution is
   // its poll period (docs/reliability.md, "Clock").
   exposure.clock_state = clock_.state();
+  // At the live monotonic time, a few ms after the exposure (a replayed frame's stamp is the
+  // recording's): at 1 ppm holdover growth that is a few ns.
+  exposure.time_sigma_ns = clock_.exposure_time_sigma_ns(time::monotonic_now_ns());
   fill_mark_message(exposure, frame, marks_.marks(n), obs_);
   if (links_.send(obs_)) frames_dropped_pending_ = false;
   return 0;

@@ -5,7 +5,10 @@
 namespace storetrack::clock {
 
 ClockMonitor::ClockMonitor(ClockMonitorConfig config)
-    : config_(std::move(config)), client_(config_.ptp4l), machine_(config_.lock) {}
+    : config_(std::move(config)),
+      client_(config_.ptp4l),
+      machine_(config_.lock),
+      window_(config_.uncertainty.offset_window) {}
 
 ClockMonitor::~ClockMonitor() {
   stop();
@@ -75,6 +78,7 @@ PtpPoll ClockMonitor::query() {
   stats_.gm_present = poll.gm_present;
   stats_.time_traceable = poll.time_traceable;
   stats_.master_offset_ns = poll.master_offset_ns;
+  stats_.ingress_time_ns = poll.ingress_time_ns;
   if (have_status) stats_.gm_identity = status.gm_identity;
   return poll;
 }
@@ -82,8 +86,18 @@ PtpPoll ClockMonitor::query() {
 time::ClockState ClockMonitor::poll_once() {
   const PtpPoll poll = query();
   const time::ClockState before = machine_.state();
-  const time::ClockState now = machine_.update(poll, time::monotonic_now_ns());
+  const time::MonotonicNs now_ns = time::monotonic_now_ns();
+  const time::ClockState now = machine_.update(poll, now_ns);
   offset_ns_.store(machine_.offset_ns(), std::memory_order_relaxed);
+  if (machine_.new_measurement()) {
+    window_.add(poll.master_offset_ns);
+    rms_ns_.store(window_.rms_ns(), std::memory_order_relaxed);
+    measured_at_ns_.store(now_ns, std::memory_order_relaxed);
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    ++stats_.new_offsets;
+    stats_.offset_rms_ns = window_.rms_ns();
+  }
+  holding_.store(machine_.holding(), std::memory_order_release);
   state_.store(static_cast<std::uint8_t>(now), std::memory_order_relaxed);
   if (now != before) {
     std::lock_guard<std::mutex> lock(stats_mutex_);

@@ -23,7 +23,8 @@ bool LockStateMachine::servo_ok(const PtpPoll& poll) const {
 }
 
 bool LockStateMachine::measured(const PtpPoll& poll, time::MonotonicNs now_ns) {
-  if (poll.ingress_time_ns != last_ingress_time_ns_) {
+  ingress_new_ = poll.ingress_time_ns != last_ingress_time_ns_;
+  if (ingress_new_) {
     last_ingress_time_ns_ = poll.ingress_time_ns;
     ingress_changed_ns_ = now_ns;
   }
@@ -51,6 +52,7 @@ time::ClockState LockStateMachine::update(const PtpPoll& poll, time::MonotonicNs
   using time::ClockState;
   if (!tracking(poll)) {
     measured(poll, now_ns);  // keeps the ingress_time history
+    new_measurement_ = holding_ = false;
     consecutive_within_ = 0;
     offset_ns_ = kOffsetUnknown;
     state_ = on_master_lost(now_ns);
@@ -60,7 +62,10 @@ time::ClockState LockStateMachine::update(const PtpPoll& poll, time::MonotonicNs
   // llabs of INT64_MIN is undefined: compare the two signs separately.
   const bool small = poll.master_offset_ns <= thresholds_.lock_threshold_ns &&
                      poll.master_offset_ns >= -thresholds_.lock_threshold_ns;
-  if (measured(poll, now_ns) && servo_ok(poll) && small) {
+  const bool fresh = measured(poll, now_ns);
+  holding_ = fresh;
+  new_measurement_ = fresh && ingress_new_;
+  if (fresh && servo_ok(poll) && small) {
     if (consecutive_within_ < thresholds_.lock_polls) ++consecutive_within_;
     state_ =
         consecutive_within_ >= thresholds_.lock_polls ? ClockState::kLocked : ClockState::kLocking;

@@ -1,17 +1,21 @@
 // bench_window_tracker: time per frame of the full-frame centroider and of the predicted-window
-// tracker on the same frames: the last kFrames exposures of the store-separation scenario (the
+// tracker on the same frames: the last kFrames exposures of a store-separation scenario (the
 // fastest part of the run), rendered once by the simulator for the camera that sees the most
-// marks. One benchmark iteration is the whole sequence (the tracker starts from nothing, so its
-// first frame and every full_frame_interval-th are full ones, as on the unit); the frames
-// (2 MB each, kFrames of them) are far larger than the caches, so each is read from memory as
-// a freshly captured frame would be. Counters: s_per_frame (the figure to compare), the
-// tracker's full frames per sequence by cause, windows per frame.
+// marks. Two scenarios, the benchmarks' second argument: 19, store_separation (19 marks seen
+// on average), and 64, store_separation_64 (its denser survey: 63-64 seen). One benchmark iteration
+// is the whole sequence (the tracker starts from nothing, so its first frame and every
+// full_frame_interval-th are full ones, as on the unit); the frames (2 MB each, kFrames of them)
+// are far larger than the caches, so each is read from memory as a freshly captured frame would be.
+// Counters: s_per_frame (the figure to compare), the tracker's full frames per sequence by cause,
+// windows per frame.
 //
-//   bench_window_tracker --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
+//   bench_window_tracker --benchmark_repetitions=9 --benchmark_report_aggregates_only=true
 #include <benchmark/benchmark.h>
 
 #include <cstdint>
 #include <cstring>
+#include <map>
+#include <memory>
 #include <span>
 #include <string>
 #include <vector>
@@ -29,9 +33,9 @@ using storetrack::centroid::Blob;
 constexpr int kFrames = 80;  // two periods of the default full_frame_interval
 
 struct Frames {
-  Frames()
+  explicit Frames(const std::string& scenario)
       : simulator(
-            sim::load_scenario(std::string(STORETRACK_SCENARIO_DIR) + "/store_separation.json"),
+            sim::load_scenario(std::string(STORETRACK_SCENARIO_DIR) + "/" + scenario + ".json"),
             7) {
     std::vector<sim::Spot> spots;
     std::size_t best = 0;
@@ -85,9 +89,14 @@ struct Frames {
   std::vector<std::int64_t> times_ns;
 };
 
-const Frames& frames() {
-  static const Frames f;
-  return f;
+/// The frames of the scenario named by its nominal mark count (19 or 64), rendered on first use
+/// (160 MB each), so a filtered run renders only the one it needs.
+const Frames& frames(std::int64_t marks = 19) {
+  static std::map<std::int64_t, std::unique_ptr<const Frames>> all;
+  std::unique_ptr<const Frames>& f = all[marks];
+  if (!f)
+    f = std::make_unique<const Frames>(marks == 64 ? "store_separation_64" : "store_separation");
+  return *f;
 }
 
 void per_frame_counters(benchmark::State& state, const Frames& f) {
@@ -98,22 +107,33 @@ void per_frame_counters(benchmark::State& state, const Frames& f) {
 }
 
 void BM_FullFrame(benchmark::State& state) {
-  const Frames& f = frames();
+  const Frames& f = frames(state.range(1));
   storetrack::centroid::Centroider centroider(f.centroid_config(state.range(0) != 0), f.width,
                                               f.height);
   std::vector<Blob> blobs(128);
+  long found = 0;  // blobs of the last sequence: does the centroider find the marks seen?
   for (auto _ : state) {
-    for (int i = 0; i < kFrames; ++i)
-      benchmark::DoNotOptimize(centroider.process(f.view(i), blobs));
+    found = 0;
+    for (int i = 0; i < kFrames; ++i) {
+      const int n = centroider.process(f.view(i), blobs);
+      benchmark::DoNotOptimize(n);
+      found += n;
+    }
     benchmark::ClobberMemory();
   }
   per_frame_counters(state, f);
+  state.counters["blobs"] = static_cast<double>(found) / kFrames;
 }
-// Arg: 1 the unit's centroider (refinement on), 0 threshold moments only.
-BENCHMARK(BM_FullFrame)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond);
+// Args: refinement (1 the unit's centroider, 0 threshold moments only), scenario (19 or 64).
+BENCHMARK(BM_FullFrame)
+    ->Args({1, 19})
+    ->Args({0, 19})
+    ->Args({1, 64})
+    ->Args({0, 64})
+    ->Unit(benchmark::kMillisecond);
 
 void BM_Windowed(benchmark::State& state) {
-  const Frames& f = frames();
+  const Frames& f = frames(state.range(1));
   track::WindowTracker tracker({}, f.centroid_config(state.range(0) != 0), f.width, f.height);
   std::vector<Blob> blobs(128);
   for (auto _ : state) {
@@ -138,7 +158,12 @@ void BM_Windowed(benchmark::State& state) {
   state.counters["windows_per_frame"] =
       static_cast<double>(st.windows_tried) / std::max<double>(1.0, double(st.windowed_frames));
 }
-BENCHMARK(BM_Windowed)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Windowed)
+    ->Args({1, 19})
+    ->Args({0, 19})
+    ->Args({1, 64})
+    ->Args({0, 64})
+    ->Unit(benchmark::kMillisecond);
 
 // The centroider's ROI mode with no ROI: the fixed cost of a call. (Before the ROI mode
 // estimated the background only in the tiles under its ROIs, this was the whole frame's

@@ -27,7 +27,8 @@ nlohmann::json udp_stats_json(const ingest::UdpReceiver& udp) {
           {"receive_buffer_requested_bytes", uc.receive_buffer_requested_bytes},
           {"receive_buffer_bytes", uc.receive_buffer_bytes},
           {"kernel_filter_sources", uc.kernel_filter_sources},
-          {"decode_errors", decode_counters_json(uc.decode_errors)}};
+          {"decode_errors", decode_counters_json(uc.decode_errors)},
+          {"last_refused_version", ingest::describe(uc.last_refused_version)}};
 }
 
 nlohmann::json can_stats_json(const std::vector<std::unique_ptr<ingest::CanFdReceiver>>& cans,
@@ -44,6 +45,7 @@ nlohmann::json can_stats_json(const std::vector<std::unique_ptr<ingest::CanFdRec
                         {"kernel_drops", c.kernel_drops},
                         {"budget_exhausted", c.budget_exhausted},
                         {"decode_errors", decode_counters_json(c.decode_errors)},
+                        {"last_refused_version", ingest::describe(c.last_refused_version)},
                         {"reassembly",
                          {{"completed", r.completed},
                           {"duplicates", r.duplicates},
@@ -136,6 +138,7 @@ nlohmann::json processor_stats_json(const pipeline::ExposureProcessor& processor
   const auto& pc = processor.counters();
   return {{"exposures", pc.exposures},
           {"unknown_camera", pc.unknown_camera},
+          {"time_sigma_unknown", pc.time_sigma_unknown},
           {"id_out_of_range", pc.id_out_of_range},
           {"too_few_cameras", pc.too_few_cameras},
           {"triangulation_failed", pc.triangulation_failed},

@@ -20,6 +20,17 @@
 #include "storetrack/time/time.hpp"
 
 namespace storetrack::ingest {
+
+std::string describe(const RefusedVersion& refused) {
+  if (!refused.seen) return "";
+  const auto id = static_cast<msg::MessageId>(refused.message_id);
+  const char* name = id == msg::MessageId::kMarkObservations ? "MarkObservations"
+                     : id == msg::MessageId::kUnitHealth     ? "UnitHealth"
+                                                             : "message";
+  return std::string(name) + " version " + std::to_string(refused.version) + " from unit " +
+         std::to_string(refused.unit_id) + " (this host reads version " +
+         std::to_string(msg::canid::message_version(id)) + ")";
+}
 namespace {
 
 constexpr std::size_t kMaxAllowedSources = 1024;
@@ -247,6 +258,9 @@ int UdpReceiver::receive(const MessageHandler& handler, int max_datagrams) {
     const msg::DecodeError e = msg::decode_datagram(received, message, &header);
     counters_.decode_errors.record(e);
     if (e != msg::DecodeError::kNone) {
+      if (e == msg::DecodeError::kBadVersion)
+        counters_.last_refused_version = {true, header.message_id, header.message_version,
+                                          header.unit_id};
       record_raw(static_cast<std::uint8_t>(e), false);
       continue;
     }
@@ -333,6 +347,10 @@ int CanFdReceiver::receive(const MessageHandler& handler, int max_frames) {
     }
     const msg::DecodeError e = reassembler_.push(frame, time::monotonic_now_ns(), completed);
     counters_.decode_errors.record(e);
+    if (e == msg::DecodeError::kBadVersion)
+      counters_.last_refused_version = {true, msg::canid::fid(frame.can_id),
+                                        msg::canid::version(frame.can_id),
+                                        msg::canid::unit(frame.can_id)};
     if (raw_) {
       if (const auto t = reassembler_.finished_transfer()) {
         const std::size_t kept = std::min(t->stream.size(), msg::kRawObservationMaxTailBytes);

@@ -246,6 +246,9 @@ struct ExposureProcessor::Prepared {
   std::vector<double> dt_s;  ///< per rig slot: camera mid-time - reference time
   /// Per rig slot: a Monte Carlo draw's error of that camera's time offset (0 nominal).
   std::vector<double> sync_error_s;
+  /// Per rig slot: the standard uncertainty of that camera's exposure time this exposure, as its
+  /// unit stated it (exposure_time_sigma_ns; its clock, shared with the unit's other cameras).
+  std::vector<double> clock_sigma_s;
   std::vector<bool> slot_used;
   int cameras_used = 0;
   bool clock_not_locked = false;
@@ -330,6 +333,7 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
   Prepared prep;
   prep.dt_s.assign(rig_.cameras.size(), 0.0);
   prep.sync_error_s.assign(rig_.cameras.size(), 0.0);
+  prep.clock_sigma_s.assign(rig_.cameras.size(), 0.0);
   prep.slot_used.assign(rig_.cameras.size(), false);
   if (marks.has_reference_time) prep.t_ref_tai_ns = marks.reference_mid_tai_ns;
   for (const msg::MarkObservations& obs : exposure.cameras) {
@@ -340,6 +344,12 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
       continue;
     }
     prep.slot_used[static_cast<size_t>(slot)] = true;
+    // Unknown (an older message's figure is refused at decoding; a unit that does not know
+    // its clock's sigma): counted; the calibration's offset sigma alone then stands.
+    if (obs.exposure_time_sigma_ns == msg::mark_observations_invalid::kExposureTimeSigmaNs)
+      ++counters.time_sigma_unknown;
+    else
+      prep.clock_sigma_s[static_cast<size_t>(slot)] = obs.exposure_time_sigma_ns * 1e-9;
     if (obs.clock_state != static_cast<std::uint8_t>(time::ClockState::kLocked))
       prep.clock_not_locked = true;
   }
@@ -453,7 +463,7 @@ void ExposureProcessor::solve(const Prepared& prep,
       // per-camera blocks' B B^T. Coupled (joint covariance): cameras share columns, the
       // blocks add up in the loadings and each source's covariance is L_s L_s^T.
       m.loadings.setZero(3, nz);
-      Mat3 cov_intrinsic = Mat3::Zero(), cov_extrinsic = Mat3::Zero(), cov_sync = Mat3::Zero();
+      Mat3 cov_intrinsic = Mat3::Zero(), cov_extrinsic = Mat3::Zero();
       const bool coupled = factors_.coupled();
       for (size_t i = 0; i < mark.obs.size(); ++i) {
         const auto& cf = factors_.camera(mark.obs[i].slot);
@@ -461,12 +471,15 @@ void ExposureProcessor::solve(const Prepared& prep,
         const auto& J = tri.jacobians[i];
         uncertainty::add_observation_loadings(factors_, mark.obs[i].slot, K, J, m.loadings,
                                               cov_intrinsic, cov_extrinsic);
-        if (cf.sync_column >= 0 && velocity_valid) {
-          const Vec3 b = -K * (J.d_point_world * velocity_w) * cf.sync_sigma_s;
-          m.loadings.col(cf.sync_column) = b;
-          cov_sync.noalias() += b * b.transpose();
+        if (velocity_valid) {
+          const Vec3 moved = -K * (J.d_point_world * velocity_w);  // per second of time error
+          if (cf.sync_column >= 0) m.loadings.col(cf.sync_column) = moved * cf.sync_sigma_s;
+          // One clock per unit: its cameras' errors add up in one column.
+          const double clock_sigma_s = prep.clock_sigma_s[static_cast<size_t>(mark.obs[i].slot)];
+          if (cf.clock_column >= 0) m.loadings.col(cf.clock_column) += moved * clock_sigma_s;
         }
       }
+      const Mat3 cov_sync = uncertainty::covariance_of(m.loadings, factors_, Source::kSync);
       if (coupled) {
         cov_intrinsic = uncertainty::covariance_of(m.loadings, factors_, Source::kIntrinsic);
         cov_extrinsic = uncertainty::covariance_of(m.loadings, factors_, Source::kExtrinsic);
@@ -753,6 +766,7 @@ MonteCarloResult ExposureProcessor::monte_carlo(const AlignedExposure& exposure,
         cams[c].T_c_w = geometry::perturb_left(
             cams[c].T_c_w, cf.extrinsic * z.segment(cf.extrinsic_begin, cf.extrinsic.cols()));
       if (cf.sync_column >= 0) p.sync_error_s[c] = cf.sync_sigma_s * z(cf.sync_column);
+      if (cf.clock_column >= 0) p.sync_error_s[c] += prep.clock_sigma_s[c] * z(cf.clock_column);
     }
     for (Prepared::Mark& m : p.marks)
       for (Prepared::Obs& o : m.obs)

@@ -6,12 +6,10 @@
 
 #include "storetrack/geometry/transform.hpp"
 #include "storetrack/msg/messages.hpp"
+#include "storetrack/pipeline/pose_output.hpp"
 #include "storetrack/uncertainty/sources.hpp"
 
 namespace storetrack::pipeline {
-
-/// d(x, y, z, yaw, pitch, roll)/d(left perturbation of T_p_s).
-geometry::Mat6 output_jacobian(const geometry::Transform& T_p_s);
 
 /// (x, y, z, yaw, pitch, roll) of T_p_s.
 geometry::Vec6 xyz_ypr(const geometry::Transform& T);

@@ -24,6 +24,10 @@ int parse_post_options(int argc, char** argv, PostOptions& o) {
              "position, displacement from the carriage, Euler angles, CG velocity and "
              "acceleration, body rates, each with u and U) to this NEW CSV file; needs the "
              "store survey's \"cg\"");
+  app.option("--differences-csv", o.differences_csv_path,
+             "With a substituted input: write per sample and axis how far the pose moved from "
+             "the recorded inputs' (d), the standard uncertainty of that difference (u) and z = "
+             "d / u to this NEW CSV file");
   app.option("--stats-json", o.stats_json_path,
              "Write the replay's counters and the comparison to this NEW JSON file");
   app.option("--calibration", o.calibration_path, "Use this rig calibration, not the recorded")

@@ -13,11 +13,13 @@
 #include <string>
 #include <vector>
 
+#include "differences.hpp"
 #include "host_options.hpp"
 #include "host_setup.hpp"
 #include "product_csv.hpp"
 #include "recording.hpp"
 #include "replay.hpp"
+#include "same_rig.hpp"
 #include "sample_compare.hpp"
 #include "smoothed_csv.hpp"
 #include "storetrack/json/text_file.hpp"
@@ -152,6 +154,7 @@ nlohmann::json stats_json(const Recording& r, const ReplayCounters& c, std::size
   nlohmann::json j;
   j["files"] = r.files;
   j["torn"] = r.torn;
+  j["gaps"] = r.gaps;
   j["replay"] = {{"records", c.records},
                  {"observations", c.observations},
                  {"refused_live", c.refused_live},
@@ -263,14 +266,56 @@ int write_product(const std::string& path, const Replay& replay,
   return 0;
 }
 
+// The substituted run against the recorded inputs' (--differences-csv): the recording replayed
+// again with the inputs as recorded, paired by trigger_seq. Returns the summary for the stats.
+nlohmann::json write_differences(const Recording& r, const hostapp::HostOptions& recorded_options,
+                                 const hostapp::InputFiles& recorded_inputs,
+                                 const std::vector<RunPose>& substituted, const Substituted& what,
+                                 const std::string& path, FilePtr f, int& exit_code) {
+  hostapp::ProcessingChain chain =
+      hostapp::make_processing_chain(recorded_options.cfg, recorded_inputs);
+  Replay replay(*chain.aligner, *chain.processor, chain.aligner->config().min_cameras);
+  std::vector<RunPose> recorded;
+  replay.on_sample([&](const pipeline::ExposureResult& e) {
+    recorded.push_back(run_pose(e, recorded_inputs.pylon.marks.size()));
+  });
+  for (const ch10read::RawObservation& record : r.records)
+    replay.feed(record);
+  replay.finish();
+  const std::vector<DifferenceRow> rows = differences(recorded, substituted, what);
+  const DifferenceSummary summary = summarize(rows, recorded, substituted, what);
+  print_summary(stderr, summary);
+  if (!write_differences_csv(f.get(), rows) || std::fclose(f.release()) != 0) {
+    std::fprintf(stderr, "storetrack-post: %s: %s\n", path.c_str(), std::strerror(errno));
+    exit_code = 1;
+  }
+  return to_json(summary);
+}
+
 int run(const PostOptions& p) {
   const Recording r = read_recording(p.recording_files);
   for (const std::string& torn : r.torn)
     std::fprintf(stderr, "storetrack-post: %s: replaying up to its last whole packet\n",
                  torn.c_str());
+  for (const std::string& gap : r.gaps)
+    std::fprintf(stderr, "storetrack-post: %s\n", gap.c_str());
   hostapp::HostOptions o = recorded_host_options(r, p);
   hostapp::InputFiles in;
   hostapp::load_inputs(o, make_input_reader(r, p), in);
+  // The inputs as recorded: a substitute is checked against them, and compared with.
+  const Substituted what{!p.calibration_path.empty(), !p.pylon_path.empty(), !p.store_path.empty(),
+                         !p.config_path.empty()};
+  PostOptions as_recorded;
+  as_recorded.recording_files = p.recording_files;
+  hostapp::HostOptions o_recorded = recorded_host_options(r, as_recorded);
+  hostapp::InputFiles in_recorded;
+  if (what.any()) hostapp::load_inputs(o_recorded, make_input_reader(r, as_recorded), in_recorded);
+  if (what.calibration)
+    check_same_rig(in_recorded.rig, r.files.front(), in.rig, p.calibration_path);
+  if (!p.differences_csv_path.empty() && !what.any())
+    throw InputError(p.differences_csv_path +
+                     ": --differences-csv compares with a substituted input: give --calibration, "
+                     "--pylon-survey, --store-survey or --config");
   hostapp::ProcessingChain chain = hostapp::make_processing_chain(o.cfg, in);
   smooth::CgOffset cg;
   if (!p.product_csv_path.empty()) cg = required_cg(in, o, r, p);
@@ -291,9 +336,15 @@ int run(const PostOptions& p) {
   FilePtr stats(p.stats_json_path.empty() ? nullptr : create_output(p.stats_json_path));
   FilePtr smoothed(p.smoothed_csv_path.empty() ? nullptr : create_output(p.smoothed_csv_path));
   FilePtr product(p.product_csv_path.empty() ? nullptr : create_output(p.product_csv_path));
+  FilePtr diffs(p.differences_csv_path.empty() ? nullptr : create_output(p.differences_csv_path));
 
   Replay replay(*chain.aligner, *chain.processor, chain.aligner->config().min_cameras);
   replay.collect_measurements(smoothed || product);
+  std::vector<RunPose> substituted_poses;
+  if (diffs)
+    replay.on_sample([&](const pipeline::ExposureResult& e) {
+      substituted_poses.push_back(run_pose(e, in.pylon.marks.size()));
+    });
   for (const ch10read::RawObservation& record : r.records)
     replay.feed(record);
   replay.finish();
@@ -314,11 +365,15 @@ int run(const PostOptions& p) {
     if (product && write_product(p.product_csv_path, replay, states, cg, std::move(product)) != 0)
       exit_code = 1;
   }
+  nlohmann::json differences_json;
+  if (diffs)
+    differences_json = write_differences(r, o_recorded, in_recorded, substituted_poses, what,
+                                         p.differences_csv_path, std::move(diffs), exit_code);
   if (stats) {
-    const std::string text =
-        stats_json(r, replay.counters(), replay.samples().size(), p.verify ? &compared : nullptr)
-            .dump(2) +
-        "\n";
+    nlohmann::json j =
+        stats_json(r, replay.counters(), replay.samples().size(), p.verify ? &compared : nullptr);
+    if (!differences_json.is_null()) j["differences"] = differences_json;
+    const std::string text = j.dump(2) + "\n";
     if (std::fwrite(text.data(), 1, text.size(), stats.get()) != text.size() ||
         std::fclose(stats.release()) != 0) {
       std::fprintf(stderr, "storetrack-post: %s: %s\n", p.stats_json_path.c_str(),

@@ -34,10 +34,73 @@ bool same_inputs(const std::vector<ch10read::RecordedInput>& a,
   return true;
 }
 
+// Where a file sits in its run: the writer numbers each channel's packets across all files of
+// a run (8 bits), so the setup record (TMATS, one at the start of every file) counts the files,
+// and the raw channel's numbers go on from file to file (a failed packet is retried in the
+// continuation file). The host's loop time never goes back.
+struct FilePlace {
+  int tmats_seq = -1;
+  bool any_raw = false;
+  std::uint8_t first_seq = 0, last_seq = 0;
+  std::size_t first_offset = 0, last_offset = 0;
+  std::int64_t first_mono_ns = 0, last_mono_ns = 0;
+};
+
+FilePlace place_of(const ch10read::File& file,
+                   const std::vector<ch10read::RawObservation>& records) {
+  FilePlace e;
+  const int channel = ch10read::raw_channel_id(file);
+  for (const ch10read::Packet& p : file.packets) {
+    if (p.channel_id == 0 && e.tmats_seq < 0) e.tmats_seq = p.sequence_number;
+    if (p.channel_id != channel) continue;
+    if (!e.any_raw) {
+      e.first_seq = p.sequence_number;
+      e.first_offset = p.file_offset;
+    }
+    e.any_raw = true;
+    e.last_seq = p.sequence_number;
+    e.last_offset = p.file_offset;
+  }
+  if (!records.empty()) {
+    e.first_mono_ns = records.front().host_mono_ns;
+    e.last_mono_ns = records.back().host_mono_ns;
+  }
+  return e;
+}
+
+// Refuses a file that does not follow `prev` in its run; returns a note when raw packets are
+// missing between two consecutive files (packets the host could not write: the replay then
+// lacks their observations).
+std::string check_follows(const std::string& prev, const FilePlace& a, const std::string& path,
+                          const FilePlace& b) {
+  if (b.first_mono_ns < a.last_mono_ns)
+    refuse(path, "its first raw record (packet at offset " + std::to_string(b.first_offset) +
+                     ") is " + std::to_string((a.last_mono_ns - b.first_mono_ns) / 1000) +
+                     " us earlier than the last of " + prev +
+                     ": the files are not in the order the host wrote them (give the first "
+                     "file, then its continuation files, in order)");
+  const auto expected = static_cast<std::uint8_t>(a.last_seq + 1);
+  if (b.first_seq == expected) return "";
+  const std::string gap = "its first raw channel packet (offset " + std::to_string(b.first_offset) +
+                          ") has sequence number " + std::to_string(b.first_seq) +
+                          ", the last of " + prev + " (offset " + std::to_string(a.last_offset) +
+                          ") " + std::to_string(a.last_seq) + ": " +
+                          std::to_string(static_cast<std::uint8_t>(b.first_seq - expected)) +
+                          " (mod 256) raw packet(s) missing between them";
+  if (b.tmats_seq != static_cast<std::uint8_t>(a.tmats_seq + 1))
+    refuse(path, gap + ", and its setup record is the run's file " + std::to_string(b.tmats_seq) +
+                     " (mod 256) after file " + std::to_string(a.tmats_seq) +
+                     ": a continuation file missing from the list (give every file of the run, "
+                     "in order)");
+  return path + ": " + gap + " (the next file of the run: packets the host could not write)";
+}
+
 }  // namespace
 
 Recording read_recording(const std::vector<std::string>& paths) {
   Recording out;
+  FilePlace previous;
+  std::string previous_path;
   for (const std::string& path : paths) {
     const ch10read::File file = ch10read::read_file(path);  // throws when unreadable
     if (file.packets.empty()) refuse(path, "no Chapter 10 packet (" + file.stop_reason + ")");
@@ -69,6 +132,14 @@ Recording read_recording(const std::vector<std::string>& paths) {
     }
     auto records = ch10read::raw_observations(file, &why);
     if (!why.empty()) refuse(path, why);
+    const FilePlace place = place_of(file, records);
+    if (place.any_raw && previous.any_raw)
+      if (std::string gap = check_follows(previous_path, previous, path, place); !gap.empty())
+        out.gaps.push_back(std::move(gap));
+    if (place.any_raw) {
+      previous = place;
+      previous_path = path;
+    }
     out.records.insert(out.records.end(), std::make_move_iterator(records.begin()),
                        std::make_move_iterator(records.end()));
     read_samples(path, file, out);

@@ -25,13 +25,17 @@ struct Recording {
   std::vector<RecordedSample> samples;            ///< the live run's samples, in file order
   std::vector<ch10read::RecordedInput> inputs;    ///< of the first file (each file repeats them)
   std::vector<std::string> torn;                  ///< "file: offset" of files cut in a packet
+  std::vector<std::string> gaps;  ///< "file: ..." raw packets missing before a file (not written)
 };
 
 /// Reads the files of one host run, in order. Throws std::runtime_error naming the file (and
 /// the packet offset) for an unreadable file, a file without the raw channel or without its
 /// inputs (an older recording), a malformed record, or files of different runs (their inputs
-/// differ). A file that ends inside a packet (a crash) is read to its last whole packet and named
-/// in `torn`.
+/// differ), and for files out of the order the host wrote them (the raw channel's loop times go
+/// back) or with a file missing between two (the raw channel's packet numbers skip, and so do
+/// the files' setup records). Raw packets missing between two consecutive files (the host could
+/// not write them) are named in `gaps`. A file that ends inside a packet (a crash) is read to its
+/// last whole packet and named in `torn`.
 Recording read_recording(const std::vector<std::string>& paths);
 
 /// The recorded input of `kind` (output::RecordedInputKind), or nullptr.

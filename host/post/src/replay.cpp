@@ -57,6 +57,7 @@ void Replay::process_ready() {
     if (!counters_.withheld.admit(hostapp::judge_sample(r.cameras_used, min_cameras_))) continue;
     samples_.push_back(r.sample);
     if (collect_) measurements_.push_back(smooth::measurement_from(r));
+    if (on_sample_) on_sample_(r);
   }
   ready_.clear();
 }

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include "sample_gate.hpp"
@@ -47,6 +48,11 @@ class Replay {
   /// Keep each written sample's pose solution for the smoother (measurements()).
   void collect_measurements(bool on) { collect_ = on; }
 
+  /// Called with each written sample's processing result (--differences-csv).
+  void on_sample(std::function<void(const pipeline::ExposureResult&)> f) {
+    on_sample_ = std::move(f);
+  }
+
   /// The samples written, in the order the host wrote them.
   const std::vector<msg::FtiSample>& samples() const { return samples_; }
   /// The written samples' pose solutions as the smoother takes them (collect_measurements).
@@ -63,6 +69,7 @@ class Replay {
   std::vector<msg::FtiSample> samples_;
   bool collect_ = false;
   std::vector<smooth::PoseMeasurement> measurements_;
+  std::function<void(const pipeline::ExposureResult&)> on_sample_;
   ReplayCounters counters_;
 };
 

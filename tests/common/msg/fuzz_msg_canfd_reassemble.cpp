@@ -67,7 +67,9 @@ void structured_transfer(const std::uint8_t* data, std::size_t size) {
   // unit, camera at bytes 0, 1 and trigger_seq at 2..5; UnitHealth: unit at byte 0 and
   // report_tai_ns at 6..13).
   const std::uint8_t fid = health ? 2 : 1;
-  const std::uint32_t id = canid::make(canid::kLccNoc, fid, stream[0], health ? 0 : stream[1]);
+  const std::uint32_t id =
+      canid::make(canid::kLccNoc, fid, stream[0], health ? 0 : stream[1],
+                  canid::message_version(static_cast<storetrack::msg::MessageId>(fid)));
   storetrack::bytes::BigEndianReader health_time(
       std::span<const std::uint8_t>(stream + 6, 8));  // report_tai_ns
   const std::uint16_t seq =

@@ -54,7 +54,7 @@ TEST(MsgCanFd, FramesAreSelfContainedAndValid) {
       EXPECT_EQ(canid::fid(f.can_id), static_cast<std::uint8_t>(MessageId::kMarkObservations));
       EXPECT_EQ(canid::unit(f.can_id), m.unit_id);
       EXPECT_EQ(canid::camera(f.can_id), m.camera_id);
-      EXPECT_EQ(canid::version(f.can_id), canid::kFramingVersion);
+      EXPECT_EQ(canid::version(f.can_id), kMarkObservationsVersion);
       EXPECT_EQ(f.data[0], static_cast<std::uint8_t>(m.trigger_seq >> 8));
       EXPECT_EQ(f.data[1], static_cast<std::uint8_t>(m.trigger_seq));
       EXPECT_EQ(f.data[2] >> 4, static_cast<int>(i));
@@ -336,7 +336,8 @@ TEST(MsgCanFd, MalformedFramesGetTypedErrorsAndCounters) {
       "other channel", [](CanFdFrame& f) { f.can_id = (f.can_id & ~(7u << 26)) | (6u << 26); },
       DecodeError::kBadMagic);
   with(
-      "version", [](CanFdFrame& f) { f.can_id = (f.can_id & ~7u) | 2u; }, DecodeError::kBadVersion);
+      "version 1 (an older unit)", [](CanFdFrame& f) { f.can_id = (f.can_id & ~7u) | 1u; },
+      DecodeError::kBadVersion);
   with(
       "unknown message",
       [](CanFdFrame& f) { f.can_id = (f.can_id & ~(0x7Fu << 19)) | (0x55u << 19); },
@@ -411,8 +412,9 @@ TEST(MsgCanFd, RandomFramesNeverCrash) {
       if (rng() % 4 == 0) f.len = static_cast<std::uint8_t>(rng());
     } else {
       // Random but mostly well-shaped frames, so that slots fill and transfers complete.
-      f.can_id = canid::make(canid::kLccNoc, static_cast<std::uint8_t>(1 + rng() % 2),
-                             static_cast<std::uint8_t>(rng() % 4), 0);
+      const auto id = static_cast<std::uint8_t>(1 + rng() % 2);
+      f.can_id = canid::make(canid::kLccNoc, id, static_cast<std::uint8_t>(rng() % 4), 0,
+                             canid::message_version(static_cast<MessageId>(id)));
       f.len = 64;
       for (auto& b : f.data)
         b = static_cast<std::uint8_t>(rng());

@@ -34,6 +34,7 @@ void expect_script_marks(const MarkObservations& m) {
   EXPECT_EQ(m.exposure_start_mono_ns, 5'000'000'000);
   EXPECT_EQ(m.exposure_duration_ns, 200'000u);
   EXPECT_EQ(m.clock_state, 2);
+  EXPECT_EQ(m.exposure_time_sigma_ns, 1'250u);
   for (std::size_t i = 0; i < m.mark_count; ++i) {
     EXPECT_FLOAT_EQ(m.marks[i].x_px, static_cast<float>(100 + 37 * i) / 256.0f - 0.5f);
     EXPECT_FLOAT_EQ(m.marks[i].y_px, static_cast<float>(50 + 11 * i) / 256.0f - 0.5f);

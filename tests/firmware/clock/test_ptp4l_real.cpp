@@ -19,7 +19,9 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -264,6 +266,111 @@ TEST(Ptp4lReal, LockThenHoldoverThenFreeRunningWhenTheMasterDies) {
       to_locked_s, offset_ns, to_holdover_s, holdover_s);
   measuring.stop();
   strict.stop();
+}
+
+/// ptp4l's own answer through linuxptp's pmc (GET TIME_STATUS_NP): master_offset and the
+/// ingress_time of its Sync. A free_running ptp4l logs no "master offset" lines (not even at
+/// logging_level 7: its servo never runs), so pmc is the independent reader of the same figure.
+struct PmcStatus {
+  bool ok = false;
+  std::int64_t master_offset_ns = 0, ingress_time_ns = 0;
+};
+
+PmcStatus pmc_time_status(const std::string& uds) {
+  const std::string pmc = std::filesystem::path(STORETRACK_PTP4L).parent_path().string() + "/pmc";
+  PmcStatus out;
+  std::FILE* p =
+      ::popen((pmc + " -u -b 0 -s " + uds + " 'GET TIME_STATUS_NP' 2>/dev/null").c_str(), "r");
+  if (p == nullptr) return out;
+  char line[256];
+  bool offset = false, ingress = false;
+  while (std::fgets(line, sizeof line, p) != nullptr) {
+    std::istringstream fields(line);
+    std::string key;
+    fields >> key;
+    if (key == "master_offset") offset = static_cast<bool>(fields >> out.master_offset_ns);
+    if (key == "ingress_time") ingress = static_cast<bool>(fields >> out.ingress_time_ns);
+  }
+  ::pclose(p);
+  out.ok = offset && ingress;
+  return out;
+}
+
+// The time uncertainty the unit states (clock_uncertainty.hpp) against what ptp4l reports: each
+// offset the monitor took into its window is the one linuxptp's pmc reads for the same Sync
+// (same ingress_time; pmc asks right after the poll, a new Sync every 125 ms may come between),
+// and the figure is their RMS (computed here); after the master dies the figure grows from the
+// last measurement as sqrt(u^2 + (y t)^2) and no longer holds. The monitor is polled by the test
+// (start(false)), so that the test knows each poll's offset.
+TEST(Ptp4lReal, StatedTimeUncertaintyIsTheRmsOfLoggedOffsetsAndGrowsInHoldover) {
+  Ptp4lPair pair;
+  ASSERT_EQ(pair.make_network(), "");
+  ClockMonitorConfig config = monitor_config(pair, true);
+  config.uncertainty.offset_window = 8;
+  config.uncertainty.holdover_drift_ppb = 1000;
+  ClockMonitor monitor(config);
+  ASSERT_EQ(monitor.start(false), 0) << monitor.error();
+  ASSERT_TRUE(pair.start_master());
+  ASSERT_TRUE(pair.start_slave());
+  std::vector<std::int64_t> taken;  // each poll's offset that entered the window
+  int same_sync = 0, other_sync = 0;
+  const auto poll = [&] {
+    const std::uint64_t before = monitor.stats().new_offsets;
+    monitor.poll_once();
+    const ClockMonitorStats s = monitor.stats();
+    if (s.new_offsets != before) {
+      taken.push_back(s.master_offset_ns);
+      const PmcStatus pmc = pmc_time_status(pair.slave_uds());
+      if (pmc.ok && pmc.ingress_time_ns == s.ingress_time_ns) {
+        EXPECT_EQ(pmc.master_offset_ns, s.master_offset_ns) << "same Sync, another offset";
+        ++same_sync;
+      } else {
+        ++other_sync;  // a newer Sync came between, or the master is gone
+      }
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(250));
+  };
+  const auto rms_of_last = [&](std::size_t n) {
+    double sum = 0;
+    for (auto it = taken.end() - static_cast<std::ptrdiff_t>(n); it != taken.end(); ++it)
+      sum += static_cast<double>(*it) * static_cast<double>(*it);
+    return std::sqrt(sum / static_cast<double>(n));
+  };
+  const auto end = Clock::now() + std::chrono::seconds(20);
+  while (Clock::now() < end && !(monitor.state() == ClockState::kLocked && taken.size() >= 12))
+    poll();
+  ASSERT_EQ(monitor.state(), ClockState::kLocked) << pair.log("slave");
+  ASSERT_GE(taken.size(), 12u);
+  EXPECT_GE(same_sync, 6) << other_sync << " polls met a newer Sync in pmc";
+  const double rms_ns = rms_of_last(8);
+  const ClockFigure held = monitor.figure();
+  EXPECT_TRUE(held.holding);
+  EXPECT_NEAR(held.rms_ns, rms_ns, 1e-9 * rms_ns + 1e-9);
+  EXPECT_EQ(held.sigma_ns_at(time::monotonic_now_ns() + 5 * 1'000'000'000LL, 1000), held.rms_ns);
+
+  pair.kill_master();
+  const auto limit = Clock::now() + std::chrono::seconds(5);
+  while (Clock::now() < limit && monitor.state() != ClockState::kHoldover)
+    poll();  // the master's last Syncs until ptp4l notices are still measurements
+  ASSERT_EQ(monitor.state(), ClockState::kHoldover);
+  const ClockFigure lost = monitor.figure();
+  EXPECT_FALSE(lost.holding);
+  EXPECT_NEAR(lost.rms_ns, rms_of_last(8), 1e-9 * lost.rms_ns + 1e-9);
+  const time::MonotonicNs t1 = time::monotonic_now_ns();
+  const double u1 = lost.sigma_ns_at(t1, 1000);
+  const double u2 = lost.sigma_ns_at(t1 + 2'000'000'000, 1000);
+  const double age_s = static_cast<double>(t1 - lost.measured_at_ns) * 1e-9;
+  EXPECT_GT(age_s, 0.0);
+  EXPECT_LT(age_s, 3.0);  // the master died at most ~1.5 s (detection) + a poll ago
+  EXPECT_NEAR(u1, std::hypot(lost.rms_ns, 1000 * age_s), 1e-6 * u1);
+  EXPECT_NEAR(u2, std::hypot(lost.rms_ns, 1000 * (age_s + 2)), 1e-6 * u2);
+  EXPECT_GT(u2, u1 + 1500);  // 1 ppm over 2 s: 2000 ns in quadrature, most of it visible
+  std::printf(
+      "stated time uncertainty: %zu offsets taken, %d checked against pmc on the same Sync (%d "
+      "met a newer one); RMS of the last 8 = %.0f ns; master killed -> HOLDOVER, %.2f s after "
+      "the last measurement u = %.0f ns, 2 s later %.0f ns\n",
+      taken.size(), same_sync, other_sync, rms_ns, age_s, u1, u2);
+  monitor.stop();
 }
 
 /// Why this test cannot run here, or "".

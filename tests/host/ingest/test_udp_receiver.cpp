@@ -9,9 +9,12 @@
 #include <gtest/gtest.h>
 
 #include <array>
+#include <string>
 #include <vector>
 
+#include "storetrack/bytes/byte_cursor.hpp"
 #include "storetrack/ingest/receivers.hpp"
+#include "storetrack/msg/crc.hpp"
 #include "storetrack/time/time.hpp"
 
 namespace storetrack::ingest {
@@ -100,6 +103,31 @@ TEST(UdpReceiver, DeliversValidDatagramsAndCountsBadOnes) {
   EXPECT_EQ(c.decode_errors.count(msg::DecodeError::kBadCrc), 1u);
   EXPECT_EQ(c.decode_errors.count(msg::DecodeError::kTooShort), 1u);
   EXPECT_EQ(c.datagram_seq_gaps, 1u);
+}
+
+// A unit still sending MarkObservations version 1 (no exposure_time_sigma_ns): refused, counted
+// and named in the counters, whatever its CRC says.
+TEST(UdpReceiver, AnOlderUnitsMessageVersionIsRefusedByName) {
+  UdpReceiver rx;
+  ASSERT_EQ(rx.open("127.0.0.1", 0), 0);
+  Sender tx(rx.port());
+  std::array<std::uint8_t, msg::kMaxDatagramBytes> buf{};
+  const int n = msg::encode_datagram(observation(7), buf, 1);
+  ASSERT_GT(n, 0);
+  buf[4] = 1;  // header byte 4: message_version (docs/icd.md, section 3)
+  const auto body = std::span<const std::uint8_t>(buf.data(), static_cast<std::size_t>(n) - 4);
+  bytes::BigEndianWriter crc(std::span<std::uint8_t>(buf.data() + n - 4, 4));
+  crc.put_u32(msg::crc32(body));
+  tx.send(std::span<const std::uint8_t>(buf.data(), static_cast<std::size_t>(n)));
+  std::vector<msg::MarkObservations> got;
+  drain(rx, got, 1);
+  EXPECT_TRUE(got.empty());
+  EXPECT_EQ(rx.counters().decode_errors.count(msg::DecodeError::kBadVersion), 1u);
+  std::string expected = "MarkObservations version 1 from unit ";  // appended: GCC 12
+  expected += std::to_string(observation(7).unit_id);              // -Warray-bounds on +
+  expected += " (this host reads version 2)";
+  EXPECT_EQ(describe(rx.counters().last_refused_version), expected);
+  EXPECT_EQ(describe(RefusedVersion{}), "");
 }
 
 TEST(UdpReceiver, RawHandlerSeesEveryDatagramAsSentWithItsVerdict) {

@@ -3,6 +3,8 @@
 // the same calibration errors, cross terms included. Truth is the calibration file's joint
 // covariance itself, propagated here by plain matrix products over the raw parameters (not the
 // whitened factors the host uses).
+#include <set>
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -120,7 +122,12 @@ TEST(CalibrationCovariance, StatedMarkCovarianceIsTheFilesJointPropagation) {
     const Eigen::Matrix3d stated = calibration * calibration.transpose();
     const Eigen::Matrix3d truth = G * rig.joint_covariance * G.transpose();
     EXPECT_LT(relative_difference(stated, truth), 1e-8);
-    EXPECT_EQ(sync_count, 4);  // the sync factors are the columns after the calibration's
+    // The sync factors are the columns after the calibration's: one per camera (its calibrated
+    // offset) and one per unit (its clock, shared by the unit's cameras).
+    std::set<int> units;
+    for (const camera::CalibratedCamera& cam : rig.cameras)
+      units.insert(cam.unit_id);
+    EXPECT_EQ(sync_count, static_cast<int>(rig.cameras.size() + units.size()));
   }
 }
 

@@ -321,6 +321,64 @@ TEST(ExposureProcessor, BadInputIsCountedNotUsed) {
   EXPECT_THROW(f.proc.process(in.exposure, short_ids), std::invalid_argument);
 }
 
+// A unit's stated time uncertainty (MarkObservations.exposure_time_sigma_ns) enters the sync
+// budget: its clock column's loadings are linear in the figure, so a mark's sync variance is
+// A + B s^2 exactly (three figures give A and B, the fourth must follow), with B > 0 for the marks
+// unit 1's cameras see while they move. A unit in holdover (its figure grown to 200 us: 200 s at
+// 1 ppm) then dominates the sync budget of the samples it contributes to. A figure the unit did
+// not state (0xFFFFFFFF) is counted and adds nothing (as a figure of 0).
+TEST(ExposureProcessor, StatedTimeUncertaintyOfAUnitInHoldoverGrowsTheSyncBudget) {
+  const int k = 150;  // the store is well under way: the sync term moves with its speed
+  std::uint64_t unknown = 0;
+  const auto run = [&](std::uint32_t sigma_ns) {
+    Fixture f("store_separation", 11);
+    for (int j = k - 2; j < k; ++j) {  // tracking gives velocities for the sync term
+      const auto in = test::make_exposure(f.sim, j);
+      f.proc.process(in.exposure, in.ids);
+    }
+    auto in = test::make_exposure(f.sim, k);
+    for (msg::MarkObservations& o : in.exposure.cameras)
+      if (o.unit_id == 1) o.exposure_time_sigma_ns = sigma_ns;
+    const ExposureResult r = f.proc.process(in.exposure, in.ids);
+    EXPECT_TRUE(r.T_p_s.valid);
+    unknown = f.proc.counters().time_sigma_unknown;
+    return r;
+  };
+  const double s1 = 200e-9, s2 = 20e-6, s3 = 200e-6;
+  const ExposureResult r1 = run(200), r2 = run(20'000), r3 = run(200'000);
+  EXPECT_EQ(unknown, 0u);
+  const ExposureResult r0 = run(msg::mark_observations_invalid::kExposureTimeSigmaNs);
+  EXPECT_EQ(unknown, 2u);  // unit 1's two cameras
+  const auto sync = [](const ExposureResult& r, int id) {
+    const MarkResult* m = r.find_mark(id);
+    return m == nullptr ? -1.0
+                        : m->cov_by_source[static_cast<std::size_t>(
+                                               uncertainty::index(uncertainty::Source::kSync))]
+                              .trace();
+  };
+  int moving = 0;
+  for (const MarkResult& m : r1.marks) {
+    const double v1 = sync(r1, m.id), v2 = sync(r2, m.id), v3 = sync(r3, m.id);
+    const double v0 = sync(r0, m.id);
+    ASSERT_GE(std::min({v2, v3, v0}), 0.0) << "mark " << m.id << " not solved in every run";
+    const double b = (v2 - v1) / (s2 * s2 - s1 * s1);
+    EXPECT_NEAR(v3, v1 + b * (s3 * s3 - s1 * s1), 1e-9 * v3 + 1e-30) << "mark " << m.id;
+    EXPECT_NEAR(v0, v1 - b * s1 * s1, 1e-9 * v1 + 1e-30) << "mark " << m.id;
+    EXPECT_GE(b, -1e-12 * v1 / (s1 * s1));
+    if (b * s3 * s3 > 100 * v1) ++moving;
+  }
+  EXPECT_GT(moving, 5);  // the store's marks seen by unit 1
+  const double u1 = r1.sample.u_budget_sync_m, u2 = r2.sample.u_budget_sync_m,
+               u3 = r3.sample.u_budget_sync_m;
+  EXPECT_LT(u1, u2);
+  EXPECT_LT(u2, u3);
+  EXPECT_GT(u3, 10 * u1);
+  std::printf(
+      "u_budget_sync with unit 1 stating 0.2 / 20 / 200 us: %.4f / %.4f / %.4f mm; "
+      "%d marks dominated by it at 200 us\n",
+      1e3 * u1, 1e3 * u2, 1e3 * u3, moving);
+}
+
 TEST(ExposureProcessor, ClockNotLockedIsFlagged) {
   Fixture f("static");
   auto in = test::make_exposure(f.sim, 4);

@@ -29,8 +29,11 @@ size_t idx(Source s) {
   return static_cast<size_t>(uncertainty::index(s));
 }
 
-// Covariance of the parameters of one source, all cameras, dense (block diagonal).
-Eigen::MatrixXd source_covariance(const camera::RigCalibration& rig, Source s) {
+// Covariance of the parameters of one source, all cameras, dense. Block diagonal but for the
+// time offsets: each camera's is its calibrated offset's error plus its unit's clock error
+// (`clock_sigma_s`, the exposure's stated figure), one clock shared by the unit's cameras.
+Eigen::MatrixXd source_covariance(const camera::RigCalibration& rig, Source s,
+                                  double clock_sigma_s) {
   const int n = static_cast<int>(rig.cameras.size());
   Eigen::MatrixXd C = Eigen::MatrixXd::Zero(n * kPerCamera, n * kPerCamera);
   for (int c = 0; c < n; ++c) {
@@ -41,8 +44,11 @@ Eigen::MatrixXd source_covariance(const camera::RigCalibration& rig, Source s) {
     if (s == Source::kExtrinsic)
       C.block<6, 6>(b + camera::kNumIntrinsics, b + camera::kNumIntrinsics) =
           cam.extrinsic_covariance;
-    if (s == Source::kSync)
-      C(b + kPerCamera - 1, b + kPerCamera - 1) = std::pow(cam.exposure_offset_sigma_ns * 1e-9, 2);
+    if (s != Source::kSync) continue;
+    C(b + kPerCamera - 1, b + kPerCamera - 1) = std::pow(cam.exposure_offset_sigma_ns * 1e-9, 2);
+    for (int d = 0; d < n; ++d)
+      if (rig.cameras[static_cast<size_t>(d)].unit_id == cam.unit_id)
+        C(b + kPerCamera - 1, d * kPerCamera + kPerCamera - 1) += clock_sigma_s * clock_sigma_s;
   }
   return C;
 }
@@ -62,13 +68,18 @@ TEST(UncertaintyReference, FastPathMatchesDenseReference) {
   const camera::RigCalibration rig = sim.calibrated_rig();
   ExposureProcessor proc(rig, sim.pylon_survey(), sim.store_survey(), ProcessorConfig{});
   const int n_cam = static_cast<int>(rig.cameras.size());
+  // The simulator's units state their clock's sigma, the spread of its stamp errors.
+  const double clock_sigma_s = sim.scenario().ptp_offset_sigma_ns * 1e-9;
+  ASSERT_GT(clock_sigma_s, 0);
   std::array<Eigen::MatrixXd, uncertainty::kNumSources> Sigma;
   for (Source s : {Source::kIntrinsic, Source::kExtrinsic, Source::kSync})
-    Sigma[idx(s)] = source_covariance(rig, s);
+    Sigma[idx(s)] = source_covariance(rig, s, clock_sigma_s);
 
   int exposures_checked = 0, marks_checked = 0;
   for (int k : {40, 41, 42, 120, 121, 200}) {
     const test::SimExposure in = test::make_exposure(sim, k);
+    for (const msg::MarkObservations& o : in.exposure.cameras)
+      ASSERT_EQ(o.exposure_time_sigma_ns, std::llround(clock_sigma_s * 1e9));
     const ExposureResult r = proc.process(in.exposure, in.ids);
     if (k == 40 || k == 120) continue;  // first of a track: velocities not yet known
     ASSERT_TRUE(r.T_p_s.valid);

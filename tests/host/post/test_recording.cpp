@@ -2,6 +2,10 @@
 // back through the independent reader; every refusal names the file.
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -36,11 +40,30 @@ output::Chapter10Config config(bool raw, bool inputs, const std::string& calibra
   return cfg;
 }
 
+// Fault injection (Chapter10FileOps): the writes numbered in g_fail_writes fail once (a full
+// disk), so the writer goes on in a continuation file.
+std::vector<int> g_fail_writes;
+int g_writes = 0;
+ssize_t failing_write(int fd, const void* data, std::size_t size) {
+  if (std::find(g_fail_writes.begin(), g_fail_writes.end(), ++g_writes) != g_fail_writes.end()) {
+    errno = ENOSPC;
+    return -1;
+  }
+  return ::write(fd, data, size);
+}
+
 // Observations (their bytes need not decode here), then the exposure's sample, as the host
-// writes them; returns the samples' blocks as the host encodes them.
+// writes them; returns the samples' blocks as the host encodes them. `files`: the files written.
 std::vector<std::vector<std::uint8_t>> write_run(const std::string& path,
-                                                 const output::Chapter10Config& cfg) {
+                                                 const output::Chapter10Config& cfg,
+                                                 std::vector<std::string>* files = nullptr) {
   output::Chapter10Writer w;
+  if (files) {
+    output::Chapter10FileOps ops = output::posix_chapter10_file_ops();
+    ops.write = failing_write;
+    w.set_file_ops(ops);
+    g_writes = 0;
+  }
   EXPECT_EQ(w.open(path, cfg), 0);
   std::mt19937_64 rng(5);
   std::vector<std::vector<std::uint8_t>> blocks;
@@ -54,16 +77,19 @@ std::vector<std::vector<std::uint8_t>> write_run(const std::string& path,
       const std::vector<std::uint8_t> bytes(1 + n % 50, static_cast<std::uint8_t>(n));
       r.message_bytes = static_cast<std::uint16_t>(bytes.size());
       r.received_bytes = r.message_bytes;
-      EXPECT_EQ(w.write_raw(r, bytes), 0);
+      const int rc = w.write_raw(r, bytes);
+      EXPECT_TRUE(rc == 0 || files) << rc;  // injected failures: written to the next file
     }
     const msg::FtiSample s =
         output::testing::make_sample(static_cast<std::uint32_t>(k), kT0Tai, rng);
-    EXPECT_EQ(w.write(s), 0);
+    const int rc = w.write(s);
+    EXPECT_TRUE(rc == 0 || files) << rc;
     std::vector<std::uint8_t> block(output::kFtiParameterBlockBytes);
     output::encode_fti_parameter_block(s, block);
     blocks.push_back(std::move(block));
   }
   EXPECT_EQ(w.close(), 0);
+  if (files) *files = w.files();
   return blocks;
 }
 
@@ -146,6 +172,71 @@ TEST(PostRecording, ReadsATornFileToItsLastWholePacket) {
   ASSERT_LE(cut.samples.size(), full.samples.size());
   for (std::size_t i = 0; i < cut.samples.size(); ++i)
     EXPECT_EQ(cut.samples[i].block, full.samples[i].block) << "sample " << i;
+  fs::remove_all(dir);
+}
+
+// One run in three files (two failed writes): read in order, they are the run; the middle one
+// missing, or the files out of order, or two runs with the same inputs, are refused, naming the
+// file and the packet.
+TEST(PostRecording, RefusesAMissingOrMisplacedContinuationFile) {
+  const fs::path dir = fresh_dir("st_post_cont");
+  std::vector<std::string> f;
+  g_fail_writes = {7, 14};
+  write_run((dir / "out.ch10").string(), config(true, true), &f);
+  g_fail_writes.clear();
+  ASSERT_EQ(f.size(), 3u);
+  const Recording all = read_recording(f);
+  ASSERT_EQ(all.records.size(), static_cast<std::size_t>(kExposures * kObservationsPerExposure));
+  for (std::size_t i = 0; i < all.records.size(); ++i)  // each once, in order
+    ASSERT_EQ(all.records[i].host_mono_ns, 7'000'000'000LL + static_cast<std::int64_t>(i));
+  ASSERT_GT(read_recording({f[1]}).records.size(), 0u);  // the middle file holds records
+
+  const std::string missing = refusal({f[0], f[2]});
+  EXPECT_EQ(missing.rfind(f[2] + ": its first raw channel packet (offset ", 0), 0u) << missing;
+  EXPECT_NE(missing.find("the last of " + f[0]), std::string::npos) << missing;
+  EXPECT_NE(missing.find("a continuation file missing"), std::string::npos) << missing;
+
+  const std::string swapped = refusal({f[1], f[0], f[2]});
+  EXPECT_EQ(swapped.rfind(f[0] + ": its first raw record (packet at offset ", 0), 0u) << swapped;
+  EXPECT_NE(swapped.find("not in the order the host wrote them"), std::string::npos) << swapped;
+
+  // Two runs of the same inputs: the second starts its loop time and sequence numbers again.
+  const std::string again = (dir / "again.ch10").string();
+  write_run(again, config(true, true));
+  const std::string two = refusal({f[0], f[1], f[2], again});
+  EXPECT_EQ(two.rfind(again + ": its first raw", 0), 0u) << two;
+  fs::remove_all(dir);
+}
+
+// Raw packets missing between two consecutive files (the host could not write them: the
+// setup records are consecutive): replayed, and named in `gaps`. Made by cutting the second
+// file's first raw packet out of it.
+TEST(PostRecording, NamesRawPacketsMissingBetweenConsecutiveFiles) {
+  const fs::path dir = fresh_dir("st_post_gap");
+  std::vector<std::string> f;
+  g_fail_writes = {7};
+  write_run((dir / "out.ch10").string(), config(true, true), &f);
+  g_fail_writes.clear();
+  ASSERT_EQ(f.size(), 2u);
+  const ch10read::File second = ch10read::read_file(f[1]);
+  const int raw = ch10read::raw_channel_id(second);
+  const auto first_raw = std::find_if(second.packets.begin(), second.packets.end(),
+                                      [&](const auto& p) { return p.channel_id == raw; });
+  ASSERT_NE(first_raw, second.packets.end());
+  std::vector<char> bytes(fs::file_size(f[1]));
+  std::ifstream(f[1], std::ios::binary)
+      .read(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  const auto at = bytes.begin() + static_cast<std::ptrdiff_t>(first_raw->file_offset);
+  bytes.erase(at, at + first_raw->packet_length);
+  std::ofstream(f[1], std::ios::binary | std::ios::trunc)
+      .write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+
+  const Recording r = read_recording(f);
+  ASSERT_EQ(r.gaps.size(), 1u);
+  EXPECT_EQ(r.gaps[0].rfind(f[1] + ": its first raw channel packet (offset ", 0), 0u) << r.gaps[0];
+  EXPECT_NE(r.gaps[0].find("1 (mod 256) raw packet(s) missing"), std::string::npos) << r.gaps[0];
+  EXPECT_NE(r.gaps[0].find("packets the host could not write"), std::string::npos) << r.gaps[0];
+  EXPECT_LT(r.records.size(), static_cast<std::size_t>(kExposures * kObservationsPerExposure));
   fs::remove_all(dir);
 }
 

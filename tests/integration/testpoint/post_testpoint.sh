@@ -175,3 +175,60 @@ rc=0; "$POST" "$REC" --store-survey "$OUT/store_nocg.json" --product-csv "$OUT/p
   || fail "a store survey without a CG: exit $rc: $(cat "$OUT/product_nocg.log")"
 [ ! -e "$OUT/product_nocg.csv" ] || fail "a product was written without a CG"
 pass "data product written (t0 and captive CG against the truth, new file only), samples bit-identical; no CG refused"
+# 8. Is a substituted calibration's change significant? (--differences-csv.) The recorded
+# calibration's own bytes: every sample solved in both, d = 0 on every axis. Camera 0 turned by
+# 0.1 deg about its y axis (its stated rotation sigma: 0.05 mrad): significant, max |z| > 5 (an
+# honest substitute reaches |z| > 5 on one of 220 x 6 values with probability < 1e-3 even were
+# they independent). A calibration of another rig (a camera fewer): exit 2, named, nothing written.
+rc=0; "$POST" "$REC" --calibration "$RUN/sim/rig_calibrated.json" --differences-csv "$OUT/d_same.csv" \
+  --stats-json "$OUT/d_same.json" >"$OUT/d_same.log" 2>&1 || rc=$?
+[ "$rc" -eq 0 ] || fail "--differences-csv with the same calibration: exit $rc: $(cat "$OUT/d_same.log")"
+/usr/bin/python3 - "$RUN/sim/rig_calibrated.json" "$OUT/turned.json" "$OUT/fewer.json" <<'PY'
+import json, math, sys
+def rot(v):  # Rodrigues
+    th = math.sqrt(sum(x * x for x in v))
+    if th == 0:
+        return [[float(i == j) for j in range(3)] for i in range(3)]
+    k = [x / th for x in v]; c, s = math.cos(th), math.sin(th)
+    K = [[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]]
+    return [[float(i == j) + s * K[i][j] + (1 - c) * sum(K[i][m] * K[m][j] for m in range(3))
+             for j in range(3)] for i in range(3)]
+def vec(R):
+    th = math.acos(max(-1.0, min(1.0, (R[0][0] + R[1][1] + R[2][2] - 1) / 2)))
+    w = [R[2][1] - R[1][2], R[0][2] - R[2][0], R[1][0] - R[0][1]]
+    return [x * th / (2 * math.sin(th)) for x in w]
+rig = json.load(open(sys.argv[1]))
+T = rig["cameras"][0]["T_c_w"]
+D = rot([0.0, math.radians(0.1), 0.0])  # left of T_c_w: the camera turned about its own y axis
+R = rot(T["rotation_vector_rad"])
+T["rotation_vector_rad"] = vec([[sum(D[i][m] * R[m][j] for m in range(3)) for j in range(3)]
+                                for i in range(3)])
+T["translation_m"] = [sum(D[i][m] * T["translation_m"][m] for m in range(3)) for i in range(3)]
+json.dump(rig, open(sys.argv[2], "w"))
+rig = json.load(open(sys.argv[1])); rig["cameras"].pop(); json.dump(rig, open(sys.argv[3], "w"))
+PY
+rc=0; "$POST" "$REC" --calibration "$OUT/turned.json" --differences-csv "$OUT/d_turned.csv" \
+  --stats-json "$OUT/d_turned.json" >"$OUT/d_turned.log" 2>&1 || rc=$?
+cat "$OUT/d_turned.log"
+[ "$rc" -eq 0 ] || fail "--differences-csv with a turned camera: exit $rc"
+/usr/bin/python3 - "$OUT/d_same.json" "$OUT/d_same.csv" "$OUT/d_turned.json" <<'PY'
+import csv, json, sys
+same = json.load(open(sys.argv[1]))["differences"]
+assert same["compared"] == same["recorded_samples"] > 0, same
+for r in csv.DictReader(open(sys.argv[2])):
+    for k, v in r.items():
+        if k.startswith("d_"):
+            assert float(v) == 0.0, (k, r)
+        if k.startswith("u_d_"):
+            assert float(v) > 0, (k, r)
+turned = json.load(open(sys.argv[3]))["differences"]
+worst = max(turned["axes"].values(), key=lambda a: a["max_abs_z"])
+print("turned camera: %d compared, max |z| %.2f" % (turned["compared"], worst["max_abs_z"]))
+assert turned["compared"] > 100 and worst["max_abs_z"] > 5, turned
+PY
+rc=0; "$POST" "$REC" --calibration "$OUT/fewer.json" --differences-csv "$OUT/d_fewer.csv" \
+  >"$OUT/d_fewer.log" 2>&1 || rc=$?
+[ "$rc" -eq 2 ] && grep -q "$OUT/fewer.json: a calibration of another rig" "$OUT/d_fewer.log" \
+  || fail "another rig's calibration: exit $rc: $(cat "$OUT/d_fewer.log")"
+[ ! -e "$OUT/d_fewer.csv" ] || fail "another rig's calibration: an output was written"
+pass "differences: same calibration d = 0; turned camera significant; another rig refused"

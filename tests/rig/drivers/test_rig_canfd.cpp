@@ -182,7 +182,7 @@ TEST_F(RigCanFd, ObservationsCrossTheRealStackWholeAndWithIcdFraming) {
     EXPECT_EQ(msg::canid::fid(id), 0x01);
     EXPECT_EQ(msg::canid::unit(id), 3);
     EXPECT_EQ(msg::canid::camera(id), 7);
-    EXPECT_EQ(msg::canid::version(id), msg::canid::kFramingVersion);
+    EXPECT_EQ(msg::canid::version(id), msg::kMarkObservationsVersion);
     EXPECT_TRUE(valid_fd_len(f.len)) << int(f.len);
   }
   EXPECT_EQ(rx_.counters().classic_or_bad_frames, 0u);
@@ -207,7 +207,7 @@ TEST_F(RigCanFd, MalformedFramesAreCountedAndDropped) {
   bad.data[5] ^= 0x40;
   ASSERT_EQ(write(inj, &bad, sizeof bad), static_cast<ssize_t>(sizeof bad));
   // 3) a frame on another ARINC 825 channel (not ours)
-  bad.can_id = (msg::canid::make(5, 0x01, 3, 7) | CAN_EFF_FLAG);
+  bad.can_id = (msg::canid::make(5, 0x01, 3, 7, msg::kMarkObservationsVersion) | CAN_EFF_FLAG);
   std::memcpy(bad.data, good[0].data, good[0].len);
   ASSERT_EQ(write(inj, &bad, sizeof bad), static_cast<ssize_t>(sizeof bad));
   close(inj);

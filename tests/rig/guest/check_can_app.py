@@ -6,6 +6,10 @@ import sys
 
 FD_LENS = {0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64}
 # docs/icd.md "CAN FD framing": LCC 28..26, FID 25..19, unit 18..11, camera 10..3, version 2..0
+# (the message's schema version: MarkObservations 2, UnitHealth 1)
+VERSION = {0x01: 2, 0x02: 1}
+
+
 def fields(can_id):
     return ((can_id >> 26) & 7, (can_id >> 19) & 0x7F, (can_id >> 11) & 0xFF,
             (can_id >> 3) & 0xFF, can_id & 7)
@@ -44,7 +48,7 @@ def main():
             continue
         cid = int(ident, 16)
         lcc, fid, uid, cam, ver = fields(cid)
-        if (uid, ver, lcc) != (a.unit_id, 1, 2):
+        if (uid, ver, lcc) != (a.unit_id, VERSION.get(fid), 2):
             foreign += 1
             continue
         frames += 1

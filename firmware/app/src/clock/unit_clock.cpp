@@ -1,5 +1,7 @@
 #include "clock/unit_clock.hpp"
 
+#include <cmath>
+#include <limits>
 #include <nlohmann/json.hpp>
 
 namespace storetrack::unit {
@@ -17,6 +19,28 @@ std::uint8_t parse_clock_state(const std::string& s) {
 void UnitClock::configure(const std::string& clock_state,
                           std::optional<std::uint8_t> scenario_state) {
   state_ = scenario_state ? *scenario_state : parse_clock_state(clock_state);
+}
+
+void UnitClock::configure_time(const TimeUncertaintyConfig& time,
+                               std::optional<double> scenario_clock_sigma_ns,
+                               double holdover_drift_ppb) {
+  // auto without a scenario: a free-running clock was never compared with a master.
+  const bool free_running = state_ == static_cast<std::uint8_t>(time::ClockState::kFreeRunning);
+  const double auto_ns = scenario_clock_sigma_ns ? *scenario_clock_sigma_ns
+                         : free_running          ? std::numeric_limits<double>::infinity()
+                                                 : 0.0;
+  configured_clock_sigma_ns_ = time.clock_sigma_ns >= 0 ? time.clock_sigma_ns : auto_ns;
+  jitter_ns_ = std::hypot(time.latch_jitter_ns, time.sensor_start_jitter_ns);
+  drift_ppb_ = holdover_drift_ppb;
+}
+
+std::uint32_t UnitClock::exposure_time_sigma_ns(time::MonotonicNs mono_ns) const {
+  const double clock_ns =
+      monitor_ ? monitor_->figure().sigma_ns_at(mono_ns, drift_ppb_) : configured_clock_sigma_ns_;
+  const double sigma_ns = std::hypot(clock_ns, jitter_ns_);  // +inf stays +inf
+  constexpr double kSaturated = 4294967294.0;                // 0xFFFFFFFE: >= 4.29 s
+  return sigma_ns < kSaturated ? static_cast<std::uint32_t>(std::lround(sigma_ns))
+                               : static_cast<std::uint32_t>(kSaturated);
 }
 
 void UnitClock::follow_source(std::optional<std::int64_t> fixed_tai_minus_mono_ns) {
@@ -60,9 +84,11 @@ std::int64_t UnitClock::exposure_start_tai_ns(const Camera& camera, const frame:
 
 void UnitClock::add_stats(nlohmann::json& stats, const std::string& clock_state,
                           std::int32_t ptp_offset_ns) const {
-  stats["clock"] = {{"source", clock_state == "ptp4l" ? "ptp4l" : "configured"},
-                    {"state", static_cast<int>(state())},
-                    {"ptp_offset_ns", ptp_offset_ns}};
+  stats["clock"] = {
+      {"source", clock_state == "ptp4l" ? "ptp4l" : "configured"},
+      {"state", static_cast<int>(state())},
+      {"ptp_offset_ns", ptp_offset_ns},
+      {"exposure_time_sigma_ns_now", exposure_time_sigma_ns(time::monotonic_now_ns())}};
   if (!monitor_) return;
   const clock::ClockMonitorStats cs = monitor_->stats();
   stats["clock"]["ptp4l"] = {{"polls", cs.polls},
@@ -72,6 +98,8 @@ void UnitClock::add_stats(nlohmann::json& stats, const std::string& clock_state,
                              {"gm_present", cs.gm_present},
                              {"time_traceable", cs.time_traceable},
                              {"master_offset_ns", cs.master_offset_ns},
+                             {"new_offsets", cs.new_offsets},
+                             {"offset_rms_ns", cs.offset_rms_ns},
                              {"requests", cs.client.requests},
                              {"replies", cs.client.replies},
                              {"timeouts", cs.client.timeouts},

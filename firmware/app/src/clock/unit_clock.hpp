@@ -1,7 +1,8 @@
 // UnitClock: the unit's idea of time. Its clock state (configured, the scenario's, or ptp4l's
 // as read by clock::ClockMonitor) and TAI from the monotonic clock: a fixed offset when the
 // source keeps a clock of its own (sim, replay), else the system's, refreshed with each health
-// report. Exposure starts are stamped here.
+// report. Exposure starts are stamped here, with their time uncertainty: the clock's (measured
+// from ptp4l, or configured) combined with the trigger latch and sensor start jitter.
 #pragma once
 
 #include <cstdint>
@@ -23,6 +24,11 @@ class UnitClock {
   /// The configured state ("locking", "locked", "holdover", else free-running), or
   /// `scenario_state` when the camera brings one (sim, clock_state "auto").
   void configure(const std::string& clock_state, std::optional<std::uint8_t> scenario_state);
+  /// The time uncertainty's parts: the configured jitters, and a configured clock's sigma (auto:
+  /// `scenario_clock_sigma_ns` when the camera brings one, else unbounded if free-running, else
+  /// 0). After configure().
+  void configure_time(const TimeUncertaintyConfig& time,
+                      std::optional<double> scenario_clock_sigma_ns, double holdover_drift_ppb);
   /// TAI - monotonic: the source's fixed offset when it keeps one, else the system's now.
   void follow_source(std::optional<std::int64_t> fixed_tai_minus_mono_ns);
   /// clock_state ptp4l: starts the monitor, polling at the health period. Returns false with
@@ -45,6 +51,11 @@ class UnitClock {
   /// start through the offset, with the simulated clock's injected steps.
   std::int64_t exposure_start_tai_ns(const Camera& camera, const frame::FrameView& frame,
                                      time::MonotonicNs start_mono_ns) const;
+  /// MarkObservations.exposure_time_sigma_ns of an exposure at `mono_ns` (the unit's live
+  /// monotonic clock): the clock's uncertainty then (ptp4l: ClockFigure, grown in holdover; never
+  /// measured: saturated)
+  /// (+) latch (+) sensor jitter, in ns, saturated at 0xFFFFFFFE. No allocation, no system call.
+  std::uint32_t exposure_time_sigma_ns(time::MonotonicNs mono_ns) const;
   /// The "clock" block of the stats.
   void add_stats(nlohmann::json& stats, const std::string& clock_state,
                  std::int32_t ptp_offset_ns) const;
@@ -53,7 +64,10 @@ class UnitClock {
   std::uint8_t state_ = 0;
   std::unique_ptr<clock::ClockMonitor> monitor_;  // clock_state ptp4l
   std::int64_t tai_minus_mono_ns_ = 0;
-  bool fixed_offset_ = false;  // sim, replay: set at setup
+  bool fixed_offset_ = false;             // sim, replay: set at setup
+  double configured_clock_sigma_ns_ = 0;  // without the monitor
+  double jitter_ns_ = 0;                  // latch (+) sensor start
+  double drift_ppb_ = 0;
 };
 
 }  // namespace storetrack::unit

@@ -234,6 +234,7 @@ int InputFactory::make_camera(std::unique_ptr<Camera>& camera, CameraFacts& fact
         facts.width = sim.width;
         facts.height = sim.height;
         if (config_.clock_state == "auto") facts.clock_state = sim.clock_state;
+        facts.clock_sigma_ns = sim.clock_sigma_ns;
         if (config_.trigger.mode == TriggerMode::kSim) config_.trigger.rate_hz = sim.frame_rate_hz;
         camera = std::make_unique<SimCamera>(std::move(sim), config_.sim);
         break;

@@ -20,6 +20,7 @@ struct CameraFacts {
   int width = 0;  ///< before start(): the configured size, or the simulated camera's
   int height = 0;
   std::optional<std::uint8_t> clock_state;  ///< the scenario's (sim, clock_state "auto")
+  std::optional<double> clock_sigma_ns;     ///< the scenario's (sim, time.clock_sigma_ns auto)
 };
 
 class InputFactory {

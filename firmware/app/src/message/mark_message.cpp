@@ -29,6 +29,7 @@ void fill_mark_message(const ExposureStamp& exposure, const frame::FrameView& fr
   out.exposure_start_tai_ns = exposure.start_tai_ns;
   out.exposure_duration_ns = exposure.duration_ns;
   out.clock_state = exposure.clock_state;
+  out.exposure_time_sigma_ns = exposure.time_sigma_ns;
   out.flags = exposure.flags;
   out.mark_count = static_cast<std::uint8_t>(marks.size());
   // The wire's peak is 8-bit: a deeper pixel's peak is scaled down to it.

@@ -22,7 +22,8 @@ struct ExposureStamp {
   std::int64_t start_tai_ns = 0;
   std::uint32_t duration_ns = 0;
   std::uint8_t clock_state = 0;
-  std::uint16_t flags = 0;  ///< msg::exposure_flags
+  std::uint32_t time_sigma_ns = 0;  ///< MarkObservations.exposure_time_sigma_ns
+  std::uint16_t flags = 0;          ///< msg::exposure_flags
 };
 
 /// Whether every pixel centre of a frame this size is encodable (MarkObservations x_px, y_px);

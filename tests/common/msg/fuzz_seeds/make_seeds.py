@@ -11,8 +11,9 @@ import zlib
 
 
 def marks_payload(n, unit=3, camera=1, seq=0x1234):
-    fixed = struct.pack(">BBIqqIBHB", unit, camera, seq, 1_800_000_000_000_000_000,
-                        5_000_000_000, 200_000, 2, 0, n)
+    # MarkObservations version 2: exposure_time_sigma_ns (u32) after clock_state.
+    fixed = struct.pack(">BBIqqIBIHB", unit, camera, seq, 1_800_000_000_000_000_000,
+                        5_000_000_000, 200_000, 2, 1_250, 0, n)
     words = b"".join(struct.pack(">Q", ((100 + 37 * i) << 45) | ((50 + 11 * i) << 26) |
                                  (40 << 18) | (200 << 10) | (16 << 4) | (i & 0xF))
                      for i in range(n))
@@ -24,15 +25,19 @@ def health_payload(unit=3):
                        4200, 5100, 1, 2, 3, 4, 5, 6, 7, 8, 0, 0, 900, 1)
 
 
+VERSION = {1: 2, 2: 1}  # message id -> schema version (MarkObservations 2, UnitHealth 1)
+
+
 def datagram(msg_id, unit, payload, seq=5):
-    d = struct.pack(">HBBBBHI", 0x5354, 1, msg_id, 1, unit, 12 + len(payload) + 4, seq) + payload
+    d = struct.pack(">HBBBBHI", 0x5354, 1, msg_id, VERSION[msg_id], unit, 12 + len(payload) + 4,
+                    seq) + payload
     return d + struct.pack(">I", zlib.crc32(d))
 
 
 def canfd_frames(msg_id, unit, camera, tseq, payload):
     stream = payload + struct.pack(">I", zlib.crc32(payload))
     count = (len(stream) + 60) // 61
-    can_id = (2 << 26) | (msg_id << 19) | (unit << 11) | (camera << 3) | 1
+    can_id = (2 << 26) | (msg_id << 19) | (unit << 11) | (camera << 3) | VERSION[msg_id]
     lens = [0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64]
     out = b""
     for i in range(count):

@@ -6,7 +6,8 @@
 //     bits 25..19  FID        message id from the schema (0x01 MarkObservations, 0x02 UnitHealth)
 //     bits 18..11  unit_id
 //     bits 10..3   camera_id  (0 for UnitHealth)
-//     bits  2..0   version    CAN framing version (1)
+//     bits  2..0   version    the message's schema version (MarkObservations 2, UnitHealth 1):
+//                             a layout this decoder does not read is refused by its first frame
 //   data bytes 0..1  transfer sequence (trigger_seq low 16 bits; UnitHealth: report time/2^20 ns)
 //   data byte  2     fragment index (bits 7..4) | fragment count - 1 (bits 3..0)
 //   data bytes 3..   up to 61 bytes of the transfer stream; the last frame is padded with 0x00
@@ -44,11 +45,23 @@ static_assert(kLccShift + kLccBits == 29 && kFidShift + kFidBits == kLccShift &&
               kUnitShift + kUnitBits == kFidShift && kCameraShift + kCameraBits == kUnitShift &&
               kVersionShift + kVersionBits == kCameraShift);
 inline constexpr std::uint8_t kLccNoc = 2;  ///< ARINC 825 Normal Operation Channel
-inline constexpr std::uint8_t kFramingVersion = 1;
 inline constexpr std::uint32_t kMask29 = 0x1FFFFFFF;
 
+/// The version field of a message's CAN ID: its schema version (0 for an unknown message).
+constexpr std::uint8_t message_version(MessageId id) {
+  switch (id) {
+    case MessageId::kMarkObservations:
+      return kMarkObservationsVersion;
+    case MessageId::kUnitHealth:
+      return kUnitHealthVersion;
+    default:
+      return 0;
+  }
+}
+static_assert(kMarkObservationsVersion < 8 && kUnitHealthVersion < 8, "3 version bits");
+
 constexpr std::uint32_t make(std::uint8_t lcc, std::uint8_t fid, std::uint8_t unit,
-                             std::uint8_t camera, std::uint8_t version = kFramingVersion) {
+                             std::uint8_t camera, std::uint8_t version) {
   return (std::uint32_t{lcc} & 0x7u) << kLccShift | (std::uint32_t{fid} & 0x7Fu) << kFidShift |
          std::uint32_t{unit} << kUnitShift | std::uint32_t{camera} << kCameraShift |
          (std::uint32_t{version} & 0x7u) << kVersionShift;
@@ -80,7 +93,7 @@ inline constexpr std::size_t kCanFdMaxFramesPerMessage =
     (kMarkObservationsMaxPayloadBytes + kCanFdTransferCrcBytes + kCanFdFragmentPayloadBytes - 1) /
     kCanFdFragmentPayloadBytes;
 static_assert(kCanFdMaxFramesPerMessage <= kCanFdMaxFragments, "fragment index field too small");
-static_assert(kCanFdMaxFramesPerMessage == 9, "wire layout size");
+static_assert(kCanFdMaxFramesPerMessage == 10, "wire layout size");
 
 /// Smallest valid CAN FD data length >= n (n <= 64).
 std::uint8_t canfd_round_up_len(std::size_t n);

@@ -22,7 +22,7 @@ inline constexpr std::size_t kUdpCrcBytes = 4;
 inline constexpr std::size_t kMaxDatagramBytes =
     kUdpHeaderBytes + std::max(kMarkObservationsMaxPayloadBytes, kUnitHealthMaxPayloadBytes) +
     kUdpCrcBytes;
-static_assert(kMaxDatagramBytes == 12 + 542 + 4, "wire layout size");
+static_assert(kMaxDatagramBytes == 12 + 546 + 4, "wire layout size");
 static_assert(kMaxDatagramBytes <= 1472,
               "one datagram must fit an Ethernet MTU without IP fragments");
 
@@ -49,8 +49,9 @@ int encode_datagram(const UnitHealth& m, std::span<std::uint8_t> out,
 
 using AnyMessage = std::variant<MarkObservations, UnitHealth>;
 
-/// Decodes one datagram. On kNone `out` holds the message (and `header`, when given, the
-/// header); on error `out` is unspecified. Checks in order: size, magic, framing version,
+/// Decodes one datagram. On kNone `out` holds the message; `header`, when given, holds the
+/// header as read once the magic matched (also on a later error: it names a refused version);
+/// on error `out` is unspecified. Checks in order: size, magic, framing version,
 /// length field, CRC, message id, message version, payload length and value ranges
 /// (mark_count <= 64, clock_state, mark coordinates, header unit_id == payload unit_id).
 DecodeError decode_datagram(std::span<const std::uint8_t> in, AnyMessage& out,

@@ -11,7 +11,8 @@
 // the marks of one exposure carries "loadings" d(estimate)/dz; the covariance of any set of
 // estimates is then L L^T, which keeps the correlations between marks that share a camera's
 // calibration (docs/uncertainty.md). Columns are ordered by source: all intrinsic factors,
-// then all extrinsic, then one sync factor per camera, so each source is a contiguous range.
+// then all extrinsic, then the sync factors (one per camera for its calibrated exposure offset,
+// then one per unit for its clock, shared by the unit's cameras), so each source is a range.
 #pragma once
 
 #include <utility>
@@ -52,6 +53,10 @@ class CalibrationFactors {
     Eigen::Matrix<double, 6, Eigen::Dynamic, Eigen::RowMajor> extrinsic;
     int sync_column = -1;     ///< column of the exposure time offset (-1: no sync uncertainty)
     double sync_sigma_s = 0;  ///< standard uncertainty of the exposure time offset [s]
+    /// Column of the camera's unit clock, shared by the unit's cameras (one clock, one error).
+    /// Its sigma is not the calibration's: each exposure states it
+    /// (MarkObservations.exposure_time_sigma_ns).
+    int clock_column = -1;
   };
 
   CalibrationFactors() = default;

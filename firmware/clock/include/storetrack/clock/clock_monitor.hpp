@@ -1,7 +1,8 @@
 // ClockMonitor: polls ptp4l (PORT_DATA_SET, TIME_STATUS_NP, TIME_PROPERTIES_DATA_SET) once per
-// period on a thread of its own, runs the LockStateMachine and publishes the state and the
-// offset from the master as atomics. The capture loop only loads them (relaxed, no lock, no
-// system call), so a slow or absent ptp4l can never delay a frame.
+// period on a thread of its own, runs the LockStateMachine and publishes the state, the offset
+// from the master and the clock's uncertainty figure (clock_uncertainty.hpp) as atomics. The
+// capture loop only loads them (relaxed, no lock, no system call), so a slow or absent ptp4l can
+// never delay a frame.
 #pragma once
 
 #include <array>
@@ -12,6 +13,7 @@
 #include <string>
 #include <thread>
 
+#include "storetrack/clock/clock_uncertainty.hpp"
 #include "storetrack/clock/lock_state.hpp"
 #include "storetrack/clock/ptp4l_client.hpp"
 
@@ -20,6 +22,7 @@ namespace storetrack::clock {
 struct ClockMonitorConfig {
   Ptp4lClientConfig ptp4l;
   LockThresholds lock;
+  ClockUncertaintyConfig uncertainty;
   int poll_period_ms = 1000;  ///< the unit's health period
 };
 
@@ -32,6 +35,9 @@ struct ClockMonitorStats {
   bool gm_present = false;
   bool time_traceable = false;
   std::int64_t master_offset_ns = 0;  ///< last reported by ptp4l (also when not tracking)
+  std::int64_t ingress_time_ns = 0;   ///< of the Sync behind master_offset_ns (0: none yet)
+  std::uint64_t new_offsets = 0;      ///< new measurements taken into the uncertainty's window
+  double offset_rms_ns = 0;           ///< their RMS over the window (ClockFigure::rms_ns)
   std::array<std::uint8_t, 8> gm_identity{};
   Ptp4lClientStats client{};
 };
@@ -54,6 +60,15 @@ class ClockMonitor {
     return static_cast<time::ClockState>(state_.load(std::memory_order_relaxed));
   }
   std::int32_t offset_ns() const { return offset_ns_.load(std::memory_order_relaxed); }
+  /// The uncertainty figure of the last poll (three loads; a poll between them mixes two
+  /// consecutive polls' figures, which differ by one poll's growth at most).
+  ClockFigure figure() const {
+    ClockFigure f;
+    f.holding = holding_.load(std::memory_order_acquire);
+    f.rms_ns = rms_ns_.load(std::memory_order_relaxed);
+    f.measured_at_ns = measured_at_ns_.load(std::memory_order_relaxed);
+    return f;
+  }
   ClockMonitorStats stats() const;
   const std::string& error() const { return client_.error(); }
   const ClockMonitorConfig& config() const { return config_; }
@@ -65,8 +80,12 @@ class ClockMonitor {
   ClockMonitorConfig config_;
   Ptp4lClient client_;
   LockStateMachine machine_;
+  OffsetWindow window_;
   std::atomic<std::uint8_t> state_{static_cast<std::uint8_t>(time::ClockState::kFreeRunning)};
   std::atomic<std::int32_t> offset_ns_{kOffsetUnknown};
+  std::atomic<double> rms_ns_{0};
+  std::atomic<time::MonotonicNs> measured_at_ns_{0};
+  std::atomic<bool> holding_{false};
   mutable std::mutex stats_mutex_;  // the thread and stats() only, never the capture loop
   ClockMonitorStats stats_;
   std::mutex wake_mutex_;

@@ -60,6 +60,10 @@ class LockStateMachine {
   time::ClockState state() const { return state_; }
   /// The poll's offset from the master while tracking, else kOffsetUnknown.
   std::int32_t offset_ns() const { return offset_ns_; }
+  /// The last poll, tracking, brought a new measurement (a Sync not seen before).
+  bool new_measurement() const { return new_measurement_; }
+  /// The last poll was tracking with a fresh measurement: the clock follows its master.
+  bool holding() const { return holding_; }
   const LockThresholds& thresholds() const { return thresholds_; }
 
  private:
@@ -75,6 +79,9 @@ class LockStateMachine {
   time::MonotonicNs holdover_since_ns_ = 0;
   std::int64_t last_ingress_time_ns_ = 0;
   time::MonotonicNs ingress_changed_ns_ = 0;  ///< when ingress_time last changed
+  bool ingress_new_ = false;                  ///< ingress_time changed in this poll
+  bool new_measurement_ = false;
+  bool holding_ = false;
 };
 
 }  // namespace storetrack::clock

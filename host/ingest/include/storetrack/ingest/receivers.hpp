@@ -46,12 +46,25 @@ inline constexpr std::size_t kMaxKernelFilteredSources = 800;
 /// Most frames one CanFdReceiver::receive() call reads (a MarkObservations is up to 9 frames).
 inline constexpr int kMaxCanFramesPerReceive = 1024;
 
+/// The last message refused for its version (an older or newer unit's layout), so that the
+/// stats can name it: message id, the version it carried, the sending unit.
+struct RefusedVersion {
+  bool seen = false;
+  std::uint8_t message_id = 0;
+  std::uint8_t version = 0;
+  std::uint8_t unit_id = 0;
+};
+
+/// "MarkObservations version 1 from unit 3 (this host reads version 2)"; "" if none was refused.
+std::string describe(const RefusedVersion& refused);
+
 struct UdpReceiverCounters {
   std::uint64_t datagrams = 0;
   std::uint64_t bytes = 0;
   std::uint64_t decoded = 0;
   std::uint64_t receive_errors = 0;
   msg::DecodeCounters decode_errors;    ///< index = DecodeError
+  RefusedVersion last_refused_version;  ///< of the kBadVersion ones
   std::uint64_t datagram_seq_gaps = 0;  ///< datagrams missing per the senders' counters
   std::uint64_t spoofed_source = 0;     ///< valid datagram, (unit id, source address) not allowed
   std::uint64_t kernel_drops = 0;       ///< dropped by the kernel: socket buffer full
@@ -122,8 +135,9 @@ struct CanReceiverCounters {
   std::uint64_t decoded = 0;
   std::uint64_t receive_errors = 0;
   msg::DecodeCounters decode_errors;
-  std::uint64_t kernel_drops = 0;      ///< dropped by the kernel: socket buffer full
-  std::uint64_t budget_exhausted = 0;  ///< receive() calls that stopped at the per-call bound
+  RefusedVersion last_refused_version;  ///< of the kBadVersion ones (the identifier's fields)
+  std::uint64_t kernel_drops = 0;       ///< dropped by the kernel: socket buffer full
+  std::uint64_t budget_exhausted = 0;   ///< receive() calls that stopped at the per-call bound
 };
 
 class CanFdReceiver {

@@ -66,7 +66,10 @@ struct MonteCarloResult {
 /// (matcher().counters()).
 struct ProcessorCounters {
   std::uint64_t exposures = 0;
-  std::uint64_t unknown_camera = 0;        ///< camera_id not in the calibration
+  std::uint64_t unknown_camera = 0;  ///< camera_id not in the calibration
+  /// Observations whose unit did not state its exposure time uncertainty (the calibration's
+  /// offset sigma alone stands for them).
+  std::uint64_t time_sigma_unknown = 0;
   std::uint64_t id_out_of_range = 0;       ///< given ids above max_mark_id (identify())
   std::uint64_t too_few_cameras = 0;       ///< identified marks seen by < min cameras
   std::uint64_t triangulation_failed = 0;  ///< Monte Carlo draws only (the matcher triangulates)

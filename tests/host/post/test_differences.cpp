@@ -1,0 +1,197 @@
+// Is a substituted input's change significant? (storetrack-post --differences-csv, host/post
+// differences.) Against the simulator's truth: one recording's observations (a simulator seed:
+// truth, centroid noise, its calibration and survey draws) processed with its own inputs and
+// with an independent draw of the substituted input for the SAME truth (another seed's
+// calibration or store survey: the true rig and surveys depend on the scenario only). Honest
+// z = d / u are then N(0, 1) per sample and axis: the fraction |z| > 2 and the mean z^2 must lie
+// in their derived bands, two-sided. The samples of one draw share that draw (and are strongly
+// correlated), so the effective sample size is the number of draws, the widest band the
+// correlation allows. A calibration wrong by 0.1 deg (35 times its stated sigma) must show.
+#include <cmath>
+#include <cstdio>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "differences.hpp"
+#include "honesty_bounds.hpp"
+#include "same_rig.hpp"
+#include "sim_exposure.hpp"
+#include "storetrack/pipeline/exposure_processor.hpp"
+
+namespace storetrack::post {
+namespace {
+
+#ifdef STORETRACK_SANITIZE
+constexpr int kDraws = 12;  // a smoke run under ASan/UBSan; the band follows the count
+#else
+constexpr int kDraws = 100;
+#endif
+// The first 0.15 s of the test point at 400 fps: captive (20 ms), the ejector stroke (50 ms),
+// free flight.
+constexpr int kExposures = 60;
+constexpr std::uint64_t kRecordingSeed = 270000, kSubstituteSeed = 370000;
+
+const sim::Scenario& scenario() {
+  static const sim::Scenario sc = sim::load_scenario(test::scenario_path("store_separation"));
+  return sc;
+}
+
+// The recording `a` processed with its own inputs (run 0) and with each substitute's inputs
+// (run i: rigs[i], stores[i]); the differences of each substitute from run 0.
+std::vector<std::vector<DifferenceRow>> run_draw(const sim::Simulator& a,
+                                                 const std::vector<camera::RigCalibration>& rigs,
+                                                 const std::vector<survey::RigidBodySurvey>& stores,
+                                                 const std::vector<Substituted>& what) {
+  std::vector<pipeline::ExposureProcessor> procs;
+  procs.emplace_back(a.calibrated_rig(), a.pylon_survey(), a.store_survey(),
+                     pipeline::ProcessorConfig{});
+  for (std::size_t i = 0; i < rigs.size(); ++i)
+    procs.emplace_back(rigs[i], a.pylon_survey(), stores[i], pipeline::ProcessorConfig{});
+  const std::size_t n_p = a.pylon_survey().marks.size();
+  std::vector<std::vector<RunPose>> runs(procs.size());
+  for (int k = 0; k < std::min(kExposures, a.num_exposures()); ++k) {
+    const test::SimExposure in = test::make_exposure(a, k);
+    for (std::size_t i = 0; i < procs.size(); ++i)
+      runs[i].push_back(run_pose(procs[i].process(in.exposure, in.ids), n_p));
+  }
+  std::vector<std::vector<DifferenceRow>> out;
+  for (std::size_t i = 0; i < what.size(); ++i)
+    out.push_back(differences(runs[0], runs[i + 1], what[i]));
+  return out;
+}
+
+struct AxisScores {
+  std::int64_t n = 0, above_2 = 0, above_3 = 0;
+  double sum_z2 = 0;
+  double fraction_above_2() const { return static_cast<double>(above_2) / static_cast<double>(n); }
+  double mean_z2() const { return sum_z2 / static_cast<double>(n); }
+};
+
+std::array<AxisScores, 6> score(const std::vector<std::vector<DifferenceRow>>& draws) {
+  std::array<AxisScores, 6> s;
+  for (const auto& rows : draws)
+    for (const DifferenceRow& r : rows)
+      for (int i = 0; i < 6; ++i) {
+        AxisScores& a = s[static_cast<std::size_t>(i)];
+        const double z = r.z(i);
+        ++a.n;
+        a.above_2 += std::abs(z) > 2 ? 1 : 0;
+        a.above_3 += std::abs(z) > 3 ? 1 : 0;
+        a.sum_z2 += z * z;
+      }
+  return s;
+}
+
+constexpr std::array<const char*, 6> kAxes = {"x", "y", "z", "yaw", "pitch", "roll"};
+
+void print(const char* what, const std::array<AxisScores, 6>& s) {
+  std::printf("  %s\n", what);
+  for (std::size_t i = 0; i < 6; ++i)
+    std::printf("    %-5s n=%6lld |z|>2 %.4f |z|>3 %.4f mean z^2 %.3f\n", kAxes[i],
+                static_cast<long long>(s[i].n), s[i].fraction_above_2(),
+                static_cast<double>(s[i].above_3) / static_cast<double>(s[i].n), s[i].mean_z2());
+}
+
+// Fraction |z| > 2 in [1 - coverage_high, 1 - coverage_low] of Binomial(draws, 95.45 %) and
+// mean z^2 in chi-square(draws) / draws, alpha 0.001 per side (honesty_bounds.hpp).
+void expect_honest(const std::array<AxisScores, 6>& s, const char* what) {
+  const test::HonestyBounds band = test::derived_bounds(kDraws, 1);
+  std::printf("  band (n_eff = %d draws): |z|>2 in [%.4f, %.4f], mean z^2 in [%.3f, %.3f]\n",
+              kDraws, 1 - band.coverage_high, 1 - band.coverage_low, band.nees_low, band.nees_high);
+  print(what, s);
+  for (std::size_t i = 0; i < 6; ++i) {
+    EXPECT_GE(s[i].fraction_above_2(), 1 - band.coverage_high) << what << " " << kAxes[i];
+    EXPECT_LE(s[i].fraction_above_2(), 1 - band.coverage_low) << what << " " << kAxes[i];
+    EXPECT_GE(s[i].mean_z2(), band.nees_low) << what << " " << kAxes[i];
+    EXPECT_LE(s[i].mean_z2(), band.nees_high) << what << " " << kAxes[i];
+  }
+}
+
+// Per draw, the recording processed with its own inputs, with another seed's calibration, and
+// with another seed's store survey: independent draws for the same truth.
+TEST(PostDifferences, IndependentDrawsOfTheSubstitutedInputGiveStandardNormalZ) {
+  std::vector<std::vector<DifferenceRow>> calibration, store;
+  std::int64_t other_observations = 0;
+  for (int d = 0; d < kDraws; ++d) {
+    const sim::Simulator a(scenario(), kRecordingSeed + static_cast<std::uint64_t>(d));
+    const sim::Simulator b(scenario(), kSubstituteSeed + static_cast<std::uint64_t>(d));
+    auto rows =
+        run_draw(a, {b.calibrated_rig(), a.calibrated_rig()}, {a.store_survey(), b.store_survey()},
+                 {{.calibration = true}, {.store_survey = true}});
+    for (const auto& r : rows) {
+      ASSERT_GT(r.size(), static_cast<std::size_t>(kExposures) * 9 / 10) << "draw " << d;
+      for (const DifferenceRow& row : r)
+        other_observations += row.same_observations ? 0 : 1;
+    }
+    calibration.push_back(std::move(rows[0]));
+    store.push_back(std::move(rows[1]));
+  }
+  EXPECT_EQ(other_observations, 0);  // the same ids: the noise cancels exactly
+  expect_honest(score(calibration), "calibration substituted (independent draw)");
+  expect_honest(score(store), "store survey substituted (independent draw)");
+}
+
+// The recording's own inputs substituted: nothing moves, the u is stated, z = 0.
+TEST(PostDifferences, TheSameInputsGiveZeroDifference) {
+  const sim::Simulator a(scenario(), kRecordingSeed);
+  const auto rows =
+      run_draw(a, {a.calibrated_rig()}, {a.store_survey()}, {{.calibration = true}}).front();
+  ASSERT_FALSE(rows.empty());
+  for (const DifferenceRow& r : rows) {
+    EXPECT_EQ(r.d.cwiseAbs().maxCoeff(), 0.0) << r.trigger_seq;
+    EXPECT_GT(r.u.minCoeff(), 0.0) << r.trigger_seq;
+  }
+}
+
+// Camera 0 turned by 0.1 deg about its x axis (its stated rotation sigma is 0.05 mrad).
+TEST(PostDifferences, AWrongCalibrationIsSignificant) {
+  constexpr int kWrongDraws = 10;
+  std::vector<std::vector<DifferenceRow>> draws;
+  for (int d = 0; d < kWrongDraws; ++d) {
+    const sim::Simulator a(scenario(), kRecordingSeed + static_cast<std::uint64_t>(d));
+    camera::RigCalibration wrong = a.calibrated_rig();
+    geometry::Vec6 turn = geometry::Vec6::Zero();
+    turn(0) = 0.1 * M_PI / 180;
+    wrong.cameras[0].T_c_w = geometry::perturb_left(wrong.cameras[0].T_c_w, turn);
+    draws.push_back(run_draw(a, {wrong}, {a.store_survey()}, {{.calibration = true}}).front());
+  }
+  const auto s = score(draws);
+  print("camera 0 turned by 0.1 deg", s);
+  // Outside the band honest draws give for this many draws, on some axis, by both measures.
+  const test::HonestyBounds band = test::derived_bounds(kWrongDraws, 1);
+  double above_2 = 0, mean_z2 = 0;
+  for (const AxisScores& a : s) {
+    above_2 = std::max(above_2, a.fraction_above_2());
+    mean_z2 = std::max(mean_z2, a.mean_z2());
+  }
+  std::printf("  honest band (n_eff = %d): |z|>2 <= %.4f, mean z^2 <= %.3f\n", kWrongDraws,
+              1 - band.coverage_low, band.nees_high);
+  EXPECT_GT(above_2, 1 - band.coverage_low);
+  EXPECT_GT(mean_z2, band.nees_high);
+}
+
+TEST(PostDifferences, ACalibrationOfAnotherRigIsRefused) {
+  const sim::Simulator a(scenario(), kRecordingSeed);
+  const camera::RigCalibration rig = a.calibrated_rig();
+  EXPECT_NO_THROW(check_same_rig(rig, "out.ch10", rig, "same.json"));
+  camera::RigCalibration fewer = rig;
+  fewer.cameras.pop_back();
+  camera::RigCalibration renamed = rig;
+  renamed.cameras[1].camera_id += 7;
+  for (const auto& [other, name] : {std::pair{fewer, "fewer.json"}, {renamed, "renamed.json"}}) {
+    try {
+      check_same_rig(rig, "out.ch10", other, name);
+      ADD_FAILURE() << name << " accepted";
+    } catch (const std::runtime_error& e) {
+      const std::string why = e.what();
+      EXPECT_EQ(why.rfind(std::string(name) + ": a calibration of another rig", 0), 0u) << why;
+      EXPECT_NE(why.find("out.ch10 was recorded with 4 camera(s)"), std::string::npos) << why;
+    }
+  }
+}
+
+}  // namespace
+}  // namespace storetrack::post
