@@ -22,6 +22,7 @@ constexpr std::uint64_t kRegistrationSurveyNoise = 6;
 constexpr std::uint64_t kRegistrationCentroidNoise = 7;
 constexpr std::uint64_t kPooledBackgroundNoise = 8;
 constexpr std::uint64_t kPooledSpotNoise = 9;
+constexpr std::uint64_t kStoreCgNoise = 10;
 
 // splitmix64 finaliser: independent, reproducible random streams per (purpose, k, camera).
 std::uint64_t mix(std::uint64_t z) {
@@ -192,6 +193,14 @@ Simulator::Simulator(const Scenario& scenario, std::uint64_t seed)
   bodies_.push_back({&sc_.pylon, kPylon, Transform::Identity()});
   if (sc_.has_store()) {
     store_surveyed_ = survey(sc_.store);
+    // The CG (a mass-properties measurement, not the marks' survey) from its own stream: a
+    // scenario without one draws exactly what it drew before.
+    if (store_surveyed_.cg) {
+      std::mt19937_64 cg_rng(stream_seed(kStoreCgNoise, 0, 0));
+      std::normal_distribution<double> cg_normal;
+      for (int a = 0; a < 3; ++a)
+        store_surveyed_.cg->p_body[a] += store_surveyed_.cg->sigma_m * cg_normal(cg_rng);
+    }
     bodies_.push_back({&sc_.store, kStore, Transform::Identity()});
   }
   if (sc_.kind == ScenarioKind::kPendulum) {

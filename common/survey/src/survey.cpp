@@ -47,6 +47,13 @@ RigidBodySurvey read_survey(const Value& value) {
     m.finish();
     s.marks.push_back(mark);
   }
+  if (const auto cg = root.find("cg")) {
+    Object c = cg->object();
+    const std::vector<double> p = c.at("p_body_m").numbers(3);
+    s.cg =
+        SurveyedPoint{geometry::Vec3(p[0], p[1], p[2]), c.at("sigma_m").number(Range::at_least(0))};
+    c.finish();
+  }
   root.finish();
   return s;
 }
@@ -85,6 +92,10 @@ std::string format_survey(const RigidBodySurvey& survey) {
                      {"sigma_m", m.sigma_m}});
   }
   root["marks"] = marks;
+  if (survey.cg)
+    root["cg"] = {
+        {"p_body_m", {survey.cg->p_body.x(), survey.cg->p_body.y(), survey.cg->p_body.z()}},
+        {"sigma_m", survey.cg->sigma_m}};
   return root.dump(2) + "\n";
 }
 

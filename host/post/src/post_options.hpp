@@ -12,6 +12,7 @@ struct PostOptions {
   bool verify = false;
   std::string csv_path, stats_json_path;
   std::string smoothed_csv_path;  ///< the fixed-interval smoother's trajectory (new file)
+  std::string product_csv_path;   ///< the store-separation data product (new file)
   /// Per sample and axis, the substituted input's change against its uncertainty (new file).
   std::string differences_csv_path;
   /// Read from disk instead of the recording (empty: the recorded one).

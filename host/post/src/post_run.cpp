@@ -4,9 +4,11 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <span>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -14,6 +16,7 @@
 #include "differences.hpp"
 #include "host_options.hpp"
 #include "host_setup.hpp"
+#include "product_csv.hpp"
 #include "recording.hpp"
 #include "replay.hpp"
 #include "same_rig.hpp"
@@ -194,9 +197,9 @@ int write_csv(output::FtiCsvWriter& csv, const std::vector<msg::FtiSample>& samp
 }
 
 // The fixed-interval smoother over the replayed samples' poses (host/smooth).
-int write_smoothed(const std::string& path, const Replay& replay, FilePtr f) {
+std::vector<smooth::SmoothedState> smooth_replay(const Replay& replay) {
   smooth::SmootherCounters counters;
-  const std::vector<smooth::SmoothedState> states =
+  std::vector<smooth::SmoothedState> states =
       smooth::smooth_trajectory(replay.measurements(), smooth::SmootherConfig{}, &counters);
   std::printf(
       "smoothed: %llu segment(s), %llu solved poses, %llu exposures predicted inside them, %llu "
@@ -206,7 +209,57 @@ int write_smoothed(const std::string& path, const Replay& replay, FilePtr f) {
       static_cast<unsigned long long>(counters.predicted),
       static_cast<unsigned long long>(counters.left_out),
       static_cast<unsigned long long>(counters.steps));
+  return states;
+}
+
+int write_smoothed(const std::string& path, std::span<const smooth::SmoothedState> states,
+                   FilePtr f) {
   if (!write_smoothed_csv(f.get(), states) || std::fclose(f.release()) != 0) {
+    std::fprintf(stderr, "storetrack-post: %s: %s\n", path.c_str(), std::strerror(errno));
+    return 1;
+  }
+  return 0;
+}
+
+// The store's CG offset from the store survey: the data product needs it. `origin` names the
+// survey's file (a substitute, or the recorded one).
+smooth::CgOffset required_cg(const hostapp::InputFiles& in, const hostapp::HostOptions& o,
+                             const Recording& r, const PostOptions& p) {
+  if (in.store.cg) return {in.store.cg->p_body, in.store.cg->sigma_m};
+  const std::string origin =
+      !p.store_path.empty()
+          ? p.store_path
+          : "the store survey recorded in " + r.files.front() + " ('" + o.store_path + "')";
+  throw InputError(origin +
+                   ": no \"cg\" field (the store's CG in the body frame, {\"p_body_m\": [x, "
+                   "y, z], \"sigma_m\": s}, docs/post-processing.md); --product-csv needs it");
+}
+
+void print_release(const smooth::ReleaseTime& t0, time::TaiNs first_ns) {
+  if (!t0.detected) {
+    std::printf("release: not detected (%s): t_since_t0_s and the dcg columns are NaN\n",
+                t0.reason.c_str());
+    return;
+  }
+  std::printf(
+      "release: t0 = %lld TAI ns (%.6f s after the first exposure), u(t0) = %.1f us (noise %.1f, "
+      "shared %.1f); captive test alarm at %.6f s (chi-square %.1f > %.1f); onset acceleration "
+      "%.2f %.2f %.2f m/s^2, fit chi-square %.1f for %d degrees of freedom\n",
+      static_cast<long long>(t0.t0_ns), static_cast<double>(t0.t0_ns - first_ns) * 1e-9,
+      t0.u_t0_s * 1e6, t0.u_noise_s * 1e6, t0.u_shared_s * 1e6,
+      static_cast<double>(t0.alarm_ns - first_ns) * 1e-9, t0.alarm_chi2, t0.alarm_threshold,
+      t0.onset_accel_p.x(), t0.onset_accel_p.y(), t0.onset_accel_p.z(), t0.fit_chi2, t0.fit_dof);
+}
+
+// The release time and the data product (host/smooth) over the smoothed states.
+int write_product(const std::string& path, const Replay& replay,
+                  std::span<const smooth::SmoothedState> states, const smooth::CgOffset& cg,
+                  FilePtr f) {
+  const smooth::ReleaseTime t0 = smooth::estimate_release_time(replay.measurements());
+  print_release(t0, replay.measurements().empty() ? 0 : replay.measurements().front().t_ns);
+  const std::vector<smooth::ProductSample> product =
+      smooth::store_product(states, replay.measurements(), t0, cg);
+  if (!write_product_csv(f.get(), product, t0) || std::fclose(f.release()) != 0) {
     std::fprintf(stderr, "storetrack-post: %s: %s\n", path.c_str(), std::strerror(errno));
     return 1;
   }
@@ -264,8 +317,15 @@ int run(const PostOptions& p) {
                      ": --differences-csv compares with a substituted input: give --calibration, "
                      "--pylon-survey, --store-survey or --config");
   hostapp::ProcessingChain chain = hostapp::make_processing_chain(o.cfg, in);
+  smooth::CgOffset cg;
+  if (!p.product_csv_path.empty()) cg = required_cg(in, o, r, p);
 
-  // Outputs are created before the replay: a refused name costs no replay.
+  // Outputs are created before the replay: a refused name costs no replay. All are checked
+  // first, so one refused name leaves no other output behind.
+  for (const std::string* out :
+       {&p.csv_path, &p.stats_json_path, &p.smoothed_csv_path, &p.product_csv_path})
+    if (std::error_code ec; !out->empty() && std::filesystem::exists(*out, ec))
+      throw InputError(*out + ": exists; storetrack-post writes new files only");
   output::FtiCsvWriter csv;
   if (!p.csv_path.empty()) {
     if (const int rc = csv.open(p.csv_path, false); rc != 0)
@@ -275,10 +335,11 @@ int run(const PostOptions& p) {
   }
   FilePtr stats(p.stats_json_path.empty() ? nullptr : create_output(p.stats_json_path));
   FilePtr smoothed(p.smoothed_csv_path.empty() ? nullptr : create_output(p.smoothed_csv_path));
+  FilePtr product(p.product_csv_path.empty() ? nullptr : create_output(p.product_csv_path));
   FilePtr diffs(p.differences_csv_path.empty() ? nullptr : create_output(p.differences_csv_path));
 
   Replay replay(*chain.aligner, *chain.processor, chain.aligner->config().min_cameras);
-  replay.collect_measurements(smoothed != nullptr);
+  replay.collect_measurements(smoothed || product);
   std::vector<RunPose> substituted_poses;
   if (diffs)
     replay.on_sample([&](const pipeline::ExposureResult& e) {
@@ -297,8 +358,13 @@ int run(const PostOptions& p) {
     if (!report_comparison(compared, ended_early)) exit_code = 1;
   }
   if (!p.csv_path.empty() && write_csv(csv, replay.samples()) != 0) exit_code = 1;
-  if (smoothed && write_smoothed(p.smoothed_csv_path, replay, std::move(smoothed)) != 0)
-    exit_code = 1;
+  if (smoothed || product) {
+    const std::vector<smooth::SmoothedState> states = smooth_replay(replay);
+    if (smoothed && write_smoothed(p.smoothed_csv_path, states, std::move(smoothed)) != 0)
+      exit_code = 1;
+    if (product && write_product(p.product_csv_path, replay, states, cg, std::move(product)) != 0)
+      exit_code = 1;
+  }
   nlohmann::json differences_json;
   if (diffs)
     differences_json = write_differences(r, o_recorded, in_recorded, substituted_poses, what,

@@ -1,3 +1,5 @@
+#include <algorithm>
+
 #include "storetrack/smooth/pose_smoother.hpp"
 
 namespace storetrack::smooth {
@@ -20,6 +22,17 @@ PoseMeasurement measurement_from(const pipeline::ExposureResult& r) {
   m.shared.resize(6, nz + ns);
   m.shared.leftCols(nz) = pose.loadings;
   if (ns > 0) m.shared.rightCols(ns) = pose.survey_loadings;
+  // The pylon's: the same calibration factors; its survey columns are the pylon marks', the
+  // first ones of T_p_s's survey columns.
+  const pipeline::PoseResult& pylon = r.T_w_p;
+  m.pylon_solved = pylon.valid && pylon.loadings.cols() == nz;
+  if (!m.pylon_solved) return m;
+  m.T_w_p = pylon.T;
+  m.pylon_cov_noise = pylon.cov_by_source[kCentroid];
+  m.pylon_shared = SharedLoadings6::Zero(6, nz + ns);
+  m.pylon_shared.leftCols(nz) = pylon.loadings;
+  const Eigen::Index np = std::min(ns, pylon.survey_loadings.cols());
+  if (np > 0) m.pylon_shared.middleCols(nz, np) = pylon.survey_loadings.leftCols(np);
   return m;
 }
 

@@ -200,6 +200,7 @@ SmoothedState to_output(const Step& s, const StateVector& x, const StateMatrix& 
   out.accel_p = x.segment<3>(kAcceleration);
   out.cov_noise = 0.5 * (P + P.transpose());
   out.cov_shared = E * E.transpose();
+  out.shared = E;
   if (s.m->solved) out.cov_noise_per_exposure = s.m->cov_noise;
   return out;
 }

@@ -58,6 +58,7 @@ TEST(SurveyFile, RoundTripIsExact) {
   }
   EXPECT_NE(r.find(101), nullptr);
   EXPECT_EQ(r.find(7), nullptr);
+  EXPECT_FALSE(r.cg.has_value());
 }
 
 void expect_survey_error(const std::string& text, const std::string& needle) {
@@ -69,6 +70,29 @@ void expect_survey_error(const std::string& text, const std::string& needle) {
     EXPECT_NE(what.find("bad_survey.json"), std::string::npos) << what;
     EXPECT_NE(what.find(needle), std::string::npos) << what;
   }
+}
+
+// The store's CG (issue 26, the data product): optional, read back exactly, checked by field.
+TEST(SurveyFile, CgRoundTripsAndIsChecked) {
+  RigidBodySurvey s = example_survey();
+  s.cg = survey::SurveyedPoint{geometry::Vec3(0.1234567890123, -0.002, 0.031), 0.0015};
+  const RigidBodySurvey r = parse_survey(format_survey(s), "cg.json");
+  ASSERT_TRUE(r.cg.has_value());
+  EXPECT_EQ(r.cg->p_body, s.cg->p_body);
+  EXPECT_EQ(r.cg->sigma_m, s.cg->sigma_m);
+  const nlohmann::json good = nlohmann::json::parse(format_survey(s));
+  auto j = good;
+  j["cg"]["p_body_m"] = {1.0, 2.0};
+  expect_survey_error(j.dump(), "cg.p_body_m");
+  j = good;
+  j["cg"]["sigma_m"] = -0.001;
+  expect_survey_error(j.dump(), "cg.sigma_m");
+  j = good;
+  j["cg"].erase("sigma_m");
+  expect_survey_error(j.dump(), "sigma_m");
+  j = good;
+  j["cg"]["sigma"] = 0.001;
+  expect_survey_error(j.dump(), "sigma");
 }
 
 TEST(SurveyFile, BadFilesNameFileAndField) {

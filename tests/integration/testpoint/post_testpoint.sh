@@ -107,7 +107,75 @@ rc=0; "$POST" "$REC" --smoothed-csv "$OUT/smoothed.csv" >"$OUT/smoothed_exists.l
   || fail "an existing --smoothed-csv: exit $rc"
 pass "smoothed trajectory written (new file only), samples still bit-identical"
 
-# 7. Is a substituted calibration's change significant? (--differences-csv.) The recorded
+# 7. The data product (host/smooth), from the recording alone (the scenario's store survey
+# carries a CG, drawn with its sigma by the simulator): the release t0 is found against the
+# scenario's truth within its stated uncertainty, and so is the captive CG, in pylon and in
+# aircraft axes (|z| <= 3.29 each,
+# two-sided 0.1 %: one deterministic run); the CSV has units, U = 2u, the displacement from the
+# carriage is 0 at the carriage. A store survey without "cg" is refused naming it and the
+# field, nothing written; an existing path is refused before any other output is created.
+rc=0; "$POST" --verify "$REC" --product-csv "$OUT/product.csv" >"$OUT/product.log" 2>&1 || rc=$?
+cat "$OUT/product.log"
+[ "$rc" -eq 0 ] || fail "--product-csv: exit $rc"
+grep -q "verify: 220 replayed, 220 recorded: 220 identical" "$OUT/product.log" \
+  || fail "the product changed the samples"
+/usr/bin/python3 - "$OUT/product.csv" "$OUT/product.log" "$RUN/scenario.json" "$RUN/sim/true_survey_store.json" <<'PY'
+import csv, json, math, re, sys
+rows = list(csv.DictReader(open(sys.argv[1])))
+log = open(sys.argv[2]).read()
+sc = json.load(open(sys.argv[3]))
+t0 = int(re.search(r"release: t0 = (\d+) TAI ns", log).group(1))
+truth = sc["timing"]["start_tai_ns"] + round(sc["separation"]["release_time_s"] * 1e9)
+u = float(rows[0]["u_t0_s"])
+z = (t0 - truth) * 1e-9 / u
+print("t0: %+.1f us from the truth, u(t0) %.1f us, z %.2f" % ((t0 - truth) * 1e-3, u * 1e6, z))
+assert abs(z) <= 3.29, "t0 outside its stated uncertainty"
+# The captive CG: T_p_s0 cg (the scenario's carriage pose has no rotation).
+sep = sc["separation"]["T_p_s0"]
+assert sep["ypr_deg"] == [0.0, 0.0, 0.0]
+cg = json.load(open(sys.argv[4]))["cg"]["p_body_m"]
+first = rows[0]
+for a, q in enumerate(("cg_x_m", "cg_y_m", "cg_z_m")):
+    zc = (float(first[q]) - (sep["translation_m"][a] + cg[a])) / float(first["u_" + q])
+    print("captive %s: z %.2f (u %.2f mm)" % (q, zc, float(first["u_" + q]) * 1e3))
+    assert abs(zc) <= 3.29, "captive CG outside its stated uncertainty"
+# In aircraft axes (the rig's world frame, where the simulator's pylon sits at its nominal pose).
+Twp = sc["T_w_p"]
+assert Twp["ypr_deg"] == [0.0, 0.0, 0.0]
+for a, q in enumerate(("cg_ac_x_m", "cg_ac_y_m", "cg_ac_z_m")):
+    true = Twp["translation_m"][a] + sep["translation_m"][a] + cg[a]
+    zc = (float(first[q]) - true) / float(first["u_" + q])
+    print("captive %s: z %.2f (u %.2f mm)" % (q, zc, float(first["u_" + q]) * 1e3))
+    assert abs(zc) <= 3.29, "captive CG in aircraft axes outside its stated uncertainty"
+names = ["cg_x_m", "pitch_rad", "vz_m_s", "az_m_s2", "q_rad_s", "dcg_z_m", "cg_ac_z_m", "pitch_ac_rad"]
+for r in rows:
+    assert abs(float(r["t_since_t0_s"]) - (int(r["exposure_mid_tai_ns"]) - t0) * 1e-9) < 1e-9
+    for q in names:
+        uq, Uq = float(r["u_" + q]), float(r["U_" + q])
+        assert math.isfinite(float(r[q])) and uq > 0 and abs(Uq - 2 * uq) <= 1e-3 * Uq, (q, r)
+carriage = [r for r in rows if float(r["dcg_z_m"]) == 0.0]
+assert len(carriage) == 1 and float(carriage[0]["t_since_t0_s"]) < 0, "one carriage row before t0"
+last = rows[-1]
+print("product: %d rows; at %.3f s after t0 the CG moved %.4f +- %.4f m (U) down" %
+      (len(rows), float(last["t_since_t0_s"]), float(last["dcg_z_m"]), float(last["U_dcg_z_m"])))
+PY
+before=$(sha256sum <"$OUT/product.csv")
+rc=0; "$POST" "$REC" --csv "$OUT/not_written.csv" --product-csv "$OUT/product.csv" \
+  >"$OUT/product_exists.log" 2>&1 || rc=$?
+[ "$rc" -eq 2 ] && grep -q "$OUT/product.csv: exists" "$OUT/product_exists.log" \
+  || fail "an existing --product-csv: exit $rc"
+[ "$(sha256sum <"$OUT/product.csv")" = "$before" ] || fail "the existing product was changed"
+[ ! -e "$OUT/not_written.csv" ] || fail "another output was created beside a refused one"
+/usr/bin/python3 -c "
+import json, sys; s = json.load(open(sys.argv[1])); del s['cg']; json.dump(s, open(sys.argv[2], 'w'))
+" "$RUN/sim/survey_store.json" "$OUT/store_nocg.json"
+rc=0; "$POST" "$REC" --store-survey "$OUT/store_nocg.json" --product-csv "$OUT/product_nocg.csv" \
+  >"$OUT/product_nocg.log" 2>&1 || rc=$?
+[ "$rc" -eq 2 ] && grep -q "$OUT/store_nocg.json: no \"cg\" field" "$OUT/product_nocg.log" \
+  || fail "a store survey without a CG: exit $rc: $(cat "$OUT/product_nocg.log")"
+[ ! -e "$OUT/product_nocg.csv" ] || fail "a product was written without a CG"
+pass "data product written (t0 and captive CG against the truth, new file only), samples bit-identical; no CG refused"
+# 8. Is a substituted calibration's change significant? (--differences-csv.) The recorded
 # calibration's own bytes: every sample solved in both, d = 0 on every axis. Camera 0 turned by
 # 0.1 deg about its y axis (its stated rotation sigma: 0.05 mrad): significant, max |z| > 5 (an
 # honest substitute reaches |z| > 5 on one of 220 x 6 values with probability < 1e-3 even were

@@ -5,10 +5,15 @@
 // File format (JSON, SI units, docs/conventions.md frames):
 //   { "format": "storetrack-survey", "version": 1,
 //     "name": "store", "frame": "s", "mark_diameter_m": 0.030,
-//     "marks": [ {"id": 100, "p_body_m": [x, y, z], "sigma_m": 0.0002}, ... ] }
-// "sigma_m" is the isotropic per-axis standard uncertainty of the surveyed position.
+//     "marks": [ {"id": 100, "p_body_m": [x, y, z], "sigma_m": 0.0002}, ... ],
+//     "cg": {"p_body_m": [x, y, z], "sigma_m": 0.002} }
+// "sigma_m" is the isotropic per-axis standard uncertainty of the surveyed position. "cg"
+// (optional; a store's) is its centre of gravity in the body frame from the mass-properties
+// measurement, with its per-axis standard uncertainty: the store-separation data product needs
+// it (storetrack-post --product-csv, docs/post-processing.md).
 #pragma once
 
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -24,11 +29,18 @@ struct SurveyedMark {
   double sigma_m = 0;                              ///< per-axis standard uncertainty of p_body [m]
 };
 
+/// A surveyed point that is not a mark (the store's CG).
+struct SurveyedPoint {
+  geometry::Vec3 p_body = geometry::Vec3::Zero();  ///< [m], body frame
+  double sigma_m = 0;                              ///< per-axis standard uncertainty [m]
+};
+
 struct RigidBodySurvey {
   std::string name;  ///< "pylon", "store", "pendulum", "scale_bar_N"
   char frame = 'b';  ///< frame letter of docs/conventions.md ('p', 's', 'b')
   std::vector<SurveyedMark> marks;
-  double mark_diameter_m = 0;  ///< diameter of the retro-reflective discs [m]
+  double mark_diameter_m = 0;       ///< diameter of the retro-reflective discs [m]
+  std::optional<SurveyedPoint> cg;  ///< centre of gravity ("cg"; absent: not given)
 
   /// The mark with this id, or nullptr.
   const SurveyedMark* find(int id) const;

@@ -57,6 +57,13 @@ struct PoseMeasurement {
   /// Loadings on the errors shared by the whole recording: the calibration factors' columns,
   /// then the survey's (the same columns in every exposure of one recording).
   SharedLoadings6 shared;
+  /// The pylon's pose in the aircraft (the rig's world) frame at this exposure, for the data
+  /// product's aircraft axes (the smoother does not use it): its noise (centroid) covariance and
+  /// its loadings on the same shared factors, in the same columns as `shared`.
+  bool pylon_solved = false;
+  geometry::Transform T_w_p = geometry::Transform::Identity();
+  geometry::Mat6 pylon_cov_noise = geometry::Mat6::Zero();
+  SharedLoadings6 pylon_shared;
 };
 
 /// The processor's solution of one exposure: noise = the centroid source; shared = the
@@ -107,6 +114,9 @@ struct SmoothedState {
   bool step = false;  ///< an acceleration step was modelled in the interval before this one
   StateMatrix cov_noise = StateMatrix::Zero();   ///< averaged part (noise and process noise)
   StateMatrix cov_shared = StateMatrix::Zero();  ///< calibration + survey, not averaged
+  /// Its loadings on the recording's shared factors (cov_shared = shared shared^T): lets the
+  /// data product combine states of different times and its own shared errors (the CG's).
+  SharedLoadings shared;
   /// The per-exposure solution's noise covariance (zero when not measured), for comparison.
   geometry::Mat6 cov_noise_per_exposure = geometry::Mat6::Zero();
   StateMatrix cov() const { return cov_noise + cov_shared; }
