@@ -186,6 +186,17 @@ TEST(UnitConfig, RefusalsStateTheTrueRangeAndTheNearestKey) {
             "unit.json: trigger.rate: unknown key (did you mean rate_hz?)");
   EXPECT_EQ(message(R"({"links": {"udp": [{"destinaton": "239.1.1.1:5"}]}})"),
             "unit.json: links.udp[0].destinaton: unknown key (did you mean destination?)");
+  // The time uncertainty's keys (issue 30): typos named, ranges refused, "auto" or a number.
+  EXPECT_EQ(message(R"({"time": {"latch_jiter_ns": 5}})"),
+            "unit.json: time.latch_jiter_ns: unknown key (did you mean latch_jitter_ns?)");
+  EXPECT_EQ(message(R"({"ptp4l": {"holdover_drift_pbb": 100}})"),
+            "unit.json: ptp4l.holdover_drift_pbb: unknown key (did you mean holdover_drift_ppb?)");
+  EXPECT_EQ(message(R"({"ptp4l": {"offset_window": 65}})"),
+            "unit.json: ptp4l.offset_window: expected an integer in [1, 64], got 65");
+  EXPECT_NE(message(R"({"time": {"sensor_start_jitter_ns": -1}})"), "accepted");
+  EXPECT_NE(message(R"({"time": {"clock_sigma_ns": "automatic"}})"), "accepted");
+  EXPECT_EQ(message(R"({"time": {"clock_sigma_ns": "auto", "latch_jitter_ns": 2000}})"),
+            "accepted");
   EXPECT_EQ(message(R"({"unit_id": 254, "camera_id": 0})"), "accepted");
 }
 
