@@ -1,6 +1,6 @@
 // Store pose coverage after a camera moved in its mount, against simulator truth over
 // independent seeds (docs/calibration-health.md): flag collapses, correct and exclude hold.
-// STORETRACK_HEALTH_LONG=1: 1000 seeds.
+// STORETRACK_HEALTH_LONG=1: 1000 seeds; the sanitizer tree runs 30.
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -76,7 +76,16 @@ void expect_coverage(const Vec3& rotation_deg, const Vec3& translation_m) {
   motion.start_s = 21.5 / 400.0;
   motion.rotation_rad = rotation_deg * kDeg;
   motion.translation_m = translation_m;
+#ifdef STORETRACK_SANITIZE
+  // The sanitizer tree's form (memory and UB checks, ~10x slower): 30 seeds. Its band is derived
+  // for 30, but 30 seeds cannot tell flag's collapse (~85 %) from 95.45 %: that claim is left to
+  // the Release tree and said so.
+  const int seeds = 30;
+  const bool collapse_asserted = false;
+#else
   const int seeds = long_form() ? 1000 : 150;
+  const bool collapse_asserted = true;
+#endif
   CoverageCount count;
   for (int s = 0; s < seeds; ++s)
     count_coverage(1000 + static_cast<std::uint64_t>(s), motion, count);
@@ -94,7 +103,14 @@ void expect_coverage(const Vec3& rotation_deg, const Vec3& translation_m) {
     EXPECT_LE(count.exclude[a], band.high) << a;
   }
   // Collapsed: below the band on at least one axis.
-  EXPECT_LT(std::min({count.flag[0], count.flag[1], count.flag[2]}), band.low);
+  const int flag_lowest = std::min({count.flag[0], count.flag[1], count.flag[2]});
+  if (collapse_asserted)
+    EXPECT_LT(flag_lowest, band.low);
+  else
+    std::printf(
+        "not asserted in this form (1 check left out): flag collapses below %lld (lowest axis: "
+        "%d)\n",
+        static_cast<long long>(band.low), flag_lowest);
 }
 
 TEST(CalibrationHealth, StoreCoverageAfterA0p1DegShiftFlagCollapsesCorrectHolds) {
