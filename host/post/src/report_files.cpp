@@ -1,6 +1,7 @@
 #include "report_files.hpp"
 
 #include <cerrno>
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <memory>
@@ -8,6 +9,7 @@
 #include <stdexcept>
 
 #include "storetrack/output/csv_writer.hpp"
+#include "storetrack/uncertainty/statistics.hpp"
 
 namespace storetrack::post {
 
@@ -57,17 +59,26 @@ bool write_windows(const std::string& dir, std::span<const ResidualWindow> windo
   return finish(std::move(f));
 }
 
+// The 0.99 quantile of a pose fit's chi-square over n marks (NaN without a fit).
+double fit_quantile(int marks) {
+  if (marks < 3) return std::nan("");
+  return uncertainty::chi_square_quantile(uncertainty::Probability(0.99),
+                                          uncertainty::DegreesOfFreedom(3 * marks - 6));
+}
+
 bool write_exposures(const std::string& dir, std::span<const ExposureRow> rows) {
   FilePtr f = create(dir, "exposures.csv");
   if (!f) return false;
   std::fprintf(f.get(),
                "trigger_seq,t_tai_ns [ns],written,cameras_delivered,missing_camera_mask,"
-               "closed_by_timeout,store_marks,store_chi2,pylon_marks,pylon_chi2\n");
+               "closed_by_timeout,store_marks,store_chi2,store_chi2_q99,pylon_marks,pylon_chi2,"
+               "pylon_chi2_q99\n");
   for (const ExposureRow& r : rows)
-    std::fprintf(f.get(), "%u,%lld,%d,%d,%u,%d,%d,%.9g,%d,%.9g\n", r.trigger_seq,
+    std::fprintf(f.get(), "%u,%lld,%d,%d,%u,%d,%d,%.9g,%.9g,%d,%.9g,%.9g\n", r.trigger_seq,
                  static_cast<long long>(r.t_tai_ns), r.written ? 1 : 0, r.cameras_delivered,
                  r.missing_camera_mask, r.closed_by_timeout ? 1 : 0, r.store_marks, r.store_chi2,
-                 r.pylon_marks, r.pylon_chi2);
+                 fit_quantile(r.store_marks), r.pylon_marks, r.pylon_chi2,
+                 fit_quantile(r.pylon_marks));
   return finish(std::move(f));
 }
 
