@@ -315,10 +315,15 @@ struct ReportRows {
 
 int write_report(const PostOptions& p, const Recording& r, const Replay& replay,
                  const ReportRows& rows) {
-  const nlohmann::json files = {{"samples", p.csv_path},
-                                {"smoothed", p.smoothed_csv_path},
-                                {"product", p.product_csv_path},
-                                {"stats", p.stats_json_path}};
+  // Absolute: the renderer may run from another directory.
+  const auto where = [](const std::string& path) {
+    std::error_code ec;
+    return path.empty() ? path : std::filesystem::absolute(path, ec).string();
+  };
+  const nlohmann::json files = {{"samples", where(p.csv_path)},
+                                {"smoothed", where(p.smoothed_csv_path)},
+                                {"product", where(p.product_csv_path)},
+                                {"stats", where(p.stats_json_path)}};
   if (write_report_tables(p.report_dir, r, replay.counters(), rows.residuals, rows.exposures,
                           files))
     return 0;
