@@ -29,9 +29,9 @@ import numpy as np  # noqa: E402
 # and store mark surveys (schema fti_sample.yaml).
 EXTRINSIC_LABEL = "extrinsic / registration / body survey"
 
-K = 2.0  # coverage factor of the bands (GUM expanded uncertainty)
-AXES_POS = ["x", "y", "z"]
-AXES_ATT = ["yaw", "pitch", "roll"]
+from post_report import (AXES_ATT, AXES_POS, K, load_post_dir, plot_pose, render_post,  # noqa: E402
+                         savefig)
+from storetrack_csv import read_csv  # noqa: E402
 
 
 class Checks:
@@ -46,24 +46,6 @@ class Checks:
         if not cond:
             self.failures.append(what)
         return bool(cond)
-
-
-def read_csv(path):
-    """Columns as numpy arrays keyed by the column name without its ' [unit]' suffix."""
-    if not os.path.exists(path):
-        return None
-    with open(path, newline="") as f:
-        reader = csv.reader(f)
-        header = [h.split(" [")[0] for h in next(reader)]
-        rows = list(reader)
-    cols = {}
-    for i, name in enumerate(header):
-        values = [r[i] for r in rows]
-        try:
-            cols[name] = np.array([float(v) for v in values])
-        except ValueError:
-            cols[name] = np.array(values)
-    return cols
 
 
 def read_ch10(path):
@@ -353,13 +335,6 @@ def calibration_stage(stage_dir, budget_share, image_size, outdir, figures):
     return rows, cams, marks, note
 
 
-def savefig(fig, outdir, name, figures):
-    path = os.path.join(outdir, name)
-    fig.savefig(path, dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    figures.append(name)
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--run", required=True, help="test-point run directory")
@@ -370,6 +345,10 @@ def main():
     ap.add_argument("--calibration-stage", metavar="DIR",
                     help="tools/testpoint's calibration stage directory (calibration_summary.json, "
                          "rig_residuals.csv, cam<id>.csv): its residuals and budget share")
+    ap.add_argument("--post", metavar="DIR",
+                    help="storetrack-post --report directory of this run: the smoothed "
+                         "trajectory beside the real-time one, rates, per-camera residual "
+                         "diagnostics, camera usage and the recording's integrity")
     ap.add_argument("--pool-runs", nargs="+", default=[], metavar="DIR",
                     help="run directories of the same test point with other seeds (other "
                          "calibration draws, each with sim/truth_*.csv): adds the k = 2 coverage "
@@ -413,36 +392,15 @@ def main():
     err = store_pose_errors(fti, truth)
     has_store_truth = err is not None
 
-    # --- trajectory and attitude with k=2 bands -----------------------------------------------
-    fig, axs = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
-    for ax, a in zip(axs, axes_pos):
-        v, u = fti[a], fti["u_" + a]
-        ax.fill_between(t[valid], (v - K * u)[valid] * 1e3, (v + K * u)[valid] * 1e3, alpha=0.35,
-                        color="tab:blue", label="k = 2 interval")
-        ax.plot(t[valid], v[valid] * 1e3, ".", ms=2, color="tab:blue", label="storetrack")
-        if has_store_truth:
-            ax.plot(t, (v - err[a]) * 1e3, "-", lw=0.8, color="k", label="truth (simulator)")
-        ax.set_ylabel("%s_p [mm]" % a)
-        ax.grid(alpha=0.3)
-    axs[0].legend(loc="best", fontsize=8)
-    axs[0].set_title("Store position relative to the pylon (T_p_s) with k = 2 uncertainty band")
-    axs[-1].set_xlabel("time since first exposure [s]")
-    savefig(fig, args.out, "trajectory.png", figures)
-
-    fig, axs = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
-    for ax, a in zip(axs, axes_att):
-        v, u = np.degrees(fti[a]), np.degrees(fti["u_" + a])
-        ax.fill_between(t[valid], (v - K * u)[valid], (v + K * u)[valid], alpha=0.35,
-                        color="tab:orange", label="k = 2 interval")
-        ax.plot(t[valid], v[valid], ".", ms=2, color="tab:orange", label="storetrack")
-        if has_store_truth:
-            ax.plot(t, v - np.degrees(err[a]), "-", lw=0.8, color="k", label="truth (simulator)")
-        ax.set_ylabel("%s [deg]" % a)
-        ax.grid(alpha=0.3)
-    axs[0].legend(loc="best", fontsize=8)
-    axs[0].set_title("Store attitude relative to the pylon (Z-Y'-X'') with k = 2 uncertainty band")
-    axs[-1].set_xlabel("time since first exposure [s]")
-    savefig(fig, args.out, "attitude.png", figures)
+    # --- trajectory and attitude with k=2 bands (real-time beside smoothed), and with
+    # storetrack-post's report directory its truth-free sections (host/report/post_report.py)
+    post = load_post_dir(args.post) if args.post else None
+    if post is not None:
+        render_post(post, args.out, figures, summary, t_tai[0], err if has_store_truth else None,
+                    fti=fti)
+    else:
+        plot_pose(fti, read_csv(os.path.join(args.run, "smoothed.csv")), t_tai[0], args.out,
+                  figures, err if has_store_truth else None)
 
     # --- error against truth -------------------------------------------------------------------
     coverage_rows = []

@@ -28,6 +28,11 @@ int parse_post_options(int argc, char** argv, PostOptions& o) {
              "With a substituted input: write per sample and axis how far the pose moved from "
              "the recorded inputs' (d), the standard uncertainty of that difference (u) and z = "
              "d / u to this NEW CSV file");
+  app.option("--report", o.report_dir,
+             "Write the truth-free report's data to this NEW (or empty) directory: the replayed "
+             "samples, the smoothed trajectory, the data product (with the store's CG), residuals "
+             "per camera and exposure, camera usage, the recording's integrity; render it with "
+             "host/report/storetrack_post_report.py DIR");
   app.option("--stats-json", o.stats_json_path,
              "Write the replay's counters and the comparison to this NEW JSON file");
   app.option("--calibration", o.calibration_path, "Use this rig calibration, not the recorded")

@@ -15,6 +15,8 @@ struct PostOptions {
   std::string product_csv_path;   ///< the store-separation data product (new file)
   /// Per sample and axis, the substituted input's change against its uncertainty (new file).
   std::string differences_csv_path;
+  /// The truth-free report's data (new or empty directory; host/report renders it).
+  std::string report_dir;
   /// Read from disk instead of the recording (empty: the recorded one).
   std::string calibration_path, pylon_path, store_path, config_path;
   std::string log_level = "warn";

@@ -19,6 +19,7 @@
 #include "product_csv.hpp"
 #include "recording.hpp"
 #include "replay.hpp"
+#include "report_files.hpp"
 #include "same_rig.hpp"
 #include "sample_compare.hpp"
 #include "smoothed_csv.hpp"
@@ -292,16 +293,55 @@ nlohmann::json write_differences(const Recording& r, const hostapp::HostOptions&
   return to_json(summary);
 }
 
-int run(const PostOptions& p) {
-  const Recording r = read_recording(p.recording_files);
+// --report DIR: the replayed samples, the smoothed trajectory, the counters and (with the
+// store's CG) the data product go into DIR, unless named elsewhere.
+PostOptions with_report_outputs(PostOptions p, bool has_cg) {
+  if (p.report_dir.empty()) return p;
+  const auto in_dir = [&p](std::string& path, const char* name) {
+    if (path.empty()) path = (std::filesystem::path(p.report_dir) / name).string();
+  };
+  in_dir(p.csv_path, "samples.csv");
+  in_dir(p.smoothed_csv_path, "smoothed.csv");
+  in_dir(p.stats_json_path, "stats.json");
+  if (has_cg) in_dir(p.product_csv_path, "product.csv");
+  return p;
+}
+
+// The report's data collected from the replay (--report).
+struct ReportRows {
+  std::vector<CameraResidualRow> residuals;
+  std::vector<ExposureRow> exposures;
+};
+
+int write_report(const PostOptions& p, const Recording& r, const Replay& replay,
+                 const ReportRows& rows) {
+  // Absolute: the renderer may run from another directory.
+  const auto where = [](const std::string& path) {
+    std::error_code ec;
+    return path.empty() ? path : std::filesystem::absolute(path, ec).string();
+  };
+  const nlohmann::json files = {{"samples", where(p.csv_path)},
+                                {"smoothed", where(p.smoothed_csv_path)},
+                                {"product", where(p.product_csv_path)},
+                                {"stats", where(p.stats_json_path)}};
+  if (write_report_tables(p.report_dir, r, replay.counters(), rows.residuals, rows.exposures,
+                          files))
+    return 0;
+  std::fprintf(stderr, "storetrack-post: %s: %s\n", p.report_dir.c_str(), std::strerror(errno));
+  return 1;
+}
+
+int run(const PostOptions& given) {
+  const Recording r = read_recording(given.recording_files);
   for (const std::string& torn : r.torn)
     std::fprintf(stderr, "storetrack-post: %s: replaying up to its last whole packet\n",
                  torn.c_str());
   for (const std::string& gap : r.gaps)
     std::fprintf(stderr, "storetrack-post: %s\n", gap.c_str());
-  hostapp::HostOptions o = recorded_host_options(r, p);
+  hostapp::HostOptions o = recorded_host_options(r, given);
   hostapp::InputFiles in;
-  hostapp::load_inputs(o, make_input_reader(r, p), in);
+  hostapp::load_inputs(o, make_input_reader(r, given), in);
+  const PostOptions p = with_report_outputs(given, in.store.cg.has_value());
   // The inputs as recorded: a substitute is checked against them, and compared with.
   const Substituted what{!p.calibration_path.empty(), !p.pylon_path.empty(), !p.store_path.empty(),
                          !p.config_path.empty()};
@@ -322,6 +362,7 @@ int run(const PostOptions& p) {
 
   // Outputs are created before the replay: a refused name costs no replay. All are checked
   // first, so one refused name leaves no other output behind.
+  if (!p.report_dir.empty()) prepare_report_dir(p.report_dir);
   for (const std::string* out :
        {&p.csv_path, &p.stats_json_path, &p.smoothed_csv_path, &p.product_csv_path})
     if (std::error_code ec; !out->empty() && std::filesystem::exists(*out, ec))
@@ -344,6 +385,14 @@ int run(const PostOptions& p) {
   if (diffs)
     replay.on_sample([&](const pipeline::ExposureResult& e) {
       substituted_poses.push_back(run_pose(e, in.pylon.marks.size()));
+    });
+  ReportRows report;
+  if (!p.report_dir.empty())
+    replay.on_exposure([&report, &in](const pipeline::AlignedExposure& e,
+                                      const pipeline::ExposureResult& result, bool written) {
+      for (const CameraResidualRow& row : camera_residual_rows(e, result, in.rig))
+        report.residuals.push_back(row);
+      report.exposures.push_back(exposure_row(e, result, written));
     });
   for (const ch10read::RawObservation& record : r.records)
     replay.feed(record);
@@ -369,6 +418,7 @@ int run(const PostOptions& p) {
   if (diffs)
     differences_json = write_differences(r, o_recorded, in_recorded, substituted_poses, what,
                                          p.differences_csv_path, std::move(diffs), exit_code);
+  if (!p.report_dir.empty() && write_report(p, r, replay, report) != 0) exit_code = 1;
   if (stats) {
     nlohmann::json j =
         stats_json(r, replay.counters(), replay.samples().size(), p.verify ? &compared : nullptr);

@@ -1,5 +1,6 @@
 #include "recording.hpp"
 
+#include <map>
 #include <stdexcept>
 
 #include "storetrack/digest/sha256.hpp"
@@ -95,6 +96,30 @@ std::string check_follows(const std::string& prev, const FilePlace& a, const std
   return path + ": " + gap + " (the next file of the run: packets the host could not write)";
 }
 
+FileIntegrity integrity_of(const std::string& path, const ch10read::File& file,
+                           const std::vector<ch10read::RawObservation>& records) {
+  FileIntegrity f;
+  f.file = path;
+  f.file_bytes = file.file_bytes;
+  f.bytes_in_whole_packets = file.bytes_in_whole_packets;
+  f.packets = file.packets.size();
+  f.torn = file.truncated || !file.stop_reason.empty();
+  f.stop_reason = file.stop_reason;
+  std::map<std::uint16_t, std::uint8_t> last_seq;  // per channel
+  for (const ch10read::Packet& p : file.packets) {
+    if (!p.header_checksum_ok) ++f.header_checksum_errors;
+    if (!p.data_checksum_ok) ++f.data_checksum_errors;
+    if (const auto it = last_seq.find(p.channel_id); it != last_seq.end())
+      f.sequence_gap_packets += static_cast<std::uint8_t>(p.sequence_number - it->second - 1);
+    last_seq[p.channel_id] = p.sequence_number;
+  }
+  for (const ch10read::RawObservation& r : records) {
+    if (r.data_error) ++f.raw_data_errors;
+    if (r.format_error) ++f.raw_format_errors;
+  }
+  return f;
+}
+
 }  // namespace
 
 Recording read_recording(const std::vector<std::string>& paths) {
@@ -132,6 +157,7 @@ Recording read_recording(const std::vector<std::string>& paths) {
     }
     auto records = ch10read::raw_observations(file, &why);
     if (!why.empty()) refuse(path, why);
+    out.integrity.push_back(integrity_of(path, file, records));
     const FilePlace place = place_of(file, records);
     if (place.any_raw && previous.any_raw)
       if (std::string gap = check_follows(previous_path, previous, path, place); !gap.empty())

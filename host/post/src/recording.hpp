@@ -19,6 +19,20 @@ struct RecordedSample {
   std::vector<std::uint8_t> block;  ///< the FTI parameter block as recorded
 };
 
+/// What a reader can say about one file's integrity (storetrack-post --report).
+struct FileIntegrity {
+  std::string file;
+  std::size_t file_bytes = 0, bytes_in_whole_packets = 0;
+  std::size_t packets = 0;
+  std::size_t header_checksum_errors = 0, data_checksum_errors = 0;
+  /// Packets missing inside the file: per channel, the sequence numbers' skips (mod 256).
+  std::size_t sequence_gap_packets = 0;
+  /// Raw records the host's receiver marked refused (data error) or cut (format error).
+  std::size_t raw_data_errors = 0, raw_format_errors = 0;
+  bool torn = false;        ///< ends inside a packet, or parsing stopped (stop_reason)
+  std::string stop_reason;  ///< e.g. "header checksum mismatch at offset N"
+};
+
 struct Recording {
   std::vector<std::string> files;
   std::vector<ch10read::RawObservation> records;  ///< the raw channel, in file order
@@ -26,6 +40,7 @@ struct Recording {
   std::vector<ch10read::RecordedInput> inputs;    ///< of the first file (each file repeats them)
   std::vector<std::string> torn;                  ///< "file: offset" of files cut in a packet
   std::vector<std::string> gaps;  ///< "file: ..." raw packets missing before a file (not written)
+  std::vector<FileIntegrity> integrity;  ///< one per file, in order
 };
 
 /// Reads the files of one host run, in order. Throws std::runtime_error naming the file (and

@@ -54,7 +54,10 @@ void Replay::process_ready() {
   for (const auto& e : ready_) {
     const pipeline::ExposureResult r = processor_.process(e);
     ++counters_.exposures;
-    if (!counters_.withheld.admit(hostapp::judge_sample(r.cameras_used, min_cameras_))) continue;
+    const bool written =
+        counters_.withheld.admit(hostapp::judge_sample(r.cameras_used, min_cameras_));
+    if (on_exposure_) on_exposure_(e, r, written);
+    if (!written) continue;
     samples_.push_back(r.sample);
     if (collect_) measurements_.push_back(smooth::measurement_from(r));
     if (on_sample_) on_sample_(r);

@@ -53,6 +53,14 @@ class Replay {
     on_sample_ = std::move(f);
   }
 
+  /// Called with every processed exposure (written or withheld) and its processing result
+  /// (--report: camera usage and residuals).
+  void on_exposure(std::function<void(const pipeline::AlignedExposure&,
+                                      const pipeline::ExposureResult&, bool written)>
+                       f) {
+    on_exposure_ = std::move(f);
+  }
+
   /// The samples written, in the order the host wrote them.
   const std::vector<msg::FtiSample>& samples() const { return samples_; }
   /// The written samples' pose solutions as the smoother takes them (collect_measurements).
@@ -70,6 +78,8 @@ class Replay {
   bool collect_ = false;
   std::vector<smooth::PoseMeasurement> measurements_;
   std::function<void(const pipeline::ExposureResult&)> on_sample_;
+  std::function<void(const pipeline::AlignedExposure&, const pipeline::ExposureResult&, bool)>
+      on_exposure_;
   ReplayCounters counters_;
 };
 

@@ -232,11 +232,74 @@ TEST(PostRecording, NamesRawPacketsMissingBetweenConsecutiveFiles) {
       .write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
 
   const Recording r = read_recording(f);
+  ASSERT_EQ(r.integrity.size(), 2u);  // the first file and its continuation (--report)
+  EXPECT_EQ(r.integrity[1].file, f[1]);
   ASSERT_EQ(r.gaps.size(), 1u);
   EXPECT_EQ(r.gaps[0].rfind(f[1] + ": its first raw channel packet (offset ", 0), 0u) << r.gaps[0];
   EXPECT_NE(r.gaps[0].find("1 (mod 256) raw packet(s) missing"), std::string::npos) << r.gaps[0];
   EXPECT_NE(r.gaps[0].find("packets the host could not write"), std::string::npos) << r.gaps[0];
   EXPECT_LT(r.records.size(), static_cast<std::size_t>(kExposures * kObservationsPerExposure));
+  fs::remove_all(dir);
+}
+
+// The file as bytes, changed by `edit`, written back.
+template <class Edit>
+void edit_file(const std::string& path, Edit edit) {
+  std::vector<char> bytes(fs::file_size(path));
+  std::ifstream(path, std::ios::binary)
+      .read(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  edit(bytes);
+  std::ofstream(path, std::ios::binary | std::ios::trunc)
+      .write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+}
+
+// The report's integrity counts (storetrack-post --report) equal the faults injected into a
+// whole file: a torn last packet, a raw packet cut out of the middle, a header checksum broken.
+TEST(PostRecording, IntegrityCountsTheInjectedFaults) {
+  const fs::path dir = fresh_dir("st_post_integrity");
+  const std::string whole = (dir / "whole.ch10").string();
+  write_run(whole, config(true, true));
+  const ch10read::File parsed = ch10read::read_file(whole);
+  const FileIntegrity clean = read_recording({whole}).integrity.at(0);
+  EXPECT_FALSE(clean.torn);
+  EXPECT_EQ(clean.packets, parsed.packets.size());
+  EXPECT_EQ(clean.bytes_in_whole_packets, clean.file_bytes);
+  EXPECT_EQ(clean.header_checksum_errors + clean.data_checksum_errors, 0u);
+  EXPECT_EQ(clean.sequence_gap_packets, 0u);
+
+  const std::string torn = (dir / "torn.ch10").string();
+  fs::copy_file(whole, torn);
+  fs::resize_file(torn, fs::file_size(whole) - 7);
+  const FileIntegrity cut = read_recording({torn}).integrity.at(0);
+  EXPECT_TRUE(cut.torn);
+  EXPECT_EQ(cut.file_bytes, fs::file_size(whole) - 7);
+  EXPECT_EQ(cut.packets, parsed.packets.size() - 1);
+  EXPECT_EQ(cut.bytes_in_whole_packets, parsed.packets.back().file_offset);
+
+  // One raw packet of the middle cut out: one packet missing from its channel's sequence.
+  const int raw = ch10read::raw_channel_id(parsed);
+  std::vector<const ch10read::Packet*> raws;
+  for (const ch10read::Packet& p : parsed.packets)
+    if (p.channel_id == raw) raws.push_back(&p);
+  ASSERT_GE(raws.size(), 3u);
+  const ch10read::Packet& middle = *raws[raws.size() / 2];
+  const std::string gapped = (dir / "gapped.ch10").string();
+  fs::copy_file(whole, gapped);
+  edit_file(gapped, [&](std::vector<char>& b) {
+    const auto at = b.begin() + static_cast<std::ptrdiff_t>(middle.file_offset);
+    b.erase(at, at + middle.packet_length);
+  });
+  EXPECT_EQ(read_recording({gapped}).integrity.at(0).sequence_gap_packets, 1u);
+
+  // A header checksum broken: the reader stops there, and says where.
+  const std::string crc = (dir / "crc.ch10").string();
+  fs::copy_file(whole, crc);
+  edit_file(crc, [&](std::vector<char>& b) { b[middle.file_offset + 22] ^= 0x5a; });
+  const FileIntegrity broken = read_recording({crc}).integrity.at(0);
+  EXPECT_TRUE(broken.torn);
+  EXPECT_EQ(broken.stop_reason,
+            "header checksum mismatch at offset " + std::to_string(middle.file_offset));
+  EXPECT_EQ(broken.bytes_in_whole_packets, middle.file_offset);
   fs::remove_all(dir);
 }
 

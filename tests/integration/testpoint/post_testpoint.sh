@@ -232,3 +232,44 @@ rc=0; "$POST" "$REC" --calibration "$OUT/fewer.json" --differences-csv "$OUT/d_f
   || fail "another rig's calibration: exit $rc: $(cat "$OUT/d_fewer.log")"
 [ ! -e "$OUT/d_fewer.csv" ] || fail "another rig's calibration: an output was written"
 pass "differences: same calibration d = 0; turned camera significant; another rig refused"
+
+# 7. The truth-free report (--report DIR) of the recording and of the torn copy, rendered by
+# host/report/storetrack_post_report.py: its integrity counts are the files' own (the live
+# run's packets, no errors; the torn copy torn), every exposure the live host wrote is there,
+# and a non-empty directory is refused by name, its files untouched.
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../../.." && pwd)"
+rc=0; "$POST" "$REC" --report "$OUT/report" >"$OUT/report.log" 2>&1 || rc=$?
+[ "$rc" -eq 0 ] || fail "--report: exit $rc: $(cat "$OUT/report.log")"
+/usr/bin/python3 "$ROOT/host/report/storetrack_post_report.py" "$OUT/report" >"$OUT/report_render.log" \
+  || fail "storetrack_post_report.py failed: $(cat "$OUT/report_render.log")"
+[ -s "$OUT/report/index.html" ] && [ -s "$OUT/report/residual_windows.png" ] \
+  && [ -s "$OUT/report/camera_usage.png" ] || fail "report: index.html or its plots missing"
+rc=0; "$POST" "$OUT/torn.ch10" --report "$OUT/report_torn" >"$OUT/report_torn.log" 2>&1 || rc=$?
+[ "$rc" -eq 0 ] || fail "--report of the torn copy: exit $rc"
+/usr/bin/python3 - "$OUT/report/report.json" "$OUT/report_torn/report.json" "$RUN/stats.json" "$REC" <<'PY'
+import json, os, struct, sys
+rep, torn, live = (json.load(open(p)) for p in sys.argv[1:4])
+data = open(sys.argv[4], "rb").read()
+packets, at = 0, 0  # the recording's packets, counted here from the headers' lengths
+while at + 24 <= len(data):
+    packets += 1
+    at += struct.unpack_from("<I", data, at + 4)[0]
+i = rep["integrity"]
+f = i["files"][0]
+print("report: %d packets (%d counted here), %d exposures, %d samples recorded; windows %d of %d "
+      "inside; torn copy: %s" % (f["packets"], packets, i["exposures_processed"],
+                                 i["samples_recorded"], rep["residual_windows"]["inside"],
+                                 rep["residual_windows"]["windows"], torn["integrity"]["files"][0]["stop_reason"]))
+assert f["packets"] == packets and f["file_bytes"] == len(data) and not f["torn"], f
+assert f["header_checksum_errors"] == f["data_checksum_errors"] == f["sequence_gap_packets"] == 0, f
+assert i["continuation_files"] == 0 and i["exposures_missing"] == 0 and i["host_ended_normally"], i
+assert i["samples_recorded"] == live["samples_written"] == i["exposures_processed"], i
+t = torn["integrity"]["files"][0]
+assert t["torn"] and t["file_bytes"] == len(data) - 5 and t["packets"] == packets - 1, t
+PY
+touch "$OUT/report_kept"; mkdir -p "$OUT/report_full"; cp "$OUT/report_kept" "$OUT/report_full/kept"
+rc=0; "$POST" "$REC" --report "$OUT/report_full" >"$OUT/report_full.log" 2>&1 || rc=$?
+[ "$rc" -eq 2 ] && grep -q "$OUT/report_full: not empty" "$OUT/report_full.log" \
+  || fail "a non-empty report directory: exit $rc: $(cat "$OUT/report_full.log")"
+[ "$(ls "$OUT/report_full")" = kept ] || fail "a non-empty report directory was written into"
+pass "report: integrity counts the file's own, the torn copy torn, a non-empty directory refused"
