@@ -759,7 +759,10 @@ TEST(UnitIntegration, SlowBoardTemperatureReadDoesNotDelayFrames) {
       "run %.2f s for %d frames at 100 fps\n",
       reads.load(), static_cast<double>(max_gap_ns) * 1e-6, run_s, frames);
   EXPECT_GE(reads.load(), 3) << "the temperature was read while running";
-  EXPECT_LT(max_gap_ns, 100'000'000) << "a frame waited for the temperature read";
+  // A frame that waited for a read begun after the previous observation left arrives at least
+  // the read's 200 ms after it; scheduling alone (a loaded sanitizer tree: 120 ms seen, with the
+  // run 9x slower than its pace) stays below that.
+  EXPECT_LT(max_gap_ns, 200'000'000) << "a frame waited for the temperature read";
   // The value read reaches the health reports.
   const bool reported = std::any_of(r.health.begin(), r.health.end(),
                                     [](const auto& h) { return h.board_temp_cdeg == 4500; });
