@@ -73,6 +73,7 @@ RigidCheckResult check_rigid_body(std::span<const MarkEstimate> marks,
     throw std::invalid_argument("rigid check: false_alarm_probability must be in (0, 1)");
   RigidCheckResult result;
   const size_t n = marks.size();
+  result.pairs.reserve(n * (n - 1) / 2);
   for (size_t i = 0; i < n; ++i)
     for (size_t j = i + 1; j < n; ++j)
       result.pairs.push_back(test_pair(marks[i], marks[j]));

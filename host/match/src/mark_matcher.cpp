@@ -393,11 +393,11 @@ MatchResult MarkMatcher::estimate_identified(std::span<const msg::MarkObservatio
     if (ob.state == ObsState::kAmbiguous) ob.mark = -1;
   for (int m = 0; m < static_cast<int>(marks_.size()); ++m)
     if (w.assigned[m].size() >= 2 && triangulate_identified(w, m, w.assigned[m]))
-      w.tri[m] = Work::Tri::accepted(w.tri_result);
+      w.tri[m].accept(w.tri_result);
   for (Work::OtherMark& other : w.others) {
     ++w.counts.given_ids_of_no_body;
     if (other.obs.size() >= 2 && triangulate_identified(w, -1, other.obs))
-      other.tri = Work::Tri::accepted(w.tri_result);
+      other.tri.accept(w.tri_result);
   }
   for (int m = 0; m < static_cast<int>(marks_.size()); ++m)
     if (w.assigned[m].size() == 1) ++w.counts.single_view;
@@ -449,6 +449,7 @@ void MarkMatcher::finish_exposure(Work& w, double t_s, MatchResult& out) {
     mm.id = id;
     mm.body = body;
     mm.source = source;
+    mm.observations.reserve(as.size());
     for (int o : as) {
       const auto& ob = w.obs[o];
       const auto& cal = rig_.cameras[ob.slot];

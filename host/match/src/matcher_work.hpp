@@ -113,9 +113,21 @@ struct MarkMatcher::Work {
     Mat3 cov = Mat3::Zero();  ///< estimate.cov_weighted (gates, layouts, tracks)
     double chi2 = 0;
     triangulate::Result estimate;  ///< THE estimate (MatchedMark::estimate)
-    /// A triangulation that passed (or needed no) test: the mark's point and estimate.
-    static Tri accepted(const triangulate::Result& r) {
-      return Tri{true, r.p_w, r.cov_weighted, r.chi2, r};
+    /// A triangulation that passed (or needed no) test: the mark's point and estimate. In
+    /// place: the estimate's per-view vectors keep their storage (no allocation per mark).
+    void accept(const triangulate::Result& r) {
+      valid = true;
+      p = r.p_w;
+      cov = r.cov_weighted;
+      chi2 = r.chi2;
+      estimate = r;
+    }
+    /// No estimate (the storage of the last one is kept for the next accept()).
+    void reject() {
+      valid = false;
+      p.setZero();
+      cov.setZero();
+      chi2 = 0;
     }
   };
   /// Per mark: velocity from its track's last two positions (corrects the cameras' time offsets).

@@ -36,12 +36,12 @@ void MarkMatcher::verify_views(Work& w) const {
     auto& as = w.assigned[m];
     std::sort(as.begin(), as.end());  // camera order: the estimate's views are in it
     auto& tri = w.tri[m];
-    tri = {};
+    tri.reject();
     if (as.size() < 2) continue;
     const int n = static_cast<int>(as.size());
     const Vec3 initial = w.pred[m].p;
     if (triangulate(w, m, as, initial) && w.tri_result.chi2 <= chi2_gate_[2 * n - 3]) {
-      tri = Work::Tri::accepted(w.tri_result);
+      tri.accept(w.tri_result);
       continue;
     }
     // Inconsistent views. With >= 3 views, drop the one observation whose removal makes the
@@ -55,7 +55,7 @@ void MarkMatcher::verify_views(Work& w) const {
         if (triangulate(w, m, rest, initial) && w.tri_result.chi2 <= chi2_gate_[2 * (n - 1) - 3]) {
           ++passing;
           culprit = k;
-          best = Work::Tri::accepted(w.tri_result);
+          best.accept(w.tri_result);
         }
       }
     }

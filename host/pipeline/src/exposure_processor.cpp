@@ -8,6 +8,7 @@
 #include <random>
 #include <span>
 #include <stdexcept>
+#include <utility>
 
 #include <Eigen/Eigenvalues>
 
@@ -64,7 +65,9 @@ struct BodySolution {
   double chi2 = 0;
 };
 
-void fill_pose(const BodySolution& b, const uncertainty::CalibrationFactors& f, PoseResult& out) {
+// Takes the solution's loadings (moved: the relative pose is derived from the body solutions
+// before they are handed over).
+void fill_pose(BodySolution&& b, const uncertainty::CalibrationFactors& f, PoseResult& out) {
   out.valid = b.valid;
   out.T = b.T_w_b;
   out.marks_used = b.marks_used;
@@ -79,8 +82,8 @@ void fill_pose(const BodySolution& b, const uncertainty::CalibrationFactors& f, 
   out.cov = Mat6::Zero();
   for (const Mat6& c : out.cov_by_source)
     out.cov += c;
-  out.loadings = b.loadings;
-  out.survey_loadings = b.survey_loadings;
+  out.loadings = std::move(b.loadings);
+  out.survey_loadings = std::move(b.survey_loadings);
 }
 
 // out += A L for row-major loadings: each output row is a combination of L's contiguous rows
@@ -628,8 +631,6 @@ void ExposureProcessor::solve(const Prepared& prep,
     }
   }
   out.T_p_s = PoseResult{};
-  fill_pose(pylon, factors_, out.T_w_p);
-  fill_pose(store, factors_, out.T_w_s);
   if (pylon.valid && store.valid) {
     BodySolution rel;
     rel.valid = true;
@@ -651,7 +652,7 @@ void ExposureProcessor::solve(const Prepared& prep,
       add_product(A_p, pylon.survey_loadings, rel.survey_loadings);
       add_product(A_s, store.survey_loadings, rel.survey_loadings);
     }
-    fill_pose(rel, factors_, out.T_p_s);
+    fill_pose(std::move(rel), factors_, out.T_p_s);
     out.xyz_ypr = xyz_ypr(out.T_p_s.T);
     if (with_uncertainty) {
       const Mat6 J = output_jacobian(out.T_p_s.T);
@@ -661,6 +662,8 @@ void ExposureProcessor::solve(const Prepared& prep,
             J * out.T_p_s.cov_by_source[static_cast<size_t>(s)] * J.transpose();
     }
   }
+  fill_pose(std::move(pylon), factors_, out.T_w_p);
+  fill_pose(std::move(store), factors_, out.T_w_s);
 }
 
 void ExposureProcessor::fill_sample(const AlignedExposure& exposure, const Prepared& prep,
