@@ -275,7 +275,7 @@ nlohmann::json write_differences(const Recording& r, const hostapp::HostOptions&
                                  const std::string& path, FilePtr f, int& exit_code) {
   hostapp::ProcessingChain chain =
       hostapp::make_processing_chain(recorded_options.cfg, recorded_inputs);
-  Replay replay(*chain.aligner, *chain.processor, chain.aligner->config().min_cameras);
+  Replay replay(chain);
   std::vector<RunPose> recorded;
   replay.on_sample([&](const pipeline::ExposureResult& e) {
     recorded.push_back(run_pose(e, recorded_inputs.pylon.marks.size()));
@@ -379,7 +379,7 @@ int run(const PostOptions& given) {
   FilePtr product(p.product_csv_path.empty() ? nullptr : create_output(p.product_csv_path));
   FilePtr diffs(p.differences_csv_path.empty() ? nullptr : create_output(p.differences_csv_path));
 
-  Replay replay(*chain.aligner, *chain.processor, chain.aligner->config().min_cameras);
+  Replay replay(chain);
   replay.collect_measurements(smoothed || product);
   std::vector<RunPose> substituted_poses;
   if (diffs)
