@@ -10,14 +10,17 @@
 #include <cstring>
 
 #include "diagnostic_csv.hpp"
+#include "host_setup.hpp"
 
 namespace storetrack::hostapp {
+
+HostLoop::HostLoop(const LoopParts& parts) : p_(parts), aligner_(*parts.chain.aligner) {}
 
 void HostLoop::on_message(const msg::AnyMessage& m) {
   if (const auto* obs = std::get_if<msg::MarkObservations>(&m)) {
     if (t_first_input_ == 0) t_first_input_ = now_;
     t_last_input_ = now_;
-    p_.aligner.push(*obs, now_, ready_);
+    aligner_.push(*obs, now_, ready_);
   } else if (const auto* h = std::get_if<msg::UnitHealth>(&m)) {
     ++totals_.health_messages;
     totals_.unit_health[h->unit_id] = {
@@ -28,13 +31,10 @@ void HostLoop::on_message(const msg::AnyMessage& m) {
   }
 }
 
-// The calibration health test after processing (docs/calibration-health.md): logs a camera
-// whose baseline ended unmonitored and a camera declared moved, rebuilds the processor on the
-// corrected rig in correct mode. Flags r.sample.
-void HostLoop::check_calibration_health(const pipeline::AlignedExposure& e,
-                                        pipeline::ExposureResult& r) {
-  pipeline::CalibrationHealthGuard& guard = *p_.health;
-  const bool rebuild = guard.observe(e, r);
+// The calibration health test's news (docs/calibration-health.md): a camera whose baseline ended
+// unmonitored, a camera declared moved, the processor rebuilt on the corrected rig.
+void HostLoop::log_calibration_health(const pipeline::AlignedExposure& e, bool processor_rebuilt) {
+  const pipeline::CalibrationHealthGuard& guard = *p_.chain.health;
   const auto& cams = guard.monitor().cameras();
   health_reported_.resize(cams.size(), false);
   for (std::size_t s = 0; s < cams.size(); ++s) {
@@ -56,31 +56,30 @@ void HostLoop::check_calibration_health(const pipeline::AlignedExposure& e,
           h.motion(0) * 1e3, h.motion(1) * 1e3, h.motion(2) * 1e3, h.motion(3) * 1e3,
           h.motion(4) * 1e3, h.motion(5) * 1e3);
   }
-  if (rebuild && p_.rebuild_processor) {
+  if (processor_rebuilt)
     spdlog::warn("calibration health: processor rebuilt on the corrected rig (correction {})",
                  guard.counters().corrections);
-    processor_ = &p_.rebuild_processor(guard.rig());
-  }
 }
 
 void HostLoop::process(const pipeline::AlignedExposure& exposure) {
   const time::MonotonicNs t0 = time::monotonic_now_ns();
-  // exclude mode: without the cameras declared moved.
-  const pipeline::AlignedExposure& e = p_.health ? p_.health->filter(exposure) : exposure;
-  // Matcher, geometry, extrapolation over short gaps, the sample.
-  pipeline::ExposureResult r = processor_->process(e);
-  if (p_.health) check_calibration_health(e, r);
+  // exclude's filter, matcher, geometry, extrapolation over short gaps, the sample, the
+  // calibration health test.
+  const ProcessedExposure done = process_exposure(p_.chain, exposure);
+  const pipeline::AlignedExposure& e = *done.exposure;
+  const pipeline::ExposureResult& r = done.result;
+  if (p_.chain.health) log_calibration_health(e, done.processor_rebuilt);
   ++totals_.exposures;
   // No output, iNET-X or file, carries an exposure too few cameras measured.
   const bool written =
-      totals_.withheld.admit(judge_sample(r.cameras_used, p_.aligner.config().min_cameras));
+      totals_.withheld.admit(judge_sample(r.cameras_used, aligner_.config().min_cameras));
   if (written) write_sample(e, r, t0);
   // After the outputs, so the page's copy is never in the latency; at most once per interval.
   if (p_.live) {
     const live::LiveTotals live_totals{totals_.exposures, totals_.samples_written,
                                        totals_.valid_samples, totals_.withheld.total(),
                                        totals_.health_messages};
-    p_.live->on_exposure(e, r, written, p_.aligner, live_totals, time::monotonic_now_ns());
+    p_.live->on_exposure(e, r, written, aligner_, live_totals, time::monotonic_now_ns());
   }
 }
 
@@ -152,7 +151,7 @@ int HostLoop::run(const LoopLimits& limits, const std::atomic<bool>& stop) {
   int exit_code = 0;
   while (!stop) {
     now_ = time::monotonic_now_ns();
-    const time::MonotonicNs deadline = p_.aligner.next_deadline();
+    const time::MonotonicNs deadline = aligner_.next_deadline();
     int timeout_ms = 100;
     if (deadline != INT64_MAX)
       timeout_ms = static_cast<int>(
@@ -177,7 +176,7 @@ int HostLoop::run(const LoopLimits& limits, const std::atomic<bool>& stop) {
       ++fi;
     }
     const time::MonotonicNs t_poll = time::monotonic_now_ns();
-    if (p_.aligner.poll(t_poll, ready_))
+    if (aligner_.poll(t_poll, ready_))
       record_aligner_event(ingest::RawSourceKind::kAlignerDeadline, t_poll);
     process_ready();
     now_ = time::monotonic_now_ns();
@@ -185,7 +184,7 @@ int HostLoop::run(const LoopLimits& limits, const std::atomic<bool>& stop) {
       t_last_progress = now_;
       std::fprintf(stderr,
                    "\rstoretrack-host: %" PRIu64 " exposures, %" PRIu64 " valid, pending %zu   ",
-                   totals_.exposures, totals_.valid_samples, p_.aligner.pending());
+                   totals_.exposures, totals_.valid_samples, aligner_.pending());
     }
     if (limits.duration_s > 0 &&
         now_ - t_start >= static_cast<std::int64_t>(limits.duration_s * 1e9))
@@ -197,7 +196,7 @@ int HostLoop::run(const LoopLimits& limits, const std::atomic<bool>& stop) {
         static_cast<std::int64_t>(totals_.exposures) >= limits.expect_exposures)
       break;
   }
-  p_.aligner.flush(ready_);
+  aligner_.flush(ready_);
   record_aligner_event(ingest::RawSourceKind::kAlignerFlush, time::monotonic_now_ns());
   process_ready();
   if (limits.progress) std::fprintf(stderr, "\n");

@@ -5,7 +5,6 @@
 
 #include <atomic>
 #include <cstdint>
-#include <functional>
 #include <map>
 #include <memory>
 #include <vector>
@@ -19,8 +18,8 @@
 #include "storetrack/ingest/receivers.hpp"
 #include "storetrack/live/live_snapshot.hpp"
 #include "storetrack/output/inetx.hpp"
-#include "storetrack/pipeline/calibration_health.hpp"
-#include "storetrack/pipeline/exposure_processor.hpp"
+#include "storetrack/pipeline/aligned_exposure.hpp"
+#include "storetrack/pipeline/exposure_result.hpp"
 #include "storetrack/time/time.hpp"
 
 namespace storetrack::hostapp {
@@ -41,25 +40,22 @@ struct LoopTotals {
   LatencyStats latency_complete, latency_all, latency_processing;
 };
 
+struct ProcessingChain;  // host_setup.hpp (host_options.hpp includes this file)
+
 /// The parts the loop drives; all owned by main.
 struct LoopParts {
   ingest::UdpReceiver& udp;
   std::vector<std::unique_ptr<ingest::CanFdReceiver>>& cans;
-  ingest::ExposureAligner& aligner;
-  pipeline::ExposureProcessor& processor;
+  /// The aligner, the processor and the calibration health guard (host_setup.hpp).
+  ProcessingChain& chain;
   output::InetxSender* inetx;  ///< nullptr: no iNET-X
   RecordingWriter& recording;
   live::LivePublisher* live = nullptr;  ///< nullptr: no live page (--live)
-  /// nullptr: calibration_health.enabled false.
-  pipeline::CalibrationHealthGuard* health = nullptr;
-  /// calibration_health.mode = correct: replaces the processor with one on the corrected rig
-  /// (main owns it) and returns it.
-  std::function<pipeline::ExposureProcessor&(const camera::RigCalibration&)> rebuild_processor;
 };
 
 class HostLoop {
  public:
-  explicit HostLoop(const LoopParts& parts) : p_(parts), processor_(&parts.processor) {}
+  explicit HostLoop(const LoopParts& parts);
   /// Runs until `stop`, a limit, or a poll() failure; returns the exit code (0 or 1).
   int run(const LoopLimits& limits, const std::atomic<bool>& stop);
   const LoopTotals& totals() const { return totals_; }
@@ -69,13 +65,13 @@ class HostLoop {
   void process_ready();
   void record_aligner_event(ingest::RawSourceKind kind, time::MonotonicNs t);
   void process(const pipeline::AlignedExposure& e);
-  void check_calibration_health(const pipeline::AlignedExposure& e, pipeline::ExposureResult& r);
+  void log_calibration_health(const pipeline::AlignedExposure& e, bool processor_rebuilt);
   void write_sample(const pipeline::AlignedExposure& e, const pipeline::ExposureResult& r,
                     time::MonotonicNs t_processing_start);
 
   LoopParts p_;
-  pipeline::ExposureProcessor* processor_;  ///< p_.processor, or its rebuild (correct mode)
-  std::vector<bool> health_reported_;       ///< per camera: its baseline's end was logged
+  ingest::ExposureAligner& aligner_;
+  std::vector<bool> health_reported_;  ///< per camera: its baseline's end was logged
   LoopTotals totals_;
   std::vector<pipeline::AlignedExposure> ready_;
   time::MonotonicNs now_ = 0, t_first_input_ = 0, t_last_input_ = 0;

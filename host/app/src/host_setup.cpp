@@ -72,15 +72,39 @@ void set_prior_poses(const HostConfig& cfg, const InputFiles& in,
   }
 }
 
+std::unique_ptr<pipeline::ExposureProcessor> make_processor(const HostConfig& cfg,
+                                                            const InputFiles& in,
+                                                            const camera::RigCalibration& rig) {
+  auto processor =
+      std::make_unique<pipeline::ExposureProcessor>(rig, in.pylon, in.store, cfg.processor);
+  set_prior_poses(cfg, in, *processor);
+  return processor;
+}
+
 }  // namespace
 
 ProcessingChain make_processing_chain(const HostConfig& cfg, const InputFiles& in) {
   ProcessingChain chain;
-  chain.processor =
-      std::make_unique<pipeline::ExposureProcessor>(in.rig, in.pylon, in.store, cfg.processor);
+  chain.cfg = cfg;
+  chain.in = in;
+  chain.processor = make_processor(cfg, in, in.rig);
   chain.aligner = std::make_unique<ingest::ExposureAligner>(cfg.aligner);
-  set_prior_poses(cfg, in, *chain.processor);
+  if (cfg.calibration_health_enabled)
+    chain.health = std::make_unique<pipeline::CalibrationHealthGuard>(
+        in.rig, in.pylon, cfg.calibration_health, cfg.calibration_health_mode);
   return chain;
+}
+
+ProcessedExposure process_exposure(ProcessingChain& chain, const pipeline::AlignedExposure& e) {
+  ProcessedExposure out;
+  out.exposure = chain.health ? &chain.health->filter(e) : &e;
+  out.result = chain.processor->process(*out.exposure);
+  if (chain.health && chain.health->observe(*out.exposure, out.result)) {
+    // The same chain on the corrected rig: its matcher's priors fitted again, its tracks new.
+    chain.processor = make_processor(chain.cfg, chain.in, chain.health->rig());
+    out.processor_rebuilt = true;
+  }
+  return out;
 }
 
 }  // namespace storetrack::hostapp

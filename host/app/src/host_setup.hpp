@@ -12,6 +12,7 @@
 #include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/output/chapter10_writer.hpp"
+#include "storetrack/pipeline/calibration_health.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/survey/survey.hpp"
 
@@ -32,13 +33,31 @@ using InputReader =
 /// (file and reason, or the option and its range).
 void load_inputs(HostOptions& o, const InputReader& read, InputFiles& in);
 
-/// The processing chain: the aligner and the processor, whose matcher has its prior poses fitted
-/// to the installation survey's initial marks (a warning names a body it cannot fit). Throws
-/// std::invalid_argument on a configuration the parts refuse.
+/// The processing chain: the aligner, the processor, whose matcher has its prior poses fitted to
+/// the installation survey's initial marks (a warning names a body it cannot fit), and the
+/// calibration health guard (nullptr when calibration_health.enabled is false). It keeps the
+/// configuration and inputs it was made from: correct mode rebuilds the processor on the
+/// corrected rig. Throws std::invalid_argument on a configuration the parts refuse.
 struct ProcessingChain {
+  HostConfig cfg;
+  InputFiles in;
   std::unique_ptr<ingest::ExposureAligner> aligner;
   std::unique_ptr<pipeline::ExposureProcessor> processor;
+  std::unique_ptr<pipeline::CalibrationHealthGuard> health;
 };
 ProcessingChain make_processing_chain(const HostConfig& cfg, const InputFiles& in);
+
+/// One exposure as storetrack-host processes it, live and replayed by storetrack-post: exclude
+/// mode's filter, the processor, the calibration health test; in correct mode the chain's
+/// processor is rebuilt on the corrected rig after an exposure whose test asks for it. The same
+/// steps in the same order, so a replay's samples are the live run's in every mode.
+struct ProcessedExposure {
+  /// As processed: exclude mode's copy without the cameras declared moved (valid until the next
+  /// call), else the exposure given.
+  const pipeline::AlignedExposure* exposure = nullptr;
+  pipeline::ExposureResult result;
+  bool processor_rebuilt = false;
+};
+ProcessedExposure process_exposure(ProcessingChain& chain, const pipeline::AlignedExposure& e);
 
 }  // namespace storetrack::hostapp

@@ -224,20 +224,12 @@ int start_live_view(const st::hostapp::HostOptions& o, const st::hostapp::InputF
   return 0;
 }
 
-// The calibration health test (docs/calibration-health.md), unless calibration_health.enabled
-// is false: 0, or exit code 2 (a configuration the monitor refuses).
-int start_calibration_health(const HostConfig& cfg, const st::hostapp::InputFiles& in,
-                             std::unique_ptr<st::pipeline::CalibrationHealthGuard>& out) {
-  if (!cfg.calibration_health_enabled) {
+// The calibration health test's settings (docs/calibration-health.md), or that it is off.
+void log_calibration_health(const HostConfig& cfg,
+                            const st::pipeline::CalibrationHealthGuard* guard) {
+  if (guard == nullptr) {
     spdlog::warn("storetrack-host: calibration health test off (calibration_health.enabled)");
-    return 0;
-  }
-  try {
-    out = std::make_unique<st::pipeline::CalibrationHealthGuard>(
-        in.rig, in.pylon, cfg.calibration_health, cfg.calibration_health_mode);
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "storetrack-host: bad configuration: %s\n", e.what());
-    return 2;
+    return;
   }
   const auto& hc = cfg.calibration_health;
   static constexpr const char* kModes[] = {"flag", "correct", "exclude"};
@@ -246,9 +238,8 @@ int start_calibration_health(const HostConfig& cfg, const st::hostapp::InputFile
       "probability {:g} per camera and window (chi-square(6) > {:.1f}), baseline {} exposures; "
       "cameras seeing fewer than {} pylon marks are named at the baseline's end",
       kModes[static_cast<int>(cfg.calibration_health_mode)], hc.window_exposures,
-      hc.false_alarm_probability, out->monitor().threshold(),
+      hc.false_alarm_probability, guard->monitor().threshold(),
       hc.window_exposures * hc.baseline_windows, hc.min_pylon_marks);
-  return 0;
 }
 
 }  // namespace
@@ -270,8 +261,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   st::ingest::ExposureAligner& aligner = *chain.aligner;
-  std::unique_ptr<st::pipeline::CalibrationHealthGuard> health;
-  if (const int rc = start_calibration_health(cfg, in, health); rc != 0) return rc;
+  log_calibration_health(cfg, chain.health.get());
 
   st::ingest::UdpReceiver udp;
   std::vector<std::unique_ptr<st::ingest::CanFdReceiver>> cans;
@@ -291,23 +281,8 @@ int main(int argc, char** argv) {
                in.rig.cameras.size(), cfg.udp_port ? fmt::format("udp:{} ", cfg.udp_port) : "",
                cans.empty() ? "" : fmt::format("{} CAN interface(s)", cans.size()));
   const st::time::MonotonicNs t_start = st::time::monotonic_now_ns();
-  // correct mode: the same chain on the corrected rig (its matcher's priors fitted again).
-  const auto rebuild =
-      [&](const st::camera::RigCalibration& rig) -> st::pipeline::ExposureProcessor& {
-    st::hostapp::InputFiles corrected = in;
-    corrected.rig = rig;
-    chain.processor = st::hostapp::make_processing_chain(cfg, corrected).processor;
-    return *chain.processor;
-  };
-  const st::hostapp::LoopParts parts{udp,
-                                     cans,
-                                     aligner,
-                                     *chain.processor,
-                                     inetx_open ? &inetx : nullptr,
-                                     recording,
-                                     live_publisher.get(),
-                                     health.get(),
-                                     rebuild};
+  const st::hostapp::LoopParts parts{
+      udp, cans, chain, inetx_open ? &inetx : nullptr, recording, live_publisher.get()};
   st::hostapp::HostLoop loop(parts);
   int exit_code = loop.run(options.limits, g_stop);
   if (live_server) live_server->stop();
@@ -323,7 +298,7 @@ int main(int argc, char** argv) {
       recording,
       loop.totals(),
       static_cast<double>(st::time::monotonic_now_ns() - t_start) * 1e-9,
-      health.get()};
+      chain.health.get()};
   st::hostapp::print_summary(sources);
   nlohmann::json stats = st::hostapp::host_stats_json(sources);
   if (live_server)

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "differences.hpp"
+#include "health_history.hpp"
 #include "host_options.hpp"
 #include "host_setup.hpp"
 #include "product_csv.hpp"
@@ -23,6 +24,7 @@
 #include "same_rig.hpp"
 #include "sample_compare.hpp"
 #include "smoothed_csv.hpp"
+#include "stats.hpp"
 #include "storetrack/json/text_file.hpp"
 #include "storetrack/output/csv_writer.hpp"
 
@@ -275,7 +277,7 @@ nlohmann::json write_differences(const Recording& r, const hostapp::HostOptions&
                                  const std::string& path, FilePtr f, int& exit_code) {
   hostapp::ProcessingChain chain =
       hostapp::make_processing_chain(recorded_options.cfg, recorded_inputs);
-  Replay replay(*chain.aligner, *chain.processor, chain.aligner->config().min_cameras);
+  Replay replay(chain);
   std::vector<RunPose> recorded;
   replay.on_sample([&](const pipeline::ExposureResult& e) {
     recorded.push_back(run_pose(e, recorded_inputs.pylon.marks.size()));
@@ -308,9 +310,28 @@ PostOptions with_report_outputs(PostOptions p, bool has_cg) {
 }
 
 // The report's data collected from the replay (--report).
+// The calibration health test as the replay ran it (the live run's, with the recorded inputs).
+void print_health(const pipeline::CalibrationHealthGuard& guard) {
+  int moved = 0;
+  for (const pipeline::CameraHealth& h : guard.monitor().cameras()) {
+    if (!h.moved) continue;
+    ++moved;
+    std::printf(
+        "calibration health: camera %d declared moved after %llu exposures of the replay "
+        "(%llu alarms in %llu windows)\n",
+        h.camera_id, static_cast<unsigned long long>(h.first_alarm_exposure),
+        static_cast<unsigned long long>(h.alarms),
+        static_cast<unsigned long long>(h.windows_tested));
+  }
+  if (moved == 0)
+    std::printf("calibration health: no camera declared moved (%llu exposures tested)\n",
+                static_cast<unsigned long long>(guard.monitor().exposures()));
+}
+
 struct ReportRows {
   std::vector<CameraResidualRow> residuals;
   std::vector<ExposureRow> exposures;
+  HealthHistory health;  ///< calibration_health.csv (when the recorded run had the test on)
 };
 
 int write_report(const PostOptions& p, const Recording& r, const Replay& replay,
@@ -324,8 +345,13 @@ int write_report(const PostOptions& p, const Recording& r, const Replay& replay,
                                 {"smoothed", where(p.smoothed_csv_path)},
                                 {"product", where(p.product_csv_path)},
                                 {"stats", where(p.stats_json_path)}};
-  if (write_report_tables(p.report_dir, r, replay.counters(), rows.residuals, rows.exposures,
-                          files))
+  const bool health_ok = rows.health.rows().empty() || [&] {
+    const FilePtr f(
+        create_output((std::filesystem::path(p.report_dir) / "calibration_health.csv").string()));
+    return write_health_csv(f.get(), rows.health.rows()) && std::fflush(f.get()) == 0;
+  }();
+  if (health_ok && write_report_tables(p.report_dir, r, replay.counters(), rows.residuals,
+                                       rows.exposures, files))
     return 0;
   std::fprintf(stderr, "storetrack-post: %s: %s\n", p.report_dir.c_str(), std::strerror(errno));
   return 1;
@@ -379,7 +405,7 @@ int run(const PostOptions& given) {
   FilePtr product(p.product_csv_path.empty() ? nullptr : create_output(p.product_csv_path));
   FilePtr diffs(p.differences_csv_path.empty() ? nullptr : create_output(p.differences_csv_path));
 
-  Replay replay(*chain.aligner, *chain.processor, chain.aligner->config().min_cameras);
+  Replay replay(chain);
   replay.collect_measurements(smoothed || product);
   std::vector<RunPose> substituted_poses;
   if (diffs)
@@ -388,16 +414,20 @@ int run(const PostOptions& given) {
     });
   ReportRows report;
   if (!p.report_dir.empty())
-    replay.on_exposure([&report, &in](const pipeline::AlignedExposure& e,
-                                      const pipeline::ExposureResult& result, bool written) {
+    replay.on_exposure([&report, &in, &chain](const pipeline::AlignedExposure& e,
+                                              const pipeline::ExposureResult& result,
+                                              bool written) {
       for (const CameraResidualRow& row : camera_residual_rows(e, result, in.rig))
         report.residuals.push_back(row);
       report.exposures.push_back(exposure_row(e, result, written));
+      if (chain.health)
+        report.health.observe(*chain.health, e.trigger_seq, result.reference_mid_tai_ns);
     });
   for (const ch10read::RawObservation& record : r.records)
     replay.feed(record);
   replay.finish();
   print_summary(r, replay.counters(), replay.samples().size());
+  if (chain.health) print_health(*chain.health);
 
   int exit_code = 0;
   SampleComparison compared;
@@ -423,6 +453,7 @@ int run(const PostOptions& given) {
     nlohmann::json j =
         stats_json(r, replay.counters(), replay.samples().size(), p.verify ? &compared : nullptr);
     if (!differences_json.is_null()) j["differences"] = differences_json;
+    if (chain.health) j["calibration_health"] = hostapp::calibration_health_json(*chain.health);
     const std::string text = j.dump(2) + "\n";
     if (std::fwrite(text.data(), 1, text.size(), stats.get()) != text.size() ||
         std::fclose(stats.release()) != 0) {

@@ -13,10 +13,10 @@ void Replay::feed(const ch10read::RawObservation& record) {
   const auto kind = static_cast<RawSourceKind>(record.source_kind);
   if (kind == RawSourceKind::kAlignerDeadline) {
     ++counters_.deadline_events;
-    aligner_.poll(record.host_mono_ns, ready_);
+    chain_.aligner->poll(record.host_mono_ns, ready_);
   } else if (kind == RawSourceKind::kAlignerFlush) {
     ++counters_.flush_events;
-    aligner_.flush(ready_);
+    chain_.aligner->flush(ready_);
   } else if (kind == RawSourceKind::kUdp || kind == RawSourceKind::kCanFd) {
     if (!(record.flags & msg::raw_observation_flags::kAccepted)) {
       ++counters_.refused_live;
@@ -33,7 +33,7 @@ void Replay::feed(const ch10read::RawObservation& record) {
     }
     if (const auto* obs = std::get_if<msg::MarkObservations>(&message)) {
       ++counters_.observations;
-      aligner_.push(*obs, record.host_mono_ns, ready_);
+      chain_.aligner->push(*obs, record.host_mono_ns, ready_);
     } else {
       ++counters_.health_messages;
     }
@@ -45,17 +45,20 @@ void Replay::feed(const ch10read::RawObservation& record) {
 }
 
 void Replay::finish() {
-  counters_.pending_at_end = aligner_.pending();
+  counters_.pending_at_end = chain_.aligner->pending();
 }
 
-// As the host loop: every exposure in release order through the processor; a sample too few
-// cameras measured is withheld.
+// As the host loop: every exposure in release order through the chain (hostapp::process_exposure:
+// exclude's filter, the processor, the calibration health test); a sample too few cameras
+// measured is withheld.
 void Replay::process_ready() {
-  for (const auto& e : ready_) {
-    const pipeline::ExposureResult r = processor_.process(e);
+  for (const auto& exposure : ready_) {
+    const hostapp::ProcessedExposure done = hostapp::process_exposure(chain_, exposure);
+    const pipeline::AlignedExposure& e = *done.exposure;
+    const pipeline::ExposureResult& r = done.result;
     ++counters_.exposures;
-    const bool written =
-        counters_.withheld.admit(hostapp::judge_sample(r.cameras_used, min_cameras_));
+    const bool written = counters_.withheld.admit(
+        hostapp::judge_sample(r.cameras_used, chain_.aligner->config().min_cameras));
     if (on_exposure_) on_exposure_(e, r, written);
     if (!written) continue;
     samples_.push_back(r.sample);

@@ -8,6 +8,7 @@
 #include <functional>
 #include <vector>
 
+#include "host_setup.hpp"
 #include "sample_gate.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/msg/messages.hpp"
@@ -33,9 +34,9 @@ struct ReplayCounters {
 
 class Replay {
  public:
-  /// `min_cameras`: the aligner's (the host withholds samples of fewer cameras).
-  Replay(ingest::ExposureAligner& aligner, pipeline::ExposureProcessor& processor, int min_cameras)
-      : aligner_(aligner), processor_(processor), min_cameras_(min_cameras) {}
+  /// The chain the recording's inputs make (hostapp::make_processing_chain): its aligner, its
+  /// processor and its calibration health guard, driven as the host drives them.
+  explicit Replay(hostapp::ProcessingChain& chain) : chain_(chain) {}
 
   /// One raw-channel record, in recorded order.
   void feed(const ch10read::RawObservation& record);
@@ -70,9 +71,7 @@ class Replay {
  private:
   void process_ready();
 
-  ingest::ExposureAligner& aligner_;
-  pipeline::ExposureProcessor& processor_;
-  int min_cameras_;
+  hostapp::ProcessingChain& chain_;
   std::vector<pipeline::AlignedExposure> ready_;
   std::vector<msg::FtiSample> samples_;
   bool collect_ = false;
