@@ -689,6 +689,7 @@ void ExposureProcessor::fill_sample(const AlignedExposure& exposure, const Prepa
       out.pylon_check.failed || out.store_check.failed)
     status |= msg::fti_status::kRigidBodyFailed;
   if (prep.clock_not_locked) status |= msg::fti_status::kClockNotLocked;
+  if (exposure.calibration_moved_mask != 0) status |= msg::fti_status::kCalibrationMoved;
   bool missing = exposure.missing_camera_mask != 0;
   for (bool used : prep.slot_used)
     missing = missing || !used;
