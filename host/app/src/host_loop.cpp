@@ -63,6 +63,30 @@ void HostLoop::check_calibration_health(const pipeline::AlignedExposure& e,
   }
 }
 
+// The store-to-aircraft clearance of a sample with a pose, measured or extrapolated
+// (docs/clearance.md, "In the host"); one log line when the alarm starts and one when it ends.
+void HostLoop::evaluate_clearance(pipeline::ExposureResult& r) {
+  clearance::SampleClearance& c = *p_.clearance;
+  if (r.T_p_s.valid)
+    c.apply(r.T_p_s.T, r.T_p_s.cov, r.sample);
+  else if (r.extrapolated)
+    c.apply(r.T_p_s_extrapolated, r.cov_T_p_s_extrapolated, r.sample);
+  else
+    return;
+  if (!c.alarm_changed()) return;
+  const msg::FtiSample& s = r.sample;
+  if (c.alarm())
+    spdlog::error(
+        "clearance ALARM from trigger_seq {}: store to {} lower bound (k=2) {:.4f} m < {:.4f} m "
+        "(distance {:.4f} m, u {:.4f} m)",
+        r.trigger_seq, c.model().aircraft_part_name(s.clearance_part), s.clearance_lower_bound_m,
+        c.alarm_threshold_m(), s.clearance_m, s.u_clearance_m);
+  else
+    spdlog::warn("clearance alarm ended at trigger_seq {}: lower bound (k=2) {:.4f} m to {}",
+                 r.trigger_seq, s.clearance_lower_bound_m,
+                 c.model().aircraft_part_name(s.clearance_part));
+}
+
 void HostLoop::process(const pipeline::AlignedExposure& exposure) {
   const time::MonotonicNs t0 = time::monotonic_now_ns();
   // exclude mode: without the cameras declared moved.
@@ -70,6 +94,7 @@ void HostLoop::process(const pipeline::AlignedExposure& exposure) {
   // Matcher, geometry, extrapolation over short gaps, the sample.
   pipeline::ExposureResult r = processor_->process(e);
   if (p_.health) check_calibration_health(e, r);
+  if (p_.clearance) evaluate_clearance(r);
   ++totals_.exposures;
   // No output, iNET-X or file, carries an exposure too few cameras measured.
   const bool written =

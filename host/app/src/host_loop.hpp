@@ -15,6 +15,7 @@
 #include "latency.hpp"
 #include "recording_writer.hpp"
 #include "sample_gate.hpp"
+#include "storetrack/clearance/sample_clearance.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/ingest/receivers.hpp"
 #include "storetrack/live/live_snapshot.hpp"
@@ -55,6 +56,8 @@ struct LoopParts {
   /// calibration_health.mode = correct: replaces the processor with one on the corrected rig
   /// (main owns it) and returns it.
   std::function<pipeline::ExposureProcessor&(const camera::RigCalibration&)> rebuild_processor;
+  /// nullptr: no clearance geometry configured (the samples' clearance fields stay NaN).
+  clearance::SampleClearance* clearance = nullptr;
 };
 
 class HostLoop {
@@ -70,6 +73,7 @@ class HostLoop {
   void record_aligner_event(ingest::RawSourceKind kind, time::MonotonicNs t);
   void process(const pipeline::AlignedExposure& e);
   void check_calibration_health(const pipeline::AlignedExposure& e, pipeline::ExposureResult& r);
+  void evaluate_clearance(pipeline::ExposureResult& r);
   void write_sample(const pipeline::AlignedExposure& e, const pipeline::ExposureResult& r,
                     time::MonotonicNs t_processing_start);
 

@@ -2,9 +2,11 @@
 // InetxSender sends real samples; the captured UDP payloads are then compared field by field
 // with what was sent. Exits 77 (ctest: skipped) with the reason when capture is impossible.
 #include <gtest/gtest.h>
+
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
+#include <cmath>
 
 #include <chrono>
 #include <cstdio>
@@ -132,10 +134,16 @@ TEST(InetxCapture, TsharkSeesTheHeaderAndPayloadThatWereSent) {
     EXPECT_EQ(at(40).get_f32(), sent[i].roll_rad);
     EXPECT_EQ(at(44).get_f32(), sent[i].u_x_m);
     EXPECT_EQ(at(68).get_f32(), sent[i].correlation[0]);
-    EXPECT_EQ(at(18).get_u16(), 2);  // block version
+    EXPECT_EQ(at(18).get_u16(), 3);  // block version
     EXPECT_EQ(at(140).get_f32(), sent[i].u_budget_sync_m);
     EXPECT_EQ(at(144).get_f32(), sent[i].u_budget_process_m);
     EXPECT_EQ(at(148).get_f32(), 2.0f);
+    EXPECT_EQ(at(164).get_u16(), sent[i].clearance_part);
+    if (!std::isnan(sent[i].clearance_m)) {
+      EXPECT_EQ(at(152).get_f32(), sent[i].clearance_m);
+      EXPECT_EQ(at(156).get_f32(), sent[i].u_clearance_m);
+      EXPECT_EQ(at(160).get_f32(), sent[i].clearance_lower_bound_m);
+    }
   }
   fs::remove_all(dir);
 }

@@ -191,7 +191,7 @@ def check_run(ok, out, rc, packets, lead, groups):
     ok(al["observations_in"] == al["observations_used"] + dropped,
        tag + "every observation used or dropped by a counted reason")
     used_csv = [int(x) for x in fti["cameras_used"]] if n else []
-    used_inetx = [p[-152 + 13] for p in packets]  # FTI parameter block: the packet's last 152 bytes
+    used_inetx = [p[-166 + 13] for p in packets]  # FTI parameter block v3: the packet's last 166 bytes
     ok(all(u >= max(1, min_cameras) for u in used_csv + used_inetx),
        tag + "no sample with cameras_used below %d (CSV min %s, iNET-X min %s)"
        % (max(1, min_cameras), min(used_csv, default=None), min(used_inetx, default=None)))

@@ -69,9 +69,13 @@ class ClearanceModel {
   /// A covariance that is not finite gives NaN uncertainties and bounds (never a throw).
   std::vector<PartClearance> evaluate(const geometry::Transform& T_p_s,
                                       const geometry::Mat6& cov_T_p_s);
+  /// The same into `out` (resized to aircraft_parts(); no allocation once it has that size).
+  void evaluate(const geometry::Transform& T_p_s, const geometry::Mat6& cov_T_p_s,
+                std::vector<PartClearance>& out);
 
   std::size_t store_parts() const { return store_.size(); }
   std::size_t aircraft_parts() const { return aircraft_.size(); }
+  std::string_view aircraft_part_name(std::size_t i) const { return aircraft_[i].name; }
 
  private:
   struct Part {
