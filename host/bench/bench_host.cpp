@@ -105,13 +105,15 @@ void BM_ExposureMatchAndProcessClearance(benchmark::State& state) {
              {"aircraft", clearance::BodyFrame::kPylon, test::aircraft(100, 100, 0.6)}}),
         0.1);
   size_t k = 0;
-  double clearance_sum = 0;
+  double clearance_sum = 0, u_sum = 0, candidate_pairs = 0;
   std::uint64_t evaluated = 0;
   for (auto _ : state) {
     pipeline::ExposureResult r = proc.process(d.exposures[k]);
     if (sample_clearance && r.T_p_s.valid) {
       sample_clearance->apply(r.T_p_s.T, r.T_p_s.cov, r.sample);
       clearance_sum += r.sample.clearance_m;
+      u_sum += r.sample.u_clearance_m;
+      candidate_pairs += sample_clearance->parts().front().candidate_pairs;
       ++evaluated;
     }
     benchmark::DoNotOptimize(r.sample);
@@ -122,8 +124,12 @@ void BM_ExposureMatchAndProcessClearance(benchmark::State& state) {
       state.ResumeTiming();
     }
   }
-  if (evaluated > 0)
-    state.counters["mean_clearance_m"] = clearance_sum / static_cast<double>(evaluated);
+  if (evaluated > 0) {
+    const auto n = static_cast<double>(evaluated);
+    state.counters["mean_clearance_m"] = clearance_sum / n;
+    state.counters["mean_u_clearance_m"] = u_sum / n;
+    state.counters["mean_candidate_pairs"] = candidate_pairs / n;
+  }
   state.counters["evaluated"] =
       benchmark::Counter(static_cast<double>(evaluated), benchmark::Counter::kAvgIterations);
   state.SetItemsProcessed(state.iterations());
