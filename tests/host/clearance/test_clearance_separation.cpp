@@ -15,6 +15,7 @@
 #include "storetrack/clearance/sample_clearance.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/sim/scenario.hpp"
+#include "storetrack/testing/counting_allocator.hpp"
 #include "storetrack/uncertainty/statistics.hpp"
 #include "synthetic_meshes.hpp"
 
@@ -112,6 +113,25 @@ TEST(ClearanceSeparation, AlarmBitAndCountersFollowTheClosedFormDistance) {
   EXPECT_EQ(clearance.counters().alarm_samples, static_cast<std::uint64_t>(expected_alarms));
   EXPECT_EQ(clearance.counters().alarm_episodes, 1u);
   EXPECT_FALSE(clearance.alarm());
+}
+
+// The host calls apply() on its real-time thread: once warm (the parts' vector and the
+// feature-switch scratch sized), a sample allocates nothing.
+TEST(ClearanceSeparation, ApplyAllocatesNothingOnceWarm) {
+  ClearanceModel model(
+      {store_box(), Body{"wing_lower", BodyFrame::kPylon, test::plane_patch(0, 0, 0, 2.0, 4)}});
+  SampleClearance clearance(std::move(model), 0.10);
+  const Mat6 cov = Mat6::Identity() * 1e-6;
+  msg::FtiSample s{};
+  const auto run = [&] {
+    for (int i = 0; i < 20; ++i)
+      clearance.apply(geometry::make_transform(Vec3(0.01 * i, 0, 0), Vec3(0, 0, 0.3 - 0.01 * i)),
+                      cov, s);
+  };
+  run();  // warm: the same poses size the scratch
+  const long before = storetrack::testing::allocation_count();
+  run();
+  EXPECT_EQ(storetrack::testing::allocation_count() - before, 0);
 }
 
 TEST(ClearanceSeparation, ThresholdThatIsNotANumberRefused) {

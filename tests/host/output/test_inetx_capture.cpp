@@ -103,7 +103,7 @@ TEST(InetxCapture, TsharkSeesTheHeaderAndPayloadThatWereSent) {
     std::string hex;
     fields >> dstport >> udp_length >> hex;
     EXPECT_EQ(dstport, port);
-    EXPECT_EQ(udp_length, 8 + 180);
+    EXPECT_EQ(udp_length, 8 + 194);
     payloads.push_back(from_hex(hex));
   }
   pclose(pipe);
@@ -116,7 +116,7 @@ TEST(InetxCapture, TsharkSeesTheHeaderAndPayloadThatWereSent) {
     EXPECT_EQ(h.control_word, 0x11000000u);
     EXPECT_EQ(h.stream_id, 0x5354'0001u);
     EXPECT_EQ(h.sequence, i);
-    EXPECT_EQ(h.packet_length, 180u);
+    EXPECT_EQ(h.packet_length, 194u);
     const std::int64_t t = sent[i].exposure_mid_tai_ns;
     EXPECT_EQ(h.ptp_seconds, static_cast<std::uint32_t>(t / 1'000'000'000));
     EXPECT_EQ(h.ptp_nanoseconds, static_cast<std::uint32_t>(t % 1'000'000'000));
