@@ -19,11 +19,13 @@
 #include <opencv2/core.hpp>
 
 #include "simulated_exposures.hpp"
+#include "storetrack/clearance/sample_clearance.hpp"
 #include "storetrack/match/mark_matcher.hpp"
 #include "storetrack/pipeline/calibration_health.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 #include "storetrack/sim/simulator.hpp"
 #include "storetrack/triangulate/triangulate.hpp"
+#include "synthetic_meshes.hpp"
 
 namespace {
 
@@ -87,6 +89,52 @@ void BM_ExposureMatchAndProcess(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations());
 }
 BENCHMARK(BM_ExposureMatchAndProcess);
+
+// BM_ExposureMatchAndProcess with the store-to-aircraft clearance on (/1) beside off (/0), as
+// the host loop adds it (docs/clearance.md, "In the host"): the clearance benchmark's meshes, a
+// 5 000-triangle store against a 20 000-triangle wing and pylon, evaluated per sample with its
+// pose and covariance (every part, the lowest bound into the sample, the alarm bit).
+void BM_ExposureMatchAndProcessClearance(benchmark::State& state) {
+  const Data& d = data();
+  auto proc = make_processor(d);
+  std::unique_ptr<clearance::SampleClearance> sample_clearance;
+  if (state.range(0) != 0)
+    sample_clearance = std::make_unique<clearance::SampleClearance>(
+        clearance::ClearanceModel(
+            {{"store", clearance::BodyFrame::kStore, test::store(3.0, 0.2, 78, 32)},
+             {"aircraft", clearance::BodyFrame::kPylon, test::aircraft(100, 100, 0.6)}}),
+        0.1);
+  size_t k = 0;
+  double clearance_sum = 0, u_sum = 0, candidate_pairs = 0;
+  std::uint64_t evaluated = 0;
+  for (auto _ : state) {
+    pipeline::ExposureResult r = proc.process(d.exposures[k]);
+    if (sample_clearance && r.T_p_s.valid) {
+      sample_clearance->apply(r.T_p_s.T, r.T_p_s.cov, r.sample);
+      clearance_sum += r.sample.clearance_m;
+      u_sum += r.sample.u_clearance_m;
+      candidate_pairs += sample_clearance->parts().front().candidate_pairs;
+      ++evaluated;
+    }
+    benchmark::DoNotOptimize(r.sample);
+    if (++k == d.exposures.size()) {
+      state.PauseTiming();
+      k = 0;
+      proc.reset_tracking();
+      state.ResumeTiming();
+    }
+  }
+  if (evaluated > 0) {
+    const auto n = static_cast<double>(evaluated);
+    state.counters["mean_clearance_m"] = clearance_sum / n;
+    state.counters["mean_u_clearance_m"] = u_sum / n;
+    state.counters["mean_candidate_pairs"] = candidate_pairs / n;
+  }
+  state.counters["evaluated"] =
+      benchmark::Counter(static_cast<double>(evaluated), benchmark::Counter::kAvgIterations);
+  state.SetItemsProcessed(state.iterations());
+}
+BENCHMARK(BM_ExposureMatchAndProcessClearance)->Arg(0)->Arg(1);
 
 // The same with the simulator's truth ids (no matching): the geometry and uncertainty alone.
 void BM_ExposureProcessKnownIds(benchmark::State& state) {

@@ -249,6 +249,15 @@ void parse_calibration_health(Object h, HostConfig& c) {
   h.finish();
 }
 
+// The clearance geometry and its alarm threshold: both, or neither.
+void parse_clearance(Object o, HostConfig& c) {
+  o.get("geometry", c.clearance_geometry);
+  o.get("alarm_threshold_m", c.clearance_alarm_threshold_m, Range::closed(-100, 100));
+  o.finish();
+  if (c.clearance_geometry.empty() != std::isnan(c.clearance_alarm_threshold_m))
+    o.fail("needs both geometry (a clearance geometry file) and alarm_threshold_m (metres)");
+}
+
 void parse_chapter10(Object o, HostConfig& c) {
   o.get("max_messages_per_packet", c.ch10.max_messages_per_packet, 1, 65535);
   o.get("data_checksum", c.ch10.data_checksum);
@@ -287,6 +296,7 @@ void read_host_config(const Value& root, HostConfig& c) {
   if (const auto v = top.find("pose_tracker")) parse_pose_tracker(v->object(), c);
   if (const auto v = top.find("identifier")) parse_identifier(v->object(), c);
   if (const auto v = top.find("calibration_health")) parse_calibration_health(v->object(), c);
+  if (const auto v = top.find("clearance")) parse_clearance(v->object(), c);
   if (const auto v = top.find("chapter10")) parse_chapter10(v->object(), c);
   if (const auto v = top.find("recording")) parse_recording(v->object(), c);
   if (const auto v = top.find("live")) parse_live(v->object(), c);

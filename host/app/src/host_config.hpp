@@ -3,6 +3,7 @@
 // HostConfigError naming the file, the field and the allowed range.
 #pragma once
 
+#include <limits>
 #include <map>
 #include <stdexcept>
 #include <string>
@@ -60,6 +61,11 @@ struct HostConfig {
   bool calibration_health_enabled = true;
   pipeline::CalibrationHealthConfig calibration_health;
   pipeline::CalibrationHealthMode calibration_health_mode = pipeline::CalibrationHealthMode::kFlag;
+  // clearance (docs/clearance.md, "In the host"): the store-to-aircraft geometry file (the
+  // clearance library's JSON; empty: no clearance, the sample's clearance fields are NaN) and
+  // the alarm threshold on the k = 2 lower bound [m] (status bit clearance_alarm below it)
+  std::string clearance_geometry;
+  double clearance_alarm_threshold_m = std::numeric_limits<double>::quiet_NaN();
   // outputs
   std::string ch10_path, csv_path, marks_csv_path, rigid_csv_path;
   std::string inetx_destination;

@@ -61,6 +61,23 @@ void HostLoop::log_calibration_health(const pipeline::AlignedExposure& e, bool p
                  guard.counters().corrections);
 }
 
+// The clearance alarm's start and end (docs/clearance.md, "In the host"): one log line each.
+void HostLoop::log_clearance(const pipeline::ExposureResult& r) {
+  const clearance::SampleClearance& c = *p_.chain.clearance;
+  if (!(r.T_p_s.valid || r.extrapolated) || !c.alarm_changed()) return;  // not evaluated, or same
+  const msg::FtiSample& s = r.sample;
+  if (c.alarm())
+    spdlog::error(
+        "clearance ALARM from trigger_seq {}: store to {} lower bound (k=2) {:.4f} m < {:.4f} m "
+        "(distance {:.4f} m, u {:.4f} m)",
+        r.trigger_seq, c.model().aircraft_part_name(s.clearance_part), s.clearance_lower_bound_m,
+        c.alarm_threshold_m(), s.clearance_m, s.u_clearance_m);
+  else
+    spdlog::warn("clearance alarm ended at trigger_seq {}: lower bound (k=2) {:.4f} m to {}",
+                 r.trigger_seq, s.clearance_lower_bound_m,
+                 c.model().aircraft_part_name(s.clearance_part));
+}
+
 void HostLoop::process(const pipeline::AlignedExposure& exposure) {
   const time::MonotonicNs t0 = time::monotonic_now_ns();
   // exclude's filter, matcher, geometry, extrapolation over short gaps, the sample, the
@@ -69,6 +86,7 @@ void HostLoop::process(const pipeline::AlignedExposure& exposure) {
   const pipeline::AlignedExposure& e = *done.exposure;
   const pipeline::ExposureResult& r = done.result;
   if (p_.chain.health) log_calibration_health(e, done.processor_rebuilt);
+  if (p_.chain.clearance) log_clearance(r);
   ++totals_.exposures;
   // No output, iNET-X or file, carries an exposure too few cameras measured.
   const bool written =

@@ -14,6 +14,7 @@
 #include "latency.hpp"
 #include "recording_writer.hpp"
 #include "sample_gate.hpp"
+#include "storetrack/clearance/sample_clearance.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/ingest/receivers.hpp"
 #include "storetrack/live/live_snapshot.hpp"
@@ -66,6 +67,7 @@ class HostLoop {
   void record_aligner_event(ingest::RawSourceKind kind, time::MonotonicNs t);
   void process(const pipeline::AlignedExposure& e);
   void log_calibration_health(const pipeline::AlignedExposure& e, bool processor_rebuilt);
+  void log_clearance(const pipeline::ExposureResult& r);
   void write_sample(const pipeline::AlignedExposure& e, const pipeline::ExposureResult& r,
                     time::MonotonicNs t_processing_start);
 

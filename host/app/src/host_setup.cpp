@@ -104,6 +104,13 @@ ProcessedExposure process_exposure(ProcessingChain& chain, const pipeline::Align
     chain.processor = make_processor(chain.cfg, chain.in, chain.health->rig());
     out.processor_rebuilt = true;
   }
+  if (chain.clearance) {
+    pipeline::ExposureResult& r = out.result;
+    if (r.T_p_s.valid)
+      chain.clearance->apply(r.T_p_s.T, r.T_p_s.cov, r.sample);
+    else if (r.extrapolated)
+      chain.clearance->apply(r.T_p_s_extrapolated, r.cov_T_p_s_extrapolated, r.sample);
+  }
   return out;
 }
 

@@ -10,6 +10,7 @@
 
 #include "host_options.hpp"
 #include "storetrack/camera/calibration_file.hpp"
+#include "storetrack/clearance/sample_clearance.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/output/chapter10_writer.hpp"
 #include "storetrack/pipeline/calibration_health.hpp"
@@ -44,13 +45,16 @@ struct ProcessingChain {
   std::unique_ptr<ingest::ExposureAligner> aligner;
   std::unique_ptr<pipeline::ExposureProcessor> processor;
   std::unique_ptr<pipeline::CalibrationHealthGuard> health;
+  /// nullptr: no clearance geometry (the samples' clearance fields stay invalid).
+  std::unique_ptr<clearance::SampleClearance> clearance;
 };
 ProcessingChain make_processing_chain(const HostConfig& cfg, const InputFiles& in);
 
 /// One exposure as storetrack-host processes it, live and replayed by storetrack-post: exclude
-/// mode's filter, the processor, the calibration health test; in correct mode the chain's
-/// processor is rebuilt on the corrected rig after an exposure whose test asks for it. The same
-/// steps in the same order, so a replay's samples are the live run's in every mode.
+/// mode's filter, the processor, the calibration health test, the store-to-aircraft clearance of
+/// a measured or extrapolated pose; in correct mode the chain's processor is rebuilt on the
+/// corrected rig after an exposure whose test asks for it. The same steps in the same order, so a
+/// replay's samples are the live run's in every mode.
 struct ProcessedExposure {
   /// As processed: exclude mode's copy without the cameras declared moved (valid until the next
   /// call), else the exposure given.

@@ -26,6 +26,7 @@
 #include "host_setup.hpp"
 #include "recording_writer.hpp"
 #include "stats.hpp"
+#include "storetrack/clearance/sample_clearance.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
 #include "storetrack/ingest/receivers.hpp"
 #include "storetrack/json/text_file.hpp"
@@ -45,8 +46,31 @@ void on_signal(int) {
   g_stop = true;
 }
 
-// Reads the input files and applies the options onto the configuration; 0 or exit code 2.
-int load_inputs(st::hostapp::HostOptions& o, st::hostapp::InputFiles& in) {
+// The store-to-aircraft clearance (docs/clearance.md), when clearance.geometry is configured:
+// 0, or exit code 2 (a geometry file or mesh that cannot be read or is refused).
+int start_clearance(const HostConfig& cfg, std::unique_ptr<st::clearance::SampleClearance>& out) {
+  if (cfg.clearance_geometry.empty()) return 0;
+  try {
+    out = std::make_unique<st::clearance::SampleClearance>(
+        st::clearance::ClearanceModel::load(cfg.clearance_geometry),
+        cfg.clearance_alarm_threshold_m);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "storetrack-host: clearance.geometry '%s': %s\n",
+                 cfg.clearance_geometry.c_str(), e.what());
+    return 2;
+  }
+  spdlog::info(
+      "storetrack-host: clearance: {} store part(s) against {} aircraft part(s) ({}), alarm "
+      "when the k=2 lower bound is below {} m",
+      out->model().store_parts(), out->model().aircraft_parts(), cfg.clearance_geometry,
+      cfg.clearance_alarm_threshold_m);
+  return 0;
+}
+
+// Reads the input files (the clearance geometry too) and applies the options onto the
+// configuration; 0 or exit code 2.
+int load_inputs(st::hostapp::HostOptions& o, st::hostapp::InputFiles& in,
+                std::unique_ptr<st::clearance::SampleClearance>& clearance) {
   HostConfig& cfg = o.cfg;
   const auto from_disk = [](st::output::RecordedInputKind, const std::string& path) {
     return st::jsonfile::read_text_file(path);
@@ -57,6 +81,7 @@ int load_inputs(st::hostapp::HostOptions& o, st::hostapp::InputFiles& in) {
     std::fprintf(stderr, "storetrack-host: %s\n", e.what());
     return 2;
   }
+  if (const int rc = start_clearance(cfg, clearance); rc != 0) return rc;
   if (cfg.udp_port == 0 && cfg.can_interfaces.empty()) {
     std::fprintf(stderr, "storetrack-host: no input: give --udp-port and/or --can\n");
     return 2;
@@ -250,7 +275,8 @@ int main(int argc, char** argv) {
   options.command_line.assign(argv, argv + argc);
   spdlog::set_level(spdlog::level::from_str(options.log_level));
   st::hostapp::InputFiles in;
-  if (const int rc = load_inputs(options, in); rc != 0) return rc;
+  std::unique_ptr<st::clearance::SampleClearance> clearance;
+  if (const int rc = load_inputs(options, in, clearance); rc != 0) return rc;
   const HostConfig& cfg = options.cfg;
 
   st::hostapp::ProcessingChain chain;
@@ -281,6 +307,7 @@ int main(int argc, char** argv) {
                in.rig.cameras.size(), cfg.udp_port ? fmt::format("udp:{} ", cfg.udp_port) : "",
                cans.empty() ? "" : fmt::format("{} CAN interface(s)", cans.size()));
   const st::time::MonotonicNs t_start = st::time::monotonic_now_ns();
+  chain.clearance = std::move(clearance);
   const st::hostapp::LoopParts parts{
       udp, cans, chain, inetx_open ? &inetx : nullptr, recording, live_publisher.get()};
   st::hostapp::HostLoop loop(parts);
@@ -298,7 +325,8 @@ int main(int argc, char** argv) {
       recording,
       loop.totals(),
       static_cast<double>(st::time::monotonic_now_ns() - t_start) * 1e-9,
-      chain.health.get()};
+      chain.health.get(),
+      chain.clearance.get()};
   st::hostapp::print_summary(sources);
   nlohmann::json stats = st::hostapp::host_stats_json(sources);
   if (live_server)

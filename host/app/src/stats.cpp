@@ -246,6 +246,18 @@ nlohmann::json outputs_stats_json(const output::InetxSender& inetx,
   return out;
 }
 
+nlohmann::json clearance_json(const clearance::SampleClearance& clearance) {
+  const clearance::ClearanceCounters& c = clearance.counters();
+  nlohmann::json parts = nlohmann::json::array();
+  for (std::size_t i = 0; i < clearance.model().aircraft_parts(); ++i)
+    parts.push_back(std::string(clearance.model().aircraft_part_name(i)));
+  return {{"aircraft_parts", parts},
+          {"alarm_threshold_m", clearance.alarm_threshold_m()},
+          {"samples_evaluated", c.samples_evaluated},
+          {"alarm_samples", c.alarm_samples},
+          {"alarm_episodes", c.alarm_episodes}};
+}
+
 nlohmann::json calibration_health_json(const pipeline::CalibrationHealthGuard& guard) {
   static constexpr const char* kModes[] = {"flag", "correct", "exclude"};
   const auto& mon = guard.monitor();
@@ -313,6 +325,7 @@ nlohmann::json host_stats_json(const StatsSources& s) {
     health[std::to_string(unit)] = h;
   stats["unit_health"] = health;
   if (s.health) stats["calibration_health"] = calibration_health_json(*s.health);
+  if (s.clearance) stats["clearance"] = clearance_json(*s.clearance);
   return stats;
 }
 

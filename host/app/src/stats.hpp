@@ -33,11 +33,15 @@ struct StatsSources {
   double wall_time_s = 0;
   /// nullptr: calibration_health.enabled false.
   const pipeline::CalibrationHealthGuard* health = nullptr;
+  /// nullptr: no clearance geometry configured.
+  const clearance::SampleClearance* clearance = nullptr;
 };
 
 nlohmann::json host_stats_json(const StatsSources& s);
 /// Per camera: monitored, moved, windows, alarms, the motion estimate (stats "calibration_health").
 nlohmann::json calibration_health_json(const pipeline::CalibrationHealthGuard& guard);
+/// Samples evaluated, alarm samples and alarm episodes, the threshold (stats "clearance").
+nlohmann::json clearance_json(const clearance::SampleClearance& clearance);
 /// Chapter 10 counters, the files written and the recording queue (stats "recording").
 nlohmann::json recording_stats_json(const RecordingWriter& recording,
                                     const std::string& requested_ch10_path);

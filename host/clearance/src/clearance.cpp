@@ -61,17 +61,22 @@ ClearanceModel ClearanceModel::load(const std::string& geometry_path,
 
 std::vector<PartClearance> ClearanceModel::evaluate(const geometry::Transform& T_p_s,
                                                     const Mat6& cov_T_p_s) {
+  std::vector<PartClearance> out;
+  evaluate(T_p_s, cov_T_p_s, out);
+  return out;
+}
+
+void ClearanceModel::evaluate(const geometry::Transform& T_p_s, const Mat6& cov_T_p_s,
+                              std::vector<PartClearance>& out) {
   // lambda_max bounds every pair's variance: J^T C J <= lambda_max |J|^2, |J|^2 <= 1 + r^2.
   const double lambda_max =
       cov_T_p_s.allFinite() ? Eigen::SelfAdjointEigenSolver<Mat6>(cov_T_p_s, Eigen::EigenvaluesOnly)
                                   .eigenvalues()
                                   .maxCoeff()
                             : std::numeric_limits<double>::quiet_NaN();
-  std::vector<PartClearance> out;
-  out.reserve(aircraft_.size());
-  for (const Part& part : aircraft_)
-    out.push_back(evaluate_part(part, T_p_s, cov_T_p_s, lambda_max));
-  return out;
+  out.resize(aircraft_.size());
+  for (std::size_t i = 0; i < aircraft_.size(); ++i)
+    out[i] = evaluate_part(aircraft_[i], T_p_s, cov_T_p_s, lambda_max);
 }
 
 namespace {

@@ -209,10 +209,10 @@ std::optional<std::string> decode_tmats(const Packet& p) {
 }
 
 std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> b, std::string* error) {
-  // Layout version 2 of docs/fti-output.md: 152 bytes. The version is read first so that a block
+  // Layout version 3 of docs/fti-output.md: 166 bytes. The version is read first so that a block
   // of another layout is refused by its version, never decoded with this one's offsets.
-  constexpr std::uint16_t kVersion = 2;
-  constexpr std::size_t kBytes = 152;
+  constexpr std::uint16_t kVersion = 3;
+  constexpr std::size_t kBytes = 166;
   auto fail = [&](std::string why) { return refuse<FtiBlock>(error, std::move(why)); };
   if (b.size() < 20)
     return fail("FTI block of " + std::to_string(b.size()) + " bytes: no version field");
@@ -221,7 +221,7 @@ std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> b, std::s
     return fail("FTI block version " + std::to_string(version) + ": this reader decodes version " +
                 std::to_string(kVersion) + " only (docs/fti-output.md)");
   if (b.size() < kBytes)
-    return fail("FTI block version 2 of " + std::to_string(b.size()) + " bytes, needs " +
+    return fail("FTI block version 3 of " + std::to_string(b.size()) + " bytes, needs " +
                 std::to_string(kBytes));
   FtiBlock f;
   read_be_fields(b, be_field(0, 8, f.exposure_mid_tai_ns), be_field(8, 4, f.trigger_seq),
@@ -238,6 +238,10 @@ std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> b, std::s
   for (int i = 0; i < 5; ++i)
     f.budget[i] = be_float(b, 128 + 4 * static_cast<std::size_t>(i));
   f.coverage_factor = be_float(b, 148);
+  f.clearance_m = be_float(b, 152);
+  f.u_clearance_m = be_float(b, 156);
+  f.clearance_lower_bound_m = be_float(b, 160);
+  f.clearance_part = static_cast<std::uint16_t>(be_u(b, 164, 2));
   return f;
 }
 

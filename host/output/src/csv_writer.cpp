@@ -35,8 +35,10 @@ std::vector<std::string> fti_csv_columns() {
     for (int j = i + 1; j < 6; ++j)
       c.push_back(std::string("r_") + names[i] + "_" + names[j] + " [1]");
   for (const char* b : {"u_budget_centroid [m]", "u_budget_intrinsic [m]", "u_budget_extrinsic [m]",
-                        "u_budget_sync [m]", "u_budget_process [m]", "coverage_factor [1]"})
+                        "u_budget_sync [m]", "u_budget_process [m]", "coverage_factor [1]",
+                        "clearance [m]", "u_clearance [m]", "clearance_lower_bound [m]"})
     c.emplace_back(b);
+  c.emplace_back("clearance_part [1]");
   return c;
 }
 
@@ -89,8 +91,10 @@ int FtiCsvWriter::write(const msg::FtiSample& s) {
   write_floats(values);
   write_floats(s.correlation);
   const float tail[] = {s.u_budget_centroid_m, s.u_budget_intrinsic_m, s.u_budget_extrinsic_m,
-                        s.u_budget_sync_m,     s.u_budget_process_m,   s.coverage_factor};
+                        s.u_budget_sync_m,     s.u_budget_process_m,   s.coverage_factor,
+                        s.clearance_m,         s.u_clearance_m,        s.clearance_lower_bound_m};
   write_floats(tail);
+  std::fprintf(file_, ",%u", unsigned{s.clearance_part});
   // Line-buffered: the newline writes the row, so a full disk shows here.
   if (std::fputc('\n', file_) == EOF || std::ferror(file_)) {
     std::clearerr(file_);

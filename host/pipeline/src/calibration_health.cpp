@@ -229,20 +229,24 @@ CalibrationHealthGuard::CalibrationHealthGuard(const camera::RigCalibration& rig
       applied_cov_(rig.cameras.size(), Mat6::Zero()) {}
 
 const AlignedExposure& CalibrationHealthGuard::filter(const AlignedExposure& exposure) {
-  if (mode_ != CalibrationHealthMode::kExclude) return exposure;
   bool any = false;
   for (const CameraHealth& h : monitor_.cameras())
     any = any || h.moved;
   if (!any) return exposure;
   filtered_ = exposure;  // the vector's capacity is reused
+  const bool exclude = mode_ == CalibrationHealthMode::kExclude;
   for (msg::MarkObservations& obs : filtered_.cameras)
-    for (std::size_t s = 0; s < monitor_.cameras().size(); ++s)
-      if (monitor_.cameras()[s].moved && monitor_.cameras()[s].camera_id == obs.camera_id) {
-        // Delivered, but not used: counted missing, so the sample says so (camera_missing).
-        obs.mark_count = 0;
-        filtered_.missing_camera_mask |= 1u << s;
-      }
-  ++counters_.exposures_excluding;
+    for (std::size_t s = 0; s < monitor_.cameras().size(); ++s) {
+      if (!monitor_.cameras()[s].moved || monitor_.cameras()[s].camera_id != obs.camera_id)
+        continue;
+      // Used (flag, correct) or dropped (exclude): the sample carries calibration_moved.
+      if (obs.mark_count > 0) filtered_.calibration_moved_mask |= 1u << s;
+      if (!exclude) continue;
+      // Delivered, but not used: counted missing, so the sample says so (camera_missing).
+      obs.mark_count = 0;
+      filtered_.missing_camera_mask |= 1u << s;
+    }
+  if (exclude) ++counters_.exposures_excluding;
   return filtered_;
 }
 
@@ -260,12 +264,9 @@ bool CalibrationHealthGuard::observe(const AlignedExposure& exposure,
                                      const ExposureResult& result) {
   monitor_.update(exposure, result);
   bool rebuild = false;
-  bool used_moved = false;
   for (std::size_t s = 0; s < monitor_.cameras().size(); ++s) {
     const CameraHealth& h = monitor_.cameras()[s];
     if (!h.moved) continue;
-    for (const msg::MarkObservations& obs : exposure.cameras)
-      used_moved = used_moved || (obs.camera_id == h.camera_id && obs.mark_count > 0);
     // The first alarm's window is partly before the move: correct from the next ones.
     const bool new_full_window = h.alarms > alarms_seen_[s] && h.alarms > 1;
     alarms_seen_[s] = h.alarms;
@@ -276,10 +277,9 @@ bool CalibrationHealthGuard::observe(const AlignedExposure& exposure,
       rebuild = true;
     }
   }
-  // The FtiSample status bit is not yet in the schema (docs/calibration-health.md, "Left out"):
-  // the samples are counted, and the guard's flagged() tells the caller.
-  flagged_ = used_moved;
-  if (used_moved) ++counters_.samples_flagged;
+  // As filter() marked it before processing: the sample's status bit calibration_moved.
+  flagged_ = exposure.calibration_moved_mask != 0;
+  if (flagged_) ++counters_.samples_flagged;
   if (!rebuild) return false;
   rig_ = original_;
   for (std::size_t s = 0; s < corrected_.size(); ++s)

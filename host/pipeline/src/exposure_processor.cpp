@@ -677,6 +677,11 @@ void ExposureProcessor::fill_sample(const AlignedExposure& exposure, const Prepa
   s.trigger_seq = exposure.trigger_seq;
   s.exposure_mid_tai_ns = prep.t_ref_tai_ns;
   s.coverage_factor = static_cast<float>(config_.coverage_factor);
+  // The clearance, when a geometry is configured, is the host's (clearance::SampleClearance).
+  s.clearance_m = msg::fti_sample_invalid::kClearanceM;
+  s.u_clearance_m = msg::fti_sample_invalid::kUClearanceM;
+  s.clearance_lower_bound_m = msg::fti_sample_invalid::kClearanceLowerBoundM;
+  s.clearance_part = msg::fti_sample_invalid::kClearancePart;
   std::uint16_t status = 0;
   if (out.T_p_s.valid) {
     status |= msg::fti_status::kValid;
@@ -692,6 +697,7 @@ void ExposureProcessor::fill_sample(const AlignedExposure& exposure, const Prepa
       out.pylon_check.failed || out.store_check.failed)
     status |= msg::fti_status::kRigidBodyFailed;
   if (prep.clock_not_locked) status |= msg::fti_status::kClockNotLocked;
+  if (exposure.calibration_moved_mask != 0) status |= msg::fti_status::kCalibrationMoved;
   bool missing = exposure.missing_camera_mask != 0;
   for (bool used : prep.slot_used)
     missing = missing || !used;

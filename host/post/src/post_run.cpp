@@ -180,6 +180,27 @@ nlohmann::json stats_json(const Recording& r, const ReplayCounters& c, std::size
   return j;
 }
 
+// The clearance geometry the recorded configuration names (clearance.geometry). The recording
+// does not carry it (its meshes are separate files): read from its path when it is there, else
+// the replayed samples' clearance fields stay invalid and --verify shows them differing.
+std::unique_ptr<clearance::SampleClearance> replay_clearance(const hostapp::HostConfig& cfg) {
+  if (cfg.clearance_geometry.empty()) return nullptr;
+  try {
+    auto c = std::make_unique<clearance::SampleClearance>(
+        clearance::ClearanceModel::load(cfg.clearance_geometry), cfg.clearance_alarm_threshold_m);
+    std::fprintf(stderr,
+                 "storetrack-post: clearance: the geometry read from %s (not in the recording)\n",
+                 cfg.clearance_geometry.c_str());
+    return c;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr,
+                 "storetrack-post: clearance NOT replayed: %s (the recording does not carry the "
+                 "geometry): the replayed samples' clearance fields are invalid\n",
+                 e.what());
+    return nullptr;
+  }
+}
+
 struct FileCloser {
   void operator()(std::FILE* f) const {
     if (f) std::fclose(f);
@@ -277,6 +298,7 @@ nlohmann::json write_differences(const Recording& r, const hostapp::HostOptions&
                                  const std::string& path, FilePtr f, int& exit_code) {
   hostapp::ProcessingChain chain =
       hostapp::make_processing_chain(recorded_options.cfg, recorded_inputs);
+  chain.clearance = replay_clearance(recorded_options.cfg);
   Replay replay(chain);
   std::vector<RunPose> recorded;
   replay.on_sample([&](const pipeline::ExposureResult& e) {
@@ -383,6 +405,7 @@ int run(const PostOptions& given) {
                      ": --differences-csv compares with a substituted input: give --calibration, "
                      "--pylon-survey, --store-survey or --config");
   hostapp::ProcessingChain chain = hostapp::make_processing_chain(o.cfg, in);
+  chain.clearance = replay_clearance(o.cfg);
   smooth::CgOffset cg;
   if (!p.product_csv_path.empty()) cg = required_cg(in, o, r, p);
 

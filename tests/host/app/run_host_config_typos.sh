@@ -46,6 +46,15 @@ sed '0,/"format"/s/"format"/"fromat"/' "$pylon" >"$work/pylon_format.json"
 expect_refused pylon_optional '{}' "$work/pylon_format.json" \
   "$work/pylon_format.json: fromat: unknown key (did you mean format?)"
 
+# Clearance (docs/clearance.md): a geometry file that does not exist, and a threshold that is
+# not a number, refused by name before anything is received.
+expect_refused clearance_missing \
+  "{\"clearance\": {\"geometry\": \"$work/no_such_geometry.json\", \"alarm_threshold_m\": 0.3}}" \
+  "$pylon" "clearance.geometry '$work/no_such_geometry.json'"
+expect_refused clearance_threshold \
+  '{"clearance": {"geometry": "g.json", "alarm_threshold_m": "low"}}' "$pylon" \
+  "$work/clearance_threshold.json: clearance.alarm_threshold_m: expected a number"
+
 # The same files without a typo: past the configuration, the program stops only for want of an
 # input (no --udp-port, no --can): its own message, not a configuration refusal.
 printf '{"aligner": {"max_wait_ms": 10}, "udp": {"port": 0}}\n' >"$work/good.json"

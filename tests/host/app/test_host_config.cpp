@@ -81,6 +81,22 @@ TEST(HostConfig, AlignerIntegersOutsideTheirRangeAreRefused) {
                    "max_sequence_lead", "[1, 100000]");
 }
 
+// clearance (docs/clearance.md, "In the host"): a threshold that is not a number, and the
+// geometry without a threshold or the reverse, refused by name.
+TEST(HostConfig, ClearanceKeysAreCheckedByName) {
+  expect_refused(R"({"clearance": {"geometry": "g.json", "alarm_threshold_m": "0.5"}})",
+                 "clearance.alarm_threshold_m", "number");
+  expect_refused(R"({"clearance": {"geometry": "g.json"}})", "clearance", "needs both geometry");
+  expect_refused(R"({"clearance": {"alarm_threshold_m": 0.5}})", "clearance",
+                 "needs both geometry");
+  expect_refused(R"({"clearance": {"geometry": "g.json", "threshold_m": 0.5}})",
+                 "clearance.threshold_m", "unknown key");
+  HostConfig c;
+  ASSERT_EQ(load(R"({"clearance": {"geometry": "g.json", "alarm_threshold_m": 0.3}})", &c), "");
+  EXPECT_EQ(c.clearance_geometry, "g.json");
+  EXPECT_EQ(c.clearance_alarm_threshold_m, 0.3);
+}
+
 // calibration_health (docs/calibration-health.md): the mode by name, the ranges, and a camera the
 // rig does not have refused by name.
 TEST(HostConfig, CalibrationHealthKeysAreCheckedByName) {

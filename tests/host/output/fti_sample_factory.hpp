@@ -39,6 +39,13 @@ inline msg::FtiSample make_sample(std::uint32_t k, std::int64_t t0_tai_ns, std::
   // Extrapolated-like samples carry a process-noise part, measured-like ones 0 (both on the wire).
   s.u_budget_process_m = (k % 3 == 0) ? 0.0f : 1e-4f * static_cast<float>(1 + k % 7);
   s.coverage_factor = 2.0f;
+  // Clearance (block version 3): every 5th sample without a geometry (invalid), no rng draw so
+  // the other fields' sequences stay those of version 2.
+  const bool clearance = k % 5 != 0;
+  s.clearance_m = clearance ? 0.25f + 0.001f * static_cast<float>(k) : NAN;
+  s.u_clearance_m = clearance ? 3e-4f : NAN;
+  s.clearance_lower_bound_m = clearance ? s.clearance_m - 6e-4f : NAN;
+  s.clearance_part = clearance ? static_cast<std::uint16_t>(k % 3) : 0xFFFF;
   s.status = (k % 17 == 0) ? 0 : msg::fti_status::kValid;
   return s;
 }

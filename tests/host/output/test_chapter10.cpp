@@ -3,9 +3,11 @@
 // sequence numbers per channel, 1 Hz time packets matching the samples' UTC seconds, every
 // message with its subchannel, time stamp and values, and a file truncated mid-packet.
 #include <gtest/gtest.h>
+
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
+#include <cmath>
 
 #include <cstdio>
 #include <filesystem>
@@ -119,7 +121,7 @@ void check_file(const ch10read::File& f, const std::vector<msg::FtiSample>& samp
                   static_cast<std::uint64_t>((t_utc_ns - rtc_epoch_utc * 1'000'000'000LL) / 100));
         const auto b = ch10read::decode_fti_block(m.bytes);
         ASSERT_TRUE(b);
-        EXPECT_EQ(b->version, 2);
+        EXPECT_EQ(b->version, 3);
         EXPECT_EQ(b->trigger_seq, s.trigger_seq);
         EXPECT_EQ(b->exposure_mid_tai_ns, s.exposure_mid_tai_ns);
         EXPECT_EQ(b->store_id, s.store_id);
@@ -133,6 +135,15 @@ void check_file(const ch10read::File& f, const std::vector<msg::FtiSample>& samp
         EXPECT_EQ(b->budget[3], s.u_budget_sync_m);
         EXPECT_EQ(b->budget[4], s.u_budget_process_m);
         EXPECT_EQ(b->coverage_factor, 2.0);
+        if (std::isnan(s.clearance_m)) {
+          EXPECT_TRUE(std::isnan(b->clearance_m));
+          EXPECT_TRUE(std::isnan(b->clearance_lower_bound_m));
+        } else {
+          EXPECT_EQ(b->clearance_m, s.clearance_m);
+          EXPECT_EQ(b->u_clearance_m, s.u_clearance_m);
+          EXPECT_EQ(b->clearance_lower_bound_m, s.clearance_lower_bound_m);
+        }
+        EXPECT_EQ(b->clearance_part, s.clearance_part);
       }
     } else {
       EXPECT_EQ(p.data_type, 0x01) << "unexpected data type";
@@ -244,7 +255,7 @@ TEST(Chapter10, CrashLosesAtMostTheLastPacket) {
   const auto f = ch10read::read_file(path.string());
   EXPECT_GT(f.packets.size(), 50u);
   // At most one partial packet at the end, everything before it intact.
-  EXPECT_GE(f.bytes_in_whole_packets + 24 + 4 + 12 + 152 + 4, fs::file_size(path));
+  EXPECT_GE(f.bytes_in_whole_packets + 24 + 4 + 12 + 166 + 4, fs::file_size(path));
   for (const auto& p : f.packets)
     EXPECT_TRUE(p.data_checksum_ok);
   fs::remove(path);
@@ -268,24 +279,30 @@ TEST(Chapter10, UnwritablePathIsAnError) {
   EXPECT_THROW(ch10read::read_file("/nonexistent-dir/x.ch10"), std::runtime_error);
 }
 
-// The reader decodes block version 2 (152 bytes) only: a version-1 block (148 bytes, no
-// u_budget_process) is refused with the version named, never read with version 2's offsets.
+// The reader decodes block version 3 (166 bytes) only: a version-1 block (148 bytes, no
+// u_budget_process) or a version-2 block (152 bytes, no clearance) is refused with the version
+// named, never read with version 3's offsets.
 TEST(Chapter10Reader, FtiBlockOfAnotherVersionIsRefusedByName) {
   std::vector<std::uint8_t> block(148, 0);
   block[19] = 1;  // block_version 1, big-endian at offset 18
   std::string error;
   EXPECT_FALSE(ch10read::decode_fti_block(block, &error).has_value());
-  EXPECT_EQ(error, "FTI block version 1: this reader decodes version 2 only (docs/fti-output.md)");
-  block.resize(152);
-  EXPECT_FALSE(ch10read::decode_fti_block(block, &error).has_value());
+  EXPECT_EQ(error, "FTI block version 1: this reader decodes version 3 only (docs/fti-output.md)");
   block[19] = 2;
-  block.resize(150);
-  EXPECT_FALSE(ch10read::decode_fti_block(block, &error).has_value());
-  EXPECT_EQ(error, "FTI block version 2 of 150 bytes, needs 152");
+  for (std::size_t bytes : {std::size_t{152}, std::size_t{166}}) {
+    block.resize(bytes);
+    EXPECT_FALSE(ch10read::decode_fti_block(block, &error).has_value());
+    EXPECT_EQ(error,
+              "FTI block version 2: this reader decodes version 3 only (docs/fti-output.md)");
+  }
+  block[19] = 3;
   block.resize(152);
+  EXPECT_FALSE(ch10read::decode_fti_block(block, &error).has_value());
+  EXPECT_EQ(error, "FTI block version 3 of 152 bytes, needs 166");
+  block.resize(166);
   const auto b = ch10read::decode_fti_block(block, &error);
   ASSERT_TRUE(b.has_value());
-  EXPECT_EQ(b->version, 2);
+  EXPECT_EQ(b->version, 3);
 }
 
 // Reproducer of the Message F0 over-read (issue 11), minimised from the fuzz_ch10_reader seed

@@ -2,9 +2,11 @@
 // InetxSender sends real samples; the captured UDP payloads are then compared field by field
 // with what was sent. Exits 77 (ctest: skipped) with the reason when capture is impossible.
 #include <gtest/gtest.h>
+
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
+#include <cmath>
 
 #include <chrono>
 #include <cstdio>
@@ -101,7 +103,7 @@ TEST(InetxCapture, TsharkSeesTheHeaderAndPayloadThatWereSent) {
     std::string hex;
     fields >> dstport >> udp_length >> hex;
     EXPECT_EQ(dstport, port);
-    EXPECT_EQ(udp_length, 8 + 180);
+    EXPECT_EQ(udp_length, 8 + 194);
     payloads.push_back(from_hex(hex));
   }
   pclose(pipe);
@@ -114,7 +116,7 @@ TEST(InetxCapture, TsharkSeesTheHeaderAndPayloadThatWereSent) {
     EXPECT_EQ(h.control_word, 0x11000000u);
     EXPECT_EQ(h.stream_id, 0x5354'0001u);
     EXPECT_EQ(h.sequence, i);
-    EXPECT_EQ(h.packet_length, 180u);
+    EXPECT_EQ(h.packet_length, 194u);
     const std::int64_t t = sent[i].exposure_mid_tai_ns;
     EXPECT_EQ(h.ptp_seconds, static_cast<std::uint32_t>(t / 1'000'000'000));
     EXPECT_EQ(h.ptp_nanoseconds, static_cast<std::uint32_t>(t % 1'000'000'000));
@@ -132,10 +134,16 @@ TEST(InetxCapture, TsharkSeesTheHeaderAndPayloadThatWereSent) {
     EXPECT_EQ(at(40).get_f32(), sent[i].roll_rad);
     EXPECT_EQ(at(44).get_f32(), sent[i].u_x_m);
     EXPECT_EQ(at(68).get_f32(), sent[i].correlation[0]);
-    EXPECT_EQ(at(18).get_u16(), 2);  // block version
+    EXPECT_EQ(at(18).get_u16(), 3);  // block version
     EXPECT_EQ(at(140).get_f32(), sent[i].u_budget_sync_m);
     EXPECT_EQ(at(144).get_f32(), sent[i].u_budget_process_m);
     EXPECT_EQ(at(148).get_f32(), 2.0f);
+    EXPECT_EQ(at(164).get_u16(), sent[i].clearance_part);
+    if (!std::isnan(sent[i].clearance_m)) {
+      EXPECT_EQ(at(152).get_f32(), sent[i].clearance_m);
+      EXPECT_EQ(at(156).get_f32(), sent[i].u_clearance_m);
+      EXPECT_EQ(at(160).get_f32(), sent[i].clearance_lower_bound_m);
+    }
   }
   fs::remove_all(dir);
 }

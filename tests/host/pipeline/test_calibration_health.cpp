@@ -215,6 +215,44 @@ TEST(CalibrationHealth, ShippedScenariosMoveTheCameraAndNotTheCalibration) {
   }
 }
 
+// The sample's status bit calibration_moved in the camera_step scenario (its step: 0.02 deg and
+// 0.5 mm, here 2 windows after a 20-window baseline): in every mode, set on exactly the samples
+// processed after the monitor declared camera 1 moved, never before.
+TEST(CalibrationHealth, CalibrationMovedBitSetOnEverySampleAfterTheDeclarationOnly) {
+  sim::Scenario sc = sim::load_scenario(test::scenario_path("camera_step"));
+  CalibrationHealthConfig config;
+  config.baseline_windows = 20;
+  const int W = config.window_exposures;
+  const int step = W * config.baseline_windows + 2 * W + 31;
+  sc.num_exposures = step + 2 * W;
+  sc.cameras[kMovedCamera].motion.start_s = (step - 0.5) / 400.0;
+  const sim::Simulator sim(sc, 5);
+  for (const CalibrationHealthMode mode :
+       {CalibrationHealthMode::kFlag, CalibrationHealthMode::kCorrect,
+        CalibrationHealthMode::kExclude}) {
+    std::optional<ExposureProcessor> proc;
+    proc.emplace(sim.calibrated_rig(), sim.pylon_survey(), sim.store_survey(), ProcessorConfig{});
+    CalibrationHealthGuard guard(sim.calibrated_rig(), sim.pylon_survey(), config, mode);
+    int declared = -1, flagged = 0;
+    for (int k = 0; k < sc.num_exposures; ++k) {
+      const auto in = test::make_exposure(sim, k);
+      const AlignedExposure& e = guard.filter(in.exposure);
+      const ExposureResult r = proc->process(e, in.ids);
+      const bool bit = (r.sample.status & msg::fti_status::kCalibrationMoved) != 0;
+      EXPECT_EQ(bit, declared >= 0) << "mode " << static_cast<int>(mode) << " exposure " << k;
+      flagged += bit ? 1 : 0;
+      if (guard.observe(e, r))
+        proc.emplace(guard.rig(), sim.pylon_survey(), sim.store_survey(), ProcessorConfig{});
+      if (declared < 0 && guard.monitor().cameras()[kMovedCamera].moved) declared = k;
+    }
+    ASSERT_GE(declared, step) << "declared before the step, or never";
+    EXPECT_EQ(flagged, sc.num_exposures - 1 - declared);
+    EXPECT_EQ(guard.counters().samples_flagged, static_cast<std::uint64_t>(flagged));
+    for (const CameraHealth& h : guard.monitor().cameras())
+      EXPECT_EQ(h.moved, h.camera_id == kMovedCamera) << h.camera_id;
+  }
+}
+
 TEST(CalibrationHealth, CamerasWithTooFewPylonMarksAreNotMonitored) {
   CalibrationHealthConfig config;
   config.window_exposures = 5;

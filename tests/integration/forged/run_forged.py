@@ -20,10 +20,17 @@ accounts for every exposure: released = processed = written + withheld by reason
 The replay is paced (--fps, default 100; the main job's units deliver about 20-50 exposures/s of
 host time on two cores): slow motion, the exposures keep their 400 fps time stamps.
 
+With --clearance-geometry G --clearance-threshold-m X (docs/clearance.md, "In the host"):
+the host evaluates the clearance per sample; checked: every valid sample carries a finite
+clearance, u > 0 and lower bound <= distance, status bit 8 clearance_alarm exactly on the samples
+whose lower bound is below X, and stats.json counts them and their episodes.
+
 Usage: run_forged.py SIM HOST ROOT OUT [--settings S] [--lead N] [--fps F] [--max-lost N]
+                     [--clearance-geometry G --clearance-threshold-m X]
 """
 import argparse
 import json
+import math
 import os
 import socket
 import struct
@@ -45,6 +52,8 @@ ap.add_argument("--max-lost", type=int, default=5)
 ap.add_argument("--ch10-dump", default="",
                 help="rig_ch10_dump (the project's independent Chapter 10 reader): also check "
                      "every recorded sample's cameras_used and trigger_seq")
+ap.add_argument("--clearance-geometry", default="", help="clearance geometry file (host config)")
+ap.add_argument("--clearance-threshold-m", type=float, default=0.3)
 a = ap.parse_args()
 sys.path.insert(0, os.path.join(a.root, "tools"))
 sys.path.insert(0, os.path.join(a.root, "host", "report"))
@@ -117,6 +126,9 @@ def run(groups, sim_dir, lead):
     listener.start()
     config = {"aligner": {"max_wait_ms": 5000, "max_pending": len(groups)}} \
         if a.settings == "testpoint" else {}
+    if a.clearance_geometry:
+        config["clearance"] = {"geometry": os.path.abspath(a.clearance_geometry),
+                               "alarm_threshold_m": a.clearance_threshold_m}
     json.dump(config, open(os.path.join(out, "host.json"), "w"))
     args = [a.host, "--calibration", os.path.join(sim_dir, "rig_calibrated.json"),
             "--pylon-survey", os.path.join(sim_dir, "survey_pylon.json"),
@@ -170,6 +182,28 @@ def run(groups, sim_dir, lead):
     return out, host.returncode, packets
 
 
+def check_clearance(ok, tag, s, fti):
+    """The clearance columns and the alarm bit against the threshold, the stats' counts."""
+    valid = (fti["status"].astype(int) & 1) == 1
+    alarm = (fti["status"].astype(int) >> 8) & 1 == 1
+    d, u, lb = fti["clearance"], fti["u_clearance"], fti["clearance_lower_bound"]
+    finite = [all(math.isfinite(x) for x in (d[i], u[i], lb[i])) for i in range(len(d))]
+    ok(all(f == v for f, v in zip(finite, valid)),
+       tag + "clearance finite exactly on the %d valid samples" % int(valid.sum()))
+    ok(all(u[i] > 0 and lb[i] <= d[i] for i in range(len(d)) if finite[i]),
+       tag + "u > 0 and lower bound <= distance on every sample with a clearance")
+    below = [finite[i] and lb[i] < a.clearance_threshold_m for i in range(len(d))]
+    ok(all(b == al for b, al in zip(below, alarm)),
+       tag + "status bit 8 on exactly the %d samples whose lower bound < %g m"
+       % (sum(below), a.clearance_threshold_m))
+    episodes = sum(1 for i in range(len(below)) if below[i] and (i == 0 or not below[i - 1]))
+    c = s.get("clearance", {})
+    ok(c.get("samples_evaluated") == int(valid.sum()) and c.get("alarm_samples") == sum(below)
+       and c.get("alarm_episodes") == episodes,
+       tag + "stats.json clearance %s: evaluated %d, alarm samples %d, episodes %d"
+       % (c, int(valid.sum()), sum(below), episodes))
+
+
 def check_run(ok, out, rc, packets, lead, groups):
     s = json.load(open(os.path.join(out, "stats.json")))
     al = s["aligner"]
@@ -190,8 +224,10 @@ def check_run(ok, out, rc, packets, lead, groups):
     dropped = sum(v for k, v in al.items() if k.startswith("dropped_"))
     ok(al["observations_in"] == al["observations_used"] + dropped,
        tag + "every observation used or dropped by a counted reason")
+    if a.clearance_geometry and n:
+        check_clearance(ok, tag, s, fti)
     used_csv = [int(x) for x in fti["cameras_used"]] if n else []
-    used_inetx = [p[-152 + 13] for p in packets]  # FTI parameter block: the packet's last 152 bytes
+    used_inetx = [p[-166 + 13] for p in packets]  # FTI parameter block v3: the packet's last 166 bytes
     ok(all(u >= max(1, min_cameras) for u in used_csv + used_inetx),
        tag + "no sample with cameras_used below %d (CSV min %s, iNET-X min %s)"
        % (max(1, min_cameras), min(used_csv, default=None), min(used_inetx, default=None)))

@@ -65,6 +65,9 @@ int main(int argc, char** argv) {
                          {"pose", b->pose},
                          {"uncertainty", b->uncertainty},
                          {"coverage_factor", b->coverage_factor},
+                         {"clearance_m", b->clearance_m},
+                         {"clearance_lower_bound_m", b->clearance_lower_bound_m},
+                         {"clearance_part", b->clearance_part},
                          {"data_error", m.data_error}});
     }
   }

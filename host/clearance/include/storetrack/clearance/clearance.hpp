@@ -5,6 +5,7 @@
 #pragma once
 
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "storetrack/clearance/geometry_file.hpp"
@@ -33,10 +34,12 @@ geometry::Vec6 distance_jacobian(const geometry::Vec3& p_store_p, const geometry
                                  const geometry::Vec3& normal_p);
 
 struct PartClearance {
-  std::string part;          ///< the aircraft part
-  std::string store_part;    ///< the store part closest to it
-  double distance_m = 0;     ///< minimum distance (0 with penetration)
-  bool penetration = false;  ///< the meshes intersect
+  // Names owned by the ClearanceModel (no string is copied per sample): valid while the model
+  // that returned this result lives and is not moved.
+  std::string_view part;        ///< the aircraft part
+  std::string_view store_part;  ///< the store part closest to it
+  double distance_m = 0;        ///< minimum distance (0 with penetration)
+  bool penetration = false;     ///< the meshes intersect
   Feature feature = Feature::kVertexFace;
   geometry::Vec3 p_store_p = geometry::Vec3::Zero();     ///< closest point on the store, frame p
   geometry::Vec3 p_aircraft_p = geometry::Vec3::Zero();  ///< closest point on the part, frame p
@@ -66,9 +69,13 @@ class ClearanceModel {
   /// A covariance that is not finite gives NaN uncertainties and bounds (never a throw).
   std::vector<PartClearance> evaluate(const geometry::Transform& T_p_s,
                                       const geometry::Mat6& cov_T_p_s);
+  /// The same into `out` (resized to aircraft_parts(); no allocation once it has that size).
+  void evaluate(const geometry::Transform& T_p_s, const geometry::Mat6& cov_T_p_s,
+                std::vector<PartClearance>& out);
 
   std::size_t store_parts() const { return store_.size(); }
   std::size_t aircraft_parts() const { return aircraft_.size(); }
+  std::string_view aircraft_part_name(std::size_t i) const { return aircraft_[i].name; }
 
  private:
   struct Part {

@@ -80,8 +80,10 @@ struct FtiBlock {
   double correlation[15] = {};
   double budget[5] = {};  ///< centroid, intrinsic, extrinsic, sync, process [m]
   double coverage_factor = 0;
+  double clearance_m = 0, u_clearance_m = 0, clearance_lower_bound_m = 0;  ///< [m]
+  std::uint16_t clearance_part = 0xFFFF;  ///< aircraft part index (0xFFFF: none)
 };
-/// Block version 2 only: a block of another version (or too short) is nullopt, with `error`
+/// Block version 3 only: a block of another version (or too short) is nullopt, with `error`
 /// naming the version found.
 std::optional<FtiBlock> decode_fti_block(std::span<const std::uint8_t> bytes,
                                          std::string* error = nullptr);

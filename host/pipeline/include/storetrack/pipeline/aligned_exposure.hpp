@@ -21,6 +21,10 @@ struct AlignedExposure {
   /// Bit i set: the i-th camera of the RigCalibration (rig.cameras[i]) did not deliver this
   /// exposure before the aligner's deadline.
   std::uint32_t missing_camera_mask = 0;
+  /// Bit i set: rig.cameras[i] was declared moved by the calibration health monitor before
+  /// this exposure and contributed marks to it (exclude mode: was dropped from it). Set by
+  /// CalibrationHealthGuard::filter; the sample's status bit calibration_moved.
+  std::uint32_t calibration_moved_mask = 0;
   /// Exposure mid-point (start + duration / 2) of the earliest-starting delivered camera, TAI ns;
   /// INT64_MIN when no camera delivered. Each camera's own mid-point is in `cameras`.
   time::TaiNs exposure_mid_tai_ns = std::numeric_limits<time::TaiNs>::min();

@@ -115,7 +115,7 @@ camera::RigCalibration corrected_rig(const camera::RigCalibration& rig, int came
                                      const geometry::Mat6& motion_cov);
 
 struct CalibrationHealthCounters {
-  std::uint64_t samples_flagged = 0;      ///< samples a camera declared moved contributed to
+  std::uint64_t samples_flagged = 0;      ///< samples with status bit calibration_moved
   std::uint64_t corrections = 0;          ///< rigs corrected (correct mode)
   std::uint64_t exposures_excluding = 0;  ///< exposures with a moved camera dropped (exclude)
 };
@@ -128,15 +128,17 @@ class CalibrationHealthGuard {
   CalibrationHealthGuard(const camera::RigCalibration& rig, const survey::RigidBodySurvey& pylon,
                          const CalibrationHealthConfig& config, CalibrationHealthMode mode);
 
-  /// Exclude mode: the exposure without the cameras declared moved (a member copy, reused);
-  /// else `exposure` itself.
+  /// Once a camera is declared moved: a member copy (reused) of `exposure` whose
+  /// calibration_moved_mask names the moved cameras that delivered marks, without them in
+  /// exclude mode; before that, `exposure` itself.
   const AlignedExposure& filter(const AlignedExposure& exposure);
   /// After processing `exposure` (as filtered): runs the monitor; flagged() tells whether a
   /// camera declared moved contributed. True when the processor must be rebuilt on rig():
   /// correct mode, a full window's motion estimate differing from the correction applied
   /// (chi-square(6) above the monitor's threshold).
   bool observe(const AlignedExposure& exposure, const ExposureResult& result);
-  /// The last observed exposure used a camera declared moved.
+  /// The last observed exposure used a camera declared moved (exclude mode: dropped one), as
+  /// its status bit calibration_moved says.
   bool flagged() const { return flagged_; }
 
   const camera::RigCalibration& rig() const { return rig_; }  ///< corrected (correct mode)
