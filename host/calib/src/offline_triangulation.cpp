@@ -183,6 +183,9 @@ std::optional<TriangulatedMark> triangulate_mark(const camera::RigCalibration& r
     m.pixels_px.push_back(seen[i]->pixel_px);
     m.residuals_px.push_back(tri.residual_px[i]);
     m.sigmas_px.push_back(views[i].sigma_px);
+    m.slots.push_back(slots[i]);
+    m.gains.push_back(tri.gain[i]);
+    m.d_pixel_d_point.push_back(tri.jacobians[i].d_point_world);
   }
   if (factors.coupled()) {
     cov_intrinsic = uncertainty::covariance_of(loadings, factors, uncertainty::Source::kIntrinsic);
@@ -191,6 +194,36 @@ std::optional<TriangulatedMark> triangulate_mark(const camera::RigCalibration& r
   m.cov_calibration = cov_intrinsic + cov_extrinsic;
   m.cov_w = m.cov_centroid + m.cov_calibration;
   return m;
+}
+
+/// The velocity of every mark from its positions in the neighbouring exposures (central
+/// difference, one-sided at the ends; none without times), and the host's sync term with it:
+/// camera i saw the mark moved by v dt_i, dt_i its exposure-offset error, so its loading on
+/// the camera's sync factor is -K_i (dpixel_i/dp v) sigma_i (host/pipeline's exposure
+/// processor). The units' clock errors are not in the CSV: not included.
+void add_sync_terms(const uncertainty::CalibrationFactors& factors,
+                    std::vector<TriangulatedMark>& marks) {
+  std::map<int, std::vector<TriangulatedMark*>> series;  // by mark id, in exposure order
+  for (TriangulatedMark& m : marks)
+    if (m.time_ns) series[m.mark_id].push_back(&m);
+  for (auto& [id, track] : series)
+    for (size_t k = 0; k < track.size(); ++k) {
+      const TriangulatedMark* before = track[k > 0 ? k - 1 : k];
+      const TriangulatedMark* after = track[k + 1 < track.size() ? k + 1 : k];
+      const double dt_s = 1e-9 * static_cast<double>(*after->time_ns - *before->time_ns);
+      if (!(dt_s > 0)) continue;
+      TriangulatedMark& m = *track[k];
+      m.velocity_w = (after->p_w - before->p_w) / dt_s;
+      uncertainty::Loadings3 loadings = uncertainty::Loadings3::Zero(3, factors.num_factors());
+      for (size_t i = 0; i < m.slots.size(); ++i) {
+        const auto& cf = factors.camera(m.slots[i]);
+        if (cf.sync_column >= 0)
+          loadings.col(cf.sync_column) =
+              -m.gains[i] * (m.d_pixel_d_point[i] * *m.velocity_w) * cf.sync_sigma_s;
+      }
+      m.cov_sync = uncertainty::covariance_of(loadings, factors, uncertainty::Source::kSync);
+      m.cov_w = m.cov_centroid + m.cov_calibration + m.cov_sync;
+    }
 }
 
 }  // namespace
@@ -222,6 +255,7 @@ OfflineTriangulation triangulate_observations(const camera::RigCalibration& rig,
     else
       ++out.failed_marks;
   }
+  add_sync_terms(factors, out.marks);
   return out;
 }
 

@@ -148,6 +148,92 @@ TEST(OfflineTriangulation, NeesOfMarksWithDrawnCalibrationIsChiSquare3) {
   EXPECT_GT(calibration_share, 0.05);  // the calibration term is really exercised
 }
 
+/// A moving mark: its pixels at three exposures 10 ms apart, each camera seeing it displaced by
+/// v dt_c (dt_c: the camera's exposure-offset error, drawn once per trial).
+std::vector<PixelObservation> observe_moving(const camera::RigCalibration& truth, const Vec3& p0,
+                                             const Vec3& v, const std::vector<double>& dt_s,
+                                             std::mt19937_64& rng) {
+  std::normal_distribution<double> noise(0, 0.1);
+  std::vector<PixelObservation> out;
+  for (int k = 0; k < 3; ++k)
+    for (size_t c = 0; c < truth.cameras.size(); ++c) {
+      const auto& cam = truth.cameras[c];
+      const Vec3 x = p0 + v * (0.01 * k + dt_s[c]);
+      const auto u = cam.model.project_world(cam.T_c_w, x);
+      const auto& in = cam.model.intrinsics();
+      if (!u || u->x() < 0 || u->y() < 0 || u->x() > in.width - 1 || u->y() > in.height - 1)
+        continue;
+      PixelObservation o;
+      o.exposure = k;
+      o.time_ns = 10000000LL * k;
+      o.camera_id = cam.camera_id;
+      o.pixel_px = *u + Vec2(noise(rng), noise(rng));
+      o.covariance_px = 0.01 * Eigen::Matrix2d::Identity();
+      out.push_back(o);
+    }
+  return out;
+}
+
+TEST(OfflineTriangulation, NeesOfAMovingMarkWithSyncErrorsIsChiSquare3) {
+  camera::RigCalibration stated = stated_rig();
+  for (auto& cam : stated.cameras)
+    cam.exposure_offset_sigma_ns = 2e6;  // 2 ms: 8 mm at 4 m/s
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(stated.full_joint_covariance());
+  const Eigen::MatrixXd L =
+      eig.eigenvectors() * eig.eigenvalues().cwiseMax(0.0).cwiseSqrt().asDiagonal();
+  std::mt19937_64 rng(2028);
+  std::normal_distribution<double> z(0, 1);
+  const Vec3 v(4, 0, -0.5);
+  const int n = trials();
+  double nees_sum = 0, sync_share = 0, nees_without_sync = 0;
+  for (int t = 0; t < n; ++t) {
+    Eigen::VectorXd e(L.cols());
+    for (Eigen::Index i = 0; i < e.size(); ++i)
+      e(i) = z(rng);
+    const camera::RigCalibration truth = perturbed(stated, L * e);
+    std::vector<double> dt_s;
+    for (size_t c = 0; c < stated.cameras.size(); ++c)
+      dt_s.push_back(2e-3 * z(rng));
+    Vec3 p0 = points_in_volume(truth, 1, rng)[0];
+    const auto seen_throughout = [&](const Vec3& p) {  // 2 exposures of margin either side
+      for (int k = -2; k <= 4; ++k)
+        if (visible_pixels(truth, p + 0.01 * k * v).size() < 2) return false;
+      return true;
+    };
+    while (!seen_throughout(p0))
+      p0 = points_in_volume(truth, 1, rng)[0];
+    const OfflineTriangulation r =
+        triangulate_observations(stated, observe_moving(truth, p0, v, dt_s, rng), "rig", "obs");
+    const TriangulatedMark* middle = nullptr;
+    for (const auto& m : r.marks)
+      if (m.exposure == 1) middle = &m;
+    ASSERT_NE(middle, nullptr) << r.marks.size() << " marks, " << r.single_camera_marks
+                               << " single, " << r.failed_marks << " failed";
+    ASSERT_TRUE(middle->velocity_w.has_value());
+    Eigen::Matrix3d W;
+    ASSERT_TRUE(uncertainty::inverse_spd<3>(middle->cov_w, W));
+    const Vec3 d = middle->p_w - (p0 + 0.01 * v);
+    nees_sum += d.dot(W * d);
+    Eigen::Matrix3d W_without_sync;
+    ASSERT_TRUE(uncertainty::inverse_spd<3>(middle->cov_w - middle->cov_sync, W_without_sync));
+    nees_without_sync += d.dot(W_without_sync * d) / n;
+    sync_share += middle->cov_sync.trace() / middle->cov_w.trace() / n;
+  }
+  const double lo = uncertainty::chi_square_quantile(uncertainty::Probability(5e-4),
+                                                     uncertainty::DegreesOfFreedom(3 * n)) /
+                    n;
+  const double hi = uncertainty::chi_square_quantile(uncertainty::Probability(1 - 5e-4),
+                                                     uncertainty::DegreesOfFreedom(3 * n)) /
+                    n;
+  std::cout << "moving mark, n = " << n << ": mean NEES " << nees_sum / n << " (band " << lo
+            << " .. " << hi << "), without the sync term " << nees_without_sync
+            << ", sync share of the variance " << sync_share << "\n";
+  EXPECT_GE(nees_sum / n, lo);
+  EXPECT_LE(nees_sum / n, hi);
+  EXPECT_GT(sync_share, 0.2);        // the sync term is really exercised
+  EXPECT_GT(nees_without_sync, hi);  // and needed
+}
+
 /// A scratch directory with the stated rig and a static record written to it.
 struct Files {
   std::string dir, rig, observations, marks;

@@ -1,6 +1,7 @@
 // Offline triangulation (`storetrack-calib triangulate`, docs/calibration.md): a CSV of pixel
 // observations and a rig calibration file -> the marks CSV that storetrack-eval reads, each
-// mark with its full covariance (centroid + calibration, cross-camera terms included), by the
+// mark with its full covariance (centroid + calibration, cross-camera terms included, + the
+// exposure-offset sync term when the CSV gives times), by the
 // host's own code: estimation/triangulate weighted as the host weighs a view
 // (uncertainty::view_information) and the calibration's loadings (CalibrationFactors,
 // add_observation_loadings), as host/pipeline's exposure processor does.
@@ -42,10 +43,17 @@ struct TriangulatedMark {
   Eigen::Vector3d p_w = Eigen::Vector3d::Zero();
   Eigen::Matrix3d cov_centroid = Eigen::Matrix3d::Zero();
   Eigen::Matrix3d cov_calibration = Eigen::Matrix3d::Zero();  ///< intrinsic + extrinsic
-  Eigen::Matrix3d cov_w = Eigen::Matrix3d::Zero();            ///< the sum
+  /// The cameras' exposure-offset uncertainty (exposure_offset_sigma_ns) times the mark's
+  /// velocity: zero unless the CSV gives times and the mark is seen in a neighbouring exposure.
+  Eigen::Matrix3d cov_sync = Eigen::Matrix3d::Zero();
+  std::optional<Eigen::Vector3d> velocity_w;        ///< from the neighbouring exposures [m/s]
+  Eigen::Matrix3d cov_w = Eigen::Matrix3d::Zero();  ///< the sum
   std::vector<int> camera_ids;
   std::vector<Eigen::Vector2d> pixels_px, residuals_px;
   std::vector<double> sigmas_px;  ///< sqrt of the mean of the centroid variances (u, v)
+  std::vector<int> slots;         ///< the observations' camera slots in the rig
+  std::vector<Eigen::Matrix<double, 3, 2>> gains;            ///< dp_w / d(pixel) per observation
+  std::vector<Eigen::Matrix<double, 2, 3>> d_pixel_d_point;  ///< per observation
 };
 
 struct OfflineTriangulation {
