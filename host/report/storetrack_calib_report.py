@@ -28,6 +28,7 @@ import json
 import math
 import os
 import sys
+import warnings
 
 import matplotlib
 
@@ -50,12 +51,23 @@ def nan_array(rows):
     return np.array([[np.nan if v is None else v for v in row] for row in rows], dtype=float)
 
 
+def inside_differences(c):
+    """difference_px (distances x pixels) with the pixels outside the observed region blanked:
+    there the models are extrapolated (docs/calibration.md, "Inside the observed region")."""
+    d = nan_array(c["difference_px"])
+    if "inside_observed_region" in c:
+        d[:, ~np.array(c["inside_observed_region"], dtype=bool)] = np.nan
+    return d
+
+
 def plot_projection_maps(r, path):
     cams = r["cameras"]
     fig, axs = plt.subplots(1, len(cams), figsize=(4.2 * len(cams), 3.2), squeeze=False)
     for ax, c in zip(axs[0], cams):
-        d = nan_array(c["difference_px"])  # distances x pixels
-        worst = np.nanmax(d, axis=0).reshape(c["rows"], c["columns"])
+        d = inside_differences(c)  # distances x pixels; outside the observed region blank
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns: outside
+            worst = np.nanmax(d, axis=0).reshape(c["rows"], c["columns"])
         px = np.array(c["pixels"])
         extent = [px[:, 0].min(), px[:, 0].max(), px[:, 1].max(), px[:, 1].min()]
         im = ax.imshow(worst, extent=extent, aspect="auto", cmap="viridis")
@@ -63,7 +75,8 @@ def plot_projection_maps(r, path):
         ax.set_title(f"camera {c['camera_id']}: max over distances")
         ax.set_xlabel("u [px]")
         ax.set_ylabel("v [px]")
-    fig.suptitle("projection difference a -> b, rigid motion fitted out")
+    fig.suptitle("projection difference a -> b, rigid motion fitted out (blank: outside the "
+                 "observed region)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -72,7 +85,7 @@ def plot_projection_maps(r, path):
 def plot_histograms(r, path):
     fig, axs = plt.subplots(1, 2, figsize=(11, 3.8))
     for c in r["cameras"]:
-        d = nan_array(c["difference_px"]).ravel()
+        d = inside_differences(c).ravel()
         axs[0].hist(d[np.isfinite(d)], bins=40, histtype="step", label=f"camera {c['camera_id']}")
     axs[0].set_xlabel("projection difference [px]")
     axs[0].set_ylabel("grid samples")

@@ -4,6 +4,7 @@
 // errors that name the file, the JSON path and the reason.
 #include "storetrack/camera/calibration_file.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <limits>
@@ -117,7 +118,23 @@ Intrinsics parse_intrinsics(Object ij, Intrinsics in) {
   return in;
 }
 
-CalibratedCamera parse_camera(const Value& v) {
+/// "observed_region": {"columns": c, "rows": r, "counts": [r rows of c counts]}.
+ObservedRegion parse_observed_region(const Value& v) {
+  Object j = object_of(v);
+  ObservedRegion region;
+  region.columns = static_cast<int>(j.at("columns").integer(1, 1024));
+  region.rows = static_cast<int>(j.at("rows").integer(1, 1024));
+  const Value counts = j.at("counts");
+  const auto rows = static_cast<std::size_t>(region.rows);
+  const auto columns = static_cast<std::size_t>(region.columns);
+  for (const Value& row : counts.array(rows, rows))
+    for (const Value& n : row.array(columns, columns))
+      region.counts.push_back(static_cast<int>(n.integer(0, std::numeric_limits<int>::max())));
+  j.finish();
+  return region;
+}
+
+CalibratedCamera parse_camera(const Value& v, std::map<int, ObservedRegion>& regions) {
   Object j = object_of(v);
   CalibratedCamera cam;
   cam.camera_id = static_cast<int>(j.at("camera_id").integer(0, 255));
@@ -140,6 +157,8 @@ CalibratedCamera parse_camera(const Value& v) {
   cam.extrinsic_covariance = covariance(j.at("extrinsic_covariance"), 6);
   j.get("exposure_offset_ns", cam.exposure_offset_ns);
   j.get("exposure_offset_sigma_ns", cam.exposure_offset_sigma_ns, Range::at_least(0));
+  if (const auto region = j.find("observed_region"))
+    regions[cam.camera_id] = parse_observed_region(*region);
   j.finish();
   return cam;
 }
@@ -191,7 +210,7 @@ RigCalibration read_calibration_document(const Value& root) {
   RigCalibration rig;
   std::set<int> ids;
   for (const Value& c : doc.at("cameras").array(1, std::numeric_limits<std::size_t>::max())) {
-    rig.cameras.push_back(parse_camera(c));
+    rig.cameras.push_back(parse_camera(c, rig.observed_regions));
     if (!ids.insert(rig.cameras.back().camera_id).second)
       c.fail_member("camera_id",
                     "duplicate camera_id " + std::to_string(rig.cameras.back().camera_id));
@@ -216,7 +235,42 @@ json rows(const Eigen::MatrixBase<Derived>& m) {
   return out;
 }
 
+json region_json(const ObservedRegion& region) {
+  json counts = json::array();
+  for (int r = 0; r < region.rows; ++r) {
+    const auto begin = region.counts.begin() + r * region.columns;
+    counts.push_back(std::vector<int>(begin, begin + region.columns));
+  }
+  return {{"columns", region.columns}, {"rows", region.rows}, {"counts", counts}};
+}
+
 }  // namespace
+
+int ObservedRegion::cell_of(const Eigen::Vector2d& pixel, int width, int height) const {
+  // Pixel centres at integers: the image spans [-0.5, width - 0.5).
+  const double x = (pixel.x() + 0.5) / width, y = (pixel.y() + 0.5) / height;
+  if (!(x >= 0 && x < 1 && y >= 0 && y < 1)) return -1;
+  return static_cast<int>(y * rows) * columns + static_cast<int>(x * columns);
+}
+
+bool ObservedRegion::contains(const Eigen::Vector2d& pixel, int width, int height,
+                              int min_points) const {
+  const int cell = cell_of(pixel, width, height);
+  return cell >= 0 && static_cast<std::size_t>(cell) < counts.size() &&
+         counts[static_cast<std::size_t>(cell)] >= std::max(1, min_points);
+}
+
+ObservedRegion observed_region_of(const std::vector<Eigen::Vector2d>& pixels, int width, int height,
+                                  int columns, int rows) {
+  ObservedRegion region;
+  region.columns = columns;
+  region.rows = rows;
+  region.counts.assign(static_cast<std::size_t>(columns * rows), 0);
+  for (const Eigen::Vector2d& pixel : pixels)
+    if (const int cell = region.cell_of(pixel, width, height); cell >= 0)
+      ++region.counts[static_cast<std::size_t>(cell)];
+  return region;
+}
 
 const CalibratedCamera* RigCalibration::find(int camera_id) const {
   for (const auto& cam : cameras)
@@ -305,6 +359,14 @@ std::string format_rig_calibration(const RigCalibration& rig) {
     c["extrinsic_covariance"] = rows(cam.extrinsic_covariance);
     c["exposure_offset_ns"] = cam.exposure_offset_ns;
     c["exposure_offset_sigma_ns"] = cam.exposure_offset_sigma_ns;
+    if (const auto region = rig.observed_regions.find(cam.camera_id);
+        region != rig.observed_regions.end()) {
+      if (region->second.counts.size() !=
+          static_cast<std::size_t>(region->second.columns * region->second.rows))
+        throw CalibrationFileError("observed_region of camera " + std::to_string(cam.camera_id) +
+                                   ": counts do not match columns x rows");
+      c["observed_region"] = region_json(region->second);
+    }
     doc["cameras"].push_back(c);
   }
   if (rig.joint_covariance.size() > 0) {

@@ -51,6 +51,33 @@ std::vector<Vec2> pixel_grid(const camera::Intrinsics& in, int columns, int rows
   return out;
 }
 
+/// True when `pixel` of camera `slot` is in the calibration's observed region, or the file
+/// records none (that case is warned about once, by region_warnings).
+bool in_observed_region(const camera::RigCalibration& rig, size_t slot, const Vec2& pixel,
+                        int min_points) {
+  const camera::CalibratedCamera& c = rig.cameras[slot];
+  const auto region = rig.observed_regions.find(c.camera_id);
+  if (region == rig.observed_regions.end()) return true;
+  const auto& in = c.model.intrinsics();
+  return region->second.contains(pixel, in.width, in.height, min_points);
+}
+
+bool inside_both(const camera::RigCalibration& a, const camera::RigCalibration& b, size_t slot,
+                 const Vec2& pixel, int min_points) {
+  return in_observed_region(a, slot, pixel, min_points) &&
+         in_observed_region(b, slot, pixel, min_points);
+}
+
+/// "<file>: camera N has no observed_region record ..." for every camera of a file without one.
+void region_warnings(const camera::RigCalibration& rig, const std::string& origin,
+                     std::vector<std::string>& warnings) {
+  for (const auto& c : rig.cameras)
+    if (!rig.observed_regions.contains(c.camera_id))
+      warnings.push_back(origin + ": camera " + std::to_string(c.camera_id) +
+                         " has no observed_region record: the comparison cannot check that its "
+                         "model is evaluated only where it had observations");
+}
+
 /// One sample of the projection fit: camera slot, pixel, the point unprojected with a.
 struct ProjectionSample {
   int slot = 0;
@@ -107,7 +134,8 @@ std::vector<ProjectionSample> projection_samples(const camera::RigCalibration& a
       for (const Vec2& q :
            pixel_grid(a.cameras[s].model.intrinsics(), o.grid_columns, o.grid_rows)) {
         const auto p_wa = unproject_world(a.cameras[s], q, d);
-        if (!p_wa) continue;
+        if (!p_wa || !inside_both(a, b, s, q, o.min_points_per_cell))
+          continue;  // fitted on data-backed pixels only
         out.push_back({static_cast<int>(s), q, *p_wa});
         p_wb_start.push_back(unproject_world(b.cameras[s], q, d).value_or(Vec3::Constant(kNaN)));
       }
@@ -135,13 +163,6 @@ std::vector<std::vector<double>> grid_differences(const camera::RigCalibration& 
   return out;
 }
 
-std::vector<double> flatten(const std::vector<std::vector<double>>& rows) {
-  std::vector<double> out;
-  for (const auto& r : rows)
-    out.insert(out.end(), r.begin(), r.end());
-  return out;
-}
-
 double chi2_of(const Vec3& d, const Mat3& S) {
   Mat3 S_inv;
   if (uncertainty::inverse_spd<3>(S, S_inv)) return d.dot(S_inv * d);
@@ -150,13 +171,19 @@ double chi2_of(const Vec3& d, const Mat3& S) {
 
 VolumePointDifference compare_point(const camera::RigCalibration& a, const Eigen::MatrixXd& Sa,
                                     const camera::RigCalibration& b, const Eigen::MatrixXd& Sb,
-                                    const Vec3& x, double sigma_px, double threshold,
+                                    const Vec3& x, const CompareOptions& o, double threshold,
                                     PointUncertainty& pa, PointUncertainty& pb) {
+  const double sigma_px = o.sigma_px;
   VolumePointDifference out;
   out.p_w = x;
-  const std::vector<SlotPixel> pixels = visible_pixels(a, x);
+  std::vector<SlotPixel> pixels = visible_pixels(a, x);
   out.cameras = static_cast<int>(pixels.size());
-  if (!triangulate_with_uncertainty(a, Sa, pixels, sigma_px, pa) ||
+  std::erase_if(pixels, [&](const SlotPixel& p) {
+    return !inside_both(a, b, static_cast<size_t>(p.slot), p.pixel_px, o.min_points_per_cell);
+  });
+  out.cameras_inside = static_cast<int>(pixels.size());
+  out.outside = out.cameras >= 2 && out.cameras_inside < 2;
+  if (out.cameras_inside < 2 || !triangulate_with_uncertainty(a, Sa, pixels, sigma_px, pa) ||
       !triangulate_with_uncertainty(b, Sb, pixels, sigma_px, pb))
     return out;
   out.valid = true;
@@ -332,6 +359,32 @@ void decide(ComparisonResult& r, const CompareOptions& o) {
   r.verdict = v.str();
 }
 
+/// A number for a message: 3 significant digits (an extrapolated difference can be 1e30).
+std::string short_number(double v) {
+  std::ostringstream s;
+  s.precision(3);
+  s << v;
+  return s.str();
+}
+
+/// Marks the grid pixels inside both observed regions and summarises the differences there
+/// (fitted, unfitted) and outside (fitted_outside).
+void summarise_inside(const camera::RigCalibration& a, const camera::RigCalibration& b, size_t slot,
+                      int min_points, CameraProjectionDifference& c) {
+  std::vector<double> fitted, unfitted, outside;
+  for (size_t i = 0; i < c.pixels.size(); ++i) {
+    c.inside.push_back(inside_both(a, b, slot, c.pixels[i], min_points));
+    c.outside_pixels += c.inside.back() ? 0 : 1;
+    for (size_t d = 0; d < c.difference_px.size(); ++d) {
+      (c.inside.back() ? fitted : outside).push_back(c.difference_px[d][i]);
+      if (c.inside.back()) unfitted.push_back(c.difference_unfitted_px[d][i]);
+    }
+  }
+  c.fitted = statistics_of(std::move(fitted));
+  c.unfitted = statistics_of(std::move(unfitted));
+  c.fitted_outside = statistics_of(std::move(outside));
+}
+
 }  // namespace
 
 Statistics statistics_of(std::vector<double> values) {
@@ -445,6 +498,8 @@ ComparisonResult compare_calibrations(const camera::RigCalibration& a,
   CompareOptions o = o_in;
   if (o.distances_m.empty()) o.distances_m = default_working_distances(a, o.origin_a);
   ComparisonResult r;
+  region_warnings(a, o.origin_a, r.warnings);
+  region_warnings(b, o.origin_b, r.warnings);
   r.distances_m = o.distances_m;
   r.volume = o.volume ? *o.volume : default_working_volume(a, o.distances_m, o.origin_a);
 
@@ -461,8 +516,14 @@ ComparisonResult compare_calibrations(const camera::RigCalibration& a,
     c.difference_px = grid_differences(a, b, slot, c.pixels, o.distances_m, r.T_b_a);
     c.difference_unfitted_px =
         grid_differences(a, b, slot, c.pixels, o.distances_m, Transform::Identity());
-    c.fitted = statistics_of(flatten(c.difference_px));
-    c.unfitted = statistics_of(flatten(c.difference_unfitted_px));
+    summarise_inside(a, b, s, o.min_points_per_cell, c);
+    if (c.outside_pixels > 0)
+      r.warnings.push_back(
+          "camera " + std::to_string(c.camera_id) + ": " + std::to_string(c.outside_pixels) +
+          " of " + std::to_string(c.pixels.size()) +
+          " projection grid pixels lie outside the observed region of " + o.origin_a + " or " +
+          o.origin_b + ": the models are evaluated beyond their data there (max difference " +
+          short_number(c.fitted_outside.max) + " px, marked, left out of the statistics)");
     r.cameras.push_back(std::move(c));
   }
 
@@ -474,10 +535,10 @@ ComparisonResult compare_calibrations(const camera::RigCalibration& a,
   int inconsistent = 0;
   for (const Vec3& x : volume_grid(r.volume, o.volume_points)) {
     PointUncertainty pa, pb;
-    r.points.push_back(compare_point(a, Sa, b, Sb, x, o.sigma_px, r.chi2_threshold, pa, pb));
+    r.points.push_back(compare_point(a, Sa, b, Sb, x, o, r.chi2_threshold, pa, pb));
     const VolumePointDifference& p = r.points.back();
     if (!p.valid) {
-      ++r.unseen_points;
+      ++(p.outside ? r.outside_points : r.unseen_points);
       continue;
     }
     all_a.push_back(std::move(pa));
@@ -488,6 +549,10 @@ ComparisonResult compare_calibrations(const camera::RigCalibration& a,
     ua.push_back(std::sqrt(p.cov_a.trace()));
     ub.push_back(std::sqrt(p.cov_b.trace()));
   }
+  if (r.outside_points > 0)
+    r.warnings.push_back(std::to_string(r.outside_points) +
+                         " volume points are seen by >= 2 cameras only outside the observed "
+                         "regions: left out (a triangulation there would extrapolate the models)");
   r.inconsistent_fraction = r.valid_points ? double(inconsistent) / r.valid_points : 0.0;
   if (r.valid_points > 0) {
     const Eigen::Index n = r.valid_points, cols = Sa.cols();

@@ -81,6 +81,7 @@ int parse_calib_command(int argc, char** argv, CalibCommand& command) {
   add_register(app, command.register_args);
   add_compare(app, command.compare);
   add_uncertainty_map(app, command.uncertainty_map);
+  add_triangulate(app, command.triangulate);
   if (const int rc = app.parse(argc, argv); rc >= 0) return rc;
   if (app.got_subcommand("detect")) command.kind = CalibCommand::Kind::kDetect;
   if (app.got_subcommand("intrinsic")) {
@@ -94,6 +95,7 @@ int parse_calib_command(int argc, char** argv, CalibCommand& command) {
   if (app.got_subcommand("register")) command.kind = CalibCommand::Kind::kRegister;
   if (app.got_subcommand("compare")) command.kind = CalibCommand::Kind::kCompare;
   if (app.got_subcommand("uncertainty-map")) command.kind = CalibCommand::Kind::kUncertaintyMap;
+  if (app.got_subcommand("triangulate")) command.kind = CalibCommand::Kind::kTriangulate;
   return -1;
 }
 

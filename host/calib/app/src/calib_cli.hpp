@@ -11,6 +11,7 @@
 #include "storetrack/calib/chessboard_detection.hpp"
 #include "storetrack/calib/intrinsic_calibration.hpp"
 #include "storetrack/calib/rig_calibration.hpp"
+#include "triangulate_command.hpp"
 
 namespace storetrack::calibapp {
 
@@ -54,7 +55,8 @@ struct CalibCommand {
     kRig,
     kRegister,
     kCompare,
-    kUncertaintyMap
+    kUncertaintyMap,
+    kTriangulate
   } kind = Kind::kNone;
   DetectArgs detect;
   IntrinsicArgs intrinsic;
@@ -62,6 +64,7 @@ struct CalibCommand {
   RegisterArgs register_args;
   CompareArgs compare;
   UncertaintyMapArgs uncertainty_map;
+  TriangulateArgs triangulate;
 };
 
 /// Returns -1 to run `command`, else the exit code (0 after --help, 2 on a bad argument).

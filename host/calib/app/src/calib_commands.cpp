@@ -3,6 +3,7 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
+#include <set>
 #include <sstream>
 #include <tuple>
 
@@ -83,6 +84,20 @@ nlohmann::json flags_json(const calib::IntrinsicOptions& options) {
           {"outlier_false_alarm", options.outlier_false_alarm}};
 }
 
+/// The pixels of `camera`'s points that the fit used (its residuals not rejected), counted on the
+/// calibration file's grid: where the fitted model is backed by data.
+camera::ObservedRegion used_region(const calib::ObservationSet& set, int camera,
+                                   const std::vector<calib::PointResidual>& residuals,
+                                   const camera::Intrinsics& in) {
+  std::set<std::pair<int, int>> used;  // (frame, point)
+  for (const calib::PointResidual& r : residuals)
+    if (!r.rejected) used.emplace(r.frame, r.point_id);
+  std::vector<Eigen::Vector2d> pixels;
+  for (const calib::Observation& o : set.observations)
+    if (o.camera == camera && used.contains({o.frame, o.point_id})) pixels.push_back(o.pixel);
+  return camera::observed_region_of(pixels, in.width, in.height);
+}
+
 }  // namespace
 
 int run_detect(const DetectArgs& args, std::ostream& out, std::ostream& err) {
@@ -107,7 +122,8 @@ int run_detect(const DetectArgs& args, std::ostream& out, std::ostream& err) {
 }
 
 std::string intrinsic_calibration_json(const calib::IntrinsicResult& r, int camera_id, int unit_id,
-                                       const calib::IntrinsicOptions& options) {
+                                       const calib::IntrinsicOptions& options,
+                                       const calib::ObservationSet* observations) {
   camera::RigCalibration rig;
   camera::CalibratedCamera cam;
   cam.camera_id = camera_id;
@@ -115,6 +131,9 @@ std::string intrinsic_calibration_json(const calib::IntrinsicResult& r, int came
   cam.model = camera::CameraModel(r.intrinsics);
   cam.intrinsic_covariance = r.covariance;
   rig.cameras.push_back(cam);
+  if (observations != nullptr)
+    rig.observed_regions[camera_id] =
+        used_region(*observations, camera_id, r.residuals, r.intrinsics);
   nlohmann::json doc = nlohmann::json::parse(camera::format_rig_calibration(rig));
   nlohmann::json views = nlohmann::json::array();
   for (const auto& v : r.views)
@@ -158,8 +177,9 @@ std::vector<calib::SkippedView> all_skipped(const calib::RigResult& result) {
 
 int run_intrinsic(const IntrinsicArgs& args, std::ostream& out, std::ostream& err) {
   calib::IntrinsicResult result;
+  calib::ObservationSet set;
   try {
-    calib::ObservationSet set = calib::read_observations_csv(args.observations);
+    set = calib::read_observations_csv(args.observations);
     if (!args.image_size.empty()) {
       calib::ImageSize size;
       if (!parse_size(args.image_size, size)) {
@@ -189,7 +209,7 @@ int run_intrinsic(const IntrinsicArgs& args, std::ostream& out, std::ostream& er
   out << "\n";
   return write_outputs(args.output, out, err, [&] {
     write_text(args.output,
-               intrinsic_calibration_json(result, args.camera, args.unit_id, args.options));
+               intrinsic_calibration_json(result, args.camera, args.unit_id, args.options, &set));
     if (!args.residuals_csv.empty()) write_residuals(result, args.camera, args.residuals_csv);
   });
 }
@@ -266,7 +286,8 @@ void print_rig_camera(const calib::RigCameraResult& c, std::ostream& out) {
 }  // namespace
 
 std::string rig_calibration_json(const calib::RigResult& r, int unit_id,
-                                 const calib::RigOptions& options) {
+                                 const calib::RigOptions& options,
+                                 const calib::ObservationSet* observations) {
   camera::RigCalibration rig;
   for (const calib::RigCameraResult& c : r.cameras) {
     camera::CalibratedCamera cam;
@@ -277,6 +298,9 @@ std::string rig_calibration_json(const calib::RigResult& r, int unit_id,
     cam.T_c_w = c.T_c_r;  // world = S_r until the register step
     cam.extrinsic_covariance = c.extrinsic_covariance;
     rig.cameras.push_back(cam);
+    if (observations != nullptr)
+      rig.observed_regions[c.camera_id] =
+          used_region(*observations, c.camera_id, c.residuals, c.intrinsics);
   }
   // Version 2: the joint covariance (same layout: per camera 13 intrinsics then the left
   // perturbation of T_c_r), cross-camera terms included; the host propagates it.
@@ -322,8 +346,9 @@ std::string rig_calibration_json(const calib::RigResult& r, int unit_id,
 
 int run_rig(const RigArgs& args, std::ostream& out, std::ostream& err) {
   calib::RigResult result;
+  calib::ObservationSet set;
   try {
-    calib::ObservationSet set = merge_observation_files(args.observations);
+    set = merge_observation_files(args.observations);
     for (const std::string& given : args.image_sizes) {
       int camera = -1;
       char eq = 0;
@@ -355,7 +380,7 @@ int run_rig(const RigArgs& args, std::ostream& out, std::ostream& err) {
       << fixed(result.residual_sigma_px, 4) << " px per axis, " << result.free_parameters
       << " parameters, " << result.iterations << " LM iterations)\n";
   return write_outputs(args.output, out, err, [&] {
-    write_text(args.output, rig_calibration_json(result, args.unit_id, args.options));
+    write_text(args.output, rig_calibration_json(result, args.unit_id, args.options, &set));
     if (!args.residuals_csv.empty()) {
       std::ostringstream rows;
       rows << kResidualHeader;

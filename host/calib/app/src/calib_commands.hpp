@@ -21,13 +21,17 @@ calib::ObservationSet merge_observation_files(const std::vector<std::string>& pa
 /// The rig calibration file (docs/calibration-file.md, version 1: a block per camera) of a rig
 /// fit, T_c_w = T_c_r (world = S_r until the register step). The joint covariance of all
 /// cameras (cross-camera terms included) and the fit summary go in the top-level "comment".
+/// With `observations` (the fit's input), each camera's observed region (the points the fit used,
+/// outliers not) is recorded (docs/calibration-file.md, "observed_region").
 std::string rig_calibration_json(const calib::RigResult& result, int unit_id,
-                                 const calib::RigOptions& options);
+                                 const calib::RigOptions& options,
+                                 const calib::ObservationSet* observations = nullptr);
 
 /// The rig calibration file (docs/calibration-file.md) of one intrinsically calibrated camera;
 /// the fit's summary goes into the camera's "comment" (ignored by readers). T_c_w is the
 /// identity and its covariance zero until the rig and registration steps exist: stated there.
 std::string intrinsic_calibration_json(const calib::IntrinsicResult& result, int camera_id,
-                                       int unit_id, const calib::IntrinsicOptions& options);
+                                       int unit_id, const calib::IntrinsicOptions& options,
+                                       const calib::ObservationSet* observations = nullptr);
 
 }  // namespace storetrack::calibapp

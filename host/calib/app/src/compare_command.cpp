@@ -91,9 +91,16 @@ void print_comparison(const calib::ComparisonResult& r, const CompareArgs& args,
     out << fmt::format("                            {:6d} ", c.camera_id)
         << fmt::format("{:7.4f} {:6.4f} {:6.4f} {:6.4f}", c.fitted.rms, c.fitted.p50, c.fitted.p95,
                        c.fitted.max)
-        << fmt::format("   ({:.4f}, {:.4f})\n", c.unfitted.rms, c.unfitted.max);
+        << fmt::format("   ({:.4f}, {:.4f})", c.unfitted.rms, c.unfitted.max)
+        << (c.outside_pixels == 0
+                ? std::string()
+                : fmt::format("   {} of {} grid pixels outside the observed region (max {:.3g} "
+                              "px there: extrapolated, left out)",
+                              c.outside_pixels, c.pixels.size(), c.fitted_outside.max))
+        << "\n";
   out << "triangulated difference |p_b - p_a| over the volume (" << r.valid_points
-      << " points seen by >= 2 cameras, " << r.unseen_points << " not): "
+      << " points seen by >= 2 cameras inside the observed regions, " << r.outside_points
+      << " outside the observed region (left out), " << r.unseen_points << " not seen): "
       << fmt::format("rms {:.4f} mm, p95 {:.4f} mm, max {:.4f} mm\n", r.difference_m.rms * 1e3,
                      r.difference_m.p95 * 1e3, r.difference_m.max * 1e3);
   out << fmt::format("predicted standard uncertainty sqrt(trace S) rms: a {:.4f} mm, b {:.4f} mm\n",
@@ -135,6 +142,10 @@ void add_compare(cli::Command& app, CompareArgs& a) {
   sub.option("--false-alarm", a.false_alarm,
              "Probability that two consistent sets are called inconsistent (joint test)")
       .range(1e-9, 0.5);
+  sub.option("--min-cell-points", a.min_points_per_cell,
+             "Points a cell of a file's observed_region needs to count as observed (fewer: the "
+             "edge of a board, extrapolation)")
+      .range(1, 1000000);
   sub.option("-o,--output", a.output, "Result JSON to write").required();
 }
 
@@ -152,12 +163,18 @@ std::string comparison_json(const calib::ComparisonResult& r, const CompareArgs&
     json pixels = json::array();
     for (const auto& p : c.pixels)
       pixels.push_back({p.x(), p.y()});
+    json inside = json::array();
+    for (const bool in : c.inside)
+      inside.push_back(in);
     cameras.push_back({{"camera_id", c.camera_id},
                        {"columns", c.columns},
                        {"rows", c.rows},
                        {"pixels", pixels},
                        {"difference_px", c.difference_px},
                        {"difference_unfitted_px", c.difference_unfitted_px},
+                       {"inside_observed_region", inside},
+                       {"outside_pixels", c.outside_pixels},
+                       {"fitted_outside_px", stats_json(c.fitted_outside)},
                        {"fitted_px", stats_json(c.fitted)},
                        {"unfitted_px", stats_json(c.unfitted)}});
   }
@@ -165,6 +182,8 @@ std::string comparison_json(const calib::ComparisonResult& r, const CompareArgs&
   for (const auto& p : r.points)
     points.push_back({{"p_w_m", vec(p.p_w)},
                       {"cameras", p.cameras},
+                      {"cameras_inside_observed_region", p.cameras_inside},
+                      {"outside_observed_region", p.outside},
                       {"valid", p.valid},
                       {"difference_m", vec(p.difference_m)},
                       {"sigma_a_m", sigmas(p.cov_a)},
@@ -191,6 +210,7 @@ std::string comparison_json(const calib::ComparisonResult& r, const CompareArgs&
       {"a", args.a},
       {"b", args.b},
       {"sigma_px", args.volume.sigma_px},
+      {"min_points_per_cell", args.min_points_per_cell},
       {"distances_m", r.distances_m},
       {"volume", volume_json(r.volume, {n, n, n})},
       {"T_b_a", {{"rotation_vector_rad", vec(rv)}, {"translation_m", vec(r.T_b_a.translation())}}},
@@ -208,7 +228,9 @@ std::string comparison_json(const calib::ComparisonResult& r, const CompareArgs&
         {"joint_p_value", r.joint_p_value},
         {"false_alarm", args.false_alarm},
         {"valid_points", r.valid_points},
-        {"unseen_points", r.unseen_points}}},
+        {"unseen_points", r.unseen_points},
+        {"outside_points", r.outside_points}}},
+      {"warnings", r.warnings},
       {"bars", bars},
       {"verdict",
        {{"consistent", r.consistent},
@@ -252,6 +274,7 @@ int run_compare(const CompareArgs& args, std::ostream& out, std::ostream& err) {
     set_volume(args.volume, o);
     o.point_false_alarm = args.point_false_alarm;
     o.false_alarm = args.false_alarm;
+    o.min_points_per_cell = args.min_points_per_cell;
     if (args.scale_bars.empty() != args.observations.empty())
       throw calib::CalibrationError(
           "--scale-bars and --observations: give both (the bars and their marks' pixels)");
@@ -266,6 +289,8 @@ int run_compare(const CompareArgs& args, std::ostream& out, std::ostream& err) {
     err << "error: " << e.what() << "\n";
     return 2;
   }
+  for (const std::string& warning : result.warnings)
+    err << "warning: " << warning << "\n";
   print_comparison(result, args, out);
   return write_outputs(args.output, out, err,
                        [&] { write_text(args.output, comparison_json(result, args)); });

@@ -28,6 +28,7 @@ struct CompareArgs {
   std::string observations;  ///< observation CSV of the bars' marks (point_id = mark id)
   double point_false_alarm = 0.01;
   double false_alarm = 0.01;
+  int min_points_per_cell = 10;  ///< observed_region cells with fewer count as unobserved
   std::string output;
 };
 

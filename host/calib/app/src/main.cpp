@@ -4,6 +4,7 @@
 //   rig        observation CSVs -> calibration JSON of all cameras (calib_commands.cpp, run_rig)
 //   register   rig JSON + world survey + marks CSV -> registered JSON (register_command.cpp)
 //   compare, uncertainty-map   rig JSON(s) -> result JSON (compare_command.cpp)
+//   triangulate  rig JSON + pixel observations CSV -> marks CSV (triangulate_command.cpp)
 // Exit codes: 0 ok, 1 runtime failure (writing files), 2 bad arguments or input.
 #include <iostream>
 
@@ -27,6 +28,8 @@ int main(int argc, char** argv) {
       return app::run_compare(command.compare, std::cout, std::cerr);
     case app::CalibCommand::Kind::kUncertaintyMap:
       return app::run_uncertainty_map(command.uncertainty_map, std::cout, std::cerr);
+    case app::CalibCommand::Kind::kTriangulate:
+      return app::run_triangulate(command.triangulate, std::cout, std::cerr);
     case app::CalibCommand::Kind::kNone:
       break;
   }

@@ -50,6 +50,9 @@ struct CompareOptions {
   std::array<int, 3> volume_points = {11, 11, 11};
   int grid_columns = 32, grid_rows = 18;  ///< projection grid per camera
   double sigma_px = 0.05;                 ///< centroid sigma (the scale-bar triangulation)
+  /// A cell of a file's observed_region counts as observed with at least this many points: a
+  /// cell with a few is mostly the edge of a board, i.e. extrapolation (docs/calibration.md).
+  int min_points_per_cell = 10;
   /// A grid point is inconsistent when d^T (S_a + S_b)^-1 d exceeds the chi-square(3) quantile
   /// at 1 - point_false_alarm (the map; the points are correlated, so the fraction of failing
   /// points is no test: the verdict uses the joint test).
@@ -70,17 +73,26 @@ struct CameraProjectionDifference {
   int camera_id = 0;
   int columns = 0, rows = 0;
   std::vector<geometry::Vec2> pixels;  ///< grid pixels (column fastest)
+  /// Per grid pixel: inside the observed region of both calibrations (or of every calibration
+  /// that records one). Only these pixels enter the fit and `fitted` / `unfitted`.
+  std::vector<bool> inside;
+  int outside_pixels = 0;  ///< grid pixels outside (their differences are extrapolation)
   /// Per distance (outer) and grid pixel (inner): |project_b(T p_a) - pixel| [px] with the
   /// fitted rigid motion (NaN where a or b cannot unproject / project).
   std::vector<std::vector<double>> difference_px;
   std::vector<std::vector<double>> difference_unfitted_px;  ///< the same without the fit
-  Statistics fitted, unfitted;                              ///< over all distances and pixels
+  Statistics fitted, unfitted;  ///< over all distances and the pixels inside
+  Statistics fitted_outside;    ///< the pixels outside: models evaluated beyond their data
 };
 
 struct VolumePointDifference {
-  geometry::Vec3 p_w = geometry::Vec3::Zero();           ///< grid point (world of a)
-  int cameras = 0;                                       ///< cameras of a that see it
-  bool valid = false;                                    ///< triangulated with both (>= 2 cameras)
+  geometry::Vec3 p_w = geometry::Vec3::Zero();  ///< grid point (world of a)
+  int cameras = 0;                              ///< cameras of a that see it
+  /// Of those, the cameras whose pixel is inside the observed regions; the triangulation
+  /// uses only these.
+  int cameras_inside = 0;
+  bool outside = false;  ///< seen by >= 2 cameras but by fewer than 2 inside: left out
+  bool valid = false;    ///< triangulated with both (>= 2 cameras inside)
   geometry::Vec3 difference_m = geometry::Vec3::Zero();  ///< p_b - p_a, same pixels
   geometry::Mat3 cov_a = geometry::Mat3::Zero();         ///< a's calibration part [m^2]
   geometry::Mat3 cov_b = geometry::Mat3::Zero();
@@ -109,6 +121,10 @@ struct ComparisonResult {
   double chi2_threshold = 0;                ///< chi-square(3) quantile used
   double inconsistent_fraction = 0;         ///< of the valid points
   int valid_points = 0, unseen_points = 0;  ///< unseen: fewer than 2 cameras
+  int outside_points = 0;  ///< seen by >= 2 cameras, but inside the observed regions by < 2
+  /// One line each: a calibration without an observed-region record (the comparison cannot
+  /// check it), a model evaluated beyond its data (grid pixels, volume points left out).
+  std::vector<std::string> warnings;
   /// All valid points jointly (their differences share the calibration errors): the
   /// chi-square of the stacked differences against their joint covariance, its degrees of
   /// freedom (rank) and p-value. The verdict's consistency test.
