@@ -311,6 +311,7 @@ PostOptions with_report_outputs(PostOptions p, bool has_cg) {
 struct ReportRows {
   std::vector<CameraResidualRow> residuals;
   std::vector<ExposureRow> exposures;
+  std::vector<CalibrationResidual> calibration;
 };
 
 int write_report(const PostOptions& p, const Recording& r, const Replay& replay,
@@ -325,7 +326,7 @@ int write_report(const PostOptions& p, const Recording& r, const Replay& replay,
                                 {"product", where(p.product_csv_path)},
                                 {"stats", where(p.stats_json_path)}};
   if (write_report_tables(p.report_dir, r, replay.counters(), rows.residuals, rows.exposures,
-                          files))
+                          rows.calibration, files))
     return 0;
   std::fprintf(stderr, "storetrack-post: %s: %s\n", p.report_dir.c_str(), std::strerror(errno));
   return 1;
@@ -387,16 +388,19 @@ int run(const PostOptions& given) {
       substituted_poses.push_back(run_pose(e, in.pylon.marks.size()));
     });
   ReportRows report;
+  ResidualDiagnostics diagnostics(in.rig, chain.processor->factors());
   if (!p.report_dir.empty())
-    replay.on_exposure([&report, &in](const pipeline::AlignedExposure& e,
-                                      const pipeline::ExposureResult& result, bool written) {
-      for (const CameraResidualRow& row : camera_residual_rows(e, result, in.rig))
+    replay.on_exposure([&report, &diagnostics](const pipeline::AlignedExposure& e,
+                                               const pipeline::ExposureResult& result,
+                                               bool written) {
+      for (const CameraResidualRow& row : diagnostics.add(e, result))
         report.residuals.push_back(row);
       report.exposures.push_back(exposure_row(e, result, written));
     });
   for (const ch10read::RawObservation& record : r.records)
     replay.feed(record);
   replay.finish();
+  if (!p.report_dir.empty()) report.calibration = diagnostics.calibration_residuals();
   print_summary(r, replay.counters(), replay.samples().size());
 
   int exit_code = 0;
