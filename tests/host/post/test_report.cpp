@@ -3,8 +3,8 @@
 // - PERFECT (the true rig stated perfect): the residuals are centroid noise alone;
 // - DRAWN (the simulator's calibrated_rig: errors drawn once from the stated covariance, here
 //   with a shared world-registration error, so the covariance has cross terms between cameras);
-// - ONE CAMERA OFF (DRAWN with camera kBadCamera's stated covariance divided by 25: its actual
-//   error is 5x its stated sigma).
+// - ONE CAMERA OFF (DRAWN with camera kBadCamera's drawn error, intrinsic and extrinsic, scaled
+//   by 5 and its stated covariance kept: its error is 5x its stated sigma).
 // Checks:
 // - the noise part's per-camera windows (differences of consecutive exposures) hold their
 //   chi-square band (0.95) at the binomial rate (two-sided, alpha 0.025 per side, over all
@@ -60,14 +60,18 @@ struct ProcessedRun {
   std::vector<CalibrationResidual> calibration;
 };
 
-// Camera `slot`'s rows and columns of the joint covariance scaled by `factor` (D S D stays a
-// covariance; the cross terms with the other cameras scale once).
-void scale_camera_covariance(camera::RigCalibration& rig, int slot, double factor) {
-  Eigen::MatrixXd joint = rig.full_joint_covariance();
-  const Eigen::Index first = static_cast<Eigen::Index>(slot) * camera::kJointBlockSize;
-  joint.middleRows(first, camera::kJointBlockSize) *= factor;
-  joint.middleCols(first, camera::kJointBlockSize) *= factor;
-  camera::set_joint_covariance(rig, joint);
+// Camera `slot`'s calibration error (the drawn rig against the truth: its own part and its
+// share of the registration error) scaled by `factor`, its stated covariance kept.
+void scale_camera_error(const camera::RigCalibration& truth, camera::RigCalibration& rig, int slot,
+                        double factor) {
+  camera::CalibratedCamera& c = rig.cameras[static_cast<std::size_t>(slot)];
+  const camera::CalibratedCamera& t = truth.cameras[static_cast<std::size_t>(slot)];
+  c.T_c_w = geometry::perturb_left(t.T_c_w, factor * geometry::left_difference(c.T_c_w, t.T_c_w));
+  const camera::Intrinsics& in = t.model.intrinsics();
+  const camera::IntrinsicVector p_true = camera::pack(in);
+  const camera::IntrinsicVector p = camera::pack(c.model.intrinsics());
+  c.model =
+      camera::CameraModel(camera::unpack(p_true + factor * (p - p_true), in.width, in.height));
 }
 
 camera::RigCalibration stated_rig(const sim::Simulator& sim, Stated stated) {
@@ -78,7 +82,7 @@ camera::RigCalibration stated_rig(const sim::Simulator& sim, Stated stated) {
     return rig;
   }
   camera::RigCalibration rig = sim.calibrated_rig();
-  if (stated == Stated::kOneCameraOff) scale_camera_covariance(rig, kBadCamera, 1.0 / 5.0);
+  if (stated == Stated::kOneCameraOff) scale_camera_error(sim.true_rig(), rig, kBadCamera, 5.0);
   return rig;
 }
 
