@@ -144,7 +144,7 @@ struct ResidualWindow {
   int camera_id = -1;
   std::uint32_t first_seq = 0, last_seq = 0;
   std::int64_t first_t_tai_ns = 0, last_t_tai_ns = 0;
-  int exposures = 0, residuals = 0;
+  int exposures = 0, residuals = 0;  ///< residuals: the differences it holds
   double chi2 = 0, dof = 0;
   double rms_normalised = 0, band_low = 0, band_high = 0;
   bool inside() const { return rms_normalised >= band_low && rms_normalised <= band_high; }
@@ -152,7 +152,7 @@ struct ResidualWindow {
 inline constexpr double kResidualBandProbability = 0.95;
 
 /// Consecutive windows of `window` delivered exposures per camera (a last, shorter window
-/// is dropped); windows without residuals are skipped.
+/// is dropped); windows without differences are skipped.
 std::vector<ResidualWindow> residual_windows(std::span<const CameraResidualRow> rows, int window);
 
 /// How many windows hold their band, and the binomial acceptance interval of that count
