@@ -117,8 +117,9 @@ def plot_rates(smoothed, product, t0_ns, outdir, figures):
 
 
 def plot_residual_windows(windows, t0_ns, outdir, figures):
-    """Per camera: the RMS of its reprojection residuals normalised by their predicted spread,
-    per window of exposures (expected 1), with each window's 0.95 chi-square band."""
+    """Per camera: the noise part of its reprojection residuals (differences of consecutive
+    exposures normalised by the centroid noise's predicted spread), RMS per window of exposures
+    (expected 1), with each window's 0.95 chi-square band."""
     if windows is None or len(windows.get("camera_id", [])) == 0:
         return
     cams = sorted(set(int(c) for c in windows["camera_id"]))
@@ -139,7 +140,7 @@ def plot_residual_windows(windows, t0_ns, outdir, figures):
         ax.grid(alpha=0.3)
     axs[0][0].legend(fontsize=8, loc="upper right")
     axs[-1][0].set_xlabel("time since first exposure [s]")
-    fig.suptitle("RMS of the normalised reprojection residuals per window (expected 1)")
+    fig.suptitle("Noise part: RMS of the normalised residual differences per window (expected 1)")
     savefig(fig, outdir, "residual_windows.png", figures)
 
 
@@ -181,18 +182,38 @@ def plot_camera_usage(residuals, t0_ns, outdir, figures):
 
 
 def camera_rows(residuals):
-    """Per camera: exposures delivered / missing, residuals, overall RMS normalised."""
+    """Per camera: exposures delivered / missing, residuals, the noise part's overall RMS."""
     rows = []
     if residuals is None or len(residuals.get("camera_id", [])) == 0:
         return rows
     for c in sorted(set(int(c) for c in residuals["camera_id"])):
         m = residuals["camera_id"] == c
         d = residuals["delivered"][m] == 1
-        dof = residuals["dof"][m].sum()
-        rms = np.sqrt(residuals["chi2"][m].sum() / dof) if dof > 0 else float("nan")
-        rows.append(("camera %d: exposures delivered / missing, residuals, RMS normalised" % c,
+        dof = residuals["noise_dof"][m].sum()
+        rms = np.sqrt(residuals["noise_chi2"][m].sum() / dof) if dof > 0 else float("nan")
+        rows.append(("camera %d: exposures delivered / missing, residuals, noise part RMS "
+                     "normalised (expected 1)" % c,
                      "%d / %d, %d, %.3f" % (d.sum(), (~d).sum(), residuals["residuals"][m].sum(),
                                             rms)))
+    return rows
+
+
+def calibration_rows(report):
+    """The shared (calibration) part: one chi-square per camera for the whole recording."""
+    cal = report.get("calibration_residuals")
+    if not cal:
+        return []
+    rows = []
+    for c in cal["per_camera"]:
+        verdict = ""
+        if c["chi2"] > c["band_high"]:
+            verdict = "  ABOVE: calibration off by more than stated"
+        elif c["chi2"] < c["band_low"]:
+            verdict = "  BELOW: stated calibration uncertainty larger than the residuals show"
+        rows.append(("camera %d: calibration part chi-square (one draw for the recording)"
+                     % c["camera_id"],
+                     "%.1f on %d dof (0.95 band %.1f .. %.1f)%s" % (
+                         c["chi2"], c["dof"], c["band_low"], c["band_high"], verdict)))
     return rows
 
 
@@ -219,7 +240,8 @@ def summary_rows(report):
                  "yes" if i["host_ended_normally"] else "NO"))
     w = report["residual_windows"]
     if w["windows"]:
-        rows.append(("residual windows (%d exposures) inside their 0.95 band" % w["window_exposures"],
+        rows.append(("noise-part residual windows (%d exposures) inside their 0.95 band"
+                     % w["window_exposures"],
                      "%d of %d (an honest spread: %d .. %d)%s" % (
                          w["inside"], w["windows"], w["inside_band_low"], w["inside_band_high"],
                          "" if w["acceptable"] else "  OUTSIDE")))
@@ -244,4 +266,5 @@ def render_post(post, outdir, figures, summary, t0_ns, truth_err=None, fti=None)
     plot_rigid_fits(post["exposures"], t0_ns, outdir, figures)
     plot_camera_usage(post["residuals"], t0_ns, outdir, figures)
     summary.extend(camera_rows(post["residuals"]))
+    summary.extend(calibration_rows(post["report"]))
     summary.extend(summary_rows(post["report"]))

@@ -353,6 +353,7 @@ void print_health(const pipeline::CalibrationHealthGuard& guard) {
 struct ReportRows {
   std::vector<CameraResidualRow> residuals;
   std::vector<ExposureRow> exposures;
+  std::vector<CalibrationResidual> calibration;
   HealthHistory health;  ///< calibration_health.csv (when the recorded run had the test on)
 };
 
@@ -373,7 +374,7 @@ int write_report(const PostOptions& p, const Recording& r, const Replay& replay,
     return write_health_csv(f.get(), rows.health.rows()) && std::fflush(f.get()) == 0;
   }();
   if (health_ok && write_report_tables(p.report_dir, r, replay.counters(), rows.residuals,
-                                       rows.exposures, files))
+                                       rows.exposures, rows.calibration, files))
     return 0;
   std::fprintf(stderr, "storetrack-post: %s: %s\n", p.report_dir.c_str(), std::strerror(errno));
   return 1;
@@ -436,11 +437,12 @@ int run(const PostOptions& given) {
       substituted_poses.push_back(run_pose(e, in.pylon.marks.size()));
     });
   ReportRows report;
+  ResidualDiagnostics diagnostics(in.rig, chain.processor->factors());
   if (!p.report_dir.empty())
-    replay.on_exposure([&report, &in, &chain](const pipeline::AlignedExposure& e,
-                                              const pipeline::ExposureResult& result,
-                                              bool written) {
-      for (const CameraResidualRow& row : camera_residual_rows(e, result, in.rig))
+    replay.on_exposure([&report, &diagnostics, &chain](const pipeline::AlignedExposure& e,
+                                                       const pipeline::ExposureResult& result,
+                                                       bool written) {
+      for (const CameraResidualRow& row : diagnostics.add(e, result))
         report.residuals.push_back(row);
       report.exposures.push_back(exposure_row(e, result, written));
       if (chain.health)
@@ -449,6 +451,7 @@ int run(const PostOptions& given) {
   for (const ch10read::RawObservation& record : r.records)
     replay.feed(record);
   replay.finish();
+  if (!p.report_dir.empty()) report.calibration = diagnostics.calibration_residuals();
   print_summary(r, replay.counters(), replay.samples().size());
   if (chain.health) print_health(*chain.health);
 

@@ -27,10 +27,13 @@ void prepare_report_dir(const std::string& dir);
 nlohmann::json integrity_json(const Recording& r, const ReplayCounters& c,
                               std::span<const ExposureRow> exposures);
 
-/// residuals.csv, residual_windows.csv, exposures.csv and report.json (the windows' and rigid
-/// fits' summary, the integrity) in `dir`. Returns false (errno set) when a write failed.
+/// residuals.csv, residual_windows.csv, exposures.csv and report.json (the noise windows', the
+/// calibration part's and the rigid fits' summary, the integrity) in `dir`. Returns false (errno
+/// set) when a write failed.
 bool write_report_tables(const std::string& dir, const Recording& r, const ReplayCounters& c,
                          std::span<const CameraResidualRow> residuals,
-                         std::span<const ExposureRow> exposures, const nlohmann::json& files);
+                         std::span<const ExposureRow> exposures,
+                         std::span<const CalibrationResidual> calibration,
+                         const nlohmann::json& files);
 
 }  // namespace storetrack::post

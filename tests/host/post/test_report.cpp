@@ -1,8 +1,18 @@
 // storetrack-post --report's data (host/post report_data) against the simulator's truth: the
-// simulator's exposures through the host's processor with the TRUE rig stated perfect and the
-// true surveys, so the residuals are centroid noise alone and their predicted spread is exact.
-// - the per-camera windows of normalised residuals hold their chi-square band (0.95) at the
-//   binomial rate (two-sided, alpha 0.025 per side, over all windows);
+// simulator's exposures through the host's processor with the true surveys and a stated rig:
+// - PERFECT (the true rig stated perfect): the residuals are centroid noise alone;
+// - DRAWN (the simulator's calibrated_rig: errors drawn once from the stated covariance, here
+//   with a shared world-registration error, so the covariance has cross terms between cameras);
+// - ONE CAMERA OFF (DRAWN with camera kBadCamera's drawn error, intrinsic and extrinsic, scaled
+//   by 5 and its stated covariance kept: its error is 5x its stated sigma).
+// Checks:
+// - the noise part's per-camera windows (differences of consecutive exposures) hold their
+//   chi-square band (0.95) at the binomial rate (two-sided, alpha 0.025 per side, over all
+//   windows of all runs), with a perfect and with a drawn calibration;
+// - the shared (calibration) part, one chi-square per camera: with the calibration drawn from
+//   its stated covariance (and perfect), the count of cameras inside their 0.95 band over
+//   kSeeds seeds is inside its binomial acceptance; with one camera off by 5x, that camera is
+//   above its band and has the largest chi2 / dof;
 // - the rigid-body fit chi-square exceeds its 0.99 quantile no more often than the binomial
 //   band allows (its weights include the body-mark survey's sigma, here with the true surveys:
 //   chi2/dof 0.09 store, 0.008 pylon, so the check is one-sided in effect: a moved or
@@ -21,28 +31,73 @@
 #include "scratch_files.hpp"
 #include "sim_exposure.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
+#include "storetrack/uncertainty/statistics.hpp"
 
 namespace storetrack::post {
 namespace {
 
-// The scenario's whole 0.55 s at 400 fps (220 exposures: captive, ejector stroke, free flight);
-// 2.8 s here, one pass, so the sanitizer runs take the same form.
+// The scenario's whole 0.55 s at 400 fps (220 exposures: captive, ejector stroke, free flight),
+// ~3 s per run in Release; kSeeds runs of the drawn calibration. Sanitizer builds: half the
+// exposures and one seed.
+#ifdef STORETRACK_SANITIZE
+constexpr int kExposures = 110;
+constexpr int kSeeds = 1;
+#else
 constexpr int kExposures = 220;
+constexpr int kSeeds = 3;
+#endif
+constexpr std::uint64_t kFirstSeed = 261;
 constexpr int kDroppedCamera = 2, kDropFirst = 40, kDropEnd = 70;  // exposures [40, 70)
+constexpr int kBadCamera = 1;  // rig index of the camera whose calibration is 5x off
+constexpr double kRegistrationRotationRad = 1e-4, kRegistrationTranslationM = 2e-4;
+
+enum class Stated { kPerfect, kDrawn, kOneCameraOff };
 
 struct ProcessedRun {
   std::vector<int> rig_camera_ids;
   std::vector<CameraResidualRow> residuals;
   std::vector<ExposureRow> exposures;
+  std::vector<CalibrationResidual> calibration;
 };
+
+// Camera `slot`'s calibration error (the drawn rig against the truth: its own part and its
+// share of the registration error) scaled by `factor`, its stated covariance kept.
+void scale_camera_error(const camera::RigCalibration& truth, camera::RigCalibration& rig, int slot,
+                        double factor) {
+  camera::CalibratedCamera& c = rig.cameras[static_cast<std::size_t>(slot)];
+  const camera::CalibratedCamera& t = truth.cameras[static_cast<std::size_t>(slot)];
+  c.T_c_w = geometry::perturb_left(t.T_c_w, factor * geometry::left_difference(c.T_c_w, t.T_c_w));
+  const camera::Intrinsics& in = t.model.intrinsics();
+  const camera::IntrinsicVector p_true = camera::pack(in);
+  const camera::IntrinsicVector p = camera::pack(c.model.intrinsics());
+  c.model =
+      camera::CameraModel(camera::unpack(p_true + factor * (p - p_true), in.width, in.height));
+}
+
+camera::RigCalibration stated_rig(const sim::Simulator& sim, Stated stated) {
+  if (stated == Stated::kPerfect) {
+    // The true rig stated perfect, its joint covariance (the registration's cross terms) too.
+    camera::RigCalibration rig = test::perfect_rig(sim);
+    rig.joint_covariance.resize(0, 0);
+    return rig;
+  }
+  camera::RigCalibration rig = sim.calibrated_rig();
+  if (stated == Stated::kOneCameraOff) scale_camera_error(sim.true_rig(), rig, kBadCamera, 5.0);
+  return rig;
+}
 
 // The simulator's exposures processed; camera `drop` (its rig index) removed from the exposures
 // in [drop_first, drop_end), as the aligner closes an exposure without it.
-ProcessedRun process(int drop, int drop_first, int drop_end) {
-  const sim::Simulator sim(sim::load_scenario(test::scenario_path("store_separation")), 261);
-  const camera::RigCalibration rig = test::perfect_rig(sim);
+ProcessedRun process(std::uint64_t seed, Stated stated, int drop = 0, int drop_first = 0,
+                     int drop_end = 0) {
+  sim::Scenario scenario = sim::load_scenario(test::scenario_path("store_separation"));
+  scenario.calibration.registration_rotation_rad = kRegistrationRotationRad;
+  scenario.calibration.registration_translation_m = kRegistrationTranslationM;
+  const sim::Simulator sim(scenario, seed);
+  const camera::RigCalibration rig = stated_rig(sim, stated);
   pipeline::ExposureProcessor processor(rig, sim.true_pylon(), sim.true_store(),
                                         pipeline::ProcessorConfig{});
+  ResidualDiagnostics diagnostics(rig, processor.factors());
   ProcessedRun run;
   for (const camera::CalibratedCamera& c : rig.cameras)
     run.rig_camera_ids.push_back(c.camera_id);
@@ -59,40 +114,112 @@ ProcessedRun process(int drop, int drop_first, int drop_end) {
       in.exposure.missing_camera_mask = 1u << drop;
     }
     const pipeline::ExposureResult r = processor.process(in.exposure, in.ids);
-    for (const CameraResidualRow& row : camera_residual_rows(in.exposure, r, rig))
+    for (const CameraResidualRow& row : diagnostics.add(in.exposure, r))
       run.residuals.push_back(row);
     run.exposures.push_back(exposure_row(in.exposure, r, true));
   }
+  run.calibration = diagnostics.calibration_residuals();
   return run;
 }
 
 const ProcessedRun& clean_run() {
-  static const ProcessedRun run = process(0, 0, 0);
+  static const ProcessedRun run = process(kFirstSeed, Stated::kPerfect);
   return run;
 }
 
-TEST(PostReport, ResidualWindowsHoldTheirChiSquareBandAtTheBinomialRate) {
-  const std::vector<ResidualWindow> windows =
-      residual_windows(clean_run().residuals, kResidualWindowExposures);
-  const std::size_t cameras = clean_run().rig_camera_ids.size();
-  const std::size_t exposures = clean_run().exposures.size();
-  ASSERT_EQ(windows.size(), cameras * (exposures / kResidualWindowExposures));
-  const WindowsInside all = windows_inside(windows);
+const std::vector<ProcessedRun>& drawn_runs() {
+  static const std::vector<ProcessedRun> runs = [] {
+    std::vector<ProcessedRun> out;
+    for (int i = 0; i < kSeeds; ++i)
+      out.push_back(process(kFirstSeed + static_cast<std::uint64_t>(i), Stated::kDrawn));
+    return out;
+  }();
+  return runs;
+}
+
+void print_calibration(const char* what, const ProcessedRun& run) {
+  for (const CalibrationResidual& c : run.calibration)
+    std::printf("%s camera %d: chi2 %.1f, dof %.0f, band %.1f .. %.1f, calibration share %.2f\n",
+                what, c.camera_id, c.chi2, c.dof, c.band_low, c.band_high, c.calibration_share);
+}
+
+// The noise part's windows of the runs: every camera's windows hold their band at the
+// binomial rate.
+void expect_noise_windows_at_the_binomial_rate(const std::vector<const ProcessedRun*>& runs) {
+  std::vector<ResidualWindow> windows;
   double rms2 = 0;
+  for (const ProcessedRun* run : runs) {
+    const std::vector<ResidualWindow> w =
+        residual_windows(run->residuals, kResidualWindowExposures);
+    ASSERT_EQ(w.size(),
+              run->rig_camera_ids.size() * (run->exposures.size() / kResidualWindowExposures));
+    windows.insert(windows.end(), w.begin(), w.end());
+  }
   for (const ResidualWindow& w : windows) {
     EXPECT_GT(w.residuals, 0);
     EXPECT_LT(w.band_low, 1.0);
     EXPECT_GT(w.band_high, 1.0);
     rms2 += w.rms_normalised * w.rms_normalised;
   }
+  const WindowsInside all = windows_inside(windows);
   std::printf(
-      "%lld of %lld windows inside their 0.95 band (acceptance %lld .. %lld); mean "
+      "noise part: %lld of %lld windows inside their 0.95 band (acceptance %lld .. %lld); mean "
       "normalised square %.4f\n",
       static_cast<long long>(all.inside), static_cast<long long>(all.windows),
       static_cast<long long>(all.band_low), static_cast<long long>(all.band_high),
       rms2 / static_cast<double>(windows.size()));
   EXPECT_TRUE(all.acceptable()) << all.inside << " of " << all.windows << " inside, acceptance "
                                 << all.band_low << " .. " << all.band_high;
+}
+
+// The shared part: cameras inside their 0.95 band over the runs, against the binomial
+// acceptance of that count (alpha 0.025 per side).
+void expect_calibration_inside_at_the_binomial_rate(const std::vector<const ProcessedRun*>& runs) {
+  std::int64_t cameras = 0, inside = 0;
+  for (const ProcessedRun* run : runs) {
+    EXPECT_EQ(run->calibration.size(), run->rig_camera_ids.size());
+    for (const CalibrationResidual& c : run->calibration) {
+      ++cameras;
+      inside += c.inside() ? 1 : 0;
+    }
+  }
+  const auto band = uncertainty::binomial_interval(cameras, kResidualBandProbability, 0.025);
+  std::printf(
+      "shared part: %lld of %lld cameras inside their 0.95 band (acceptance %lld .. %lld)\n",
+      static_cast<long long>(inside), static_cast<long long>(cameras),
+      static_cast<long long>(band.low), static_cast<long long>(band.high));
+  EXPECT_GE(inside, band.low);
+  EXPECT_LE(inside, band.high);
+}
+
+TEST(PostReport, NoiseWindowsHoldTheirChiSquareBandAtTheBinomialRate) {
+  expect_noise_windows_at_the_binomial_rate({&clean_run()});
+  std::vector<const ProcessedRun*> drawn;
+  for (const ProcessedRun& run : drawn_runs())
+    drawn.push_back(&run);
+  expect_noise_windows_at_the_binomial_rate(drawn);
+}
+
+TEST(PostReport, CalibrationPartPerCameraHoldsItsBandWhenDrawnFromTheStatedCovariance) {
+  print_calibration("perfect", clean_run());
+  std::vector<const ProcessedRun*> runs{&clean_run()};
+  for (const ProcessedRun& run : drawn_runs()) {
+    print_calibration("drawn", run);
+    runs.push_back(&run);
+  }
+  expect_calibration_inside_at_the_binomial_rate(runs);
+}
+
+TEST(PostReport, ACameraOffByFiveSigmaIsNamedByTheCalibrationPart) {
+  const ProcessedRun run = process(kFirstSeed, Stated::kOneCameraOff);
+  print_calibration("one off", run);
+  const int bad_id = run.rig_camera_ids[kBadCamera];
+  const CalibrationResidual* worst = nullptr;
+  for (const CalibrationResidual& c : run.calibration)
+    if (!worst || c.chi2 / c.dof > worst->chi2 / worst->dof) worst = &c;
+  ASSERT_NE(worst, nullptr);
+  EXPECT_EQ(worst->camera_id, bad_id);
+  EXPECT_GT(worst->chi2, worst->band_high);
 }
 
 TEST(PostReport, RigidFitChiSquareExceedsItsQuantileWithinTheBinomialBand) {
@@ -116,7 +243,8 @@ TEST(PostReport, RigidFitChiSquareExceedsItsQuantileWithinTheBinomialBand) {
 }
 
 TEST(PostReport, ADroppedCameraShowsAtExactlyTheExposuresItMissed) {
-  const ProcessedRun run = process(kDroppedCamera, kDropFirst, kDropEnd);
+  const ProcessedRun run =
+      process(kFirstSeed, Stated::kPerfect, kDroppedCamera, kDropFirst, kDropEnd);
   const int dropped_id = run.rig_camera_ids[kDroppedCamera];
   std::set<std::uint32_t> missed;
   for (const CameraResidualRow& row : run.residuals) {

@@ -256,10 +256,16 @@ while at + 24 <= len(data):
     at += struct.unpack_from("<I", data, at + 4)[0]
 i = rep["integrity"]
 f = i["files"][0]
-print("report: %d packets (%d counted here), %d exposures, %d samples recorded; windows %d of %d "
-      "inside; torn copy: %s" % (f["packets"], packets, i["exposures_processed"],
-                                 i["samples_recorded"], rep["residual_windows"]["inside"],
-                                 rep["residual_windows"]["windows"], torn["integrity"]["files"][0]["stop_reason"]))
+print("report: %d packets (%d counted here), %d exposures, %d samples recorded; noise windows %d "
+      "of %d inside (acceptance %d .. %d); torn copy: %s" % (
+          f["packets"], packets, i["exposures_processed"], i["samples_recorded"],
+          rep["residual_windows"]["inside"], rep["residual_windows"]["windows"],
+          rep["residual_windows"]["inside_band_low"], rep["residual_windows"]["inside_band_high"],
+          torn["integrity"]["files"][0]["stop_reason"]))
+for c in rep["calibration_residuals"]["per_camera"]:
+    print("report: calibration part camera %d: chi2 %.1f on %d dof (band %.1f .. %.1f)%s" % (
+        c["camera_id"], c["chi2"], c["dof"], c["band_low"], c["band_high"],
+        "" if c["inside"] else " OUTSIDE"))
 assert f["packets"] == packets and f["file_bytes"] == len(data) and not f["torn"], f
 assert f["header_checksum_errors"] == f["data_checksum_errors"] == f["sequence_gap_packets"] == 0, f
 assert i["continuation_files"] == 0 and i["exposures_missing"] == 0 and i["host_ended_normally"], i
