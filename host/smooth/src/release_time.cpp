@@ -19,7 +19,6 @@ using geometry::Mat3;
 using geometry::Vec3;
 using Shared3 = Eigen::Matrix<double, 3, Eigen::Dynamic>;
 using Mat7 = Eigen::Matrix<double, 7, 7>;
-using Jac37 = Eigen::Matrix<double, 3, 7>;
 
 /// A solved position: time since the first solved exposure [s], value, noise weight, shared
 /// loadings (all padded to the same columns).
@@ -88,82 +87,105 @@ int captive_alarm(const std::vector<Point>& pts, const ReleaseTimeConfig& c, Rel
   return -1;
 }
 
-/// The onset model's linear part for a given t0: c and a by weighted least squares; returns the
-/// chi-square (infinite when c and a are not determined).
-double profile_chi2(std::span<const Point> pts, double t0, Vec3& c, Vec3& a) {
-  Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
-  Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
-  for (const Point& p : pts) {
-    const double g = 0.5 * std::pow(std::max(0.0, p.t - t0), 2);
-    A.topLeftCorner<3, 3>() += p.weight;
-    A.topRightCorner<3, 3>() += g * p.weight;
-    A.bottomRightCorner<3, 3>() += g * g * p.weight;
-    b.head<3>() += p.weight * p.y;
-    b.tail<3>() += g * p.weight * p.y;
+/// The onset fit's data, stacked (3 rows per point): positions, the noise covariance (block
+/// diagonal), the shared loadings, and the weight: the inverse of the joint covariance, noise
+/// plus shared. The shared errors are common to all points but their loadings are not: when a
+/// camera's observations are lost live (dropped late by the aligner), its calibration errors
+/// stop entering those exposures' poses and the points move against each other by up to the
+/// shared u, far beyond the noise (issue 26). Only their constant part is absorbed by c.
+struct FitData {
+  std::vector<double> t;
+  Eigen::VectorXd y;
+  Eigen::MatrixXd noise, shared, weight;
+};
+
+bool stack_fit_data(std::span<const Point> pts, FitData& f) {
+  const auto n = static_cast<Eigen::Index>(pts.size());
+  f.t.clear();
+  f.y.resize(3 * n);
+  f.noise = Eigen::MatrixXd::Zero(3 * n, 3 * n);
+  f.shared.resize(3 * n, pts.front().shared.cols());
+  for (Eigen::Index k = 0; k < n; ++k) {
+    const Point& p = pts[static_cast<std::size_t>(k)];
+    f.t.push_back(p.t);
+    f.y.segment<3>(3 * k) = p.y;
+    f.noise.block<3, 3>(3 * k, 3 * k) = p.noise;
+    f.shared.middleRows<3>(3 * k) = p.shared;
   }
-  A.bottomLeftCorner<3, 3>() = A.topRightCorner<3, 3>().transpose();
+  const Eigen::MatrixXd cov = f.noise + f.shared * f.shared.transpose();
+  return uncertainty::inverse_spd<Eigen::Dynamic>(cov, f.weight);
+}
+
+/// The onset model's Jacobian for a given t0 (columns c, a, t0; rows 3 per point).
+Eigen::Matrix<double, Eigen::Dynamic, 7> onset_jacobian(const FitData& f, double t0,
+                                                        const Vec3& a) {
+  Eigen::Matrix<double, Eigen::Dynamic, 7> J(3 * static_cast<Eigen::Index>(f.t.size()), 7);
+  for (std::size_t k = 0; k < f.t.size(); ++k) {
+    const double tau = std::max(0.0, f.t[k] - t0);
+    J.middleRows<3>(3 * static_cast<Eigen::Index>(k)) << Mat3::Identity(),
+        0.5 * tau * tau * Mat3::Identity(), -a * tau;
+  }
+  return J;
+}
+
+/// The onset model's linear part for a given t0: c and a by generalised least squares; returns
+/// the chi-square (infinite when c and a are not determined).
+double profile_chi2(const FitData& f, double t0, Vec3& c, Vec3& a) {
+  const Eigen::Matrix<double, Eigen::Dynamic, 6> X =
+      onset_jacobian(f, t0, Vec3::Zero()).leftCols<6>();
+  const Eigen::Matrix<double, Eigen::Dynamic, 6> WX = f.weight * X;
+  const Eigen::Matrix<double, 6, 6> A = X.transpose() * WX;
   const Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(A);
   if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().array() > 0).all())
     return std::numeric_limits<double>::infinity();
-  const Eigen::Matrix<double, 6, 1> x = ldlt.solve(b);
+  const Eigen::Matrix<double, 6, 1> x = ldlt.solve(WX.transpose() * f.y);
   c = x.head<3>();
   a = x.tail<3>();
-  double chi2 = 0;
-  for (const Point& p : pts) {
-    const Vec3 r = p.y - c - 0.5 * std::pow(std::max(0.0, p.t - t0), 2) * a;
-    chi2 += r.dot(p.weight * r);
-  }
-  return chi2;
+  const Eigen::VectorXd r = f.y - X * x;
+  return r.dot(f.weight * r);
 }
 
 /// t0 minimising the profile chi-square over [lo, hi]: a 10 us grid, then golden section
 /// inside the best cell's neighbours (the profile is smooth: the model is C1 in t0).
-double minimise_profile(std::span<const Point> pts, double lo, double hi) {
+double minimise_profile(const FitData& f, double lo, double hi) {
   Vec3 c, a;
   constexpr double kGrid = 1e-5;
   double best = lo, best_chi2 = std::numeric_limits<double>::infinity();
   for (double t = lo; t <= hi; t += kGrid)
-    if (const double chi2 = profile_chi2(pts, t, c, a); chi2 < best_chi2) {
+    if (const double chi2 = profile_chi2(f, t, c, a); chi2 < best_chi2) {
       best_chi2 = chi2;
       best = t;
     }
   const double phi = 0.5 * (std::sqrt(5.0) - 1);
   double x0 = std::max(lo, best - kGrid), x3 = std::min(hi, best + kGrid);
   double x1 = x3 - phi * (x3 - x0), x2 = x0 + phi * (x3 - x0);
-  double f1 = profile_chi2(pts, x1, c, a), f2 = profile_chi2(pts, x2, c, a);
+  double f1 = profile_chi2(f, x1, c, a), f2 = profile_chi2(f, x2, c, a);
   while (x3 - x0 > 1e-9) {
     if (f1 < f2) {
       x3 = x2, x2 = x1, f2 = f1;
       x1 = x3 - phi * (x3 - x0);
-      f1 = profile_chi2(pts, x1, c, a);
+      f1 = profile_chi2(f, x1, c, a);
     } else {
       x0 = x1, x1 = x2, f1 = f2;
       x2 = x0 + phi * (x3 - x0);
-      f2 = profile_chi2(pts, x2, c, a);
+      f2 = profile_chi2(f, x2, c, a);
     }
   }
   const double t = 0.5 * (x0 + x3);
-  return profile_chi2(pts, t, c, a) <= best_chi2 ? t : best;
+  return profile_chi2(f, t, c, a) <= best_chi2 ? t : best;
 }
 
-/// u(t0) at the solution: noise part (J^T W J)^-1, shared part the estimate's linear map
-/// (J^T W J)^-1 J^T W applied to the points' shared loadings. False when not determined.
-bool onset_uncertainty(std::span<const Point> pts, double t0, const Vec3& a, ReleaseTime& r) {
-  Mat7 H = Mat7::Zero();
-  std::vector<Jac37> J(pts.size());
-  for (std::size_t k = 0; k < pts.size(); ++k) {
-    const double tau = std::max(0.0, pts[k].t - t0);
-    J[k] << Mat3::Identity(), 0.5 * tau * tau * Mat3::Identity(), -a * tau;
-    H += J[k].transpose() * pts[k].weight * J[k];
-  }
+/// u(t0) at the solution: the estimate's linear map m = [(J^T W J)^-1 J^T W] (t0's row) applied
+/// to the noise covariance (noise part) and to the shared loadings (shared part); their sum is
+/// (J^T W J)^-1's t0 entry. False when not determined.
+bool onset_uncertainty(const FitData& f, double t0, const Vec3& a, ReleaseTime& r) {
+  const Eigen::Matrix<double, Eigen::Dynamic, 7> J = onset_jacobian(f, t0, a);
+  const Eigen::Matrix<double, Eigen::Dynamic, 7> WJ = f.weight * J;
   Mat7 H_inv;
-  if (!uncertainty::inverse_spd<7>(H, H_inv)) return false;
-  Eigen::Matrix<double, 1, Eigen::Dynamic> shared_t0 =
-      Eigen::Matrix<double, 1, Eigen::Dynamic>::Zero(1, pts.front().shared.cols());
-  for (std::size_t k = 0; k < pts.size(); ++k)
-    shared_t0 += H_inv.row(6) * J[k].transpose() * pts[k].weight * pts[k].shared;
-  r.u_noise_s = std::sqrt(H_inv(6, 6));
-  r.u_shared_s = shared_t0.norm();
+  if (!uncertainty::inverse_spd<7>(Mat7(J.transpose() * WJ), H_inv)) return false;
+  const Eigen::RowVectorXd m = H_inv.row(6) * WJ.transpose();
+  r.u_noise_s = std::sqrt(m.dot(f.noise * m.transpose()));
+  r.u_shared_s = (m * f.shared).norm();
   r.u_t0_s = std::hypot(r.u_noise_s, r.u_shared_s);
   return true;
 }
@@ -188,11 +210,16 @@ ReleaseTime estimate_release_time(std::span<const PoseMeasurement> measurements,
                                 [](const Point& p, double t) { return p.t < t; });
   auto last = std::upper_bound(pts.begin(), pts.end(), t_alarm + config.onset_window_s,
                                [](double t, const Point& p) { return t < p.t; });
-  const std::span<const Point> fit(&*first, static_cast<std::size_t>(last - first));
+  FitData fit;
+  if (!stack_fit_data(std::span<const Point>(&*first, static_cast<std::size_t>(last - first)),
+                      fit)) {
+    r.reason = "the onset fit's covariance is not positive definite";
+    return r;
+  }
   const double t0 = minimise_profile(fit, std::max(0.0, t_alarm - config.lookback_s), t_alarm);
   Vec3 c, a;
   r.fit_chi2 = profile_chi2(fit, t0, c, a);
-  r.fit_dof = 3 * static_cast<int>(fit.size()) - 7;
+  r.fit_dof = 3 * static_cast<int>(fit.t.size()) - 7;
   if (!std::isfinite(r.fit_chi2) || r.fit_dof <= 0 || !onset_uncertainty(fit, t0, a, r)) {
     r.reason = "the onset fit does not determine t0 (too few solved poses around the alarm)";
     return r;

@@ -11,10 +11,12 @@
 //    p(t) = c + a max(0, t - t0)^2 / 2 (segmented regression with a smooth join: the model is
 //    continuously differentiable in t0; G. A. F. Seber, C. J. Wild, "Nonlinear Regression",
 //    Wiley 1989, 9.3, and P. I. Feder, Annals of Statistics 3(1) 1975: the least-squares t0 is
-//    asymptotically normal with the usual information-matrix covariance). c and a enter
-//    linearly: t0 minimises the profile chi-square. u(t0): the noise part from the information
-//    matrix (J^T W J)^-1, the shared part from the estimate's linear map applied to the
-//    exposures' shared loadings (a constant shared error is absorbed by c: none on t0).
+//    asymptotically normal with the usual information-matrix covariance). The weight W is the
+//    inverse of the points' joint covariance, noise plus shared loadings: exposures solved from
+//    different cameras (observations lost live) carry different shared errors (issue 26).
+//    c and a enter linearly: t0 minimises the profile chi-square. u(t0): (J^T W J)^-1, split
+//    by the estimate's linear map into the noise and the shared part (a constant shared error
+//    is absorbed by c: none on t0).
 //    No t0 when it falls inside the captive reference, or when the fit's chi-square exceeds its
 //    (1 - false_alarm) quantile (the model does not explain the data: u(t0) would not hold).
 #pragma once
@@ -49,7 +51,7 @@ struct ReleaseTime {
   time::TaiNs alarm_ns = 0;  ///< the first exposure the captive test rejected
   double alarm_chi2 = 0, alarm_threshold = 0;
   geometry::Vec3 onset_accel_p = geometry::Vec3::Zero();  ///< a of the fit [m/s^2]
-  double fit_chi2 = 0;  ///< of the onset fit (noise weights), with fit_dof degrees of freedom
+  double fit_chi2 = 0;  ///< of the onset fit (joint covariance), with fit_dof degrees of freedom
   int fit_dof = 0;
 };
 
