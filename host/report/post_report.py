@@ -212,8 +212,9 @@ def calibration_rows(report):
             verdict = "  BELOW: stated calibration uncertainty larger than the residuals show"
         rows.append(("camera %d: calibration part chi-square (one draw for the recording)"
                      % c["camera_id"],
-                     "%.1f on %d dof (0.95 band %.1f .. %.1f)%s" % (
-                         c["chi2"], c["dof"], c["band_low"], c["band_high"], verdict)))
+                     "%.1f on %d dof (%.4f band %.1f .. %.1f)%s" % (
+                         c["chi2"], c["dof"], cal["band_probability"], c["band_low"], c["band_high"],
+                         verdict)))
     return rows
 
 

@@ -205,11 +205,17 @@ std::vector<CalibrationResidual> ResidualDiagnostics::calibration_residuals() co
     c.chi2 = r_bar.dot(llt.solve(r_bar));
     c.dof = static_cast<double>(dim);
     c.calibration_share = calibration.trace() / predicted.trace();
-    const DegreesOfFreedom dof(static_cast<int>(dim));
-    const double tail = (1.0 - kResidualBandProbability) / 2;
+    out.push_back(c);
+  }
+  // One test per camera of the recording: each band at 1 - 0.05 / cameras (Bonferroni), so a
+  // correct calibration has any camera outside with probability at most 0.05.
+  const double probability = calibration_band_probability(static_cast<int>(out.size()));
+  for (CalibrationResidual& c : out) {
+    const DegreesOfFreedom dof(static_cast<int>(c.dof));
+    const double tail = (1.0 - probability) / 2;
+    c.band_probability = probability;
     c.band_low = chi_square_quantile(Probability(tail), dof);
     c.band_high = chi_square_quantile(Probability(1 - tail), dof);
-    out.push_back(c);
   }
   return out;
 }

@@ -70,7 +70,8 @@ struct CalibrationResidual {
   int marks = 0;  ///< marks with a mean residual
   int views = 0;  ///< views averaged
   double chi2 = 0, dof = 0;
-  double band_low = 0, band_high = 0;  ///< chi-square quantiles, probability 0.95 between
+  /// Chi-square quantiles with band_probability between: calibration_band_probability(cameras).
+  double band_low = 0, band_high = 0, band_probability = 0;
   /// The share of the predicted mean-residual variance that is the calibration's (trace
   /// M_bar M_bar^T / trace of the whole): near 0 the figure tests the noise, not the calibration.
   double calibration_share = 0;
@@ -150,6 +151,12 @@ struct ResidualWindow {
   bool inside() const { return rms_normalised >= band_low && rms_normalised <= band_high; }
 };
 inline constexpr double kResidualBandProbability = 0.95;
+/// The calibration part's band per camera when `cameras` are tested in one recording: the family
+/// holds kResidualBandProbability (Bonferroni), so a clean run names no camera 95 % of the time
+/// (with 0.95 per camera, 4 cameras named one 19 % of the time).
+inline double calibration_band_probability(int cameras) {
+  return 1.0 - (1.0 - kResidualBandProbability) / (cameras > 0 ? cameras : 1);
+}
 
 /// Consecutive windows of `window` delivered exposures per camera (a last, shorter window
 /// is dropped); windows without differences are skipped.

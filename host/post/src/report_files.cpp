@@ -130,7 +130,8 @@ nlohmann::json calibration_json(std::span<const CalibrationResidual> cameras) {
     if (c.chi2 > c.band_high) above.push_back(c.camera_id);
     if (c.chi2 < c.band_low) below.push_back(c.camera_id);
   }
-  return {{"band_probability", kResidualBandProbability},
+  return {{"band_probability", calibration_band_probability(static_cast<int>(cameras.size()))},
+          {"family_probability", kResidualBandProbability},
           {"per_camera", per_camera},
           {"cameras_above", above},
           {"cameras_below", below}};

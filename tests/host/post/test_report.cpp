@@ -176,17 +176,21 @@ void expect_noise_windows_at_the_binomial_rate(const std::vector<const Processed
 // acceptance of that count (alpha 0.025 per side).
 void expect_calibration_inside_at_the_binomial_rate(const std::vector<const ProcessedRun*>& runs) {
   std::int64_t cameras = 0, inside = 0;
+  double probability = 0;
   for (const ProcessedRun* run : runs) {
     EXPECT_EQ(run->calibration.size(), run->rig_camera_ids.size());
     for (const CalibrationResidual& c : run->calibration) {
       ++cameras;
       inside += c.inside() ? 1 : 0;
+      EXPECT_DOUBLE_EQ(c.band_probability,
+                       calibration_band_probability(static_cast<int>(run->calibration.size())));
+      probability = c.band_probability;  // the runs share one rig: the same per camera
     }
   }
-  const auto band = uncertainty::binomial_interval(cameras, kResidualBandProbability, 0.025);
+  const auto band = uncertainty::binomial_interval(cameras, probability, 0.025);
   std::printf(
-      "shared part: %lld of %lld cameras inside their 0.95 band (acceptance %lld .. %lld)\n",
-      static_cast<long long>(inside), static_cast<long long>(cameras),
+      "shared part: %lld of %lld cameras inside their %.4f band (acceptance %lld .. %lld)\n",
+      static_cast<long long>(inside), static_cast<long long>(cameras), probability,
       static_cast<long long>(band.low), static_cast<long long>(band.high));
   EXPECT_GE(inside, band.low);
   EXPECT_LE(inside, band.high);
