@@ -43,7 +43,9 @@ def load_post_dir(d):
             "product": table("product", "product.csv"),
             "residuals": read_csv(os.path.join(d, "residuals.csv")),
             "windows": read_csv(os.path.join(d, "residual_windows.csv")),
-            "exposures": read_csv(os.path.join(d, "exposures.csv"))}
+            "exposures": read_csv(os.path.join(d, "exposures.csv")),
+            # Absent when the recorded run had the calibration health test off.
+            "health": read_csv(os.path.join(d, "calibration_health.csv"))}
 
 
 def seconds(t_tai_ns, t0_ns):
@@ -256,6 +258,48 @@ def summary_rows(report):
     return rows
 
 
+def plot_calibration_health(health, t0_ns, outdir, figures):
+    """Per camera: the calibration health test's chi-square(6) statistic per window against its
+    alarm threshold (docs/calibration-health.md), the windows after a camera was declared moved
+    marked."""
+    if health is None or len(health.get("camera_id", [])) == 0:
+        return
+    cams = sorted(set(int(c) for c in health["camera_id"]))
+    fig, axs = plt.subplots(len(cams), 1, figsize=(10, 2.0 * len(cams)), sharex=True,
+                            squeeze=False)
+    for ax, c in zip(axs[:, 0], cams):
+        m = health["camera_id"] == c
+        t = seconds(health["t_tai_ns"][m], t0_ns)
+        moved = health["moved"][m] == 1
+        ax.semilogy(t[~moved], health["statistic"][m][~moved], "o", ms=3, color="tab:blue",
+                    label="window statistic")
+        ax.semilogy(t[moved], health["statistic"][m][moved], "o", ms=3, color="tab:red",
+                    label="camera declared moved")
+        ax.plot(t, health["threshold"][m], color="k", lw=0.8, label="alarm threshold")
+        ax.set_ylabel("camera %d" % c)
+        ax.grid(alpha=0.3)
+    axs[0][0].legend(fontsize=8, loc="upper left")
+    axs[-1][0].set_xlabel("time since first exposure [s]")
+    fig.suptitle("Calibration health: chi-square(6) of each window's camera motion (alarm above "
+                 "the threshold)")
+    savefig(fig, outdir, "calibration_health.png", figures)
+
+
+def health_rows(health):
+    """Per camera: windows tested, alarms, and whether and when it was declared moved."""
+    if health is None or len(health.get("camera_id", [])) == 0:
+        return [("calibration health test", "off in the recorded run (no calibration_health.csv)")]
+    rows = []
+    for c in sorted(set(int(c) for c in health["camera_id"])):
+        m = health["camera_id"] == c
+        moved = np.nonzero(health["moved"][m] == 1)[0]
+        rows.append(("camera %d: calibration health windows / alarms" % c,
+                     "%d / %d%s" % (int(m.sum()), int((health["alarm"][m] == 1).sum()),
+                                    "; MOVED from trigger_seq %d" % int(health["trigger_seq"][m][moved[0]])
+                                    if len(moved) else "")))
+    return rows
+
+
 def render_post(post, outdir, figures, summary, t0_ns, truth_err=None, fti=None):
     """Every truth-free section of a storetrack-post --report directory (load_post_dir): plots
     into outdir (names appended to figures), rows appended to summary. fti: the real-time
@@ -266,6 +310,8 @@ def render_post(post, outdir, figures, summary, t0_ns, truth_err=None, fti=None)
     plot_residual_windows(post["windows"], t0_ns, outdir, figures)
     plot_rigid_fits(post["exposures"], t0_ns, outdir, figures)
     plot_camera_usage(post["residuals"], t0_ns, outdir, figures)
+    plot_calibration_health(post["health"], t0_ns, outdir, figures)
     summary.extend(camera_rows(post["residuals"]))
+    summary.extend(health_rows(post["health"]))
     summary.extend(calibration_rows(post["report"]))
     summary.extend(summary_rows(post["report"]))
