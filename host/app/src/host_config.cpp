@@ -180,6 +180,10 @@ void parse_pose_tracker(Object t, HostConfig& c) {
   t.get("accel_sigma_m_s2", pt.accel_sigma_m_s2, Range::above(0));
   t.get("angular_accel_sigma_rad_s2", pt.angular_accel_sigma_rad_s2, Range::above(0));
   if (const auto v = t.find("mean_accel_p_m_s2")) pt.mean_accel_p_m_s2 = vec3(*v);  // [x, y, z]
+  t.get("ejector_accel_max_m_s2", pt.ejector_accel_max_m_s2, Range::at_least(0));
+  t.get("ejector_angular_accel_max_rad_s2", pt.ejector_angular_accel_max_rad_s2,
+        Range::at_least(0));
+  t.get("ejector_duration_max_s", pt.ejector_duration_max_s, Range::at_least(0));
   t.finish();
 }
 

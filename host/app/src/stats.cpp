@@ -311,7 +311,8 @@ nlohmann::json host_stats_json(const StatsSources& s) {
   const auto& tc = s.processor.pose_tracker().counters();
   stats["pose_tracker"] = {{"solved", tc.solved},
                            {"extrapolated", tc.extrapolated},
-                           {"not_extrapolated", tc.not_extrapolated}};
+                           {"not_extrapolated", tc.not_extrapolated},
+                           {"extrapolated_in_release_zone", tc.extrapolated_in_release_zone}};
   stats["outputs"] = outputs_stats_json(s.inetx, s.recording);
   stats["recording"] = recording_stats_json(s.recording, s.cfg.ch10_path);
   const LoopTotals& t = s.totals;

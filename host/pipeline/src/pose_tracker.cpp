@@ -27,11 +27,52 @@ PoseTracker::PoseTracker(const uncertainty::CalibrationFactors& factors,
     throw std::invalid_argument("PoseTracker: process noise sigmas must be finite and >= 0");
   if (!config_.mean_accel_p_m_s2.allFinite())
     throw std::invalid_argument("PoseTracker: mean_accel_p_m_s2 must be finite");
+  if (!(config_.ejector_accel_max_m_s2 >= 0) || !std::isfinite(config_.ejector_accel_max_m_s2) ||
+      !(config_.ejector_angular_accel_max_rad_s2 >= 0) ||
+      !std::isfinite(config_.ejector_angular_accel_max_rad_s2) ||
+      !(config_.ejector_duration_max_s >= 0) || !std::isfinite(config_.ejector_duration_max_s))
+    throw std::invalid_argument("PoseTracker: the ejector's bounds must be finite and >= 0");
 }
 
 void PoseTracker::reset() {
   last_ = Solved{};
   previous_ = Solved{};
+  first_motion_ns_ = std::numeric_limits<time::TaiNs>::min();
+}
+
+bool PoseTracker::moving_away(const Solved& last, const Solved& previous) const {
+  const double dt = static_cast<double>(last.t_ns - previous.t_ns) * 1e-9;
+  if (!last.valid || !previous.valid || !(dt > 0) || dt > config_.max_velocity_baseline_s)
+    return false;
+  // z_p of each pose from its left perturbation: dp = -[p]x d_theta + d_t. The calibration
+  // error is common to both poses and cancels in the velocity: the centroid parts remain.
+  const auto i_cent = static_cast<size_t>(uncertainty::index(Source::kCentroid));
+  auto var_z = [&](const Solved& s) {
+    Eigen::Matrix<double, 1, 6> J;
+    const Vec3 p = s.pose.T.translation();
+    J << p.y(), -p.x(), 0, 0, 0, 1;  // row z of [-[p]x, I]
+    return (J * s.pose.cov_by_source[i_cent] * J.transpose())(0, 0);
+  };
+  const double v_z = (last.pose.T.translation().z() - previous.pose.T.translation().z()) / dt;
+  const double u_v_z = std::sqrt(var_z(last) + var_z(previous)) / dt;
+  return v_z > 5.0 * u_v_z;  // a false start on a captive store: 3e-7 per exposure
+}
+
+PoseTracker::Acceleration PoseTracker::acceleration_at(time::TaiNs t_ns) const {
+  const double aero = config_.accel_sigma_m_s2;
+  const bool free_flight =
+      first_motion_ns_ != std::numeric_limits<time::TaiNs>::min() &&
+      static_cast<double>(t_ns - first_motion_ns_) * 1e-9 > config_.ejector_duration_max_s;
+  if (free_flight)
+    return {config_.mean_accel_p_m_s2, Vec3::Constant(aero), config_.angular_accel_sigma_rad_s2,
+            false};
+  // Anywhere in [0, a_max] along z_p: the bound's midpoint as the mean and its half-width as one
+  // standard uncertainty, so a k = 2 interval keeps >= 95 % coverage wherever in the bound the
+  // true value lies (docs/uncertainty.md, "Release zone"); the same for the angular bound.
+  const double half = 0.5 * config_.ejector_accel_max_m_s2;
+  return {Vec3(0, 0, half), Vec3(aero, aero, std::hypot(half, aero)),
+          std::max(config_.angular_accel_sigma_rad_s2, config_.ejector_angular_accel_max_rad_s2),
+          true};
 }
 
 bool PoseTracker::update(ExposureResult& r) {
@@ -44,6 +85,9 @@ bool PoseTracker::update(ExposureResult& r) {
     last_.valid = true;
     last_.t_ns = t;
     last_.pose = r.T_p_s;
+    if (first_motion_ns_ == std::numeric_limits<time::TaiNs>::min() &&
+        moving_away(last_, previous_))
+      first_motion_ns_ = t;
     return false;
   }
   const bool no_time = t == std::numeric_limits<time::TaiNs>::min();
@@ -63,11 +107,12 @@ bool PoseTracker::update(ExposureResult& r) {
   const Transform& T0 = previous_.pose.T;
   const double a = tau / dt;
   const double lever = 0.5 * tau * (tau + dt);
+  const Acceleration accel = acceleration_at(t);
   const Vec3 rot_step = geometry::rotvec_from_rotation(T1.linear() * T0.linear().transpose());
   Transform T_pred = Transform::Identity();
   T_pred.linear() = geometry::rotation_from_rotvec(a * rot_step) * T1.linear();
-  T_pred.translation() = T1.translation() + a * (T1.translation() - T0.translation()) +
-                         lever * config_.mean_accel_p_m_s2;
+  T_pred.translation() =
+      T1.translation() + a * (T1.translation() - T0.translation()) + lever * accel.mean;
 
   // First order (the rotation between the two poses and over tau is small, so Exp's Jacobian
   // and the adjoint of Exp(omega tau) are I to first order): xi_pred = (1 + a) xi_1 - a xi_0.
@@ -102,10 +147,8 @@ bool PoseTracker::update(ExposureResult& r) {
   // A budget source of its own, so the sample's budget adds up to its total.
   Mat6& process = by_source[static_cast<size_t>(uncertainty::index(Source::kProcess))];
   process.setZero();
-  process.topLeftCorner<3, 3>() =
-      Mat3::Identity() * std::pow(config_.angular_accel_sigma_rad_s2 * lever, 2);
-  process.bottomRightCorner<3, 3>() =
-      Mat3::Identity() * std::pow(config_.accel_sigma_m_s2 * lever, 2);
+  process.topLeftCorner<3, 3>() = Mat3::Identity() * std::pow(accel.angular_sigma * lever, 2);
+  process.bottomRightCorner<3, 3>() = (accel.sigma * lever).array().square().matrix().asDiagonal();
   Mat6 cov = Mat6::Zero();
   for (const Mat6& c : by_source)
     cov += c;
@@ -120,6 +163,7 @@ bool PoseTracker::update(ExposureResult& r) {
   for (size_t s = 0; s < by_source.size(); ++s)
     r.cov_xyz_ypr_by_source[s] = J * by_source[s] * J.transpose();
   ++counters_.extrapolated;
+  counters_.extrapolated_in_release_zone += accel.release_zone;
   return true;
 }
 

@@ -161,18 +161,32 @@ void score_hidden(const sim::Simulator& sim, ExposureResult r, PoseTracker& trac
   }
 }
 
+// Where the gaps fall: their first solved exposure k0 uniform in [first_s, last_s] of the
+// scenario's time (last_s < 0: as late as the run allows). The trackers are fed, unscored, the
+// exposures from k0 - lead_in on, or with `pair_only` the first two of them only (a velocity
+// pair: enough to have seen the store move, at a fraction of the cost).
+struct GapPlacement {
+  double first_s = 0, last_s = -1;
+  int lead_in = 0;
+  bool pair_only = false;
+};
+
 // One pass over the seeds; every variant's tracker sees the same processed exposures (the
 // processor's work is shared, the trackers are cheap).
 // Counts the gaps scored. A seed whose visible exposures before the gap are not all
 // solved (with a large drawn acceleration the store leaves the cameras' view late in the run)
 // is left out, counted and listed, not scored.
-void run_gaps(std::vector<TrackerVariant>& variants, int seeds,
+void run_gaps(std::vector<TrackerVariant>& variants, int seeds, const GapPlacement& placement,
               uncertainty::ConsistencyAccumulator<3>& solved_attitude, int& gaps) {
   gaps = 0;
   const sim::Scenario base = sim::load_scenario(test::scenario_path("store_separation"));
   const double frame_s = 1.0 / base.frame_rate_hz;
-  // After the release and the 50 ms ejector stroke (20 + 50 ms), leaving room for the window.
-  const int first_k = static_cast<int>(std::ceil(0.1 / frame_s));
+  const int first_k = static_cast<int>(std::ceil(placement.first_s / frame_s));
+  const int last_k_run = base.num_exposures - kSolvedBefore - kHidden - 2;
+  const int last_k =
+      placement.last_s < 0
+          ? last_k_run
+          : std::min(last_k_run, static_cast<int>(std::floor(placement.last_s / frame_s)));
   std::mt19937_64 pick(4242), dynamics(777);
   for (int seed = 0; seed < seeds; ++seed) {
     sim::Scenario scenario = base;
@@ -183,11 +197,20 @@ void run_gaps(std::vector<TrackerVariant>& variants, int seeds,
     std::vector<PoseTracker> trackers;
     for (const TrackerVariant& v : variants)
       trackers.emplace_back(proc.factors(), v.config);
-    std::uniform_int_distribution<int> start(first_k,
-                                             sim.num_exposures() - kSolvedBefore - kHidden - 2);
+    std::uniform_int_distribution<int> start(first_k, last_k);
     const int k0 = start(pick);
     time::TaiNs last_solved_ns = 0;
     bool left_out = false;
+    const int lead_in_first = std::max(0, k0 - placement.lead_in);
+    for (int k = lead_in_first; k < k0; ++k) {
+      if (placement.pair_only && k > lead_in_first + 1) break;
+      const test::SimExposure in = test::make_exposure(sim, k);
+      const ExposureResult r = proc.process(in.exposure, in.ids);
+      for (PoseTracker& t : trackers) {
+        ExposureResult copy = r;
+        t.update(copy);
+      }
+    }
     for (int k = k0; k < k0 + kSolvedBefore + kHidden + 1 && !left_out; ++k) {
       test::SimExposure in = test::make_exposure(sim, k);
       const bool hidden = k >= k0 + kSolvedBefore && k < k0 + kSolvedBefore + kHidden;
@@ -246,7 +269,9 @@ TEST(PoseTracker, ExtrapolatesHonestlyWithinTheGapAndStopsAfterIt) {
                                           {"old model (0 mean, 20, 5)", old_model, GapScores()}};
   uncertainty::ConsistencyAccumulator<3> solved_attitude;
   int gaps = 0;
-  run_gaps(variants, seeds, solved_attitude, gaps);
+  // In free flight: after the release (20 ms) and the release zone (first motion + 80 ms); the
+  // trackers see the store move in a solved pair 40 exposures (100 ms) before the gap's k0.
+  run_gaps(variants, seeds, GapPlacement{0.125, -1, 40, true}, solved_attitude, gaps);
   // Left-out seeds are counted (none of the CI's 200); more than 1 % would be a regression.
   EXPECT_GE(gaps, seeds - seeds / 100) << seeds - gaps << " of " << seeds << " seeds left out";
 
@@ -307,6 +332,58 @@ TEST(PoseTracker, ExtrapolatesHonestlyWithinTheGapAndStopsAfterIt) {
   }
 }
 
+// Through the release: gaps that begin on the captive store, across the release (20 ms) and in
+// the ejector's 50 ms stroke (80 m/s^2, pitch rate ramping at 12 rad/s^2), where the free-flight
+// model (mean 1 g, 5 m/s^2) fell 8-14 sigma short in live runs that lost cameras. The release
+// zone's bound is conservative by construction (the bound's half-width is one standard
+// uncertainty, and a captive store sits at its edge), so over-coverage is expected and only the
+// side that would make the stated uncertainty lie is asserted: coverage per axis at or above the
+// lower end of the band, mean NEES at or below its upper end (n_eff = gaps, as above). The same
+// acceptance must reject an ejector bound too small for the scenario's stroke (x 0.3: 30 m/s^2,
+// 6 rad/s^2), or it could not see the defect.
+TEST(PoseTracker, ExtrapolatesHonestlyThroughTheReleaseAndTheEjectorStroke) {
+  const int seeds = seeds_from_env();
+  const PoseTrackerConfig product;
+  PoseTrackerConfig small_bound = product;
+  small_bound.ejector_accel_max_m_s2 *= 0.3;
+  small_bound.ejector_angular_accel_max_rad_s2 *= 0.3;
+  std::vector<TrackerVariant> variants = {{"product defaults", product, GapScores()},
+                                          {"ejector bound x 0.3", small_bound, GapScores()}};
+  uncertainty::ConsistencyAccumulator<3> solved_attitude;
+  int gaps = 0;
+  // Gaps from the captive store (0) to the stroke's end (70 ms), every exposure before fed.
+  run_gaps(variants, seeds, GapPlacement{0.0, 0.07, 1000}, solved_attitude, gaps);
+  EXPECT_GE(gaps, seeds - seeds / 100) << seeds - gaps << " of " << seeds << " seeds left out";
+  const test::HonestyBounds band = test::derived_bounds(gaps, 3);
+  std::printf(
+      "%d seeds, %d gaps scored; one-sided acceptance: coverage >= %.4f, mean NEES <= %.3f\n",
+      seeds, gaps, band.coverage_low, band.nees_high);
+  for (const TrackerVariant& v : variants) {
+    std::printf("  %s: %d extrapolated\n", v.name, v.scores.extrapolated);
+    print_scores("position (x,y,z)", v.scores.position);
+    print_scores("attitude (y,p,r)", v.scores.attitude);
+    print_scores("position, >= 7 frames ahead", v.scores.position_long);
+  }
+  auto under_states = [&](const GapScores& g) {
+    bool out = false;
+    for (const auto* acc : {&g.position, &g.attitude}) {
+      out = out || acc->mean_nees() > band.nees_high;
+      for (int a = 0; a < 3; ++a)
+        out = out || acc->coverage(a) < band.coverage_low;
+    }
+    return out;
+  };
+  const GapScores& g = variants[0].scores;
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_GE(g.position.coverage(a), band.coverage_low) << "position axis " << a;
+    EXPECT_GE(g.attitude.coverage(a), band.coverage_low) << "attitude axis " << a;
+  }
+  EXPECT_LE(g.position.mean_nees(), band.nees_high);
+  EXPECT_LE(g.attitude.mean_nees(), band.nees_high);
+  EXPECT_TRUE(under_states(variants[1].scores))
+      << "an ejector bound of 30 m/s^2 passes against an 80 m/s^2 stroke: the test cannot see it";
+}
+
 // The FtiSample budget of an extrapolated sample (issue 13): the process noise is a budget entry
 // of its own, so the five budget fields add up to the total position variance, and it is the
 // closed form of the constant-velocity lever sigma_a tau (tau + dt) / 2 on each of 3 axes.
@@ -316,6 +393,7 @@ TEST(PoseTracker, ExtrapolatedBudgetAddsUpWithTheProcessNoiseInIt) {
   PoseTrackerConfig config;
   config.accel_sigma_m_s2 = 12.5;  // not the default: the closed form must follow the setting
   config.angular_accel_sigma_rad_s2 = 3.0;
+  config.ejector_duration_max_s = 0;  // free flight from the first motion on (release zone: above)
   ProcessorConfig processor_config;
   processor_config.pose_tracker = config;
   ExposureProcessor proc(sim.calibrated_rig(), sim.pylon_survey(), sim.store_survey(),
@@ -380,6 +458,7 @@ TEST(PoseTracker, PredictionFollowsTheStatedMeanAcceleration) {
   for (const Vec3& mu : means) {
     PoseTrackerConfig config;
     config.mean_accel_p_m_s2 = mu;
+    config.ejector_duration_max_s = 0;  // free flight once the store moves (v_z = 4 m/s)
     PoseTracker tracker(uncertainty::CalibrationFactors{}, config);
     const Vec3 p0(0.1, -0.05, 0.3), v(0.5, 0.2, 4.0), w(0.05, 0.6, 0.1);
     const auto truth = [&](double t) {
@@ -409,6 +488,58 @@ TEST(PoseTracker, PredictionFollowsTheStatedMeanAcceleration) {
       EXPECT_LT(dphi, 1e-12) << "k " << k;
     }
   }
+}
+
+// Before the store's first motion (a captive store: two solved poses at rest) the prediction
+// carries the release zone's mean, the midpoint of [0, ejector_accel_max] along z_p, and its
+// process budget is the closed form of the zone's spread: per axis (aero, aero, hypot(a_max / 2,
+// aero)) times the lever tau (tau + dt) / 2. Once the store has moved for longer than
+// ejector_duration_max_s the free-flight mean and spread return.
+TEST(PoseTracker, ReleaseZoneMeanAndSpreadUntilFreeFlight) {
+  PoseTrackerConfig config;
+  PoseTracker tracker(uncertainty::CalibrationFactors{}, config);
+  constexpr time::TaiNs kStartNs = 1'000'000'000, kFrameNs = 2'500'000;
+  const Vec3 p0(0.1, -0.05, 0.3);
+  auto solved = [&](int k, const Vec3& p) {
+    ExposureResult r;
+    r.reference_mid_tai_ns = kStartNs + k * kFrameNs;
+    r.T_p_s.valid = true;
+    r.T_p_s.T.translation() = p;
+    EXPECT_FALSE(tracker.update(r));
+  };
+  auto predicted = [&](int k) {
+    ExposureResult r;
+    r.reference_mid_tai_ns = kStartNs + k * kFrameNs;
+    EXPECT_TRUE(tracker.update(r)) << "k " << k;
+    return r;
+  };
+  solved(0, p0);
+  solved(1, p0);
+  const double dt = 2.5e-3, tau = 2.5e-3, lever = 0.5 * tau * (tau + dt);
+  const double half = 0.5 * config.ejector_accel_max_m_s2, aero = config.accel_sigma_m_s2;
+  ExposureResult r = predicted(2);
+  const Vec3 dp = r.T_p_s_extrapolated.translation() - p0;
+  EXPECT_NEAR(dp.x(), 0.0, 1e-15);
+  EXPECT_NEAR(dp.y(), 0.0, 1e-15);
+  EXPECT_NEAR(dp.z(), half * lever, 1e-15);
+  const auto i_proc = static_cast<size_t>(uncertainty::index(uncertainty::Source::kProcess));
+  const geometry::Mat3 C = r.cov_xyz_ypr_by_source[i_proc].topLeftCorner<3, 3>();
+  EXPECT_NEAR(std::sqrt(C(0, 0)), aero * lever, 1e-12 * aero * lever);
+  EXPECT_NEAR(std::sqrt(C(2, 2)), std::hypot(half, aero) * lever, 1e-12 * half * lever);
+  EXPECT_EQ(tracker.counters().extrapolated_in_release_zone, 1u);
+  // The store moves away (0.01 m per frame: 4 m/s, no centroid covariance: any motion is
+  // significant) at k = 3; free flight from 80 ms later (k = 3 + 32 = 35).
+  solved(3, p0 + Vec3(0, 0, 0.01));
+  solved(4, p0 + Vec3(0, 0, 0.02));
+  predicted(5);
+  EXPECT_EQ(tracker.counters().extrapolated_in_release_zone, 2u);
+  solved(36, p0 + Vec3(0, 0, 0.33));
+  solved(37, p0 + Vec3(0, 0, 0.34));
+  r = predicted(38);
+  EXPECT_EQ(tracker.counters().extrapolated_in_release_zone, 2u);
+  const Vec3 p37 = p0 + Vec3(0, 0, 0.34);
+  EXPECT_NEAR(r.T_p_s_extrapolated.translation().z(),
+              p37.z() + 0.01 + config.mean_accel_p_m_s2.z() * lever, 1e-12);
 }
 
 TEST(PoseTracker, NoVelocityNoExtrapolation) {

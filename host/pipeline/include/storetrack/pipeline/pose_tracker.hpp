@@ -12,9 +12,13 @@
 // store's relative acceleration over the gap, a random constant with the stated mean
 // (mean_accel_p_m_s2, gravity for a released store) and per-axis spread (accel_sigma_m_s2,
 // angular_accel_sigma_rad_s2), adds its mean to the prediction and its spread as process noise.
+// Until the store is known to fly free (the captive store, the release, the ejector stroke) the
+// acceleration is anywhere in the ejector's stated bound instead (docs/uncertainty.md, "Release
+// zone").
 #pragma once
 
 #include <cstdint>
+#include <limits>
 
 #include "storetrack/pipeline/exposure_result.hpp"
 
@@ -37,12 +41,23 @@ struct PoseTrackerConfig {
   /// Standard uncertainty per axis of the store's angular acceleration relative to the pylon
   /// [rad/s^2] (mean 0): aerodynamic pitching and yawing moments after release.
   double angular_accel_sigma_rad_s2 = 2.0;
+  /// Release and ejector stroke (docs/uncertainty.md, "Release zone"): until the store has been
+  /// in free flight, its relative acceleration along z_p lies anywhere between 0 (captive) and
+  /// the release unit's peak `ejector_accel_max_m_s2`, and its angular acceleration anywhere
+  /// within +-`ejector_angular_accel_max_rad_s2` (the ejector's pitching moment). Free flight
+  /// begins `ejector_duration_max_s` after the store's first significant motion (its velocity
+  /// along z_p above 5 standard uncertainties of its centroid part). Defaults: a 10 g ejector
+  /// peak over at most 80 ms, above common release units' strokes (30-60 ms).
+  double ejector_accel_max_m_s2 = 100.0;
+  double ejector_angular_accel_max_rad_s2 = 20.0;
+  double ejector_duration_max_s = 0.08;
 };
 
 struct PoseTrackerCounters {
   std::uint64_t solved = 0;            ///< exposures with a solved T_p_s (track updated)
   std::uint64_t extrapolated = 0;      ///< samples predicted from the track
   std::uint64_t not_extrapolated = 0;  ///< unsolved and no usable track (gap, no velocity)
+  std::uint64_t extrapolated_in_release_zone = 0;  ///< of `extrapolated`: with the ejector's model
 };
 
 class PoseTracker {
@@ -74,7 +89,21 @@ class PoseTracker {
   };
   uncertainty::CalibrationFactors factors_;
   PoseTrackerConfig config_;
+  /// Velocity along z_p of the last two solved poses above 5 sigma: the store moves away.
+  bool moving_away(const Solved& last, const Solved& previous) const;
+  /// Mean and standard uncertainty per pylon axis of the relative acceleration over a gap
+  /// ending at `t_ns` (the release zone's, or free flight's).
+  struct Acceleration {
+    geometry::Vec3 mean;
+    geometry::Vec3 sigma;
+    double angular_sigma;
+    bool release_zone;
+  };
+  Acceleration acceleration_at(time::TaiNs t_ns) const;
+
   Solved last_, previous_;
+  /// Time of the store's first significant motion (min(): not yet seen).
+  time::TaiNs first_motion_ns_ = std::numeric_limits<time::TaiNs>::min();
   PoseTrackerCounters counters_;
 };
 
