@@ -14,6 +14,7 @@
 #include <nlohmann/json.hpp>
 
 #include "compare_command.hpp"
+#include "perturbed_rig.hpp"
 #include "storetrack/calib/calibration_comparison.hpp"
 #include "storetrack/calib/point_uncertainty.hpp"
 #include "storetrack/camera/calibration_file.hpp"
@@ -78,21 +79,6 @@ std::optional<Vec3> triangulate_truth_pixels(const camera::RigCalibration& truth
   if (obs.size() < 2 || !triangulate::triangulate(obs, triangulate::Options{}, r))
     return std::nullopt;
   return r.p_w;
-}
-
-/// The rig with its parameters moved by e (joint layout: packed intrinsics, left perturbation
-/// of T_c_w per camera).
-camera::RigCalibration perturbed(const camera::RigCalibration& rig, const Eigen::VectorXd& e) {
-  camera::RigCalibration out = rig;
-  for (size_t c = 0; c < out.cameras.size(); ++c) {
-    auto& cam = out.cameras[c];
-    const camera::Intrinsics in = cam.model.intrinsics();
-    const auto base = static_cast<Eigen::Index>(camera::kJointBlockSize * c);
-    const camera::IntrinsicVector v = camera::pack(in) + e.segment<camera::kNumIntrinsics>(base);
-    cam.model = camera::CameraModel(camera::unpack(v, in.width, in.height));
-    cam.T_c_w = geometry::perturb_left(cam.T_c_w, e.segment<6>(base + camera::kNumIntrinsics));
-  }
-  return out;
 }
 
 Eigen::MatrixXd sampling_factor(const Eigen::MatrixXd& S) {
@@ -250,7 +236,7 @@ std::vector<double> monte_carlo_nees(const camera::RigCalibration& sampled,
       Eigen::VectorXd z(F.cols());
       for (Eigen::Index j = 0; j < z.size(); ++j)
         z(j) = normal(rng);
-      const camera::RigCalibration truth = perturbed(sampled, F * z);
+      const camera::RigCalibration truth = test::perturbed_rig(sampled, F * z);
       std::vector<triangulate::Observation> obs;
       for (const SlotPixel& s : slots) {
         const auto& ct = truth.cameras[static_cast<size_t>(s.slot)];

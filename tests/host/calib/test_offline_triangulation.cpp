@@ -15,6 +15,7 @@
 
 #include <Eigen/Eigenvalues>
 
+#include "perturbed_rig.hpp"
 #include "storetrack/calib/calibration_comparison.hpp"
 #include "storetrack/calib/offline_triangulation.hpp"
 #include "storetrack/calib/point_uncertainty.hpp"
@@ -50,21 +51,6 @@ const camera::RigCalibration& stated_rig() {
     return sim::Simulator(s, 1).calibrated_rig();
   }();
   return rig;
-}
-
-/// The rig with its parameters moved by e (joint layout: packed intrinsics, left perturbation
-/// of T_c_w per camera).
-camera::RigCalibration perturbed(const camera::RigCalibration& rig, const Eigen::VectorXd& e) {
-  camera::RigCalibration out = rig;
-  for (size_t c = 0; c < out.cameras.size(); ++c) {
-    auto& cam = out.cameras[c];
-    const camera::Intrinsics in = cam.model.intrinsics();
-    const auto base = static_cast<Eigen::Index>(camera::kJointBlockSize * c);
-    const camera::IntrinsicVector v = camera::pack(in) + e.segment<camera::kNumIntrinsics>(base);
-    cam.model = camera::CameraModel(camera::unpack(v, in.width, in.height));
-    cam.T_c_w = geometry::perturb_left(cam.T_c_w, e.segment<6>(base + camera::kNumIntrinsics));
-  }
-  return out;
 }
 
 /// Pixel observations of `points` (mark id = index) in every camera of `truth` that sees them,
@@ -115,7 +101,7 @@ TEST(OfflineTriangulation, NeesOfMarksWithDrawnCalibrationIsChiSquare3) {
     Eigen::VectorXd e(L.cols());
     for (Eigen::Index i = 0; i < e.size(); ++i)
       e(i) = z(rng);
-    const camera::RigCalibration truth = perturbed(stated, L * e);
+    const camera::RigCalibration truth = test::perturbed_rig(stated, L * e);
     const std::vector<Vec3> mark = points_in_volume(truth, 1, rng);
     const OfflineTriangulation r =
         triangulate_observations(stated, observe(truth, mark, t, 0.1, rng), "rig", "obs");
@@ -190,7 +176,7 @@ TEST(OfflineTriangulation, NeesOfAMovingMarkWithSyncErrorsIsChiSquare3) {
     Eigen::VectorXd e(L.cols());
     for (Eigen::Index i = 0; i < e.size(); ++i)
       e(i) = z(rng);
-    const camera::RigCalibration truth = perturbed(stated, L * e);
+    const camera::RigCalibration truth = test::perturbed_rig(stated, L * e);
     std::vector<double> dt_s;
     for (size_t c = 0; c < stated.cameras.size(); ++c)
       dt_s.push_back(2e-3 * z(rng));

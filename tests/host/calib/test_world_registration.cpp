@@ -15,6 +15,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "perturbed_rig.hpp"
 #include "register_command.hpp"
 #include "storetrack/calib/intrinsic_calibration.hpp"
 #include "storetrack/calib/observations.hpp"
@@ -122,16 +123,9 @@ Scenario make_scenario(std::mt19937_64& rng, bool noise = true,
                        const Eigen::MatrixXd& calibration = calibration_covariance()) {
   Scenario s;
   s.rig_true = truth_rig();
-  s.rig_stated = s.rig_true;
   const Eigen::VectorXd theta =
       noise ? draw(calibration, rng) : Eigen::VectorXd::Zero(kBlock * kCameras);
-  for (int c = 0; c < kCameras; ++c) {
-    camera::CalibratedCamera& cam = s.rig_stated.cameras[static_cast<size_t>(c)];
-    const camera::Intrinsics& in = cam.model.intrinsics();
-    cam.model = camera::CameraModel(
-        camera::unpack(camera::pack(in) + theta.segment<13>(kBlock * c), in.width, in.height));
-    cam.T_c_w = geometry::perturb_left(cam.T_c_w, theta.segment<6>(kBlock * c + 13));
-  }
+  s.rig_stated = test::perturbed_rig(s.rig_true, theta);
   std::normal_distribution<double> n01;
   s.survey.name = "aircraft";
   s.survey.frame = 'w';

@@ -34,6 +34,7 @@
 #include <gtest/gtest.h>
 
 #include "honesty_bounds.hpp"
+#include "perturbed_rig.hpp"
 #include "sim_exposure.hpp"
 #include "storetrack/geometry/symmetric_eigen.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
@@ -270,15 +271,7 @@ Eigen::MatrixXd bundle_adjustment_like_covariance(const camera::RigCalibration& 
 /// The true rig plus theta (one draw), stating `joint`.
 camera::RigCalibration drawn_rig(const camera::RigCalibration& truth, const Eigen::VectorXd& theta,
                                  const Eigen::MatrixXd& joint) {
-  camera::RigCalibration rig = truth;
-  for (size_t c = 0; c < rig.cameras.size(); ++c) {
-    camera::CalibratedCamera& cam = rig.cameras[c];
-    const auto at = static_cast<Eigen::Index>(kB * c);
-    const camera::Intrinsics& in = cam.model.intrinsics();
-    cam.model = camera::CameraModel(
-        camera::unpack(camera::pack(in) + theta.segment<kI>(at), in.width, in.height));
-    cam.T_c_w = geometry::perturb_left(cam.T_c_w, theta.segment<6>(at + kI));
-  }
+  camera::RigCalibration rig = test::perturbed_rig(truth, theta);
   camera::set_joint_covariance(rig, joint);
   return rig;
 }
