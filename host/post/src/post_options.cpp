@@ -28,6 +28,11 @@ int parse_post_options(int argc, char** argv, PostOptions& o) {
              "With a substituted input: write per sample and axis how far the pose moved from "
              "the recorded inputs' (d), the standard uncertainty of that difference (u) and z = "
              "d / u to this NEW CSV file");
+  app.option("--smoothed-differences-csv", o.smoothed_differences_csv_path,
+             "With a substituted input: smooth both runs and write per smoothed exposure and "
+             "quantity (position, attitude, velocity, acceleration, angular rate and "
+             "acceleration) the difference d, the standard uncertainty of that difference u, z = "
+             "d / u and |z| > 2 to this NEW CSV file");
   app.option("--report", o.report_dir,
              "Write the truth-free report's data to this NEW (or empty) directory: the replayed "
              "samples, the smoothed trajectory, the data product (with the store's CG), residuals "
