@@ -22,8 +22,8 @@ int parse_post_options(int argc, char** argv, PostOptions& o) {
   app.option("--product-csv", o.product_csv_path,
              "Write the store-separation data product (time since the detected release t0; CG "
              "position, displacement from the carriage, Euler angles, CG velocity and "
-             "acceleration, body rates, each with u and U) to this NEW CSV file; needs the "
-             "store survey's \"cg\"");
+             "acceleration, body rates, in pylon and aircraft axes, each with u and U) to this NEW "
+             "CSV file; needs the store survey's \"cg\"");
   app.option("--differences-csv", o.differences_csv_path,
              "With a substituted input: write per sample and axis how far the pose moved from "
              "the recorded inputs' (d), the standard uncertainty of that difference (u) and z = "
