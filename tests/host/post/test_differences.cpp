@@ -233,6 +233,26 @@ TEST(PostSmoothedDifferences, TheSameInputsGiveZeroDifference) {
   }
 }
 
+// An input not substituted whose factor columns differ between the runs (here the store
+// survey with its last mark left out, under a substituted configuration): its loadings cannot
+// be paired, so u and z are NaN and the row says which input; d is still given.
+TEST(PostSmoothedDifferences, UnpairableColumnsAreNotDerivedAndSaySo) {
+  const sim::Simulator a(scenario(), kRecordingSeed);
+  survey::RigidBodySurvey fewer = a.store_survey();
+  fewer.marks.pop_back();
+  const std::vector<ProcessedRun> runs = process_runs(a, {a.calibrated_rig()}, {fewer}, true);
+  const auto rows = smoothed_differences(runs[0].smoothed(), runs[1].smoothed(), {.config = true});
+  ASSERT_FALSE(rows.empty());
+  for (const SmoothedDifferenceRow& r : rows) {
+    EXPECT_EQ(r.basis, DifferenceBasis::kNotDerived) << r.trigger_seq;
+    EXPECT_EQ(r.why_not, "not_derived_store_survey_columns_differ") << r.trigger_seq;
+    for (std::size_t i = 0; i < kSmoothedOutputs; ++i) {
+      EXPECT_TRUE(std::isfinite(r.d[i])) << r.trigger_seq;
+      EXPECT_TRUE(std::isnan(r.u[i]) && std::isnan(r.z[i])) << r.trigger_seq;
+    }
+  }
+}
+
 // A calibration moved by a known amount along one of its own factors: camera 0's extrinsic
 // (T_c_w's left perturbation) by F_E e_j dz. To first order the smoothed quantities move by
 // their loadings' column j times dz (the smoother is linear in its measurements; E = M shared,
