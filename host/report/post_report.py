@@ -95,8 +95,8 @@ def plot_rates(smoothed, product, t0_ns, outdir, figures):
     src = product if product is not None else smoothed
     t = seconds(src["exposure_mid_tai_ns"], t0_ns)
     if product is not None:
-        rows = [("vx", "vx_m_s", 1.0, "m/s"), ("vy", "vy_m_s", 1.0, "m/s"),
-                ("vz", "vz_m_s", 1.0, "m/s"), ("p", "p_rad_s", 180 / np.pi, "deg/s"),
+        rows = [("vx", "vx_ac_m_s", 1.0, "m/s"), ("vy", "vy_ac_m_s", 1.0, "m/s"),
+                ("vz", "vz_ac_m_s", 1.0, "m/s"), ("p", "p_rad_s", 180 / np.pi, "deg/s"),
                 ("q", "q_rad_s", 180 / np.pi, "deg/s"), ("r", "r_rad_s", 180 / np.pi, "deg/s")]
         what = "CG velocity (aircraft axes) and body rates p, q, r (data product)"
     else:

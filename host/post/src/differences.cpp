@@ -50,6 +50,7 @@ RunPose run_pose(const pipeline::ExposureResult& r, std::size_t pylon_survey_mar
   const uncertainty::Loadings6& L = r.T_p_s.survey_loadings;
   const auto n_p = static_cast<Eigen::Index>(
       std::min<std::size_t>(3 * pylon_survey_marks, static_cast<std::size_t>(L.cols())));
+  p.shared_columns = {r.T_p_s.loadings.cols(), n_p, L.cols() - n_p};
   if (L.cols() > 0) {
     const Mat6 J = pipeline::output_jacobian(r.T_p_s.T);
     const Eigen::Matrix<double, 6, Eigen::Dynamic> Lp = J * L.leftCols(n_p);

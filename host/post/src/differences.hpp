@@ -39,6 +39,9 @@ struct RunPose {
   /// (mark id, camera id, mark index in that camera) of every observation the pose used,
   /// sorted: equal in both runs when the centroid noise is common.
   std::vector<std::array<int, 3>> observations;
+  /// The number of columns of the smoother's shared loadings (smooth::PoseMeasurement::shared)
+  /// each input loads, in their order: calibration factors, pylon survey, store survey.
+  std::array<Eigen::Index, 3> shared_columns{};
 };
 
 /// `pylon_survey_marks`: the number of marks of the pylon survey the processor ran with (its

@@ -22,12 +22,17 @@ int parse_post_options(int argc, char** argv, PostOptions& o) {
   app.option("--product-csv", o.product_csv_path,
              "Write the store-separation data product (time since the detected release t0; CG "
              "position, displacement from the carriage, Euler angles, CG velocity and "
-             "acceleration, body rates, each with u and U) to this NEW CSV file; needs the "
-             "store survey's \"cg\"");
+             "acceleration, body rates, in pylon and aircraft axes, each with u and U) to this NEW "
+             "CSV file; needs the store survey's \"cg\"");
   app.option("--differences-csv", o.differences_csv_path,
              "With a substituted input: write per sample and axis how far the pose moved from "
              "the recorded inputs' (d), the standard uncertainty of that difference (u) and z = "
              "d / u to this NEW CSV file");
+  app.option("--smoothed-differences-csv", o.smoothed_differences_csv_path,
+             "With a substituted input: smooth both runs and write per smoothed exposure and "
+             "quantity (position, attitude, velocity, acceleration, angular rate and "
+             "acceleration) the difference d, the standard uncertainty of that difference u, z = "
+             "d / u and |z| > 2 to this NEW CSV file");
   app.option("--report", o.report_dir,
              "Write the truth-free report's data to this NEW (or empty) directory: the replayed "
              "samples, the smoothed trajectory, the data product (with the store's CG), residuals "

@@ -15,6 +15,8 @@ struct PostOptions {
   std::string product_csv_path;   ///< the store-separation data product (new file)
   /// Per sample and axis, the substituted input's change against its uncertainty (new file).
   std::string differences_csv_path;
+  /// The same for the smoothed trajectory: both runs smoothed (new file).
+  std::string smoothed_differences_csv_path;
   /// The truth-free report's data (new or empty directory; host/report renders it).
   std::string report_dir;
   /// Read from disk instead of the recording (empty: the recorded one).

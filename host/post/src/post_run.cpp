@@ -24,6 +24,7 @@
 #include "same_rig.hpp"
 #include "sample_compare.hpp"
 #include "smoothed_csv.hpp"
+#include "smoothed_differences.hpp"
 #include "stats.hpp"
 #include "storetrack/json/text_file.hpp"
 #include "storetrack/output/csv_writer.hpp"
@@ -220,15 +221,17 @@ int write_csv(output::FtiCsvWriter& csv, const std::vector<msg::FtiSample>& samp
   return 0;
 }
 
-// The fixed-interval smoother over the replayed samples' poses (host/smooth).
-std::vector<smooth::SmoothedState> smooth_replay(const Replay& replay) {
+// The fixed-interval smoother over a replay's samples' poses (host/smooth); `label` names the
+// run in the printed counters.
+std::vector<smooth::SmoothedState> smooth_replay(std::span<const smooth::PoseMeasurement> poses,
+                                                 const char* label) {
   smooth::SmootherCounters counters;
   std::vector<smooth::SmoothedState> states =
-      smooth::smooth_trajectory(replay.measurements(), smooth::SmootherConfig{}, &counters);
+      smooth::smooth_trajectory(poses, smooth::SmootherConfig{}, &counters);
   std::printf(
-      "smoothed: %llu segment(s), %llu solved poses, %llu exposures predicted inside them, %llu "
+      "%s: %llu segment(s), %llu solved poses, %llu exposures predicted inside them, %llu "
       "outside any segment, %llu interval(s) with an acceleration step\n",
-      static_cast<unsigned long long>(counters.segments),
+      label, static_cast<unsigned long long>(counters.segments),
       static_cast<unsigned long long>(counters.measurements),
       static_cast<unsigned long long>(counters.predicted),
       static_cast<unsigned long long>(counters.left_out),
@@ -290,27 +293,59 @@ int write_product(const std::string& path, const Replay& replay,
   return 0;
 }
 
-// The substituted run against the recorded inputs' (--differences-csv): the recording replayed
-// again with the inputs as recorded, paired by trigger_seq. Returns the summary for the stats.
-nlohmann::json write_differences(const Recording& r, const hostapp::HostOptions& recorded_options,
-                                 const hostapp::InputFiles& recorded_inputs,
-                                 const std::vector<RunPose>& substituted, const Substituted& what,
-                                 const std::string& path, FilePtr f, int& exit_code) {
+// The recording replayed again with the inputs as recorded (--differences-csv,
+// --smoothed-differences-csv): its written samples' poses and, for the smoother, measurements.
+struct RecordedRun {
+  std::vector<RunPose> poses;
+  std::vector<smooth::PoseMeasurement> measurements;
+};
+
+RecordedRun replay_recorded(const Recording& r, const hostapp::HostOptions& recorded_options,
+                            const hostapp::InputFiles& recorded_inputs, bool smoothed) {
   hostapp::ProcessingChain chain =
       hostapp::make_processing_chain(recorded_options.cfg, recorded_inputs);
   chain.clearance = replay_clearance(recorded_options.cfg);
   Replay replay(chain);
-  std::vector<RunPose> recorded;
+  replay.collect_measurements(smoothed);
+  RecordedRun run;
   replay.on_sample([&](const pipeline::ExposureResult& e) {
-    recorded.push_back(run_pose(e, recorded_inputs.pylon.marks.size()));
+    run.poses.push_back(run_pose(e, recorded_inputs.pylon.marks.size()));
   });
   for (const ch10read::RawObservation& record : r.records)
     replay.feed(record);
   replay.finish();
-  const std::vector<DifferenceRow> rows = differences(recorded, substituted, what);
-  const DifferenceSummary summary = summarize(rows, recorded, substituted, what);
+  run.measurements = replay.measurements();
+  return run;
+}
+
+// The substituted run against the recorded inputs' (--differences-csv), paired by
+// trigger_seq. Returns the summary for the stats.
+nlohmann::json write_differences(const RecordedRun& recorded,
+                                 const std::vector<RunPose>& substituted, const Substituted& what,
+                                 const std::string& path, FilePtr f, int& exit_code) {
+  const std::vector<DifferenceRow> rows = differences(recorded.poses, substituted, what);
+  const DifferenceSummary summary = summarize(rows, recorded.poses, substituted, what);
   print_summary(stderr, summary);
   if (!write_differences_csv(f.get(), rows) || std::fclose(f.release()) != 0) {
+    std::fprintf(stderr, "storetrack-post: %s: %s\n", path.c_str(), std::strerror(errno));
+    exit_code = 1;
+  }
+  return to_json(summary);
+}
+
+// Both runs smoothed, their differences (--smoothed-differences-csv). Returns the summary.
+nlohmann::json write_smoothed_differences(const RecordedRun& recorded,
+                                          const std::vector<RunPose>& substituted_poses,
+                                          std::span<const smooth::SmoothedState> substituted,
+                                          const Substituted& what, const std::string& path,
+                                          FilePtr f, int& exit_code) {
+  const std::vector<smooth::SmoothedState> states =
+      smooth_replay(recorded.measurements, "smoothed (inputs as recorded)");
+  const SmoothedRun a{states, recorded.poses}, b{substituted, substituted_poses};
+  const std::vector<SmoothedDifferenceRow> rows = smoothed_differences(a, b, what);
+  const SmoothedDifferenceSummary summary = summarize(rows, a, b);
+  print_summary(stderr, summary);
+  if (!write_smoothed_differences_csv(f.get(), rows) || std::fclose(f.release()) != 0) {
     std::fprintf(stderr, "storetrack-post: %s: %s\n", path.c_str(), std::strerror(errno));
     exit_code = 1;
   }
@@ -401,10 +436,13 @@ int run(const PostOptions& given) {
   if (what.any()) hostapp::load_inputs(o_recorded, make_input_reader(r, as_recorded), in_recorded);
   if (what.calibration)
     check_same_rig(in_recorded.rig, r.files.front(), in.rig, p.calibration_path);
-  if (!p.differences_csv_path.empty() && !what.any())
-    throw InputError(p.differences_csv_path +
-                     ": --differences-csv compares with a substituted input: give --calibration, "
-                     "--pylon-survey, --store-survey or --config");
+  for (const auto& [path, option] :
+       {std::pair{&p.differences_csv_path, "--differences-csv"},
+        std::pair{&p.smoothed_differences_csv_path, "--smoothed-differences-csv"}})
+    if (!path->empty() && !what.any())
+      throw InputError(*path + ": " + option +
+                       " compares with a substituted input: give --calibration, --pylon-survey, "
+                       "--store-survey or --config");
   hostapp::ProcessingChain chain = hostapp::make_processing_chain(o.cfg, in);
   chain.clearance = replay_clearance(o.cfg);
   smooth::CgOffset cg;
@@ -414,7 +452,8 @@ int run(const PostOptions& given) {
   // first, so one refused name leaves no other output behind.
   if (!p.report_dir.empty()) prepare_report_dir(p.report_dir);
   for (const std::string* out :
-       {&p.csv_path, &p.stats_json_path, &p.smoothed_csv_path, &p.product_csv_path})
+       {&p.csv_path, &p.stats_json_path, &p.smoothed_csv_path, &p.product_csv_path,
+        &p.differences_csv_path, &p.smoothed_differences_csv_path})
     if (std::error_code ec; !out->empty() && std::filesystem::exists(*out, ec))
       throw InputError(*out + ": exists; storetrack-post writes new files only");
   output::FtiCsvWriter csv;
@@ -428,11 +467,14 @@ int run(const PostOptions& given) {
   FilePtr smoothed(p.smoothed_csv_path.empty() ? nullptr : create_output(p.smoothed_csv_path));
   FilePtr product(p.product_csv_path.empty() ? nullptr : create_output(p.product_csv_path));
   FilePtr diffs(p.differences_csv_path.empty() ? nullptr : create_output(p.differences_csv_path));
+  FilePtr smoothed_diffs(p.smoothed_differences_csv_path.empty()
+                             ? nullptr
+                             : create_output(p.smoothed_differences_csv_path));
 
   Replay replay(chain);
-  replay.collect_measurements(smoothed || product);
+  replay.collect_measurements(smoothed || product || smoothed_diffs);
   std::vector<RunPose> substituted_poses;
-  if (diffs)
+  if (diffs || smoothed_diffs)
     replay.on_sample([&](const pipeline::ExposureResult& e) {
       substituted_poses.push_back(run_pose(e, in.pylon.marks.size()));
     });
@@ -463,22 +505,32 @@ int run(const PostOptions& given) {
     if (!report_comparison(compared, ended_early)) exit_code = 1;
   }
   if (!p.csv_path.empty() && write_csv(csv, replay.samples()) != 0) exit_code = 1;
-  if (smoothed || product) {
-    const std::vector<smooth::SmoothedState> states = smooth_replay(replay);
+  std::vector<smooth::SmoothedState> states;
+  if (smoothed || product || smoothed_diffs) {
+    states = smooth_replay(replay.measurements(), "smoothed");
     if (smoothed && write_smoothed(p.smoothed_csv_path, states, std::move(smoothed)) != 0)
       exit_code = 1;
     if (product && write_product(p.product_csv_path, replay, states, cg, std::move(product)) != 0)
       exit_code = 1;
   }
-  nlohmann::json differences_json;
-  if (diffs)
-    differences_json = write_differences(r, o_recorded, in_recorded, substituted_poses, what,
-                                         p.differences_csv_path, std::move(diffs), exit_code);
+  nlohmann::json differences_json, smoothed_differences_json;
+  if (diffs || smoothed_diffs) {
+    const RecordedRun recorded =
+        replay_recorded(r, o_recorded, in_recorded, static_cast<bool>(smoothed_diffs));
+    if (diffs)
+      differences_json = write_differences(recorded, substituted_poses, what,
+                                           p.differences_csv_path, std::move(diffs), exit_code);
+    if (smoothed_diffs)
+      smoothed_differences_json = write_smoothed_differences(recorded, substituted_poses, states,
+                                                             what, p.smoothed_differences_csv_path,
+                                                             std::move(smoothed_diffs), exit_code);
+  }
   if (!p.report_dir.empty() && write_report(p, r, replay, report) != 0) exit_code = 1;
   if (stats) {
     nlohmann::json j =
         stats_json(r, replay.counters(), replay.samples().size(), p.verify ? &compared : nullptr);
     if (!differences_json.is_null()) j["differences"] = differences_json;
+    if (!smoothed_differences_json.is_null()) j["smoothed_differences"] = smoothed_differences_json;
     if (chain.health) j["calibration_health"] = hostapp::calibration_health_json(*chain.health);
     const std::string text = j.dump(2) + "\n";
     if (std::fwrite(text.data(), 1, text.size(), stats.get()) != text.size() ||

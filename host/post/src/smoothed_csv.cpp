@@ -13,21 +13,20 @@ namespace {
 using smooth::SmoothedState;
 using smooth::StateMatrix;
 
-// The quantities of a line: name with unit, and the rows of the state they are taken from
-// (attitude through d(ypr)/d(rotation), the rest directly).
-constexpr std::array<const char*, 18> kNames = {
-    "x_m",      "y_m",      "z_m",      "yaw_rad",       "pitch_rad",     "roll_rad",
-    "vx_m_s",   "vy_m_s",   "vz_m_s",   "ax_m_s2",       "ay_m_s2",       "az_m_s2",
-    "wx_rad_s", "wy_rad_s", "wz_rad_s", "alphax_rad_s2", "alphay_rad_s2", "alphaz_rad_s2"};
-
 // Rows of the state for x..z, (yaw, pitch, roll: rotation, mapped), v, a, omega, alpha.
 constexpr std::array<int, 6> kBlocks = {smooth::kPosition,    smooth::kAttitude,
                                         smooth::kVelocity,    smooth::kAcceleration,
                                         smooth::kAngularRate, smooth::kAngularAccel};
 
-// The 18 output values and the map M from the state: output covariance = M C M^T.
-void outputs(const SmoothedState& s, std::array<double, 18>& value,
-             Eigen::Matrix<double, 18, smooth::kStateSize>& M) {
+}  // namespace
+
+const std::array<const char*, kSmoothedOutputs> kSmoothedNames = {
+    "x_m",      "y_m",      "z_m",      "yaw_rad",       "pitch_rad",     "roll_rad",
+    "vx_m_s",   "vy_m_s",   "vz_m_s",   "ax_m_s2",       "ay_m_s2",       "az_m_s2",
+    "wx_rad_s", "wy_rad_s", "wz_rad_s", "alphax_rad_s2", "alphay_rad_s2", "alphaz_rad_s2"};
+
+void smoothed_outputs(const SmoothedState& s, std::array<double, kSmoothedOutputs>& value,
+                      SmoothedOutputMap& M) {
   M.setZero();
   const std::array<geometry::Vec3, 6> vectors = {
       s.T_p_s.translation(), geometry::ypr_from_rotation(s.T_p_s.linear()),
@@ -44,21 +43,19 @@ void outputs(const SmoothedState& s, std::array<double, 18>& value,
   }
 }
 
-}  // namespace
-
 bool write_smoothed_csv(std::FILE* f, std::span<const SmoothedState> states) {
   std::string header = "exposure_mid_tai_ns,segment,measured,accel_step";
-  for (const char* n : kNames)
+  for (const char* n : kSmoothedNames)
     header += std::string(",") + n;
   for (const char* part : {"u_", "u_noise_", "u_shared_"})
-    for (const char* n : kNames)
+    for (const char* n : kSmoothedNames)
       header += std::string(",") + part + n;
   header += "\n";
   if (std::fputs(header.c_str(), f) < 0) return false;
-  std::array<double, 18> value{};
-  Eigen::Matrix<double, 18, smooth::kStateSize> M;
+  std::array<double, kSmoothedOutputs> value{};
+  SmoothedOutputMap M;
   for (const SmoothedState& s : states) {
-    outputs(s, value, M);
+    smoothed_outputs(s, value, M);
     const StateMatrix parts[3] = {s.cov(), s.cov_noise, s.cov_shared};
     if (std::fprintf(f, "%lld,%d,%d,%d", static_cast<long long>(s.t_ns), s.segment,
                      s.measured ? 1 : 0, s.step ? 1 : 0) < 0)

@@ -2,8 +2,10 @@
 // (store_product.hpp; docs/post-processing.md, "Data product").
 #include "storetrack/smooth/store_product.hpp"
 
+#include <array>
 #include <cmath>
 #include <limits>
+#include <utility>
 
 #include "storetrack/pose/body_pose.hpp"
 
@@ -49,45 +51,95 @@ void set_nan(ProductSample& p, int row) {
   p.u_shared.segment<3>(row).setConstant(kNaN);
 }
 
-/// The CG and Euler angles in aircraft axes: T_w_p (solved at this exposure) composed with the
-/// state. A left perturbation (phi, rho) of T_w_p moves p_w by -[R_w_p p]x phi + rho and R_w_s
-/// by phi; one of the state's attitude, delta, moves R_w_s by R_w_p delta.
-void aircraft_rows(const SmoothedState& s, const PoseMeasurement& m, const KinematicsByState& J,
-                   const ProductLoadings& state_shared, ProductSample& p) {
+/// A quantity in pylon axes as `aircraft_vector` turns it: its value, its noise covariances
+/// (parts whose correlation is not stated: their standard deviations add, the safe side) and
+/// its shared loadings (the product's columns: the recording's factors, then the CG offset's).
+struct PylonAxesVector {
+  Vec3 value = Vec3::Zero();
+  std::array<Mat3, 2> cov_noise = {Mat3::Zero(), Mat3::Zero()};
+  Eigen::Matrix<double, 3, Eigen::Dynamic> shared;
+};
+
+/// `q` in aircraft axes, R_w_p q (+ t_w_p for a point), with T_w_p solved at this exposure. A
+/// left perturbation (phi, rho) of T_w_p moves it by -[R_w_p q]x phi (+ rho for a point): its
+/// noise part adds to q's as a bound (T_p_s's noise holds the pylon's centroid noise of the
+/// same exposures), its loadings on the same shared factors add exactly.
+void aircraft_vector(const PylonAxesVector& q, bool point, const PoseMeasurement& m, int row,
+                     ProductSample& p) {
+  const Mat3 R = m.T_w_p.linear();
+  const Vec3 turned = R * q.value;
+  p.value.segment<3>(row) = point ? Vec3(turned + m.T_w_p.translation()) : turned;
+  Eigen::Matrix<double, 3, 6> A = Eigen::Matrix<double, 3, 6>::Zero();
+  A.leftCols<3>() = -skew(turned);
+  if (point) A.rightCols<3>().setIdentity();
+  Vec3 u = (A * m.pylon_cov_noise * A.transpose()).diagonal().cwiseMax(0).cwiseSqrt();
+  for (const Mat3& C : q.cov_noise)
+    u += (R * C * R.transpose()).diagonal().cwiseMax(0).cwiseSqrt();
+  p.u_noise.segment<3>(row) = u;
+  Eigen::Matrix<double, 3, Eigen::Dynamic> L = R * q.shared;
+  L.leftCols(m.pylon_shared.cols()) += A * m.pylon_shared;
+  p.u_shared.segment<3>(row) = L.rowwise().norm();
+}
+
+/// Rows `row` of the kinematics as a pylon-axes vector (noise J P J^T, loadings `shared`).
+PylonAxesVector kinematics_rows(const SmoothedState& s, const KinematicsByState& J,
+                                const ProductLoadings& shared, int row) {
+  PylonAxesVector q;
+  const Eigen::Matrix<double, 3, kStateSize> Jr = J.middleRows<3>(row);
+  q.cov_noise[0] = Jr * s.cov_noise * Jr.transpose();
+  q.shared = shared.middleRows<3>(row);
+  return q;
+}
+
+/// The Euler angles of R_w_s = R_w_p R_p_s: a left perturbation phi of T_w_p moves R_w_s by
+/// phi, one of the state's attitude, delta, by R_w_p delta.
+void aircraft_euler(const SmoothedState& s, const PoseMeasurement& m, ProductSample& p) {
   const Mat3 R_w_p = m.T_w_p.linear();
-  const Vec3 p_cg = p.value.segment<3>(kCgPosition);
   const Mat3 R_w_s = R_w_p * s.T_p_s.linear();
   const Mat3 J_ypr = pose::ypr_jacobian(R_w_s);
-  p.value.segment<3>(kCgAircraft) = m.T_w_p * p_cg;
   p.value.segment<3>(kEulerAircraft) = geometry::ypr_from_rotation(R_w_s);
-  geometry::Mat6 A = geometry::Mat6::Zero();  // by T_w_p's perturbation
-  A.block<3, 3>(0, 0) = -skew(R_w_p * p_cg);
-  A.block<3, 3>(0, 3).setIdentity();
-  A.block<3, 3>(3, 0) = J_ypr;
-  Eigen::Matrix<double, 6, kStateSize> B = Eigen::Matrix<double, 6, kStateSize>::Zero();
-  B.topRows<3>() = R_w_p * J.middleRows<3>(kCgPosition);
-  B.block<3, 3>(3, kAttitude) = J_ypr * R_w_p;
-  const Eigen::Matrix<double, 6, 1> u_pylon =
-      (A * m.pylon_cov_noise * A.transpose()).diagonal().cwiseMax(0).cwiseSqrt();
-  const Eigen::Matrix<double, 6, 1> u_state =
-      (B * s.cov_noise * B.transpose()).diagonal().cwiseMax(0).cwiseSqrt();
-  p.u_noise.segment<6>(kCgAircraft) = u_pylon + u_state;
-  // Shared: the state's (its CG rows already carry the CG offset's columns) plus T_w_p's.
-  Eigen::Matrix<double, 6, Eigen::Dynamic> L(6, state_shared.cols());
-  L.topRows<3>() = R_w_p * state_shared.middleRows<3>(kCgPosition);
-  L.bottomRows<3>().setZero();
-  L.bottomRows<3>().leftCols(s.shared.cols()) = J_ypr * R_w_p * s.shared.topRows<3>();
-  L.leftCols(m.pylon_shared.cols()) += A * m.pylon_shared;
-  p.u_shared.segment<6>(kCgAircraft) = L.rowwise().norm();
+  const Mat3 B = J_ypr * R_w_p;
+  const Vec3 u_pylon =
+      (J_ypr * m.pylon_cov_noise.topLeftCorner<3, 3>() * J_ypr.transpose()).diagonal();
+  const Vec3 u_state =
+      (B * s.cov_noise.block<3, 3>(kAttitude, kAttitude) * B.transpose()).diagonal();
+  p.u_noise.segment<3>(kEulerAircraft) =
+      u_pylon.cwiseMax(0).cwiseSqrt() + u_state.cwiseMax(0).cwiseSqrt();
+  Eigen::Matrix<double, 3, Eigen::Dynamic> L = B * s.shared.topRows<3>();
+  L.leftCols(m.pylon_shared.cols()) += J_ypr * m.pylon_shared.topRows<3>();
+  p.u_shared.segment<3>(kEulerAircraft) = L.rowwise().norm();
+}
+
+/// The CG, Euler angles, CG velocity and acceleration and the angular rate in aircraft axes.
+void aircraft_rows(const SmoothedState& s, const PoseMeasurement& m, const KinematicsByState& J,
+                   const ProductLoadings& shared, ProductSample& p) {
+  PylonAxesVector cg = kinematics_rows(s, J, shared, kCgPosition);
+  cg.value = p.value.segment<3>(kCgPosition);
+  aircraft_vector(cg, true, m, kCgAircraft, p);
+  aircraft_euler(s, m, p);
+  for (const auto& [from, to] :
+       {std::pair{kCgVelocity, kCgVelocityAircraft}, std::pair{kCgAccel, kCgAccelAircraft}}) {
+    PylonAxesVector q = kinematics_rows(s, J, shared, from);
+    q.value = p.value.segment<3>(from);
+    aircraft_vector(q, false, m, to, p);
+  }
+  PylonAxesVector w;  // the state's own rows (no CG columns: they load zero)
+  w.value = s.angular_rate_p;
+  w.cov_noise[0] = s.cov_noise.block<3, 3>(kAngularRate, kAngularRate);
+  w.shared = Eigen::Matrix<double, 3, Eigen::Dynamic>::Zero(3, shared.cols());
+  w.shared.leftCols(s.shared.cols()) = s.shared.middleRows<3>(kAngularRate);
+  aircraft_vector(w, false, m, kAngularRateAircraft, p);
 }
 
 }  // namespace
 
 const std::array<const char*, kProductSize> kProductNames = {
-    "cg_x_m",    "cg_y_m",    "cg_z_m",    "yaw_rad",    "pitch_rad",    "roll_rad",
-    "vx_m_s",    "vy_m_s",    "vz_m_s",    "ax_m_s2",    "ay_m_s2",      "az_m_s2",
-    "p_rad_s",   "q_rad_s",   "r_rad_s",   "dcg_x_m",    "dcg_y_m",      "dcg_z_m",
-    "cg_ac_x_m", "cg_ac_y_m", "cg_ac_z_m", "yaw_ac_rad", "pitch_ac_rad", "roll_ac_rad"};
+    "cg_x_m",      "cg_y_m",      "cg_z_m",      "yaw_rad",    "pitch_rad",    "roll_rad",
+    "vx_m_s",      "vy_m_s",      "vz_m_s",      "ax_m_s2",    "ay_m_s2",      "az_m_s2",
+    "p_rad_s",     "q_rad_s",     "r_rad_s",     "dcg_x_m",    "dcg_y_m",      "dcg_z_m",
+    "cg_ac_x_m",   "cg_ac_y_m",   "cg_ac_z_m",   "yaw_ac_rad", "pitch_ac_rad", "roll_ac_rad",
+    "vx_ac_m_s",   "vy_ac_m_s",   "vz_ac_m_s",   "ax_ac_m_s2", "ay_ac_m_s2",   "az_ac_m_s2",
+    "wx_ac_rad_s", "wy_ac_rad_s", "wz_ac_rad_s", "dcg_ac_x_m", "dcg_ac_y_m",   "dcg_ac_z_m"};
 
 KinematicsVector store_kinematics(const SmoothedState& s, const Vec3& cg_s,
                                   KinematicsByState* d_state, KinematicsByCg* d_cg) {
@@ -134,6 +186,8 @@ std::vector<ProductSample> store_product(std::span<const SmoothedState> states,
                                          const ReleaseTime& release, const CgOffset& cg) {
   std::vector<ProductSample> out(states.size());
   std::vector<ProductLoadings> shared(states.size());
+  std::vector<Mat3> cg_noise(states.size());
+  std::vector<const PoseMeasurement*> pylon(states.size(), nullptr);
   KinematicsByState J;
   KinematicsByCg D;
   std::size_t next = 0;
@@ -150,17 +204,21 @@ std::vector<ProductSample> store_product(std::span<const SmoothedState> states,
         (J * s.cov_noise * J.transpose()).diagonal().cwiseMax(0).cwiseSqrt();
     shared[k] = shared_loadings(s, J, D, cg.sigma_m);
     p.u_shared.head<kKinematicsSize>() = shared[k].rowwise().norm();
+    const Eigen::Matrix<double, 3, kStateSize> J_cg = J.middleRows<3>(kCgPosition);
+    cg_noise[k] = J_cg * s.cov_noise * J_cg.transpose();
     // The exposure's own pylon pose (both in time order).
     while (next < measurements.size() && measurements[next].t_ns < s.t_ns)
       ++next;
-    const bool pylon = next < measurements.size() && measurements[next].t_ns == s.t_ns &&
-                       measurements[next].pylon_solved &&
-                       measurements[next].pylon_shared.cols() <= s.shared.cols();
-    if (pylon) {
-      aircraft_rows(s, measurements[next], J, shared[k], p);
+    if (next < measurements.size() && measurements[next].t_ns == s.t_ns &&
+        measurements[next].pylon_solved &&
+        measurements[next].pylon_shared.cols() <= s.shared.cols())
+      pylon[k] = &measurements[next];
+    if (pylon[k]) {
+      aircraft_rows(s, *pylon[k], J, shared[k], p);
     } else {
-      set_nan(p, kCgAircraft);
-      set_nan(p, kEulerAircraft);
+      for (const int row : {kCgAircraft, kEulerAircraft, kCgVelocityAircraft, kCgAccelAircraft,
+                            kAngularRateAircraft})
+        set_nan(p, row);
     }
   }
   const int c = carriage_index(states, release);
@@ -168,17 +226,24 @@ std::vector<ProductSample> store_product(std::span<const SmoothedState> states,
     ProductSample& p = out[k];
     if (c < 0) {
       set_nan(p, kCgDisplacement);
+      set_nan(p, kCgDisplacementAircraft);
       continue;
     }
     const auto ci = static_cast<std::size_t>(c);
-    p.value.segment<3>(kCgDisplacement) =
-        p.value.segment<3>(kCgPosition) - out[ci].value.segment<3>(kCgPosition);
+    // The smoother states no covariance between two times: the two noise parts' standard
+    // deviations add (the bound), per pylon axis here and per aircraft axis below.
+    PylonAxesVector d;
+    d.value = p.value.segment<3>(kCgPosition) - out[ci].value.segment<3>(kCgPosition);
+    d.cov_noise = {cg_noise[k], cg_noise[ci]};
+    d.shared = shared[k].middleRows<3>(kCgPosition) - shared[ci].middleRows<3>(kCgPosition);
+    p.value.segment<3>(kCgDisplacement) = d.value;
     p.u_noise.segment<3>(kCgDisplacement) =
         p.u_noise.segment<3>(kCgPosition) + out[ci].u_noise.segment<3>(kCgPosition);
-    p.u_shared.segment<3>(kCgDisplacement) =
-        (shared[k].middleRows<3>(kCgPosition) - shared[ci].middleRows<3>(kCgPosition))
-            .rowwise()
-            .norm();
+    p.u_shared.segment<3>(kCgDisplacement) = d.shared.rowwise().norm();
+    if (pylon[k])
+      aircraft_vector(d, false, *pylon[k], kCgDisplacementAircraft, p);
+    else
+      set_nan(p, kCgDisplacementAircraft);
   }
   return out;
 }

@@ -181,7 +181,8 @@ pass "data product written (t0 and captive CG against the truth, new file only),
 # honest substitute reaches |z| > 5 on one of 220 x 6 values with probability < 1e-3 even were
 # they independent). A calibration of another rig (a camera fewer): exit 2, named, nothing written.
 rc=0; "$POST" "$REC" --calibration "$RUN/sim/rig_calibrated.json" --differences-csv "$OUT/d_same.csv" \
-  --stats-json "$OUT/d_same.json" >"$OUT/d_same.log" 2>&1 || rc=$?
+  --smoothed-differences-csv "$OUT/sd_same.csv" --stats-json "$OUT/d_same.json" \
+  >"$OUT/d_same.log" 2>&1 || rc=$?
 [ "$rc" -eq 0 ] || fail "--differences-csv with the same calibration: exit $rc: $(cat "$OUT/d_same.log")"
 /usr/bin/python3 - "$RUN/sim/rig_calibrated.json" "$OUT/turned.json" "$OUT/fewer.json" <<'PY'
 import json, math, sys
@@ -208,30 +209,37 @@ json.dump(rig, open(sys.argv[2], "w"))
 rig = json.load(open(sys.argv[1])); rig["cameras"].pop(); json.dump(rig, open(sys.argv[3], "w"))
 PY
 rc=0; "$POST" "$REC" --calibration "$OUT/turned.json" --differences-csv "$OUT/d_turned.csv" \
-  --stats-json "$OUT/d_turned.json" >"$OUT/d_turned.log" 2>&1 || rc=$?
+  --smoothed-differences-csv "$OUT/sd_turned.csv" --stats-json "$OUT/d_turned.json" \
+  >"$OUT/d_turned.log" 2>&1 || rc=$?
 cat "$OUT/d_turned.log"
 [ "$rc" -eq 0 ] || fail "--differences-csv with a turned camera: exit $rc"
-/usr/bin/python3 - "$OUT/d_same.json" "$OUT/d_same.csv" "$OUT/d_turned.json" <<'PY'
+/usr/bin/python3 - "$OUT/d_same.json" "$OUT/d_same.csv" "$OUT/d_turned.json" "$OUT/sd_same.csv" <<'PY'
 import csv, json, sys
-same = json.load(open(sys.argv[1]))["differences"]
-assert same["compared"] == same["recorded_samples"] > 0, same
-for r in csv.DictReader(open(sys.argv[2])):
-    for k, v in r.items():
-        if k.startswith("d_"):
-            assert float(v) == 0.0, (k, r)
-        if k.startswith("u_d_"):
-            assert float(v) > 0, (k, r)
-turned = json.load(open(sys.argv[3]))["differences"]
-worst = max(turned["axes"].values(), key=lambda a: a["max_abs_z"])
-print("turned camera: %d compared, max |z| %.2f" % (turned["compared"], worst["max_abs_z"]))
-assert turned["compared"] > 100 and worst["max_abs_z"] > 5, turned
+same = json.load(open(sys.argv[1]))
+assert same["differences"]["compared"] == same["differences"]["recorded_samples"] > 0, same
+assert same["smoothed_differences"]["compared"] == same["smoothed_differences"]["recorded_states"] > 0
+for path in (sys.argv[2], sys.argv[4]):
+    for r in csv.DictReader(open(path)):
+        assert r.get("u_basis", "noise_cancels") == "noise_cancels", r
+        for k, v in r.items():
+            if k.startswith("d_"):
+                assert float(v) == 0.0, (path, k, r)
+            if k.startswith("u_d_"):
+                assert float(v) > 0, (path, k, r)
+turned = json.load(open(sys.argv[3]))
+for what, axes in (("differences", "axes"), ("smoothed_differences", "quantities")):
+    t = turned[what]
+    worst = max(t[axes].values(), key=lambda a: a["max_abs_z"])
+    print("turned camera, %s: %d compared, max |z| %.2f" % (what, t["compared"], worst["max_abs_z"]))
+    # |z| > 5 on one of 220 x 18 honest values: probability < 3e-3 even were they independent.
+    assert t["compared"] > 100 and worst["max_abs_z"] > 5, t
 PY
 rc=0; "$POST" "$REC" --calibration "$OUT/fewer.json" --differences-csv "$OUT/d_fewer.csv" \
   >"$OUT/d_fewer.log" 2>&1 || rc=$?
 [ "$rc" -eq 2 ] && grep -q "$OUT/fewer.json: a calibration of another rig" "$OUT/d_fewer.log" \
   || fail "another rig's calibration: exit $rc: $(cat "$OUT/d_fewer.log")"
 [ ! -e "$OUT/d_fewer.csv" ] || fail "another rig's calibration: an output was written"
-pass "differences: same calibration d = 0; turned camera significant; another rig refused"
+pass "differences (per exposure and smoothed): same calibration d = 0; turned camera significant; another rig refused"
 
 # 7. The truth-free report (--report DIR) of the recording and of the torn copy, rendered by
 # host/report/storetrack_post_report.py: its integrity counts are the files' own (the live

@@ -20,10 +20,13 @@
 namespace storetrack::smooth {
 
 /// Rows of the kinematic quantities (store_kinematics), then the product's further rows: the
-/// displacement from the carriage, and the CG position and Euler angles in aircraft axes.
-inline constexpr int kKinematicsSize = 15, kProductSize = 24;
+/// displacement from the carriage, and in aircraft axes the CG position, the Euler angles, the
+/// CG's velocity and acceleration, the angular rate and the displacement from the carriage.
+inline constexpr int kKinematicsSize = 15, kProductSize = 36;
 inline constexpr int kCgPosition = 0, kEulerYpr = 3, kCgVelocity = 6, kCgAccel = 9, kBodyRates = 12,
-                     kCgDisplacement = 15, kCgAircraft = 18, kEulerAircraft = 21;
+                     kCgDisplacement = 15, kCgAircraft = 18, kEulerAircraft = 21,
+                     kCgVelocityAircraft = 24, kCgAccelAircraft = 27, kAngularRateAircraft = 30,
+                     kCgDisplacementAircraft = 33;
 using KinematicsVector = Eigen::Matrix<double, kKinematicsSize, 1>;
 using KinematicsByState = Eigen::Matrix<double, kKinematicsSize, kStateSize>;
 using KinematicsByCg = Eigen::Matrix<double, kKinematicsSize, 3>;
@@ -62,7 +65,13 @@ struct ProductSample {
 /// covariance between two times). Aircraft axes: the state composed with the pylon pose T_w_p
 /// solved at the same exposure (`measurements`, matched by time; NaN where it has none); shared
 /// part exact (the loadings add), noise part the bound u(T_w_p part) + u(state part) (the
-/// pylon's centroid noise is in both, and the smoother does not carry it apart).
+/// pylon's centroid noise is in both, and the smoother does not carry it apart). The velocity,
+/// acceleration, angular rate and displacement in aircraft axes are the pylon-axes ones turned
+/// by the same exposure's R_w_p: the pylon is surveyed rigid to the aircraft (its motion
+/// relative to the aircraft is not estimated), so the rates relative to the pylon are those
+/// relative to the aircraft, and R_w_p's error is a shared term like the CG's (the same
+/// propagation, `aircraft_vector`); the displacement's noise bound is u_k + u_carriage per
+/// aircraft axis.
 std::vector<ProductSample> store_product(std::span<const SmoothedState> states,
                                          std::span<const PoseMeasurement> measurements,
                                          const ReleaseTime& release, const CgOffset& cg);
