@@ -76,10 +76,7 @@ void scale_camera_error(const camera::RigCalibration& truth, camera::RigCalibrat
 
 camera::RigCalibration stated_rig(const sim::Simulator& sim, Stated stated) {
   if (stated == Stated::kPerfect) {
-    // The true rig stated perfect, its joint covariance (the registration's cross terms) too.
-    camera::RigCalibration rig = test::perfect_rig(sim);
-    rig.joint_covariance.resize(0, 0);
-    return rig;
+    return test::perfect_rig(sim);
   }
   camera::RigCalibration rig = sim.calibrated_rig();
   if (stated == Stated::kOneCameraOff) scale_camera_error(sim.true_rig(), rig, kBadCamera, 5.0);

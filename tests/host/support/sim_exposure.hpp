@@ -22,8 +22,8 @@ struct SimExposure {
   pipeline::MarkIds ids;
 };
 
-/// The true rig with its calibration stated perfect (zero covariances, zero sync sigma): the
-/// host's stated u is then its centroid part alone.
+/// The true rig with its calibration stated perfect (zero covariances, no joint covariance,
+/// zero sync sigma): the host's stated u is then its centroid part alone.
 inline camera::RigCalibration perfect_rig(const sim::Simulator& sim) {
   camera::RigCalibration rig = sim.true_rig();
   for (camera::CalibratedCamera& c : rig.cameras) {
@@ -31,6 +31,7 @@ inline camera::RigCalibration perfect_rig(const sim::Simulator& sim) {
     c.extrinsic_covariance.setZero();
     c.exposure_offset_sigma_ns = 0;
   }
+  rig.joint_covariance.resize(0, 0);  // the registration's cross terms: perfect too
   return rig;
 }
 
