@@ -61,6 +61,8 @@ class ReprocessedRecording {
   /// Flushes and closes; 0 when every record and sample reached a file.
   int close();
   const output::Chapter10Writer& writer() const { return writer_; }
+  /// Replaces the writer's system calls (before open()); fault injection in tests.
+  void set_file_ops(const output::Chapter10FileOps& ops) { writer_.set_file_ops(ops); }
 
  private:
   output::Chapter10Writer writer_;
