@@ -521,6 +521,16 @@ int run(const PostOptions& given) {
         stats_json(r, replay.counters(), replay.samples().size(), p.verify ? &compared : nullptr);
     if (!differences_json.is_null()) j["differences"] = differences_json;
     if (chain.health) j["calibration_health"] = hostapp::calibration_health_json(*chain.health);
+    if (!p.output_ch10_path.empty()) {
+      const output::Chapter10Counters& c = new_recording.writer().counters();
+      j["output_ch10"] = {{"files", new_recording.writer().files()},
+                          {"samples", c.messages_written},
+                          {"raw_records", c.raw_messages_written},
+                          {"packets", c.packets_written},
+                          {"bytes", c.bytes_written},
+                          {"samples_in_no_file", c.messages_dropped},
+                          {"raw_records_in_no_file", c.raw_messages_dropped + c.raw_refused}};
+    }
     const std::string text = j.dump(2) + "\n";
     if (std::fwrite(text.data(), 1, text.size(), stats.get()) != text.size() ||
         std::fclose(stats.release()) != 0) {

@@ -36,9 +36,18 @@ PY
 }
 
 # 1. The recorded inputs.
-rc=0; "$POST" --verify "$REC" --output-ch10 "$OUT/same.ch10" --csv "$OUT/same.csv" >"$OUT/same.log" 2>&1 || rc=$?
+rc=0; "$POST" --verify "$REC" --output-ch10 "$OUT/same.ch10" --csv "$OUT/same.csv" \
+  --stats-json "$OUT/same_stats.json" >"$OUT/same.log" 2>&1 || rc=$?
 cat "$OUT/same.log"
 [ "$rc" -eq 0 ] || fail "--output-ch10 with the recorded inputs: exit $rc"
+/usr/bin/python3 - "$OUT/same_stats.json" "$OUT/same.ch10" <<'PY'
+import json, os, sys
+s = json.load(open(sys.argv[1]))
+o, r = s["output_ch10"], s["replay"]
+assert o["files"] == [sys.argv[2]] and o["bytes"] == os.path.getsize(sys.argv[2]), o
+assert o["samples"] == r["samples"] and o["raw_records"] == r["records"], (o, r)
+assert o["samples_in_no_file"] == o["raw_records_in_no_file"] == 0, o
+PY
 grep -q "^new recording: $OUT/same.ch10: 220 samples, .* 0 samples and 0 raw records in no file" "$OUT/same.log" \
   || fail "no summary of the new recording"
 rc=0; "$POST" --verify "$OUT/same.ch10" --csv "$OUT/same_again.csv" >"$OUT/same_again.log" 2>&1 || rc=$?
