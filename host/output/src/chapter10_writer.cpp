@@ -182,6 +182,10 @@ std::string Chapter10Writer::tmats_text() const {
                        std::to_string(in.bytes.size()) + " bytes sha256 " +
                        digest::to_hex(digest::sha256(in.bytes)));
   }
+  for (std::string comment : config_.comments) {
+    std::replace(comment.begin(), comment.end(), ';', ',');
+    line("G\\COM", comment);
+  }
   return t;
 }
 

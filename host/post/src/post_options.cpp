@@ -16,6 +16,11 @@ int parse_post_options(int argc, char** argv, PostOptions& o) {
            "Compare every replayed sample byte for byte with the recorded one (exit 1 on any "
            "difference or a different count)");
   app.option("--csv", o.csv_path, "Write the replayed samples to this NEW CSV file");
+  app.option("--output-ch10", o.output_ch10_path,
+             "Write the reprocessed run as a NEW Chapter 10 recording (the host's writer): the "
+             "replayed samples, the raw channel copied, the inputs used (substitutes included) "
+             "with their SHA-256, TMATS naming the source and the substitutes; it can be "
+             "reprocessed again");
   app.option("--smoothed-csv", o.smoothed_csv_path,
              "Write the smoothed trajectory (pose, velocity, acceleration, angular rate with "
              "their uncertainty, noise and shared parts) to this NEW CSV file");

@@ -11,6 +11,8 @@ struct PostOptions {
   std::vector<std::string> recording_files;  ///< one host run's files, in the order written
   bool verify = false;
   std::string csv_path, stats_json_path;
+  /// The reprocessed run as a new Chapter 10 recording (new file; reprocessed_recording.hpp).
+  std::string output_ch10_path;
   std::string smoothed_csv_path;  ///< the fixed-interval smoother's trajectory (new file)
   std::string product_csv_path;   ///< the store-separation data product (new file)
   /// Per sample and axis, the substituted input's change against its uncertainty (new file).

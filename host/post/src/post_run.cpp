@@ -1,6 +1,7 @@
 #include "post_run.hpp"
 
 #include <spdlog/spdlog.h>
+#include <algorithm>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -21,6 +22,7 @@
 #include "recording.hpp"
 #include "replay.hpp"
 #include "report_files.hpp"
+#include "reprocessed_recording.hpp"
 #include "same_rig.hpp"
 #include "sample_compare.hpp"
 #include "smoothed_csv.hpp"
@@ -385,6 +387,36 @@ void print_health(const pipeline::CalibrationHealthGuard& guard) {
                 static_cast<unsigned long long>(guard.monitor().exposures()));
 }
 
+// --output-ch10: refused by name when it exists (nothing is written).
+void open_new_recording(ReprocessedRecording& out, const std::string& path,
+                        const output::Chapter10Config& config) {
+  if (const int rc = out.open(path, config); rc != 0)
+    throw InputError(path + ": " +
+                     (rc == -EEXIST ? std::string("exists; storetrack-post writes new files only")
+                                    : std::string(std::strerror(-rc))));
+}
+
+int close_new_recording(ReprocessedRecording& out) {
+  const int rc = out.close();
+  const output::Chapter10Counters& c = out.writer().counters();
+  std::string files;
+  for (const std::string& f : out.writer().files())
+    files += (files.empty() ? "" : ", ") + f;
+  std::printf(
+      "new recording: %s: %llu samples, %llu raw records, %llu input packets, %llu packets, "
+      "%llu bytes; %llu samples and %llu raw records in no file\n",
+      files.c_str(), static_cast<unsigned long long>(c.messages_written),
+      static_cast<unsigned long long>(c.raw_messages_written),
+      static_cast<unsigned long long>(c.input_packets),
+      static_cast<unsigned long long>(c.packets_written),
+      static_cast<unsigned long long>(c.bytes_written),
+      static_cast<unsigned long long>(c.messages_dropped),
+      static_cast<unsigned long long>(c.raw_messages_dropped + c.raw_refused));
+  if (rc == 0) return 0;
+  std::fprintf(stderr, "storetrack-post: %s: %s\n", files.c_str(), std::strerror(-rc));
+  return 1;
+}
+
 struct ReportRows {
   std::vector<CameraResidualRow> residuals;
   std::vector<ExposureRow> exposures;
@@ -424,7 +456,8 @@ int run(const PostOptions& given) {
     std::fprintf(stderr, "storetrack-post: %s\n", gap.c_str());
   hostapp::HostOptions o = recorded_host_options(r, given);
   hostapp::InputFiles in;
-  hostapp::load_inputs(o, make_input_reader(r, given), in);
+  UsedInputs used_inputs;  // the bytes the replay runs with, for --output-ch10
+  hostapp::load_inputs(o, used_inputs.recording(make_input_reader(r, given)), in);
   const PostOptions p = with_report_outputs(given, in.store.cg.has_value());
   // The inputs as recorded: a substitute is checked against them, and compared with.
   const Substituted what{!p.calibration_path.empty(), !p.pylon_path.empty(), !p.store_path.empty(),
@@ -453,7 +486,7 @@ int run(const PostOptions& given) {
   if (!p.report_dir.empty()) prepare_report_dir(p.report_dir);
   for (const std::string* out :
        {&p.csv_path, &p.stats_json_path, &p.smoothed_csv_path, &p.product_csv_path,
-        &p.differences_csv_path, &p.smoothed_differences_csv_path})
+        &p.differences_csv_path, &p.smoothed_differences_csv_path, &p.output_ch10_path})
     if (std::error_code ec; !out->empty() && std::filesystem::exists(*out, ec))
       throw InputError(*out + ": exists; storetrack-post writes new files only");
   output::FtiCsvWriter csv;
@@ -470,6 +503,10 @@ int run(const PostOptions& given) {
   FilePtr smoothed_diffs(p.smoothed_differences_csv_path.empty()
                              ? nullptr
                              : create_output(p.smoothed_differences_csv_path));
+  ReprocessedRecording new_recording;
+  if (!p.output_ch10_path.empty())
+    open_new_recording(new_recording, p.output_ch10_path,
+                       reprocessed_config(r, o, in, used_inputs, what));
 
   Replay replay(chain);
   replay.collect_measurements(smoothed || product || smoothed_diffs);
@@ -490,8 +527,11 @@ int run(const PostOptions& given) {
       if (chain.health)
         report.health.observe(*chain.health, e.trigger_seq, result.reference_mid_tai_ns);
     });
-  for (const ch10read::RawObservation& record : r.records)
+  for (const ch10read::RawObservation& record : r.records) {
+    new_recording.copy(record);  // as live: the message recorded before what it completes
     replay.feed(record);
+    new_recording.record_new(replay.samples());
+  }
   replay.finish();
   if (!p.report_dir.empty()) report.calibration = diagnostics.calibration_residuals();
   print_summary(r, replay.counters(), replay.samples().size());
@@ -505,6 +545,7 @@ int run(const PostOptions& given) {
     if (!report_comparison(compared, ended_early)) exit_code = 1;
   }
   if (!p.csv_path.empty() && write_csv(csv, replay.samples()) != 0) exit_code = 1;
+  if (!p.output_ch10_path.empty() && close_new_recording(new_recording) != 0) exit_code = 1;
   std::vector<smooth::SmoothedState> states;
   if (smoothed || product || smoothed_diffs) {
     states = smooth_replay(replay.measurements(), "smoothed");
@@ -532,6 +573,16 @@ int run(const PostOptions& given) {
     if (!differences_json.is_null()) j["differences"] = differences_json;
     if (!smoothed_differences_json.is_null()) j["smoothed_differences"] = smoothed_differences_json;
     if (chain.health) j["calibration_health"] = hostapp::calibration_health_json(*chain.health);
+    if (!p.output_ch10_path.empty()) {
+      const output::Chapter10Counters& c = new_recording.writer().counters();
+      j["output_ch10"] = {{"files", new_recording.writer().files()},
+                          {"samples", c.messages_written},
+                          {"raw_records", c.raw_messages_written},
+                          {"packets", c.packets_written},
+                          {"bytes", c.bytes_written},
+                          {"samples_in_no_file", c.messages_dropped},
+                          {"raw_records_in_no_file", c.raw_messages_dropped + c.raw_refused}};
+    }
     const std::string text = j.dump(2) + "\n";
     if (std::fwrite(text.data(), 1, text.size(), stats.get()) != text.size() ||
         std::fclose(stats.release()) != 0) {

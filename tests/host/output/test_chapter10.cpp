@@ -172,6 +172,28 @@ TEST(Chapter10, WriterFileValidatesWithIndependentReader) {
   fs::remove(path);
 }
 
+// Chapter10Config::comments (a reprocessed recording's provenance): each a G\COM attribute after
+// the writer's own, a ';' (the attribute terminator) written as ','; the file still validates.
+TEST(Chapter10, CommentsAreTmatsComments) {
+  const auto path = temp_file("st_ch10_comments");
+  Chapter10Config cfg;
+  cfg.sync = Chapter10Sync::kNone;
+  cfg.comments = {"reprocessed from 'a;b.ch10'", "second"};
+  Chapter10Writer w;
+  ASSERT_EQ(w.open(path.string(), cfg), 0);
+  ASSERT_EQ(w.close(), 0);
+  const auto f = ch10read::read_file(path.string());
+  ASSERT_FALSE(f.packets.empty());
+  EXPECT_TRUE(f.stop_reason.empty()) << f.stop_reason;
+  const auto tmats = ch10read::decode_tmats(f.packets.front());
+  ASSERT_TRUE(tmats);
+  const std::size_t first = tmats->find("G\\COM:reprocessed from 'a,b.ch10';");
+  ASSERT_NE(first, std::string::npos) << *tmats;
+  EXPECT_GT(tmats->find("G\\COM:second;"), first);
+  EXPECT_GT(first, tmats->find("G\\COM:channel"));  // after the writer's own
+  fs::remove(path);
+}
+
 TEST(Chapter10, WithoutDataChecksumAndOneMessagePerPacket) {
   const auto path = temp_file("st_ch10_nock");
   const Written w = write_file(path, 300, false, 1);

@@ -10,9 +10,11 @@
 #include <fstream>
 #include <random>
 #include <stdexcept>
+#include <tuple>
 
 #include "fti_sample_factory.hpp"
 #include "recording.hpp"
+#include "reprocessed_recording.hpp"
 #include "scratch_files.hpp"
 #include "storetrack/output/chapter10_writer.hpp"
 #include "storetrack/output/fti_parameter_block.hpp"
@@ -74,6 +76,10 @@ std::vector<std::vector<std::uint8_t>> write_run(const std::string& path,
       r.arrival_tai_ns = kT0Tai + n * 312'500LL;
       r.host_mono_ns = 7'000'000'000LL + n;
       r.flags = msg::raw_observation_flags::kAccepted;
+      r.unit_id = static_cast<std::uint8_t>(n % 2);  // fields a copy must keep, varied
+      r.camera_id = static_cast<std::uint8_t>(n % 4);
+      r.source_address = 0x7F000001u + static_cast<std::uint32_t>(n % 3);
+      r.source_port = static_cast<std::uint16_t>(40000 + n % 5);
       const std::vector<std::uint8_t> bytes(1 + n % 50, static_cast<std::uint8_t>(n));
       r.message_bytes = static_cast<std::uint16_t>(bytes.size());
       r.received_bytes = r.message_bytes;
@@ -301,6 +307,72 @@ TEST(PostRecording, IntegrityCountsTheInjectedFaults) {
             "header checksum mismatch at offset " + std::to_string(middle.file_offset));
   EXPECT_EQ(broken.bytes_in_whole_packets, middle.file_offset);
   fs::remove_all(dir);
+}
+
+// storetrack-post --output-ch10's writer (reprocessed_recording): a source run copied record by
+// record with its samples, a write failing mid-way (a full disk): the new recording goes on in
+// out.001.ch10 as the host's does, and the two files read back as one run holding every raw
+// record (each field as the source's) and every sample's block, in order.
+TEST(PostRecording, AReprocessedRecordingContinuesInANumberedFileAndReadsBackWhole) {
+  const fs::path dir = fresh_dir("st_post_reprocessed");
+  const std::string source_path = (dir / "source.ch10").string();
+  const std::vector<std::vector<std::uint8_t>> blocks = write_run(source_path, config(true, true));
+  const Recording source = read_recording({source_path});
+  std::mt19937_64 rng(5);  // write_run's samples, again
+  std::vector<msg::FtiSample> samples;
+  for (int k = 0; k < kExposures; ++k)
+    samples.push_back(output::testing::make_sample(static_cast<std::uint32_t>(k), kT0Tai, rng));
+
+  ReprocessedRecording out;
+  output::Chapter10FileOps ops = output::posix_chapter10_file_ops();
+  ops.write = failing_write;
+  out.set_file_ops(ops);
+  g_writes = 0;
+  g_fail_writes = {9};
+  output::Chapter10Config cfg = config(true, true);
+  cfg.comments = {"reprocessed from 'source.ch10'"};
+  ASSERT_EQ(out.open((dir / "new.ch10").string(), cfg), 0);
+  std::vector<msg::FtiSample> written;  // as the replay's list grows
+  for (std::size_t i = 0; i < source.records.size(); ++i) {
+    out.copy(source.records[i]);
+    if ((i + 1) % kObservationsPerExposure == 0) written.push_back(samples[written.size()]);
+    out.record_new(written);
+  }
+  g_fail_writes.clear();
+  EXPECT_EQ(out.close(), 0);
+  EXPECT_EQ(out.writer().counters().continuation_files, 1u);
+  ASSERT_EQ(out.writer().files(), (std::vector<std::string>{(dir / "new.ch10").string(),
+                                                            (dir / "new.001.ch10").string()}));
+
+  const Recording copy = read_recording(out.writer().files());
+  ASSERT_EQ(copy.records.size(), source.records.size());
+  for (std::size_t i = 0; i < copy.records.size(); ++i) {
+    const ch10read::RawObservation &a = copy.records[i], &b = source.records[i];
+    EXPECT_EQ(std::tie(a.arrival_tai_ns, a.host_mono_ns, a.source_kind, a.source_address,
+                       a.source_port, a.unit_id, a.camera_id, a.flags, a.decode_error,
+                       a.received_bytes, a.bytes, a.data_error, a.subchannel),
+              std::tie(b.arrival_tai_ns, b.host_mono_ns, b.source_kind, b.source_address,
+                       b.source_port, b.unit_id, b.camera_id, b.flags, b.decode_error,
+                       b.received_bytes, b.bytes, b.data_error, b.subchannel))
+        << "record " << i;
+  }
+  ASSERT_EQ(copy.samples.size(), blocks.size());
+  for (std::size_t k = 0; k < blocks.size(); ++k)
+    EXPECT_EQ(copy.samples[k].block, blocks[k]) << "sample " << k;
+  fs::remove_all(dir);
+}
+
+// The host command line storetrack-post records with a substitute: the option's value replaced
+// where given (either spelling), appended where the live run had none.
+TEST(PostRecording, CommandLineNamesTheSubstitute) {
+  using V = std::vector<std::string>;
+  const V given{"host", "--calibration", "old.json", "--udp-port", "9"};
+  EXPECT_EQ(command_line_with(given, "--calibration", "new.json"),
+            (V{"host", "--calibration", "new.json", "--udp-port", "9"}));
+  EXPECT_EQ(command_line_with({"host", "--config=a.json"}, "--config", "b.json"),
+            (V{"host", "--config=b.json"}));
+  EXPECT_EQ(command_line_with(given, "--config", "c.json"),
+            (V{"host", "--calibration", "old.json", "--udp-port", "9", "--config", "c.json"}));
 }
 
 }  // namespace

@@ -91,6 +91,9 @@ struct Chapter10Config {
   Chapter10Existing existing = Chapter10Existing::kNumberNewFile;
   std::string program_name = "storetrack";
   std::string test_point = "simulated";
+  /// More TMATS comments (G\COM), after the writer's own: a reprocessed recording's provenance
+  /// (storetrack-post --output-ch10). A ';' (the attribute terminator) is written as ','.
+  std::vector<std::string> comments;
 };
 
 struct Chapter10Counters {
