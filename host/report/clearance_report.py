@@ -178,3 +178,36 @@ def clearance_section(fti, truth, run_dir, tool, geometry, threshold, outdir, fi
             "correlated and the binomial band (which assumes independent samples) is a check of "
             "this run, not a calibration of the stated uncertainty over draws.")
     return {"rows": rows, "note": note, "stats": st, "names": names}
+
+
+def pooled_clearance_row(run_dirs, tool, geometry, binomial_acceptance, bootstrap_interval,
+                         read_csv):
+    """The clearance's row of the report's pooled table (tools/testpoint --draws N): |d - d_true|
+    <= 2u pooled over runs with different seeds (calibration and survey draws), its 95 %
+    bootstrap interval over whole draws, and the range an honest instrument's pooled coverage
+    falls in when each draw counts as one sample (Binomial(draws, 0.9545)); None without
+    clearance samples."""
+    errors, us, draws, used = [], [], [], 0
+    for d in run_dirs:
+        fti = read_csv(os.path.join(d, "fti.csv"))
+        truth = read_csv(os.path.join(d, "sim", "truth_poses.csv"))
+        if fti is None or truth is None or "clearance" not in fti:
+            continue
+        d_true, _ = truth_clearance(tool, geometry, fti, truth)
+        st = clearance_statistics(fti, d_true, np.zeros(len(d_true)), binomial_acceptance)
+        m = st["mask"]
+        errors.extend(st["error"][m])
+        us.extend(fti["u_clearance"][m])
+        draws.extend([used] * int(m.sum()))
+        used += 1
+    if not errors:
+        return None
+    e, u, draw = np.array(errors), np.array(us), np.array(draws)
+    z = e / u
+    inside = np.abs(z) <= K
+    lo, hi = bootstrap_interval(inside, draw)
+    honest = binomial_acceptance(used, P_INSIDE, 0.025)
+    return ("clearance (nearest part)", "mm", len(e), "-", "%.4f" % np.sqrt(np.mean((e * 1e3) ** 2)),
+            "%.4f" % np.mean(u * 1e3), "%.1f" % (100.0 * np.mean(inside)),
+            "%.1f" % (100.0 * np.mean(inside)), "%.1f .. %.1f" % (100.0 * lo, 100.0 * hi),
+            "%.1f .. %.1f" % (100.0 * honest[0], 100.0 * honest[1]), "%.2f" % np.sqrt(np.mean(z * z)))

@@ -32,7 +32,7 @@ EXTRINSIC_LABEL = "extrinsic / registration / body survey"
 from post_report import (AXES_ATT, AXES_POS, K, load_post_dir, plot_pose, render_post,  # noqa: E402
                          savefig)
 from storetrack_csv import read_csv  # noqa: E402
-from clearance_report import clearance_section  # noqa: E402
+from clearance_report import clearance_section, pooled_clearance_row  # noqa: E402
 
 
 class Checks:
@@ -613,6 +613,12 @@ def main():
     pool_table, pool_draws = [], 0
     if args.pool_runs:
         pool_table, pool_draws = pooled_coverage([args.run] + args.pool_runs)
+        if clearance:
+            row = pooled_clearance_row([args.run] + args.pool_runs, args.clearance_tool,
+                                       args.clearance_geometry, binomial_acceptance,
+                                       cluster_bootstrap_interval, read_csv)
+            if row:
+                pool_table.append(row)
         print("\nPooled over %d calibration draws (seeds): coverage should be about 95 %%, "
               "RMS error/u about 1. 95 %% CI: percentile interval of the pooled coverage over 2000 "
               "resamples of whole draws; honest range: where an honest instrument's pooled "
