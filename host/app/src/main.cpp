@@ -47,18 +47,14 @@ void on_signal(int) {
 }
 
 // The store-to-aircraft clearance (docs/clearance.md), when clearance.geometry is configured,
-// read from disk; the files read are kept in `read_files` for the recording. 0, or exit code 2
-// (a geometry file or mesh that cannot be read or is refused).
-int start_clearance(const HostConfig& cfg, std::unique_ptr<st::clearance::SampleClearance>& out,
+// read through `read`; the files read are kept in `read_files` for the recording. 0, or exit
+// code 2 (a geometry file or mesh that cannot be read or is refused).
+int start_clearance(const HostConfig& cfg, const st::hostapp::InputReader& read,
+                    std::unique_ptr<st::clearance::SampleClearance>& out,
                     std::vector<st::output::RecordedInputFile>& read_files) {
   if (cfg.clearance_geometry.empty()) return 0;
   try {
-    out = st::hostapp::load_clearance(
-        cfg,
-        [](st::output::RecordedInputKind, const std::string& path) {
-          return st::jsonfile::read_text_file(path);
-        },
-        &read_files);
+    out = st::hostapp::load_clearance(cfg, read, &read_files);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "storetrack-host: clearance.geometry '%s': %s\n",
                  cfg.clearance_geometry.c_str(), e.what());
@@ -87,7 +83,8 @@ int load_inputs(st::hostapp::HostOptions& o, st::hostapp::InputFiles& in,
     return 2;
   }
   std::vector<st::output::RecordedInputFile> clearance_files;
-  if (const int rc = start_clearance(cfg, clearance, clearance_files); rc != 0) return rc;
+  if (const int rc = start_clearance(cfg, from_disk, clearance, clearance_files); rc != 0)
+    return rc;
   if (cfg.udp_port == 0 && cfg.can_interfaces.empty()) {
     std::fprintf(stderr, "storetrack-host: no input: give --udp-port and/or --can\n");
     return 2;
