@@ -148,7 +148,7 @@ def clearance_section(fti, truth, run_dir, tool, geometry, threshold, outdir, fi
                 100 * lo, 100 * hi,
                 "inside" if lo <= st["coverage"] <= hi else
                 ("BELOW (u too small?)" if st["coverage"] < lo else
-                 "above (errors within 2u on every sample: one shared draw, see note)"))),
+                 "above (one shared draw: see the note)"))),
             ("truth >= lower bound", "%d of %d = %.1f %% (>= 97.7 %% by the rule; band low %.1f %%)"
              % (st["held"], st["n"], 100 * st["held"] / max(st["n"], 1), 100 * st["held_band_low"]))]
     if st["min_live"]:

@@ -299,3 +299,17 @@ rc=0; "$POST" "$OUT/bad_geometry.ch10" --csv "$OUT/bad_geometry.csv" >"$OUT/bad_
   "$OUT/bad_geometry.log" || fail "corrupted geometry bytes: exit $rc: $(cat "$OUT/bad_geometry.log")"
 [ ! -e "$OUT/bad_geometry.csv" ] || fail "corrupted geometry bytes: an output was written"
 pass "recorded geometry bytes that fail their SHA-256: exit 2, the input named, nothing written"
+
+# 8. The geometry from disk instead (--clearance-geometry, the same files): identical samples; a
+# configuration naming a geometry the recording does not carry (the forged test's toy) and no
+# --clearance-geometry: "clearance NOT replayed", the clearance fields then differ (exit 1).
+GEOMETRY=$(cd "$(dirname "$0")/../../.." && pwd)/common/sim/scenarios/store_separation_geometry/geometry.json
+TOY=$(cd "$(dirname "$0")/.." && pwd)/forged/clearance/geometry.json
+rc=0; "$POST" --verify "$REC" --clearance-geometry "$GEOMETRY" >"$OUT/disk_geometry.log" 2>&1 || rc=$?
+[ "$rc" -eq 0 ] && grep -q "clearance: the geometry read from $GEOMETRY" "$OUT/disk_geometry.log" \
+  || fail "--clearance-geometry with the same files: exit $rc: $(cat "$OUT/disk_geometry.log")"
+printf '{"clearance": {"geometry": "%s", "alarm_threshold_m": 0.10}}\n' "$TOY" >"$OUT/toy_host.json"
+rc=0; "$POST" --verify "$REC" --config "$OUT/toy_host.json" >"$OUT/toy.log" 2>&1 || rc=$?
+[ "$rc" -eq 1 ] && grep -q "clearance NOT replayed: .*does not carry the clearance geometry '$TOY'" \
+  "$OUT/toy.log" || fail "a geometry the recording does not carry: exit $rc: $(cat "$OUT/toy.log")"
+pass "--clearance-geometry from disk: identical; a geometry not recorded: clearance NOT replayed, named"
