@@ -128,6 +128,23 @@ def plot_clearance(fti, st, t, t_label, names, d_true, threshold, outdir, figure
     savefig(fig, outdir, "clearance.png", figures)
 
 
+def write_clearance_csv(path, fti, st, t, names, d_true):
+    """Per sample: the live clearance of the nearest part with u, the k = 2 band and bound, the
+    truth at that part, whether it is inside the band, and the truth for every part."""
+    with open(path, "w") as f:
+        f.write("trigger_seq,t_since_release_s,part,clearance_m,u_clearance_m,band_low_m,band_high_m,"
+                "lower_bound_m,alarm,true_clearance_part_m,inside_k2,%s\n"
+                % ",".join("true_%s_m" % n.replace(" ", "_") for n in names))
+        for i in range(len(t)):
+            d, u = fti["clearance"][i], fti["u_clearance"][i]
+            f.write("%d,%.6f,%s,%.6f,%.6f,%.6f,%.6f,%.6f,%d,%.6f,%s,%s\n" % (
+                fti["trigger_seq"][i], t[i],
+                int(fti["clearance_part"][i]) if np.isfinite(d) else "", d, u, d - K * u, d + K * u,
+                fti["clearance_lower_bound"][i], (int(fti["status"][i]) & ALARM_BIT) != 0,
+                st["d_true_part"][i], int(abs(d - st["d_true_part"][i]) <= K * u) if st["mask"][i] else "",
+                ",".join("%.6f" % x for x in d_true[i])))
+
+
 def clearance_section(fti, truth, run_dir, tool, geometry, threshold, outdir, figures,
                       binomial_acceptance):
     """The section's table rows and note; None without clearance in the samples."""
@@ -140,6 +157,7 @@ def clearance_section(fti, truth, run_dir, tool, geometry, threshold, outdir, fi
     t_label = "time since release [s]" if is_release else "time since the first exposure [s]"
     st = clearance_statistics(fti, d_true, t, binomial_acceptance)
     plot_clearance(fti, st, t, t_label, names, d_true, threshold, outdir, figures)
+    write_clearance_csv(os.path.join(outdir, "clearance.csv"), fti, st, t, names, d_true)
     lo, hi = st["band"]
     rows = [("samples with a clearance and a truth (n)", "%d" % st["n"]),
             ("|live - truth| <= 2u (k = 2 coverage)", "%d of %d = %.1f %%" % (
@@ -172,7 +190,7 @@ def clearance_section(fti, truth, run_dir, tool, geometry, threshold, outdir, fi
     for k, (s0, s1, ta, tb, count, lbmin) in enumerate(st["episodes"]):
         rows.append(("  episode %d" % (k + 1), "trigger_seq %d..%d (%.3f .. %.3f s), %d samples, "
                      "lowest bound %.4f m" % (s0, s1, ta, tb, count, lbmin)))
-    note = ("Live: the host's nearest part (lowest k = 2 lower bound) per sample. Truth: the same "
+    note = ("Per sample: clearance.csv. Live: the host's nearest part (lowest k = 2 lower bound) per sample. Truth: the same "
             "meshes evaluated at the simulator's true store pose (storetrack-clearance-at-poses). "
             "The samples of one run share one calibration and survey draw, so their errors are "
             "correlated and the binomial band (which assumes independent samples) is a check of "
