@@ -32,6 +32,7 @@ EXTRINSIC_LABEL = "extrinsic / registration / body survey"
 from post_report import (AXES_ATT, AXES_POS, K, load_post_dir, plot_pose, render_post,  # noqa: E402
                          savefig)
 from storetrack_csv import read_csv  # noqa: E402
+from clearance_report import clearance_section, pooled_clearance_row  # noqa: E402
 
 
 class Checks:
@@ -353,6 +354,13 @@ def main():
                     help="run directories of the same test point with other seeds (other "
                          "calibration draws, each with sim/truth_*.csv): adds the k = 2 coverage "
                          "pooled over them and --run")
+    ap.add_argument("--clearance-geometry", metavar="JSON",
+                    help="the clearance geometry the host flew with: adds the clearance section "
+                         "(live with its k = 2 band against the clearance at the true pose)")
+    ap.add_argument("--clearance-tool", metavar="EXE",
+                    help="storetrack-clearance-at-poses (evaluates the true poses)")
+    ap.add_argument("--clearance-threshold", type=float, metavar="M",
+                    help="the host's clearance.alarm_threshold_m (drawn on the plot)")
     args = ap.parse_args()
     os.makedirs(args.out, exist_ok=True)
 
@@ -425,6 +433,13 @@ def main():
             ax.set_xlabel("time [s]")
         fig.suptitle("Store pose error against the simulator's truth, with the k = 2 band")
         savefig(fig, args.out, "error.png", figures)
+
+    # --- store-to-aircraft clearance against the clearance at the true pose ----------------------
+    clearance = None
+    if has_store_truth and args.clearance_geometry and args.clearance_tool:
+        clearance = clearance_section(fti, truth, args.run, args.clearance_tool,
+                                      args.clearance_geometry, args.clearance_threshold, args.out,
+                                      figures, binomial_acceptance)
 
     # --- mark position error against truth (every scenario) ------------------------------------
     mark_rows = []
@@ -578,6 +593,10 @@ def main():
         "1500." % (100.0 - share[0] - share[3] if share.sum() > 0 else float("nan")))
     if cov_table or mark_table:
         print("(" + one_draw_note + ")")
+    if clearance:
+        print("\nStore-to-aircraft clearance against the clearance at the true pose")
+        print(fmt_table(clearance["rows"], ["quantity", "value"]))
+        print("(" + clearance["note"] + ")")
     calib_headers = (["camera", "views", "points used", "rejected", "RMS [px]",
                       "own intrinsic fit RMS [px]", "baseline [mm] +/- u"],
                      ["mark", "cameras", "|residual| [mm]", "chi2 / dof", "p", "used", "outlier"])
@@ -594,6 +613,12 @@ def main():
     pool_table, pool_draws = [], 0
     if args.pool_runs:
         pool_table, pool_draws = pooled_coverage([args.run] + args.pool_runs)
+        if clearance:
+            row = pooled_clearance_row([args.run] + args.pool_runs, args.clearance_tool,
+                                       args.clearance_geometry, binomial_acceptance,
+                                       cluster_bootstrap_interval, read_csv)
+            if row:
+                pool_table.append(row)
         print("\nPooled over %d calibration draws (seeds): coverage should be about 95 %%, "
               "RMS error/u about 1. 95 %% CI: percentile interval of the pooled coverage over 2000 "
               "resamples of whole draws; honest range: where an honest instrument's pooled "
@@ -614,6 +639,11 @@ def main():
         f.write("</table>")
         if cov_table or mark_table:
             f.write("<p><i>%s</i></p>" % html.escape(one_draw_note))
+        if clearance:
+            f.write("<h2>Store-to-aircraft clearance against truth</h2><table>")
+            for k_, v in clearance["rows"]:
+                f.write("<tr><td>%s</td><td>%s</td></tr>" % (html.escape(k_), html.escape(v)))
+            f.write("</table><p><i>%s</i></p>" % html.escape(clearance["note"]))
         if calib:
             f.write("<h2>Calibration stage (storetrack-calib)</h2><p>%s</p>" % html.escape(calib[3]))
             for table, headers in ((calib[1], calib_headers[0]), (calib[2], calib_headers[1])):
@@ -640,6 +670,15 @@ def main():
         for name in figures:
             f.write("<h2>%s</h2><img src='%s'>" % (html.escape(name[:-4].replace("_", " ")), name))
         f.write("<h2>Host counters</h2><pre>%s</pre></body></html>" % html.escape(json.dumps(stats, indent=1)))
+    if clearance:
+        st = clearance["stats"]
+        with open(os.path.join(args.out, "clearance.json"), "w") as f:
+            json.dump({"n": st["n"], "inside_k2": st["inside"], "coverage": st["coverage"],
+                       "acceptance_band": list(st["band"]), "bound_held": st["held"],
+                       "bound_held_band_low": st["held_band_low"],
+                       "alarm_episodes": len(st["episodes"]), "parts": clearance["names"],
+                       "min_live_m": st["min_live"][0] if st["min_live"] else None,
+                       "min_true_m": st["min_true"][0] if st["min_true"] else None}, f, indent=1)
     print("\nreport: %s" % os.path.join(args.out, "index.html"))
     return 0
 

@@ -95,6 +95,24 @@ ProcessingChain make_processing_chain(const HostConfig& cfg, const InputFiles& i
   return chain;
 }
 
+std::unique_ptr<clearance::SampleClearance> load_clearance(
+    const HostConfig& cfg, const InputReader& read,
+    std::vector<output::RecordedInputFile>* read_files) {
+  if (cfg.clearance_geometry.empty()) return nullptr;
+  bool geometry_read = false;  // the first file read is the geometry file, the rest its meshes
+  const clearance::GeometryFileReader read_file = [&](const std::string& path) {
+    const RecordedInputKind kind =
+        geometry_read ? RecordedInputKind::kClearanceMesh : RecordedInputKind::kClearanceGeometry;
+    geometry_read = true;
+    std::string bytes = read(kind, path);
+    if (read_files) read_files->push_back({kind, path, {bytes.begin(), bytes.end()}});
+    return bytes;
+  };
+  return std::make_unique<clearance::SampleClearance>(
+      clearance::ClearanceModel::load(cfg.clearance_geometry, read_file),
+      cfg.clearance_alarm_threshold_m);
+}
+
 ProcessedExposure process_exposure(ProcessingChain& chain, const pipeline::AlignedExposure& e) {
   ProcessedExposure out;
   out.exposure = chain.health ? &chain.health->filter(e) : &e;

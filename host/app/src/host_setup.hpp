@@ -7,6 +7,7 @@
 #include <functional>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "host_options.hpp"
 #include "storetrack/camera/calibration_file.hpp"
@@ -49,6 +50,16 @@ struct ProcessingChain {
   std::unique_ptr<clearance::SampleClearance> clearance;
 };
 ProcessingChain make_processing_chain(const HostConfig& cfg, const InputFiles& in);
+
+/// The store-to-aircraft clearance of cfg.clearance_geometry (nullptr when none is configured),
+/// for storetrack-host and storetrack-post alike: the geometry file (kind kClearanceGeometry, its
+/// path as configured) and each STL file it names (kClearanceMesh, the path the geometry
+/// resolves) read through `read`; every file read is appended to `read_files` when given (the
+/// host records them). Throws (file, field or triangle named) on a file that cannot be read or
+/// a mesh or field refused.
+std::unique_ptr<clearance::SampleClearance> load_clearance(
+    const HostConfig& cfg, const InputReader& read,
+    std::vector<output::RecordedInputFile>* read_files = nullptr);
 
 /// One exposure as storetrack-host processes it, live and replayed by storetrack-post: exclude
 /// mode's filter, the processor, the calibration health test, the store-to-aircraft clearance of

@@ -46,14 +46,15 @@ void on_signal(int) {
   g_stop = true;
 }
 
-// The store-to-aircraft clearance (docs/clearance.md), when clearance.geometry is configured:
-// 0, or exit code 2 (a geometry file or mesh that cannot be read or is refused).
-int start_clearance(const HostConfig& cfg, std::unique_ptr<st::clearance::SampleClearance>& out) {
+// The store-to-aircraft clearance (docs/clearance.md), when clearance.geometry is configured,
+// read through `read`; the files read are kept in `read_files` for the recording. 0, or exit
+// code 2 (a geometry file or mesh that cannot be read or is refused).
+int start_clearance(const HostConfig& cfg, const st::hostapp::InputReader& read,
+                    std::unique_ptr<st::clearance::SampleClearance>& out,
+                    std::vector<st::output::RecordedInputFile>& read_files) {
   if (cfg.clearance_geometry.empty()) return 0;
   try {
-    out = std::make_unique<st::clearance::SampleClearance>(
-        st::clearance::ClearanceModel::load(cfg.clearance_geometry),
-        cfg.clearance_alarm_threshold_m);
+    out = st::hostapp::load_clearance(cfg, read, &read_files);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "storetrack-host: clearance.geometry '%s': %s\n",
                  cfg.clearance_geometry.c_str(), e.what());
@@ -81,7 +82,9 @@ int load_inputs(st::hostapp::HostOptions& o, st::hostapp::InputFiles& in,
     std::fprintf(stderr, "storetrack-host: %s\n", e.what());
     return 2;
   }
-  if (const int rc = start_clearance(cfg, clearance); rc != 0) return rc;
+  std::vector<st::output::RecordedInputFile> clearance_files;
+  if (const int rc = start_clearance(cfg, from_disk, clearance, clearance_files); rc != 0)
+    return rc;
   if (cfg.udp_port == 0 && cfg.can_interfaces.empty()) {
     std::fprintf(stderr, "storetrack-host: no input: give --udp-port and/or --can\n");
     return 2;
@@ -119,6 +122,9 @@ int load_inputs(st::hostapp::HostOptions& o, st::hostapp::InputFiles& in,
       argv.bytes.push_back(0);
     }
     cfg.ch10.inputs.push_back(std::move(argv));
+    // The clearance geometry and its meshes as they were read (the geometry the samples used).
+    for (auto& file : clearance_files)
+      cfg.ch10.inputs.push_back(std::move(file));
   }
   return 0;
 }

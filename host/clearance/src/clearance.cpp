@@ -8,6 +8,8 @@
 
 #include <Eigen/Eigenvalues>
 
+#include "storetrack/json/text_file.hpp"
+
 namespace storetrack::clearance {
 
 using geometry::Mat6;
@@ -52,10 +54,16 @@ ClearanceModel::ClearanceModel(std::vector<Body> bodies) {
 
 ClearanceModel ClearanceModel::load(const std::string& geometry_path,
                                     const std::optional<geometry::Transform>& T_p_w) {
-  const GeometryDescription description = read_geometry(geometry_path);
+  return load(geometry_path, jsonfile::read_text_file, T_p_w);
+}
+
+ClearanceModel ClearanceModel::load(const std::string& geometry_path,
+                                    const GeometryFileReader& read,
+                                    const std::optional<geometry::Transform>& T_p_w) {
+  const GeometryDescription description = parse_geometry(read(geometry_path), geometry_path);
   std::vector<Body> bodies;
   for (const BodyDescription& b : description.bodies)
-    bodies.push_back(load_body(b, T_p_w));
+    bodies.push_back(load_body(b, read, T_p_w));
   return ClearanceModel(std::move(bodies));
 }
 

@@ -87,7 +87,13 @@ GeometryDescription read_geometry(const std::string& path) {
 
 Body load_body(const BodyDescription& description,
                const std::optional<geometry::Transform>& T_p_w) {
-  Body body{description.name, description.frame, read_stl(description.stl_path)};
+  return load_body(description, jsonfile::read_text_file, T_p_w);
+}
+
+Body load_body(const BodyDescription& description, const GeometryFileReader& read,
+               const std::optional<geometry::Transform>& T_p_w) {
+  Body body{description.name, description.frame,
+            parse_stl(read(description.stl_path), description.stl_path)};
   if (description.closed) check_closed(body.mesh);
   const double extent_m = largest_extent(body.mesh) * description.scale_to_m;
   if (!(extent_m >= description.extent_min_m && extent_m <= description.extent_max_m))

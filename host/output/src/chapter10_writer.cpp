@@ -93,6 +93,10 @@ const char* to_string(RecordedInputKind kind) {
       return "initial marks";
     case RecordedInputKind::kCommandLine:
       return "command line";
+    case RecordedInputKind::kClearanceGeometry:
+      return "clearance geometry";
+    case RecordedInputKind::kClearanceMesh:
+      return "clearance mesh";
   }
   return "unknown";
 }

@@ -53,6 +53,9 @@ int parse_post_options(int argc, char** argv, PostOptions& o) {
       .existing_file();
   app.option("--config", o.config_path, "Use this host configuration, not the recorded")
       .existing_file();
+  app.option("--clearance-geometry", o.clearance_geometry_path,
+             "Use this clearance geometry file (and the STL files it names), not the recorded")
+      .existing_file();
   app.option("--log-level", o.log_level, "spdlog level")
       .one_of({"trace", "debug", "info", "warn", "error", "off"})
       .show_default();

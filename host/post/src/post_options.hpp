@@ -23,6 +23,8 @@ struct PostOptions {
   std::string report_dir;
   /// Read from disk instead of the recording (empty: the recorded one).
   std::string calibration_path, pylon_path, store_path, config_path;
+  /// The clearance geometry file (and the STL files it names) from disk instead of the recorded.
+  std::string clearance_geometry_path;
   std::string log_level = "warn";
 };
 

@@ -183,22 +183,44 @@ nlohmann::json stats_json(const Recording& r, const ReplayCounters& c, std::size
   return j;
 }
 
-// The clearance geometry the recorded configuration names (clearance.geometry). The recording
-// does not carry it (its meshes are separate files): read from its path when it is there, else
-// the replayed samples' clearance fields stay invalid and --verify shows them differing.
-std::unique_ptr<clearance::SampleClearance> replay_clearance(const hostapp::HostConfig& cfg) {
+// The clearance geometry the replay runs with (clearance.geometry of its configuration):
+// --clearance-geometry and the STL files it names from disk when given, else the recording's
+// copies (the geometry file and meshes as the host read them, by the paths it read them at).
+// Without either, or with a geometry refused: "clearance NOT replayed" and the replayed
+// samples' clearance fields stay invalid (--verify shows them differing).
+std::unique_ptr<clearance::SampleClearance> replay_clearance(const Recording& r,
+                                                             hostapp::HostConfig cfg,
+                                                             const PostOptions& p) {
+  const bool from_disk = !p.clearance_geometry_path.empty();
+  if (from_disk) cfg.clearance_geometry = p.clearance_geometry_path;
   if (cfg.clearance_geometry.empty()) return nullptr;
-  try {
-    auto c = std::make_unique<clearance::SampleClearance>(
-        clearance::ClearanceModel::load(cfg.clearance_geometry), cfg.clearance_alarm_threshold_m);
+  const std::string origin =
+      from_disk ? "read from " + cfg.clearance_geometry
+                : "recorded in " + r.files.front() + " ('" + cfg.clearance_geometry + "')";
+  if (!from_disk && !find_input(r, static_cast<int>(RecordedInputKind::kClearanceGeometry))) {
     std::fprintf(stderr,
-                 "storetrack-post: clearance: the geometry read from %s (not in the recording)\n",
+                 "storetrack-post: clearance NOT replayed: the recording does not carry the "
+                 "clearance geometry '%s' (give --clearance-geometry): the replayed samples' "
+                 "clearance fields are invalid\n",
                  cfg.clearance_geometry.c_str());
+    return nullptr;
+  }
+  const hostapp::InputReader read = [&](RecordedInputKind kind, const std::string& path) {
+    if (from_disk) return jsonfile::read_text_file(path);
+    const auto* recorded = find_input(r, static_cast<int>(kind), path);
+    if (!recorded)
+      throw InputError(r.files.front() + ": the recording does not carry the " +
+                       output::to_string(kind) + " '" + path + "'");
+    return std::string(recorded->bytes.begin(), recorded->bytes.end());
+  };
+  try {
+    auto c = hostapp::load_clearance(cfg, read);
+    std::fprintf(stderr, "storetrack-post: clearance: the geometry %s\n", origin.c_str());
     return c;
   } catch (const std::exception& e) {
     std::fprintf(stderr,
-                 "storetrack-post: clearance NOT replayed: %s (the recording does not carry the "
-                 "geometry): the replayed samples' clearance fields are invalid\n",
+                 "storetrack-post: clearance NOT replayed: %s: the replayed samples' clearance "
+                 "fields are invalid\n",
                  e.what());
     return nullptr;
   }
@@ -306,7 +328,7 @@ RecordedRun replay_recorded(const Recording& r, const hostapp::HostOptions& reco
                             const hostapp::InputFiles& recorded_inputs, bool smoothed) {
   hostapp::ProcessingChain chain =
       hostapp::make_processing_chain(recorded_options.cfg, recorded_inputs);
-  chain.clearance = replay_clearance(recorded_options.cfg);
+  chain.clearance = replay_clearance(r, recorded_options.cfg, PostOptions{});
   Replay replay(chain);
   replay.collect_measurements(smoothed);
   RecordedRun run;
@@ -477,7 +499,7 @@ int run(const PostOptions& given) {
                        " compares with a substituted input: give --calibration, --pylon-survey, "
                        "--store-survey or --config");
   hostapp::ProcessingChain chain = hostapp::make_processing_chain(o.cfg, in);
-  chain.clearance = replay_clearance(o.cfg);
+  chain.clearance = replay_clearance(r, o.cfg, p);
   smooth::CgOffset cg;
   if (!p.product_csv_path.empty()) cg = required_cg(in, o, r, p);
 

@@ -180,4 +180,10 @@ const ch10read::RecordedInput* find_input(const Recording& r, int kind) {
   return nullptr;
 }
 
+const ch10read::RecordedInput* find_input(const Recording& r, int kind, const std::string& name) {
+  for (const auto& in : r.inputs)
+    if (in.kind == kind && in.name == name) return &in;
+  return nullptr;
+}
+
 }  // namespace storetrack::post

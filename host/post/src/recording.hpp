@@ -55,5 +55,7 @@ Recording read_recording(const std::vector<std::string>& paths);
 
 /// The recorded input of `kind` (output::RecordedInputKind), or nullptr.
 const ch10read::RecordedInput* find_input(const Recording& r, int kind);
+/// The recorded input of `kind` recorded under `name` (the path the host read it at), or nullptr.
+const ch10read::RecordedInput* find_input(const Recording& r, int kind, const std::string& name);
 
 }  // namespace storetrack::post

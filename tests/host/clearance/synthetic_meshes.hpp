@@ -107,13 +107,15 @@ inline void append(TriangleMesh& to, const TriangleMesh& from) {
     to.triangles.push_back({t[0] + base, t[1] + base, t[2] + base});
 }
 
-/// A store in frame s (x forward, z down): ogive nose, cylinder and boattail of length `length`
-/// and radius `radius` about the x axis, closed by end caps, with four tail fins.
+/// A store (x from the nose, z down): ogive nose, cylinder and boattail of length `length` and
+/// radius `radius` about the x axis, closed by end caps, with four tail fins. The nose ends and
+/// the boattail starts at the given fractions of the length.
 /// stations x segments quads; about 2 stations segments + 2 segments + 32 triangles.
-inline TriangleMesh store(double length, double radius, int stations, int segments) {
+inline TriangleMesh store(double length, double radius, int stations, int segments,
+                          double nose_fraction = 0.2, double tail_fraction = 0.85) {
   TriangleMesh m;
   const auto r_at = [&](double x) {  // x in [0, length], nose at 0
-    const double nose = 0.2 * length, tail = 0.85 * length;
+    const double nose = nose_fraction * length, tail = tail_fraction * length;
     if (x < nose) return radius * std::sqrt(std::max(0.0, 1 - std::pow(1 - x / nose, 2))) + 1e-3;
     if (x > tail) return radius * (1 - 0.3 * (x - tail) / (length - tail));
     return radius;

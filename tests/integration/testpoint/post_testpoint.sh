@@ -31,6 +31,9 @@ assert post["replay"]["flush_events"] == 1, "the host's final flush replayed"
 assert post["replay"]["undecodable"] == 0 and post["replay"]["unknown_kind"] == 0
 PY
 cmp "$RUN/fti.csv" "$OUT/fti.csv" || fail "replayed CSV differs from the live run's"
+# The clearance replayed with the geometry the recording carries (not read from disk).
+grep -q "clearance: the geometry recorded in $REC" "$OUT/verify.log" \
+  || fail "the clearance was not replayed from the recorded geometry"
 pass "every sample bit-identical to the live run's ($(($(wc -l <"$OUT/fti.csv") - 1)) CSV rows identical too)"
 
 # 2. Never over an existing file: refused before the replay, the file untouched.
@@ -287,3 +290,34 @@ rc=0; "$POST" "$REC" --report "$OUT/report_full" >"$OUT/report_full.log" 2>&1 ||
   || fail "a non-empty report directory: exit $rc: $(cat "$OUT/report_full.log")"
 [ "$(ls "$OUT/report_full")" = kept ] || fail "a non-empty report directory was written into"
 pass "report: integrity counts the file's own, the torn copy torn, a non-empty directory refused"
+
+# 7. The recorded clearance geometry's bytes no longer match their SHA-256 (one character of the
+# geometry file changed in a copy): refused, exit 2, the input named; a recording without a
+# usable geometry is never replayed with a wrong one.
+/usr/bin/python3 - "$REC" "$OUT/bad_geometry.ch10" <<'PY'
+import sys
+data = bytearray(open(sys.argv[1], "rb").read())
+at = data.find(b'"storetrack-clearance-geometry"')
+assert at > 0 and data.find(b'"storetrack-clearance-geometry"', at + 1) < 0, "one geometry copy"
+data[at + 1] = ord("S")
+open(sys.argv[2], "wb").write(data)
+PY
+rc=0; "$POST" "$OUT/bad_geometry.ch10" --csv "$OUT/bad_geometry.csv" >"$OUT/bad_geometry.log" 2>&1 || rc=$?
+[ "$rc" -eq 2 ] && grep -q "recorded input '.*geometry.json' does not match its recorded SHA-256" \
+  "$OUT/bad_geometry.log" || fail "corrupted geometry bytes: exit $rc: $(cat "$OUT/bad_geometry.log")"
+[ ! -e "$OUT/bad_geometry.csv" ] || fail "corrupted geometry bytes: an output was written"
+pass "recorded geometry bytes that fail their SHA-256: exit 2, the input named, nothing written"
+
+# 8. The geometry from disk instead (--clearance-geometry, the same files): identical samples; a
+# configuration naming a geometry the recording does not carry (the forged test's toy) and no
+# --clearance-geometry: "clearance NOT replayed", the clearance fields then differ (exit 1).
+GEOMETRY=$(cd "$(dirname "$0")/../../.." && pwd)/common/sim/scenarios/store_separation_geometry/geometry.json
+TOY=$(cd "$(dirname "$0")/.." && pwd)/forged/clearance/geometry.json
+rc=0; "$POST" --verify "$REC" --clearance-geometry "$GEOMETRY" >"$OUT/disk_geometry.log" 2>&1 || rc=$?
+[ "$rc" -eq 0 ] && grep -q "clearance: the geometry read from $GEOMETRY" "$OUT/disk_geometry.log" \
+  || fail "--clearance-geometry with the same files: exit $rc: $(cat "$OUT/disk_geometry.log")"
+printf '{"clearance": {"geometry": "%s", "alarm_threshold_m": 0.10}}\n' "$TOY" >"$OUT/toy_host.json"
+rc=0; "$POST" --verify "$REC" --config "$OUT/toy_host.json" >"$OUT/toy.log" 2>&1 || rc=$?
+[ "$rc" -eq 1 ] && grep -q "clearance NOT replayed: .*does not carry the clearance geometry '$TOY'" \
+  "$OUT/toy.log" || fail "a geometry the recording does not carry: exit $rc: $(cat "$OUT/toy.log")"
+pass "--clearance-geometry from disk: identical; a geometry not recorded: clearance NOT replayed, named"

@@ -4,10 +4,13 @@
 # ids 0,0,1,1) render their camera's frames from the same scenario and seed, centroid them and
 # send MarkObservations over UDP loopback; storetrack-host aligns, triangulates and writes
 # Chapter 10 + iNET-X + CSV. Camera 3's unit stops 20 frames early (a camera that died), so the
-# last exposures must come out partial after the bounded wait. check_testpoint.py then compares
-# the host's outputs with the simulator's truth and validates the Chapter 10 file.
+# last exposures must come out partial after the bounded wait. The host evaluates the
+# store-to-aircraft clearance with the scenario's checked-in geometry (docs/clearance.md, "In the
+# main job") and records it. check_testpoint.py then compares the host's outputs with the
+# simulator's truth (the clearance against the clearance at the true pose, evaluated by
+# CLEARANCE_AT_POSES) and validates the Chapter 10 file.
 set -euo pipefail
-SIM="$1"; UNIT="$2"; HOST="$3"; ROOT="$4"; OUT="$5"
+SIM="$1"; UNIT="$2"; HOST="$3"; ROOT="$4"; OUT="$5"; CLEARANCE_AT_POSES="$6"
 NEXP=220
 rm -rf "$OUT"; mkdir -p "$OUT/sim"
 PORT=$(( 22000 + $$ % 1000 ))  # below the ephemeral ports (32768-60999)
@@ -21,11 +24,13 @@ PY
 # Initial mark positions as an installation survey would give them (exposure 0, 1 mm noise).
 /usr/bin/python3 "$ROOT/tools/sim_setup.py" --initial-marks "$OUT/sim/truth_marks.csv" "$OUT/initial_marks.json"
 STORE_SURVEY="$OUT/sim/survey_store.json"
+GEOMETRY="$ROOT/common/sim/scenarios/store_separation_geometry/geometry.json"
+printf '{"clearance": {"geometry": "%s", "alarm_threshold_m": 0.10}}\n' "$GEOMETRY" >"$OUT/host.json"
 "$HOST" --calibration "$OUT/sim/rig_calibrated.json" --pylon-survey "$OUT/sim/survey_pylon.json" \
   --store-survey "$STORE_SURVEY" --initial-marks "$OUT/initial_marks.json" \
   --udp-port "$PORT" --udp-bind 127.0.0.1 --udp-source 0@127.0.0.1 --udp-source 1@127.0.0.1 --ch10 "$OUT/out.ch10" --csv "$OUT/fti.csv" \
   --marks-csv "$OUT/marks.csv" --inetx "127.0.0.1:$((PORT + 1))" --stats-json "$OUT/stats.json" \
-  --max-wait-ms 3000 --idle-exit-s 5 --expect-exposures "$NEXP" >"$OUT/host.log" 2>&1 &
+  --config "$OUT/host.json" --max-wait-ms 3000 --idle-exit-s 5 --expect-exposures "$NEXP" >"$OUT/host.log" 2>&1 &
 HOST_PID=$!
 UNIT_PIDS=""
 trap 'for p in $HOST_PID $UNIT_PIDS; do kill "$p" 2>/dev/null || true; done' EXIT
@@ -42,4 +47,4 @@ UNIT_PIDS=""
 wait $HOST_PID || { cat "$OUT/host.log"; echo "storetrack-host failed"; exit 1; }
 trap - EXIT
 cat "$OUT/host.log"
-/usr/bin/python3 "$(dirname "$0")/check_testpoint.py" "$ROOT" "$OUT"
+/usr/bin/python3 "$(dirname "$0")/check_testpoint.py" "$ROOT" "$OUT" "$CLEARANCE_AT_POSES"

@@ -64,6 +64,11 @@ class ClearanceModel {
   /// read_geometry + load_body for each body (T_p_w for aircraft-frame bodies).
   static ClearanceModel load(const std::string& geometry_path,
                              const std::optional<geometry::Transform>& T_p_w = std::nullopt);
+  /// The same with every file's bytes through `read` (the geometry file first, then each STL
+  /// at the path the geometry resolves): storetrack-host reads from disk and records what it
+  /// read, storetrack-post reads the recording's copies.
+  static ClearanceModel load(const std::string& geometry_path, const GeometryFileReader& read,
+                             const std::optional<geometry::Transform>& T_p_w = std::nullopt);
 
   /// One entry per aircraft part, in file order. cov_T_p_s over the left perturbation of T_p_s.
   /// A covariance that is not finite gives NaN uncertainties and bounds (never a throw).

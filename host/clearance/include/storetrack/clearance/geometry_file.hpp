@@ -11,6 +11,7 @@
 //       "closed": false, "extent_range_m": [1, 20]}]}
 #pragma once
 
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -64,6 +65,13 @@ struct Body {
 /// extent after the unit conversion against [extent_min_m, extent_max_m], then into frame p
 /// (aircraft-frame bodies need T_p_w; refused without it).
 Body load_body(const BodyDescription& description,
+               const std::optional<geometry::Transform>& T_p_w = std::nullopt);
+
+/// The bytes of a file by its path (the geometry file, or an STL path as the geometry resolves
+/// it): from disk, or from elsewhere (storetrack-post: a recording's inputs). Throws naming it.
+using GeometryFileReader = std::function<std::string(const std::string& path)>;
+/// The same as load_body with the STL's bytes through `read`.
+Body load_body(const BodyDescription& description, const GeometryFileReader& read,
                const std::optional<geometry::Transform>& T_p_w = std::nullopt);
 
 }  // namespace storetrack::clearance

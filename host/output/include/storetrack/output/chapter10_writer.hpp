@@ -44,6 +44,8 @@ enum class RecordedInputKind : std::uint8_t {
   kHostConfig = 3,
   kInitialMarks = 4,
   kCommandLine = 5,
+  kClearanceGeometry = 6,  ///< the clearance geometry file (docs/clearance.md)
+  kClearanceMesh = 7,      ///< an STL file it names; name: the path the geometry resolves
 };
 const char* to_string(RecordedInputKind kind);
 
