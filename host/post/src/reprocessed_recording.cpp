@@ -82,7 +82,8 @@ std::vector<Substitute> substitutes(const hostapp::HostOptions& used, const Subs
 }
 
 // The used bytes of each input in the source's order (an input only a substitute brought, e.g. a
-// configuration the live run had none of, after them), the command line naming the substitutes.
+// configuration the live run had none of, after them), the command line naming the substitutes
+// where the source had its own (the host records the clearance geometry after it).
 std::vector<output::RecordedInputFile> used_input_files(const Recording& source,
                                                         const hostapp::HostOptions& used,
                                                         const UsedInputs& inputs,
@@ -92,10 +93,13 @@ std::vector<output::RecordedInputFile> used_input_files(const Recording& source,
     if (s.substituted) args = command_line_with(std::move(args), s.option, *s.path);
   std::map<RecordedInputKind, output::RecordedInputFile> pending = inputs.files();
   std::vector<output::RecordedInputFile> files;
+  bool command_line = false;
   for (const ch10read::RecordedInput& recorded : source.inputs) {
     const auto kind = static_cast<RecordedInputKind>(recorded.kind);
-    if (kind == RecordedInputKind::kCommandLine) continue;  // last, rewritten
-    if (const auto it = pending.find(kind); it != pending.end()) {
+    if (kind == RecordedInputKind::kCommandLine) {
+      files.push_back({RecordedInputKind::kCommandLine, "argv", nul_ended(args)});
+      command_line = true;
+    } else if (const auto it = pending.find(kind); it != pending.end()) {
       files.push_back(std::move(it->second));
       pending.erase(it);
     } else {
@@ -104,7 +108,7 @@ std::vector<output::RecordedInputFile> used_input_files(const Recording& source,
   }
   for (auto& [kind, file] : pending)
     files.push_back(std::move(file));
-  files.push_back({RecordedInputKind::kCommandLine, "argv", nul_ended(args)});
+  if (!command_line) files.push_back({RecordedInputKind::kCommandLine, "argv", nul_ended(args)});
   return files;
 }
 
