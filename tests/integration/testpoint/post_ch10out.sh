@@ -103,12 +103,13 @@ import csv, hashlib, json, struct, sys
 new, src = json.load(open(sys.argv[1])), json.load(open(sys.argv[2]))
 moved = open(sys.argv[3], "rb").read()
 ins = {i["kind"]: i for i in new["recorded_inputs"]}
+by_name = {(i["kind"], i["name"]): i for i in new["recorded_inputs"]}  # meshes share kind 7
 cal = ins[0]
 assert bytes.fromhex(cal["bytes_hex"]) == moved and cal["name"] == sys.argv[3], "calibration bytes"
 assert cal["sha256"] == hashlib.sha256(moved).hexdigest(), "calibration SHA-256"
 for i in src["recorded_inputs"]:
     if i["kind"] not in (0, 5):
-        assert ins[i["kind"]] == i, "input %d changed" % i["kind"]
+        assert by_name[(i["kind"], i["name"])] == i, "input %d (%s) changed" % (i["kind"], i["name"])
 argv = bytes.fromhex(ins[5]["bytes_hex"]).split(b"\0")[:-1]
 assert argv[argv.index(b"--calibration") + 1] == sys.argv[3].encode(), argv
 def f32(v):  # the block's float32; NaN (invalid) is null in the reader's JSON, "nan" in the CSV
