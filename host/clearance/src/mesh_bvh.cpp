@@ -26,8 +26,22 @@ double triangle_box_distance(const Triangle& t, const Eigen::AlignedBox3d& box) 
   return gap.norm();
 }
 
+/// A face normal's rounding is at most ~eps / kDegenerateHeightRatio = 2.3e-10 rad for the
+/// thinnest triangle a mesh may hold; times a lever of ~10 m that is 2.3e-9 m: 0.1 um is above
+/// it, and far below any distance difference the pruning is for.
+constexpr double kPlaneGapMargin_m = 1e-7;
+
 Vec3 face_normal(const Triangle& t) {
   return (t[1] - t[0]).cross(t[2] - t[0]).normalized();
+}
+
+/// Gap between the plane through `on_plane` with unit normal n and a triangle wholly on one side
+/// of it (0 when it crosses): a lower bound of the distance from the plane's triangle to it.
+/// Lowered by kPlaneGapMargin_m so that rounding never lifts it above the exact test's distance.
+double plane_gap(const Vec3& n, const Vec3& on_plane, const Triangle& t) {
+  const double h0 = n.dot(t[0] - on_plane), h1 = n.dot(t[1] - on_plane),
+               h2 = n.dot(t[2] - on_plane);
+  return std::max({std::min({h0, h1, h2}), std::min({-h0, -h1, -h2}), 0.0}) - kPlaneGapMargin_m;
 }
 
 /// A store node's box in frame p: the box of its rotated box (centre R c + t, half |R| h).
@@ -58,7 +72,7 @@ class DualTraversal {
     const auto k = static_cast<std::size_t>(j);
     return {triangle_distance(posed_triangle(i), aircraft_.triangles()[k]),
             store_.mesh_index()[static_cast<std::size_t>(i)], aircraft_.mesh_index()[k],
-            face_normal(aircraft_.triangles()[k])};
+            aircraft_.face_normals()[k]};
   }
 
   Triangle posed_triangle(std::int32_t i) const {
@@ -72,15 +86,20 @@ class DualTraversal {
   void leaf(const MeshBvh::Node& sn, const MeshBvh::Node& an) {
     for (std::int32_t i = sn.first; i < sn.first + sn.count; ++i) {
       const Triangle ts = posed_triangle(i);
+      const Vec3 ns = R_ * store_.face_normals()[static_cast<std::size_t>(i)];
       const double lever = triangle_lever_arm(i);
       for (std::int32_t j = an.first; j < an.first + an.count; ++j) {
         const auto k = static_cast<std::size_t>(j);
-        if (triangle_box_distance(ts, aircraft_.triangle_boxes()[k]) >= visitor_.bound(lever))
+        const Triangle& ta = aircraft_.triangles()[k];
+        const double bound = visitor_.bound(lever);
+        if (triangle_box_distance(ts, aircraft_.triangle_boxes()[k]) >= bound ||
+            plane_gap(aircraft_.face_normals()[k], ta[0], ts) >= bound ||
+            plane_gap(ns, ts[0], ta) >= bound)
           continue;
-        const ClosestPair c = triangle_distance(ts, aircraft_.triangles()[k]);
+        const ClosestPair c = triangle_distance(ts, ta);
         if (c.distance < visitor_.bound(lever))
           visitor_.accept({c, store_.mesh_index()[static_cast<std::size_t>(i)],
-                           aircraft_.mesh_index()[k], face_normal(aircraft_.triangles()[k])},
+                           aircraft_.mesh_index()[k], aircraft_.face_normals()[k]},
                           {i, j});
       }
     }
@@ -88,15 +107,13 @@ class DualTraversal {
 
   double triangle_lever_arm(std::int32_t i) const {
     if constexpr (!Visitor::kUsesLeverArm) return 0.0;
-    const Triangle& q = store_.triangles()[static_cast<std::size_t>(i)];
-    return std::max({q[0].norm(), q[1].norm(), q[2].norm()});
+    return store_.triangle_radii()[static_cast<std::size_t>(i)];
   }
 
-  /// bound() for the pairs under store node s (its box about the store's origin bounds r).
+  /// bound() for the pairs under store node s.
   double bound(std::int32_t s) const {
     if constexpr (!Visitor::kUsesLeverArm) return visitor_.bound(0.0);
-    const MeshBvh::Node& n = store_.nodes()[static_cast<std::size_t>(s)];
-    return visitor_.bound(n.centre.norm() + n.half.norm());
+    return visitor_.bound(store_.node_radii()[static_cast<std::size_t>(s)]);
   }
 
   PosedBox posed(std::int32_t s) const {
@@ -200,11 +217,24 @@ MeshBvh::MeshBvh(const TriangleMesh& mesh) {
   build(0, 0, static_cast<std::int32_t>(n), by_mesh_index, centroids);
   triangles_.reserve(n);
   triangle_boxes_.reserve(n);
+  face_normals_.reserve(n);
   for (const std::int32_t t : mesh_index_) {
     triangles_.push_back(by_mesh_index[static_cast<std::size_t>(t)]);
     const Triangle& tri = triangles_.back();
+    face_normals_.push_back(face_normal(tri));
     triangle_boxes_.emplace_back(tri[0].cwiseMin(tri[1]).cwiseMin(tri[2]),
                                  tri[0].cwiseMax(tri[1]).cwiseMax(tri[2]));
+    triangle_radii_.push_back(std::max({tri[0].norm(), tri[1].norm(), tri[2].norm()}));
+  }
+  // Children come after their parent in nodes_: from the back, each node's children are done.
+  node_radii_.assign(nodes_.size(), 0.0);
+  for (std::size_t i = nodes_.size(); i-- > 0;) {
+    const Node& node = nodes_[i];
+    const auto first = static_cast<std::size_t>(node.first);
+    node_radii_[i] = node.count > 0
+                         ? *std::max_element(triangle_radii_.begin() + node.first,
+                                             triangle_radii_.begin() + node.first + node.count)
+                         : std::max(node_radii_[first], node_radii_[first + 1]);
   }
 }
 

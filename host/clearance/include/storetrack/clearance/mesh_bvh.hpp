@@ -32,8 +32,14 @@ class MeshBvh {
   const std::vector<std::int32_t>& mesh_index() const { return mesh_index_; }
   /// Each triangle's own box (tree order): lets a leaf pair skip triangles before the exact test.
   const std::vector<Eigen::AlignedBox3d>& triangle_boxes() const { return triangle_boxes_; }
+  /// Each triangle's unit face normal (tree order): its plane's gap to another triangle is a
+  /// second lower bound of their distance, tight where a vertex faces the face.
+  const std::vector<geometry::Vec3>& face_normals() const { return face_normals_; }
   /// Largest distance of a vertex from the frame's origin (bounds the lever arm of a rotation).
   double radius() const { return radius_; }
+  /// The same per node and per triangle (tree order): the lever arm of the points they hold.
+  const std::vector<double>& node_radii() const { return node_radii_; }
+  const std::vector<double>& triangle_radii() const { return triangle_radii_; }
 
  private:
   void build(std::int32_t node, std::int32_t first, std::int32_t count,
@@ -44,6 +50,9 @@ class MeshBvh {
   std::vector<Triangle> triangles_;
   std::vector<std::int32_t> mesh_index_;
   std::vector<Eigen::AlignedBox3d> triangle_boxes_;
+  std::vector<geometry::Vec3> face_normals_;
+  std::vector<double> node_radii_;
+  std::vector<double> triangle_radii_;
   double radius_ = 0;
 };
 
