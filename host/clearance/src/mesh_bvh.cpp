@@ -315,7 +315,8 @@ void pairs_within(const MeshBvh& store_s, const geometry::Transform& T_p_s,
 
 double LeverArmReach::at(double lever_arm_m) const {
   const double by_blocks = u_translation_m + u_rotation_rad * lever_arm_m;
-  const double by_whole = std::sqrt(lambda_max * (1 + lever_arm_m * lever_arm_m));
+  const double whole2 = lambda_max * (1 + lever_arm_m * lever_arm_m);
+  const double by_whole = by_blocks * by_blocks <= whole2 ? by_blocks : std::sqrt(whole2);
   // 1e-9 above the bound: a pair's u, rounded, cannot then exceed it (the filter downstream
   // compares the same quantities and would otherwise lose a pair in the last ulp).
   return base_m + sigmas * std::min(by_blocks, by_whole) * (1 + 1e-9);

@@ -4,7 +4,9 @@
 // warm-started descent and the per-node feature-switch reach give the exact minimum over all
 // triangle pairs, that pair's own closest points and feature, its u, and exactly the candidate
 // pairs that the brute force finds within the feature-switch rule; a sample's result does not
-// depend on the samples before it.
+// depend on the samples before it. The brute force assembles each pair's distance from all 15
+// feature pairs itself; triangle_distance, which skips edge pairs that cannot win, must agree
+// with it on every pair bit for bit.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -63,11 +65,43 @@ Mat6 covariance(int i) {
   return C;
 }
 
+/// Every one of the 15 feature pairs of two triangles (6 vertex-face, 9 edge-edge), from the
+/// public primitives, none skipped, in triangle_distance's order; then the crossing test.
+ClosestPair every_feature_pair(const Triangle& a, const Triangle& b) {
+  ClosestPair best;
+  double best2 = std::numeric_limits<double>::infinity();
+  const auto consider = [&](const Vec3& pa, const Vec3& pb, Feature f) {
+    if ((pa - pb).squaredNorm() < best2) {
+      best2 = (pa - pb).squaredNorm();
+      best = {0.0, pa, pb, f};
+    }
+  };
+  for (const Vec3& v : a)
+    consider(v, closest_point_on_triangle(v, b), Feature::kVertexFace);
+  for (const Vec3& v : b)
+    consider(closest_point_on_triangle(v, a), v, Feature::kFaceVertex);
+  for (std::size_t i = 0; i < 3; ++i)
+    for (std::size_t j = 0; j < 3; ++j) {
+      Vec3 on_a, on_b;
+      closest_points_of_segments(a[i], a[(i + 1) % 3], b[j], b[(j + 1) % 3], on_a, on_b);
+      consider(on_a, on_b, Feature::kEdgeEdge);
+    }
+  best.distance = std::sqrt(best2);
+  Vec3 x;
+  for (std::size_t i = 0; i < 3 && best.distance > 0; ++i)
+    if (segment_crosses_triangle(a[i], a[(i + 1) % 3], b, x) ||
+        segment_crosses_triangle(b[i], b[(i + 1) % 3], a, x))
+      best = {0.0, x, x, Feature::kPenetration};
+  if (best.distance == 0 && best.feature != Feature::kPenetration)
+    best.feature = Feature::kPenetration;
+  return best;
+}
+
 struct BruteForce {
   ClosestPair best;
   std::size_t store = 0, aircraft = 0;
   std::vector<ClosestPair> all;  ///< [store * aircraft triangles + aircraft]
-  std::vector<std::size_t> faces;
+  int primitive_differs = 0;     ///< pairs where triangle_distance is not every_feature_pair
 };
 
 BruteForce brute_force(const TriangleMesh& store, const Transform& T, const TriangleMesh& air) {
@@ -76,7 +110,12 @@ BruteForce brute_force(const TriangleMesh& store, const Transform& T, const Tria
   for (std::size_t i = 0; i < store.triangles.size(); ++i) {
     const Triangle a = triangle_of(store, i, T);
     for (std::size_t j = 0; j < air.triangles.size(); ++j) {
-      b.all.push_back(triangle_distance(a, triangle_of(air, j, Transform::Identity())));
+      const Triangle t = triangle_of(air, j, Transform::Identity());
+      b.all.push_back(every_feature_pair(a, t));
+      const ClosestPair fast = triangle_distance(a, t);
+      b.primitive_differs += fast.distance != b.all.back().distance ||
+                             fast.p_a != b.all.back().p_a || fast.p_b != b.all.back().p_b ||
+                             fast.feature != b.all.back().feature;
       if (b.all.back().distance < b.best.distance) {
         b.best = b.all.back();
         b.store = i;
@@ -105,6 +144,7 @@ TEST(ClearanceFastPath, AgreesWithTheBruteForceAlongAFeatureSwitchingTrajectory)
     const Mat6 C = covariance(i);
     const BruteForce truth = brute_force(store, T, air);
     ASSERT_GT(truth.best.distance, 0) << i;  // the trajectory never touches
+    EXPECT_EQ(truth.primitive_differs, 0) << i;
     const PartClearance r = warm.evaluate(T, C).front();
 
     // The minimum, and the points and feature of a pair that attains it (ties between
