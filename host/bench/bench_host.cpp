@@ -136,6 +136,50 @@ void BM_ExposureMatchAndProcessClearance(benchmark::State& state) {
 }
 BENCHMARK(BM_ExposureMatchAndProcessClearance)->Arg(0)->Arg(1);
 
+// The host's clearance cost taken apart: the poses and covariances that the processor fits over
+// the store separation (collected once, not timed), then SampleClearance::apply alone on them in
+// exposure order with the trees hot in cache. Beside BM_ExposureMatchAndProcessClearance/1 - /0 it
+// tells the cost of the poses themselves from that of the processor evicting the trees.
+struct FittedPose {
+  geometry::Transform T_p_s;
+  geometry::Mat6 cov;
+};
+const std::vector<FittedPose>& fitted_poses() {
+  static const std::vector<FittedPose> poses = [] {
+    const Data& d = data();
+    auto proc = make_processor(d);
+    std::vector<FittedPose> out;
+    for (const pipeline::AlignedExposure& ex : d.exposures) {
+      const pipeline::ExposureResult r = proc.process(ex);
+      if (r.T_p_s.valid) out.push_back({r.T_p_s.T, r.T_p_s.cov});
+    }
+    return out;
+  }();
+  return poses;
+}
+
+void BM_ClearanceAtHostPoses(benchmark::State& state) {
+  const std::vector<FittedPose>& poses = fitted_poses();
+  clearance::SampleClearance sample_clearance(
+      clearance::ClearanceModel(
+          {{"store", clearance::BodyFrame::kStore, test::store(3.0, 0.2, 78, 32)},
+           {"aircraft", clearance::BodyFrame::kPylon, test::aircraft(100, 100, 0.6)}}),
+      0.1);
+  std::size_t k = 0;
+  double candidate_pairs = 0;
+  for (auto _ : state) {
+    msg::FtiSample sample{};
+    sample_clearance.apply(poses[k].T_p_s, poses[k].cov, sample);
+    benchmark::DoNotOptimize(sample);
+    candidate_pairs += sample_clearance.parts().front().candidate_pairs;
+    if (++k == poses.size()) k = 0;
+  }
+  state.counters["poses"] = static_cast<double>(poses.size());
+  state.counters["mean_candidate_pairs"] =
+      benchmark::Counter(candidate_pairs, benchmark::Counter::kAvgIterations);
+}
+BENCHMARK(BM_ClearanceAtHostPoses)->Unit(benchmark::kMicrosecond);
+
 // The same with the simulator's truth ids (no matching): the geometry and uncertainty alone.
 void BM_ExposureProcessKnownIds(benchmark::State& state) {
   const Data& d = data();

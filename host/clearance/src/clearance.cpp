@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <numbers>
+#include <type_traits>
 #include <utility>
 
 #include <Eigen/Eigenvalues>
@@ -50,6 +51,7 @@ ClearanceModel::ClearanceModel(std::vector<Body> bodies) {
     (b.frame == BodyFrame::kStore ? store_ : aircraft_).push_back({b.name, MeshBvh(b.mesh)});
   if (store_.empty() || aircraft_.empty())
     throw std::invalid_argument("clearance needs at least one store part and one aircraft part");
+  previous_.resize(store_.size() * aircraft_.size());
 }
 
 ClearanceModel ClearanceModel::load(const std::string& geometry_path,
@@ -76,15 +78,25 @@ std::vector<PartClearance> ClearanceModel::evaluate(const geometry::Transform& T
 
 void ClearanceModel::evaluate(const geometry::Transform& T_p_s, const Mat6& cov_T_p_s,
                               std::vector<PartClearance>& out) {
-  // lambda_max bounds every pair's variance: J^T C J <= lambda_max |J|^2, |J|^2 <= 1 + r^2.
-  const double lambda_max =
-      cov_T_p_s.allFinite() ? Eigen::SelfAdjointEigenSolver<Mat6>(cov_T_p_s, Eigen::EigenvaluesOnly)
-                                  .eigenvalues()
-                                  .maxCoeff()
-                            : std::numeric_limits<double>::quiet_NaN();
+  // lambda_max bounds every pair's variance: J^T C J <= lambda_max |J|^2, |J|^2 <= 1 + r^2;
+  // the blocks' bound sqrt(J^T C J) <= u_rotation r + u_translation is often tighter.
+  const auto largest_eigenvalue = [](const auto& symmetric) {
+    using Matrix = std::decay_t<decltype(symmetric)>;
+    return Eigen::SelfAdjointEigenSolver<Matrix>(symmetric, Eigen::EigenvaluesOnly)
+        .eigenvalues()
+        .maxCoeff();
+  };
+  CovarianceBounds bounds{std::numeric_limits<double>::quiet_NaN(), 0, 0};
+  if (cov_T_p_s.allFinite()) {
+    bounds.lambda_max = largest_eigenvalue(Mat6(cov_T_p_s));
+    bounds.u_rotation_rad = std::sqrt(
+        std::max(0.0, largest_eigenvalue(geometry::Mat3(cov_T_p_s.topLeftCorner<3, 3>()))));
+    bounds.u_translation_m = std::sqrt(
+        std::max(0.0, largest_eigenvalue(geometry::Mat3(cov_T_p_s.bottomRightCorner<3, 3>()))));
+  }
   out.resize(aircraft_.size());
   for (std::size_t i = 0; i < aircraft_.size(); ++i)
-    out[i] = evaluate_part(aircraft_[i], T_p_s, cov_T_p_s, lambda_max);
+    out[i] = evaluate_part(i, T_p_s, cov_T_p_s, bounds);
 }
 
 namespace {
@@ -121,15 +133,20 @@ double union_lower_bound(const Features& features, double hi) {
 // The closest pair over the store parts; then the feature-switch pass (docs/clearance.md):
 // every pair that could add to the miss probability of the bound lies within
 // d_min - 2 u_min + kCandidateReachSigmas u_bound, u_bound = sqrt(lambda_max (1 + r^2)) with r
-// the store part's radius about its origin (J^T C J <= lambda_max |J|^2, |J|^2 <= 1 + r^2).
-PartClearance ClearanceModel::evaluate_part(const Part& part, const geometry::Transform& T_p_s,
-                                            const Mat6& cov, double lambda_max) {
+// the store part's radius about its origin (J^T C J <= lambda_max |J|^2, |J|^2 <= 1 + r^2);
+// the descent takes that reach per store node, with r the node's own lever arm (LeverArmReach).
+PartClearance ClearanceModel::evaluate_part(std::size_t aircraft_part,
+                                            const geometry::Transform& T_p_s, const Mat6& cov,
+                                            const CovarianceBounds& bounds) {
+  const Part& part = aircraft_[aircraft_part];
   const Vec3 t = T_p_s.translation();
   MeshPair best;
   best.closest.distance = std::numeric_limits<double>::infinity();
   const Part* best_store = nullptr;
-  for (const Part& s : store_) {
-    const MeshPair pair = closest_pair(s.tree, T_p_s, part.tree);
+  for (std::size_t k = 0; k < store_.size(); ++k) {
+    const Part& s = store_[k];
+    const MeshPair pair =
+        closest_pair(s.tree, T_p_s, part.tree, previous_[aircraft_part * store_.size() + k]);
     if (pair.closest.distance < best.closest.distance) {
       best = pair;
       best_store = &s;
@@ -153,12 +170,12 @@ PartClearance ClearanceModel::evaluate_part(const Part& part, const geometry::Tr
 
   const double single = r.lower_bound_m;
   candidates_.clear();
+  const LeverArmReach reach_at{single, kCandidateReachSigmas, bounds.u_translation_m,
+                               bounds.u_rotation_rad, bounds.lambda_max};
   for (const Part& s : store_) {
-    const double u_bound = std::sqrt(lambda_max * (1 + s.tree.radius() * s.tree.radius()));
-    const double reach = r.lower_bound_m + kCandidateReachSigmas * u_bound;
-    if (reach <= r.distance_m) continue;  // every pair is >= d_min: none can add to the sum
+    if (reach_at.at(s.tree.radius()) <= r.distance_m) continue;  // no pair can add to the sum
     pairs_.clear();
-    pairs_within(s.tree, T_p_s, part.tree, reach, pairs_);
+    pairs_within(s.tree, T_p_s, part.tree, reach_at, pairs_);
     for (const MeshPair& pair : pairs_) {
       const Vec6 J = distance_jacobian(pair.closest.p_a, t, contact_normal(pair));
       const double u = standard_uncertainty(J, cov);

@@ -26,8 +26,22 @@ double triangle_box_distance(const Triangle& t, const Eigen::AlignedBox3d& box) 
   return gap.norm();
 }
 
+/// A face normal's rounding is at most ~eps / kDegenerateHeightRatio = 2.3e-10 rad for the
+/// thinnest triangle a mesh may hold; times a lever of ~10 m that is 2.3e-9 m: 0.1 um is above
+/// it, and far below any distance difference the pruning is for.
+constexpr double kPlaneGapMargin_m = 1e-7;
+
 Vec3 face_normal(const Triangle& t) {
   return (t[1] - t[0]).cross(t[2] - t[0]).normalized();
+}
+
+/// Gap between the plane through `on_plane` with unit normal n and a triangle wholly on one side
+/// of it (0 when it crosses): a lower bound of the distance from the plane's triangle to it.
+/// Lowered by kPlaneGapMargin_m so that rounding never lifts it above the exact test's distance.
+double plane_gap(const Vec3& n, const Vec3& on_plane, const Triangle& t) {
+  const double h0 = n.dot(t[0] - on_plane), h1 = n.dot(t[1] - on_plane),
+               h2 = n.dot(t[2] - on_plane);
+  return std::max({std::min({h0, h1, h2}), std::min({-h0, -h1, -h2}), 0.0}) - kPlaneGapMargin_m;
 }
 
 /// A store node's box in frame p: the box of its rotated box (centre R c + t, half |R| h).
@@ -35,8 +49,10 @@ struct PosedBox {
   Vec3 centre, half;
 };
 
-/// Branch and bound over both trees. The visitor's bound() is the distance beyond which a pair
-/// of nodes or triangles cannot matter; accept() takes each triangle pair nearer than bound().
+/// Branch and bound over both trees. The visitor's bound(r) is the distance beyond which a pair
+/// of nodes or triangles cannot matter, r the largest distance of the store node's or
+/// triangle's points from the store's origin (computed only when Visitor::kUsesLeverArm);
+/// accept() takes each triangle pair nearer than bound(r), with its places in the trees.
 template <typename Visitor>
 class DualTraversal {
  public:
@@ -51,6 +67,14 @@ class DualTraversal {
 
   void run() { visit(0, posed(0), 0); }
 
+  /// The pair of the trees' triangles i (store) and j (aircraft), the store's posed.
+  MeshPair pair(std::int32_t i, std::int32_t j) const {
+    const auto k = static_cast<std::size_t>(j);
+    return {triangle_distance(posed_triangle(i), aircraft_.triangles()[k]),
+            store_.mesh_index()[static_cast<std::size_t>(i)], aircraft_.mesh_index()[k],
+            aircraft_.face_normals()[k]};
+  }
+
   Triangle posed_triangle(std::int32_t i) const {
     const Triangle& q = store_.triangles()[static_cast<std::size_t>(i)];
     return {R_ * q[0] + t_, R_ * q[1] + t_, R_ * q[2] + t_};
@@ -62,15 +86,34 @@ class DualTraversal {
   void leaf(const MeshBvh::Node& sn, const MeshBvh::Node& an) {
     for (std::int32_t i = sn.first; i < sn.first + sn.count; ++i) {
       const Triangle ts = posed_triangle(i);
+      const Vec3 ns = R_ * store_.face_normals()[static_cast<std::size_t>(i)];
+      const double lever = triangle_lever_arm(i);
       for (std::int32_t j = an.first; j < an.first + an.count; ++j) {
         const auto k = static_cast<std::size_t>(j);
-        if (triangle_box_distance(ts, aircraft_.triangle_boxes()[k]) >= visitor_.bound()) continue;
-        const ClosestPair c = triangle_distance(ts, aircraft_.triangles()[k]);
-        if (c.distance < visitor_.bound())
+        const Triangle& ta = aircraft_.triangles()[k];
+        const double bound = visitor_.bound(lever);
+        if (triangle_box_distance(ts, aircraft_.triangle_boxes()[k]) >= bound ||
+            plane_gap(aircraft_.face_normals()[k], ta[0], ts) >= bound ||
+            plane_gap(ns, ts[0], ta) >= bound)
+          continue;
+        const ClosestPair c = triangle_distance(ts, ta);
+        if (c.distance < visitor_.bound(lever))
           visitor_.accept({c, store_.mesh_index()[static_cast<std::size_t>(i)],
-                           aircraft_.mesh_index()[k], face_normal(aircraft_.triangles()[k])});
+                           aircraft_.mesh_index()[k], aircraft_.face_normals()[k]},
+                          {i, j});
       }
     }
+  }
+
+  double triangle_lever_arm(std::int32_t i) const {
+    if constexpr (!Visitor::kUsesLeverArm) return 0.0;
+    return store_.triangle_radii()[static_cast<std::size_t>(i)];
+  }
+
+  /// bound() for the pairs under store node s.
+  double bound(std::int32_t s) const {
+    if constexpr (!Visitor::kUsesLeverArm) return visitor_.bound(0.0);
+    return visitor_.bound(store_.node_radii()[static_cast<std::size_t>(s)]);
   }
 
   PosedBox posed(std::int32_t s) const {
@@ -97,20 +140,20 @@ class DualTraversal {
       const PosedBox b0 = posed(sn.first), b1 = posed(sn.first + 1);
       double d0 = distance(b0, a), d1 = distance(b1, a);
       if (d1 < d0) {
-        if (d1 < visitor_.bound()) visit(sn.first + 1, b1, a);
-        if (d0 < visitor_.bound()) visit(sn.first, b0, a);
+        if (d1 < bound(sn.first + 1)) visit(sn.first + 1, b1, a);
+        if (d0 < bound(sn.first)) visit(sn.first, b0, a);
       } else {
-        if (d0 < visitor_.bound()) visit(sn.first, b0, a);
-        if (d1 < visitor_.bound()) visit(sn.first + 1, b1, a);
+        if (d0 < bound(sn.first)) visit(sn.first, b0, a);
+        if (d1 < bound(sn.first + 1)) visit(sn.first + 1, b1, a);
       }
     } else {
       const double d0 = distance(sbox, an.first), d1 = distance(sbox, an.first + 1);
       if (d1 < d0) {
-        if (d1 < visitor_.bound()) visit(s, sbox, an.first + 1);
-        if (d0 < visitor_.bound()) visit(s, sbox, an.first);
+        if (d1 < bound(s)) visit(s, sbox, an.first + 1);
+        if (d0 < bound(s)) visit(s, sbox, an.first);
       } else {
-        if (d0 < visitor_.bound()) visit(s, sbox, an.first);
-        if (d1 < visitor_.bound()) visit(s, sbox, an.first + 1);
+        if (d0 < bound(s)) visit(s, sbox, an.first);
+        if (d1 < bound(s)) visit(s, sbox, an.first + 1);
       }
     }
   }
@@ -124,18 +167,33 @@ class DualTraversal {
 };
 
 struct ClosestVisitor {
+  static constexpr bool kUsesLeverArm = false;
   MeshPair best;
+  TreePair best_in_trees;
 
-  double bound() const { return best.closest.distance; }
-  void accept(const MeshPair& pair) { best = pair; }
+  double bound(double /*lever_arm*/) const { return best.closest.distance; }
+  void accept(const MeshPair& pair, TreePair in_trees) {
+    best = pair;
+    best_in_trees = in_trees;
+  }
 };
 
 struct WithinVisitor {
+  static constexpr bool kUsesLeverArm = false;
   double max_distance;
   std::vector<MeshPair>& out;
 
-  double bound() const { return max_distance; }
-  void accept(const MeshPair& pair) { out.push_back(pair); }
+  double bound(double /*lever_arm*/) const { return max_distance; }
+  void accept(const MeshPair& pair, TreePair /*in_trees*/) { out.push_back(pair); }
+};
+
+struct LeverArmWithinVisitor {
+  static constexpr bool kUsesLeverArm = true;
+  const LeverArmReach& reach;
+  std::vector<MeshPair>& out;
+
+  double bound(double lever_arm) const { return reach.at(lever_arm); }
+  void accept(const MeshPair& pair, TreePair /*in_trees*/) { out.push_back(pair); }
 };
 
 }  // namespace
@@ -159,11 +217,24 @@ MeshBvh::MeshBvh(const TriangleMesh& mesh) {
   build(0, 0, static_cast<std::int32_t>(n), by_mesh_index, centroids);
   triangles_.reserve(n);
   triangle_boxes_.reserve(n);
+  face_normals_.reserve(n);
   for (const std::int32_t t : mesh_index_) {
     triangles_.push_back(by_mesh_index[static_cast<std::size_t>(t)]);
     const Triangle& tri = triangles_.back();
+    face_normals_.push_back(face_normal(tri));
     triangle_boxes_.emplace_back(tri[0].cwiseMin(tri[1]).cwiseMin(tri[2]),
                                  tri[0].cwiseMax(tri[1]).cwiseMax(tri[2]));
+    triangle_radii_.push_back(std::max({tri[0].norm(), tri[1].norm(), tri[2].norm()}));
+  }
+  // Children come after their parent in nodes_: from the back, each node's children are done.
+  node_radii_.assign(nodes_.size(), 0.0);
+  for (std::size_t i = nodes_.size(); i-- > 0;) {
+    const Node& node = nodes_[i];
+    const auto first = static_cast<std::size_t>(node.first);
+    node_radii_[i] = node.count > 0
+                         ? *std::max_element(triangle_radii_.begin() + node.first,
+                                             triangle_radii_.begin() + node.first + node.count)
+                         : std::max(node_radii_[first], node_radii_[first + 1]);
   }
 }
 
@@ -212,10 +283,50 @@ MeshPair closest_pair(const MeshBvh& store_s, const geometry::Transform& T_p_s,
   return visitor.best;
 }
 
+// The warm bound is one step above the previous pair's distance at this pose, so that the
+// descent still meets and accepts the first pair (in its order) at the minimum, as the cold one
+// does: with ties (parallel faces) both return the same pair.
+MeshPair closest_pair(const MeshBvh& store_s, const geometry::Transform& T_p_s,
+                      const MeshBvh& aircraft_p, TreePair& previous) {
+  ClosestVisitor visitor{};
+  visitor.best.closest.distance = std::numeric_limits<double>::infinity();
+  DualTraversal<ClosestVisitor> traversal(store_s, T_p_s, aircraft_p, visitor);
+  MeshPair warm;
+  const bool has_warm = previous.store >= 0 && previous.aircraft >= 0;
+  if (has_warm) {
+    warm = traversal.pair(previous.store, previous.aircraft);
+    visitor.best.closest.distance =
+        std::nextafter(warm.closest.distance, std::numeric_limits<double>::infinity());
+  }
+  traversal.run();
+  if (visitor.best.store_triangle < 0 && has_warm) {  // rounding kept it out: it is the minimum
+    visitor.best = warm;
+    visitor.best_in_trees = previous;
+  }
+  previous = visitor.best_in_trees;
+  return visitor.best;
+}
+
 void pairs_within(const MeshBvh& store_s, const geometry::Transform& T_p_s,
                   const MeshBvh& aircraft_p, double max_distance_m, std::vector<MeshPair>& out) {
   WithinVisitor visitor{max_distance_m, out};
   DualTraversal<WithinVisitor>(store_s, T_p_s, aircraft_p, visitor).run();
+}
+
+double LeverArmReach::at(double lever_arm_m) const {
+  const double by_blocks = u_translation_m + u_rotation_rad * lever_arm_m;
+  const double whole2 = lambda_max * (1 + lever_arm_m * lever_arm_m);
+  const double by_whole = by_blocks * by_blocks <= whole2 ? by_blocks : std::sqrt(whole2);
+  // 1e-9 above the bound: a pair's u, rounded, cannot then exceed it (the filter downstream
+  // compares the same quantities and would otherwise lose a pair in the last ulp).
+  return base_m + sigmas * std::min(by_blocks, by_whole) * (1 + 1e-9);
+}
+
+void pairs_within(const MeshBvh& store_s, const geometry::Transform& T_p_s,
+                  const MeshBvh& aircraft_p, const LeverArmReach& reach,
+                  std::vector<MeshPair>& out) {
+  LeverArmWithinVisitor visitor{reach, out};
+  DualTraversal<LeverArmWithinVisitor>(store_s, T_p_s, aircraft_p, visitor).run();
 }
 
 }  // namespace storetrack::clearance

@@ -87,8 +87,12 @@ class ClearanceModel {
     std::string name;
     MeshBvh tree;
   };
-  PartClearance evaluate_part(const Part& part, const geometry::Transform& T_p_s,
-                              const geometry::Mat6& cov, double lambda_max);
+  /// The covariance's bounds for the feature-switch reach (LeverArmReach without its base).
+  struct CovarianceBounds {
+    double lambda_max, u_rotation_rad, u_translation_m;
+  };
+  PartClearance evaluate_part(std::size_t aircraft_part, const geometry::Transform& T_p_s,
+                              const geometry::Mat6& cov, const CovarianceBounds& bounds);
 
   std::vector<Part> store_;
   std::vector<Part> aircraft_;
@@ -100,6 +104,9 @@ class ClearanceModel {
   std::vector<MeshPair> pairs_;
   std::vector<Candidate> candidates_;
   std::vector<Candidate> features_;
+  // The last sample's closest pair per (aircraft part, store part): the next descent's warm
+  // start (a continuous trajectory keeps it near the minimum).
+  std::vector<TreePair> previous_;
 };
 
 }  // namespace storetrack::clearance

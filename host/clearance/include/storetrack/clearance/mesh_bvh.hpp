@@ -32,8 +32,14 @@ class MeshBvh {
   const std::vector<std::int32_t>& mesh_index() const { return mesh_index_; }
   /// Each triangle's own box (tree order): lets a leaf pair skip triangles before the exact test.
   const std::vector<Eigen::AlignedBox3d>& triangle_boxes() const { return triangle_boxes_; }
+  /// Each triangle's unit face normal (tree order): its plane's gap to another triangle is a
+  /// second lower bound of their distance, tight where a vertex faces the face.
+  const std::vector<geometry::Vec3>& face_normals() const { return face_normals_; }
   /// Largest distance of a vertex from the frame's origin (bounds the lever arm of a rotation).
   double radius() const { return radius_; }
+  /// The same per node and per triangle (tree order): the lever arm of the points they hold.
+  const std::vector<double>& node_radii() const { return node_radii_; }
+  const std::vector<double>& triangle_radii() const { return triangle_radii_; }
 
  private:
   void build(std::int32_t node, std::int32_t first, std::int32_t count,
@@ -44,6 +50,9 @@ class MeshBvh {
   std::vector<Triangle> triangles_;
   std::vector<std::int32_t> mesh_index_;
   std::vector<Eigen::AlignedBox3d> triangle_boxes_;
+  std::vector<geometry::Vec3> face_normals_;
+  std::vector<double> node_radii_;
+  std::vector<double> triangle_radii_;
   double radius_ = 0;
 };
 
@@ -60,8 +69,39 @@ struct MeshPair {
 MeshPair closest_pair(const MeshBvh& store_s, const geometry::Transform& T_p_s,
                       const MeshBvh& aircraft_p);
 
+/// A pair of triangles by their places in the trees' order (-1: none).
+struct TreePair {
+  std::int32_t store = -1;
+  std::int32_t aircraft = -1;
+};
+
+/// The same, warm-started: the distance of `previous` (the last sample's closest pair) at this
+/// pose bounds the descent from its first node. The result is the one closest_pair gives (the
+/// same pair, points and feature: docs/clearance.md, "Distance"); `previous` is set to it.
+MeshPair closest_pair(const MeshBvh& store_s, const geometry::Transform& T_p_s,
+                      const MeshBvh& aircraft_p, TreePair& previous);
+
 /// Appends every pair of triangles at a distance below max_distance_m (the feature-switch pass).
 void pairs_within(const MeshBvh& store_s, const geometry::Transform& T_p_s,
                   const MeshBvh& aircraft_p, double max_distance_m, std::vector<MeshPair>& out);
+
+/// A reach that grows with the lever arm r: the largest distance, from the store's origin, of
+/// the store points a node or triangle holds: base_m + sigmas * u(r), with u(r) a bound on the
+/// distance's standard uncertainty of any pair whose store point is within r of the origin,
+/// min(u_translation_m + u_rotation_rad r, sqrt(lambda_max (1 + r^2))) (docs/clearance.md).
+struct LeverArmReach {
+  double base_m = 0;
+  double sigmas = 0;
+  double u_translation_m = 0;  ///< sqrt of the largest eigenvalue of the translation block
+  double u_rotation_rad = 0;   ///< sqrt of the largest eigenvalue of the rotation block
+  double lambda_max = 0;       ///< largest eigenvalue of the whole 6x6 covariance
+  double at(double lever_arm_m) const;
+};
+
+/// Appends every pair of triangles at a distance below reach.at(r) of its store triangle (the
+/// feature-switch pass with the reach taken per node: the same pairs pass its filter).
+void pairs_within(const MeshBvh& store_s, const geometry::Transform& T_p_s,
+                  const MeshBvh& aircraft_p, const LeverArmReach& reach,
+                  std::vector<MeshPair>& out);
 
 }  // namespace storetrack::clearance
