@@ -158,15 +158,24 @@ nlohmann::json to_json(const DifferenceSummary& s) {
                       {"compared", s.compared},
                       {"different_observations", s.different_observations},
                       {"u_derived", s.derived}};
-  for (std::size_t i = 0; i < 6; ++i) {
-    const AxisSummary& a = s.axes[i];
-    j["axes"][kAxes[i]] = {{"count", a.count},
-                           {"abs_z_above_2", a.above_2},
-                           {"abs_z_above_3", a.above_3},
-                           {"max_abs_z", a.max_abs_z},
-                           {"max_abs_z_trigger_seq", a.max_trigger_seq}};
-  }
+  for (std::size_t i = 0; i < 6; ++i)
+    j["axes"][kAxes[i]] = to_json(s.axes[i]);
   return j;
+}
+
+nlohmann::json to_json(const AxisSummary& a) {
+  return {{"count", a.count},
+          {"abs_z_above_2", a.above_2},
+          {"abs_z_above_3", a.above_3},
+          {"max_abs_z", a.max_abs_z},
+          {"max_abs_z_trigger_seq", a.max_trigger_seq}};
+}
+
+void print_axis(std::FILE* f, const char* name, const AxisSummary& a) {
+  std::fprintf(f, "  %-13s |z| > 2: %llu, > 3: %llu of %llu; max |z| %.2f (trigger_seq %u)\n", name,
+               static_cast<unsigned long long>(a.above_2),
+               static_cast<unsigned long long>(a.above_3), static_cast<unsigned long long>(a.count),
+               a.max_abs_z, a.max_trigger_seq);
 }
 
 void print_summary(std::FILE* f, const DifferenceSummary& s) {
@@ -183,13 +192,8 @@ void print_summary(std::FILE* f, const DifferenceSummary& s) {
     std::fprintf(f, "differences: a substituted configuration states no uncertainty: no z\n");
     return;
   }
-  for (std::size_t i = 0; i < 6; ++i) {
-    const AxisSummary& a = s.axes[i];
-    std::fprintf(f, "  %-5s |z| > 2: %llu, > 3: %llu of %llu; max |z| %.2f (trigger_seq %u)\n",
-                 kAxes[i], static_cast<unsigned long long>(a.above_2),
-                 static_cast<unsigned long long>(a.above_3),
-                 static_cast<unsigned long long>(a.count), a.max_abs_z, a.max_trigger_seq);
-  }
+  for (std::size_t i = 0; i < 6; ++i)
+    print_axis(f, kAxes[i], s.axes[i]);
 }
 
 }  // namespace storetrack::post

@@ -67,6 +67,9 @@ struct AxisSummary {
   double max_abs_z = 0;
   std::uint32_t max_trigger_seq = 0;
 };
+/// One axis's (or quantity's) summary in stats.json, and as a line of the printed summary.
+nlohmann::json to_json(const AxisSummary& a);
+void print_axis(std::FILE* f, const char* name, const AxisSummary& a);
 
 struct DifferenceSummary {
   std::uint64_t recorded = 0, substituted = 0;  ///< written samples of each run

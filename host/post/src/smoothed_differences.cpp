@@ -210,14 +210,8 @@ nlohmann::json to_json(const SmoothedDifferenceSummary& s) {
                       {"compared", s.compared},
                       {"noise_bound", s.noise_bound},
                       {"not_derived", s.not_derived}};
-  for (std::size_t i = 0; i < kSmoothedOutputs; ++i) {
-    const AxisSummary& q = s.quantities[i];
-    j["quantities"][kSmoothedNames[i]] = {{"count", q.count},
-                                          {"abs_z_above_2", q.above_2},
-                                          {"abs_z_above_3", q.above_3},
-                                          {"max_abs_z", q.max_abs_z},
-                                          {"max_abs_z_trigger_seq", q.max_trigger_seq}};
-  }
+  for (std::size_t i = 0; i < kSmoothedOutputs; ++i)
+    j["quantities"][kSmoothedNames[i]] = to_json(s.quantities[i]);
   return j;
 }
 
@@ -230,13 +224,8 @@ void print_summary(std::FILE* f, const SmoothedDifferenceSummary& s) {
                static_cast<unsigned long long>(s.substituted),
                static_cast<unsigned long long>(s.noise_bound),
                static_cast<unsigned long long>(s.not_derived));
-  for (std::size_t i = 0; i < kSmoothedOutputs; ++i) {
-    const AxisSummary& q = s.quantities[i];
-    std::fprintf(f, "  %-13s |z| > 2: %llu, > 3: %llu of %llu; max |z| %.2f (trigger_seq %u)\n",
-                 kSmoothedNames[i], static_cast<unsigned long long>(q.above_2),
-                 static_cast<unsigned long long>(q.above_3),
-                 static_cast<unsigned long long>(q.count), q.max_abs_z, q.max_trigger_seq);
-  }
+  for (std::size_t i = 0; i < kSmoothedOutputs; ++i)
+    print_axis(f, kSmoothedNames[i], s.quantities[i]);
 }
 
 }  // namespace storetrack::post
