@@ -42,6 +42,17 @@ pipeline::ExposureProcessor make_processor(const Data& d) {
   return make_processor(d.sim);
 }
 
+// Steps k to the next of n exposures; after the last one `restart` (tracking from the priors
+// again) runs untimed and k wraps to the first.
+template <class Restart>
+void next_exposure(benchmark::State& state, size_t& k, size_t n, Restart&& restart) {
+  if (++k != n) return;
+  state.PauseTiming();
+  k = 0;
+  restart();
+  state.ResumeTiming();
+}
+
 // Identification alone: MarkMatcher::match (the processor's own matcher, so the same priors and
 // configuration), tracked exposure after exposure.
 void BM_Match(benchmark::State& state) {
@@ -53,12 +64,7 @@ void BM_Match(benchmark::State& state) {
     const match::MatchResult r = matcher.match(d.exposures[k].cameras);
     benchmark::DoNotOptimize(r.ids.data());
     identified += static_cast<size_t>(r.identified);
-    if (++k == d.exposures.size()) {
-      state.PauseTiming();
-      k = 0;
-      matcher.reset_tracking();
-      state.ResumeTiming();
-    }
+    next_exposure(state, k, d.exposures.size(), [&] { matcher.reset_tracking(); });
   }
   state.counters["identified"] =
       benchmark::Counter(static_cast<double>(identified), benchmark::Counter::kAvgIterations);
@@ -77,12 +83,7 @@ void BM_ExposureMatchAndProcess(benchmark::State& state) {
     const pipeline::ExposureResult r = proc.process(d.exposures[k]);
     benchmark::DoNotOptimize(r.sample);
     marks += r.marks.size();
-    if (++k == d.exposures.size()) {
-      state.PauseTiming();
-      k = 0;
-      proc.reset_tracking();
-      state.ResumeTiming();
-    }
+    next_exposure(state, k, d.exposures.size(), [&] { proc.reset_tracking(); });
   }
   state.counters["marks"] =
       benchmark::Counter(static_cast<double>(marks), benchmark::Counter::kAvgIterations);
@@ -117,12 +118,7 @@ void BM_ExposureMatchAndProcessClearance(benchmark::State& state) {
       ++evaluated;
     }
     benchmark::DoNotOptimize(r.sample);
-    if (++k == d.exposures.size()) {
-      state.PauseTiming();
-      k = 0;
-      proc.reset_tracking();
-      state.ResumeTiming();
-    }
+    next_exposure(state, k, d.exposures.size(), [&] { proc.reset_tracking(); });
   }
   if (evaluated > 0) {
     const auto n = static_cast<double>(evaluated);
@@ -590,12 +586,7 @@ void time_processing(benchmark::State& state, pipeline::ExposureProcessor& proc,
   for (auto _ : state) {
     const pipeline::ExposureResult r = proc.process(d.exposures[k]);
     benchmark::DoNotOptimize(r.sample);
-    if (++k == d.exposures.size()) {
-      state.PauseTiming();
-      k = 0;
-      proc.reset_tracking();
-      state.ResumeTiming();
-    }
+    next_exposure(state, k, d.exposures.size(), [&] { proc.reset_tracking(); });
   }
   set_scaling_counters(state, d);
 }
