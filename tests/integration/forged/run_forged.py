@@ -32,7 +32,8 @@ FTI CSV's pose, yaw-pitch-roll Z-Y'-X''), the part's closest point the store poi
 the plane, distance = |p_store - p_aircraft|, normal = (p_store - p_aircraft) / distance, the
 store point on the posed store triangle. With --post P: storetrack-post's --clearance-csv from
 the recording byte-identical to the host's; refusals (exit 2, nothing written): post over an
-existing file, the host without a clearance geometry.
+existing file, the host without a clearance geometry; without --clearance-geometry, post's
+--clearance-csv of the recording (which has none).
 
 Usage: run_forged.py SIM HOST ROOT OUT [--settings S] [--lead N] [--fps F] [--max-lost N]
                      [--clearance-geometry G --clearance-threshold-m X [--post P]]
@@ -335,6 +336,17 @@ def check_post_clearance(ok, tag, out, sim_dir):
        "written (%s)" % (r.returncode, r.stderr.strip()))
 
 
+def check_post_refuses_clearance_csv(ok, tag, out):
+    """A recording without a clearance geometry: post's --clearance-csv refused, nothing written."""
+    refused = [os.path.join(out, n) for n in ("refused_clearance.csv", "refused_fti.csv")]
+    r = subprocess.run([a.post, os.path.join(out, "out.ch10"), "--clearance-csv", refused[0],
+                        "--csv", refused[1]], capture_output=True, text=True)
+    ok(r.returncode == 2 and refused[0] in r.stderr and "--clearance-geometry" in r.stderr
+       and not any(os.path.exists(f) for f in refused),
+       tag + "post --clearance-csv of a recording without a clearance geometry: exit %d, named, "
+       "nothing written (%s)" % (r.returncode, r.stderr.strip()))
+
+
 def check_run(ok, out, rc, packets, lead, groups):
     s = json.load(open(os.path.join(out, "stats.json")))
     al = s["aligner"]
@@ -360,6 +372,8 @@ def check_run(ok, out, rc, packets, lead, groups):
         check_clearance_csv(ok, tag, out, fti)
         if a.post:
             check_post_clearance(ok, tag, out, os.path.join(a.out, "sim"))
+    elif a.post:
+        check_post_refuses_clearance_csv(ok, tag, out)
     used_csv = [int(x) for x in fti["cameras_used"]] if n else []
     used_inetx = [p[-166 + 13] for p in packets]  # FTI parameter block v3: the packet's last 166 bytes
     ok(all(u >= max(1, min_cameras) for u in used_csv + used_inetx),
