@@ -18,12 +18,19 @@ const char* const kMarksCsvHeader =
 const char* const kRigidCsvHeader =
     "trigger_seq [1],body [p|s],id_a [1],id_b [1],distance [m],surveyed [m],"
     "sigma [m],z2 [1]";
+// Frame p: the pylon's. The clearance values at 17 digits (the FTI fields are their float32).
+const char* const kClearanceCsvHeader =
+    "trigger_seq [1],exposure_mid_tai_ns [ns],part [name],store_part [name],clearance_m [m],"
+    "u_clearance_m [m],clearance_lower_bound_m [m],penetration [0|1],feature [name],"
+    "p_store_x_p [m],p_store_y_p [m],p_store_z_p [m],p_aircraft_x_p [m],p_aircraft_y_p [m],"
+    "p_aircraft_z_p [m],normal_x_p [1],normal_y_p [1],normal_z_p [1],alarm [0|1],"
+    "extrapolated [0|1]";
 
 namespace {
 
 __attribute__((format(printf, 2, 3))) void append_format(std::string& out, const char* format,
                                                          ...) {
-  char line[512];
+  char line[1024];  // a clearance row with long part names
   va_list args;
   va_start(args, format);
   const int n = std::vsnprintf(line, sizeof line, format, args);
@@ -62,6 +69,25 @@ void format_rigid_rows(std::uint32_t trigger_seq, char body, const rigid::RigidC
   for (const auto& p : c.pairs) {
     append_format(out, "%" PRIu32 ",%c,%d,%d,%.9g,%.9g,%.4g,%.4g\n", trigger_seq, body, p.id_a,
                   p.id_b, p.distance_m, p.surveyed_m, p.sigma_m, p.z2);
+  }
+}
+
+void format_clearance_rows(const msg::FtiSample& s, bool extrapolated,
+                           const clearance::SampleClearance& c, std::string& out) {
+  for (const clearance::PartClearance& p : c.parts()) {
+    // As SampleClearance::apply: a bound that is not a number cannot clear the threshold.
+    const bool alarm = !(p.lower_bound_m >= c.alarm_threshold_m());
+    append_format(out,
+                  "%" PRIu32 ",%" PRId64
+                  ",%.*s,%.*s,%.17g,%.17g,%.17g,%d,%s,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,"
+                  "%.9g,%d,%d\n",
+                  s.trigger_seq, s.exposure_mid_tai_ns, static_cast<int>(p.part.size()),
+                  p.part.data(), static_cast<int>(p.store_part.size()), p.store_part.data(),
+                  p.distance_m, p.u_distance_m, p.lower_bound_m, p.penetration ? 1 : 0,
+                  clearance::feature_name(p.feature), p.p_store_p.x(), p.p_store_p.y(),
+                  p.p_store_p.z(), p.p_aircraft_p.x(), p.p_aircraft_p.y(), p.p_aircraft_p.z(),
+                  p.normal_p.x(), p.normal_p.y(), p.normal_p.z(), alarm ? 1 : 0,
+                  extrapolated ? 1 : 0);
   }
 }
 

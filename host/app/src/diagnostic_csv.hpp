@@ -1,18 +1,21 @@
-// The test-point report's diagnostic tables: --marks-csv (one row per mark observation) and
-// --rigid-csv (one row per rigid-body pair test). Rows are formatted to text on the real-time
-// thread (no I/O there) and written by the RecordingWriter's thread through CsvFile.
+// The test-point report's diagnostic tables: --marks-csv (one row per mark observation),
+// --rigid-csv (one row per rigid-body pair test) and --clearance-csv (one row per sample and
+// aircraft part, storetrack-host and storetrack-post alike). Rows are formatted to text on the
+// real-time thread (no I/O there) and written by the RecordingWriter's thread through CsvFile.
 #pragma once
 
 #include <cstdint>
 #include <cstdio>
 #include <string>
 
+#include "storetrack/clearance/sample_clearance.hpp"
 #include "storetrack/pipeline/exposure_processor.hpp"
 
 namespace storetrack::hostapp {
 
 extern const char* const kMarksCsvHeader;
 extern const char* const kRigidCsvHeader;
+extern const char* const kClearanceCsvHeader;
 
 /// Appends the rows of one exposure's marks (per observation) to `out`.
 void format_marks_rows(const pipeline::AlignedExposure& e, const pipeline::ExposureResult& r,
@@ -20,6 +23,11 @@ void format_marks_rows(const pipeline::AlignedExposure& e, const pipeline::Expos
 /// Appends one row per tested pair of `body` ('p' pylon, 's' store) to `out`.
 void format_rigid_rows(std::uint32_t trigger_seq, char body, const rigid::RigidCheckResult& c,
                        std::string& out);
+/// Appends one row per aircraft part (file order) of the clearance `c` evaluated last, for the
+/// sample `s`: `extrapolated` when that pose was the extrapolated one. Only for a sample whose
+/// clearance was evaluated (ProcessedExposure::clearance_evaluated).
+void format_clearance_rows(const msg::FtiSample& s, bool extrapolated,
+                           const clearance::SampleClearance& c, std::string& out);
 
 /// A text file written in whole rows, every write and close checked.
 class CsvFile {

@@ -67,7 +67,7 @@ struct HostConfig {
   std::string clearance_geometry;
   double clearance_alarm_threshold_m = std::numeric_limits<double>::quiet_NaN();
   // outputs
-  std::string ch10_path, csv_path, marks_csv_path, rigid_csv_path;
+  std::string ch10_path, csv_path, marks_csv_path, rigid_csv_path, clearance_csv_path;
   std::string inetx_destination;
   std::uint32_t inetx_stream_id = 0x53540001;
   output::Chapter10Config ch10;

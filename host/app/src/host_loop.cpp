@@ -91,7 +91,7 @@ void HostLoop::process(const pipeline::AlignedExposure& exposure) {
   // No output, iNET-X or file, carries an exposure too few cameras measured.
   const bool written =
       totals_.withheld.admit(judge_sample(r.cameras_used, aligner_.config().min_cameras));
-  if (written) write_sample(e, r, t0);
+  if (written) write_sample(done, t0);
   // After the outputs, so the page's copy is never in the latency; at most once per interval.
   if (p_.live) {
     const live::LiveTotals live_totals{totals_.exposures, totals_.samples_written,
@@ -101,8 +101,9 @@ void HostLoop::process(const pipeline::AlignedExposure& exposure) {
   }
 }
 
-void HostLoop::write_sample(const pipeline::AlignedExposure& e, const pipeline::ExposureResult& r,
-                            time::MonotonicNs t_processing_start) {
+void HostLoop::write_sample(const ProcessedExposure& done, time::MonotonicNs t_processing_start) {
+  const pipeline::AlignedExposure& e = *done.exposure;
+  const pipeline::ExposureResult& r = done.result;
   ++totals_.samples_written;
   const msg::FtiSample& s = r.sample;
   if (s.status & msg::fti_status::kValid) ++totals_.valid_samples;
@@ -124,6 +125,8 @@ void HostLoop::write_sample(const pipeline::AlignedExposure& e, const pipeline::
     format_rigid_rows(e.trigger_seq, 'p', r.pylon_check, item.rigid_rows);
     format_rigid_rows(e.trigger_seq, 's', r.store_check, item.rigid_rows);
   }
+  if (p_.recording.wants_clearance_rows() && done.clearance_evaluated)
+    format_clearance_rows(s, done.clearance_extrapolated, *p_.chain.clearance, item.clearance_rows);
   p_.recording.push(std::move(item));  // never blocks; a full queue is counted there
 }
 

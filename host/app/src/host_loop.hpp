@@ -42,6 +42,7 @@ struct LoopTotals {
 };
 
 struct ProcessingChain;  // host_setup.hpp (host_options.hpp includes this file)
+struct ProcessedExposure;
 
 /// The parts the loop drives; all owned by main.
 struct LoopParts {
@@ -68,8 +69,7 @@ class HostLoop {
   void process(const pipeline::AlignedExposure& e);
   void log_calibration_health(const pipeline::AlignedExposure& e, bool processor_rebuilt);
   void log_clearance(const pipeline::ExposureResult& r);
-  void write_sample(const pipeline::AlignedExposure& e, const pipeline::ExposureResult& r,
-                    time::MonotonicNs t_processing_start);
+  void write_sample(const ProcessedExposure& done, time::MonotonicNs t_processing_start);
 
   LoopParts p_;
   ingest::ExposureAligner& aligner_;

@@ -51,6 +51,8 @@ int parse_host_options(int argc, char** argv, HostOptions& o, InputFileCheck fil
   app.option("--csv", cfg.csv_path, "CSV of FTI samples");
   app.option("--marks-csv", cfg.marks_csv_path, "CSV of per-mark observations and residuals");
   app.option("--rigid-csv", cfg.rigid_csv_path, "CSV of rigid-body pair tests");
+  app.option("--clearance-csv", cfg.clearance_csv_path,
+             "CSV of every aircraft part's clearance per sample (needs clearance.geometry)");
   app.option("--inetx", cfg.inetx_destination, "iNET-X destination address:port");
   app.option("--inetx-stream-id", cfg.inetx_stream_id, "iNET-X stream id");
   app.option("--duration-s", o.limits.duration_s, "Stop after this long (0: until signalled)");

@@ -128,6 +128,8 @@ ProcessedExposure process_exposure(ProcessingChain& chain, const pipeline::Align
       chain.clearance->apply(r.T_p_s.T, r.T_p_s.cov, r.sample);
     else if (r.extrapolated)
       chain.clearance->apply(r.T_p_s_extrapolated, r.cov_T_p_s_extrapolated, r.sample);
+    out.clearance_evaluated = r.T_p_s.valid || r.extrapolated;
+    out.clearance_extrapolated = !r.T_p_s.valid && r.extrapolated;
   }
   return out;
 }

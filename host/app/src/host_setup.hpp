@@ -72,6 +72,10 @@ struct ProcessedExposure {
   const pipeline::AlignedExposure* exposure = nullptr;
   pipeline::ExposureResult result;
   bool processor_rebuilt = false;
+  /// The clearance was evaluated (a measured or extrapolated pose): chain.clearance->parts()
+  /// holds every part's until the next call; clearance_extrapolated: on the extrapolated pose.
+  bool clearance_evaluated = false;
+  bool clearance_extrapolated = false;
 };
 ProcessedExposure process_exposure(ProcessingChain& chain, const pipeline::AlignedExposure& e);
 

@@ -82,6 +82,13 @@ int load_inputs(st::hostapp::HostOptions& o, st::hostapp::InputFiles& in,
     std::fprintf(stderr, "storetrack-host: %s\n", e.what());
     return 2;
   }
+  if (!cfg.clearance_csv_path.empty() && cfg.clearance_geometry.empty()) {
+    std::fprintf(stderr,
+                 "storetrack-host: --clearance-csv '%s': no clearance geometry configured "
+                 "(clearance.geometry)\n",
+                 cfg.clearance_csv_path.c_str());
+    return 2;
+  }
   std::vector<st::output::RecordedInputFile> clearance_files;
   if (const int rc = start_clearance(cfg, from_disk, clearance, clearance_files); rc != 0)
     return rc;
@@ -204,7 +211,8 @@ int open_sinks(const HostConfig& cfg, st::output::InetxSender& inetx, bool& inet
   const std::pair<const std::string*, int (st::hostapp::RecordingWriter::*)(const std::string&)>
       csvs[] = {{&cfg.csv_path, &st::hostapp::RecordingWriter::open_csv},
                 {&cfg.marks_csv_path, &st::hostapp::RecordingWriter::open_marks_csv},
-                {&cfg.rigid_csv_path, &st::hostapp::RecordingWriter::open_rigid_csv}};
+                {&cfg.rigid_csv_path, &st::hostapp::RecordingWriter::open_rigid_csv},
+                {&cfg.clearance_csv_path, &st::hostapp::RecordingWriter::open_clearance_csv}};
   for (const auto& [path, open] : csvs) {
     if (path->empty()) continue;
     if ((recording.*open)(*path) != 0) {

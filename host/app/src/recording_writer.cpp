@@ -28,6 +28,10 @@ int report_created(int rc, const std::string& requested, const std::string& crea
   return rc;
 }
 
+std::size_t text_bytes(const RecordingItem& item) {
+  return item.marks_rows.size() + item.rigid_rows.size() + item.clearance_rows.size();
+}
+
 }  // namespace
 
 int RecordingWriter::open_csv(const std::string& path) {
@@ -41,8 +45,11 @@ int RecordingWriter::open_marks_csv(const std::string& path) {
 int RecordingWriter::open_rigid_csv(const std::string& path) {
   return report_created(rigid_.open(path, kRigidCsvHeader), path, rigid_.path());
 }
+int RecordingWriter::open_clearance_csv(const std::string& path) {
+  return report_created(clearance_.open(path, kClearanceCsvHeader), path, clearance_.path());
+}
 bool RecordingWriter::has_files() const {
-  return ch10_open_ || csv_open_ || marks_.is_open() || rigid_.is_open();
+  return ch10_open_ || csv_open_ || marks_.is_open() || rigid_.is_open() || clearance_.is_open();
 }
 
 void RecordingWriter::start() {
@@ -54,7 +61,7 @@ void RecordingWriter::start() {
 bool RecordingWriter::push(RecordingItem&& item) {
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    const std::size_t text = item.marks_rows.size() + item.rigid_rows.size();
+    const std::size_t text = text_bytes(item);
     if (stopping_ || queue_.size() >= max_items_ ||
         (!queue_.empty() && queued_text_bytes_ + text > max_text_bytes_)) {
       ++counters_.items_dropped_queue_full;
@@ -114,7 +121,7 @@ void RecordingWriter::run() {
       if (queue_.empty()) break;
       RecordingItem item = std::move(queue_.front());
       queue_.pop_front();
-      queued_text_bytes_ -= item.marks_rows.size() + item.rigid_rows.size();
+      queued_text_bytes_ -= text_bytes(item);
       lock.unlock();
       write(item);
       lock.lock();
@@ -132,11 +139,15 @@ void RecordingWriter::write(const RecordingItem& item) {
     ++d.marks_csv_write_errors;
   if (rigid_.is_open() && !item.rigid_rows.empty() && rigid_.write(item.rigid_rows) != 0)
     ++d.rigid_csv_write_errors;
+  if (clearance_.is_open() && !item.clearance_rows.empty() &&
+      clearance_.write(item.clearance_rows) != 0)
+    ++d.clearance_csv_write_errors;
   std::lock_guard<std::mutex> lock(mutex_);
   counters_.ch10_sample_write_errors += d.ch10_sample_write_errors;
   counters_.csv_write_errors += d.csv_write_errors;
   counters_.marks_csv_write_errors += d.marks_csv_write_errors;
   counters_.rigid_csv_write_errors += d.rigid_csv_write_errors;
+  counters_.clearance_csv_write_errors += d.clearance_csv_write_errors;
 }
 
 void RecordingWriter::write_raw(const RawRecordingItem& item) {
@@ -160,10 +171,12 @@ void RecordingWriter::stop() {
   const bool csv_failed = csv_open_ && csv_.close() != 0;
   const bool marks_failed = marks_.close() != 0;
   const bool rigid_failed = rigid_.close() != 0;
+  const bool clearance_failed = clearance_.close() != 0;
   std::lock_guard<std::mutex> lock(mutex_);
   counters_.csv_close_errors += csv_failed ? 1 : 0;
   counters_.marks_csv_close_errors += marks_failed ? 1 : 0;
   counters_.rigid_csv_close_errors += rigid_failed ? 1 : 0;
+  counters_.clearance_csv_close_errors += clearance_failed ? 1 : 0;
   counters_.csv_rows = csv_.rows_written();
 }
 
@@ -183,6 +196,8 @@ bool RecordingWriter::had_errors() const {
                                   c.marks_csv_close_errors,
                                   c.rigid_csv_write_errors,
                                   c.rigid_csv_close_errors,
+                                  c.clearance_csv_write_errors,
+                                  c.clearance_csv_close_errors,
                                   cc.write_errors,
                                   cc.sync_errors,
                                   cc.close_errors,

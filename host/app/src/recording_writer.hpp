@@ -1,9 +1,8 @@
-// All file output of storetrack-host (Chapter 10 with fdatasync, FTI CSV, marks and rigid-body
-// CSVs) on ONE thread of its own, so a slow or failing disk never delays the real-time path
-// (receive -> process -> iNET-X). The real-time thread hands over whole items through a bounded
-// queue and never blocks: when the queue is full the item is dropped and counted.
-// Bound: kQueueItems items and kQueueTextBytes bytes of CSV text (docs/reliability.md,
-// "Recording").
+// All file output of storetrack-host (Chapter 10 with fdatasync, FTI CSV, marks, rigid-body and
+// clearance CSVs) on ONE thread of its own, so a slow or failing disk never delays the real-time
+// path (receive -> process -> iNET-X). The real-time thread hands over whole items through a
+// bounded queue and never blocks: when the queue is full the item is dropped and counted. Bound:
+// kQueueItems items and kQueueTextBytes bytes of CSV text (docs/reliability.md, "Recording").
 #pragma once
 
 #include <condition_variable>
@@ -25,8 +24,9 @@ namespace storetrack::hostapp {
 /// One exposure's output for the files.
 struct RecordingItem {
   msg::FtiSample sample{};
-  std::string marks_rows;  ///< formatted --marks-csv rows (empty when that file is off)
-  std::string rigid_rows;  ///< formatted --rigid-csv rows
+  std::string marks_rows;      ///< formatted --marks-csv rows (empty when that file is off)
+  std::string rigid_rows;      ///< formatted --rigid-csv rows
+  std::string clearance_rows;  ///< formatted --clearance-csv rows
 };
 
 /// One observation message as received, for the Chapter 10 raw channel.
@@ -51,6 +51,8 @@ struct RecordingCounters {
   std::uint64_t marks_csv_close_errors = 0;
   std::uint64_t rigid_csv_write_errors = 0;
   std::uint64_t rigid_csv_close_errors = 0;
+  std::uint64_t clearance_csv_write_errors = 0;
+  std::uint64_t clearance_csv_close_errors = 0;
   // Raw observations (their own queue bound, so a burst of them never crowds out samples).
   std::uint64_t raw_queued = 0;
   std::uint64_t raw_dropped_queue_full = 0;   ///< the raw queue held kRawQueueItems already
@@ -82,9 +84,11 @@ class RecordingWriter {
   int open_csv(const std::string& path);
   int open_marks_csv(const std::string& path);
   int open_rigid_csv(const std::string& path);
+  int open_clearance_csv(const std::string& path);
   bool has_files() const;
   bool wants_marks_rows() const { return marks_.is_open(); }
   bool wants_rigid_rows() const { return rigid_.is_open(); }
+  bool wants_clearance_rows() const { return clearance_.is_open(); }
 
   void start();
   /// Never blocks; false (and counted) when the queue is full.
@@ -109,6 +113,7 @@ class RecordingWriter {
   const std::string& csv_path() const { return csv_.path(); }
   const std::string& marks_csv_path() const { return marks_.path(); }
   const std::string& rigid_csv_path() const { return rigid_.path(); }
+  const std::string& clearance_csv_path() const { return clearance_.path(); }
 
  private:
   void run();
@@ -120,7 +125,7 @@ class RecordingWriter {
   bool raw_enabled_ = false;
   output::FtiCsvWriter csv_;
   bool csv_open_ = false;
-  CsvFile marks_, rigid_;
+  CsvFile marks_, rigid_, clearance_;
 
   const std::size_t max_items_, max_text_bytes_;
   mutable std::mutex mutex_;

@@ -149,7 +149,7 @@ nlohmann::json processor_stats_json(const pipeline::ExposureProcessor& processor
           {"single_view_rejected", pc.single_view_rejected}};
 }
 
-// The three CSVs' rows and failures, the same keys under "recording" and in "outputs".
+// The four CSVs' rows and failures, the same keys under "recording" and in "outputs".
 nlohmann::json csv_counters_json(const RecordingCounters& rc) {
   return {{"csv_rows", rc.csv_rows},
           {"csv_write_errors", rc.csv_write_errors},
@@ -157,7 +157,9 @@ nlohmann::json csv_counters_json(const RecordingCounters& rc) {
           {"marks_csv_write_errors", rc.marks_csv_write_errors},
           {"marks_csv_close_errors", rc.marks_csv_close_errors},
           {"rigid_csv_write_errors", rc.rigid_csv_write_errors},
-          {"rigid_csv_close_errors", rc.rigid_csv_close_errors}};
+          {"rigid_csv_close_errors", rc.rigid_csv_close_errors},
+          {"clearance_csv_write_errors", rc.clearance_csv_write_errors},
+          {"clearance_csv_close_errors", rc.clearance_csv_close_errors}};
 }
 
 }  // namespace
@@ -201,7 +203,8 @@ nlohmann::json recording_stats_json(const RecordingWriter& recording,
                         {"csv_files",
                          {{"csv", recording.csv_path()},
                           {"marks_csv", recording.marks_csv_path()},
-                          {"rigid_csv", recording.rigid_csv_path()}}},
+                          {"rigid_csv", recording.rigid_csv_path()},
+                          {"clearance_csv", recording.clearance_csv_path()}}},
                         {"ch10_sample_write_errors", rc.ch10_sample_write_errors},
                         {"raw_observations",
                          {{"enabled", recording.wants_raw()},
@@ -374,11 +377,13 @@ void print_summary(const StatsSources& s) {
   }
   const RecordingCounters rc = s.recording.counters();
   if (!s.recording.csv_path().empty() || s.recording.wants_marks_rows() ||
-      !s.recording.rigid_csv_path().empty())
+      !s.recording.rigid_csv_path().empty() || !s.recording.clearance_csv_path().empty())
     std::printf("  CSV write / close errors: fti %" PRIu64 " / %" PRIu64 ", marks %" PRIu64
-                " / %" PRIu64 ", rigid %" PRIu64 " / %" PRIu64 "\n",
+                " / %" PRIu64 ", rigid %" PRIu64 " / %" PRIu64 ", clearance %" PRIu64 " / %" PRIu64
+                "\n",
                 rc.csv_write_errors, rc.csv_close_errors, rc.marks_csv_write_errors,
-                rc.marks_csv_close_errors, rc.rigid_csv_write_errors, rc.rigid_csv_close_errors);
+                rc.marks_csv_close_errors, rc.rigid_csv_write_errors, rc.rigid_csv_close_errors,
+                rc.clearance_csv_write_errors, rc.clearance_csv_close_errors);
   std::printf("  iNET-X: %" PRIu64 " sent, %" PRIu64 " send errors\n",
               s.inetx.counters().packets_sent, s.inetx.counters().send_errors);
   std::printf(

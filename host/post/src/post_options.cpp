@@ -38,6 +38,10 @@ int parse_post_options(int argc, char** argv, PostOptions& o) {
              "quantity (position, attitude, velocity, acceleration, angular rate and "
              "acceleration) the difference d, the standard uncertainty of that difference u, z = "
              "d / u and |z| > 2 to this NEW CSV file");
+  app.option("--clearance-csv", o.clearance_csv_path,
+             "Write every aircraft part's clearance per written sample (the host's --clearance-csv "
+             "columns: distance, u, k = 2 lower bound, the two closest points, the normal) to this "
+             "NEW CSV file; needs the clearance geometry (recorded or --clearance-geometry)");
   app.option("--report", o.report_dir,
              "Write the truth-free report's data to this NEW (or empty) directory: the replayed "
              "samples, the smoothed trajectory, the data product (with the store's CG), residuals "

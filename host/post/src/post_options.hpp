@@ -19,6 +19,7 @@ struct PostOptions {
   std::string differences_csv_path;
   /// The same for the smoothed trajectory: both runs smoothed (new file).
   std::string smoothed_differences_csv_path;
+  std::string clearance_csv_path;  ///< every aircraft part's clearance per sample (new file)
   /// The truth-free report's data (new or empty directory; host/report renders it).
   std::string report_dir;
   /// Read from disk instead of the recording (empty: the recorded one).

@@ -409,6 +409,17 @@ void print_health(const pipeline::CalibrationHealthGuard& guard) {
                 static_cast<unsigned long long>(guard.monitor().exposures()));
 }
 
+// --clearance-csv: its rows written and closed, else the failure named; 0 or -1.
+int close_clearance_csv(hostapp::CsvFile& f) {
+  const std::uint64_t write_errors = f.write_errors();
+  const int rc = f.close();
+  if (write_errors == 0 && rc == 0) return 0;
+  std::fprintf(stderr, "storetrack-post: %s: %llu write error(s)%s%s\n", f.path().c_str(),
+               static_cast<unsigned long long>(write_errors), rc != 0 ? ", close: " : "",
+               rc != 0 ? std::strerror(-rc) : "");
+  return -1;
+}
+
 // --output-ch10: refused by name when it exists (nothing is written).
 void open_new_recording(ReprocessedRecording& out, const std::string& path,
                         const output::Chapter10Config& config) {
@@ -500,6 +511,10 @@ int run(const PostOptions& given) {
                        "--store-survey or --config");
   hostapp::ProcessingChain chain = hostapp::make_processing_chain(o.cfg, in);
   chain.clearance = replay_clearance(r, o.cfg, p);
+  if (!p.clearance_csv_path.empty() && !chain.clearance)
+    throw InputError(p.clearance_csv_path +
+                     ": --clearance-csv needs the clearance geometry: the recording's "
+                     "configuration names none that it carries (give --clearance-geometry)");
   smooth::CgOffset cg;
   if (!p.product_csv_path.empty()) cg = required_cg(in, o, r, p);
 
@@ -508,7 +523,8 @@ int run(const PostOptions& given) {
   if (!p.report_dir.empty()) prepare_report_dir(p.report_dir);
   for (const std::string* out :
        {&p.csv_path, &p.stats_json_path, &p.smoothed_csv_path, &p.product_csv_path,
-        &p.differences_csv_path, &p.smoothed_differences_csv_path, &p.output_ch10_path})
+        &p.differences_csv_path, &p.smoothed_differences_csv_path, &p.output_ch10_path,
+        &p.clearance_csv_path})
     if (std::error_code ec; !out->empty() && std::filesystem::exists(*out, ec))
       throw InputError(*out + ": exists; storetrack-post writes new files only");
   output::FtiCsvWriter csv;
@@ -525,12 +541,19 @@ int run(const PostOptions& given) {
   FilePtr smoothed_diffs(p.smoothed_differences_csv_path.empty()
                              ? nullptr
                              : create_output(p.smoothed_differences_csv_path));
+  hostapp::CsvFile clearance_csv;
+  if (!p.clearance_csv_path.empty())
+    if (const int rc =
+            clearance_csv.open(p.clearance_csv_path, hostapp::kClearanceCsvHeader, false);
+        rc != 0)
+      throw InputError(p.clearance_csv_path + ": " + std::strerror(-rc));
   ReprocessedRecording new_recording;
   if (!p.output_ch10_path.empty())
     open_new_recording(new_recording, p.output_ch10_path,
                        reprocessed_config(r, o, in, used_inputs, what));
 
   Replay replay(chain);
+  if (clearance_csv.is_open()) replay.write_clearance_rows(&clearance_csv);
   replay.collect_measurements(smoothed || product || smoothed_diffs);
   std::vector<RunPose> substituted_poses;
   if (diffs || smoothed_diffs)
@@ -568,6 +591,7 @@ int run(const PostOptions& given) {
   }
   if (!p.csv_path.empty() && write_csv(csv, replay.samples()) != 0) exit_code = 1;
   if (!p.output_ch10_path.empty() && close_new_recording(new_recording) != 0) exit_code = 1;
+  if (clearance_csv.is_open() && close_clearance_csv(clearance_csv) != 0) exit_code = 1;
   std::vector<smooth::SmoothedState> states;
   if (smoothed || product || smoothed_diffs) {
     states = smooth_replay(replay.measurements(), "smoothed");
@@ -595,6 +619,10 @@ int run(const PostOptions& given) {
     if (!differences_json.is_null()) j["differences"] = differences_json;
     if (!smoothed_differences_json.is_null()) j["smoothed_differences"] = smoothed_differences_json;
     if (chain.health) j["calibration_health"] = hostapp::calibration_health_json(*chain.health);
+    if (!p.clearance_csv_path.empty())
+      j["clearance_csv"] = {{"file", p.clearance_csv_path},
+                            {"bytes", clearance_csv.bytes_written()},
+                            {"write_errors", clearance_csv.write_errors()}};
     if (!p.output_ch10_path.empty()) {
       const output::Chapter10Counters& c = new_recording.writer().counters();
       j["output_ch10"] = {{"files", new_recording.writer().files()},

@@ -64,6 +64,12 @@ void Replay::process_ready() {
     samples_.push_back(r.sample);
     if (collect_) measurements_.push_back(smooth::measurement_from(r));
     if (on_sample_) on_sample_(r);
+    if (clearance_csv_ && done.clearance_evaluated) {
+      clearance_rows_.clear();
+      hostapp::format_clearance_rows(r.sample, done.clearance_extrapolated, *chain_.clearance,
+                                     clearance_rows_);
+      clearance_csv_->write(clearance_rows_);
+    }
   }
   ready_.clear();
 }

@@ -8,6 +8,7 @@
 #include <functional>
 #include <vector>
 
+#include "diagnostic_csv.hpp"
 #include "host_setup.hpp"
 #include "sample_gate.hpp"
 #include "storetrack/ingest/exposure_aligner.hpp"
@@ -49,6 +50,10 @@ class Replay {
   /// Keep each written sample's pose solution for the smoother (measurements()).
   void collect_measurements(bool on) { collect_ = on; }
 
+  /// Write each written sample's every-part clearance rows to `file` (--clearance-csv: the
+  /// host's format and formatter; the file counts its write errors). nullptr: none.
+  void write_clearance_rows(hostapp::CsvFile* file) { clearance_csv_ = file; }
+
   /// Called with each written sample's processing result (--differences-csv).
   void on_sample(std::function<void(const pipeline::ExposureResult&)> f) {
     on_sample_ = std::move(f);
@@ -80,6 +85,8 @@ class Replay {
   std::function<void(const pipeline::AlignedExposure&, const pipeline::ExposureResult&, bool)>
       on_exposure_;
   ReplayCounters counters_;
+  hostapp::CsvFile* clearance_csv_ = nullptr;
+  std::string clearance_rows_;  ///< reused: one sample's rows
 };
 
 }  // namespace storetrack::post

@@ -119,9 +119,9 @@ TEST(RecordingWriter, CsvWriteErrorsAreCounted) {
 }
 
 // Which output a test puts on a failing disk; the others stay healthy.
-enum class FailingOutput { kChapter10, kFtiCsv, kMarksCsv, kRigidCsv };
+enum class FailingOutput { kChapter10, kFtiCsv, kMarksCsv, kRigidCsv, kClearanceCsv };
 
-// Records 300 exposures to all four files, `failing` on a disk that refuses writes (a CSV on
+// Records 300 exposures to all five files, `failing` on a disk that refuses writes (a CSV on
 // /dev/full, ENOSPC; the Chapter 10 file under a 20 kB RLIMIT_FSIZE, EFBIG), the healthy CSVs on
 // /dev/null (never limited) and a healthy Chapter 10 file in `dir`. Runs in a child process so
 // the file-size limit stays there; returns {"recording": ..., "outputs": ...} of the stats.
@@ -145,12 +145,14 @@ nlohmann::json record_with_one_failing_output(FailingOutput failing, const fs::p
     if (w.open_ch10((dir / "out.ch10").string(), ch10) != 0 ||
         w.open_csv(path_for(FailingOutput::kFtiCsv)) != 0 ||
         w.open_marks_csv(path_for(FailingOutput::kMarksCsv)) != 0 ||
-        w.open_rigid_csv(path_for(FailingOutput::kRigidCsv)) != 0)
+        w.open_rigid_csv(path_for(FailingOutput::kRigidCsv)) != 0 ||
+        w.open_clearance_csv(path_for(FailingOutput::kClearanceCsv)) != 0)
       _exit(4);
     w.start();
     for (std::uint32_t k = 0; k < 300; ++k) {
       RecordingItem it = item(k);
       it.rigid_rows = text_line(4001, 'r');
+      it.clearance_rows = text_line(4001, 'c');
       w.push(std::move(it));
     }
     w.stop();
@@ -180,11 +182,13 @@ TEST(RecordingWriter, EachOutputsFailuresMoveOnlyItsOwnCounters) {
   if (!fs::exists("/dev/full") || !fs::exists("/dev/null")) GTEST_SKIP() << "no /dev/full";
   const char* const csv_keys[][2] = {{"csv_write_errors", "csv_close_errors"},
                                      {"marks_csv_write_errors", "marks_csv_close_errors"},
-                                     {"rigid_csv_write_errors", "rigid_csv_close_errors"}};
+                                     {"rigid_csv_write_errors", "rigid_csv_close_errors"},
+                                     {"clearance_csv_write_errors", "clearance_csv_close_errors"}};
   const std::pair<FailingOutput, int> cases[] = {{FailingOutput::kChapter10, -1},
                                                  {FailingOutput::kFtiCsv, 0},
                                                  {FailingOutput::kMarksCsv, 1},
-                                                 {FailingOutput::kRigidCsv, 2}};
+                                                 {FailingOutput::kRigidCsv, 2},
+                                                 {FailingOutput::kClearanceCsv, 3}};
   for (const auto& [failing, failing_csv] : cases) {
     const fs::path dir = fresh_dir("st_recording_one_failing");
     const nlohmann::json s = record_with_one_failing_output(failing, dir);
@@ -193,7 +197,7 @@ TEST(RecordingWriter, EachOutputsFailuresMoveOnlyItsOwnCounters) {
     const nlohmann::json& o = s.at("outputs");
     SCOPED_TRACE("failing csv " + std::to_string(failing_csv) + ": " + o.dump());
     EXPECT_FALSE(o.contains("write_errors")) << "the summed counter is gone";
-    for (int k = 0; k < 3; ++k) {
+    for (int k = 0; k < 4; ++k) {
       const std::uint64_t writes = r.at(csv_keys[k][0]), closes = r.at(csv_keys[k][1]);
       EXPECT_EQ(o.at(csv_keys[k][0]), writes);
       EXPECT_EQ(o.at(csv_keys[k][1]), closes);

@@ -23,12 +23,23 @@ host time on two cores): slow motion, the exposures keep their 400 fps time stam
 With --clearance-geometry G --clearance-threshold-m X (docs/clearance.md, "In the host"):
 the host evaluates the clearance per sample; checked: every valid sample carries a finite
 clearance, u > 0 and lower bound <= distance, status bit 8 clearance_alarm exactly on the samples
-whose lower bound is below X, and stats.json counts them and their episodes.
+whose lower bound is below X, and stats.json counts them and their episodes. The host's
+--clearance-csv (every aircraft part per sample) against truth: one row per part of every sample
+with a clearance, the nearest part's row equal to the FTI CSV's clearance fields (float32), and
+for the toy geometry (store triangle under horizontal part planes z = PLANES[part]) the closed
+forms: distance = the lowest store vertex's height under the plane (store vertices posed by the
+FTI CSV's pose, yaw-pitch-roll Z-Y'-X''), the part's closest point the store point projected onto
+the plane, distance = |p_store - p_aircraft|, normal = (p_store - p_aircraft) / distance, the
+store point on the posed store triangle. With --post P: storetrack-post's --clearance-csv from
+the recording byte-identical to the host's; refusals (exit 2, nothing written): post over an
+existing file, the host without a clearance geometry; without --clearance-geometry, post's
+--clearance-csv of the recording (which has none).
 
 Usage: run_forged.py SIM HOST ROOT OUT [--settings S] [--lead N] [--fps F] [--max-lost N]
-                     [--clearance-geometry G --clearance-threshold-m X]
+                     [--clearance-geometry G --clearance-threshold-m X [--post P]]
 """
 import argparse
+import csv
 import json
 import math
 import os
@@ -39,6 +50,8 @@ import sys
 import threading
 import time
 import zlib
+
+import numpy as np
 
 ap = argparse.ArgumentParser()
 ap.add_argument("sim")
@@ -54,6 +67,7 @@ ap.add_argument("--ch10-dump", default="",
                      "every recorded sample's cameras_used and trigger_seq")
 ap.add_argument("--clearance-geometry", default="", help="clearance geometry file (host config)")
 ap.add_argument("--clearance-threshold-m", type=float, default=0.3)
+ap.add_argument("--post", default="", help="storetrack-post: replay the clearance CSV")
 a = ap.parse_args()
 sys.path.insert(0, os.path.join(a.root, "tools"))
 sys.path.insert(0, os.path.join(a.root, "host", "report"))
@@ -64,6 +78,10 @@ HDR = 12
 PERIOD_NS = 2_500_000
 FORGED_AT = 50          # injected before this exposure's observations
 FORGED_CAMERA = 1       # unit 0
+# The toy clearance geometry (tests/integration/forged/clearance): the store triangle's vertices
+# (frame s) and each aircraft part's plane height z [m] in frame p, in file order.
+STORE_VERTICES = [(0.0, 0.0, 0.0), (0.5, 0.0, 0.0), (0.0, 0.3, 0.0)]
+PLANES = {"wing": -0.5, "tank": -3.0}
 WEAK = {100: "one_camera", 120: "no_marks", 140: "two_cameras_marks"}  # --settings gate
 os.makedirs(a.out, exist_ok=True)
 
@@ -140,6 +158,8 @@ def run(groups, sim_dir, lead):
             "--ch10", os.path.join(out, "out.ch10"), "--stats-json", os.path.join(out, "stats.json"),
             "--config", os.path.join(out, "host.json"), "--idle-exit-s", "6" if a.settings == "testpoint" else "1",
             "--log-level", "warn"]
+    if a.clearance_geometry:
+        args += ["--clearance-csv", os.path.join(out, "clearance.csv")]
     if a.settings == "gate":
         args += ["--min-cameras", "3"]
     else:  # every exposure is processed: stop at the last one rather than after the idle time
@@ -204,6 +224,129 @@ def check_clearance(ok, tag, s, fti):
        % (c, int(valid.sum()), sum(below), episodes))
 
 
+def rotation_zyx(yaw, pitch, roll):
+    """R = Rz(yaw) Ry(pitch) Rx(roll) (docs/fti-output.md: pylon->store Z-Y'-X'')."""
+    cy, sy, cp, sp, cr, sr = (math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch),
+                              math.cos(roll), math.sin(roll))
+    return [[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr]]
+
+
+def on_store_triangle(p, R, t, tol):
+    """p (frame p) on the posed store triangle: back in frame s, z = 0 and inside the triangle."""
+    d = [p[i] - t[i] for i in range(3)]
+    q = [sum(R[j][i] * d[j] for j in range(3)) for i in range(3)]  # R^T (p - t)
+    return abs(q[2]) < tol and q[0] > -tol and q[1] > -tol and q[0] / 0.5 + q[1] / 0.3 < 1 + tol
+
+
+def clearance_row_errors(row, fti_row):
+    """One row against the closed forms of its plane part; the largest error [m] of each check."""
+    z_plane = PLANES[row["part"]]
+    ps = [float(row["p_store_%s_p" % c]) for c in "xyz"]
+    pa = [float(row["p_aircraft_%s_p" % c]) for c in "xyz"]
+    n = [float(row["normal_%s_p" % c]) for c in "xyz"]
+    d = float(row["clearance_m"])
+    R = rotation_zyx(fti_row["yaw"], fti_row["pitch"], fti_row["roll"])
+    t = [fti_row["x"], fti_row["y"], fti_row["z"]]
+    lowest = min(sum(R[2][k] * v[k] for k in range(3)) + t[2] for v in STORE_VERTICES)
+    projection = max(abs(pa[0] - ps[0]), abs(pa[1] - ps[1]), abs(pa[2] - z_plane))
+    norm = math.dist(ps, pa)
+    normal = max(abs(n[i] - (ps[i] - pa[i]) / norm) for i in range(3))
+    return {"distance vs lowest posed vertex": abs(d - (lowest - z_plane)),
+            "closest part point vs projection": projection,
+            "distance vs |p_store - p_aircraft|": abs(d - norm),
+            "normal vs (p_store - p_aircraft) / d": normal,
+            "store point off the posed triangle": 0.0 if on_store_triangle(ps, R, t, 1e-5) else 1.0}
+
+
+def check_clearance_csv(ok, tag, out, fti):
+    """The host's every-part CSV against the FTI CSV and the toy geometry's closed forms."""
+    path = os.path.join(out, "clearance.csv")
+    with open(path, newline="") as f:
+        reader = csv.reader(f)
+        header = [h.split(" [")[0] for h in next(reader)]
+        rows = [dict(zip(header, r)) for r in reader]
+    parts = list(PLANES)
+    fti_rows = {int(q): {k: fti[k][i] for k in ("x", "y", "z", "yaw", "pitch", "roll", "clearance",
+                                                 "u_clearance", "clearance_lower_bound",
+                                                 "clearance_part")}
+                for i, q in enumerate(fti["trigger_seq"])}
+    with_clearance = [q for q, r in fti_rows.items() if math.isfinite(r["clearance"])]
+    ok(len(rows) == len(with_clearance) * len(parts)
+       and [int(r["trigger_seq"]) for r in rows[::len(parts)]] == with_clearance
+       and all(r["part"] == parts[i % len(parts)] for i, r in enumerate(rows)),
+       tag + "clearance.csv: %d rows = %d samples with a clearance x %d parts, in file order"
+       % (len(rows), len(with_clearance), len(parts)))
+    f32 = [(np.float32(float(r["clearance_m"])), np.float32(float(r["u_clearance_m"])),
+            np.float32(float(r["clearance_lower_bound_m"])))
+           for r in rows if r["part"] == parts[int(fti_rows[int(r["trigger_seq"])]["clearance_part"])]]
+    want = [(np.float32(fti_rows[q]["clearance"]), np.float32(fti_rows[q]["u_clearance"]),
+             np.float32(fti_rows[q]["clearance_lower_bound"])) for q in with_clearance]
+    ok(f32 == want, tag + "the nearest part's row = the FTI CSV's clearance, u, lower bound "
+       "(float32) on all %d samples" % len(want))
+    worst = {}
+    for r in rows:
+        for k, e in clearance_row_errors(r, fti_rows[int(r["trigger_seq"])]).items():
+            worst[k] = max(worst.get(k, 0.0), e)
+    # The FTI pose is float32 (~1e-7 relative): 1e-5 m; the CSV's points have 9 digits.
+    tolerance = {"distance vs lowest posed vertex": 1e-5, "closest part point vs projection": 1e-8,
+                 "distance vs |p_store - p_aircraft|": 1e-8, "normal vs (p_store - p_aircraft) / d":
+                 1e-7, "store point off the posed triangle": 0.5}
+    ok(rows and all(worst[k] <= tolerance[k] for k in tolerance),
+       tag + "closed forms on all %d rows, worst: %s" % (len(rows), ", ".join(
+           "%s %.2g (<= %g)" % (k, worst.get(k, float("nan")), tolerance[k]) for k in tolerance)))
+    alarms = [int(r["alarm"]) == (float(r["clearance_lower_bound_m"]) < a.clearance_threshold_m)
+              for r in rows]
+    ok(all(alarms), tag + "alarm column = the part's lower bound < %g m" % a.clearance_threshold_m)
+
+
+def check_post_clearance(ok, tag, out, sim_dir):
+    """storetrack-post's replay writes the host's clearance.csv byte for byte; its refusals."""
+    replayed = os.path.join(out, "clearance_post.csv")
+    for f in (replayed,):
+        if os.path.exists(f):
+            os.remove(f)
+    r = subprocess.run([a.post, os.path.join(out, "out.ch10"), "--clearance-csv", replayed],
+                       capture_output=True, text=True)
+    same = r.returncode == 0 and open(replayed, "rb").read() == \
+        open(os.path.join(out, "clearance.csv"), "rb").read()
+    ok(same, tag + "storetrack-post --clearance-csv from the recording byte-identical to the "
+       "host's (exit %d %s)" % (r.returncode, r.stderr.strip()[-300:]))
+    before = open(replayed, "rb").read()
+    r = subprocess.run([a.post, os.path.join(out, "out.ch10"), "--clearance-csv", replayed,
+                        "--csv", os.path.join(out, "refused_post.csv")], capture_output=True,
+                       text=True)
+    ok(r.returncode == 2 and replayed in r.stderr and open(replayed, "rb").read() == before
+       and not os.path.exists(os.path.join(out, "refused_post.csv")),
+       tag + "post over an existing --clearance-csv: exit %d, named, nothing written (%s)"
+       % (r.returncode, r.stderr.strip()))
+    json.dump({}, open(os.path.join(out, "no_geometry.json"), "w"))
+    refused = [os.path.join(out, n) for n in ("refused_clearance.csv", "refused_fti.csv")]
+    r = subprocess.run([a.host, "--calibration", os.path.join(sim_dir, "rig_calibrated.json"),
+                        "--pylon-survey", os.path.join(sim_dir, "survey_pylon.json"),
+                        "--store-survey", os.path.join(sim_dir, "survey_store.json"),
+                        "--udp-port", "1", "--udp-bind", "127.0.0.1",
+                        "--config", os.path.join(out, "no_geometry.json"),
+                        "--clearance-csv", refused[0], "--csv", refused[1]],
+                       capture_output=True, text=True)
+    ok(r.returncode == 2 and "--clearance-csv" in r.stderr and "clearance.geometry" in r.stderr
+       and not any(os.path.exists(f) for f in refused),
+       tag + "host --clearance-csv without a clearance geometry: exit %d, named, nothing "
+       "written (%s)" % (r.returncode, r.stderr.strip()))
+
+
+def check_post_refuses_clearance_csv(ok, tag, out):
+    """A recording without a clearance geometry: post's --clearance-csv refused, nothing written."""
+    refused = [os.path.join(out, n) for n in ("refused_clearance.csv", "refused_fti.csv")]
+    r = subprocess.run([a.post, os.path.join(out, "out.ch10"), "--clearance-csv", refused[0],
+                        "--csv", refused[1]], capture_output=True, text=True)
+    ok(r.returncode == 2 and refused[0] in r.stderr and "--clearance-geometry" in r.stderr
+       and not any(os.path.exists(f) for f in refused),
+       tag + "post --clearance-csv of a recording without a clearance geometry: exit %d, named, "
+       "nothing written (%s)" % (r.returncode, r.stderr.strip()))
+
+
 def check_run(ok, out, rc, packets, lead, groups):
     s = json.load(open(os.path.join(out, "stats.json")))
     al = s["aligner"]
@@ -226,6 +369,11 @@ def check_run(ok, out, rc, packets, lead, groups):
        tag + "every observation used or dropped by a counted reason")
     if a.clearance_geometry and n:
         check_clearance(ok, tag, s, fti)
+        check_clearance_csv(ok, tag, out, fti)
+        if a.post:
+            check_post_clearance(ok, tag, out, os.path.join(a.out, "sim"))
+    elif a.post:
+        check_post_refuses_clearance_csv(ok, tag, out)
     used_csv = [int(x) for x in fti["cameras_used"]] if n else []
     used_inetx = [p[-166 + 13] for p in packets]  # FTI parameter block v3: the packet's last 166 bytes
     ok(all(u >= max(1, min_cameras) for u in used_csv + used_inetx),
