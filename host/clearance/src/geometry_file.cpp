@@ -17,7 +17,11 @@ BodyDescription parse_body(const Value& entry, const std::filesystem::path& fold
   Object b = entry.object();
   BodyDescription body;
   body.field = entry.file() + ": " + entry.path();
-  body.name = b.at("name").non_empty_string();
+  const Value name = b.at("name");
+  body.name = name.non_empty_string();
+  // The name is a field of the clearance CSV and of log lines: plain text only.
+  if (body.name.find_first_of(",\"\r\n") != std::string::npos)
+    name.fail("a body name must not hold a comma, a quote or a line break (it is a CSV field)");
   const std::filesystem::path stl = b.at("stl").non_empty_string();
   body.stl_path = (stl.is_absolute() ? stl : folder / stl).string();
   const Value units = b.at("units");

@@ -154,6 +154,11 @@ TEST_F(GeometryFile, BadFieldsAreRefusedNamingFileAndField) {
   EXPECT_NE(no_aircraft.find("bodies: needs at least one body"), std::string::npos) << no_aircraft;
   const std::string twice = field_refusal(write_geometry(std::string(kStoreMm) + "," + kStoreMm));
   EXPECT_NE(twice.find("already the name"), std::string::npos) << twice;
+  const std::string comma = field_refusal(write_geometry(
+      std::string(kStoreMm) +
+      R"(, {"name": "pylon, left", "stl": "pylon.stl", "units": "m", "frame": "pylon", "closed": true})"));
+  EXPECT_NE(comma.find("bodies[1].name: a body name must not hold a comma"), std::string::npos)
+      << comma;
 }
 
 }  // namespace
