@@ -12,6 +12,11 @@
 set -euo pipefail
 SIM="$1"; UNIT="$2"; HOST="$3"; ROOT="$4"; OUT="$5"; CLEARANCE_AT_POSES="$6"
 NEXP=220
+# The aligner's wait must exceed the host's backlog: under ASan/UBSan the host (the clearance
+# under the pylon ~10x slower) falls ~4 s behind the units, so the sanitizer tree sets both longer
+# (CMakeLists.txt); the idle exit stays above the wait so the dead camera's exposures time out.
+MAX_WAIT_MS="${STORETRACK_TESTPOINT_MAX_WAIT_MS:-3000}"
+IDLE_EXIT_S="${STORETRACK_TESTPOINT_IDLE_EXIT_S:-5}"
 rm -rf "$OUT"; mkdir -p "$OUT/sim"
 PORT=$(( 22000 + $$ % 1000 ))  # below the ephemeral ports (32768-60999)
 /usr/bin/python3 - "$ROOT/common/sim/scenarios/store_separation.json" "$OUT/scenario.json" "$NEXP" <<'PY'
@@ -30,7 +35,7 @@ printf '{"clearance": {"geometry": "%s", "alarm_threshold_m": 0.10}}\n' "$GEOMET
   --store-survey "$STORE_SURVEY" --initial-marks "$OUT/initial_marks.json" \
   --udp-port "$PORT" --udp-bind 127.0.0.1 --udp-source 0@127.0.0.1 --udp-source 1@127.0.0.1 --ch10 "$OUT/out.ch10" --csv "$OUT/fti.csv" \
   --marks-csv "$OUT/marks.csv" --inetx "127.0.0.1:$((PORT + 1))" --stats-json "$OUT/stats.json" \
-  --config "$OUT/host.json" --max-wait-ms 3000 --idle-exit-s 5 --expect-exposures "$NEXP" >"$OUT/host.log" 2>&1 &
+  --config "$OUT/host.json" --max-wait-ms "$MAX_WAIT_MS" --idle-exit-s "$IDLE_EXIT_S" --expect-exposures "$NEXP" >"$OUT/host.log" 2>&1 &
 HOST_PID=$!
 UNIT_PIDS=""
 trap 'for p in $HOST_PID $UNIT_PIDS; do kill "$p" 2>/dev/null || true; done' EXIT
