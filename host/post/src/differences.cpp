@@ -118,18 +118,8 @@ DifferenceSummary summarize(std::span<const DifferenceRow> rows, std::span<const
   s.derived = !what.config;
   for (const DifferenceRow& r : rows) {
     s.different_observations += r.same_observations ? 0 : 1;
-    for (std::size_t i = 0; i < 6; ++i) {
-      const double z = std::abs(r.z(static_cast<Eigen::Index>(i)));
-      if (!std::isfinite(z)) continue;
-      AxisSummary& a = s.axes[i];
-      ++a.count;
-      a.above_2 += z > 2 ? 1 : 0;
-      a.above_3 += z > 3 ? 1 : 0;
-      if (z > a.max_abs_z) {
-        a.max_abs_z = z;
-        a.max_trigger_seq = r.trigger_seq;
-      }
-    }
+    for (std::size_t i = 0; i < 6; ++i)
+      s.axes[i].add(std::abs(r.z(static_cast<Eigen::Index>(i))), r.trigger_seq);
   }
   return s;
 }

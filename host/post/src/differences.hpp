@@ -7,6 +7,7 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <span>
@@ -66,6 +67,17 @@ struct AxisSummary {
   std::uint64_t count = 0, above_2 = 0, above_3 = 0;
   double max_abs_z = 0;
   std::uint32_t max_trigger_seq = 0;
+  /// Counts one |z| (non-finite: left out, u not derived there).
+  void add(double abs_z, std::uint32_t trigger_seq) {
+    if (!std::isfinite(abs_z)) return;
+    ++count;
+    above_2 += abs_z > 2 ? 1 : 0;
+    above_3 += abs_z > 3 ? 1 : 0;
+    if (abs_z > max_abs_z) {
+      max_abs_z = abs_z;
+      max_trigger_seq = trigger_seq;
+    }
+  }
 };
 /// One axis's (or quantity's) summary in stats.json, and as a line of the printed summary.
 nlohmann::json to_json(const AxisSummary& a);

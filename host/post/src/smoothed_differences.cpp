@@ -172,18 +172,8 @@ SmoothedDifferenceSummary summarize(std::span<const SmoothedDifferenceRow> rows,
   for (const SmoothedDifferenceRow& r : rows) {
     s.noise_bound += r.basis == DifferenceBasis::kNoiseBound ? 1 : 0;
     s.not_derived += r.basis == DifferenceBasis::kNotDerived ? 1 : 0;
-    for (std::size_t i = 0; i < kSmoothedOutputs; ++i) {
-      const double z = std::abs(r.z[i]);
-      if (!std::isfinite(z)) continue;
-      AxisSummary& q = s.quantities[i];
-      ++q.count;
-      q.above_2 += z > 2 ? 1 : 0;
-      q.above_3 += z > 3 ? 1 : 0;
-      if (z > q.max_abs_z) {
-        q.max_abs_z = z;
-        q.max_trigger_seq = r.trigger_seq;
-      }
-    }
+    for (std::size_t i = 0; i < kSmoothedOutputs; ++i)
+      s.quantities[i].add(std::abs(r.z[i]), r.trigger_seq);
   }
   return s;
 }
