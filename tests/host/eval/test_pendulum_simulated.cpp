@@ -100,7 +100,7 @@ std::vector<double> normalised_errors(const eval::PendulumResult& r,
 }
 
 #ifdef STORETRACK_SANITIZE
-constexpr int kDefaultTrials = 4;  // ASan/UBSan: the code path; the bands follow the trials
+constexpr int kDefaultTrials = 2;  // ASan/UBSan: the code path; the bands follow the trials
 #else
 constexpr int kDefaultTrials = 12;
 #endif

@@ -25,6 +25,16 @@
 namespace storetrack::match {
 namespace {
 
+// The sanitizer tree runs a fifth of CI's draws (at least 2): the chain under ASan/UBSan, each
+// band derived for the n it gets.
+constexpr int ci_draws(int release) {
+#ifdef STORETRACK_SANITIZE
+  return release / 5 > 2 ? release / 5 : 2;
+#else
+  return release;
+#endif
+}
+
 using geometry::Mat6;
 using geometry::Transform;
 using geometry::Vec6;
@@ -926,7 +936,7 @@ TEST(MarkMatcherReacquisition, OtherCalibrationDraws) {
   // (calibration, survey and noise draws: each its own layout errors and candidate points). CI
   // runs 5 draws (~0.5 s); STORETRACK_REACQ_DRAWS=N runs N (docs/matching.md).
   const char* env = std::getenv("STORETRACK_REACQ_DRAWS");
-  const int draws = env ? std::max(1, std::atoi(env)) : 5;
+  const int draws = env ? std::max(1, std::atoi(env)) : ci_draws(5);
   long total_wrong = 0, twin_ids = 0, accepted_draws = 0, identified = 0, usable = 0;
   long poses = 0, within95 = 0;
   for (int d = 0; d < draws; ++d) {
@@ -1173,7 +1183,7 @@ TEST(MarkMatcherSingleView, OneOfTwoCamerasBlindedOtherDraws) {
   // 0.95), two-sided acceptance at 0.1 % per side. CI runs 20 draws (~s);
   // STORETRACK_SINGLE_VIEW_DRAWS=N runs N (docs/matching.md).
   const char* env = std::getenv("STORETRACK_SINGLE_VIEW_DRAWS");
-  const int draws = env ? std::max(1, std::atoi(env)) : 20;
+  const int draws = env ? std::max(1, std::atoi(env)) : ci_draws(20);
   long scored = 0, pose_in = 0, att_in = 0, pos_in = 0, wrong = 0, identified = 0, usable = 0;
   double nees_sum = 0;
   for (int d = 0; d < draws; ++d) {

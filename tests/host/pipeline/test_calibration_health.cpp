@@ -2,7 +2,8 @@
 // a long static run inside their derived band, a camera's step and drift (0.02 deg, 0.1 deg,
 // 0.5 mm) detected within the delay derived from the noncentral chi-square, the estimated
 // motion against the true one (the store pose coverage: test_calibration_health_coverage).
-// STORETRACK_HEALTH_LONG=1: the long form (more windows); the sanitizer tree runs a shorter one.
+// STORETRACK_HEALTH_LONG=1: the long form (more windows); the sanitizer tree runs a shorter one,
+// one step (0.02 deg), no drift and two of the three modes (skipped tests say so).
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -148,10 +149,18 @@ TEST(CalibrationHealth, StepRotationOf0p02DegDetectedWithinItsDerivedDelay) {
 }
 
 TEST(CalibrationHealth, StepRotationOf0p1DegDetectedWithinItsDerivedDelay) {
+#ifdef STORETRACK_SANITIZE
+  GTEST_SKIP()
+      << "the Release tree's: the 0.02 deg step runs the same monitor path under ASan/UBSan";
+#endif
   expect_step_detected(Vec3(0, 0.1, 0), Vec3::Zero());
 }
 
 TEST(CalibrationHealth, StepTranslationOf0p5MmDetectedWithinItsDerivedDelay) {
+#ifdef STORETRACK_SANITIZE
+  GTEST_SKIP()
+      << "the Release tree's: the 0.02 deg step runs the same monitor path under ASan/UBSan";
+#endif
   expect_step_detected(Vec3::Zero(), Vec3(0.0005, 0, 0));
 }
 
@@ -159,6 +168,9 @@ TEST(CalibrationHealth, StepTranslationOf0p5MmDetectedWithinItsDerivedDelay) {
 // f_mean(e) xi; detection is neither before the first window whose probability exceeds 1e-4
 // nor after the first whose probability reaches 0.999.
 TEST(CalibrationHealth, DriftDetectedBetweenItsDerivedBounds) {
+#ifdef STORETRACK_SANITIZE
+  GTEST_SKIP() << "the Release tree's: the steps run the same monitor path under ASan/UBSan";
+#endif
   CalibrationHealthConfig config;  // the defaults but a 20-window baseline (CI size)
   config.baseline_windows = 20;
   const int W = config.window_exposures;
@@ -227,9 +239,13 @@ TEST(CalibrationHealth, CalibrationMovedBitSetOnEverySampleAfterTheDeclarationOn
   sc.num_exposures = step + 2 * W;
   sc.cameras[kMovedCamera].motion.start_s = (step - 0.5) / 400.0;
   const sim::Simulator sim(sc, 5);
-  for (const CalibrationHealthMode mode :
-       {CalibrationHealthMode::kFlag, CalibrationHealthMode::kCorrect,
-        CalibrationHealthMode::kExclude}) {
+#ifdef STORETRACK_SANITIZE  // flag only sets the bit: correct and exclude do that and more
+  const auto modes = {CalibrationHealthMode::kCorrect, CalibrationHealthMode::kExclude};
+#else
+  const auto modes = {CalibrationHealthMode::kFlag, CalibrationHealthMode::kCorrect,
+                      CalibrationHealthMode::kExclude};
+#endif
+  for (const CalibrationHealthMode mode : modes) {
     std::optional<ExposureProcessor> proc;
     proc.emplace(sim.calibrated_rig(), sim.pylon_survey(), sim.store_survey(), ProcessorConfig{});
     CalibrationHealthGuard guard(sim.calibrated_rig(), sim.pylon_survey(), config, mode);

@@ -30,7 +30,7 @@ using geometry::Vec3;
 using Vec6 = Eigen::Matrix<double, 6, 1>;
 
 #ifdef STORETRACK_SANITIZE
-constexpr int kSeeds = 60;  // ASan/UBSan ~10x slower: a smoke run, coverage standard error ~3 %
+constexpr int kSeeds = 20;  // ASan/UBSan ~10x slower: a smoke run (the band follows n = 20)
 #else
 constexpr int kSeeds = 200;  // seeds are the effective sample (own calibration each): s.e. 1.5 %
 #endif

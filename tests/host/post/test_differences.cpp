@@ -28,9 +28,11 @@ namespace storetrack::post {
 namespace {
 
 #ifdef STORETRACK_SANITIZE
-constexpr int kDraws = 12;  // a smoke run under ASan/UBSan; the band follows the count
+constexpr int kDraws = 5;  // a smoke run under ASan/UBSan; the band follows the count
+constexpr int kWrongDraws = 5;
 #else
 constexpr int kDraws = 100;
+constexpr int kWrongDraws = 10;
 #endif
 // The first 0.15 s of the test point at 400 fps: captive (20 ms), the ejector stroke (50 ms),
 // free flight.
@@ -324,7 +326,6 @@ TEST(PostSmoothedDifferences, AKnownCalibrationShiftGivesItsFirstOrderDifference
 
 // Camera 0 turned by 0.1 deg about its x axis (its stated rotation sigma is 0.05 mrad).
 TEST(PostDifferences, AWrongCalibrationIsSignificant) {
-  constexpr int kWrongDraws = 10;
   std::vector<std::vector<DifferenceRow>> draws;
   for (int d = 0; d < kWrongDraws; ++d) {
     const sim::Simulator a(scenario(), kRecordingSeed + static_cast<std::uint64_t>(d));

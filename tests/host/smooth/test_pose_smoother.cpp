@@ -28,7 +28,7 @@ using geometry::Vec3;
 using Acc = uncertainty::ConsistencyAccumulator<3>;
 
 #ifdef STORETRACK_SANITIZE
-constexpr int kDraws = 12;  // a smoke run under ASan/UBSan (~10x slower)
+constexpr int kDraws = 5;  // a smoke run under ASan/UBSan (~10x slower)
 #else
 constexpr int kDraws = 100;  // ~50 s in Release; the band follows the count
 #endif
