@@ -27,6 +27,7 @@ need_bin HOST STORETRACK_BIN_HOST storetrack-host
 need_bin EMU STORETRACK_BIN_TRIGGER_EMU storetrack-trigger-emu
 need_bin CAMEMU STORETRACK_BIN_CAMERA_EMU rig_camera_emu
 need_bin CH10 STORETRACK_BIN_CH10_DUMP rig_ch10_dump
+need_bin POST STORETRACK_BIN_POST storetrack-post
 P=${VMRIG_OUT:?this test runs in the VM}/e2e.host
 # keep the logs and outputs (not the frames) next to the result for a failure's post-mortem
 trap 'mkdir -p "$VMRIG_OUT/e2e.files"; cp $T/*.csv $T/*.json $T/*.out $T/*.txt $T/*.json.out \
@@ -139,4 +140,17 @@ python3 "$RIG_GUEST/check_e2e.py" --count "$N" --rate "$RATE" --trigger-log $T/t
   --edges $T/unit0.edges.csv $T/unit1.edges.csv --host $T/host.json.out --fti $T/fti.csv \
   --marks $T/marks.csv --ch10 $T/ch10.json --truth-poses $P/sim/truth_poses.csv \
   --truth-marks $P/sim/truth_marks.csv || fail "end-to-end checks"
+# The live recording reprocessed (issue 26): its raw channel holds the CAN FD messages as the
+# host reassembled them, with their arrival times; storetrack-post replays them and must give
+# every live sample again, bit for bit.
+prc=0; "$POST" --verify $T/e2e.ch10 --stats-json $T/post.json > $T/post.out 2>&1 || prc=$?
+tail -n 4 $T/post.out
+[ $prc = 0 ] || fail "storetrack-post --verify of the live CAN FD recording: exit $prc"
+python3 - $T/host.json.out $T/post.json <<'PY' || fail "replay of the live CAN FD recording"
+import json, sys
+live, post = (json.load(open(p)) for p in sys.argv[1:3])
+v, n = post["verify"], live["samples_written"]
+print(f"replay of the live CAN FD recording: {n} live samples; {v}")
+sys.exit(0 if n > 0 and v["recorded"] == n and v["replayed"] == n and v["identical"] == n else 1)
+PY
 echo "e2e OK"
