@@ -17,6 +17,8 @@ using uncertainty::Source;
 
 constexpr std::array<const char*, 6> kAxes = {"x", "y", "z", "yaw", "pitch", "roll"};
 constexpr std::array<const char*, 6> kUnits = {"m", "m", "m", "rad", "rad", "rad"};
+constexpr std::array<const char*, 3> kInputs = {"calibration", "pylon_survey", "store_survey"};
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 const Mat6& part(const pipeline::ExposureResult& r, Source s) {
   return r.cov_xyz_ypr_by_source[static_cast<std::size_t>(uncertainty::index(s))];
@@ -51,8 +53,10 @@ RunPose run_pose(const pipeline::ExposureResult& r, std::size_t pylon_survey_mar
   const auto n_p = static_cast<Eigen::Index>(
       std::min<std::size_t>(3 * pylon_survey_marks, static_cast<std::size_t>(L.cols())));
   p.shared_columns = {r.T_p_s.loadings.cols(), n_p, L.cols() - n_p};
+  const Mat6 J = pipeline::output_jacobian(r.T_p_s.T);
+  p.shared.resize(6, r.T_p_s.loadings.cols() + L.cols());
+  p.shared << J * r.T_p_s.loadings, J * L;
   if (L.cols() > 0) {
-    const Mat6 J = pipeline::output_jacobian(r.T_p_s.T);
     const Eigen::Matrix<double, 6, Eigen::Dynamic> Lp = J * L.leftCols(n_p);
     const Eigen::Matrix<double, 6, Eigen::Dynamic> Ls = J * L.rightCols(L.cols() - n_p);
     p.pylon_survey = Lp * Lp.transpose();
@@ -62,6 +66,35 @@ RunPose run_pose(const pipeline::ExposureResult& r, std::size_t pylon_survey_mar
   }
   p.observations = observations_used(r);
   return p;
+}
+
+Eigen::VectorXd shared_difference_variance(const Eigen::Ref<const Eigen::MatrixXd>& Ea,
+                                           const Eigen::Ref<const Eigen::MatrixXd>& Eb,
+                                           const std::array<Eigen::Index, 3>& cols_a,
+                                           const std::array<Eigen::Index, 3>& cols_b,
+                                           const Substituted& what, std::string& why_not) {
+  const std::array<bool, 3> substituted = {what.calibration, what.pylon_survey, what.store_survey};
+  Eigen::VectorXd var = Eigen::VectorXd::Zero(Ea.rows());
+  Eigen::Index begin_a = 0, begin_b = 0;
+  for (std::size_t i = 0; i < 3; ++i) {
+    const Eigen::Index na = cols_a[i], nb = cols_b[i];
+    if (begin_a + na > Ea.cols() || begin_b + nb > Eb.cols()) {
+      why_not = "not_derived_loadings_missing";
+      return Eigen::VectorXd::Constant(Ea.rows(), kNaN);
+    }
+    if (substituted[i]) {
+      var += Ea.middleCols(begin_a, na).rowwise().squaredNorm() +
+             Eb.middleCols(begin_b, nb).rowwise().squaredNorm();
+    } else if (na == nb) {
+      var += (Eb.middleCols(begin_b, nb) - Ea.middleCols(begin_a, na)).rowwise().squaredNorm();
+    } else {
+      why_not = std::string("not_derived_") + kInputs[i] + "_columns_differ";
+      return Eigen::VectorXd::Constant(Ea.rows(), kNaN);
+    }
+    begin_a += na;
+    begin_b += nb;
+  }
+  return var;
 }
 
 // Cov(d) per axis. The recorded run's error is e_A = M_A z_A + S_A s_A + N eps, the substituted
@@ -75,18 +108,31 @@ DifferenceRow difference(const RunPose& a, const RunPose& b, const Substituted& 
   row.d = b.value - a.value;
   for (int i = 3; i < 6; ++i)
     row.d(i) = std::remainder(row.d(i), 2 * M_PI);
-  Mat6 c = Mat6::Zero();
-  if (what.calibration) c += a.calibration + b.calibration;
-  if (what.pylon_survey) c += a.pylon_survey + b.pylon_survey;
-  if (what.store_survey) c += a.store_survey + b.store_survey;
-  Vec6 var = c.diagonal();
+  Vec6 var = Vec6::Zero();
+  if (what.config) {
+    // A substituted configuration changes the processing, not an input: the inputs not
+    // substituted are the same draw in both runs, their loadings differenced (the smoothed
+    // differences' rule); the weights differ, so the noise does not cancel (bound below).
+    var = shared_difference_variance(a.shared, b.shared, a.shared_columns, b.shared_columns, what,
+                                     row.why_not);
+    if (a.shared.cols() == 0 && row.why_not.empty()) {  // a pose without loadings
+      row.why_not = "not_derived_loadings_missing";
+      var.setConstant(kNaN);
+    }
+  } else {
+    Mat6 c = Mat6::Zero();
+    if (what.calibration) c += a.calibration + b.calibration;
+    if (what.pylon_survey) c += a.pylon_survey + b.pylon_survey;
+    if (what.store_survey) c += a.store_survey + b.store_survey;
+    var = c.diagonal();
+  }
   row.same_observations = a.observations == b.observations;
-  // Other observations (a mark matched or rejected differently): the noise no longer cancels.
-  // Var(N_A eps - N_B eps) <= (sd_A + sd_B)^2 per axis (Cauchy-Schwarz), the safe side.
-  if (!row.same_observations)
+  // Other observations (a mark matched or rejected differently) or other weights: the noise no
+  // longer cancels. Var(N_A eps - N_B eps) <= (sd_A + sd_B)^2 per axis (Cauchy-Schwarz), the
+  // safe side.
+  if (!row.same_observations || what.config)
     var += (a.centroid.diagonal().cwiseSqrt() + b.centroid.diagonal().cwiseSqrt()).cwiseAbs2();
-  row.u = what.config ? Vec6(Vec6::Constant(std::numeric_limits<double>::quiet_NaN()))
-                      : Vec6(var.cwiseSqrt());
+  row.u = var.cwiseSqrt();
   row.z = row.d.cwiseQuotient(row.u);
   return row;
 }
@@ -106,7 +152,7 @@ std::vector<DifferenceRow> differences(std::span<const RunPose> recorded,
 }
 
 DifferenceSummary summarize(std::span<const DifferenceRow> rows, std::span<const RunPose> recorded,
-                            std::span<const RunPose> substituted, const Substituted& what) {
+                            std::span<const RunPose> substituted) {
   DifferenceSummary s;
   s.recorded = recorded.size();
   s.substituted = substituted.size();
@@ -115,8 +161,9 @@ DifferenceSummary summarize(std::span<const DifferenceRow> rows, std::span<const
   for (const RunPose& p : substituted)
     s.substituted_solved += p.solved ? 1 : 0;
   s.compared = rows.size();
-  s.derived = !what.config;
+  s.derived = rows.empty();
   for (const DifferenceRow& r : rows) {
+    s.derived = s.derived || r.why_not.empty();
     s.different_observations += r.same_observations ? 0 : 1;
     for (std::size_t i = 0; i < 6; ++i)
       s.axes[i].add(std::abs(r.z(static_cast<Eigen::Index>(i))), r.trigger_seq);
@@ -179,7 +226,7 @@ void print_summary(std::FILE* f, const DifferenceSummary& s) {
                static_cast<unsigned long long>(s.substituted_solved),
                static_cast<unsigned long long>(s.different_observations));
   if (!s.derived) {
-    std::fprintf(f, "differences: a substituted configuration states no uncertainty: no z\n");
+    std::fprintf(f, "differences: u not derived (the inputs' factor columns differ): no z\n");
     return;
   }
   for (std::size_t i = 0; i < 6; ++i)

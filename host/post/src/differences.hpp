@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <span>
+#include <string>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -43,19 +44,34 @@ struct RunPose {
   /// The number of columns of the smoother's shared loadings (smooth::PoseMeasurement::shared)
   /// each input loads, in their order: calibration factors, pylon survey, store survey.
   std::array<Eigen::Index, 3> shared_columns{};
+  /// The reported quantities' loadings on those factors (through the processor's output
+  /// Jacobian), in those columns: a substituted configuration differences them.
+  Eigen::Matrix<double, 6, Eigen::Dynamic> shared;
 };
 
 /// `pylon_survey_marks`: the number of marks of the pylon survey the processor ran with (its
 /// survey loadings' first 3 n columns are the pylon's, the rest the store's).
 RunPose run_pose(const pipeline::ExposureResult& r, std::size_t pylon_survey_marks);
 
+/// Var(d) per quantity of the shared errors, from the two runs' loadings (rows: quantities;
+/// columns: calibration factors, pylon survey, store survey, `cols_a` and `cols_b` of each): a
+/// substituted input is an independent draw in each run (its two parts add), one not
+/// substituted the same draw (the difference of its loadings). NaN and `why_not` (a token
+/// without commas) when a common input's columns differ between the runs or are missing.
+Eigen::VectorXd shared_difference_variance(const Eigen::Ref<const Eigen::MatrixXd>& Ea,
+                                           const Eigen::Ref<const Eigen::MatrixXd>& Eb,
+                                           const std::array<Eigen::Index, 3>& cols_a,
+                                           const std::array<Eigen::Index, 3>& cols_b,
+                                           const Substituted& what, std::string& why_not);
+
 struct DifferenceRow {
   std::uint32_t trigger_seq = 0;
   time::TaiNs t_ns = 0;
   bool same_observations = true;  ///< false: the centroid noise does not cancel (bounded, below)
   geometry::Vec6 d = geometry::Vec6::Zero();  ///< substituted - recorded (angles wrapped)
-  geometry::Vec6 u = geometry::Vec6::Zero();  ///< NaN when not derived (a substituted config)
+  geometry::Vec6 u = geometry::Vec6::Zero();  ///< NaN when not derived (why_not says why)
   geometry::Vec6 z = geometry::Vec6::Zero();  ///< d / u
+  std::string why_not;  ///< empty, or why u is not derived (a substituted configuration's)
 };
 
 /// The samples both runs solved, paired by trigger_seq (in the recorded run's order).
@@ -89,12 +105,12 @@ struct DifferenceSummary {
   std::uint64_t recorded_solved = 0, substituted_solved = 0;
   std::uint64_t compared = 0;  ///< solved in both
   std::uint64_t different_observations = 0;
-  bool derived = true;  ///< false: a substituted config, no u stated
+  bool derived = true;  ///< false: no row's u derived (a substituted config, columns differ)
   std::array<AxisSummary, 6> axes;
 };
 
 DifferenceSummary summarize(std::span<const DifferenceRow> rows, std::span<const RunPose> recorded,
-                            std::span<const RunPose> substituted, const Substituted& what);
+                            std::span<const RunPose> substituted);
 
 /// Header (units) and one line per compared sample; false on a write error.
 bool write_differences_csv(std::FILE* f, std::span<const DifferenceRow> rows);

@@ -348,7 +348,7 @@ nlohmann::json write_differences(const RecordedRun& recorded,
                                  const std::vector<RunPose>& substituted, const Substituted& what,
                                  const std::string& path, FilePtr f, int& exit_code) {
   const std::vector<DifferenceRow> rows = differences(recorded.poses, substituted, what);
-  const DifferenceSummary summary = summarize(rows, recorded.poses, substituted, what);
+  const DifferenceSummary summary = summarize(rows, recorded.poses, substituted);
   print_summary(stderr, summary);
   if (!write_differences_csv(f.get(), rows) || std::fclose(f.release()) != 0) {
     std::fprintf(stderr, "storetrack-post: %s: %s\n", path.c_str(), std::strerror(errno));

@@ -56,7 +56,7 @@ bool write_smoothed_csv(std::FILE* f, std::span<const SmoothedState> states) {
   SmoothedOutputMap M;
   for (const SmoothedState& s : states) {
     smoothed_outputs(s, value, M);
-    const StateMatrix parts[3] = {s.cov(), s.cov_noise, s.cov_shared};
+    const StateMatrix parts[3] = {s.cov(), s.cov_noise, s.cov_shared()};
     if (std::fprintf(f, "%lld,%d,%d,%d", static_cast<long long>(s.t_ns), s.segment,
                      s.measured ? 1 : 0, s.step ? 1 : 0) < 0)
       return false;

@@ -11,9 +11,6 @@ namespace {
 using Quantities = Eigen::Matrix<double, kSmoothedOutputs, 1>;
 using QuantityLoadings = Eigen::Matrix<double, kSmoothedOutputs, Eigen::Dynamic>;
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-constexpr std::array<const char*, 3> kInputs = {"calibration", "pylon_survey", "store_survey"};
-
 /// A smoothed state with its exposure's written sample (the same reference mid-time).
 struct Paired {
   const smooth::SmoothedState* state = nullptr;
@@ -72,35 +69,6 @@ struct Layouts {
   std::array<Eigen::Index, 3> a{}, b{};
 };
 
-/// Var(d) of the shared errors: a substituted input is an independent draw in each run (its
-/// two parts add), one not substituted the same draw (the difference of its loadings). NaN and
-/// `why_not` when a common input's columns differ between the runs.
-Quantities shared_variance(const QuantityLoadings& Ea, const QuantityLoadings& Eb,
-                           const Layouts& cols, const Substituted& what, std::string& why_not) {
-  const std::array<bool, 3> substituted = {what.calibration, what.pylon_survey, what.store_survey};
-  Quantities var = Quantities::Zero();
-  Eigen::Index begin_a = 0, begin_b = 0;
-  for (std::size_t i = 0; i < 3; ++i) {
-    const Eigen::Index na = cols.a[i], nb = cols.b[i];
-    if (begin_a + na > Ea.cols() || begin_b + nb > Eb.cols()) {
-      why_not = "not_derived_loadings_missing";
-      return Quantities::Constant(kNaN);
-    }
-    if (substituted[i]) {
-      var += Ea.middleCols(begin_a, na).rowwise().squaredNorm() +
-             Eb.middleCols(begin_b, nb).rowwise().squaredNorm();
-    } else if (na == nb) {
-      var += (Eb.middleCols(begin_b, nb) - Ea.middleCols(begin_a, na)).rowwise().squaredNorm();
-    } else {
-      why_not = std::string("not_derived_") + kInputs[i] + "_columns_differ";
-      return Quantities::Constant(kNaN);
-    }
-    begin_a += na;
-    begin_b += nb;
-  }
-  return var;
-}
-
 SmoothedDifferenceRow difference(const Paired& a, const Paired& b, const Layouts& cols,
                                  const Substituted& what, bool noise_cancels) {
   SmoothedDifferenceRow row;
@@ -114,7 +82,7 @@ SmoothedDifferenceRow difference(const Paired& a, const Paired& b, const Layouts
   Quantities d = vb - va;
   for (int i = 3; i < 6; ++i)  // yaw, pitch, roll
     d(i) = std::remainder(d(i), 2 * M_PI);
-  Quantities var = shared_variance(Ea, Eb, cols, what, row.why_not);
+  Quantities var = shared_difference_variance(Ea, Eb, cols.a, cols.b, what, row.why_not);
   // The noise (centroid noise and the model's process noise) is one draw in both runs; with
   // the same observations and steps over the segment and the same configuration, the gains
   // differ only through the linearisation point (second order): it cancels. Otherwise

@@ -218,6 +218,54 @@ TEST(PostDifferences, TheSameInputsGiveZeroDifference) {
   }
 }
 
+// A substituted configuration (per exposure), closed form: the recording's own inputs under the
+// same configuration. The inputs not substituted are the same draw in both runs, their loadings
+// equal: their part is 0; the noise gets the bound (sd_A + sd_B)^2 = (2 sd)^2, sd from the
+// processor's centroid covariance part. With the calibration substituted too, its part is the
+// two runs' calibration covariance parts (the processor's own, computed apart from the
+// loadings the difference uses) added.
+TEST(PostDifferences, ASubstitutedConfigurationGetsTheNoiseBoundAndTheSubstitutedParts) {
+  const sim::Simulator a(scenario(), kRecordingSeed);
+  const std::vector<ProcessedRun> runs =
+      process_runs(a, {a.calibrated_rig()}, {a.store_survey()}, false);
+  for (const Substituted what :
+       {Substituted{.config = true}, Substituted{.calibration = true, .config = true}}) {
+    const auto rows = differences(runs[0].poses, runs[1].poses, what);
+    ASSERT_GT(rows.size(), static_cast<std::size_t>(kExposures) * 9 / 10);
+    std::map<std::uint32_t, const RunPose*> by_seq;
+    for (const RunPose& p : runs[0].poses)
+      by_seq[p.trigger_seq] = &p;
+    for (const DifferenceRow& r : rows) {
+      const RunPose& p = *by_seq.at(r.trigger_seq);
+      EXPECT_TRUE(r.why_not.empty()) << r.why_not;
+      EXPECT_EQ(r.d.cwiseAbs().maxCoeff(), 0.0) << r.trigger_seq;
+      geometry::Vec6 expected = 4 * p.centroid.diagonal();
+      if (what.calibration) expected += 2 * p.calibration.diagonal();
+      for (int i = 0; i < 6; ++i)
+        EXPECT_NEAR(r.u(i), std::sqrt(expected(i)), 1e-9 * std::sqrt(expected(i)))
+            << r.trigger_seq << " axis " << i << (what.calibration ? " +calibration" : "");
+    }
+    const DifferenceSummary s = summarize(rows, runs[0].poses, runs[1].poses);
+    EXPECT_TRUE(s.derived);
+    EXPECT_EQ(s.axes[0].count, rows.size());
+  }
+}
+
+// An input not substituted whose factor columns differ (the store survey with its last mark
+// left out, under a substituted configuration): u and z NaN, the row says which input.
+TEST(PostDifferences, UnpairableColumnsUnderASubstitutedConfigurationAreNotDerived) {
+  const sim::Simulator a(scenario(), kRecordingSeed);
+  survey::RigidBodySurvey fewer = a.store_survey();
+  fewer.marks.pop_back();
+  const auto rows = run_draw(a, {a.calibrated_rig()}, {fewer}, {{.config = true}}).front();
+  ASSERT_FALSE(rows.empty());
+  for (const DifferenceRow& r : rows) {
+    EXPECT_EQ(r.why_not, "not_derived_store_survey_columns_differ") << r.trigger_seq;
+    EXPECT_TRUE(r.d.allFinite()) << r.trigger_seq;
+    EXPECT_TRUE(r.u.array().isNaN().all() && r.z.array().isNaN().all()) << r.trigger_seq;
+  }
+}
+
 // The same for the smoothed trajectory: both runs smooth identical measurements, d = 0 exactly.
 TEST(PostSmoothedDifferences, TheSameInputsGiveZeroDifference) {
   const sim::Simulator a(scenario(), kRecordingSeed);

@@ -102,8 +102,8 @@ TEST(PoseSmoother, ConstantSharedBiasIsNotAveragedAndHasNoRate) {
   EXPECT_EQ(counters.predicted, 1u);
   const geometry::Mat6 expected = M * M.transpose();
   for (const SmoothedState& s : out) {
-    const geometry::Mat6 pose_part = s.cov_shared.topLeftCorner<6, 6>();
-    const Eigen::Matrix<double, 12, 12> rates_part = s.cov_shared.bottomRightCorner<12, 12>();
+    const geometry::Mat6 pose_part = s.cov_shared().topLeftCorner<6, 6>();
+    const Eigen::Matrix<double, 12, 12> rates_part = s.cov_shared().bottomRightCorner<12, 12>();
     EXPECT_LT((pose_part - expected).norm(), 1e-9 * expected.norm());
     EXPECT_LT(rates_part.norm(), 1e-9 * expected.norm());
     // The noise part is averaged: below the per-exposure noise.

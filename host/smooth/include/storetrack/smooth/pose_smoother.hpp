@@ -112,14 +112,16 @@ struct SmoothedState {
   geometry::Vec3 angular_accel_p = geometry::Vec3::Zero();  ///< [rad/s^2]
   geometry::Vec3 accel_p = geometry::Vec3::Zero();          ///< [m/s^2]
   bool step = false;  ///< an acceleration step was modelled in the interval before this one
-  StateMatrix cov_noise = StateMatrix::Zero();   ///< averaged part (noise and process noise)
-  StateMatrix cov_shared = StateMatrix::Zero();  ///< calibration + survey, not averaged
-  /// Its loadings on the recording's shared factors (cov_shared = shared shared^T): lets the
-  /// data product combine states of different times and its own shared errors (the CG's).
+  StateMatrix cov_noise = StateMatrix::Zero();  ///< averaged part (noise and process noise)
+  /// Loadings on the recording's shared factors: the shared part (calibration + survey, not
+  /// averaged) is shared shared^T; they let the data product combine states of different times
+  /// and its own shared errors (the CG's). Not stored as a covariance too: the states of a long
+  /// segment are the smoother's memory (docs/performance.md, "Smoother memory").
   SharedLoadings shared;
   /// The per-exposure solution's noise covariance (zero when not measured), for comparison.
   geometry::Mat6 cov_noise_per_exposure = geometry::Mat6::Zero();
-  StateMatrix cov() const { return cov_noise + cov_shared; }
+  StateMatrix cov_shared() const { return shared * shared.transpose(); }
+  StateMatrix cov() const { return cov_noise + cov_shared(); }
 };
 
 struct SmootherCounters {
