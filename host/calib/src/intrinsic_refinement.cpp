@@ -21,14 +21,17 @@ void pose_vector_jacobian(const Eigen::Matrix<double, 2, 6>& d_left, const doubl
   J.rightCols<3>() = weight * d_left.rightCols<3>();
 }
 
-/// Residual (projected - observed) / sigma of one board point; blocks: z, pose (rotvec, t).
+/// Residual (projected - observed) / sigma of one board point; blocks: z, pose (rotvec, t) and,
+/// with a fitted board deflection (`warp` not null), its coefficients (c_x, c_y).
 class ReprojectionCost final : public ceres::CostFunction {
  public:
-  ReprojectionCost(const Observation& obs, const IntrinsicParameterMap& map)
-      : obs_(obs), map_(map), weight_(1.0 / obs.weighting_sigma_px()) {
+  ReprojectionCost(const Observation& obs, const IntrinsicParameterMap& map,
+                   const BoardWarp* warp = nullptr)
+      : obs_(obs), map_(map), warp_(warp), weight_(1.0 / obs.weighting_sigma_px()) {
     set_num_residuals(2);
     mutable_parameter_block_sizes()->push_back(map.size());
     mutable_parameter_block_sizes()->push_back(6);
+    if (warp_) mutable_parameter_block_sizes()->push_back(2);
   }
 
   bool Evaluate(double const* const* parameters, double* residuals,
@@ -36,8 +39,9 @@ class ReprojectionCost final : public ceres::CostFunction {
     const camera::CameraModel model(map_.intrinsics(parameters[0]));
     const Eigen::Map<const PoseVector> pose(parameters[1]);
     const geometry::Transform T_c_b = pose_transform(pose);
+    const geometry::Vec3 p_board = warp_ ? warp_->apply(obs_.p_board, parameters[2]) : obs_.p_board;
     camera::ProjectionJacobians J;
-    const auto pixel = model.project_world(T_c_b, obs_.p_board, jacobians ? &J : nullptr);
+    const auto pixel = model.project_world(T_c_b, p_board, jacobians ? &J : nullptr);
     if (!pixel) return false;  // behind the camera: LM shortens the step
     Eigen::Map<Eigen::Vector2d> r(residuals);
     r = weight_ * (*pixel - obs_.pixel);
@@ -48,12 +52,17 @@ class ReprojectionCost final : public ceres::CostFunction {
       Jz = weight_ * J.d_intrinsics * map_.jacobian();
     }
     if (jacobians[1]) pose_vector_jacobian(J.d_pose, parameters[1], weight_, jacobians[1]);
+    if (warp_ && jacobians[2]) {
+      Eigen::Map<Eigen::Matrix<double, 2, 2, Eigen::RowMajor>> Jc(jacobians[2]);
+      Jc = weight_ * J.d_point_world.col(2) * warp_->basis(obs_.p_board).transpose();
+    }
     return true;
   }
 
  private:
   const Observation& obs_;
   const IntrinsicParameterMap& map_;
+  const BoardWarp* warp_;
   double weight_;
 };
 
@@ -131,15 +140,20 @@ int refine_intrinsics(const std::vector<BoardView>& views,
   ceres::Problem::Options problem_options;
   ceres::Problem problem(problem_options);
   auto* ordering = new ceres::ParameterBlockOrdering;  // owned by the solver options
+  const BoardWarp* warp = state.warp.fitted ? &state.warp : nullptr;
+  std::vector<double*> blocks = {state.z.data(), nullptr};
+  if (warp) blocks.push_back(state.warp.c.data());
   for (size_t i = 0; i < views.size(); ++i) {
+    blocks[1] = state.poses[i].data();
     for (size_t k = 0; k < views[i].points.size(); ++k)
       if (used[i][k])
-        problem.AddResidualBlock(new ReprojectionCost(*views[i].points[k], map), nullptr,
-                                 state.z.data(), state.poses[i].data());
+        problem.AddResidualBlock(new ReprojectionCost(*views[i].points[k], map, warp), nullptr,
+                                 blocks);
     if (problem.HasParameterBlock(state.poses[i].data()))
       ordering->AddElementToGroup(state.poses[i].data(), 0);  // eliminated first (Schur)
   }
   ordering->AddElementToGroup(state.z.data(), 1);
+  if (warp) ordering->AddElementToGroup(state.warp.c.data(), 1);
   return solve(problem, ordering);
 }
 
