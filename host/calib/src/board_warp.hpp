@@ -6,11 +6,14 @@
 #pragma once
 
 #include <algorithm>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
 
 #include "board_views.hpp"
+#include "storetrack/calib/intrinsic_calibration.hpp"
 
 namespace storetrack::calib {
 
@@ -48,5 +51,22 @@ struct BoardWarp {
   }
   Eigen::Vector3d apply(const Eigen::Vector3d& p) const { return apply(p, c.data()); }
 };
+
+/// The result's statement of a fit's deflection.
+inline BoardDeflectionResult deflection_result(const BoardWarp& w,
+                                               const Eigen::Matrix2d& covariance,
+                                               std::string reason) {
+  return {w.fitted,           std::move(reason),  w.c,
+          covariance,         w.x_mid - w.x_half, w.x_mid + w.x_half,
+          w.y_mid - w.y_half, w.y_mid + w.y_half};
+}
+
+/// Applies options.board_deflection to `warp` (its extent set over `views`, its c left as is);
+/// returns the reason stated in the result. Auto fits when the identifiability rule holds:
+/// >= 3 distinct board x and >= 3 distinct y (a parabola per axis), >= 3 views. Throws
+/// CalibrationError ("<who>the board deflection cannot be fitted: ...") when `on` is asked of
+/// views that cannot determine it. In intrinsic_calibration.cpp.
+std::string decide_deflection(const std::vector<BoardView>& views, const IntrinsicOptions& options,
+                              BoardWarp& warp, const std::string& who);
 
 }  // namespace storetrack::calib

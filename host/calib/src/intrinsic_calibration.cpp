@@ -61,52 +61,6 @@ void check_board_relief(const std::vector<BoardView>& views, const std::string& 
       }
 }
 
-/// Counts the distinct values (to 1 um) of one board coordinate.
-int distinct_board_values(const std::vector<BoardView>& views, int axis) {
-  std::vector<double> values;
-  for (const BoardView& v : views)
-    for (const Observation* o : v.points)
-      values.push_back(o->p_board[axis]);
-  std::sort(values.begin(), values.end());
-  int distinct = values.empty() ? 0 : 1;
-  for (size_t i = 1; i < values.size(); ++i)
-    if (values[i] - values[i - 1] > 1e-6) ++distinct;
-  return distinct;
-}
-
-/// The identifiability rule of the board deflection: a parabola along each board axis needs
-/// points at >= 3 distinct x and >= 3 distinct y, and the bowl is told apart from the
-/// distortion and the poses by its shape being shared across >= kMinDeflectionViews views.
-/// "" when the rule holds, else why not.
-constexpr int kMinDeflectionViews = 3;
-std::string deflection_not_identifiable(const std::vector<BoardView>& views) {
-  const int nx = distinct_board_values(views, 0), ny = distinct_board_values(views, 1);
-  if (nx < 3 || ny < 3)
-    return "the board has " + std::to_string(nx) + " distinct x and " + std::to_string(ny) +
-           " distinct y coordinates (a bowl needs >= 3 of each)";
-  if (static_cast<int>(views.size()) < kMinDeflectionViews)
-    return std::to_string(views.size()) +
-           " usable views (the deflection needs >= " + std::to_string(kMinDeflectionViews) + ")";
-  return "";
-}
-
-/// Applies options.board_deflection to `warp` (its extent set over the views); returns the
-/// reason stated in the result. Throws when `on` is asked of a board that cannot determine it.
-std::string decide_deflection(const std::vector<BoardView>& views, const IntrinsicOptions& options,
-                              BoardWarp& warp, const std::string& who) {
-  warp = BoardWarp::over(views);
-  if (options.board_deflection == BoardDeflection::off) return "off (--board-deflection off)";
-  const std::string why_not = deflection_not_identifiable(views);
-  if (options.board_deflection == BoardDeflection::on && !why_not.empty())
-    throw CalibrationError(who + "the board deflection cannot be fitted: " + why_not +
-                           "; use --board-deflection off or auto");
-  warp.fitted = why_not.empty();
-  if (!warp.fitted) return "not fitted (auto): " + why_not;
-  return options.board_deflection == BoardDeflection::on
-             ? "fitted (--board-deflection on)"
-             : "fitted (auto: >= 3 distinct board x and y, >= 3 views)";
-}
-
 /// Refuses too few usable views, naming the skipped ones (they are the usual cause).
 void check_view_count(const std::vector<BoardView>& views, const std::vector<SkippedView>& skipped,
                       int min_views, const std::string& who) {
@@ -239,18 +193,59 @@ IntrinsicResult summarise(const std::vector<BoardView>& views,
   out.covariance = cov.intrinsics;
   for (size_t i = 0; i < out.views.size(); ++i)
     out.views[i].pose_covariance = cov.poses[i];
-  const BoardWarp& w = state.warp;
-  out.board_deflection.fitted = w.fitted;
-  out.board_deflection.c_m = w.c;
-  out.board_deflection.covariance = cov.warp;
-  out.board_deflection.x_min = w.x_mid - w.x_half;
-  out.board_deflection.x_max = w.x_mid + w.x_half;
-  out.board_deflection.y_min = w.y_mid - w.y_half;
-  out.board_deflection.y_max = w.y_mid + w.y_half;
+  out.board_deflection = deflection_result(state.warp, cov.warp, "");
   return out;
 }
 
 }  // namespace
+
+namespace {
+
+/// Counts the distinct values (to 1 um) of one board coordinate.
+int distinct_board_values(const std::vector<BoardView>& views, int axis) {
+  std::vector<double> values;
+  for (const BoardView& v : views)
+    for (const Observation* o : v.points)
+      values.push_back(o->p_board[axis]);
+  std::sort(values.begin(), values.end());
+  int distinct = values.empty() ? 0 : 1;
+  for (size_t i = 1; i < values.size(); ++i)
+    if (values[i] - values[i - 1] > 1e-6) ++distinct;
+  return distinct;
+}
+
+/// The identifiability rule of the board deflection: a parabola along each board axis needs
+/// points at >= 3 distinct x and >= 3 distinct y, and the bowl is told apart from the
+/// distortion and the poses by its shape being shared across >= kMinDeflectionViews views.
+/// "" when the rule holds, else why not.
+constexpr int kMinDeflectionViews = 3;
+std::string deflection_not_identifiable(const std::vector<BoardView>& views) {
+  const int nx = distinct_board_values(views, 0), ny = distinct_board_values(views, 1);
+  if (nx < 3 || ny < 3)
+    return "the board has " + std::to_string(nx) + " distinct x and " + std::to_string(ny) +
+           " distinct y coordinates (a bowl needs >= 3 of each)";
+  if (static_cast<int>(views.size()) < kMinDeflectionViews)
+    return std::to_string(views.size()) +
+           " usable views (the deflection needs >= " + std::to_string(kMinDeflectionViews) + ")";
+  return "";
+}
+
+}  // namespace
+
+std::string decide_deflection(const std::vector<BoardView>& views, const IntrinsicOptions& options,
+                              BoardWarp& warp, const std::string& who) {
+  warp = BoardWarp::over(views);
+  if (options.board_deflection == BoardDeflection::off) return "off (--board-deflection off)";
+  const std::string why_not = deflection_not_identifiable(views);
+  if (options.board_deflection == BoardDeflection::on && !why_not.empty())
+    throw CalibrationError(who + "the board deflection cannot be fitted: " + why_not +
+                           "; use --board-deflection off or auto");
+  warp.fitted = why_not.empty();
+  if (!warp.fitted) return "not fitted (auto): " + why_not;
+  return options.board_deflection == BoardDeflection::on
+             ? "fitted (--board-deflection on)"
+             : "fitted (auto: >= 3 distinct board x and y, >= 3 views)";
+}
 
 IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
                                      const IntrinsicOptions& options) {

@@ -7,6 +7,7 @@
 #include <ceres/ceres.h>
 
 #include <string>
+#include <vector>
 
 namespace storetrack::calib {
 namespace {
@@ -67,16 +68,19 @@ class ReprojectionCost final : public ceres::CostFunction {
 };
 
 /// The same residual for a camera other than the reference: T_c_b = T_c_r T_r_b; blocks z,
-/// T_c_r, T_r_b (each pose a rotation vector and translation). The reference camera's points
-/// use ReprojectionCost with T_r_b as the pose (T_c_r = identity).
+/// T_c_r, T_r_b (each pose a rotation vector and translation) and, with a fitted board
+/// deflection, its (c_x, c_y). The reference camera's points use ReprojectionCost with T_r_b as
+/// the pose (T_c_r = identity).
 class RigReprojectionCost final : public ceres::CostFunction {
  public:
-  RigReprojectionCost(const Observation& obs, const IntrinsicParameterMap& map)
-      : obs_(obs), map_(map), weight_(1.0 / obs.weighting_sigma_px()) {
+  RigReprojectionCost(const Observation& obs, const IntrinsicParameterMap& map,
+                      const BoardWarp* warp)
+      : obs_(obs), map_(map), warp_(warp), weight_(1.0 / obs.weighting_sigma_px()) {
     set_num_residuals(2);
     mutable_parameter_block_sizes()->push_back(map.size());
     mutable_parameter_block_sizes()->push_back(6);
     mutable_parameter_block_sizes()->push_back(6);
+    if (warp_) mutable_parameter_block_sizes()->push_back(2);
   }
 
   bool Evaluate(double const* const* parameters, double* residuals,
@@ -85,7 +89,8 @@ class RigReprojectionCost final : public ceres::CostFunction {
     const geometry::Transform T_c_r = pose_transform(Eigen::Map<const PoseVector>(parameters[1]));
     const geometry::Transform T_r_b = pose_transform(Eigen::Map<const PoseVector>(parameters[2]));
     camera::ProjectionJacobians J;
-    const auto pixel = model.project_world(T_c_r * T_r_b, obs_.p_board, jacobians ? &J : nullptr);
+    const geometry::Vec3 p_board = warp_ ? warp_->apply(obs_.p_board, parameters[3]) : obs_.p_board;
+    const auto pixel = model.project_world(T_c_r * T_r_b, p_board, jacobians ? &J : nullptr);
     if (!pixel) return false;
     Eigen::Map<Eigen::Vector2d> r(residuals);
     r = weight_ * (*pixel - obs_.pixel);
@@ -101,12 +106,17 @@ class RigReprojectionCost final : public ceres::CostFunction {
       pose_vector_jacobian(J.d_pose * d_cb_d_cr, parameters[1], weight_, jacobians[1]);
     if (jacobians[2])
       pose_vector_jacobian(J.d_pose * d_cb_d_rb, parameters[2], weight_, jacobians[2]);
+    if (warp_ && jacobians[3]) {
+      Eigen::Map<Eigen::Matrix<double, 2, 2, Eigen::RowMajor>> Jc(jacobians[3]);
+      Jc = weight_ * J.d_point_world.col(2) * warp_->basis(obs_.p_board).transpose();
+    }
     return true;
   }
 
  private:
   const Observation& obs_;
   const IntrinsicParameterMap& map_;
+  const BoardWarp* warp_;
   double weight_;
 };
 
@@ -161,20 +171,24 @@ int refine_rig(const std::vector<RigView>& views, const std::vector<std::vector<
                const std::vector<IntrinsicParameterMap>& maps, RigState& state) {
   ceres::Problem problem;
   auto* ordering = new ceres::ParameterBlockOrdering;  // owned by the solver options
+  const BoardWarp* warp = state.warp.fitted ? &state.warp : nullptr;
   for (size_t i = 0; i < views.size(); ++i) {
     const auto camera = static_cast<size_t>(views[i].camera);
     double* board = state.T_r_b[static_cast<size_t>(views[i].board)].data();
+    std::vector<double*> blocks = {state.z[camera].data()};
+    if (camera > 0) blocks.push_back(state.T_c_r[camera].data());
+    blocks.push_back(board);
+    if (warp) blocks.push_back(state.warp.c.data());
     for (size_t k = 0; k < views[i].view.points.size(); ++k) {
       if (!used[i][k]) continue;
       const Observation& o = *views[i].view.points[k];
       if (camera == 0)
-        problem.AddResidualBlock(new ReprojectionCost(o, maps[0]), nullptr, state.z[0].data(),
-                                 board);
+        problem.AddResidualBlock(new ReprojectionCost(o, maps[0], warp), nullptr, blocks);
       else
-        problem.AddResidualBlock(new RigReprojectionCost(o, maps[camera]), nullptr,
-                                 state.z[camera].data(), state.T_c_r[camera].data(), board);
+        problem.AddResidualBlock(new RigReprojectionCost(o, maps[camera], warp), nullptr, blocks);
     }
   }
+  if (warp) ordering->AddElementToGroup(state.warp.c.data(), 1);
   for (PoseVector& board : state.T_r_b)
     if (problem.HasParameterBlock(board.data()))
       ordering->AddElementToGroup(board.data(), 0);  // eliminated first (Schur)
