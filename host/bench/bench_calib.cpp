@@ -68,6 +68,7 @@ Case opencv_chessboard_set() {
   c.set = calib::detect_chessboards(images, {9, 6, 0.025}, 0).set;
   c.options.fix_aspect_ratio = true;  // REFERENCE.md: flags = CALIB_FIX_ASPECT_RATIO, ratio 1
   c.options.outlier_false_alarm = 0;  // cv::calibrateCamera keeps every point
+  c.options.board_deflection = calib::BoardDeflection::off;  // its board is flat
   c.cv_flags = cv::CALIB_FIX_ASPECT_RATIO;
   fill_opencv_input(c);
   return c;
@@ -94,8 +95,9 @@ Case synthetic_set() {
                               view.observations.end());
     ++views;
   }
-  c.options.outlier_false_alarm = 0;  // as OpenCV: every point kept
-  c.cv_flags = 0;                     // fx, fy, cx, cy, k1, k2, p1, p2, k3
+  c.options.outlier_false_alarm = 0;                         // as OpenCV: every point kept
+  c.options.board_deflection = calib::BoardDeflection::off;  // as OpenCV: a flat board
+  c.cv_flags = 0;                                            // fx, fy, cx, cy, k1, k2, p1, p2, k3
   fill_opencv_input(c);
   return c;
 }
@@ -105,6 +107,7 @@ Case synthetic_set() {
 Case opencv_chessboard_set_program_defaults() {
   Case c = opencv_chessboard_set();
   c.options.outlier_false_alarm = calib::IntrinsicOptions{}.outlier_false_alarm;
+  c.options.board_deflection = calib::IntrinsicOptions{}.board_deflection;  // auto: the bowl
   return c;
 }
 

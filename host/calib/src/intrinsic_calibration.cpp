@@ -7,7 +7,9 @@
 #include <cstdio>
 #include <map>
 #include <string>
+#include <vector>
 
+#include "board_warp.hpp"
 #include "intrinsic_covariance.hpp"
 #include "intrinsic_refinement.hpp"
 #include "outlier_gate.hpp"
@@ -28,11 +30,6 @@ std::vector<BoardView> camera_views(const ObservationSet& set, int camera,
   std::map<int, BoardView> by_frame;
   for (const Observation& o : set.observations) {
     if (o.camera != camera) continue;
-    if (std::abs(o.p_board.z()) > 1e-9)
-      throw CalibrationError("camera " + std::to_string(camera) + " frame " +
-                             std::to_string(o.frame) + " point " + std::to_string(o.point_id) +
-                             ": board z = " + std::to_string(o.p_board.z()) +
-                             " m; the intrinsic calibration needs a planar board (z = 0)");
     BoardView& v = by_frame[o.frame];
     v.frame = o.frame;
     v.points.push_back(&o);
@@ -44,6 +41,24 @@ std::vector<BoardView> camera_views(const ObservationSet& set, int camera,
     else
       skipped.push_back({frame, std::move(why)});
   return views;
+}
+
+/// Refuses a board whose points leave the plane z = 0 by more than kMaxBoardRelief of its larger
+/// side, naming the first such point: the start uses (x, y) only.
+void check_board_relief(const std::vector<BoardView>& views, const std::string& who) {
+  const BoardWarp extent = BoardWarp::over(views);
+  const double side = 2 * std::max(extent.x_half, extent.y_half);
+  for (const BoardView& v : views)
+    for (const Observation* o : v.points)
+      if (std::abs(o->p_board.z()) > kMaxBoardRelief * side) {
+        char text[256];
+        std::snprintf(text, sizeof text,
+                      "frame %d point %d: board z = %.4g m, more than %.0f %% of the board's "
+                      "larger side (%.4g m); the start (a homography of the board's x, y) needs "
+                      "a nearly planar board, with z measured from its plane",
+                      v.frame, o->point_id, o->p_board.z(), 100 * kMaxBoardRelief, side);
+        throw CalibrationError(who + text);
+      }
 }
 
 /// Refuses too few usable views, naming the skipped ones (they are the usual cause).
@@ -96,7 +111,7 @@ std::vector<std::vector<Eigen::Vector2d>> weighted_residuals(const std::vector<B
   for (size_t i = 0; i < views.size(); ++i) {
     const auto T = pose_transform(state.poses[i]);
     for (const Observation* o : views[i].points) {
-      const auto pixel = model.project_world(T, o->p_board);
+      const auto pixel = model.project_world(T, state.warp.apply(o->p_board));
       const double w = 1.0 / o->weighting_sigma_px();
       out[i].push_back(pixel ? Eigen::Vector2d(w * (*pixel - o->pixel))
                              : Eigen::Vector2d::Constant(INFINITY));
@@ -163,7 +178,8 @@ IntrinsicResult summarise(const std::vector<BoardView>& views,
     out.points_rejected += v.points_rejected;
     out.views.push_back(v);
   }
-  out.free_parameters = map.size() + 6 * static_cast<int>(views.size());
+  out.free_parameters =
+      map.size() + 6 * static_cast<int>(views.size()) + (state.warp.fitted ? 2 : 0);
   const int dof = 2 * out.points_used - out.free_parameters;
   if (dof <= 0)
     throw CalibrationError(std::to_string(out.points_used) + " points give " +
@@ -177,10 +193,59 @@ IntrinsicResult summarise(const std::vector<BoardView>& views,
   out.covariance = cov.intrinsics;
   for (size_t i = 0; i < out.views.size(); ++i)
     out.views[i].pose_covariance = cov.poses[i];
+  out.board_deflection = deflection_result(state.warp, cov.warp, "");
   return out;
 }
 
 }  // namespace
+
+namespace {
+
+/// Counts the distinct values (to 1 um) of one board coordinate.
+int distinct_board_values(const std::vector<BoardView>& views, int axis) {
+  std::vector<double> values;
+  for (const BoardView& v : views)
+    for (const Observation* o : v.points)
+      values.push_back(o->p_board[axis]);
+  std::sort(values.begin(), values.end());
+  int distinct = values.empty() ? 0 : 1;
+  for (size_t i = 1; i < values.size(); ++i)
+    if (values[i] - values[i - 1] > 1e-6) ++distinct;
+  return distinct;
+}
+
+/// The identifiability rule of the board deflection: a parabola along each board axis needs
+/// points at >= 3 distinct x and >= 3 distinct y, and the bowl is told apart from the
+/// distortion and the poses by its shape being shared across >= kMinDeflectionViews views.
+/// "" when the rule holds, else why not.
+constexpr int kMinDeflectionViews = 3;
+std::string deflection_not_identifiable(const std::vector<BoardView>& views) {
+  const int nx = distinct_board_values(views, 0), ny = distinct_board_values(views, 1);
+  if (nx < 3 || ny < 3)
+    return "the board has " + std::to_string(nx) + " distinct x and " + std::to_string(ny) +
+           " distinct y coordinates (a bowl needs >= 3 of each)";
+  if (static_cast<int>(views.size()) < kMinDeflectionViews)
+    return std::to_string(views.size()) +
+           " usable views (the deflection needs >= " + std::to_string(kMinDeflectionViews) + ")";
+  return "";
+}
+
+}  // namespace
+
+std::string decide_deflection(const std::vector<BoardView>& views, const IntrinsicOptions& options,
+                              BoardWarp& warp, const std::string& who) {
+  warp = BoardWarp::over(views);
+  if (options.board_deflection == BoardDeflection::off) return "off (--board-deflection off)";
+  const std::string why_not = deflection_not_identifiable(views);
+  if (options.board_deflection == BoardDeflection::on && !why_not.empty())
+    throw CalibrationError(who + "the board deflection cannot be fitted: " + why_not +
+                           "; use --board-deflection off or auto");
+  warp.fitted = why_not.empty();
+  if (!warp.fitted) return "not fitted (auto): " + why_not;
+  return options.board_deflection == BoardDeflection::on
+             ? "fitted (--board-deflection on)"
+             : "fitted (auto: >= 3 distinct board x and y, >= 3 views)";
+}
 
 IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
                                      const IntrinsicOptions& options) {
@@ -196,15 +261,17 @@ IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
   std::vector<BoardView> views = camera_views(set, camera, skipped);
   const int min_views = std::max(options.min_views, 2);
   check_view_count(views, skipped, min_views, who);
+  check_board_relief(views, who);
 
   const ZhangStart start = usable_start(views, skipped, size->second, options, min_views, who);
   const IntrinsicParameterMap map(options, start.intrinsics);
-  RefinementState state{map.free_values(start.intrinsics), {}};
+  RefinementState state{map.free_values(start.intrinsics), {}, {}};
   for (const auto& T : start.T_c_b) {
     PoseVector pose;
     pose << geometry::rotvec_from_rotation(T.linear()), T.translation();
     state.poses.push_back(pose);
   }
+  const std::string deflection_reason = decide_deflection(views, options, state.warp, who);
   std::vector<std::vector<char>> used = outlier_gate(weighted_residuals(views, map, state), 0);
   int iterations = 0;
   for (int round = 0; round < kMaxRejectionRounds; ++round) {
@@ -220,6 +287,7 @@ IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
     used = std::move(next);
   }
   IntrinsicResult out = summarise(views, used, map, state);
+  out.board_deflection.reason = deflection_reason;
   out.iterations = iterations;
   std::sort(skipped.begin(), skipped.end(),
             [](const SkippedView& a, const SkippedView& b) { return a.frame < b.frame; });

@@ -1,11 +1,16 @@
 #include "intrinsic_covariance.hpp"
 
+#include <string>
+#include <vector>
+
 #include "storetrack/uncertainty/spd_inverse.hpp"
 
 namespace storetrack::calib {
 namespace {
 
-constexpr int kN = camera::kNumIntrinsics;
+// The global parameters: the packed intrinsics, then the board deflection (c_x, c_y).
+constexpr int kIntrinsics = camera::kNumIntrinsics;
+constexpr int kN = kIntrinsics + 2;
 using MatN = Eigen::Matrix<double, kN, kN>;
 using MatN6 = Eigen::Matrix<double, kN, 6>;
 
@@ -23,11 +28,14 @@ FitCovariance fit_covariance(const std::vector<BoardView>& views,
                              double residual_variance) {
   const int p = map.size();
   const camera::CameraModel model(map.intrinsics(state.z.data()));
-  // Free intrinsics padded to the fixed size kN (padding columns of M are zero, so the padding
-  // rows/columns of A and B stay zero): fixed-size products throughout (quicker to compile than
-  // mixed dynamic ones) and the tree's fixed-size SPD inverse applies.
+  // Free intrinsics padded to the fixed size kIntrinsics (padding columns of M are zero, so the
+  // padding rows/columns of A and B stay zero), then the deflection's two columns (zero when it
+  // is not fitted): fixed-size products throughout (quicker to compile than mixed dynamic ones)
+  // and the tree's fixed-size SPD inverse applies.
   MatN M = MatN::Zero();
-  M.leftCols(p) = map.jacobian();
+  M.topLeftCorner(kIntrinsics, p) = map.jacobian();
+  const bool warp = state.warp.fitted;
+  if (warp) M.bottomRightCorner<2, 2>().setIdentity();
   MatN A = MatN::Zero();
   std::vector<ViewBlocks> blocks(views.size());
   for (size_t i = 0; i < views.size(); ++i) {
@@ -36,9 +44,11 @@ FitCovariance fit_covariance(const std::vector<BoardView>& views,
       if (!used[i][k]) continue;
       const Observation& o = *views[i].points[k];
       camera::ProjectionJacobians J;
-      if (!model.project_world(T_c_b, o.p_board, &J)) continue;
+      if (!model.project_world(T_c_b, state.warp.apply(o.p_board), &J)) continue;
       const double w = 1.0 / o.weighting_sigma_px();
-      const Eigen::Matrix<double, 2, kN> Jz = w * J.d_intrinsics * M;
+      Eigen::Matrix<double, 2, kN> J_global;
+      J_global << J.d_intrinsics, J.d_point_world.col(2) * state.warp.basis(o.p_board).transpose();
+      const Eigen::Matrix<double, 2, kN> Jz = w * J_global * M;
       const Eigen::Matrix<double, 2, 6> Jp = w * J.d_pose;
       A.noalias() += Jz.transpose() * Jz;
       blocks[i].B.noalias() += Jz.transpose() * Jp;
@@ -52,18 +62,28 @@ FitCovariance fit_covariance(const std::vector<BoardView>& views,
                              ": its board pose is not determined by its points");
     S.noalias() -= blocks[i].B * blocks[i].D_inv * blocks[i].B.transpose();
   }
-  for (int j = p; j < kN; ++j)
+  std::vector<int> padding;
+  for (int j = p; j < kIntrinsics; ++j)
+    padding.push_back(j);
+  if (!warp) padding.insert(padding.end(), {kIntrinsics, kIntrinsics + 1});
+  for (int j : padding)
     S(j, j) = 1;  // padding: decoupled unit block, dropped below
   MatN S_inv;
   if (!uncertainty::inverse_spd<kN>(S, S_inv))
     throw CalibrationError(
-        "the normal matrix is singular: the views do not determine the free intrinsics "
-        "(fix parameters or add tilted views)");
-  MatN C_z = residual_variance * S_inv;
-  C_z.rightCols(kN - p).setZero();
-  C_z.bottomRows(kN - p).setZero();
+        std::string("the normal matrix is singular: the views do not determine the free "
+                    "intrinsics") +
+        (warp ? " and the board deflection" : "") + " (fix parameters, add tilted views" +
+        (warp ? " or set --board-deflection off)" : ")"));
+  for (int j : padding) {
+    S_inv.row(j).setZero();
+    S_inv.col(j).setZero();
+  }
+  const MatN C_z = residual_variance * S_inv;
   FitCovariance out;
-  out.intrinsics = M * C_z * M.transpose();
+  const MatN C_global = M * C_z * M.transpose();
+  out.intrinsics = C_global.topLeftCorner<kIntrinsics, kIntrinsics>();
+  out.warp = C_global.bottomRightCorner<2, 2>();
   for (const ViewBlocks& b : blocks) {
     const Eigen::Matrix<double, kN, 6> SB = S_inv * b.B * b.D_inv;
     out.poses.push_back(residual_variance * (b.D_inv + b.D_inv * b.B.transpose() * SB));

@@ -11,7 +11,8 @@ namespace storetrack::calib {
 
 struct FitCovariance {
   camera::IntrinsicCovariance intrinsics = camera::IntrinsicCovariance::Zero();  ///< packed
-  std::vector<geometry::Mat6> poses;  ///< per view, left perturbation of T_c_b
+  std::vector<geometry::Mat6> poses;               ///< per view, left perturbation of T_c_b
+  Eigen::Matrix2d warp = Eigen::Matrix2d::Zero();  ///< board deflection (c_x, c_y); 0 if not fitted
 };
 
 /// The views' poses are eliminated through their 6x6 blocks (Schur complement), so the cost is

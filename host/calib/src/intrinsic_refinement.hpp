@@ -7,6 +7,7 @@
 #include <Eigen/Core>
 
 #include "board_views.hpp"
+#include "board_warp.hpp"
 #include "intrinsic_parameters.hpp"
 #include "storetrack/geometry/transform.hpp"
 
@@ -23,6 +24,7 @@ inline geometry::Transform pose_transform(const PoseVector& pose) {
 struct RefinementState {
   Eigen::VectorXd z;              ///< free intrinsics (IntrinsicParameterMap)
   std::vector<PoseVector> poses;  ///< one per view
+  BoardWarp warp;                 ///< the board's deflection; its c estimated when warp.fitted
 };
 
 /// used[i][k]: point k of view i takes part (outlier rejection clears it). Returns the number

@@ -149,7 +149,7 @@ std::vector<std::vector<Eigen::Vector2d>> weighted_residuals(
     const geometry::Transform T_c_b = rig_view_transform(state, views[i]);
     auto& r = out.emplace_back();
     for (const Observation* o : views[i].view.points) {
-      const auto pixel = model.project_world(T_c_b, o->p_board);
+      const auto pixel = model.project_world(T_c_b, state.warp.apply(o->p_board));
       r.push_back(pixel ? Eigen::Vector2d((*pixel - o->pixel) / o->weighting_sigma_px())
                         : Eigen::Vector2d::Constant(INFINITY));
     }
@@ -178,6 +178,7 @@ struct RigProblem {
   std::vector<IntrinsicParameterMap> maps;
   RigState state;
   std::vector<int> frames;
+  std::string deflection_reason;
 };
 
 RigProblem build_problem(const std::vector<CameraStart>& cams,
@@ -208,6 +209,12 @@ RigProblem build_problem(const std::vector<CameraStart>& cams,
     }
   }
   p.state.T_c_r[0].setZero();  // exactly the identity: S_r is camera 0's frame
+  std::vector<BoardView> all;
+  for (const RigView& v : p.views)
+    all.push_back(v.view);
+  p.deflection_reason = decide_deflection(all, options, p.state.warp, "rig: ");
+  if (p.state.warp.fitted && cams[0].intrinsic.board_deflection.fitted)
+    p.state.warp.c = cams[0].intrinsic.board_deflection.c_m;  // the reference camera's own fit
   return p;
 }
 
@@ -263,7 +270,8 @@ RigResult summarise(const RigProblem& p, const std::vector<std::vector<char>>& u
     free += p.maps[c].size() + (c > 0 ? 6 : 0);
     out.cameras.push_back(std::move(cam));
   }
-  out.free_parameters = free + 6 * static_cast<int>(p.frames.size());
+  out.free_parameters =
+      free + 6 * static_cast<int>(p.frames.size()) + (p.state.warp.fitted ? 2 : 0);
   const int dof = 2 * out.points_used - out.free_parameters;
   if (dof <= 0)
     throw CalibrationError(std::to_string(out.points_used) + " points give " +
@@ -272,7 +280,9 @@ RigResult summarise(const RigProblem& p, const std::vector<std::vector<char>>& u
   out.rms_px = std::sqrt(ssr_px / out.points_used);
   const double variance = chi2 / dof;
   out.residual_sigma_px = std::sqrt(variance);
-  out.joint_covariance = rig_covariance(p.views, used, p.maps, p.state, p.frames, variance);
+  const RigCovariance cov = rig_covariance(p.views, used, p.maps, p.state, p.frames, variance);
+  out.joint_covariance = cov.joint;
+  out.board_deflection = deflection_result(p.state.warp, cov.warp, p.deflection_reason);
   for (size_t c = 0; c < out.cameras.size(); ++c) {
     RigCameraResult& cam = out.cameras[c];
     const auto at = static_cast<Eigen::Index>(kRigBlockSize * c);

@@ -22,6 +22,7 @@ struct RigState {
   std::vector<Eigen::VectorXd> z;  ///< per camera: free intrinsics (its IntrinsicParameterMap)
   std::vector<PoseVector> T_c_r;   ///< per camera; [0] is the identity and stays fixed
   std::vector<PoseVector> T_r_b;   ///< per board pose
+  BoardWarp warp;                  ///< the board's deflection, shared by every camera and pose
 };
 
 /// T_c_b of a rig view at the current state.
@@ -34,14 +35,18 @@ inline geometry::Transform rig_view_transform(const RigState& state, const RigVi
 int refine_rig(const std::vector<RigView>& views, const std::vector<std::vector<char>>& used,
                const std::vector<IntrinsicParameterMap>& maps, RigState& state);
 
-/// s^2 (J^T W J)^-1 over every camera's packed intrinsics and extrinsics (layout of
-/// RigResult::joint_covariance), the board poses eliminated by their 6x6 blocks (Schur
-/// complement: exactly the marginal of the full inverse). frames[f]: board pose f's frame (for
-/// messages). Throws CalibrationError if singular.
-Eigen::MatrixXd rig_covariance(const std::vector<RigView>& views,
-                               const std::vector<std::vector<char>>& used,
-                               const std::vector<IntrinsicParameterMap>& maps,
-                               const RigState& state, const std::vector<int>& frames,
-                               double residual_variance);
+struct RigCovariance {
+  Eigen::MatrixXd joint;                           ///< layout of RigResult::joint_covariance
+  Eigen::Matrix2d warp = Eigen::Matrix2d::Zero();  ///< board deflection; 0 if not fitted
+};
+
+/// s^2 (J^T W J)^-1 over every camera's packed intrinsics and extrinsics and the board
+/// deflection, the board poses eliminated by their 6x6 blocks (Schur complement: exactly the
+/// marginal of the full inverse). frames[f]: board pose f's frame (for messages). Throws
+/// CalibrationError if singular.
+RigCovariance rig_covariance(const std::vector<RigView>& views,
+                             const std::vector<std::vector<char>>& used,
+                             const std::vector<IntrinsicParameterMap>& maps, const RigState& state,
+                             const std::vector<int>& frames, double residual_variance);
 
 }  // namespace storetrack::calib

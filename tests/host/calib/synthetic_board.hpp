@@ -29,9 +29,28 @@ inline camera::Intrinsics truth_camera() {
 struct BoardGrid {
   int cols = kCols, rows = kRows;
   double square_m = kSquare;
+  /// The rendered board's true deflection, mrcal's calobject_warp written out here (the
+  /// simulator's own copy, not the library's): z = c_x (1 - xn^2) + c_y (1 - yn^2), xn, yn the
+  /// corner coordinates scaled to [-1, 1] over the grid.
+  double bow_x_m = 0, bow_y_m = 0;
+  /// Extra true relief of a non-flat target, z += relief_m sin(pi x / width) cos(pi y / height).
+  double relief_m = 0;
+  /// The observations carry the true z (a surveyed board); else z = 0 (the nominal flat board).
+  bool surveyed = false;
 };
 
-/// Appends one view of the board at T_c_b: every corner inside the 1920 x 1024 image.
+/// The true position of corner `id` of the rendered board.
+inline geometry::Vec3 true_board_point(const BoardGrid& grid, int id) {
+  const double x = (id % grid.cols) * grid.square_m, y = (id / grid.cols) * grid.square_m;
+  const double width = (grid.cols - 1) * grid.square_m, height = (grid.rows - 1) * grid.square_m;
+  const double xn = 2 * x / width - 1, yn = 2 * y / height - 1;
+  const double z = grid.bow_x_m * (1 - xn * xn) + grid.bow_y_m * (1 - yn * yn) +
+                   grid.relief_m * std::sin(M_PI * x / width) * std::cos(M_PI * y / height);
+  return {x, y, z};
+}
+
+/// Appends one view of the board at T_c_b: every corner inside the 1920 x 1024 image, projected
+/// from its true position (true_board_point).
 inline void add_board_view(const camera::CameraModel& model, const geometry::Transform& T_c_b,
                            int camera, int frame, std::normal_distribution<double>& noise,
                            std::mt19937_64& rng, ObservationSet& set, const BoardGrid& grid = {}) {
@@ -40,8 +59,9 @@ inline void add_board_view(const camera::CameraModel& model, const geometry::Tra
     o.camera = camera;
     o.frame = frame;
     o.point_id = id;
-    o.p_board = {(id % grid.cols) * grid.square_m, (id / grid.cols) * grid.square_m, 0};
-    const auto pixel = model.project_world(T_c_b, o.p_board);
+    const geometry::Vec3 p_true = true_board_point(grid, id);
+    o.p_board = grid.surveyed ? p_true : geometry::Vec3(p_true.x(), p_true.y(), 0);
+    const auto pixel = model.project_world(T_c_b, p_true);
     if (!pixel || pixel->x() < 0 || pixel->y() < 0 || pixel->x() > 1919 || pixel->y() > 1023)
       continue;
     o.pixel = *pixel + geometry::Vec2(noise(rng), noise(rng));

@@ -14,6 +14,7 @@
 #include <random>
 #include <sstream>
 
+#include "calib_cli.hpp"
 #include "calib_commands.hpp"
 #include "storetrack/calib/observations.hpp"
 #include "synthetic_board.hpp"
@@ -147,6 +148,63 @@ TEST(BadInput, InconsistentSquareSizeWithinAFileNamesBothLines) {
       "camera,frame,point_id,board_x_m,board_y_m,board_z_m,image_x_px,image_y_px\n"
       "0,0,1,0.05,0,0,100,100\n0,1,1,0.0500004,0,0,120,100\n",
       "close.csv"));
+}
+
+// Board deflection (docs/calibration.md, "Board deflection"): a board point far off its plane
+// and `on` on a board that cannot determine the bowl are refused by name, nothing written; an
+// unknown --board-deflection value is a bad argument.
+TEST(BadInput, BoardOffItsPlaneOrAnUndeterminedBowlRefusedByName) {
+  std::mt19937_64 rng(5);
+  ObservationSet set = board_views(0, range(0, 8), rng);
+  for (Observation& o : set.observations)  // one board: point 3 off the plane in every frame
+    if (o.point_id == 3) o.p_board.z() = 0.1;
+  const std::string far_off = write_csv(set, "far_off_plane.csv");
+  std::filesystem::remove(temp_path("intrinsic.json"));
+  auto [rc, err] = intrinsic_error(far_off);
+  EXPECT_EQ(rc, 2);
+  EXPECT_NE(err.find("error: " + far_off +
+                     ": camera 0: frame 0 point 3: board z = 0.1 m, more than 10 % of the "
+                     "board's larger side (0.45 m)"),
+            std::string::npos)
+      << err;
+  EXPECT_FALSE(std::filesystem::exists(temp_path("intrinsic.json")));
+
+  test::BoardGrid two_columns;
+  two_columns.cols = 2;
+  ObservationSet narrow;
+  narrow.image_sizes[0] = {1920, 1024};
+  std::normal_distribution<double> noise(0, 0.2);
+  const camera::CameraModel model(test::truth_camera());
+  for (int i = 0; i < 8; ++i)
+    test::add_board_view(model, test::board_pose(i, false, two_columns), 0, i, noise, rng, narrow,
+                         two_columns);
+  calibapp::IntrinsicArgs args;
+  args.observations = write_csv(narrow, "two_columns.csv");
+  args.output = temp_path("intrinsic.json");
+  args.options.board_deflection = BoardDeflection::on;
+  std::ostringstream out, err_text;
+  EXPECT_EQ(calibapp::run_intrinsic(args, out, err_text), 2);
+  EXPECT_NE(err_text.str().find("error: " + args.observations +
+                                ": camera 0: the board deflection cannot be fitted: the board "
+                                "has 2 distinct x and 7 distinct y coordinates"),
+            std::string::npos)
+      << err_text.str();
+  EXPECT_FALSE(std::filesystem::exists(args.output));
+
+  std::vector<std::string> argv_text = {
+      "storetrack-calib", "intrinsic",          args.observations, "-o",
+      args.output,        "--board-deflection", "sometimes"};
+  std::vector<char*> argv;
+  for (std::string& a : argv_text)
+    argv.push_back(a.data());
+  calibapp::CalibCommand command;
+  EXPECT_EQ(calibapp::parse_calib_command(static_cast<int>(argv.size()), argv.data(), command), 2);
+  argv_text[6] = "off";
+  argv.clear();
+  for (std::string& a : argv_text)
+    argv.push_back(a.data());
+  ASSERT_EQ(calibapp::parse_calib_command(static_cast<int>(argv.size()), argv.data(), command), -1);
+  EXPECT_EQ(command.intrinsic.options.board_deflection, BoardDeflection::off);
 }
 
 }  // namespace

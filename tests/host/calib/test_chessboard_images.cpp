@@ -44,6 +44,7 @@ TEST(ChessboardImages, LeftCameraReproducesOpenCvPublishedIntrinsics) {
   IntrinsicOptions options;
   options.fix_aspect_ratio = true;  // as the published run (flags = 2, aspect ratio 1)
   options.outlier_false_alarm = 0;  // cv::calibrateCamera keeps every point
+  options.board_deflection = BoardDeflection::off;  // cv::calibrateCamera's board is flat
   const IntrinsicResult r = calibrate_intrinsics(detected.set, 0, options);
   std::printf("fx %.3f fy %.3f cx %.3f cy %.3f RMS %.4f px (published %.3f, %.4f)\n",
               r.intrinsics.fx, r.intrinsics.fy, r.intrinsics.cx, r.intrinsics.cy, r.rms_px,
@@ -65,6 +66,18 @@ TEST(ChessboardImages, LeftCameraReproducesOpenCvPublishedIntrinsics) {
   ASSERT_EQ(rig.cameras.size(), 1u);
   EXPECT_EQ(camera::pack(rig.cameras[0].model.intrinsics()), camera::pack(r.intrinsics));
   EXPECT_EQ(rig.cameras[0].intrinsic_covariance, r.covariance);
+
+  // With the board's bowl fitted (the default): a nested model, so the RMS cannot rise.
+  options.board_deflection = BoardDeflection::automatic;
+  const IntrinsicResult bowed = calibrate_intrinsics(detected.set, 0, options);
+  ASSERT_TRUE(bowed.board_deflection.fitted) << bowed.board_deflection.reason;
+  const BoardDeflectionResult& d = bowed.board_deflection;
+  std::printf(
+      "board deflection fitted: c_x %.3f +- %.3f mm, c_y %.3f +- %.3f mm; fx %.3f; RMS "
+      "%.4f px (flat %.4f)\n",
+      1e3 * d.c_m.x(), 1e3 * std::sqrt(d.covariance(0, 0)), 1e3 * d.c_m.y(),
+      1e3 * std::sqrt(d.covariance(1, 1)), bowed.intrinsics.fx, bowed.rms_px, r.rms_px);
+  EXPECT_LE(bowed.rms_px, r.rms_px + 1e-9);
 }
 
 TEST(ChessboardImages, UnreadableAndBoardlessImagesRejectedWithReason) {

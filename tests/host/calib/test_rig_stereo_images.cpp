@@ -58,6 +58,7 @@ TEST(RigStereoImages, BaselineAndRmsAsPublished) {
   ASSERT_EQ(set.observations.size(), 2u * 13u * 54u);
   RigOptions options;                         // flags = 0 (OpenCV's default), 5 coefficients
   options.intrinsic.outlier_false_alarm = 0;  // OpenCV keeps every point
+  options.intrinsic.board_deflection = BoardDeflection::off;  // OpenCV's board is flat
   const RigResult r = calibrate_rig(set, options);
   ASSERT_EQ(r.cameras.size(), 2u);
   const RigCameraResult& left = r.cameras[0];

@@ -25,7 +25,8 @@ void add_detect(cli::Command& app, DetectArgs& a) {
 }
 
 /// The model flags and outlier gate, shared by intrinsic and rig.
-void add_model_options(cli::Command& sub, calib::IntrinsicOptions& o, bool& no_outlier_rejection) {
+void add_model_options(cli::Command& sub, calib::IntrinsicOptions& o, bool& no_outlier_rejection,
+                       std::string& board_deflection) {
   sub.flag("--fix-aspect-ratio", o.fix_aspect_ratio, "fx = aspect * fy (OpenCV's flag)");
   sub.option("--aspect-ratio", o.aspect_ratio, "fx / fy with --fix-aspect-ratio").positive();
   sub.flag("--fix-principal-point", o.fix_principal_point, "cx, cy at the image centre");
@@ -40,6 +41,15 @@ void add_model_options(cli::Command& sub, calib::IntrinsicOptions& o, bool& no_o
   sub.flag("--no-outlier-rejection", no_outlier_rejection, "Keep every point");
   sub.option("--min-views", o.min_views, "Fewest board poses accepted (per camera)")
       .range(2, 100000);
+  sub.option("--board-deflection", board_deflection,
+             "Fit the board's bowl (mrcal's calobject_warp): auto = where identifiable")
+      .one_of({"on", "off", "auto"});
+}
+
+calib::BoardDeflection deflection_mode(const std::string& name) {
+  if (name == "on") return calib::BoardDeflection::on;
+  if (name == "off") return calib::BoardDeflection::off;
+  return calib::BoardDeflection::automatic;  // one_of admits nothing else
 }
 
 void add_intrinsic(cli::Command& app, IntrinsicArgs& a) {
@@ -48,7 +58,7 @@ void add_intrinsic(cli::Command& app, IntrinsicArgs& a) {
   sub.option("--camera", a.camera, "Camera to calibrate").range(0, 255);
   sub.option("--unit", a.unit_id, "Unit id written to the calibration file").range(0, 255);
   sub.option("--image-size", a.image_size, "WxH, when the CSV has no image_size line");
-  add_model_options(sub, a.options, a.no_outlier_rejection);
+  add_model_options(sub, a.options, a.no_outlier_rejection, a.board_deflection);
   sub.option("-o,--output", a.output, "Rig calibration JSON to write").required();
   sub.option("--residuals", a.residuals_csv, "Per-point residual CSV to write");
 }
@@ -62,7 +72,7 @@ void add_rig(cli::Command& app, RigArgs& a) {
   sub.option("--unit", a.unit_id, "Unit id written to the calibration file").range(0, 255);
   sub.option("--image-size", a.image_sizes,
              "CAMERA=WxH, when a CSV has no image_size line (repeatable)");
-  add_model_options(sub, a.options.intrinsic, a.no_outlier_rejection);
+  add_model_options(sub, a.options.intrinsic, a.no_outlier_rejection, a.board_deflection);
   sub.option("--min-common-views", a.options.min_common_views,
              "Fewest frames two cameras must share to be linked")
       .range(1, 100000);
@@ -87,10 +97,13 @@ int parse_calib_command(int argc, char** argv, CalibCommand& command) {
   if (app.got_subcommand("intrinsic")) {
     command.kind = CalibCommand::Kind::kIntrinsic;
     if (command.intrinsic.no_outlier_rejection) command.intrinsic.options.outlier_false_alarm = 0;
+    command.intrinsic.options.board_deflection =
+        deflection_mode(command.intrinsic.board_deflection);
   }
   if (app.got_subcommand("rig")) {
     command.kind = CalibCommand::Kind::kRig;
     if (command.rig.no_outlier_rejection) command.rig.options.intrinsic.outlier_false_alarm = 0;
+    command.rig.options.intrinsic.board_deflection = deflection_mode(command.rig.board_deflection);
   }
   if (app.got_subcommand("register")) command.kind = CalibCommand::Kind::kRegister;
   if (app.got_subcommand("compare")) command.kind = CalibCommand::Kind::kCompare;

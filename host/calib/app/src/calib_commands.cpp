@@ -81,7 +81,39 @@ nlohmann::json flags_json(const calib::IntrinsicOptions& options) {
           {"fix_k2", options.fix_k2},
           {"fix_k3", options.fix_k3},
           {"rational", options.rational},
-          {"outlier_false_alarm", options.outlier_false_alarm}};
+          {"outlier_false_alarm", options.outlier_false_alarm},
+          {"board_deflection", options.board_deflection == calib::BoardDeflection::on    ? "on"
+                               : options.board_deflection == calib::BoardDeflection::off ? "off"
+                                                                                         : "auto"}};
+}
+
+/// The fitted board deflection for the calibration file's comment (docs/calibration-file.md).
+nlohmann::json deflection_json(const calib::BoardDeflectionResult& d) {
+  nlohmann::json j = {{"model", "mrcal calobject_warp: z = c_x (1 - xn^2) + c_y (1 - yn^2)"},
+                      {"fitted", d.fitted},
+                      {"reason", d.reason},
+                      {"extent_m", {d.x_min, d.x_max, d.y_min, d.y_max}}};
+  if (d.fitted) {
+    j["c_m"] = {d.c_m.x(), d.c_m.y()};
+    j["covariance_m2"] = {{d.covariance(0, 0), d.covariance(0, 1)},
+                          {d.covariance(1, 0), d.covariance(1, 1)}};
+  }
+  return j;
+}
+
+/// "board deflection: c_x = ... mm +- ..., c_y = ..., centre depth ... mm" or why not fitted.
+void print_deflection(const calib::BoardDeflectionResult& d, std::ostream& out) {
+  out << "  board deflection: " << d.reason;
+  if (d.fitted) {
+    const double depth_sigma =
+        std::sqrt(d.covariance(0, 0) + 2 * d.covariance(0, 1) + d.covariance(1, 1));
+    out << "; c_x = " << fixed(1e3 * d.c_m.x(), 3) << " +- "
+        << fixed(1e3 * std::sqrt(d.covariance(0, 0)), 3)
+        << " mm, c_y = " << fixed(1e3 * d.c_m.y(), 3) << " +- "
+        << fixed(1e3 * std::sqrt(d.covariance(1, 1)), 3) << " mm (depth at the board's centre "
+        << fixed(1e3 * d.c_m.sum(), 3) << " +- " << fixed(1e3 * depth_sigma, 3) << " mm)";
+  }
+  out << "\n";
 }
 
 /// The pixels of `camera`'s points that the fit used (its residuals not rejected), counted on the
@@ -152,6 +184,7 @@ std::string intrinsic_calibration_json(const calib::IntrinsicResult& r, int came
       {"points_used", r.points_used},
       {"points_rejected", r.points_rejected},
       {"free_parameters", r.free_parameters},
+      {"board_deflection", deflection_json(r.board_deflection)},
       {"views", views}};
   return doc.dump(2) + "\n";
 }
@@ -201,6 +234,7 @@ int run_intrinsic(const IntrinsicArgs& args, std::ostream& out, std::ostream& er
       << skipped_count(result.views_skipped) << "\n";
   warn_skipped(result.views_skipped, args.camera, err);
   print_intrinsics(result.intrinsics, result.covariance, out);
+  print_deflection(result.board_deflection, out);
   out << "  RMS reprojection error " << fixed(result.rms_px, 4) << " px (residual sigma "
       << fixed(result.residual_sigma_px, 4) << " px per axis, " << result.free_parameters
       << " parameters, " << result.iterations << " LM iterations)\n  per view RMS [px]:";
@@ -337,6 +371,7 @@ std::string rig_calibration_json(const calib::RigResult& r, int unit_id,
       {"points_used", r.points_used},
       {"points_rejected", r.points_rejected},
       {"free_parameters", r.free_parameters},
+      {"board_deflection", deflection_json(r.board_deflection)},
       {"frames", r.frames},
       {"joint_covariance",
        "top-level joint_covariance (version 2): board poses marginalised; camera 0's "
@@ -376,6 +411,7 @@ int run_rig(const RigArgs& args, std::ostream& out, std::ostream& err) {
     warn_skipped(c.views_skipped, c.camera_id, err);
     print_rig_camera(c, out);
   }
+  print_deflection(result.board_deflection, out);
   out << "RMS reprojection error " << fixed(result.rms_px, 4) << " px (residual sigma "
       << fixed(result.residual_sigma_px, 4) << " px per axis, " << result.free_parameters
       << " parameters, " << result.iterations << " LM iterations)\n";

@@ -20,6 +20,11 @@ class CalibrationError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+/// The board's out-of-plane deflection (mrcal's calobject_warp, docs/calibration.md, "Board
+/// deflection"): off = the board as given (flat, or its surveyed z), on = fitted (refused if the
+/// board cannot determine it), automatic = fitted when the identifiability rule holds.
+enum class BoardDeflection { off, on, automatic };
+
 /// Which parameters are estimated; like cv::calibrateCamera's flags. Fixed ones keep their
 /// initial value (0 for distortion) and get variance 0 in the covariance.
 struct IntrinsicOptions {
@@ -34,7 +39,23 @@ struct IntrinsicOptions {
   /// repeated. false_alarm = probability of rejecting any point of a clean set; 0 disables.
   double outlier_false_alarm = 0.01;
   int min_views = 3;
+  BoardDeflection board_deflection = BoardDeflection::automatic;
 };
+
+/// The fitted deflection z = c_x (1 - xn^2) + c_y (1 - yn^2) added to the board's z, with xn, yn
+/// the board coordinates scaled to [-1, 1] over [x_min, x_max] x [y_min, y_max]: the bowl's
+/// depth at the board's centre is c_x + c_y.
+struct BoardDeflectionResult {
+  bool fitted = false;
+  std::string reason;                             ///< why (not) fitted: the rule that decided
+  Eigen::Vector2d c_m = Eigen::Vector2d::Zero();  ///< (c_x, c_y) [m]
+  Eigen::Matrix2d covariance = Eigen::Matrix2d::Zero();  ///< [m^2]
+  double x_min = 0, x_max = 0, y_min = 0, y_max = 0;     ///< board extent [m]
+};
+
+/// Largest |z| of a board point over the board's larger side: the start (Zhang's homographies)
+/// uses (x, y) only, which holds for a nearly planar board; the refinement uses the full point.
+inline constexpr double kMaxBoardRelief = 0.1;
 
 struct PointResidual {
   int frame = 0, point_id = 0;
@@ -62,8 +83,9 @@ struct IntrinsicResult {
   std::vector<ViewResult> views;
   std::vector<PointResidual> residuals;
   std::vector<SkippedView> views_skipped;  ///< no homography or no pose from them: unused
+  BoardDeflectionResult board_deflection;
   int points_used = 0, points_rejected = 0;
-  int free_parameters = 0;  ///< intrinsic + 6 per view
+  int free_parameters = 0;  ///< intrinsic + 6 per view (+ 2 with the board deflection)
   double rms_px = 0;        ///< sqrt(SSR / N) over used points, as cv::calibrateCamera's RMS
   /// sqrt(SSR_w / (2N - p)) over residuals weighted by 1 / sigma_px (1 when the CSV gives no
   /// sigma): per-axis pixels without sigmas, a ratio (~1 when the sigmas are right) with them.
@@ -72,7 +94,8 @@ struct IntrinsicResult {
   int iterations = 0;
 };
 
-/// Calibrates `camera` from its observations (planar board, z = 0). Throws CalibrationError.
+/// Calibrates `camera` from its observations (a planar board, z = 0, or a surveyed one whose z
+/// stays within kMaxBoardRelief of its extent). Throws CalibrationError.
 IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
                                      const IntrinsicOptions& options);
 

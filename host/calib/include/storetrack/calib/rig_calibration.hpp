@@ -53,8 +53,10 @@ struct RigResult {
   /// kRigBlockSize * cameras x the same: s^2 (J^T W J)^-1 over all intrinsics and extrinsics,
   /// board poses eliminated exactly (Schur complement), fixed parameters 0.
   Eigen::MatrixXd joint_covariance;
+  BoardDeflectionResult board_deflection;  ///< one board: fitted jointly over every camera
   int points_used = 0, points_rejected = 0;
-  int free_parameters = 0;       ///< free intrinsics + 6 per non-reference camera + 6 per frame
+  /// free intrinsics + 6 per non-reference camera + 6 per frame (+ 2 with the board deflection)
+  int free_parameters = 0;
   double rms_px = 0;             ///< over all cameras' used points
   double residual_sigma_px = 0;  ///< sqrt(SSR_w / (2N - p)); its square scales the covariance
   int iterations = 0;
