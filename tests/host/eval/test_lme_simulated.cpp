@@ -46,6 +46,12 @@ sim::Scenario scale_bars_scenario() {
   return sim::load_scenario(test::scenario_path("scale_bars"));
 }
 
+#ifdef STORETRACK_SANITIZE
+constexpr int kCiDraws = 80;  // ASan/UBSan: the power tests still hold (sum z^2 23 < 51 at 80)
+#else
+constexpr int kCiDraws = 200;
+#endif
+
 int env_int(const char* name, int fallback) {
   const char* env = std::getenv(name);
   return env ? std::max(2, std::atoi(env)) : fallback;
@@ -157,7 +163,7 @@ struct Scored {
 
 TEST(LmeSimulated, PerturbedCalibrationGrowsAsPredicted) {
   const sim::Scenario scenario = scale_bars_scenario();
-  const int G = env_int("STORETRACK_LME_DRAWS", 200);
+  const int G = env_int("STORETRACK_LME_DRAWS", kCiDraws);
   Scored perfect, perturbed, perturbed_vs_centroid, perturbed_program;
   int scored = 0, skipped = 0;
   eval::LmeOptions options;
@@ -223,7 +229,7 @@ TEST(LmeSimulated, PerturbedCalibrationGrowsAsPredicted) {
 
 TEST(LmeSimulated, CalibrationDominatedSharedEnds) {
   const sim::Scenario scenario = scale_bars_scenario();
-  const int G = env_int("STORETRACK_LME_DRAWS", 200);
+  const int G = env_int("STORETRACK_LME_DRAWS", kCiDraws);
   Scored shared, independent;
   int scored = 0, skipped = 0;
   for (int g = 0; g < G; ++g) {
