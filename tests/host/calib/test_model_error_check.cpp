@@ -10,7 +10,10 @@
 #include <cstdlib>
 #include <random>
 
+#include "calib_commands.hpp"
+#include "model_error_output.hpp"
 #include "storetrack/calib/model_error_check.hpp"
+#include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/uncertainty/statistics.hpp"
 #include "synthetic_board.hpp"
 
@@ -113,6 +116,29 @@ TEST(ModelErrorCheck, UnmodelledDistortionGivesModelErrorDominatesAtTheEdge) {
   EXPECT_TRUE(c.cross_validation.model_error);
   std::printf("cross-validation: mean radius of flagged cells %.3f, of tested %.3f\n",
               mean_radius(c.cross_validation, true), mean_radius(c.cross_validation, false));
+}
+
+TEST(ModelErrorCheck, CalibrationFileRecordsTheVerdictAndItsReaderChecksIt) {
+  std::mt19937_64 rng(2829);
+  const ObservationSet set = synthetic_set(rng, -0.02);
+  const IntrinsicResult r = calibrate_intrinsics(set, 0, IntrinsicOptions{});
+  const ModelErrorCheck check = run_check(set, IntrinsicOptions{});
+  const std::string text = calibapp::with_model_error(
+      calibapp::intrinsic_calibration_json(r, 0, 0, IntrinsicOptions{}, &set), {check});
+  EXPECT_NE(text.find("\"model_error_dominates\": false"), std::string::npos);
+  EXPECT_NO_THROW(camera::parse_rig_calibration(text, "a.json"));
+  // A flagged cell outside the grid is refused, naming the field.
+  std::string bad = text;
+  const auto at = bad.find("\"flagged\": []");
+  ASSERT_NE(at, std::string::npos);
+  bad.replace(at, 13, "\"flagged\": [[8, 0]]");
+  try {
+    camera::parse_rig_calibration(bad, "bad.json");
+    ADD_FAILURE() << "accepted a flagged cell outside the grid";
+  } catch (const camera::CalibrationFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("bad.json"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("model_error"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace

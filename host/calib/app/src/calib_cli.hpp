@@ -33,6 +33,7 @@ struct IntrinsicArgs {
   std::string image_size;  ///< "WxH"; overrides the CSV's "# image_size" line
   calib::IntrinsicOptions options;
   bool no_outlier_rejection = false;
+  bool no_model_check = false;  ///< skip cross-validation and the residual map (speed)
   std::string output;
   std::string residuals_csv;
 };
@@ -43,6 +44,7 @@ struct RigArgs {
   int unit_id = 0;
   calib::RigOptions options;
   bool no_outlier_rejection = false;
+  bool no_model_check = false;  ///< skip cross-validation and the residual map (speed)
   std::string output;
   std::string residuals_csv;
 };
