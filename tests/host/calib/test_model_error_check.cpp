@@ -100,7 +100,11 @@ TEST(ModelErrorCheck, UnmodelledDistortionGivesModelErrorDominatesAtTheEdge) {
   std::mt19937_64 rng(2828);
   IntrinsicOptions options;
   options.fix_k2 = options.fix_k3 = true;  // fewer coefficients than the truth (k2, k3 = -0.5)
-  const ModelErrorCheck c = run_check(synthetic_set(rng, -0.5), options);
+  const ObservationSet set = synthetic_set(rng, -0.5);
+  // For the command-line test (tests/host/calib/CMakeLists.txt): the set as a CSV.
+  if (const char* dir = std::getenv("STORETRACK_MODEL_ERROR_WRITE_DIR"))
+    write_observations_csv(set, std::string(dir) + "/unmodelled_k3.csv");
+  const ModelErrorCheck c = run_check(set, options);
   std::printf("k3 unmodelled: %s\n", c.verdict.c_str());
   EXPECT_TRUE(c.model_error);
   EXPECT_NE(c.verdict.find("model error dominates here"), std::string::npos);
