@@ -345,6 +345,8 @@ def model_error_html(cam, out_dir):
     me = cam["model_error"]
     cid = cam["camera_id"]
     plot_model_error(cam, os.path.join(out_dir, f"camera{cid}_model_error.png"))
+    if me["verdict"].startswith("model error not checked"):
+        return f"<h3>Model error check</h3><p>{html.escape(me['verdict'])}</p>"
     head = ("<p><b style=\"color:#b00\">Model error dominates here</b>: the stated parameter "
             "uncertainty does not cover the lens model's error in the cells outlined in red.</p>"
             if me["model_error_dominates"] else "<p>Noise dominates: the stated uncertainty "

@@ -46,9 +46,12 @@ void decide(ModelErrorTest& t, const ModelErrorOptions& o) {
     c.flagged = c.chi2 > t.cell_threshold;
     t.flagged_cells += c.flagged ? 1 : 0;
   }
-  t.allowed_cells = static_cast<int>(
-      uncertainty::binomial_interval(t.tested_cells, o.cell_false_alarm, o.camera_false_alarm)
-          .high);
+  t.allowed_cells =
+      t.tested_cells == 0
+          ? 0
+          : static_cast<int>(uncertainty::binomial_interval(t.tested_cells, o.cell_false_alarm,
+                                                            o.camera_false_alarm)
+                                 .high);
   t.model_error = t.flagged_cells > t.allowed_cells;
   t.available = t.tested_cells > 0;
   if (!t.available && t.reason.empty()) t.reason = "no cell with enough points";
@@ -235,7 +238,7 @@ ModelErrorTest cross_validation_test(const ObservationSet& set, int camera,
   try {
     a = calibrate_half(set, camera, half_a, options, depths);
     b = calibrate_half(set, camera, half_b, options, depths);
-  } catch (const CalibrationError& e) {
+  } catch (const std::exception& e) {  // CalibrationError: too few views, degenerate half
     t.reason = std::string("a half of the views cannot be calibrated alone: ") + e.what();
     decide(t, o);
     return t;
@@ -280,10 +283,12 @@ ModelErrorCheck check_model_error(const ObservationSet& set, int camera,
   check.cross_validation = cross_validation_test(set, camera, frames, options, check.residual_map,
                                                  o, check.cross_validation_distance_m);
   check.model_error = check.residual_map.model_error || check.cross_validation.model_error;
-  check.verdict =
-      std::string(check.model_error ? "model error dominates here: " : "noise dominates: ") +
-      test_summary("cross-validation", check.cross_validation) + "; " +
-      test_summary("residual map", check.residual_map);
+  const bool checked = check.residual_map.available || check.cross_validation.available;
+  check.verdict = std::string(check.model_error ? "model error dominates here: "
+                              : checked         ? "noise dominates: "
+                                                : "model error not checked: ") +
+                  test_summary("cross-validation", check.cross_validation) + "; " +
+                  test_summary("residual map", check.residual_map);
   return check;
 }
 

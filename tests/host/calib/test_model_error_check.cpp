@@ -122,6 +122,25 @@ TEST(ModelErrorCheck, UnmodelledDistortionGivesModelErrorDominatesAtTheEdge) {
               mean_radius(c.cross_validation, true), mean_radius(c.cross_validation, false));
 }
 
+TEST(ModelErrorCheck, TooFewViewsOrPointsLeaveTheCheckNotRunWithItsReason) {
+  std::mt19937_64 rng(2830);
+  ObservationSet set = synthetic_set(rng, -0.02);
+  std::erase_if(set.observations, [](const Observation& ob) { return ob.frame >= 5; });
+  const ModelErrorCheck c = run_check(set, IntrinsicOptions{});  // halves of 3 and 2 views
+  EXPECT_FALSE(c.cross_validation.available);
+  EXPECT_NE(c.cross_validation.reason.find("cannot be calibrated alone"), std::string::npos)
+      << c.cross_validation.reason;
+  EXPECT_NE(c.verdict.find("cross-validation not run"), std::string::npos) << c.verdict;
+  EXPECT_EQ(c.verdict.rfind("model error not checked", 0) == 0, !c.residual_map.available)
+      << c.verdict;
+  // No cell with 10 points: the residual map is not run either, and says so.
+  ModelErrorOptions sparse;
+  sparse.min_points_per_cell = 100000;
+  const ModelErrorTest t = residual_map_test(set, 0, {}, 1920, 1024, 0.3, sparse);
+  EXPECT_FALSE(t.available);
+  EXPECT_EQ(t.tested_cells, 0);
+}
+
 TEST(ModelErrorCheck, CalibrationFileRecordsTheVerdictAndItsReaderChecksIt) {
   std::mt19937_64 rng(2829);
   const ObservationSet set = synthetic_set(rng, -0.02);
