@@ -7,8 +7,9 @@
 //   difference (the halves are independent: the sum of their propagated covariances);
 // - the residual map: the fit's residuals binned over the image, each cell's mean residual tested
 //   against the noise level (residual sigma / sqrt(n)).
-// Per cell chi-square(2) at 1 - cell_false_alarm; per camera a check alarms when more cells are
-// flagged than a binomial count band allows (docs/calibration.md states the levels).
+// Per cell chi-square(2) at 1 - cell_false_alarm names the region. Per camera, cross-validation
+// alarms on the joint chi-square of all cells (p < camera_false_alarm), the residual map when more
+// cells are flagged than a binomial count band allows (docs/calibration.md states the levels).
 #pragma once
 
 #include <string>
