@@ -314,6 +314,47 @@ def plot_residuals(cam, pts, sigma, path):
     save(fig, path)
 
 
+def plot_model_error(cam, path):
+    """The model error check's two maps (the file's model_error section): the residual map's mean
+    residual per cell over its sigma, the cross-validation difference per cell over its sigma;
+    flagged cells outlined in red, untested cells grey."""
+    me = cam["model_error"]
+    cols, rows = me["columns"], me["rows"]
+    fig, axs = plt.subplots(1, 2, figsize=(13, 3.6))
+    for ax, key, title in ((axs[0], "residual_map", "residual map: |mean residual| / σ_mean"),
+                           (axs[1], "cross_validation", "cross-validation: |half b − half a| / σ")):
+        z = np.full((rows, cols), np.nan)
+        for c in me[key]["comment"]["cells"]:
+            if c["tested"]:
+                z[c["row"], c["column"]] = math.sqrt(max(c["chi2"], 0.0))
+        im = ax.imshow(z, cmap="viridis", vmin=0, vmax=max(4.0, np.nanmax(z) if np.isfinite(z).any() else 4.0))
+        for c in me[key]["comment"]["cells"]:
+            if c["flagged"]:
+                ax.add_patch(plt.Rectangle((c["column"] - 0.5, c["row"] - 0.5), 1, 1, fill=False,
+                                           edgecolor="red", linewidth=2))
+        ax.set_title(f"camera {cam['camera_id']}: {title}", fontsize=9)
+        ax.set_xlabel("cell column")
+        ax.set_ylabel("cell row")
+        fig.colorbar(im, ax=ax, fraction=0.025)
+    save(fig, path)
+
+
+def model_error_html(cam, out_dir):
+    if "model_error" not in cam:
+        return "<p>No model error check in this file (--no-model-check, or an older file).</p>"
+    me = cam["model_error"]
+    cid = cam["camera_id"]
+    plot_model_error(cam, os.path.join(out_dir, f"camera{cid}_model_error.png"))
+    if me["verdict"].startswith("model error not checked"):
+        return f"<h3>Model error check</h3><p>{html.escape(me['verdict'])}</p>"
+    head = ("<p><b style=\"color:#b00\">Model error dominates here</b>: the stated parameter "
+            "uncertainty does not cover the lens model's error in the cells outlined in red.</p>"
+            if me["model_error_dominates"] else "<p>Noise dominates: the stated uncertainty "
+            "covers the differences and residual structure found.</p>")
+    return (f"<h3>Model error check</h3>{head}<p>{html.escape(me['verdict'])}</p>"
+            f"<p><img src=\"camera{cid}_model_error.png\"></p>")
+
+
 def parameter_rows(cam):
     i = cam["intrinsics"]
     values = [i["fx"], i["fy"], i["cx"], i["cy"], i.get("skew", 0.0)] + \
@@ -363,6 +404,7 @@ def calibration_page(doc, args, out_dir):
         else:
             parts.append("<p>Residual vectors and histogram left out: give --observations and "
                          "--residuals.</p>")
+        parts.append(model_error_html(cam, out_dir))
     return "".join(parts)
 
 

@@ -134,6 +134,44 @@ ObservedRegion parse_observed_region(const Value& v) {
   return region;
 }
 
+/// One check of "model_error" (cross_validation or residual_map): counts consistent, flagged
+/// cells [column, row] inside the grid and as many as flagged_cells.
+void check_model_error_test(const Value& v, int columns, int rows) {
+  Object j = object_of(v);
+  j.at("available").boolean();
+  j.at("model_error").boolean();
+  const auto tested = j.at("tested_cells").integer(0, columns * rows);
+  const auto flagged = j.at("flagged_cells").integer(0, tested);
+  j.at("allowed_cells").integer(0, columns * rows);
+  double p = 1;
+  j.get("joint_p_value", p, Range::closed(0, 1));
+  const std::vector<Value> cells = j.at("flagged").array();
+  if (static_cast<std::int64_t>(cells.size()) != flagged)
+    j.at("flagged").fail(std::to_string(cells.size()) + " cells, but flagged_cells is " +
+                         std::to_string(flagged));
+  for (const Value& cell : cells) {
+    const std::vector<Value> cr = cell.array(2, 2);
+    cr[0].integer(0, columns - 1);
+    cr[1].integer(0, rows - 1);
+  }
+  j.finish();
+}
+
+/// "model_error" (storetrack-calib's cross-validation and residual map, docs/calibration-file.md):
+/// checked, not kept (the host does not use it; the report reads it).
+void check_model_error(const Value& v) {
+  Object j = object_of(v);
+  j.at("verdict").non_empty_string();
+  j.at("model_error_dominates").boolean();
+  double distance_m = 0;
+  j.get("cross_validation_distance_m", distance_m, Range::at_least(0));
+  const auto columns = static_cast<int>(j.at("columns").integer(1, 1024));
+  const auto rows = static_cast<int>(j.at("rows").integer(1, 1024));
+  check_model_error_test(j.at("cross_validation"), columns, rows);
+  check_model_error_test(j.at("residual_map"), columns, rows);
+  j.finish();
+}
+
 CalibratedCamera parse_camera(const Value& v, std::map<int, ObservedRegion>& regions) {
   Object j = object_of(v);
   CalibratedCamera cam;
@@ -159,6 +197,7 @@ CalibratedCamera parse_camera(const Value& v, std::map<int, ObservedRegion>& reg
   j.get("exposure_offset_sigma_ns", cam.exposure_offset_sigma_ns, Range::at_least(0));
   if (const auto region = j.find("observed_region"))
     regions[cam.camera_id] = parse_observed_region(*region);
+  if (const auto model_error = j.find("model_error")) check_model_error(*model_error);
   j.finish();
   return cam;
 }

@@ -142,6 +142,14 @@ std::vector<ProjectionSample> projection_samples(const camera::RigCalibration& a
   return out;
 }
 
+/// project_b(T_b_a unproject_a(q, depth)) - q [px]; NaN where a model cannot (un)project.
+Vec2 difference_vector(const camera::CalibratedCamera& ca, const camera::CalibratedCamera& cb,
+                       const Vec2& q, double depth_m, const Transform& T_b_a) {
+  const auto p_wa = unproject_world(ca, q, depth_m);
+  const auto u = p_wa ? cb.model.project_world(cb.T_c_w, T_b_a * *p_wa) : std::nullopt;
+  return u ? Vec2(*u - q) : Vec2::Constant(kNaN);
+}
+
 /// Pixel difference of every camera's grid through T_b_a (identity: unfitted).
 std::vector<std::vector<double>> grid_differences(const camera::RigCalibration& a,
                                                   const camera::RigCalibration& b, int slot,
@@ -153,11 +161,8 @@ std::vector<std::vector<double>> grid_differences(const camera::RigCalibration& 
   std::vector<std::vector<double>> out;
   for (double d : distances) {
     std::vector<double> row;
-    for (const Vec2& q : grid) {
-      const auto p_wa = unproject_world(ca, q, d);
-      const auto u = p_wa ? cb.model.project_world(cb.T_c_w, T_b_a * *p_wa) : std::nullopt;
-      row.push_back(u ? (*u - q).norm() : kNaN);
-    }
+    for (const Vec2& q : grid)
+      row.push_back(difference_vector(ca, cb, q, d, T_b_a).norm());
     out.push_back(std::move(row));
   }
   return out;
@@ -571,6 +576,31 @@ ComparisonResult compare_calibrations(const camera::RigCalibration& a,
   if (bars != nullptr) r.bars = compare_bars(a, Sa, b, Sb, *bars, bar_sightings, o.sigma_px);
   decide(r, o);
   return r;
+}
+
+std::vector<Vec2> projection_difference(const camera::CameraModel& a, const camera::CameraModel& b,
+                                        const std::vector<Vec2>& pixels,
+                                        const std::vector<double>& fit_distances_m,
+                                        double distance_m) {
+  camera::RigCalibration rig_a, rig_b;  // one camera each, T_c_w = identity, no regions
+  rig_a.cameras.resize(1);
+  rig_b.cameras.resize(1);
+  rig_a.cameras[0].model = a;
+  rig_b.cameras[0].model = b;
+  std::vector<ProjectionSample> samples;
+  std::vector<Vec3> p_wb_start;
+  for (double d : fit_distances_m)
+    for (const Vec2& q : pixels) {
+      const auto p_wa = unproject_world(rig_a.cameras[0], q, d);
+      if (!p_wa) continue;
+      samples.push_back({0, q, *p_wa});
+      p_wb_start.push_back(unproject_world(rig_b.cameras[0], q, d).value_or(Vec3::Constant(kNaN)));
+    }
+  const Transform T_b_a = fit_rigid_motion(rig_b, samples, p_wb_start);
+  std::vector<Vec2> out;
+  for (const Vec2& q : pixels)
+    out.push_back(difference_vector(rig_a.cameras[0], rig_b.cameras[0], q, distance_m, T_b_a));
+  return out;
 }
 
 UncertaintyMap uncertainty_map(const camera::RigCalibration& rig, const UncertaintyMapOptions& o) {

@@ -7,6 +7,7 @@ detect's JSON and CSV, the parameters with sigma of the calibration JSON in the 
 RMS and per-view RMS of the JSON against the ones recomputed from the residual CSV (an
 independent sum over the points). Usage: check_calib_report.py STORETRACK_CALIB REPO OUT_DIR"""
 import csv
+from html import escape as html_escape
 import json
 import math
 import os
@@ -60,9 +61,11 @@ run("/usr/bin/python3", report, o("rig.json"), o("rig_report"), "--observations"
     o("right.csv"), "--residuals", o("rig_res.csv"))
 
 expected = {"detect_report": ["index.html", "detect_coverage.png"],
-            "intrinsic_report": ["index.html", "camera0_views.png", "camera0_residuals.png"],
+            "intrinsic_report": ["index.html", "camera0_views.png", "camera0_residuals.png",
+                                 "camera0_model_error.png"],
             "rig_report": ["index.html", "camera0_views.png", "camera0_residuals.png",
-                           "camera1_views.png", "camera1_residuals.png"]}
+                           "camera1_views.png", "camera1_residuals.png", "camera0_model_error.png",
+                           "camera1_model_error.png"]}
 for d, files in expected.items():
     for f in files:
         p = o(os.path.join(d, f))
@@ -99,6 +102,10 @@ def check_fit(doc, residual_csv, page_path, label):
                   f"{label} camera {cid} view {v['frame']}: page shows RMS {v['rms_px']:.4f}")
         check(worst < 1e-4, f"{label} camera {cid}: per-view RMS of the JSON = recomputed "
               f"(largest difference {worst:.1e} px)")
+        me = cam.get("model_error")
+        check(me is not None and html_escape(me["verdict"]) in page,
+              f"{label} camera {cid}: the model error verdict of the JSON (run by default) is in "
+              f"the page")
         fx = cam["intrinsics"]["fx"]
         sd = cam["intrinsic_covariance"]
         sd_fx = sd["standard_deviations"][0] if isinstance(sd, dict) else math.sqrt(sd[0][0])

@@ -52,6 +52,11 @@ calib::BoardDeflection deflection_mode(const std::string& name) {
   return calib::BoardDeflection::automatic;  // one_of admits nothing else
 }
 
+void add_model_check_option(cli::Command& sub, bool& no_model_check) {
+  sub.flag("--no-model-check", no_model_check,
+           "Skip the model error check (cross-validation, residual map): faster");
+}
+
 void add_intrinsic(cli::Command& app, IntrinsicArgs& a) {
   cli::Command& sub = app.subcommand("intrinsic", "One camera's intrinsics with covariance");
   sub.option("observations", a.observations, "Observation CSV").required().existing_file();
@@ -59,6 +64,7 @@ void add_intrinsic(cli::Command& app, IntrinsicArgs& a) {
   sub.option("--unit", a.unit_id, "Unit id written to the calibration file").range(0, 255);
   sub.option("--image-size", a.image_size, "WxH, when the CSV has no image_size line");
   add_model_options(sub, a.options, a.no_outlier_rejection, a.board_deflection);
+  add_model_check_option(sub, a.no_model_check);
   sub.option("-o,--output", a.output, "Rig calibration JSON to write").required();
   sub.option("--residuals", a.residuals_csv, "Per-point residual CSV to write");
 }
@@ -73,6 +79,7 @@ void add_rig(cli::Command& app, RigArgs& a) {
   sub.option("--image-size", a.image_sizes,
              "CAMERA=WxH, when a CSV has no image_size line (repeatable)");
   add_model_options(sub, a.options.intrinsic, a.no_outlier_rejection, a.board_deflection);
+  add_model_check_option(sub, a.no_model_check);
   sub.option("--min-common-views", a.options.min_common_views,
              "Fewest frames two cameras must share to be linked")
       .range(1, 100000);

@@ -34,6 +34,7 @@ struct IntrinsicArgs {
   calib::IntrinsicOptions options;
   bool no_outlier_rejection = false;
   std::string board_deflection = "auto";  ///< on | off | auto -> options.board_deflection
+  bool no_model_check = false;  ///< skip cross-validation and the residual map (speed)
   std::string output;
   std::string residuals_csv;
 };
@@ -45,6 +46,7 @@ struct RigArgs {
   calib::RigOptions options;
   bool no_outlier_rejection = false;
   std::string board_deflection = "auto";  ///< each camera's own (start) fit; see docs
+  bool no_model_check = false;  ///< skip cross-validation and the residual map (speed)
   std::string output;
   std::string residuals_csv;
 };

@@ -11,6 +11,7 @@
 
 #include "command_output.hpp"
 #include "detect_report.hpp"
+#include "model_error_output.hpp"
 #include "storetrack/camera/calibration_file.hpp"
 
 namespace storetrack::calibapp {
@@ -241,9 +242,21 @@ int run_intrinsic(const IntrinsicArgs& args, std::ostream& out, std::ostream& er
   for (const auto& v : result.views)
     out << ' ' << v.frame << ':' << fixed(v.rms_px, 3);
   out << "\n";
+  std::vector<calib::ModelErrorCheck> checks;
+  if (!args.no_model_check) {
+    std::vector<int> frames;
+    for (const auto& v : result.views)
+      frames.push_back(v.frame);
+    checks.push_back(calib::check_model_error(set, args.camera, frames, result.residuals,
+                                              result.intrinsics.width, result.intrinsics.height,
+                                              result.residual_sigma_px, args.options, {}));
+    print_model_error(checks, out);
+  }
   return write_outputs(args.output, out, err, [&] {
     write_text(args.output,
-               intrinsic_calibration_json(result, args.camera, args.unit_id, args.options, &set));
+               with_model_error(intrinsic_calibration_json(result, args.camera, args.unit_id,
+                                                           args.options, &set),
+                                checks));
     if (!args.residuals_csv.empty()) write_residuals(result, args.camera, args.residuals_csv);
   });
 }
@@ -415,8 +428,22 @@ int run_rig(const RigArgs& args, std::ostream& out, std::ostream& err) {
   out << "RMS reprojection error " << fixed(result.rms_px, 4) << " px (residual sigma "
       << fixed(result.residual_sigma_px, 4) << " px per axis, " << result.free_parameters
       << " parameters, " << result.iterations << " LM iterations)\n";
+  std::vector<calib::ModelErrorCheck> checks;
+  if (!args.no_model_check) {
+    for (const auto& c : result.cameras) {
+      std::vector<int> frames;
+      for (const auto& v : c.views)
+        frames.push_back(v.frame);
+      checks.push_back(calib::check_model_error(
+          set, c.camera_id, frames, c.residuals, c.intrinsics.width, c.intrinsics.height,
+          result.residual_sigma_px, args.options.intrinsic, {}));
+    }
+    print_model_error(checks, out);
+  }
   return write_outputs(args.output, out, err, [&] {
-    write_text(args.output, rig_calibration_json(result, args.unit_id, args.options, &set));
+    write_text(
+        args.output,
+        with_model_error(rig_calibration_json(result, args.unit_id, args.options, &set), checks));
     if (!args.residuals_csv.empty()) {
       std::ostringstream rows;
       rows << kResidualHeader;

@@ -155,6 +155,16 @@ ComparisonResult compare_calibrations(const camera::RigCalibration& a,
                                       const survey::ScaleBarSet* bars = nullptr,
                                       const std::vector<BarSighting>& bar_sightings = {});
 
+/// Compare's projection difference for one camera alone (cross-validation, model_error_check.hpp):
+/// per pixel, project_b(T_b_a unproject_a(pixel) at distance_m) - pixel [px], with T_b_a the rigid
+/// motion fitted over the pixels unprojected at every fit distance (NaN where a model cannot
+/// unproject or project).
+std::vector<geometry::Vec2> projection_difference(const camera::CameraModel& a,
+                                                  const camera::CameraModel& b,
+                                                  const std::vector<geometry::Vec2>& pixels,
+                                                  const std::vector<double>& fit_distances_m,
+                                                  double distance_m);
+
 /// The predicted uncertainty over the working volume.
 struct UncertaintyMapOptions {
   std::string origin = "rig";
