@@ -8,7 +8,10 @@ enum Packed : int { kFx, kFy, kCx, kCy, kSkew, kK1, kK2, kP1, kP2, kK3, kK4, kK5
 
 IntrinsicParameterMap::IntrinsicParameterMap(const IntrinsicOptions& o,
                                              const camera::Intrinsics& start)
-    : base_(camera::pack(start)), width_(start.width), height_(start.height) {
+    : base_(camera::pack(start)),
+      width_(start.width),
+      height_(start.height),
+      lens_model_(start.lens_model) {
   std::vector<int> free;
   if (!o.fix_aspect_ratio) free.push_back(kFx);
   free.push_back(kFy);
@@ -41,7 +44,7 @@ IntrinsicParameterMap::IntrinsicParameterMap(const IntrinsicOptions& o,
 
 camera::Intrinsics IntrinsicParameterMap::intrinsics(const double* z) const {
   const Eigen::Map<const Eigen::VectorXd> zv(z, size());
-  return camera::unpack(base_ + M_ * zv, width_, height_);
+  return camera::unpack(base_ + M_ * zv, width_, height_, lens_model_);
 }
 
 Eigen::VectorXd IntrinsicParameterMap::free_values(const camera::Intrinsics& in) const {

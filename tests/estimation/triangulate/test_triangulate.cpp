@@ -182,8 +182,10 @@ TEST(Triangulate, CalibrationSensitivityMatchesFiniteDifferences) {
   const camera::IntrinsicVector v0 = camera::pack(rig.cameras[cam].model.intrinsics());
   for (int k = 0; k < 10; ++k) {
     const double h = k < 5 ? 1e-3 : 1e-6;
-    camera::CameraModel mp(camera::unpack(v0 + h * camera::IntrinsicVector::Unit(k), 1920, 1024));
-    camera::CameraModel mm(camera::unpack(v0 - h * camera::IntrinsicVector::Unit(k), 1920, 1024));
+    camera::CameraModel mp(camera::unpack(v0 + h * camera::IntrinsicVector::Unit(k), 1920, 1024,
+                                          camera::LensModel::kRationalBrown));
+    camera::CameraModel mm(camera::unpack(v0 - h * camera::IntrinsicVector::Unit(k), 1920, 1024,
+                                          camera::LensModel::kRationalBrown));
     auto op = obs, om = obs;
     op[cam].model = &mp;
     om[cam].model = &mm;
