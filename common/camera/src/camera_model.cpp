@@ -167,6 +167,58 @@ Vec2 pixel_from_distorted(const Intrinsics& in, const Vec2& xy_d) {
   return {in.fx * xy_d.x() + in.skew * xy_d.y() + in.cx, in.fy * xy_d.y() + in.cy};
 }
 
+/// Kannala-Brandt off the axis by 45 degrees or more, from the 3-D point itself (the normalised
+/// point x/z diverges at 90 degrees; the lens does not): x' = theta_d(theta) (X, Y) / rho with
+/// theta = atan2(rho, Z), rho = |(X, Y)|, so rays beyond 90 degrees project too. Jacobians
+/// d x' / d p_cam and d x' / d k.
+Vec2 kannala_brandt_wide(const Intrinsics& in, const Vec3& p, Eigen::Matrix<double, 2, 3>* d_point,
+                         LensCoefficientJacobian* d_coefficients) {
+  const double rho2 = p.head<2>().squaredNorm(), rho = std::sqrt(rho2);
+  const double range2 = rho2 + p.z() * p.z();
+  const double theta = std::atan2(rho, p.z());
+  const KannalaBrandtRadius radius = kannala_brandt_radius(in, theta);
+  const Vec2 direction = p.head<2>() / rho;
+  if (d_point) {
+    Eigen::RowVector3d d_theta;
+    d_theta << p.z() * direction.x() / range2, p.z() * direction.y() / range2, -rho / range2;
+    Eigen::Matrix<double, 2, 3> d_direction = Eigen::Matrix<double, 2, 3>::Zero();
+    d_direction.leftCols<2>() = (Mat2::Identity() - direction * direction.transpose()) / rho;
+    *d_point = radius.d_theta_d * direction * d_theta + radius.theta_d * d_direction;
+  }
+  if (d_coefficients) {
+    d_coefficients->setZero();
+    double power = theta;  // d theta_d / d k_i = theta^(2i+3)
+    for (int i = 0; i < 4; ++i) {
+      power *= theta * theta;
+      d_coefficients->col(i) = power * direction;
+    }
+  }
+  return radius.theta_d * direction;
+}
+
+/// The distorted normalised point x' of a camera-frame point, with d x' / d p_cam and
+/// d x' / d(lens coefficients) when asked. nullopt: not finite, or behind the camera (rational
+/// Brown: Z <= 0; Kannala-Brandt: on the negative Z axis).
+std::optional<Vec2> distorted_point(const Intrinsics& in, const Vec3& p_cam,
+                                    Eigen::Matrix<double, 2, 3>* d_point,
+                                    LensCoefficientJacobian* d_coefficients) {
+  if (!p_cam.allFinite()) return std::nullopt;
+  const double z = p_cam.z();
+  if (in.lens_model == LensModel::kKannalaBrandt && !(z > p_cam.head<2>().norm())) {
+    if (!(p_cam.head<2>().norm() > 0)) return std::nullopt;
+    return kannala_brandt_wide(in, p_cam, d_point, d_coefficients);
+  }
+  if (!(z > 0)) return std::nullopt;
+  const Vec2 xy(p_cam.x() / z, p_cam.y() / z);
+  const DistortionTerms t = distortion_terms(in, xy, d_coefficients);
+  if (d_point) {
+    Eigen::Matrix<double, 2, 3> d_xy_d_p;
+    d_xy_d_p << 1 / z, 0, -xy.x() / z, 0, 1 / z, -xy.y() / z;
+    *d_point = t.d_xy * d_xy_d_p;
+  }
+  return t.distorted;
+}
+
 /// Kannala-Brandt inverse: Newton on theta_d(theta) = |target| (one unknown, the map being
 /// radial), started at theta = theta_d. Its domain: theta in [0, 90 deg) with theta_d increasing
 /// on [0, theta] (then the root is unique and is the ray); outside it, nullopt.
@@ -252,29 +304,23 @@ Mat2 CameraModel::unproject_jacobian(const Vec2& xy) const {
 std::optional<Vec2> CameraModel::project(
     const Vec3& p_cam, Eigen::Matrix<double, 2, 3>* d_point_cam,
     Eigen::Matrix<double, 2, kNumIntrinsics>* d_intrinsics) const {
-  const double z = p_cam.z();
-  if (!(z > 0)) return std::nullopt;
-  const Vec2 xy(p_cam.x() / z, p_cam.y() / z);
   LensCoefficientJacobian d_coefficients;
-  const DistortionTerms t = distortion_terms(in_, xy, d_intrinsics ? &d_coefficients : nullptr);
-  const Vec2 pixel = pixel_from_distorted(in_, t.distorted);
-
-  if (d_point_cam) {
-    Eigen::Matrix<double, 2, 3> d_xy_d_p;
-    d_xy_d_p << 1 / z, 0, -xy.x() / z, 0, 1 / z, -xy.y() / z;
-    *d_point_cam = pixel_from_distorted_jacobian(in_) * t.d_xy * d_xy_d_p;
-  }
+  const auto distorted =
+      distorted_point(in_, p_cam, d_point_cam, d_intrinsics ? &d_coefficients : nullptr);
+  if (!distorted) return std::nullopt;
+  const Mat2 A = pixel_from_distorted_jacobian(in_);
+  if (d_point_cam) *d_point_cam = A * *d_point_cam;
   if (d_intrinsics) {
     auto& J = *d_intrinsics;
     J.setZero();
-    J(0, kFx) = t.distorted.x();
-    J(1, kFy) = t.distorted.y();
+    J(0, kFx) = distorted->x();
+    J(1, kFy) = distorted->y();
     J(0, kCx) = 1;
     J(1, kCy) = 1;
-    J(0, kSkew) = t.distorted.y();
-    J.block<2, 8>(0, kK1) = pixel_from_distorted_jacobian(in_) * d_coefficients;
+    J(0, kSkew) = distorted->y();
+    J.block<2, 8>(0, kK1) = A * d_coefficients;
   }
-  return pixel;
+  return pixel_from_distorted(in_, *distorted);
 }
 
 std::optional<Vec2> CameraModel::project_world(const geometry::Transform& T_c_w, const Vec3& p_w,

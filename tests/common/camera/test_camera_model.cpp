@@ -415,7 +415,9 @@ TEST(KannalaBrandt, ProjectionIsTheClosedForm) {
   // theta_d = theta (1 + k1 theta^2 + ...), pixel = K (theta_d cos phi, theta_d sin phi).
   const Intrinsics in = fisheye_intrinsics();
   const CameraModel cam(in);
-  for (const double theta_deg : {0.0, 1e-9, 0.3, 10.0, 45.0, 80.0, 89.0, 89.9}) {
+  // Beyond 90 degrees too: a fisheye sees behind its image plane (theta = atan2(rho, Z)).
+  for (const double theta_deg :
+       {0.0, 1e-9, 0.3, 10.0, 44.99, 45.0, 45.01, 80.0, 89.0, 89.9, 90.0, 100.0, 120.0}) {
     const double theta = theta_deg * M_PI / 180, phi = 0.7;
     const double t2 = theta * theta;
     const double theta_d = theta * (1 + in.dist[0] * t2 + in.dist[1] * t2 * t2 +
@@ -426,17 +428,19 @@ TEST(KannalaBrandt, ProjectionIsTheClosedForm) {
     ASSERT_TRUE(px) << theta_deg;
     EXPECT_LT((*px - expected).norm(), 1e-9) << theta_deg;
   }
-  EXPECT_FALSE(cam.project(Vec3(1.2, 0.4, 0)));  // theta = 90 deg: outside the domain
+  EXPECT_FALSE(cam.project(Vec3(0, 0, -2)));  // the negative axis: no azimuth
+  EXPECT_FALSE(cam.project(Vec3(0.1, std::nan(""), 1)));
 }
 
 TEST(KannalaBrandt, JacobiansMatchFiniteDifferences) {
-  // Point and intrinsic Jacobians out to 89 degrees, and at the axis (the series branch).
+  // Point, intrinsic and distort() Jacobians against central differences.
   std::mt19937_64 rng(21);
   std::uniform_real_distribution<double> uu(0, 1);
   for (int trial = 0; trial < 300; ++trial) {
     const Intrinsics in = random_fisheye_intrinsics(rng);
     const CameraModel cam(in);
-    const double theta = trial % 10 == 0 ? 1e-9 : 89.0 * M_PI / 180 * uu(rng);
+    // The axis (series branch), both sides of the 45-degree switch to the 3-D form, out to 120.
+    const double theta = trial % 10 == 0 ? 1e-9 : 120.0 * M_PI / 180 * uu(rng);
     const Vec3 p = point_at_angle(theta, 2 * M_PI * uu(rng), 0.5 + 19.5 * uu(rng));
     Eigen::Matrix<double, 2, 3> Jp;
     Eigen::Matrix<double, 2, kNumIntrinsics> Ji;
@@ -465,6 +469,7 @@ TEST(KannalaBrandt, JacobiansMatchFiniteDifferences) {
         EXPECT_EQ(Ji.col(k).norm(), 0) << "unused coefficient " << k;
       }
     }
+    if (!(p.z() > 0)) continue;  // distort() takes the normalised point (Z > 0)
     Mat2 Jd;
     const Vec2 xy = p.head<2>() / p.z();
     cam.distort(xy, &Jd);

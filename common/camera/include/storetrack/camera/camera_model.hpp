@@ -70,7 +70,7 @@ class CameraModel {
 
   const Intrinsics& intrinsics() const { return in_; }
 
-  /// Projects a point in the camera frame to pixels. Returns nullopt when Z <= 0.
+  /// Camera-frame point -> pixels; nullopt when Z <= 0 (Kannala-Brandt: on the -Z axis only).
   /// d_point_cam / d_intrinsics are filled when non-null.
   std::optional<geometry::Vec2> project(
       const geometry::Vec3& p_cam, Eigen::Matrix<double, 2, 3>* d_point_cam = nullptr,
