@@ -81,6 +81,7 @@ nlohmann::json flags_json(const calib::IntrinsicOptions& options) {
           {"fix_k2", options.fix_k2},
           {"fix_k3", options.fix_k3},
           {"rational", options.rational},
+          {"lens_model", camera::lens_model_name(options.lens_model)},
           {"outlier_false_alarm", options.outlier_false_alarm}};
 }
 
