@@ -107,11 +107,26 @@ Intrinsics parse_intrinsics(Object ij, Intrinsics in) {
   in.cx = ij.at("cx").number();
   in.cy = ij.at("cy").number();
   if (const auto skew = ij.find("skew")) in.skew = skew->number();
-  // OpenCV accepts 4, 5 or 8 coefficients (k1, k2, p1, p2[, k3[, k4, k5, k6]]).
+  in.lens_model = LensModel::kRationalBrown;  // files before the field was added
+  if (const auto model = ij.find("model")) {
+    const auto lens_model = lens_model_from_name(model->string());
+    if (!lens_model)
+      model->fail("unknown lens model \"" + model->string() +
+                  "\" (expected \"rational-brown\" or \"kannala-brandt\")");
+    in.lens_model = *lens_model;
+  }
   const Value dist = ij.at("distortion");
-  const std::vector<Value> coefficients = dist.array(4, 8);
-  if (coefficients.size() == 6 || coefficients.size() == 7)
-    dist.fail("expected 4, 5 or 8 coefficients (OpenCV order k1 k2 p1 p2 [k3 [k4 k5 k6]])");
+  std::vector<Value> coefficients;
+  if (in.lens_model == LensModel::kKannalaBrandt) {
+    if (!dist.json().is_array() || dist.json().size() != 4)
+      dist.fail("expected 4 coefficients for the kannala-brandt model (k1 k2 k3 k4)");
+    coefficients = dist.array(4, 4);
+  } else {
+    // OpenCV accepts 4, 5 or 8 coefficients (k1, k2, p1, p2[, k3[, k4, k5, k6]]).
+    coefficients = dist.array(4, 8);
+    if (coefficients.size() == 6 || coefficients.size() == 7)
+      dist.fail("expected 4, 5 or 8 coefficients (OpenCV order k1 k2 p1 p2 [k3 [k4 k5 k6]])");
+  }
   for (std::size_t i = 0; i < coefficients.size(); ++i)
     in.dist[i] = coefficients[i].number();
   ij.finish();
@@ -386,10 +401,15 @@ std::string format_rig_calibration(const RigCalibration& rig) {
     c["unit_id"] = cam.unit_id;
     c["image_size"] = {{"width", in.width}, {"height", in.height}};
     json dist = json::array();
-    for (double d : in.dist)
-      dist.push_back(d);
-    c["intrinsics"] = {{"fx", in.fx}, {"fy", in.fy},     {"cx", in.cx},
-                       {"cy", in.cy}, {"skew", in.skew}, {"distortion", dist}};
+    for (int i = 0; i < lens_coefficient_count(in.lens_model); ++i)
+      dist.push_back(in.dist[static_cast<std::size_t>(i)]);
+    c["intrinsics"] = {{"model", lens_model_name(in.lens_model)},
+                       {"fx", in.fx},
+                       {"fy", in.fy},
+                       {"cx", in.cx},
+                       {"cy", in.cy},
+                       {"skew", in.skew},
+                       {"distortion", dist}};
     c["intrinsic_covariance"] = rows(cam.intrinsic_covariance);
     const geometry::Vec3 rv = geometry::rotvec_from_rotation(cam.T_c_w.linear());
     const geometry::Vec3 t = cam.T_c_w.translation();

@@ -164,7 +164,8 @@ Simulator::Simulator(const Scenario& scenario, std::uint64_t seed)
     camera::IntrinsicVector v = camera::pack(cs.intrinsics);
     for (int j = 0; j < camera::kNumIntrinsics; ++j)
       v[j] += sig_in[j] * normal(rng);
-    cal.model = camera::CameraModel(camera::unpack(v, cs.intrinsics.width, cs.intrinsics.height));
+    cal.model = camera::CameraModel(
+        camera::unpack(v, cs.intrinsics.width, cs.intrinsics.height, cs.intrinsics.lens_model));
     geometry::Vec6 d;
     for (int j = 0; j < 6; ++j)
       d[j] = sig_ex[j] * normal(rng);

@@ -263,7 +263,10 @@ IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
   check_view_count(views, skipped, min_views, who);
   check_board_relief(views, who);
 
-  const ZhangStart start = usable_start(views, skipped, size->second, options, min_views, who);
+  ZhangStart start = usable_start(views, skipped, size->second, options, min_views, who);
+  // Zhang's pinhole focal length and principal point are the fisheye's start too (k = 0: the
+  // equidistant lens, which agrees with the pinhole to O(theta^3) near the axis).
+  start.intrinsics.lens_model = options.lens_model;
   const IntrinsicParameterMap map(options, start.intrinsics);
   RefinementState state{map.free_values(start.intrinsics), {}, {}};
   for (const auto& T : start.T_c_b) {

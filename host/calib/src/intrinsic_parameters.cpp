@@ -4,19 +4,9 @@ namespace storetrack::calib {
 namespace {
 // Packed indices (common/camera/camera_model.hpp).
 enum Packed : int { kFx, kFy, kCx, kCy, kSkew, kK1, kK2, kP1, kP2, kK3, kK4, kK5, kK6 };
-}  // namespace
 
-IntrinsicParameterMap::IntrinsicParameterMap(const IntrinsicOptions& o,
-                                             const camera::Intrinsics& start)
-    : base_(camera::pack(start)), width_(start.width), height_(start.height) {
-  std::vector<int> free;
-  if (!o.fix_aspect_ratio) free.push_back(kFx);
-  free.push_back(kFy);
-  if (!o.fix_principal_point) {
-    free.push_back(kCx);
-    free.push_back(kCy);
-  }
-  // skew: the model has it, cv::calibrateCamera does not estimate it; fixed at its start (0).
+/// The free Brown coefficients, as cv::calibrateCamera's flags choose them.
+void add_rational_brown(const IntrinsicOptions& o, std::vector<int>& free) {
   if (!o.fix_k1) free.push_back(kK1);
   if (!o.fix_k2) free.push_back(kK2);
   if (!o.zero_tangential) {
@@ -27,6 +17,31 @@ IntrinsicParameterMap::IntrinsicParameterMap(const IntrinsicOptions& o,
   if (o.rational)
     for (int k : {kK4, kK5, kK6})
       free.push_back(k);
+}
+
+}  // namespace
+
+IntrinsicParameterMap::IntrinsicParameterMap(const IntrinsicOptions& o,
+                                             const camera::Intrinsics& start)
+    : base_(camera::pack(start)),
+      width_(start.width),
+      height_(start.height),
+      lens_model_(start.lens_model) {
+  std::vector<int> free;
+  if (!o.fix_aspect_ratio) free.push_back(kFx);
+  free.push_back(kFy);
+  if (!o.fix_principal_point) {
+    free.push_back(kCx);
+    free.push_back(kCy);
+  }
+  // skew: the model has it, cv::calibrateCamera does not estimate it; fixed at its start (0).
+  if (start.lens_model == camera::LensModel::kKannalaBrandt) {
+    // k1..k4 occupy packed entries 5..8 (camera_model.hpp); 9..12 are unused.
+    for (int k = kK1; k < kK1 + camera::lens_coefficient_count(start.lens_model); ++k)
+      free.push_back(k);
+  } else {
+    add_rational_brown(o, free);
+  }
   lead_ = free;
   M_.setZero(camera::kNumIntrinsics, static_cast<Eigen::Index>(free.size()));
   for (size_t j = 0; j < free.size(); ++j) {
@@ -41,7 +56,7 @@ IntrinsicParameterMap::IntrinsicParameterMap(const IntrinsicOptions& o,
 
 camera::Intrinsics IntrinsicParameterMap::intrinsics(const double* z) const {
   const Eigen::Map<const Eigen::VectorXd> zv(z, size());
-  return camera::unpack(base_ + M_ * zv, width_, height_);
+  return camera::unpack(base_ + M_ * zv, width_, height_, lens_model_);
 }
 
 Eigen::VectorXd IntrinsicParameterMap::free_values(const camera::Intrinsics& in) const {

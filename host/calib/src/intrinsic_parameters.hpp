@@ -27,6 +27,7 @@ class IntrinsicParameterMap {
   camera::IntrinsicVector base_;
   std::vector<int> lead_;  ///< packed index whose value z_j is
   int width_, height_;
+  camera::LensModel lens_model_;
 };
 
 }  // namespace storetrack::calib

@@ -768,8 +768,8 @@ MonteCarloResult ExposureProcessor::monte_carlo(const AlignedExposure& exposure,
         const camera::IntrinsicVector v =
             camera::pack(cams[c].model.intrinsics()) +
             cf.intrinsic * z.segment(cf.intrinsic_begin, cf.intrinsic.cols());
-        cams[c].model = camera::CameraModel(
-            camera::unpack(v, cams[c].model.intrinsics().width, cams[c].model.intrinsics().height));
+        const camera::Intrinsics& in = cams[c].model.intrinsics();
+        cams[c].model = camera::CameraModel(camera::unpack(v, in.width, in.height, in.lens_model));
       }
       if (cf.extrinsic.cols() > 0)
         cams[c].T_c_w = geometry::perturb_left(

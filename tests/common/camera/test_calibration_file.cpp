@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <random>
 
 #include <nlohmann/json.hpp>
@@ -79,6 +80,7 @@ void expect_same_rig(const RigCalibration& a, const RigCalibration& b) {
     EXPECT_EQ(ca.camera_id, cb.camera_id);
     EXPECT_EQ(ca.unit_id, cb.unit_id);
     EXPECT_EQ(pack(ca.model.intrinsics()), pack(cb.model.intrinsics()));
+    EXPECT_EQ(ca.model.intrinsics().lens_model, cb.model.intrinsics().lens_model);
     EXPECT_EQ(ca.model.intrinsics().width, cb.model.intrinsics().width);
     EXPECT_EQ(ca.model.intrinsics().height, cb.model.intrinsics().height);
     EXPECT_EQ(ca.intrinsic_covariance, cb.intrinsic_covariance);
@@ -144,11 +146,11 @@ TEST(CalibrationFile, StandardDeviationShorthandAndOptionalFields) {
   EXPECT_EQ(c.exposure_offset_ns, 0);
 }
 
-/// Applies `edit` to a valid document and expects an error whose message names the origin,
-/// `path_fragment` and `reason_fragment`.
+/// Applies `edit` to a valid document (of `base`) and expects an error whose message names the
+/// origin, `path_fragment` and `reason_fragment`.
 void expect_error(const std::function<void(json&)>& edit, const std::string& path_fragment,
-                  const std::string& reason_fragment) {
-  json doc = json::parse(format_rig_calibration(example_rig()));
+                  const std::string& reason_fragment, const RigCalibration& base = example_rig()) {
+  json doc = json::parse(format_rig_calibration(base));
   edit(doc);
   try {
     parse_rig_calibration(doc.dump(), "rig_under_test.json");
@@ -219,6 +221,52 @@ TEST(CalibrationFile, MalformedFilesAreRejectedWithPathAndReason) {
                "cameras[0].exposure_offset_sigma_ns", "expected a number in >= 0, got -1");
   expect_error([](json& d) { d["cameras"][0]["intrinsics"]["k1"] = 0.1; },
                "cameras[0].intrinsics.k1", "unknown key");
+}
+
+/// example_rig() with camera 3 a Kannala-Brandt fisheye (its unused entries 9..12 without
+/// variance).
+RigCalibration example_fisheye_rig() {
+  RigCalibration rig = example_rig();
+  CalibratedCamera& cam = rig.cameras[1];
+  Intrinsics in = cam.model.intrinsics();
+  in.lens_model = LensModel::kKannalaBrandt;
+  in.fx = in.fy = 331.25;
+  in.dist = {0.021, -0.008, 0.0031, -0.0007, 0, 0, 0, 0};
+  cam.model = CameraModel(in);
+  cam.intrinsic_covariance.bottomRows<4>().setZero();
+  cam.intrinsic_covariance.rightCols<4>().setZero();
+  return rig;
+}
+
+TEST(CalibrationFile, LensModelRoundTripAndDefault) {
+  const RigCalibration rig = example_fisheye_rig();
+  const std::string text = format_rig_calibration(rig);
+  const json doc = json::parse(text);
+  EXPECT_EQ(doc["cameras"][1]["intrinsics"]["model"], "kannala-brandt");
+  EXPECT_EQ(doc["cameras"][1]["intrinsics"]["distortion"].size(), 4u);
+  EXPECT_EQ(doc["cameras"][0]["intrinsics"]["model"], "rational-brown");
+  expect_same_rig(rig, parse_rig_calibration(text, "memory"));
+  // A file from before the field: the rational Brown model.
+  json old = json::parse(format_rig_calibration(example_rig()));
+  for (json& cam : old["cameras"])
+    cam["intrinsics"].erase("model");
+  expect_same_rig(example_rig(), parse_rig_calibration(old.dump(), "old"));
+}
+
+TEST(CalibrationFile, BadLensModelIsRejectedNamingTheField) {
+  const RigCalibration fisheye = example_fisheye_rig();
+  expect_error([](json& d) { d["cameras"][1]["intrinsics"]["model"] = "fisheye"; },
+               "cameras[1].intrinsics.model", "unknown lens model \"fisheye\"", fisheye);
+  expect_error([](json& d) { d["cameras"][1]["intrinsics"]["model"] = 2; },
+               "cameras[1].intrinsics.model", "expected a string", fisheye);
+  expect_error([](json& d) { d["cameras"][1]["intrinsics"]["distortion"].push_back(0.0); },
+               "cameras[1].intrinsics.distortion",
+               "expected 4 coefficients for the kannala-brandt model", fisheye);
+  expect_error(
+      [](json& d) {
+        d["cameras"][0]["intrinsics"]["model"] = "kannala-brandt";  // 8 Brown coefficients
+      },
+      "cameras[0].intrinsics.distortion", "expected 4 coefficients for the kannala-brandt model");
 }
 
 TEST(CalibrationFile, Version2JointCovarianceRoundTrip) {

@@ -66,7 +66,7 @@ TEST(Geometry, LeftDifferenceInvertsPerturbLeft) {
 
 TEST(CameraModel, PackUnpackRoundTrip) {
   const Intrinsics in = typical_intrinsics();
-  const Intrinsics back = unpack(pack(in), in.width, in.height);
+  const Intrinsics back = unpack(pack(in), in.width, in.height, in.lens_model);
   EXPECT_EQ(pack(back), pack(in));
   EXPECT_EQ(back.width, in.width);
   EXPECT_EQ(back.height, in.height);
@@ -139,8 +139,8 @@ TEST(CameraModel, IntrinsicJacobianMatchesFiniteDifferences) {
       IntrinsicVector a = v, b = v;
       a[k] += h;
       b[k] -= h;
-      const Vec2 pa = *CameraModel(unpack(a, in.width, in.height)).project(p);
-      const Vec2 pb = *CameraModel(unpack(b, in.width, in.height)).project(p);
+      const Vec2 pa = *CameraModel(unpack(a, in.width, in.height, in.lens_model)).project(p);
+      const Vec2 pb = *CameraModel(unpack(b, in.width, in.height, in.lens_model)).project(p);
       const Vec2 num = (pa - pb) / (2 * h);
       EXPECT_LT((J.col(k) - num).norm(), 1e-6 * (1 + num.norm()))
           << "trial " << trial << " parameter " << k;
@@ -257,7 +257,8 @@ TEST(CameraModel, UnprojectJacobianMatchesFiniteDifferences) {
 /// the distorted image of that radius lies outside the image (so every pixel has a pre-image).
 bool lens_valid_over_image(const Intrinsics& in) {
   const CameraModel cam(in);
-  const Intrinsics pin{in.fx, in.fy, in.cx, in.cy, in.skew, {}, in.width, in.height};
+  Intrinsics pin = in;
+  pin.dist = {};
   double corner_r = 0;
   for (const Vec2& c : {Vec2(-0.5, -0.5), Vec2(in.width - 0.5, -0.5), Vec2(-0.5, in.height - 0.5),
                         Vec2(in.width - 0.5, in.height - 0.5)})
@@ -360,6 +361,208 @@ TEST(CameraModel, UnprojectReportsNonConvergence) {
   // Non-finite input.
   EXPECT_FALSE(cam.unproject(Vec2(std::nan(""), 3)));
   EXPECT_FALSE(cam.unproject(Vec2(INFINITY, 3)));
+}
+
+// ---- Kannala-Brandt (equidistant fisheye) ----
+
+/// A 190-degree-class fisheye on a 1920x1024 sensor: f = 330 px puts theta = 90 deg at
+/// theta_d f ~ 520 px from the centre (the image circle's edge at the short side).
+Intrinsics fisheye_intrinsics() {
+  Intrinsics in;
+  in.lens_model = LensModel::kKannalaBrandt;
+  in.fx = 331.2;
+  in.fy = 330.4;
+  in.cx = 961.3;
+  in.cy = 509.8;
+  in.skew = 0.4;
+  in.dist = {0.021, -0.008, 0.0031, -0.0007, 0, 0, 0, 0};
+  return in;
+}
+
+Intrinsics random_fisheye_intrinsics(std::mt19937_64& rng) {
+  std::uniform_real_distribution<double> u(-1, 1);
+  Intrinsics in = fisheye_intrinsics();
+  in.fx = 330 + 60 * u(rng);
+  in.fy = in.fx * (1 + 0.01 * u(rng));
+  in.cx += 20 * u(rng);
+  in.cy += 20 * u(rng);
+  in.skew = u(rng);
+  in.dist = {0.05 * u(rng), 0.02 * u(rng), 0.005 * u(rng), 0.001 * u(rng), 0, 0, 0, 0};
+  return in;
+}
+
+/// d theta_d / d theta > 0 on [0, theta_max] (closed form, sampled every 0.01 deg): the lens
+/// map is one-to-one there, so every projection in that cone has its ray as the only pre-image.
+bool fisheye_monotonic_to(const Intrinsics& in, double theta_max) {
+  const auto& k = in.dist;
+  for (double theta = 0; theta <= theta_max; theta += 0.01 * M_PI / 180) {
+    const double t2 = theta * theta;
+    if (!(1 + 3 * k[0] * t2 + 5 * k[1] * t2 * t2 + 7 * k[2] * t2 * t2 * t2 +
+              9 * k[3] * t2 * t2 * t2 * t2 >
+          0))
+      return false;
+  }
+  return true;
+}
+
+/// A camera-frame point at angle theta from the axis, azimuth phi, distance 0.5..20 m.
+Vec3 point_at_angle(double theta, double phi, double distance) {
+  return distance *
+         Vec3(std::sin(theta) * std::cos(phi), std::sin(theta) * std::sin(phi), std::cos(theta));
+}
+
+TEST(KannalaBrandt, ProjectionIsTheClosedForm) {
+  // theta_d = theta (1 + k1 theta^2 + ...), pixel = K (theta_d cos phi, theta_d sin phi).
+  const Intrinsics in = fisheye_intrinsics();
+  const CameraModel cam(in);
+  // Beyond 90 degrees too: a fisheye sees behind its image plane (theta = atan2(rho, Z)).
+  for (const double theta_deg :
+       {0.0, 1e-9, 0.3, 10.0, 44.99, 45.0, 45.01, 80.0, 89.0, 89.9, 90.0, 100.0, 120.0}) {
+    const double theta = theta_deg * M_PI / 180, phi = 0.7;
+    const double t2 = theta * theta;
+    const double theta_d = theta * (1 + in.dist[0] * t2 + in.dist[1] * t2 * t2 +
+                                    in.dist[2] * t2 * t2 * t2 + in.dist[3] * t2 * t2 * t2 * t2);
+    const Vec2 xd(theta_d * std::cos(phi), theta_d * std::sin(phi));
+    const Vec2 expected(in.fx * xd.x() + in.skew * xd.y() + in.cx, in.fy * xd.y() + in.cy);
+    const auto px = cam.project(point_at_angle(theta, phi, 3.7));
+    ASSERT_TRUE(px) << theta_deg;
+    EXPECT_LT((*px - expected).norm(), 1e-9) << theta_deg;
+  }
+  EXPECT_FALSE(cam.project(Vec3(0, 0, -2)));  // the negative axis: no azimuth
+  EXPECT_FALSE(cam.project(Vec3(0.1, std::nan(""), 1)));
+}
+
+TEST(KannalaBrandt, JacobiansMatchFiniteDifferences) {
+  // Point, intrinsic and distort() Jacobians against central differences.
+  std::mt19937_64 rng(21);
+  std::uniform_real_distribution<double> uu(0, 1);
+  for (int trial = 0; trial < 300; ++trial) {
+    const Intrinsics in = random_fisheye_intrinsics(rng);
+    const CameraModel cam(in);
+    // The axis (series branch), both sides of the 45-degree switch to the 3-D form, out to 120.
+    const double theta = trial % 10 == 0 ? 1e-9 : 120.0 * M_PI / 180 * uu(rng);
+    const Vec3 p = point_at_angle(theta, 2 * M_PI * uu(rng), 0.5 + 19.5 * uu(rng));
+    Eigen::Matrix<double, 2, 3> Jp;
+    Eigen::Matrix<double, 2, kNumIntrinsics> Ji;
+    ASSERT_TRUE(cam.project(p, &Jp, &Ji));
+    for (int k = 0; k < 3; ++k) {
+      const double h = 1e-6 * p.norm();
+      Vec3 a = p, b = p;
+      a[k] += h;
+      b[k] -= h;
+      const Vec2 num = (*cam.project(a) - *cam.project(b)) / (2 * h);
+      EXPECT_LT((Jp.col(k) - num).norm(), 1e-6 * (1 + num.norm()))
+          << "trial " << trial << " theta " << theta << " point " << k;
+    }
+    const IntrinsicVector v = pack(in);
+    for (int k = 0; k < kNumIntrinsics; ++k) {
+      const double h = k < 5 ? 1e-4 : 1e-6;
+      IntrinsicVector a = v, b = v;
+      a[k] += h;
+      b[k] -= h;
+      const Vec2 pa = *CameraModel(unpack(a, in.width, in.height, in.lens_model)).project(p);
+      const Vec2 pb = *CameraModel(unpack(b, in.width, in.height, in.lens_model)).project(p);
+      const Vec2 num = (pa - pb) / (2 * h);
+      EXPECT_LT((Ji.col(k) - num).norm(), 1e-6 * (1 + num.norm()))
+          << "trial " << trial << " parameter " << k;
+      if (k >= 9) {
+        EXPECT_EQ(Ji.col(k).norm(), 0) << "unused coefficient " << k;
+      }
+    }
+    if (!(p.z() > 0)) continue;  // distort() takes the normalised point (Z > 0)
+    Mat2 Jd;
+    const Vec2 xy = p.head<2>() / p.z();
+    cam.distort(xy, &Jd);
+    for (int k = 0; k < 2; ++k) {
+      const double h = 1e-7 * (1 + xy.norm());
+      Vec2 a = xy, b = xy;
+      a[k] += h;
+      b[k] -= h;
+      const Vec2 num = (cam.distort(a) - cam.distort(b)) / (2 * h);
+      EXPECT_LT((Jd.col(k) - num).norm(), 1e-6 * (1 + num.norm())) << "trial " << trial;
+    }
+  }
+}
+
+TEST(KannalaBrandt, RoundTripOutTo89Degrees) {
+  // project -> unproject recovers the ray to 1e-9 rad and the pixel to 1e-9 px, from the axis
+  // to 89 degrees (where the normalised radius tan(theta) is 57).
+  std::mt19937_64 rng(22);
+  std::uniform_real_distribution<double> uu(0, 1);
+  double worst_rad = 0, worst_px = 0;
+  for (int trial = 0; trial < 2000; ++trial) {
+    Intrinsics in = fisheye_intrinsics();
+    if (trial >= 1000) {
+      do {  // lenses whose map folds inside 89 degrees cannot have made the image: redrawn
+        in = random_fisheye_intrinsics(rng);
+      } while (!fisheye_monotonic_to(in, 89.0 * M_PI / 180));
+    }
+    const CameraModel cam(in);
+    const double theta = 89.0 * M_PI / 180 * (trial % 100 == 0 ? 1.0 : uu(rng));
+    const Vec3 p = point_at_angle(theta, 2 * M_PI * uu(rng), 1 + 9 * uu(rng));
+    const auto px = cam.project(p);
+    ASSERT_TRUE(px);
+    const auto xy = cam.unproject(*px, 1e-10);
+    ASSERT_TRUE(xy) << "trial " << trial << " theta " << theta;
+    const Vec3 ray = Vec3(xy->x(), xy->y(), 1).normalized();
+    const double angle = std::atan2(ray.cross(p.normalized()).norm(), ray.dot(p.normalized()));
+    const double px_error = (*cam.project(Vec3(xy->x(), xy->y(), 1)) - *px).norm();
+    worst_rad = std::max(worst_rad, angle);
+    worst_px = std::max(worst_px, px_error);
+    EXPECT_LT(angle, 1e-9) << "trial " << trial << " theta " << theta;
+    EXPECT_LT(px_error, 1e-9) << "trial " << trial << " theta " << theta;
+  }
+  RecordProperty("worst_rad", std::to_string(worst_rad));
+  RecordProperty("worst_px", std::to_string(worst_px));
+}
+
+TEST(KannalaBrandt, UnprojectJacobianMatchesFiniteDifferences) {
+  const CameraModel cam(fisheye_intrinsics());
+  for (const double theta_deg : {0.5, 30.0, 60.0, 85.0}) {
+    const auto px = cam.project(point_at_angle(theta_deg * M_PI / 180, 2.1, 4));
+    const auto xy = cam.unproject(*px, 1e-10);
+    ASSERT_TRUE(xy);
+    const Mat2 J = cam.unproject_jacobian(*xy);
+    for (int k = 0; k < 2; ++k) {
+      const double h = 1e-3;  // px
+      Vec2 a = *px, b = *px;
+      a[k] += h;
+      b[k] -= h;
+      const Vec2 num = (*cam.unproject(a, 1e-11) - *cam.unproject(b, 1e-11)) / (2 * h);
+      EXPECT_LT((J.col(k) - num).norm(), 1e-6 * num.norm()) << theta_deg;
+    }
+  }
+}
+
+TEST(KannalaBrandt, UnprojectRefusesOutsideItsDomain) {
+  // Beyond the image circle of 90 degrees: no ray with Z > 0.
+  Intrinsics in = fisheye_intrinsics();
+  in.dist = {};
+  const CameraModel equidistant(in);
+  const double right_angle_px = M_PI / 2 * in.fy;
+  EXPECT_TRUE(equidistant.unproject(Vec2(in.cx, in.cy + 0.999 * right_angle_px)));
+  EXPECT_FALSE(equidistant.unproject(Vec2(in.cx, in.cy + 1.001 * right_angle_px)));
+  EXPECT_FALSE(equidistant.unproject(Vec2(in.cx, in.cy + 3 * right_angle_px)));
+  // theta_d = theta (1 - 0.3 theta^2) peaks at theta = 1/sqrt(0.9) = 1.054 rad (60 deg) at
+  // theta_d = 0.703: beyond the fold the map is not one-to-one, refused; inside it, the ray.
+  in.dist = {-0.3, 0, 0, 0, 0, 0, 0, 0};
+  const CameraModel folding(in);
+  const double fold = 1 / std::sqrt(0.9), peak = fold * (1 - 0.3 * fold * fold);
+  const auto inside = folding.unproject(Vec2(in.cx + 0.95 * peak * in.fx, in.cy));
+  ASSERT_TRUE(inside);
+  EXPECT_LT(std::atan(inside->norm()), fold);
+  EXPECT_FALSE(folding.unproject(Vec2(in.cx + 1.01 * peak * in.fx, in.cy)));
+  EXPECT_FALSE(folding.unproject(Vec2(std::nan(""), in.cy)));
+}
+
+TEST(KannalaBrandt, ModelNamesRoundTrip) {
+  for (const LensModel model : {LensModel::kRationalBrown, LensModel::kKannalaBrandt})
+    EXPECT_EQ(lens_model_from_name(lens_model_name(model)), model);
+  EXPECT_FALSE(lens_model_from_name("fisheye"));
+  EXPECT_EQ(lens_coefficient_count(LensModel::kKannalaBrandt), 4);
+  const Intrinsics in = fisheye_intrinsics();
+  EXPECT_EQ(unpack(pack(in), in.width, in.height, in.lens_model).lens_model,
+            LensModel::kKannalaBrandt);
 }
 
 TEST(CameraModel, IdealPixelIsDistortionFreeProjection) {

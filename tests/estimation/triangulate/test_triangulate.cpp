@@ -1,11 +1,14 @@
 // Triangulation against analytic truth: exactness without noise, honest centroid covariance
 // (NEES), gains and calibration sensitivities against finite differences.
 #include <cmath>
+#include <cstdio>
 #include <random>
 
 #include <gtest/gtest.h>
 
+#include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/triangulate/triangulate.hpp"
+#include "storetrack/uncertainty/calibration_factors.hpp"
 #include "storetrack/uncertainty/statistics.hpp"
 #include "synthetic_rig.hpp"
 
@@ -182,8 +185,10 @@ TEST(Triangulate, CalibrationSensitivityMatchesFiniteDifferences) {
   const camera::IntrinsicVector v0 = camera::pack(rig.cameras[cam].model.intrinsics());
   for (int k = 0; k < 10; ++k) {
     const double h = k < 5 ? 1e-3 : 1e-6;
-    camera::CameraModel mp(camera::unpack(v0 + h * camera::IntrinsicVector::Unit(k), 1920, 1024));
-    camera::CameraModel mm(camera::unpack(v0 - h * camera::IntrinsicVector::Unit(k), 1920, 1024));
+    camera::CameraModel mp(camera::unpack(v0 + h * camera::IntrinsicVector::Unit(k), 1920, 1024,
+                                          camera::LensModel::kRationalBrown));
+    camera::CameraModel mm(camera::unpack(v0 - h * camera::IntrinsicVector::Unit(k), 1920, 1024,
+                                          camera::LensModel::kRationalBrown));
     auto op = obs, om = obs;
     op[cam].model = &mp;
     om[cam].model = &mm;
@@ -272,6 +277,95 @@ TEST(Triangulate, CentroidPartThroughGainsIsHonestUnderCalibrationWeights) {
   for (int a = 0; a < 3; ++a)
     EXPECT_NEAR(centroid.coverage(a), 0.9545, 0.012);
   EXPECT_LT(weighted.mean_nees(), 2.0);
+}
+
+/// synthetic_rig() with Kannala-Brandt fisheyes (f = 420 px on 1920 x 1024: a ~180-degree
+/// field) and their stated uncertainty, read back through the calibration file.
+camera::RigCalibration fisheye_rig() {
+  camera::RigCalibration rig = test::synthetic_rig();
+  for (camera::CalibratedCamera& cam : rig.cameras) {
+    camera::Intrinsics in = cam.model.intrinsics();
+    in.lens_model = camera::LensModel::kKannalaBrandt;
+    in.fx = 421.7;
+    in.fy = 420.9;
+    in.dist = {-0.013, -0.0067, 0.0037, -0.0012, 0, 0, 0, 0};
+    cam.model = camera::CameraModel(in);
+    camera::IntrinsicVector sd = camera::IntrinsicVector::Zero();
+    sd << 0.2, 0.2, 0.15, 0.15, 0, 2e-4, 3e-4, 2e-4, 5e-5, 0, 0, 0, 0;
+    cam.intrinsic_covariance = sd.cwiseAbs2().asDiagonal();
+  }
+  return camera::parse_rig_calibration(camera::format_rig_calibration(rig), "fisheye rig");
+}
+
+TEST(Triangulate, FisheyeRigIsHonestWithCalibrationUncertainty) {
+  // Marks out to 85 degrees off the cameras' axes, pixels from the true fisheye rig with 0.1 px
+  // noise, triangulated with a calibration drawn from its stated (diagonal) covariance (JCGM
+  // 101), covariance = centroid part + the calibration's through the gains
+  // (uncertainty::point_sensitivity). Sum of N = 2000 NEES ~ chi-square(3 N): inside its
+  // two-sided 99.9 % interval.
+  const camera::RigCalibration truth = fisheye_rig();
+  ASSERT_EQ(truth.cameras[0].model.intrinsics().lens_model, camera::LensModel::kKannalaBrandt);
+  std::mt19937_64 rng(28);
+  std::uniform_real_distribution<double> u(-1, 1);
+  std::normal_distribution<double> n(0, 1);
+  const double sigma = 0.1;
+  constexpr int kTrials = 2000;
+  double nees_sum = 0, widest_deg = 0;
+  for (int trial = 0; trial < kTrials; ++trial) {
+    const Vec3 p(3 * u(rng), 3 * u(rng), 1.5 + 1.0 * u(rng));
+    camera::RigCalibration stated = truth;
+    for (camera::CalibratedCamera& cam : stated.cameras) {
+      camera::IntrinsicVector v = camera::pack(cam.model.intrinsics());
+      for (int k = 0; k < camera::kNumIntrinsics; ++k)
+        v[k] += std::sqrt(cam.intrinsic_covariance(k, k)) * n(rng);
+      const camera::Intrinsics& in = cam.model.intrinsics();
+      cam.model = camera::CameraModel(camera::unpack(v, in.width, in.height, in.lens_model));
+      geometry::Vec6 d;
+      for (int k = 0; k < 6; ++k)
+        d[k] = std::sqrt(cam.extrinsic_covariance(k, k)) * n(rng);
+      cam.T_c_w = geometry::perturb_left(cam.T_c_w, d);
+    }
+    std::vector<Observation> obs;
+    std::vector<int> slots;
+    for (size_t c = 0; c < truth.cameras.size(); ++c) {
+      const Vec3 p_cam = truth.cameras[c].T_c_w * p;
+      const double off_axis = std::atan2(p_cam.head<2>().norm(), p_cam.z());
+      if (off_axis > 85 * M_PI / 180) continue;
+      widest_deg = std::max(widest_deg, off_axis * 180 / M_PI);
+      Observation o;
+      o.model = &stated.cameras[c].model;
+      o.T_c_w = stated.cameras[c].T_c_w;
+      o.sigma_px = sigma;
+      o.pixel_px = *truth.cameras[c].model.project_world(truth.cameras[c].T_c_w, p) +
+                   Vec2(n(rng), n(rng)) * sigma;
+      obs.push_back(o);
+      slots.push_back(static_cast<int>(c));
+    }
+    if (obs.size() < 2) {
+      --trial;
+      continue;
+    }
+    Result r;
+    ASSERT_TRUE(triangulate(obs, Options{}, r)) << "trial " << trial;
+    geometry::Mat3 cov = r.cov_centroid;
+    for (size_t i = 0; i < obs.size(); ++i) {
+      const camera::CalibratedCamera& cam = stated.cameras[static_cast<size_t>(slots[i])];
+      uncertainty::CameraCovariance C = uncertainty::CameraCovariance::Zero();
+      C.topLeftCorner<camera::kNumIntrinsics, camera::kNumIntrinsics>() = cam.intrinsic_covariance;
+      C.bottomRightCorner<6, 6>() = cam.extrinsic_covariance;
+      const uncertainty::CameraSensitivity G =
+          uncertainty::point_sensitivity(r.gain[i], r.jacobians[i]);
+      cov += G * C * G.transpose();
+    }
+    const Vec3 e = r.p_w - p;
+    nees_sum += e.dot(cov.ldlt().solve(e));
+  }
+  const uncertainty::DegreesOfFreedom dof(3 * kTrials);
+  std::printf("fisheye rig: mean NEES %.3f (dimension 3) over %d marks, widest view %.1f deg\n",
+              nees_sum / kTrials, kTrials, widest_deg);
+  EXPECT_GT(widest_deg, 80);
+  EXPECT_GT(nees_sum, uncertainty::chi_square_quantile(uncertainty::Probability(0.0005), dof));
+  EXPECT_LT(nees_sum, uncertainty::chi_square_quantile(uncertainty::Probability(0.9995), dof));
 }
 
 }  // namespace

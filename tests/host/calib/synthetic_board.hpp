@@ -6,6 +6,8 @@
 #include <cmath>
 #include <random>
 
+#include <Eigen/Geometry>
+
 #include "storetrack/calib/observations.hpp"
 #include "storetrack/camera/camera_model.hpp"
 #include "storetrack/geometry/transform.hpp"
@@ -85,6 +87,45 @@ inline geometry::Transform board_pose(int i, bool parallel, const BoardGrid& gri
   geometry::Transform T = geometry::Transform::Identity();
   T.linear() = R;
   T.translation() = centre_cam - R * centre_board;
+  return T;
+}
+
+/// A wide-angle (fisheye) camera on the 1920 x 1024 sensor: Kannala-Brandt with f = 420 px, so
+/// that 90 degrees lies ~660 px from the centre: the image spans ~150 degrees vertically and
+/// the full 180 horizontally. Coefficients of the size cv::fisheye::calibrate reports for such
+/// lenses.
+inline camera::Intrinsics fisheye_truth_camera() {
+  camera::Intrinsics in;
+  in.lens_model = camera::LensModel::kKannalaBrandt;
+  in.fx = 421.7;
+  in.fy = 420.9;
+  in.cx = 963.2;
+  in.cy = 509.6;
+  in.dist = {-0.013, -0.0067, 0.0037, -0.0012, 0, 0, 0, 0};
+  return in;
+}
+
+/// T_c_b of wide-angle view i: the board 0.45-0.85 m away, its centre 5-80 degrees off the
+/// optical axis (azimuth turning by the golden angle), facing the camera but tilted 20-40
+/// degrees about an axis across the line of sight, so that its corners reach the edge of a
+/// fisheye's field.
+inline geometry::Transform wide_angle_board_pose(int i, const BoardGrid& grid = {}) {
+  const double off_axis = (5 + 75 * ((i * 7) % 11) / 10.0) * M_PI / 180;
+  const double azimuth = 2.39996 * i;
+  const geometry::Vec3 sight(std::sin(off_axis) * std::cos(azimuth),
+                             std::sin(off_axis) * std::sin(azimuth), std::cos(off_axis));
+  const geometry::Mat3 look =
+      Eigen::Quaterniond::FromTwoVectors(geometry::Vec3::UnitZ(), sight).toRotationMatrix();
+  const double tilt = (20 + 20 * ((i * 5) % 9) / 8.0) * M_PI / 180;
+  const geometry::Vec3 across = look * geometry::Vec3(std::cos(1.7 * i), std::sin(1.7 * i), 0);
+  const geometry::Mat3 R = Eigen::AngleAxisd(tilt, across).toRotationMatrix() * look *
+                           Eigen::AngleAxisd(0.4 * i, geometry::Vec3::UnitZ()).toRotationMatrix();
+  const double distance = 0.45 + 0.4 * ((i * 3) % 7) / 6.0;
+  const geometry::Vec3 centre_board(0.5 * (grid.cols - 1) * grid.square_m,
+                                    0.5 * (grid.rows - 1) * grid.square_m, 0);
+  geometry::Transform T = geometry::Transform::Identity();
+  T.linear() = R;
+  T.translation() = distance * sight - R * centre_board;
   return T;
 }
 

@@ -70,8 +70,8 @@ void scale_camera_error(const camera::RigCalibration& truth, camera::RigCalibrat
   const camera::Intrinsics& in = t.model.intrinsics();
   const camera::IntrinsicVector p_true = camera::pack(in);
   const camera::IntrinsicVector p = camera::pack(c.model.intrinsics());
-  c.model =
-      camera::CameraModel(camera::unpack(p_true + factor * (p - p_true), in.width, in.height));
+  c.model = camera::CameraModel(
+      camera::unpack(p_true + factor * (p - p_true), in.width, in.height, in.lens_model));
 }
 
 camera::RigCalibration stated_rig(const sim::Simulator& sim, Stated stated) {

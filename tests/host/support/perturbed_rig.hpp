@@ -20,7 +20,7 @@ inline camera::RigCalibration perturbed_rig(const camera::RigCalibration& rig,
     const camera::Intrinsics in = cam.model.intrinsics();
     const auto base = static_cast<Eigen::Index>(camera::kJointBlockSize * c);
     const camera::IntrinsicVector v = camera::pack(in) + e.segment<camera::kNumIntrinsics>(base);
-    cam.model = camera::CameraModel(camera::unpack(v, in.width, in.height));
+    cam.model = camera::CameraModel(camera::unpack(v, in.width, in.height, in.lens_model));
     cam.T_c_w = geometry::perturb_left(cam.T_c_w, e.segment<6>(base + camera::kNumIntrinsics));
   }
   return out;

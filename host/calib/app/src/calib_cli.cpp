@@ -25,8 +25,8 @@ void add_detect(cli::Command& app, DetectArgs& a) {
 }
 
 /// The model flags and outlier gate, shared by intrinsic and rig.
-void add_model_options(cli::Command& sub, calib::IntrinsicOptions& o, bool& no_outlier_rejection,
-                       std::string& board_deflection) {
+void add_model_options(cli::Command& sub, calib::IntrinsicOptions& o, std::string& lens_model,
+                       bool& no_outlier_rejection, std::string& board_deflection) {
   sub.flag("--fix-aspect-ratio", o.fix_aspect_ratio, "fx = aspect * fy (OpenCV's flag)");
   sub.option("--aspect-ratio", o.aspect_ratio, "fx / fy with --fix-aspect-ratio").positive();
   sub.flag("--fix-principal-point", o.fix_principal_point, "cx, cy at the image centre");
@@ -35,6 +35,9 @@ void add_model_options(cli::Command& sub, calib::IntrinsicOptions& o, bool& no_o
   sub.flag("--fix-k2", o.fix_k2, "k2 = 0");
   sub.flag("--fix-k3", o.fix_k3, "k3 = 0");
   sub.flag("--rational", o.rational, "Estimate k4, k5, k6 (rational model)");
+  sub.option("--lens-model", lens_model,
+             "Lens model: rational-brown (OpenCV's) or kannala-brandt (fisheye, wide angles)")
+      .one_of({"rational-brown", "kannala-brandt"});
   sub.option("--outlier-false-alarm", o.outlier_false_alarm,
              "Probability of rejecting any point of a clean set")
       .range(0.0, 0.5);
@@ -63,7 +66,7 @@ void add_intrinsic(cli::Command& app, IntrinsicArgs& a) {
   sub.option("--camera", a.camera, "Camera to calibrate").range(0, 255);
   sub.option("--unit", a.unit_id, "Unit id written to the calibration file").range(0, 255);
   sub.option("--image-size", a.image_size, "WxH, when the CSV has no image_size line");
-  add_model_options(sub, a.options, a.no_outlier_rejection, a.board_deflection);
+  add_model_options(sub, a.options, a.lens_model, a.no_outlier_rejection, a.board_deflection);
   add_model_check_option(sub, a.no_model_check);
   sub.option("-o,--output", a.output, "Rig calibration JSON to write").required();
   sub.option("--residuals", a.residuals_csv, "Per-point residual CSV to write");
@@ -78,7 +81,8 @@ void add_rig(cli::Command& app, RigArgs& a) {
   sub.option("--unit", a.unit_id, "Unit id written to the calibration file").range(0, 255);
   sub.option("--image-size", a.image_sizes,
              "CAMERA=WxH, when a CSV has no image_size line (repeatable)");
-  add_model_options(sub, a.options.intrinsic, a.no_outlier_rejection, a.board_deflection);
+  add_model_options(sub, a.options.intrinsic, a.lens_model, a.no_outlier_rejection,
+                    a.board_deflection);
   add_model_check_option(sub, a.no_model_check);
   sub.option("--min-common-views", a.options.min_common_views,
              "Fewest frames two cameras must share to be linked")
@@ -106,11 +110,15 @@ int parse_calib_command(int argc, char** argv, CalibCommand& command) {
     if (command.intrinsic.no_outlier_rejection) command.intrinsic.options.outlier_false_alarm = 0;
     command.intrinsic.options.board_deflection =
         deflection_mode(command.intrinsic.board_deflection);
+    command.intrinsic.options.lens_model =
+        *camera::lens_model_from_name(command.intrinsic.lens_model);
   }
   if (app.got_subcommand("rig")) {
     command.kind = CalibCommand::Kind::kRig;
     if (command.rig.no_outlier_rejection) command.rig.options.intrinsic.outlier_false_alarm = 0;
     command.rig.options.intrinsic.board_deflection = deflection_mode(command.rig.board_deflection);
+    command.rig.options.intrinsic.lens_model =
+        *camera::lens_model_from_name(command.rig.lens_model);
   }
   if (app.got_subcommand("register")) command.kind = CalibCommand::Kind::kRegister;
   if (app.got_subcommand("compare")) command.kind = CalibCommand::Kind::kCompare;

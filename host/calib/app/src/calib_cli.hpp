@@ -32,6 +32,7 @@ struct IntrinsicArgs {
   int unit_id = 0;
   std::string image_size;  ///< "WxH"; overrides the CSV's "# image_size" line
   calib::IntrinsicOptions options;
+  std::string lens_model = "rational-brown";  ///< --lens-model (one_of: known names only)
   bool no_outlier_rejection = false;
   std::string board_deflection = "auto";  ///< on | off | auto -> options.board_deflection
   bool no_model_check = false;  ///< skip cross-validation and the residual map (speed)
@@ -44,6 +45,7 @@ struct RigArgs {
   std::vector<std::string> image_sizes;   ///< "CAMERA=WxH", when a CSV has no image_size line
   int unit_id = 0;
   calib::RigOptions options;
+  std::string lens_model = "rational-brown";  ///< --lens-model (one_of: known names only)
   bool no_outlier_rejection = false;
   std::string board_deflection = "auto";  ///< each camera's own (start) fit; see docs
   bool no_model_check = false;  ///< skip cross-validation and the residual map (speed)

@@ -42,10 +42,17 @@ bool parse_size(const std::string& text, calib::ImageSize& size) {
 void print_intrinsics(const camera::Intrinsics& intrinsics,
                       const camera::IntrinsicCovariance& covariance, std::ostream& out) {
   const camera::IntrinsicVector v = camera::pack(intrinsics);
-  static const char* const names[] = {"fx", "fy", "cx", "cy", "skew", "k1", "k2",
-                                      "p1", "p2", "k3", "k4", "k5",   "k6"};
+  static const char* const brown_names[] = {"fx", "fy", "cx", "cy", "skew", "k1", "k2",
+                                            "p1", "p2", "k3", "k4", "k5",   "k6"};
+  // Kannala-Brandt: k1..k4 in entries 5..8; 9..12 are not parameters of the model.
+  static const char* const fisheye_names[] = {"fx", "fy", "cx", "cy", "skew", "k1", "k2",
+                                              "k3", "k4", "",   "",   "",     ""};
+  const bool fisheye = intrinsics.lens_model == camera::LensModel::kKannalaBrandt;
+  const char* const* names = fisheye ? fisheye_names : brown_names;
+  out << "  lens model: " << camera::lens_model_name(intrinsics.lens_model) << "\n";
   static const char* const units[] = {"px", "px", "px", "px", "px", "", "", "", "", "", "", "", ""};
-  for (int i = 0; i < camera::kNumIntrinsics; ++i) {
+  const int count = 5 + camera::lens_coefficient_count(intrinsics.lens_model);
+  for (int i = 0; i < count; ++i) {
     const double sigma = std::sqrt(std::max(0.0, covariance(i, i)));
     out << "  " << names[i] << " = " << general(v[i]);
     if (sigma > 0)
@@ -82,6 +89,7 @@ nlohmann::json flags_json(const calib::IntrinsicOptions& options) {
           {"fix_k2", options.fix_k2},
           {"fix_k3", options.fix_k3},
           {"rational", options.rational},
+          {"lens_model", camera::lens_model_name(options.lens_model)},
           {"outlier_false_alarm", options.outlier_false_alarm},
           {"board_deflection", options.board_deflection == calib::BoardDeflection::on    ? "on"
                                : options.board_deflection == calib::BoardDeflection::off ? "off"

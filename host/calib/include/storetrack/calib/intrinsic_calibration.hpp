@@ -34,6 +34,9 @@ struct IntrinsicOptions {
   bool zero_tangential = false;      ///< p1 = p2 = 0 (CALIB_ZERO_TANGENT_DIST)
   bool fix_k1 = false, fix_k2 = false, fix_k3 = false;
   bool rational = false;  ///< estimate k4..k6 (CALIB_RATIONAL_MODEL); else they are 0
+  /// The lens model fitted. Kannala-Brandt estimates its k1..k4 (the Brown flags above do not
+  /// apply) from Zhang's pinhole start with k = 0 (docs/calibration.md, "Wide-angle lenses").
+  camera::LensModel lens_model = camera::LensModel::kRationalBrown;
   /// Outlier rejection: a point whose squared residual, over the robust residual variance,
   /// exceeds the chi-square (2 dof) quantile at 1 - false_alarm / N is rejected and the fit
   /// repeated. false_alarm = probability of rejecting any point of a clean set; 0 disables.
