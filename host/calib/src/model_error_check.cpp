@@ -81,11 +81,12 @@ struct Half {
 /// The stacked projection differences b - a at `pixels` (2 per pixel).
 Eigen::VectorXd stacked_difference(const camera::IntrinsicVector& a,
                                    const camera::IntrinsicVector& b, int width, int height,
-                                   const std::vector<Vec2>& pixels,
+                                   camera::LensModel lens_model, const std::vector<Vec2>& pixels,
                                    const std::vector<double>& fit_distances, double distance) {
-  const auto d = projection_difference(camera::CameraModel(camera::unpack(a, width, height)),
-                                       camera::CameraModel(camera::unpack(b, width, height)),
-                                       pixels, fit_distances, distance);
+  const auto d =
+      projection_difference(camera::CameraModel(camera::unpack(a, width, height, lens_model)),
+                            camera::CameraModel(camera::unpack(b, width, height, lens_model)),
+                            pixels, fit_distances, distance);
   Eigen::VectorXd out(2 * static_cast<Eigen::Index>(d.size()));
   for (size_t i = 0; i < d.size(); ++i)
     out.segment<2>(2 * static_cast<Eigen::Index>(i)) = d[i];
@@ -97,6 +98,7 @@ Eigen::VectorXd stacked_difference(const camera::IntrinsicVector& a,
 Eigen::MatrixXd difference_covariance(const Half& a, const Half& b, const std::vector<Vec2>& pixels,
                                       const std::vector<double>& fit_distances, double distance) {
   const int w = a.intrinsics.width, h = a.intrinsics.height;
+  const camera::LensModel lens = a.intrinsics.lens_model;
   const camera::IntrinsicVector pa = camera::pack(a.intrinsics), pb = camera::pack(b.intrinsics);
   const auto n = 2 * static_cast<Eigen::Index>(pixels.size());
   Eigen::MatrixXd C = Eigen::MatrixXd::Zero(n, n);
@@ -108,10 +110,10 @@ Eigen::MatrixXd difference_covariance(const Half& a, const Half& b, const std::v
       camera::IntrinsicVector step = camera::IntrinsicVector::Zero();
       step(k) = 0.1 * std::sqrt(S(k, k));
       const auto f = [&](double sign) {
-        return side == 0
-                   ? stacked_difference(pa + sign * step, pb, w, h, pixels, fit_distances, distance)
-                   : stacked_difference(pa, pb + sign * step, w, h, pixels, fit_distances,
-                                        distance);
+        return side == 0 ? stacked_difference(pa + sign * step, pb, w, h, lens, pixels,
+                                              fit_distances, distance)
+                         : stacked_difference(pa, pb + sign * step, w, h, lens, pixels,
+                                              fit_distances, distance);
       };
       J.col(k) = (f(1) - f(-1)) / (2 * step(k));
     }
@@ -256,7 +258,7 @@ ModelErrorTest cross_validation_test(const ObservationSet& set, int camera,
     }
   const Eigen::VectorXd d =
       stacked_difference(camera::pack(a.intrinsics), camera::pack(b.intrinsics), a.intrinsics.width,
-                         a.intrinsics.height, pixels, fit, distance_m);
+                         a.intrinsics.height, a.intrinsics.lens_model, pixels, fit, distance_m);
   const Eigen::MatrixXd C = difference_covariance(a, b, pixels, fit, distance_m);
   for (size_t k = 0; k < pixels.size(); ++k) {
     const auto j = 2 * static_cast<Eigen::Index>(k);
