@@ -3,9 +3,12 @@
 // with Gaussian pixel noise of known sigma. Header-only on common/camera: no simulator.
 #pragma once
 
+#include <array>
 #include <cmath>
+#include <cstddef>
 #include <random>
 
+#include <Eigen/Cholesky>
 #include <Eigen/Geometry>
 
 #include "storetrack/calib/observations.hpp"
@@ -127,6 +130,23 @@ inline geometry::Transform wide_angle_board_pose(int i, const BoardGrid& grid = 
   T.linear() = R;
   T.translation() = distance * sight - R * centre_board;
   return T;
+}
+
+/// NEES of a fit's free intrinsics against the truth: e^T C^-1 e over the entries `free` of the
+/// packed vector (the fixed entries have variance 0 and stay out).
+template <std::size_t N>
+double free_intrinsics_nees(const camera::Intrinsics& fitted,
+                            const camera::IntrinsicCovariance& covariance,
+                            const camera::Intrinsics& truth, const std::array<int, N>& free) {
+  const camera::IntrinsicVector e = camera::pack(fitted) - camera::pack(truth);
+  Eigen::Matrix<double, N, 1> e_free;
+  Eigen::Matrix<double, N, N> c_free;
+  for (std::size_t a = 0; a < N; ++a) {
+    e_free[a] = e[free[a]];
+    for (std::size_t b = 0; b < N; ++b)
+      c_free(a, b) = covariance(free[a], free[b]);
+  }
+  return e_free.dot(c_free.ldlt().solve(e_free));
 }
 
 }  // namespace storetrack::calib::test

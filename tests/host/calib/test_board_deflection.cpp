@@ -46,15 +46,7 @@ ObservationSet rendered_set(const test::BoardGrid& grid, std::mt19937_64& rng) {
 }
 
 double intrinsics_nees(const IntrinsicResult& r) {
-  const camera::IntrinsicVector e = camera::pack(r.intrinsics) - camera::pack(test::truth_camera());
-  Eigen::Matrix<double, 9, 1> e9;
-  Eigen::Matrix<double, 9, 9> C9;
-  for (int a = 0; a < 9; ++a) {
-    e9[a] = e[kFree[a]];
-    for (int b = 0; b < 9; ++b)
-      C9(a, b) = r.covariance(kFree[a], kFree[b]);
-  }
-  return e9.dot(C9.ldlt().solve(e9));
+  return test::free_intrinsics_nees(r.intrinsics, r.covariance, test::truth_camera(), kFree);
 }
 
 double deflection_nees(const IntrinsicResult& r, const Eigen::Vector2d& truth) {

@@ -43,16 +43,8 @@ IntrinsicOptions fisheye_options() {
 constexpr std::array<int, 8> kFree = {0, 1, 2, 3, 5, 6, 7, 8};
 
 double nees(const IntrinsicResult& r) {
-  const camera::IntrinsicVector e =
-      camera::pack(r.intrinsics) - camera::pack(test::fisheye_truth_camera());
-  Eigen::Matrix<double, 8, 1> e8;
-  Eigen::Matrix<double, 8, 8> C8;
-  for (int a = 0; a < 8; ++a) {
-    e8[a] = e[kFree[a]];
-    for (int b = 0; b < 8; ++b)
-      C8(a, b) = r.covariance(kFree[a], kFree[b]);
-  }
-  return e8.dot(C8.ldlt().solve(e8));
+  return test::free_intrinsics_nees(r.intrinsics, r.covariance, test::fisheye_truth_camera(),
+                                    kFree);
 }
 
 /// RMS of the used residuals [px] of the points farther than `radius_px` from the principal

@@ -38,15 +38,7 @@ ObservationSet synthetic_set(int views, double sigma_px, std::mt19937_64& rng,
 constexpr std::array<int, 9> kFree = {0, 1, 2, 3, 5, 6, 7, 8, 9};
 
 double nees(const IntrinsicResult& r) {
-  const camera::IntrinsicVector e = camera::pack(r.intrinsics) - camera::pack(truth_camera());
-  Eigen::Matrix<double, 9, 1> e9;
-  Eigen::Matrix<double, 9, 9> C9;
-  for (int a = 0; a < 9; ++a) {
-    e9[a] = e[kFree[a]];
-    for (int b = 0; b < 9; ++b)
-      C9(a, b) = r.covariance(kFree[a], kFree[b]);
-  }
-  return e9.dot(C9.ldlt().solve(e9));
+  return test::free_intrinsics_nees(r.intrinsics, r.covariance, truth_camera(), kFree);
 }
 
 TEST(IntrinsicSynthetic, ParametersAgreeWithTruthWithinTheirCovariance) {
