@@ -35,7 +35,7 @@ struct IntrinsicArgs {
   std::string lens_model = "rational-brown";  ///< --lens-model (one_of: known names only)
   bool no_outlier_rejection = false;
   std::string board_deflection = "auto";  ///< on | off | auto -> options.board_deflection
-  bool no_model_check = false;  ///< skip cross-validation and the residual map (speed)
+  bool no_model_check = false;            ///< skip cross-validation and the residual map (speed)
   std::string output;
   std::string residuals_csv;
 };
@@ -48,7 +48,7 @@ struct RigArgs {
   std::string lens_model = "rational-brown";  ///< --lens-model (one_of: known names only)
   bool no_outlier_rejection = false;
   std::string board_deflection = "auto";  ///< each camera's own (start) fit; see docs
-  bool no_model_check = false;  ///< skip cross-validation and the residual map (speed)
+  bool no_model_check = false;            ///< skip cross-validation and the residual map (speed)
   std::string output;
   std::string residuals_csv;
 };
