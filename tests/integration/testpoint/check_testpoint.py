@@ -116,9 +116,11 @@ for i in recorded:
 # held to its Binomial(n, 0.9545) acceptance band (2.5 % per side), and truth >= the k = 2 lower
 # bound on >= 97.72 %. The samples of this run share ONE calibration and survey draw (seed 7):
 # its errors are a common offset plus small per-exposure noise (measured: z = e/u from -1.9 to
-# +0.7, slowly varying), so the count's upper side (u too large) cannot be judged on one draw:
-# a draw whose offset is under 2u puts every sample inside. The lower side (u too small: too few
-# inside) is asserted; the upper side is printed (docs/clearance.md, "In the main job"); the
+# +0.7, slowly varying), so the count inside 2u is not Binomial(n) on either side: a draw whose
+# offset is under 2u puts every sample inside, one near 2u (this seed's -1.9) puts a run-dependent
+# share outside (the sanitizer tree's partial exposures moved 1 sample across: 203 of 220). Judged
+# on this one draw: its offset, the mean of z, a draw of N(0, <= 1) (|mean z| <= 3.29: two-sided
+# 0.1 %), and every |z| <= 4; the count is printed (docs/clearance.md, "In the main job"); the
 # two-sided coverage over independent draws is test_clearance_separation's (300 seeds).
 d_true, parts = truth_clearance(clearance_at_poses, geometry, fti, truth)
 t = (fti["exposure_mid_tai_ns"] - fti["exposure_mid_tai_ns"][0]) * 1e-9
@@ -126,15 +128,16 @@ st = clearance_statistics(fti, d_true, t, binomial_acceptance)
 n_c = st["n"]
 low, high = round(st["band"][0] * n_c), round(st["band"][1] * n_c)
 check(n_c == int(valid.sum()), "a clearance and a truth on every valid sample (%d)" % n_c)
-check(st["inside"] >= low,
-      "clearance k = 2 coverage %d of %d = %.1f %% >= %d, the low end of its band [%d, %d] "
-      "(Binomial(%d, %.4f), 2.5 %% per side; above %d: %s)"
-      % (st["inside"], n_c, 100 * st["coverage"], low, low, high, n_c, P_INSIDE, high,
-         "yes, one shared draw" if st["inside"] > high else "no"))
+print("     clearance k = 2 coverage %d of %d = %.1f %% (the band [%d, %d] of Binomial(%d, %.4f) "
+      "holds for independent draws, not for this run's one shared draw: printed)"
+      % (st["inside"], n_c, 100 * st["coverage"], low, high, n_c, P_INSIDE))
 check(st["held"] >= round(st["held_band_low"] * n_c),
       "truth >= the k = 2 lower bound on %d of %d (>= %d: Binomial(n, %.4f) at 2.5 %%)"
       % (st["held"], n_c, round(st["held_band_low"] * n_c), P_BOUND_HELD))
 z = st["error"][st["mask"]] / fti["u_clearance"][st["mask"]]
+check(abs(np.mean(z)) <= 3.29,
+      "the run's shared clearance offset: mean e/u %.2f within +-3.29 (one draw of N(0, <= 1))"
+      % np.mean(z))
 check(np.all(np.abs(z) <= 4), "every clearance error within 4 u (max |e|/u %.2f)" % np.max(np.abs(z)))
 lb = fti["clearance_lower_bound"]
 alarm = (fti["status"].astype(int) & ALARM_BIT) != 0
