@@ -108,7 +108,7 @@ int MarkMatcher::measurement_dof(const Work& w, const std::vector<int>& members)
 }
 
 bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& members,
-                                BodyTrack& post, double& nis) const {
+                                PoseFilter& post, double& nis) const {
   // Extended Kalman filter update (Bar-Shalom et al. 2001, sec. 5.2 and 10.3). The marks
   // measure the pose only, so the pose is updated in information form on its 6x6 block,
   // Info = Ppp^-1 + sum H^T W H, with one relinearisation (iterated EKF, sec. 10.3.2), and the
@@ -117,7 +117,7 @@ bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& me
   // y^T (H Ppp H^T + R)^-1 y = y^T W y - g^T Info^-1 g (matrix inversion lemma) at the prediction.
   // A triangulated mark measures its 3-D position (H = G); a mark seen by one camera measures
   // its pixel, the projection of its surveyed point (single_view_measurement).
-  const BodyTrack& pred = w.body[b].pred;
+  const PoseFilter& pred = w.body[b].pred;
   const Mat6 Ppp = pred.P.topLeftCorner<6, 6>();
   Mat6 Ppp_inv;
   if (!uncertainty::inverse_spd<6>(Ppp, Ppp_inv)) return false;
@@ -226,7 +226,7 @@ void MarkMatcher::verify_layouts(Work& w) const {
       // normalised innovation squared (dof 3n) is the layout test. Works with any number of
       // marks, collinear ones included (the filter carries the unobserved roll).
       while (!members.empty()) {
-        BodyTrack post;
+        PoseFilter post;
         double nis = 0;
         if (filter_update(w, b, members, post, nis) &&
             nis <= chi2_gate_[std::min(kMaxDof, measurement_dof(w, members))]) {
@@ -238,7 +238,7 @@ void MarkMatcher::verify_layouts(Work& w) const {
           break;
         }
         reject_unique_culprit(members, 2, [&](const std::vector<int>& rest) {
-          BodyTrack post_rest;
+          PoseFilter post_rest;
           double nis_rest = 0;
           return filter_update(w, b, rest, post_rest, nis_rest) &&
                  nis_rest <= chi2_gate_[std::min(kMaxDof, measurement_dof(w, rest))];

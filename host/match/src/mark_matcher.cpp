@@ -69,7 +69,7 @@ MarkMatcher::MarkMatcher(const camera::RigCalibration& rig,
   std::sort(marks_.begin(), marks_.end(),
             [](const MarkInfo& a, const MarkInfo& b) { return a.id < b.id; });
   mark_tracks_.resize(marks_.size());
-  body_tracks_.resize(bodies_.size());
+  motion_.resize(bodies_.size());
   priors_.resize(bodies_.size());
   regions_.resize(bodies_.size());
   next_search_s_.assign(bodies_.size(), -std::numeric_limits<double>::infinity());
@@ -128,10 +128,18 @@ bool MarkMatcher::set_region(const std::string& body_name, const BodyRegion& reg
 void MarkMatcher::reset_tracking() {
   for (auto& t : mark_tracks_)
     t.count = 0;
-  for (auto& t : body_tracks_)
-    t.valid = false;
+  for (BodyMotion& m : motion_)
+    m.reset();
   next_search_s_.assign(bodies_.size(), -std::numeric_limits<double>::infinity());
   refused_in_a_row_.assign(bodies_.size(), 0);
+}
+
+std::optional<geometry::Transform> MarkMatcher::recent_pose(int body, time::TaiNs t,
+                                                            double max_age_s) const {
+  const PoseFilter& filter = motion(body).filter;
+  const double age_s = static_cast<double>(t - time_origin_ns_) * 1e-9 - filter.t_s;
+  if (!filter.valid || !(std::abs(age_s) <= max_age_s)) return std::nullopt;
+  return filter.T_w_b;
 }
 
 void MarkMatcher::load_exposure(Work& w, std::span<const msg::MarkObservations> cameras,

@@ -186,9 +186,9 @@ struct MarkMatcher::Work {
     /// The prediction is the body's own filter (not its prior): marks it identifies in a single
     /// camera may update it (docs/matching.md, step 5).
     bool from_track = false;
-    BodyTrack pred;
+    PoseFilter pred;
     bool updated = false;
-    BodyTrack post;
+    PoseFilter post;
   };
   std::vector<BodyState> body;
   /// Re-acquisition scratch (reacquisition.cpp).

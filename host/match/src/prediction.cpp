@@ -18,53 +18,23 @@ void MarkMatcher::predict(Work& w, double t_s) const {
   std::vector<PredictionSource> body_src(bodies_.size(), PredictionSource::kNone);
   w.body.assign(bodies_.size(), {});
   for (size_t b = 0; b < bodies_.size(); ++b) {
-    const BodyTrack& bt = body_tracks_[b];
-    const double dt = t_s - bt.t_s;
-    if (bt.valid && dt >= 0 && dt <= config_.body_track_max_gap_s) {
-      BodyTrack p = bt;
-      p.t_s = t_s;
-      p.T_w_b.linear() = geometry::rotation_from_rotvec(bt.omega_w * dt) * bt.T_w_b.linear();
-      p.T_w_b.translation() = bt.T_w_b.translation() + bt.v_w * dt;
-      // F = [I dt*I; 0 I] over (pose, rates): F P F^T by 6x6 blocks.
-      const Mat6 Ppp = bt.P.topLeftCorner<6, 6>(), Ppr = bt.P.topRightCorner<6, 6>(),
-                 Prr = bt.P.bottomRightCorner<6, 6>();
-      p.P.topLeftCorner<6, 6>() = Ppp + dt * (Ppr + Ppr.transpose()) + dt * dt * Prr;
-      p.P.topRightCorner<6, 6>() = Ppr + dt * Prr;
-      p.P.bottomLeftCorner<6, 6>() = p.P.topRightCorner<6, 6>().transpose();
-      Mat12 Q = Mat12::Zero();
-      const double qa =
-          config_.max_angular_acceleration_radps2 * config_.max_angular_acceleration_radps2;
-      const double ql = config_.max_acceleration_mps2 * config_.max_acceleration_mps2;
-      const double d2 = dt * dt, d3 = d2 * dt, d4 = d3 * dt;
-      for (int i = 0; i < 3; ++i) {
-        Q(i, i) = qa * d4 / 4;
-        Q(i, 6 + i) = Q(6 + i, i) = qa * d3 / 2;
-        Q(6 + i, 6 + i) = qa * d2;
-        Q(3 + i, 3 + i) = ql * d4 / 4;
-        Q(3 + i, 9 + i) = Q(9 + i, 3 + i) = ql * d3 / 2;
-        Q(9 + i, 9 + i) = ql * d2;
-      }
-      p.P += Q;
+    const PoseFilter& filter = motion_[b].filter;
+    const double dt = t_s - filter.t_s;
+    if (filter.valid && dt >= 0 && dt <= config_.body_track_max_gap_s) {
       w.body[b].predicted = true;
       w.body[b].from_track = true;
-      w.body[b].pred = p;
-      body_T[b] = p.T_w_b;
-      body_cov[b] = p.P.topLeftCorner<6, 6>();
+      w.body[b].pred = filter.predicted(t_s, config_.max_angular_acceleration_radps2,
+                                        config_.max_acceleration_mps2);
+      body_T[b] = w.body[b].pred.T_w_b;
+      body_cov[b] = w.body[b].pred.P.topLeftCorner<6, 6>();
       body_src[b] = PredictionSource::kBodyTrack;
     } else if (priors_[b].valid) {
       // Acquisition: the prior pose is the filter's prediction (at rest, rates with their
       // a-priori spread), so even one or two marks, or a collinear row, start the track; the
       // innovation test then checks the marks against the prior and the survey together.
-      BodyTrack p;
-      p.valid = true;
-      p.t_s = t_s;
-      p.T_w_b = priors_[b].T_w_b;
-      p.P.topLeftCorner<6, 6>() = priors_[b].cov;
-      const double wr = config_.max_angular_speed_radps, vr = config_.max_speed_mps;
-      p.P.block<3, 3>(6, 6) = wr * wr * Mat3::Identity();
-      p.P.block<3, 3>(9, 9) = vr * vr * Mat3::Identity();
       w.body[b].predicted = true;
-      w.body[b].pred = p;
+      w.body[b].pred = PoseFilter::at_rest(t_s, priors_[b].T_w_b, priors_[b].cov,
+                                           config_.max_angular_speed_radps, config_.max_speed_mps);
       body_T[b] = priors_[b].T_w_b;
       body_cov[b] = priors_[b].cov;
       body_src[b] = PredictionSource::kPrior;

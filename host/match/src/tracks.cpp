@@ -1,4 +1,5 @@
-// Track update after an exposure: the marks' last two positions and the bodies' pose filters.
+// Track update after an exposure: the marks' last two positions and the bodies' pose filters
+// (their motion states' filter part, BodyMotion).
 #include "matcher_work.hpp"
 
 namespace storetrack::match {
@@ -20,24 +21,16 @@ void MarkMatcher::update_tracks(const Work& w, double t_s) {
     ++mt.count;
   }
   for (size_t b = 0; b < bodies_.size(); ++b) {
-    BodyTrack& bt = body_tracks_[b];
+    PoseFilter& filter = motion_[b].filter;
     if (w.body[b].updated) {
-      bt = w.body[b].post;
-      bt.valid = true;
-      continue;
+      filter = w.body[b].post;
+      filter.valid = true;
+    } else if (w.fitted[b]) {
+      // (Re-)acquired by a layout fit: a new filter with the fit's pose covariance, at rest with
+      // the a-priori spread of the rates (MatcherConfig::max_speed_mps, max_angular_speed_radps).
+      filter = PoseFilter::at_rest(t_s, w.T_w_b[b], w.cov_b[b], config_.max_angular_speed_radps,
+                                   config_.max_speed_mps);
     }
-    if (!w.fitted[b]) continue;
-    // (Re-)acquired by a layout fit: a new filter with the fit's pose covariance, at rest with
-    // the a-priori spread of the rates (MatcherConfig::max_speed_mps, max_angular_speed_radps).
-    BodyTrack fresh;
-    fresh.valid = true;
-    fresh.t_s = t_s;
-    fresh.T_w_b = w.T_w_b[b];
-    fresh.P.topLeftCorner<6, 6>() = w.cov_b[b];
-    const double wr = config_.max_angular_speed_radps, vr = config_.max_speed_mps;
-    fresh.P.block<3, 3>(6, 6) = wr * wr * Mat3::Identity();
-    fresh.P.block<3, 3>(9, 9) = vr * vr * Mat3::Identity();
-    bt = fresh;
   }
 }
 

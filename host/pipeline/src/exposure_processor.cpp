@@ -256,7 +256,7 @@ struct ExposureProcessor::Prepared {
   int cameras_used = 0;
   bool clock_not_locked = false;
   /// Start of the single-view resection per body (0 pylon, 1 store): the matcher's pose of this
-  /// exposure or the body's last solved pose (see resect()).
+  /// exposure or the body's motion state's (see resect()).
   std::array<std::optional<Transform>, 2> initial_T_w_b;
 };
 
@@ -303,9 +303,7 @@ ExposureProcessor::ExposureProcessor(const camera::RigCalibration& rig,
 }
 
 void ExposureProcessor::reset_tracking() {
-  pose_hint_ = {};
   matcher_.reset_tracking();
-  tracker_.reset();
 }
 
 ExposureResult ExposureProcessor::process(const AlignedExposure& exposure) {
@@ -361,7 +359,7 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
   for (const match::MatchedMark& mm : marks.marks) {
     Prepared::Mark m;
     m.id = mm.id;
-    m.body = mm.body == 0 ? 'p' : mm.body == 1 ? 's' : '?';  // bodies {pylon, store}
+    m.body = mm.body == kPylonBody ? 'p' : mm.body == kStoreBody ? 's' : '?';
     m.velocity_w = mm.velocity_w;
     m.velocity_valid = mm.velocity_valid;
     m.motion_corrected = mm.motion_corrected;
@@ -377,16 +375,13 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
     prep.marks.push_back(std::move(m));
   }
   prep.cameras_used = static_cast<int>(std::count(contributed.begin(), contributed.end(), true));
-  for (size_t b = 0; b < pose_hint_.size(); ++b) {
-    // The matcher's pose of this exposure, else the body's last solved one (if recent).
-    if (b < marks.fitted.size() && marks.fitted[b]) {
+  for (size_t b = 0; b < prep.initial_T_w_b.size(); ++b) {
+    // The matcher's pose of this exposure, else the body's motion state's (if recent).
+    if (b < marks.fitted.size() && marks.fitted[b])
       prep.initial_T_w_b[b] = marks.T_w_b[b];
-      continue;
-    }
-    const PoseHint& hint = pose_hint_[b];
-    const double age_s = static_cast<double>(prep.t_ref_tai_ns - hint.t_ns) * 1e-9;
-    if (hint.T_w_b && std::abs(age_s) <= config_.matcher.track_max_gap_s)
-      prep.initial_T_w_b[b] = hint.T_w_b;
+    else if (marks.has_reference_time)
+      prep.initial_T_w_b[b] = matcher_.recent_pose(static_cast<int>(b), prep.t_ref_tai_ns,
+                                                   config_.matcher.track_max_gap_s);
   }
   return prep;
 }
@@ -719,9 +714,9 @@ ExposureResult ExposureProcessor::process(const AlignedExposure& exposure,
   out.cameras_used = prep.cameras_used;
   solve(prep, rig_.cameras, pylon_, store_, true, nullptr, out, counters_);
   if (!out.T_p_s.valid) ++counters_.pose_failed;
-  if (out.T_w_p.valid) pose_hint_[0] = {out.T_w_p.T, prep.t_ref_tai_ns};
-  if (out.T_w_s.valid) pose_hint_[1] = {out.T_w_s.T, prep.t_ref_tai_ns};
-  tracker_.update(out);  // an unsolved T_p_s: extrapolated over a short gap, or invalid
+  // The store's motion state takes a solved T_p_s; an unsolved one is extrapolated from it
+  // over a short gap, or left invalid.
+  tracker_.update(out, matcher_.motion(kStoreBody));
   fill_sample(exposure, prep, out);
   return out;
 }

@@ -34,20 +34,15 @@ PoseTracker::PoseTracker(const uncertainty::CalibrationFactors& factors,
     throw std::invalid_argument("PoseTracker: the ejector's bounds must be finite and >= 0");
 }
 
-void PoseTracker::reset() {
-  last_ = Solved{};
-  previous_ = Solved{};
-  first_motion_ns_ = std::numeric_limits<time::TaiNs>::min();
-}
-
-bool PoseTracker::moving_away(const Solved& last, const Solved& previous) const {
+bool PoseTracker::moving_away(const match::SolvedPose& last,
+                              const match::SolvedPose& previous) const {
   const double dt = static_cast<double>(last.t_ns - previous.t_ns) * 1e-9;
   if (!last.valid || !previous.valid || !(dt > 0) || dt > config_.max_velocity_baseline_s)
     return false;
   // z_p of each pose from its left perturbation: dp = -[p]x d_theta + d_t. The calibration
   // error is common to both poses and cancels in the velocity: the centroid parts remain.
   const auto i_cent = static_cast<size_t>(uncertainty::index(Source::kCentroid));
-  auto var_z = [&](const Solved& s) {
+  auto var_z = [&](const match::SolvedPose& s) {
     Eigen::Matrix<double, 1, 6> J;
     const Vec3 p = s.pose.T.translation();
     J << p.y(), -p.x(), 0, 0, 0, 1;  // row z of [-[p]x, I]
@@ -58,11 +53,12 @@ bool PoseTracker::moving_away(const Solved& last, const Solved& previous) const 
   return v_z > 5.0 * u_v_z;  // a false start on a captive store: 3e-7 per exposure
 }
 
-PoseTracker::Acceleration PoseTracker::acceleration_at(time::TaiNs t_ns) const {
+PoseTracker::Acceleration PoseTracker::acceleration_at(time::TaiNs t_ns,
+                                                       time::TaiNs first_motion_ns) const {
   const double aero = config_.accel_sigma_m_s2;
   const bool free_flight =
-      first_motion_ns_ != std::numeric_limits<time::TaiNs>::min() &&
-      static_cast<double>(t_ns - first_motion_ns_) * 1e-9 > config_.ejector_duration_max_s;
+      first_motion_ns != std::numeric_limits<time::TaiNs>::min() &&
+      static_cast<double>(t_ns - first_motion_ns) * 1e-9 > config_.ejector_duration_max_s;
   if (free_flight)
     return {config_.mean_accel_p_m_s2, Vec3::Constant(aero), config_.angular_accel_sigma_rad_s2,
             false};
@@ -75,25 +71,24 @@ PoseTracker::Acceleration PoseTracker::acceleration_at(time::TaiNs t_ns) const {
           true};
 }
 
-bool PoseTracker::update(ExposureResult& r) {
+bool PoseTracker::update(ExposureResult& r, match::BodyMotion& store) {
   r.extrapolated = false;
   const time::TaiNs t = r.reference_mid_tai_ns;
+  const match::SolvedPose& last = store.last_solved;
+  const match::SolvedPose& previous = store.previous_solved;
   if (r.T_p_s.valid) {
     ++counters_.solved;
     // The velocity pair is the last two solved poses, if close enough in time.
-    previous_ = last_;
-    last_.valid = true;
-    last_.t_ns = t;
-    last_.pose = r.T_p_s;
-    if (first_motion_ns_ == std::numeric_limits<time::TaiNs>::min() &&
-        moving_away(last_, previous_))
-      first_motion_ns_ = t;
+    store.record_solved(t, r.T_p_s);
+    if (store.first_motion_ns == std::numeric_limits<time::TaiNs>::min() &&
+        moving_away(last, previous))
+      store.first_motion_ns = t;
     return false;
   }
   const bool no_time = t == std::numeric_limits<time::TaiNs>::min();
-  const double tau = static_cast<double>(t - last_.t_ns) * 1e-9;              // horizon
-  const double dt = static_cast<double>(last_.t_ns - previous_.t_ns) * 1e-9;  // baseline
-  if (no_time || !last_.valid || !previous_.valid || !(tau > 0) || tau > config_.max_gap_s ||
+  const double tau = static_cast<double>(t - last.t_ns) * 1e-9;             // horizon
+  const double dt = static_cast<double>(last.t_ns - previous.t_ns) * 1e-9;  // baseline
+  if (no_time || !last.valid || !previous.valid || !(tau > 0) || tau > config_.max_gap_s ||
       !(dt > 0) || dt > config_.max_velocity_baseline_s) {
     ++counters_.not_extrapolated;
     return false;
@@ -103,11 +98,11 @@ bool PoseTracker::update(ExposureResult& r) {
   // increments, docs/conventions.md). The differenced velocity belongs to t1 - dt / 2, so a
   // constant acceleration alpha moves the pose by alpha tau (tau + dt) / 2 beyond the
   // constant-velocity extrapolation at tau after the last solved pose.
-  const Transform& T1 = last_.pose.T;
-  const Transform& T0 = previous_.pose.T;
+  const Transform& T1 = last.pose.T;
+  const Transform& T0 = previous.pose.T;
   const double a = tau / dt;
   const double lever = 0.5 * tau * (tau + dt);
-  const Acceleration accel = acceleration_at(t);
+  const Acceleration accel = acceleration_at(t, store.first_motion_ns);
   const Vec3 rot_step = geometry::rotvec_from_rotation(T1.linear() * T0.linear().transpose());
   Transform T_pred = Transform::Identity();
   T_pred.linear() = geometry::rotation_from_rotvec(a * rot_step) * T1.linear();
@@ -117,8 +112,8 @@ bool PoseTracker::update(ExposureResult& r) {
   // First order (the rotation between the two poses and over tau is small, so Exp's Jacobian
   // and the adjoint of Exp(omega tau) are I to first order): xi_pred = (1 + a) xi_1 - a xi_0.
   std::array<Mat6, uncertainty::kNumSources> by_source{};
-  const PoseResult& p1 = last_.pose;
-  const PoseResult& p0 = previous_.pose;
+  const PoseResult& p1 = last.pose;
+  const PoseResult& p0 = previous.pose;
   const double w1 = 1.0 + a, w0 = -a;
   const auto i_cent = static_cast<size_t>(uncertainty::index(Source::kCentroid));
   const auto i_surv = static_cast<size_t>(uncertainty::index(Source::kSurvey));

@@ -130,10 +130,12 @@ void check_sample_of_hidden(const ExposureResult& r) {
 }
 
 // Scores one extrapolated or past-the-gap exposure of one tracker variant (on its own copy of
-// the processor's result: the variant's prediction replaces the processor's tracker's).
+// the processor's result and its own motion state: the variant's prediction replaces the
+// processor's).
 void score_hidden(const sim::Simulator& sim, ExposureResult r, PoseTracker& tracker,
-                  time::TaiNs last_solved_ns, double frame_s, GapScores& g) {
-  const bool did = tracker.update(r);
+                  match::BodyMotion& motion, time::TaiNs last_solved_ns, double frame_s,
+                  GapScores& g) {
+  const bool did = tracker.update(r, motion);
   ASSERT_EQ(did, r.extrapolated);
   const double tau = static_cast<double>(r.reference_mid_tai_ns - last_solved_ns) * 1e-9;
   if (tau > tracker.config().max_gap_s) {
@@ -197,6 +199,7 @@ void run_gaps(std::vector<TrackerVariant>& variants, int seeds, const GapPlaceme
     std::vector<PoseTracker> trackers;
     for (const TrackerVariant& v : variants)
       trackers.emplace_back(proc.factors(), v.config);
+    std::vector<match::BodyMotion> motions(variants.size());  // each variant's store
     std::uniform_int_distribution<int> start(first_k, last_k);
     const int k0 = start(pick);
     time::TaiNs last_solved_ns = 0;
@@ -206,9 +209,9 @@ void run_gaps(std::vector<TrackerVariant>& variants, int seeds, const GapPlaceme
       if (placement.pair_only && k > lead_in_first + 1) break;
       const test::SimExposure in = test::make_exposure(sim, k);
       const ExposureResult r = proc.process(in.exposure, in.ids);
-      for (PoseTracker& t : trackers) {
+      for (size_t i = 0; i < trackers.size(); ++i) {
         ExposureResult copy = r;
-        t.update(copy);
+        trackers[i].update(copy, motions[i]);
       }
     }
     for (int k = k0; k < k0 + kSolvedBefore + kHidden + 1 && !left_out; ++k) {
@@ -225,9 +228,9 @@ void run_gaps(std::vector<TrackerVariant>& variants, int seeds, const GapPlaceme
           continue;
         }
         if (!r.T_p_s.valid) continue;  // after the gap: the gap is scored already
-        for (PoseTracker& t : trackers) {
+        for (size_t i = 0; i < trackers.size(); ++i) {
           ExposureResult copy = r;
-          EXPECT_FALSE(t.update(copy));
+          EXPECT_FALSE(trackers[i].update(copy, motions[i]));
           EXPECT_FALSE(copy.sample.status & msg::fti_status::kExtrapolated);
           EXPECT_TRUE(copy.sample.status & msg::fti_status::kValid);
         }
@@ -239,7 +242,7 @@ void run_gaps(std::vector<TrackerVariant>& variants, int seeds, const GapPlaceme
       ASSERT_FALSE(r.T_p_s.valid);  // no store marks: the pose cannot be solved
       check_sample_of_hidden(r);
       for (size_t i = 0; i < variants.size(); ++i)
-        score_hidden(sim, r, trackers[i], last_solved_ns, frame_s, variants[i].scores);
+        score_hidden(sim, r, trackers[i], motions[i], last_solved_ns, frame_s, variants[i].scores);
     }
     if (!left_out) ++gaps;
   }
@@ -460,6 +463,7 @@ TEST(PoseTracker, PredictionFollowsTheStatedMeanAcceleration) {
     config.mean_accel_p_m_s2 = mu;
     config.ejector_duration_max_s = 0;  // free flight once the store moves (v_z = 4 m/s)
     PoseTracker tracker(uncertainty::CalibrationFactors{}, config);
+    match::BodyMotion store;
     const Vec3 p0(0.1, -0.05, 0.3), v(0.5, 0.2, 4.0), w(0.05, 0.6, 0.1);
     const auto truth = [&](double t) {
       geometry::Transform T = geometry::Transform::Identity();
@@ -475,10 +479,10 @@ TEST(PoseTracker, PredictionFollowsTheStatedMeanAcceleration) {
       if (k < 2) {  // two solved poses give the velocity
         r.T_p_s.valid = true;
         r.T_p_s.T = T_true;
-        EXPECT_FALSE(tracker.update(r));
+        EXPECT_FALSE(tracker.update(r, store));
         continue;
       }
-      ASSERT_TRUE(tracker.update(r)) << "k " << k;
+      ASSERT_TRUE(tracker.update(r, store)) << "k " << k;
       const Vec3 dp = r.T_p_s_extrapolated.translation() - T_true.translation();
       const double dphi = geometry::rotvec_from_rotation(r.T_p_s_extrapolated.linear() *
                                                          T_true.linear().transpose())
@@ -498,6 +502,7 @@ TEST(PoseTracker, PredictionFollowsTheStatedMeanAcceleration) {
 TEST(PoseTracker, ReleaseZoneMeanAndSpreadUntilFreeFlight) {
   PoseTrackerConfig config;
   PoseTracker tracker(uncertainty::CalibrationFactors{}, config);
+  match::BodyMotion store;
   constexpr time::TaiNs kStartNs = 1'000'000'000, kFrameNs = 2'500'000;
   const Vec3 p0(0.1, -0.05, 0.3);
   auto solved = [&](int k, const Vec3& p) {
@@ -505,12 +510,12 @@ TEST(PoseTracker, ReleaseZoneMeanAndSpreadUntilFreeFlight) {
     r.reference_mid_tai_ns = kStartNs + k * kFrameNs;
     r.T_p_s.valid = true;
     r.T_p_s.T.translation() = p;
-    EXPECT_FALSE(tracker.update(r));
+    EXPECT_FALSE(tracker.update(r, store));
   };
   auto predicted = [&](int k) {
     ExposureResult r;
     r.reference_mid_tai_ns = kStartNs + k * kFrameNs;
-    EXPECT_TRUE(tracker.update(r)) << "k " << k;
+    EXPECT_TRUE(tracker.update(r, store)) << "k " << k;
     return r;
   };
   solved(0, p0);
@@ -540,6 +545,42 @@ TEST(PoseTracker, ReleaseZoneMeanAndSpreadUntilFreeFlight) {
   const Vec3 p37 = p0 + Vec3(0, 0, 0.34);
   EXPECT_NEAR(r.T_p_s_extrapolated.translation().z(),
               p37.z() + 0.01 + config.mean_accel_p_m_s2.z() * lever, 1e-12);
+}
+
+// Issue 29: the store has one motion state, the matcher's BodyMotion. The processor's solved
+// poses are recorded there (the same pose, time and order), the extrapolation reads them, and
+// reset_tracking() forgets the filter and the solved poses together.
+TEST(PoseTracker, TheStoresOneMotionStateIsTheMatchers) {
+  const sim::Scenario scenario = sim::load_scenario(test::scenario_path("store_separation"));
+  const sim::Simulator sim(scenario, 23);
+  ExposureProcessor proc(sim.calibrated_rig(), sim.pylon_survey(), sim.store_survey(),
+                         ProcessorConfig{});
+  std::vector<ExposureResult> solved;
+  for (int k = 60; k < 62; ++k) {
+    const test::SimExposure in = test::make_exposure(sim, k);
+    solved.push_back(proc.process(in.exposure, in.ids));
+    ASSERT_TRUE(solved.back().T_p_s.valid) << "k " << k;
+  }
+  const match::BodyMotion& store = proc.matcher().motion(ExposureProcessor::kStoreBody);
+  EXPECT_EQ(store.last_solved.t_ns, solved[1].reference_mid_tai_ns);
+  EXPECT_TRUE(store.last_solved.pose.T.isApprox(solved[1].T_p_s.T, 0.0));
+  EXPECT_EQ(store.last_solved.pose.cov, solved[1].T_p_s.cov);
+  EXPECT_EQ(store.previous_solved.t_ns, solved[0].reference_mid_tai_ns);
+  EXPECT_TRUE(store.previous_solved.pose.T.isApprox(solved[0].T_p_s.T, 0.0));
+
+  test::SimExposure hidden = test::make_exposure(sim, 62);
+  hide_store_marks(hidden);
+  ExposureProcessor kept = proc;
+  EXPECT_TRUE(kept.process(hidden.exposure, hidden.ids).extrapolated);
+  proc.reset_tracking();
+  for (int b : {ExposureProcessor::kPylonBody, ExposureProcessor::kStoreBody}) {
+    EXPECT_FALSE(proc.matcher().motion(b).filter.valid);
+    EXPECT_FALSE(proc.matcher().motion(b).last_solved.valid);
+    EXPECT_FALSE(proc.matcher().motion(b).previous_solved.valid);
+  }
+  const ExposureResult r = proc.process(hidden.exposure, hidden.ids);
+  EXPECT_FALSE(r.extrapolated);
+  EXPECT_FALSE(r.sample.status & msg::fti_status::kValid);
 }
 
 TEST(PoseTracker, NoVelocityNoExtrapolation) {

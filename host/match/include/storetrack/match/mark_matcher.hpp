@@ -36,12 +36,14 @@
 #include <cstdint>
 #include <map>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
 
 #include "storetrack/camera/calibration_file.hpp"
 #include "storetrack/geometry/transform.hpp"
+#include "storetrack/match/body_motion.hpp"
 #include "storetrack/msg/messages.hpp"
 #include "storetrack/survey/survey.hpp"
 #include "storetrack/time/time.hpp"
@@ -271,8 +273,16 @@ class MarkMatcher {
   MatchResult estimate_identified(std::span<const msg::MarkObservations> cameras,
                                   const std::vector<std::vector<int>>& ids);
 
-  /// Forgets all tracks (next exposure starts from the priors).
+  /// Forgets all tracks and the bodies' motion states (next exposure starts from the priors).
   void reset_tracking();
+
+  /// The motion state of body `body` (index as bodies()): its pose filter, which match()
+  /// writes, and its solved poses, which the processor's PoseTracker writes.
+  BodyMotion& motion(int body) { return motion_.at(static_cast<size_t>(body)); }
+  const BodyMotion& motion(int body) const { return motion_.at(static_cast<size_t>(body)); }
+  /// The pose of body `body` from its filter, when the filter was last updated at most
+  /// `max_age_s` from time `t` (a Gauss-Newton start, e.g. the processor's resection).
+  std::optional<geometry::Transform> recent_pose(int body, time::TaiNs t, double max_age_s) const;
 
   const MatchCounters& counters() const { return counters_; }
   const std::vector<survey::RigidBodySurvey>& bodies() const { return bodies_; }
@@ -296,17 +306,6 @@ class MarkMatcher {
     double t_s[2] = {0, 0};
     geometry::Vec3 p_w[2];
     geometry::Mat3 cov_w[2];
-  };
-  /// Constant-velocity pose filter of a body (error state: left rotation perturbation,
-  /// translation, angular rate, velocity; all in the world frame).
-  using Mat12 = Eigen::Matrix<double, 12, 12>;
-  struct BodyTrack {
-    bool valid = false;
-    double t_s = 0;
-    geometry::Transform T_w_b = geometry::Transform::Identity();
-    geometry::Vec3 omega_w = geometry::Vec3::Zero();  ///< angular rate [rad/s]
-    geometry::Vec3 v_w = geometry::Vec3::Zero();      ///< velocity of the body origin [m/s]
-    Mat12 P = Mat12::Zero();
   };
   struct Prior {
     bool valid = false;
@@ -344,7 +343,7 @@ class MarkMatcher {
   void gate_and_assign(Work& w) const;
   void verify_views(Work& w) const;
   void verify_layouts(Work& w) const;
-  bool filter_update(const Work& w, int b, const std::vector<int>& members, BodyTrack& post,
+  bool filter_update(const Work& w, int b, const std::vector<int>& members, PoseFilter& post,
                      double& nis) const;
   /// Mark m seen by one camera as a measurement of its body's pose T_w_b: innovation y (pixel
   /// minus projection), Jacobian H = d pixel / d(left perturbation) and information W = R^-1.
@@ -392,7 +391,7 @@ class MarkMatcher {
   MatcherConfig config_;
   std::vector<MarkInfo> marks_;  ///< all marks of all bodies
   std::vector<MarkTrack> mark_tracks_;
-  std::vector<BodyTrack> body_tracks_;
+  std::vector<BodyMotion> motion_;  ///< per body: its one motion state
   std::vector<Prior> priors_;
   std::vector<Region> regions_;           ///< per body
   std::vector<double> min_mark_spacing_;  ///< per body: smallest distance between two marks [m]

@@ -10,7 +10,6 @@
 
 #include <array>
 #include <cstdint>
-#include <optional>
 #include <vector>
 
 #include <Eigen/Core>
@@ -109,7 +108,11 @@ class ExposureProcessor {
   MonteCarloResult monte_carlo(const AlignedExposure& exposure, const match::MatchResult& marks,
                                int draws, std::uint64_t seed) const;
 
-  /// Forgets the motion state (the matcher's tracks) and the last solved poses.
+  /// The matcher's bodies, in this order; their motion states (matcher().motion(b)) are the
+  /// only ones: the store's holds the solved poses PoseTracker extrapolates from.
+  static constexpr int kPylonBody = 0, kStoreBody = 1;
+
+  /// Forgets the motion state (the matcher's tracks and the bodies' BodyMotion).
   void reset_tracking();
   match::MarkMatcher& matcher() { return matcher_; }
   const match::MarkMatcher& matcher() const { return matcher_; }
@@ -137,13 +140,6 @@ class ExposureProcessor {
   uncertainty::CalibrationFactors factors_;
   std::vector<int> slot_of_camera_id_;  ///< camera_id -> index in rig_.cameras, -1 if unknown
 
-  /// Last known pose T_w_b per body (0 pylon, 1 store) and its time: starts a resection (a
-  /// Gauss-Newton start, not a motion state: the matcher's tracks are that).
-  struct PoseHint {
-    std::optional<geometry::Transform> T_w_b;
-    time::TaiNs t_ns = 0;
-  };
-  std::array<PoseHint, 2> pose_hint_;
   match::MarkMatcher matcher_;
   PoseTracker tracker_;
   ProcessorCounters counters_;

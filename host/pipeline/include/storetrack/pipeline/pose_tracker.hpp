@@ -2,24 +2,26 @@
 // store marks (FtiSample status bit "extrapolated", common/msg/schema/fti_sample.yaml), with an
 // honest covariance (docs/uncertainty.md, "Extrapolation").
 //
-// The ExposureProcessor solves each exposure on its own and owns the tracker, which keeps the
-// last two solved poses. When an exposure has no solved T_p_s (fewer than 3 non-collinear store
-// marks, or no pylon frame) and the last solved pose is at most `max_gap_s` old, the sample carries
-// the constant-velocity prediction (translation and rotation) with status valid | extrapolated;
-// beyond the gap the sample stays invalid. The prediction's covariance is first-order: the two
-// poses' calibration errors are the same factors (loadings combine, they largely cancel in the
-// velocity), their centroid errors are independent, the survey error is common, and the
-// store's relative acceleration over the gap, a random constant with the stated mean
-// (mean_accel_p_m_s2, gravity for a released store) and per-axis spread (accel_sigma_m_s2,
-// angular_accel_sigma_rad_s2), adds its mean to the prediction and its spread as process noise.
-// Until the store is known to fly free (the captive store, the release, the ejector stroke) the
-// acceleration is anywhere in the ejector's stated bound instead (docs/uncertainty.md, "Release
-// zone").
+// The ExposureProcessor solves each exposure on its own and calls update() with the store's
+// motion state (match::BodyMotion, the matcher's: the one motion state of the body), which
+// keeps the last two solved poses. When an exposure has no solved T_p_s (fewer than 3
+// non-collinear store marks, or no pylon frame) and the last solved pose is at most `max_gap_s`
+// old, the sample carries the constant-velocity prediction (translation and rotation) with
+// status valid | extrapolated; beyond the gap the sample stays invalid. The prediction's
+// covariance is first-order: the two poses' calibration errors are the same factors (loadings
+// combine, they largely cancel in the velocity), their centroid errors are independent, the
+// survey error is common, and the store's relative acceleration over the gap, a random
+// constant with the stated mean (mean_accel_p_m_s2, gravity for a released store) and per-axis
+// spread (accel_sigma_m_s2, angular_accel_sigma_rad_s2), adds its mean to the prediction and its
+// spread as process noise. Until the store is known to fly free (the captive store, the
+// release, the ejector stroke) the acceleration is anywhere in the ejector's stated bound
+// instead (docs/uncertainty.md, "Release zone").
 #pragma once
 
 #include <cstdint>
 #include <limits>
 
+#include "storetrack/match/body_motion.hpp"
 #include "storetrack/pipeline/exposure_result.hpp"
 
 namespace storetrack::pipeline {
@@ -67,30 +69,22 @@ class PoseTracker {
   explicit PoseTracker(const uncertainty::CalibrationFactors& factors,
                        const PoseTrackerConfig& config = {});
 
-  /// Call once per exposure, in time order, with the exposure's solution (the ExposureProcessor
-  /// owns one and calls it before it writes the sample). A solved T_p_s updates the track. An
-  /// unsolved one is replaced, when the track allows, by the prediction: result.extrapolated,
-  /// T_p_s_extrapolated, cov_T_p_s_extrapolated, xyz_ypr and cov_xyz_ypr(_by_source); the
-  /// processor's sample then carries it with status kValid | kExtrapolated. Returns true when
-  /// it extrapolated.
-  bool update(ExposureResult& result);
-
-  /// Forgets the track (e.g. after ExposureProcessor::reset_tracking()).
-  void reset();
+  /// Call once per exposure, in time order, with the exposure's solution and the store's
+  /// motion state (the ExposureProcessor calls it before it writes the sample). A solved T_p_s
+  /// is recorded in the motion state. An unsolved one is replaced, when the motion state
+  /// allows, by the prediction: result.extrapolated, T_p_s_extrapolated,
+  /// cov_T_p_s_extrapolated, xyz_ypr and cov_xyz_ypr(_by_source); the processor's sample then
+  /// carries it with status kValid | kExtrapolated. Returns true when it extrapolated.
+  bool update(ExposureResult& result, match::BodyMotion& store);
 
   const PoseTrackerCounters& counters() const { return counters_; }
   const PoseTrackerConfig& config() const { return config_; }
 
  private:
-  struct Solved {
-    bool valid = false;
-    time::TaiNs t_ns = 0;
-    PoseResult pose;
-  };
   uncertainty::CalibrationFactors factors_;
   PoseTrackerConfig config_;
   /// Velocity along z_p of the last two solved poses above 5 sigma: the store moves away.
-  bool moving_away(const Solved& last, const Solved& previous) const;
+  bool moving_away(const match::SolvedPose& last, const match::SolvedPose& previous) const;
   /// Mean and standard uncertainty per pylon axis of the relative acceleration over a gap
   /// ending at `t_ns` (the release zone's, or free flight's).
   struct Acceleration {
@@ -99,11 +93,8 @@ class PoseTracker {
     double angular_sigma;
     bool release_zone;
   };
-  Acceleration acceleration_at(time::TaiNs t_ns) const;
+  Acceleration acceleration_at(time::TaiNs t_ns, time::TaiNs first_motion_ns) const;
 
-  Solved last_, previous_;
-  /// Time of the store's first significant motion (min(): not yet seen).
-  time::TaiNs first_motion_ns_ = std::numeric_limits<time::TaiNs>::min();
   PoseTrackerCounters counters_;
 };
 
