@@ -65,6 +65,17 @@ struct BodySolution {
   double chi2 = 0;
 };
 
+// The result slot of the next mark: the element left by an earlier exposure when there is one
+// (its observations and loadings keep their storage), the fields not always written reset.
+MarkResult& next_mark(std::vector<MarkResult>& marks, size_t index) {
+  if (index == marks.size()) marks.emplace_back();
+  MarkResult& m = marks[index];
+  m.excluded = false;
+  m.cov_w.setZero();
+  m.cov_by_source = zero_by_source<Mat3>();
+  return m;
+}
+
 // Takes the solution's loadings (moved: the relative pose is derived from the body solutions
 // before they are handed over).
 void fill_pose(BodySolution&& b, const uncertainty::CalibrationFactors& f, PoseResult& out) {
@@ -307,7 +318,13 @@ void ExposureProcessor::reset_tracking() {
 }
 
 ExposureResult ExposureProcessor::process(const AlignedExposure& exposure) {
-  return process(exposure, matcher_.match(exposure.cameras));
+  ExposureResult out;
+  process_into_new(exposure, matcher_.match(exposure.cameras), out);
+  return out;
+}
+
+void ExposureProcessor::process(const AlignedExposure& exposure, ExposureResult& out) {
+  process(exposure, matcher_.match(exposure.cameras), out);
 }
 
 match::MatchResult ExposureProcessor::identify(const AlignedExposure& exposure,
@@ -401,7 +418,7 @@ void ExposureProcessor::solve(const Prepared& prep,
     const auto first = body == 'p' ? 0 : pylon_survey.marks.size();
     return 3 * static_cast<int>(first + static_cast<size_t>(s - sv.marks.data()));
   };
-  out.marks.clear();
+  size_t marks_used = 0;
   out.marks.reserve(prep.marks.size());
   std::vector<triangulate::Observation> tri_obs;
   triangulate::Result drawn;
@@ -437,7 +454,7 @@ void ExposureProcessor::solve(const Prepared& prep,
     const triangulate::Result& tri = *estimate;
     const Vec3 velocity_w = mark.velocity_w;
     const bool velocity_valid = mark.velocity_valid;
-    MarkResult m;
+    MarkResult& m = next_mark(out.marks, marks_used);
     m.id = mark.id;
     m.body = mark.body;
     m.p_w = tri.p_w;
@@ -489,9 +506,12 @@ void ExposureProcessor::solve(const Prepared& prep,
       m.cov_by_source[kSurvey].setZero();
       // The sources partition the factor columns: L L^T is the sum of the per-source parts.
       m.cov_w = tri.cov_centroid + cov_intrinsic + cov_extrinsic + cov_sync;
+    } else {
+      m.loadings.resize(3, 0);
     }
-    out.marks.push_back(std::move(m));
+    ++marks_used;
   }
+  out.marks.resize(marks_used);
 
   // Rigid-body checks (with uncertainty) or the given exclusions (Monte Carlo draws).
   auto body_marks = [&](char body) {
@@ -706,9 +726,24 @@ void ExposureProcessor::fill_sample(const AlignedExposure& exposure, const Prepa
 
 ExposureResult ExposureProcessor::process(const AlignedExposure& exposure,
                                           const match::MatchResult& marks) {
+  ExposureResult out;
+  process_into_new(exposure, marks, out);
+  return out;
+}
+
+void ExposureProcessor::process(const AlignedExposure& exposure, const match::MatchResult& marks,
+                                ExposureResult& out) {
+  // Every field new but the marks' storage (solve overwrites the marks it keeps).
+  std::vector<MarkResult> kept_marks = std::move(out.marks);
+  out = ExposureResult{};
+  out.marks = std::move(kept_marks);
+  process_into_new(exposure, marks, out);
+}
+
+void ExposureProcessor::process_into_new(const AlignedExposure& exposure,
+                                         const match::MatchResult& marks, ExposureResult& out) {
   ++counters_.exposures;
   const Prepared prep = prepare(exposure, marks, counters_);
-  ExposureResult out;
   out.trigger_seq = exposure.trigger_seq;
   out.reference_mid_tai_ns = prep.t_ref_tai_ns;
   out.cameras_used = prep.cameras_used;
@@ -718,7 +753,6 @@ ExposureResult ExposureProcessor::process(const AlignedExposure& exposure,
   // over a short gap, or left invalid.
   tracker_.update(out, matcher_.motion(kStoreBody));
   fill_sample(exposure, prep, out);
-  return out;
 }
 
 MonteCarloResult ExposureProcessor::monte_carlo(const AlignedExposure& exposure,

@@ -129,6 +129,47 @@ TEST(ExposureProcessor, WithMatcherIdentifiesAndTracksTheStore) {
   EXPECT_GE(valid, f.sim.num_exposures() * 70 / 100);
 }
 
+// A result reused across exposures (its marks keep their storage; the mark count changes along
+// the separation) holds what a new result per exposure holds, every number exactly.
+TEST(ExposureProcessor, ReusedResultEqualsNewResultPerExposure) {
+  Fixture by_value("store_separation", 5), reusing("store_separation", 5);
+  const sim::Scenario& sc = by_value.sim.scenario();
+  const geometry::Mat6 prior = geometry::Mat6::Identity() * 1e-4;
+  for (Fixture* f : {&by_value, &reusing}) {
+    ASSERT_TRUE(f->proc.matcher().set_prior_pose("pylon", sc.T_w_p, prior));
+    ASSERT_TRUE(f->proc.matcher().set_prior_pose("store", sc.T_w_p * sc.separation.T_p_s0, prior));
+  }
+  ExposureResult reused;
+  std::size_t min_marks = 1000, max_marks = 0;
+  for (int k = 0; k < std::min(80, by_value.sim.num_exposures()); ++k) {
+    const auto in = test::make_exposure(by_value.sim, k);
+    const ExposureResult fresh = by_value.proc.process(in.exposure);
+    reusing.proc.process(in.exposure, reused);
+    ASSERT_EQ(fresh.marks.size(), reused.marks.size()) << "k " << k;
+    min_marks = std::min(min_marks, fresh.marks.size());
+    max_marks = std::max(max_marks, fresh.marks.size());
+    for (std::size_t i = 0; i < fresh.marks.size(); ++i) {
+      const MarkResult &a = fresh.marks[i], &b = reused.marks[i];
+      EXPECT_EQ(a.id, b.id);
+      EXPECT_EQ(a.excluded, b.excluded);
+      EXPECT_EQ(a.p_w, b.p_w);
+      EXPECT_EQ(a.cov_w, b.cov_w);
+      EXPECT_EQ(a.loadings, b.loadings);
+      ASSERT_EQ(a.observations.size(), b.observations.size());
+      for (std::size_t o = 0; o < a.observations.size(); ++o)
+        EXPECT_EQ(a.observations[o].residual_px, b.observations[o].residual_px);
+    }
+    EXPECT_EQ(fresh.T_p_s.valid, reused.T_p_s.valid);
+    EXPECT_EQ(fresh.T_p_s.T.matrix(), reused.T_p_s.T.matrix());
+    EXPECT_EQ(fresh.T_p_s.cov, reused.T_p_s.cov);
+    EXPECT_EQ(fresh.cov_xyz_ypr, reused.cov_xyz_ypr);
+    EXPECT_EQ(fresh.sample.status, reused.sample.status);
+    EXPECT_EQ(fresh.sample.x_m, reused.sample.x_m);
+    EXPECT_EQ(fresh.sample.u_x_m, reused.sample.u_x_m);
+  }
+  std::printf("reused result: %zu to %zu marks per exposure\n", min_marks, max_marks);
+}
+
 TEST(ExposureProcessor, MonteCarloAgreesWithFirstOrder) {
   Fixture f("store_separation", 11);
   const int k = f.sim.num_exposures() / 2;

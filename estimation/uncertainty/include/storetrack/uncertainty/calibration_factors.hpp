@@ -144,26 +144,10 @@ inline CameraSensitivity point_sensitivity(const Eigen::Matrix<double, 3, 2>& K,
 /// uncoupled factors the camera owns those columns, so its B B^T is also added to
 /// cov_intrinsic / cov_extrinsic (coupled: take covariance_of over the sum instead). The one
 /// implementation of a mark's calibration loadings (the host's processor, storetrack-eval lme).
-inline void add_observation_loadings(const CalibrationFactors& f, int slot,
-                                     const Eigen::Matrix<double, 3, 2>& K,
-                                     const camera::ProjectionJacobians& J, Loadings3& loadings,
-                                     Eigen::Matrix3d& cov_intrinsic,
-                                     Eigen::Matrix3d& cov_extrinsic) {
-  const auto& cf = f.camera(slot);
-  // B = G F: the fixed-size 3 x 19 sensitivity first, then one coefficient-based product per
-  // parameter group into the loadings (no temporaries, no heap).
-  const CameraSensitivity G = point_sensitivity(K, J);
-  if (cf.intrinsic.cols() > 0) {
-    auto B = loadings.middleCols(cf.intrinsic_begin, cf.intrinsic.cols());
-    B.noalias() += G.leftCols<camera::kNumIntrinsics>().lazyProduct(cf.intrinsic);
-    if (!f.coupled()) cov_intrinsic.noalias() += B.lazyProduct(B.transpose());
-  }
-  if (cf.extrinsic.cols() > 0) {
-    auto B = loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols());
-    B.noalias() += G.rightCols<6>().lazyProduct(cf.extrinsic);
-    if (!f.coupled()) cov_extrinsic.noalias() += B.lazyProduct(B.transpose());
-  }
-}
+void add_observation_loadings(const CalibrationFactors& f, int slot,
+                              const Eigen::Matrix<double, 3, 2>& K,
+                              const camera::ProjectionJacobians& J, Loadings3& loadings,
+                              Eigen::Matrix3d& cov_intrinsic, Eigen::Matrix3d& cov_extrinsic);
 
 /// Covariance of loadings restricted to one source's columns: L_s L_s^T.
 template <typename Derived>

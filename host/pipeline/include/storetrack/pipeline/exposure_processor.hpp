@@ -90,6 +90,10 @@ class ExposureProcessor {
   /// epipolar and layout checks; set its prior poses through matcher() for acquisition), then
   /// processes its result.
   ExposureResult process(const AlignedExposure& exposure);
+  /// The same into a caller-owned result, every field overwritten: its marks (observations,
+  /// loadings) keep their storage from the previous exposure, so a loop that passes the same
+  /// result does not allocate them again for every exposure.
+  void process(const AlignedExposure& exposure, ExposureResult& out);
 
   /// The matcher's estimate of marks already identified (ids per observation, e.g. simulator
   /// truth or an external matcher): MarkMatcher::estimate_identified (updates its tracks).
@@ -98,6 +102,8 @@ class ExposureProcessor {
   /// The rest of the chain on the matcher's result for this exposure: its triangulated marks'
   /// uncertainty, rigid-body checks, poses, the sample. Nothing is triangulated again.
   ExposureResult process(const AlignedExposure& exposure, const match::MatchResult& marks);
+  void process(const AlignedExposure& exposure, const match::MatchResult& marks,
+               ExposureResult& out);
 
   /// process(exposure, identify(exposure, ids)).
   ExposureResult process(const AlignedExposure& exposure, const MarkIds& ids);
@@ -133,6 +139,9 @@ class ExposureProcessor {
              ProcessorCounters& counters) const;
   void fill_sample(const AlignedExposure& exposure, const Prepared& prep,
                    ExposureResult& out) const;
+  /// process(exposure, marks) into `out`, whose fields other than marks are as constructed.
+  void process_into_new(const AlignedExposure& exposure, const match::MatchResult& marks,
+                        ExposureResult& out);
 
   camera::RigCalibration rig_;
   survey::RigidBodySurvey pylon_, store_;
