@@ -134,14 +134,6 @@ void MarkMatcher::reset_tracking() {
   refused_in_a_row_.assign(bodies_.size(), 0);
 }
 
-std::optional<geometry::Transform> MarkMatcher::recent_pose(int body, time::TaiNs t,
-                                                            double max_age_s) const {
-  const PoseFilter& filter = motion(body).filter;
-  const double age_s = static_cast<double>(t - time_origin_ns_) * 1e-9 - filter.t_s;
-  if (!filter.valid || !(std::abs(age_s) <= max_age_s)) return std::nullopt;
-  return filter.T_w_b;
-}
-
 void MarkMatcher::load_exposure(Work& w, std::span<const msg::MarkObservations> cameras,
                                 MatchResult& out) {
   w.obs.clear();

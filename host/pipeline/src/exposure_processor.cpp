@@ -267,7 +267,7 @@ struct ExposureProcessor::Prepared {
   int cameras_used = 0;
   bool clock_not_locked = false;
   /// Start of the single-view resection per body (0 pylon, 1 store): the matcher's pose of this
-  /// exposure or the body's motion state's (see resect()).
+  /// exposure or the body's last solved one, from its motion state (see resect()).
   std::array<std::optional<Transform>, 2> initial_T_w_b;
 };
 
@@ -393,12 +393,13 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
   }
   prep.cameras_used = static_cast<int>(std::count(contributed.begin(), contributed.end(), true));
   for (size_t b = 0; b < prep.initial_T_w_b.size(); ++b) {
-    // The matcher's pose of this exposure, else the body's motion state's (if recent).
+    // The matcher's pose of this exposure, else the body's last solved one (if recent).
     if (b < marks.fitted.size() && marks.fitted[b])
       prep.initial_T_w_b[b] = marks.T_w_b[b];
-    else if (marks.has_reference_time)
-      prep.initial_T_w_b[b] = matcher_.recent_pose(static_cast<int>(b), prep.t_ref_tai_ns,
-                                                   config_.matcher.track_max_gap_s);
+    else
+      prep.initial_T_w_b[b] =
+          matcher_.motion(static_cast<int>(b))
+              .recent_world_pose(prep.t_ref_tai_ns, config_.matcher.track_max_gap_s);
   }
   return prep;
 }
@@ -749,8 +750,10 @@ void ExposureProcessor::process_into_new(const AlignedExposure& exposure,
   out.cameras_used = prep.cameras_used;
   solve(prep, rig_.cameras, pylon_, store_, true, nullptr, out, counters_);
   if (!out.T_p_s.valid) ++counters_.pose_failed;
-  // The store's motion state takes a solved T_p_s; an unsolved one is extrapolated from it
-  // over a short gap, or left invalid.
+  // The bodies' motion states take this exposure's solutions. An unsolved T_p_s is
+  // extrapolated from the store's over a short gap, or left invalid.
+  for (auto [b, pose] : {std::pair{kPylonBody, &out.T_w_p}, std::pair{kStoreBody, &out.T_w_s}})
+    if (pose->valid) matcher_.motion(b).last_world = {true, prep.t_ref_tai_ns, pose->T};
   tracker_.update(out, matcher_.motion(kStoreBody));
   fill_sample(exposure, prep, out);
 }

@@ -98,12 +98,34 @@ TEST(BodyMotion, KeepsTheLastTwoSolvedPosesInOrderAndForgetsEverythingOnReset) {
   EXPECT_EQ(motion.previous_solved.pose.loadings(0, 0), 1.0);
 
   motion.filter = PoseFilter::at_rest(1.0, Transform::Identity(), Mat6::Identity(), 1, 1);
+  motion.last_world = {true, 102, Transform::Identity()};
   motion.first_motion_ns = 101;
   motion.reset();
   EXPECT_FALSE(motion.filter.valid);
+  EXPECT_FALSE(motion.last_world.valid);
   EXPECT_FALSE(motion.last_solved.valid);
   EXPECT_FALSE(motion.previous_solved.valid);
   EXPECT_EQ(motion.first_motion_ns, std::numeric_limits<time::TaiNs>::min());
+}
+
+// The resection's start: the last solved world pose within its age on either side, none
+// without a time or a pose.
+TEST(BodyMotion, RecentWorldPoseOnlyWithinItsAge) {
+  BodyMotion motion;
+  constexpr time::TaiNs kSolvedNs = 5'000'000'000;
+  EXPECT_FALSE(motion.recent_world_pose(kSolvedNs, 1.0).has_value());
+  Transform T = Transform::Identity();
+  T.translation() = Vec3(0.1, 0.2, 0.3);
+  motion.last_world = {true, kSolvedNs, T};
+  const double max_age_s = 0.0201;
+  for (const time::TaiNs age_ns : {0, 20'000'000, -20'000'000}) {
+    const auto pose = motion.recent_world_pose(kSolvedNs + age_ns, max_age_s);
+    ASSERT_TRUE(pose.has_value()) << age_ns;
+    EXPECT_TRUE(pose->isApprox(T, 0.0));
+  }
+  for (const time::TaiNs age_ns : {20'200'000, -20'200'000})
+    EXPECT_FALSE(motion.recent_world_pose(kSolvedNs + age_ns, max_age_s).has_value()) << age_ns;
+  EXPECT_FALSE(motion.recent_world_pose(std::numeric_limits<time::TaiNs>::min(), 1e9).has_value());
 }
 
 }  // namespace

@@ -547,8 +547,8 @@ TEST(PoseTracker, ReleaseZoneMeanAndSpreadUntilFreeFlight) {
               p37.z() + 0.01 + config.mean_accel_p_m_s2.z() * lever, 1e-12);
 }
 
-// Issue 29: the store has one motion state, the matcher's BodyMotion. The processor's solved
-// poses are recorded there (the same pose, time and order), the extrapolation reads them, and
+// Issue 29: each body has one motion state, the matcher's BodyMotion. The processor's solved
+// poses are recorded there (the same poses, time and order), the extrapolation reads them, and
 // reset_tracking() forgets the filter and the solved poses together.
 TEST(PoseTracker, TheStoresOneMotionStateIsTheMatchers) {
   const sim::Scenario scenario = sim::load_scenario(test::scenario_path("store_separation"));
@@ -567,6 +567,10 @@ TEST(PoseTracker, TheStoresOneMotionStateIsTheMatchers) {
   EXPECT_EQ(store.last_solved.pose.cov, solved[1].T_p_s.cov);
   EXPECT_EQ(store.previous_solved.t_ns, solved[0].reference_mid_tai_ns);
   EXPECT_TRUE(store.previous_solved.pose.T.isApprox(solved[0].T_p_s.T, 0.0));
+  EXPECT_TRUE(store.last_world.T.isApprox(solved[1].T_w_s.T, 0.0));
+  EXPECT_TRUE(proc.matcher()
+                  .motion(ExposureProcessor::kPylonBody)
+                  .last_world.T.isApprox(solved[1].T_w_p.T, 0.0));
 
   test::SimExposure hidden = test::make_exposure(sim, 62);
   hide_store_marks(hidden);
@@ -575,6 +579,7 @@ TEST(PoseTracker, TheStoresOneMotionStateIsTheMatchers) {
   proc.reset_tracking();
   for (int b : {ExposureProcessor::kPylonBody, ExposureProcessor::kStoreBody}) {
     EXPECT_FALSE(proc.matcher().motion(b).filter.valid);
+    EXPECT_FALSE(proc.matcher().motion(b).last_world.valid);
     EXPECT_FALSE(proc.matcher().motion(b).last_solved.valid);
     EXPECT_FALSE(proc.matcher().motion(b).previous_solved.valid);
   }

@@ -2,7 +2,10 @@
 // a body's motion from one exposure to the next is here, and nothing else keeps any:
 //  - `filter`: the constant-velocity pose filter in the world frame (Bar-Shalom et al. 2001,
 //    sec. 6.3.3). The matcher writes it when it identifies the body's marks; it predicts the
-//    marks for the gates, tells when the body is lost, and starts the processor's resection.
+//    marks for the gates and tells when the body is lost.
+//  - `last_world`: the processor's last solved pose of the body in the world, with its time:
+//    the start of the next resection when the matcher has no pose of its own for the body
+//    (marks given by id, or seen by single cameras only).
 //  - `last_solved`, `previous_solved`: the processor's last two solutions of the body in the
 //    frame its sample states (the store relative to the pylon), with their uncertainty by
 //    source and loadings. PoseTracker extrapolates the sample from them over a short gap.
@@ -15,7 +18,9 @@
 // (MarkMatcher::motion()) and resets them together (MarkMatcher::reset_tracking()).
 #pragma once
 
+#include <cmath>
 #include <limits>
+#include <optional>
 #include <utility>
 
 #include <Eigen/Core>
@@ -49,7 +54,14 @@ struct PoseFilter {
                        double accel_sigma_mps2) const;
 };
 
-/// A pose the processor solved from one exposure.
+/// A pose at a time.
+struct TimedPose {
+  bool valid = false;
+  time::TaiNs t_ns = 0;
+  geometry::Transform T = geometry::Transform::Identity();
+};
+
+/// A pose the processor solved from one exposure, with its uncertainty.
 struct SolvedPose {
   bool valid = false;
   time::TaiNs t_ns = 0;
@@ -58,13 +70,24 @@ struct SolvedPose {
 
 struct BodyMotion {
   PoseFilter filter;
+  TimedPose last_world;
   SolvedPose last_solved, previous_solved;
   /// Time of the body's first significant motion (min(): not yet seen).
   time::TaiNs first_motion_ns = std::numeric_limits<time::TaiNs>::min();
 
   /// Forgets everything (the next exposure starts from the prior pose).
   void reset() { *this = BodyMotion{}; }
-  /// A solution of this exposure: the older one is kept for the velocity.
+  /// The last solved pose T_w_b if it is recent (|age| <= max_age_s) at time t_ns_now (no time,
+  /// min(): none).
+  std::optional<geometry::Transform> recent_world_pose(time::TaiNs t_ns_now,
+                                                       double max_age_s) const {
+    if (!last_world.valid || t_ns_now == std::numeric_limits<time::TaiNs>::min())
+      return std::nullopt;
+    const double age_s = static_cast<double>(t_ns_now - last_world.t_ns) * 1e-9;
+    if (!(std::abs(age_s) <= max_age_s)) return std::nullopt;
+    return last_world.T;
+  }
+  /// A solution of this exposure in the sample's frame: the older one is kept for the velocity.
   void record_solved(time::TaiNs t_ns, const pose::PoseResult& pose) {
     std::swap(previous_solved, last_solved);  // the older one's buffers take the new pose
     last_solved.valid = true;

@@ -36,7 +36,6 @@
 #include <cstdint>
 #include <map>
 #include <memory>
-#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -277,12 +276,9 @@ class MarkMatcher {
   void reset_tracking();
 
   /// The motion state of body `body` (index as bodies()): its pose filter, which match()
-  /// writes, and its solved poses, which the processor's PoseTracker writes.
+  /// writes, and its solved poses, which the processor writes.
   BodyMotion& motion(int body) { return motion_.at(static_cast<size_t>(body)); }
   const BodyMotion& motion(int body) const { return motion_.at(static_cast<size_t>(body)); }
-  /// The pose of body `body` from its filter, when the filter was last updated at most
-  /// `max_age_s` from time `t` (a Gauss-Newton start, e.g. the processor's resection).
-  std::optional<geometry::Transform> recent_pose(int body, time::TaiNs t, double max_age_s) const;
 
   const MatchCounters& counters() const { return counters_; }
   const std::vector<survey::RigidBodySurvey>& bodies() const { return bodies_; }
