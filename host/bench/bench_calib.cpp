@@ -7,10 +7,14 @@
 // synthetic set of 150 views x 100 points (tests/host/calib/synthetic_board.hpp; the
 // 5-coefficient model k1, k2, p1, p2, k3 with fx, fy, cx, cy free, no outlier rejection either
 // side).
+// Wide angle: OpenCV's fisheye stereo set (tests/data/opencv_fisheye_stereo_jy, 34 views x 48
+// corners a camera), the Kannala-Brandt model against cv::fisheye::calibrate with the flags of
+// OpenCV's fisheyeTest.Calibration (as tests/host/calib/test_fisheye_stereo_jy.cpp).
 #include <time.h>
 
 #include <cmath>
 #include <cstdio>
+#include <functional>
 #include <map>
 #include <random>
 #include <string>
@@ -22,6 +26,7 @@
 
 #include "storetrack/calib/chessboard_detection.hpp"
 #include "storetrack/calib/intrinsic_calibration.hpp"
+#include "storetrack/calib/observations.hpp"
 #include "synthetic_board.hpp"
 
 namespace {
@@ -183,17 +188,16 @@ double thread_cpu_seconds() {
 }
 
 /// Both libraries back to back in every iteration (thread CPU time each), so a load change on
-/// the shared machine hits both alike: the ratio is the figure to quote. OpenCV without its
-/// standard deviations; storetrack with its covariance (it always computes it).
-void BM_IntrinsicStoretrackVsOpenCv(benchmark::State& state) {
-  const Case& c = get_case(static_cast<int>(state.range(0)));
-  state.SetLabel(case_name(static_cast<int>(state.range(0))));
+/// the shared machine hits both alike: the ratio is the figure to quote. Each function returns
+/// its RMS (px).
+void run_pair(benchmark::State& state, const std::function<double()>& storetrack,
+              const std::function<double()>& opencv) {
   double ours_s = 0, theirs_s = 0, ours_rms = 0, theirs_rms = 0;
   for (auto _ : state) {
     const double t0 = thread_cpu_seconds();
-    ours_rms = storetrack_rms(c);
+    ours_rms = storetrack();
     const double t1 = thread_cpu_seconds();
-    theirs_rms = opencv_rms(c, false);
+    theirs_rms = opencv();
     const double t2 = thread_cpu_seconds();
     ours_s += t1 - t0;
     theirs_s += t2 - t1;
@@ -209,10 +213,76 @@ void BM_IntrinsicStoretrackVsOpenCv(benchmark::State& state) {
   if (std::abs(ours_rms - theirs_rms) > 1e-4 * theirs_rms)
     state.SkipWithError("the two calibrations did not reach the same RMS");
 }
+
+/// OpenCV without its standard deviations; storetrack with its covariance (it always computes
+/// it).
+void BM_IntrinsicStoretrackVsOpenCv(benchmark::State& state) {
+  const Case& c = get_case(static_cast<int>(state.range(0)));
+  state.SetLabel(case_name(static_cast<int>(state.range(0))));
+  run_pair(
+      state, [&c] { return storetrack_rms(c); }, [&c] { return opencv_rms(c, false); });
+}
 BENCHMARK(BM_IntrinsicStoretrackVsOpenCv)
     ->Arg(kOpenCvSet)
     ->Arg(kSynthetic)
     ->Unit(benchmark::kMillisecond);
+
+/// One camera of the fisheye set in both libraries' input forms (OpenCV's in double, as its
+/// published result was computed).
+struct FisheyeCase {
+  calib::ObservationSet set;
+  calib::IntrinsicOptions options;
+  std::vector<std::vector<cv::Point3d>> object_points;  // per view, frame order
+  std::vector<std::vector<cv::Point2d>> image_points;
+  cv::Size image_size;
+};
+
+FisheyeCase fisheye_case(int camera) {
+  const std::string set = std::string(STORETRACK_TEST_DATA_DIR) + "/opencv_fisheye_stereo_jy";
+  FisheyeCase c;
+  c.set = calib::read_observations_csv(set + (camera == 0 ? "/left.csv" : "/right.csv"));
+  c.options.lens_model = camera::LensModel::kKannalaBrandt;
+  c.options.outlier_false_alarm = 0;                         // cv::fisheye keeps every point
+  c.options.board_deflection = calib::BoardDeflection::off;  // and fits a flat board
+  std::map<int, size_t> view_of_frame;                       // std::map: views in frame order
+  for (const calib::Observation& o : c.set.observations)
+    view_of_frame.emplace(o.frame, 0);
+  size_t next = 0;
+  for (auto& [frame, view] : view_of_frame)
+    view = next++;
+  c.object_points.resize(next);
+  c.image_points.resize(next);
+  for (const calib::Observation& o : c.set.observations) {
+    const size_t view = view_of_frame.at(o.frame);
+    c.object_points[view].emplace_back(o.p_board.x(), o.p_board.y(), o.p_board.z());
+    c.image_points[view].emplace_back(o.pixel.x(), o.pixel.y());
+  }
+  const calib::ImageSize size = c.set.image_sizes.at(camera);
+  c.image_size = cv::Size(size.width, size.height);
+  return c;
+}
+
+/// cv::fisheye::calibrate as OpenCV's fisheyeTest.Calibration calls it (its published result).
+double opencv_fisheye_rms(const FisheyeCase& c) {
+  cv::Matx33d K;
+  cv::Vec4d D;
+  constexpr int flags = cv::fisheye::CALIB_RECOMPUTE_EXTRINSIC | cv::fisheye::CALIB_CHECK_COND |
+                        cv::fisheye::CALIB_FIX_SKEW;
+  return cv::fisheye::calibrate(c.object_points, c.image_points, c.image_size, K, D, cv::noArray(),
+                                cv::noArray(), flags, cv::TermCriteria(3, 20, 1e-6));
+}
+
+/// Argument: the camera (0 left, 1 right).
+void BM_FisheyeStoretrackVsOpenCv(benchmark::State& state) {
+  static const FisheyeCase cases[2] = {fisheye_case(0), fisheye_case(1)};
+  const int camera = static_cast<int>(state.range(0));
+  const FisheyeCase& c = cases[camera];
+  state.SetLabel(camera == 0 ? "fisheye_jy_left" : "fisheye_jy_right");
+  run_pair(
+      state, [&] { return calib::calibrate_intrinsics(c.set, camera, c.options).rms_px; },
+      [&c] { return opencv_fisheye_rms(c); });
+}
+BENCHMARK(BM_FisheyeStoretrackVsOpenCv)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 

@@ -51,12 +51,29 @@ IntrinsicParameterMap::IntrinsicParameterMap(const IntrinsicOptions& o,
   if (o.fix_aspect_ratio) {
     M_(kFx, 0) = o.aspect_ratio;  // column 0 is fy
     base_[kFx] = 0;
+    tied_row_ = kFx;
+    tied_ratio_ = o.aspect_ratio;
   }
 }
 
+// Both below walk M's non-zero entries: its column j is 1 at lead_[j], and column 0 also holds
+// tied_ratio_ at tied_row_; the free rows of base_ are 0.
 camera::Intrinsics IntrinsicParameterMap::intrinsics(const double* z) const {
-  const Eigen::Map<const Eigen::VectorXd> zv(z, size());
-  return camera::unpack(base_ + M_ * zv, width_, height_, lens_model_);
+  camera::IntrinsicVector packed = base_;
+  for (int j = 0; j < size(); ++j)
+    packed[lead_[static_cast<size_t>(j)]] += z[j];
+  if (tied_row_ >= 0) packed[tied_row_] += tied_ratio_ * z[0];
+  return camera::unpack(packed, width_, height_, lens_model_);
+}
+
+void IntrinsicParameterMap::chain_jacobian(
+    const Eigen::Matrix<double, 2, camera::kNumIntrinsics>& d_packed, double weight,
+    double* d_free) const {
+  Eigen::Map<Eigen::Matrix<double, 2, Eigen::Dynamic, Eigen::RowMajor>> out(d_free, 2, size());
+  for (int j = 0; j < size(); ++j)
+    out.col(j) = d_packed.col(lead_[static_cast<size_t>(j)]);
+  if (tied_row_ >= 0) out.col(0) += tied_ratio_ * d_packed.col(tied_row_);
+  out *= weight;  // last, as the dense product applies its scalar factor
 }
 
 Eigen::VectorXd IntrinsicParameterMap::free_values(const camera::Intrinsics& in) const {

@@ -47,11 +47,7 @@ class ReprojectionCost final : public ceres::CostFunction {
     Eigen::Map<Eigen::Vector2d> r(residuals);
     r = weight_ * (*pixel - obs_.pixel);
     if (!jacobians) return true;
-    if (jacobians[0]) {
-      Eigen::Map<Eigen::Matrix<double, 2, Eigen::Dynamic, Eigen::RowMajor>> Jz(jacobians[0], 2,
-                                                                               map_.size());
-      Jz = weight_ * J.d_intrinsics * map_.jacobian();
-    }
+    if (jacobians[0]) map_.chain_jacobian(J.d_intrinsics, weight_, jacobians[0]);
     if (jacobians[1]) pose_vector_jacobian(J.d_pose, parameters[1], weight_, jacobians[1]);
     if (warp_ && jacobians[2]) {
       Eigen::Map<Eigen::Matrix<double, 2, 2, Eigen::RowMajor>> Jc(jacobians[2]);
@@ -95,11 +91,7 @@ class RigReprojectionCost final : public ceres::CostFunction {
     Eigen::Map<Eigen::Vector2d> r(residuals);
     r = weight_ * (*pixel - obs_.pixel);
     if (!jacobians) return true;
-    if (jacobians[0]) {
-      Eigen::Map<Eigen::Matrix<double, 2, Eigen::Dynamic, Eigen::RowMajor>> Jz(jacobians[0], 2,
-                                                                               map_.size());
-      Jz = weight_ * J.d_intrinsics * map_.jacobian();
-    }
+    if (jacobians[0]) map_.chain_jacobian(J.d_intrinsics, weight_, jacobians[0]);
     geometry::Mat6 d_cb_d_cr, d_cb_d_rb;
     geometry::composition_jacobians(T_c_r, T_r_b, d_cb_d_cr, d_cb_d_rb);
     if (jacobians[1])
