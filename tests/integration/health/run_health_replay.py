@@ -37,6 +37,7 @@ sys.path.insert(0, os.path.join(a.root, "tools"))
 sys.path.insert(0, os.path.join(a.root, "host", "report"))
 import sim_setup  # noqa: E402
 from storetrack_report import Checks, read_csv  # noqa: E402
+from host_listening import wait_until_listening  # noqa: E402
 
 N, STEP, MOVED = 900, 560, 1
 WINDOW, BASELINE_WINDOWS = 40, 10
@@ -80,7 +81,7 @@ def fly(mode, sim_dir, groups):
          "--expect-exposures", str(len(groups)), "--idle-exit-s", "6"],
         stdout=open(os.path.join(out, "host.log"), "w"), stderr=subprocess.STDOUT)
     try:
-        time.sleep(1.0)
+        wait_until_listening(host, port, os.path.join(out, "host.log"))
         tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         dseq, t0 = {}, time.monotonic() + 0.05
         for k, group in enumerate(groups):
