@@ -201,19 +201,26 @@ def camera_rows(residuals):
 
 
 def calibration_rows(report):
-    """The shared (calibration) part: one chi-square per camera for the whole recording."""
+    """The shared (calibration) part: one chi-square per camera for the whole recording, or per
+    span of one calibration where correct mode rebuilt the processor on a corrected rig."""
     cal = report.get("calibration_residuals")
     if not cal:
         return []
     rows = []
+    spans = len({c.get("span", 0) for c in cal["per_camera"]})
     for c in cal["per_camera"]:
+        what = "camera %d" % c["camera_id"]
+        if spans > 1:
+            what += ", calibration %s (trigger_seq %d .. %d)" % (
+                "as recorded" if c["span"] == 0 else "corrected #%d" % c["span"],
+                c["first_trigger_seq"], c["last_trigger_seq"])
         verdict = ""
         if c["chi2"] > c["band_high"]:
             verdict = "  ABOVE: calibration off by more than stated"
         elif c["chi2"] < c["band_low"]:
             verdict = "  BELOW: stated calibration uncertainty larger than the residuals show"
-        rows.append(("camera %d: calibration part chi-square (one draw for the recording)"
-                     % c["camera_id"],
+        rows.append(("%s: calibration part chi-square (one draw for the %s)"
+                     % (what, "span" if spans > 1 else "recording"),
                      "%.1f on %d dof (%.4f band %.1f .. %.1f)%s" % (
                          c["chi2"], c["dof"], cal["band_probability"], c["band_low"], c["band_high"],
                          verdict)))

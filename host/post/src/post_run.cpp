@@ -565,9 +565,11 @@ int run(const PostOptions& given) {
   if (!p.report_dir.empty())
     replay.on_exposure([&report, &diagnostics, &chain](const pipeline::AlignedExposure& e,
                                                        const pipeline::ExposureResult& result,
-                                                       bool written) {
+                                                       bool written, bool processor_rebuilt) {
       for (const CameraResidualRow& row : diagnostics.add(e, result))
         report.residuals.push_back(row);
+      if (processor_rebuilt)
+        diagnostics.use_calibration(chain.processor->rig(), chain.processor->factors());
       report.exposures.push_back(exposure_row(e, result, written));
       if (chain.health)
         report.health.observe(*chain.health, e.trigger_seq, result.reference_mid_tai_ns);

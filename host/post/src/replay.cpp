@@ -59,7 +59,7 @@ void Replay::process_ready() {
     ++counters_.exposures;
     const bool written = counters_.withheld.admit(
         hostapp::judge_sample(r.cameras_used, chain_.aligner->config().min_cameras));
-    if (on_exposure_) on_exposure_(e, r, written);
+    if (on_exposure_) on_exposure_(e, r, written, done.processor_rebuilt);
     if (!written) continue;
     samples_.push_back(r.sample);
     if (collect_) measurements_.push_back(smooth::measurement_from(r));

@@ -60,10 +60,12 @@ class Replay {
   }
 
   /// Called with every processed exposure (written or withheld) and its processing result
-  /// (--report: camera usage and residuals).
-  void on_exposure(std::function<void(const pipeline::AlignedExposure&,
-                                      const pipeline::ExposureResult&, bool written)>
-                       f) {
+  /// (--report: camera usage and residuals); processor_rebuilt: correct mode rebuilt the chain's
+  /// processor on a corrected rig after this exposure (the next ones use it).
+  void on_exposure(
+      std::function<void(const pipeline::AlignedExposure&, const pipeline::ExposureResult&,
+                         bool written, bool processor_rebuilt)>
+          f) {
     on_exposure_ = std::move(f);
   }
 
@@ -82,7 +84,7 @@ class Replay {
   bool collect_ = false;
   std::vector<smooth::PoseMeasurement> measurements_;
   std::function<void(const pipeline::ExposureResult&)> on_sample_;
-  std::function<void(const pipeline::AlignedExposure&, const pipeline::ExposureResult&, bool)>
+  std::function<void(const pipeline::AlignedExposure&, const pipeline::ExposureResult&, bool, bool)>
       on_exposure_;
   ReplayCounters counters_;
   hostapp::CsvFile* clearance_csv_ = nullptr;

@@ -112,6 +112,9 @@ ResidualDiagnostics::ResidualDiagnostics(const camera::RigCalibration& rig,
 
 std::vector<CameraResidualRow> ResidualDiagnostics::add(const pipeline::AlignedExposure& e,
                                                         const pipeline::ExposureResult& r) {
+  if (!span_started_) span_first_seq_ = e.trigger_seq;
+  span_started_ = true;
+  span_last_seq_ = e.trigger_seq;
   std::vector<CameraResidualRow> rows;
   for (const camera::CalibratedCamera& camera : rig_.cameras)
     rows.push_back(new_row(e, r, camera.camera_id));
@@ -159,7 +162,36 @@ void ResidualDiagnostics::add_view(std::uint32_t seq, const Key& key, std::uint3
   pending_.erase(it);  // pairs do not overlap: the next difference is independent of this one
 }
 
+void ResidualDiagnostics::use_calibration(const camera::RigCalibration& rig,
+                                          const uncertainty::CalibrationFactors& factors) {
+  for (const CalibrationResidual& c : span_residuals())
+    closed_spans_.push_back(c);
+  means_.clear();
+  pending_.clear();
+  rig_ = rig;
+  factors_ = factors;
+  ++span_;
+  span_started_ = false;
+}
+
 std::vector<CalibrationResidual> ResidualDiagnostics::calibration_residuals() const {
+  std::vector<CalibrationResidual> out = closed_spans_;
+  for (const CalibrationResidual& c : span_residuals())
+    out.push_back(c);
+  // One test per camera and span: each band at 1 - 0.05 / tests (Bonferroni), so a correct
+  // calibration has any of them outside with probability at most 0.05.
+  const double probability = calibration_band_probability(static_cast<int>(out.size()));
+  for (CalibrationResidual& c : out) {
+    const DegreesOfFreedom dof(static_cast<int>(c.dof));
+    const double tail = (1.0 - probability) / 2;
+    c.band_probability = probability;
+    c.band_low = chi_square_quantile(Probability(tail), dof);
+    c.band_high = chi_square_quantile(Probability(1 - tail), dof);
+  }
+  return out;
+}
+
+std::vector<CalibrationResidual> ResidualDiagnostics::span_residuals() const {
   std::vector<CalibrationResidual> out;
   for (int slot = 0; slot < static_cast<int>(rig_.cameras.size()); ++slot) {
     std::vector<const Mean*> means;
@@ -172,6 +204,9 @@ std::vector<CalibrationResidual> ResidualDiagnostics::calibration_residuals() co
     Eigen::MatrixXd N_bar = Eigen::MatrixXd::Zero(stacked, stacked);
     CalibrationResidual c;
     c.camera_id = rig_.cameras[static_cast<std::size_t>(slot)].camera_id;
+    c.span = span_;
+    c.first_trigger_seq = span_first_seq_;
+    c.last_trigger_seq = span_last_seq_;
     for (std::size_t i = 0; i < means.size(); ++i) {
       const Mean& m = *means[i];
       const double n = m.views;
@@ -206,16 +241,6 @@ std::vector<CalibrationResidual> ResidualDiagnostics::calibration_residuals() co
     c.dof = static_cast<double>(dim);
     c.calibration_share = calibration.trace() / predicted.trace();
     out.push_back(c);
-  }
-  // One test per camera of the recording: each band at 1 - 0.05 / cameras (Bonferroni), so a
-  // correct calibration has any camera outside with probability at most 0.05.
-  const double probability = calibration_band_probability(static_cast<int>(out.size()));
-  for (CalibrationResidual& c : out) {
-    const DegreesOfFreedom dof(static_cast<int>(c.dof));
-    const double tail = (1.0 - probability) / 2;
-    c.band_probability = probability;
-    c.band_low = chi_square_quantile(Probability(tail), dof);
-    c.band_high = chi_square_quantile(Probability(1 - tail), dof);
   }
   return out;
 }

@@ -59,7 +59,8 @@ struct ExposureRow {
 ExposureRow exposure_row(const pipeline::AlignedExposure& e, const pipeline::ExposureResult& r,
                          bool written);
 
-/// The shared (calibration) part of one camera's residuals over the whole recording: the mean
+/// The shared (calibration) part of one camera's residuals over the recording (over each span of
+/// one calibration, when correct mode rebuilt the processor): the mean
 /// residual of each mark it saw, stacked, r_bar ~ N(0, M_bar M_bar^T + N_bar) when the
 /// calibration is one draw from its stated covariance (M_bar: the mean of the views' residual
 /// loadings (I - A) P on the calibration factors; N_bar: the means' noise). chi2 = r_bar^T
@@ -67,10 +68,15 @@ ExposureRow exposure_row(const pipeline::AlignedExposure& e, const pipeline::Exp
 /// its band is that distribution's 0.025 .. 0.975 quantiles (no count over windows).
 struct CalibrationResidual {
   int camera_id = -1;
-  int marks = 0;  ///< marks with a mean residual
-  int views = 0;  ///< views averaged
+  /// The calibration the residuals were processed with: 0 as recorded, k after the processor's
+  /// k-th rebuild on a corrected rig (calibration health, correct mode); one row per camera and
+  /// span, since a mean residual over two calibrations tests neither.
+  int span = 0;
+  std::uint32_t first_trigger_seq = 0, last_trigger_seq = 0;  ///< the span's exposures
+  int marks = 0;                                              ///< marks with a mean residual
+  int views = 0;                                              ///< views averaged
   double chi2 = 0, dof = 0;
-  /// Chi-square quantiles with band_probability between: calibration_band_probability(cameras).
+  /// Chi-square quantiles with band_probability between: calibration_band_probability(rows).
   double band_low = 0, band_high = 0, band_probability = 0;
   /// The share of the predicted mean-residual variance that is the calibration's (trace
   /// M_bar M_bar^T / trace of the whole): near 0 the figure tests the noise, not the calibration.
@@ -89,7 +95,13 @@ class ResidualDiagnostics {
   /// completes); accumulates the shared part.
   std::vector<CameraResidualRow> add(const pipeline::AlignedExposure& e,
                                      const pipeline::ExposureResult& r);
-  /// The shared part per rig camera with residuals, in rig order.
+  /// The processor was rebuilt on another rig (correct mode) after the last exposure added:
+  /// closes the current calibration span (its shared part per camera) and starts a new one with
+  /// this rig and its factors; a noise pair never spans the change.
+  void use_calibration(const camera::RigCalibration& rig,
+                       const uncertainty::CalibrationFactors& factors);
+  /// The shared part per calibration span and rig camera with residuals, in that order; every
+  /// row's band at 1 - 0.05 / rows (Bonferroni over all of them).
   std::vector<CalibrationResidual> calibration_residuals() const;
 
   /// One view of a triangulated mark: residual, its noise-only predicted covariance (2 x 2
@@ -121,12 +133,18 @@ class ResidualDiagnostics {
   };
   camera::RigCalibration rig_;
   uncertainty::CalibrationFactors factors_;
-  using Key = std::tuple<int, char, int>;  // rig slot, mark body, mark id
+  int span_ = 0;
+  std::uint32_t span_first_seq_ = 0, span_last_seq_ = 0;
+  bool span_started_ = false;
+  std::vector<CalibrationResidual> closed_spans_;  ///< rows of the spans before, bands not set
+  using Key = std::tuple<int, char, int>;          // rig slot, mark body, mark id
   std::map<Key, Pending> pending_;
   std::map<Key, Mean> means_;
 
   void add_view(std::uint32_t seq, const Key& key, std::uint32_t camera_set, const View& v,
                 CameraResidualRow& row);
+  /// The current span's rows (chi2, dof, share), bands not set.
+  std::vector<CalibrationResidual> span_residuals() const;
 };
 
 /// The views of one triangulated mark (empty when a view's camera is not in the rig or the

@@ -119,6 +119,9 @@ nlohmann::json calibration_json(std::span<const CalibrationResidual> cameras) {
                  below = nlohmann::json::array();
   for (const CalibrationResidual& c : cameras) {
     per_camera.push_back({{"camera_id", c.camera_id},
+                          {"span", c.span},
+                          {"first_trigger_seq", c.first_trigger_seq},
+                          {"last_trigger_seq", c.last_trigger_seq},
                           {"marks", c.marks},
                           {"views", c.views},
                           {"chi2", c.chi2},

@@ -20,6 +20,7 @@
 // - a camera dropped over known exposures shows as not delivered at exactly those exposures.
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <set>
 #include <string>
 #include <vector>
@@ -83,34 +84,49 @@ camera::RigCalibration stated_rig(const sim::Simulator& sim, Stated stated) {
   return rig;
 }
 
-// The simulator's exposures processed; camera `drop` (its rig index) removed from the exposures
-// in [drop_first, drop_end), as the aligner closes an exposure without it.
-ProcessedRun process(std::uint64_t seed, Stated stated, int drop = 0, int drop_first = 0,
-                     int drop_end = 0) {
+// How one run is processed beyond its stated calibration.
+struct RunEvents {
+  /// Camera `drop` (its rig index) left out of the exposures in [drop_first, drop_end).
+  int drop = 0, drop_first = 0, drop_end = 0;
+  /// From exposure `corrected_from` on (0: never), the processor rebuilt on this calibration,
+  /// as correct mode does after a camera is declared moved.
+  int corrected_from = 0;
+  Stated corrected = Stated::kPerfect;
+};
+
+// The simulator's exposures processed; a dropped camera removed as the aligner closes an
+// exposure without it.
+ProcessedRun process(std::uint64_t seed, Stated stated, const RunEvents& events = {}) {
   sim::Scenario scenario = sim::load_scenario(test::scenario_path("store_separation"));
   scenario.calibration.registration_rotation_rad = kRegistrationRotationRad;
   scenario.calibration.registration_translation_m = kRegistrationTranslationM;
   const sim::Simulator sim(scenario, seed);
   const camera::RigCalibration rig = stated_rig(sim, stated);
-  pipeline::ExposureProcessor processor(rig, sim.true_pylon(), sim.true_store(),
-                                        pipeline::ProcessorConfig{});
-  ResidualDiagnostics diagnostics(rig, processor.factors());
+  auto processor = std::make_unique<pipeline::ExposureProcessor>(
+      rig, sim.true_pylon(), sim.true_store(), pipeline::ProcessorConfig{});
+  ResidualDiagnostics diagnostics(rig, processor->factors());
   ProcessedRun run;
   for (const camera::CalibratedCamera& c : rig.cameras)
     run.rig_camera_ids.push_back(c.camera_id);
   for (int k = 0; k < std::min(kExposures, sim.num_exposures()); ++k) {
+    if (events.corrected_from > 0 && k == events.corrected_from) {
+      const camera::RigCalibration corrected = stated_rig(sim, events.corrected);
+      processor = std::make_unique<pipeline::ExposureProcessor>(
+          corrected, sim.true_pylon(), sim.true_store(), pipeline::ProcessorConfig{});
+      diagnostics.use_calibration(corrected, processor->factors());
+    }
     test::SimExposure in = test::make_exposure(sim, k);
-    if (k >= drop_first && k < drop_end) {
-      const int id = run.rig_camera_ids[static_cast<std::size_t>(drop)];
+    if (k >= events.drop_first && k < events.drop_end) {
+      const int id = run.rig_camera_ids[static_cast<std::size_t>(events.drop)];
       for (std::size_t c = 0; c < in.exposure.cameras.size(); ++c)
         if (in.exposure.cameras[c].camera_id == id) {
           in.exposure.cameras.erase(in.exposure.cameras.begin() + static_cast<std::ptrdiff_t>(c));
           in.ids.erase(in.ids.begin() + static_cast<std::ptrdiff_t>(c));
           break;
         }
-      in.exposure.missing_camera_mask = 1u << drop;
+      in.exposure.missing_camera_mask = 1u << events.drop;
     }
-    const pipeline::ExposureResult r = processor.process(in.exposure, in.ids);
+    const pipeline::ExposureResult r = processor->process(in.exposure, in.ids);
     for (const CameraResidualRow& row : diagnostics.add(in.exposure, r))
       run.residuals.push_back(row);
     run.exposures.push_back(exposure_row(in.exposure, r, true));
@@ -223,6 +239,43 @@ TEST(PostReport, ACameraOffByFiveSigmaIsNamedByTheCalibrationPart) {
   EXPECT_GT(worst->chi2, worst->band_high);
 }
 
+// Correct mode rebuilds the processor on a corrected rig: the calibration part is tested per
+// span of one calibration, never over the mean of both. First half: camera kBadCamera 5x off
+// (as above; its bias does not average out with fewer exposures), second half: the true rig.
+// The off camera is above its band in the first span and not above it in the second: a correct
+// calibration is above with probability (1 - p) / 2 = 0.003 (p = 1 - 0.05 / 8 rows, one seed). Over
+// both halves as one span (before) the off camera's mean residual, half of its bias, was attributed
+// to the corrected rig too.
+TEST(PostReport, CalibrationPartIsTestedPerSpanOfOneCalibration) {
+  const int half = kExposures / 2;
+  const ProcessedRun run = process(kFirstSeed, Stated::kOneCameraOff,
+                                   {.corrected_from = half, .corrected = Stated::kPerfect});
+  print_calibration("off, then corrected", run);
+  const std::size_t cameras = run.rig_camera_ids.size();
+  ASSERT_EQ(run.calibration.size(), 2 * cameras);
+  const std::uint32_t seq0 = run.exposures.front().trigger_seq;
+  const int bad_id = run.rig_camera_ids[kBadCamera];
+  int bad_rows = 0;
+  for (const CalibrationResidual& c : run.calibration) {
+    EXPECT_DOUBLE_EQ(c.band_probability,
+                     calibration_band_probability(static_cast<int>(2 * cameras)));
+    const bool before = c.span == 0;
+    EXPECT_EQ(c.first_trigger_seq, seq0 + (before ? 0u : static_cast<std::uint32_t>(half)));
+    EXPECT_EQ(c.last_trigger_seq,
+              seq0 + static_cast<std::uint32_t>(before ? half - 1 : kExposures - 1));
+    if (c.camera_id != bad_id) continue;
+    ++bad_rows;
+    if (before) {
+      EXPECT_GT(c.chi2, c.band_high) << "5x off, as recorded";
+    } else {
+      EXPECT_LE(c.chi2, c.band_high) << "after the correction";
+    }
+  }
+  EXPECT_EQ(bad_rows, 2);
+  EXPECT_EQ(run.calibration.front().span, 0);
+  EXPECT_EQ(run.calibration.back().span, 1);
+}
+
 TEST(PostReport, RigidFitChiSquareExceedsItsQuantileWithinTheBinomialBand) {
   for (const bool store : {true, false}) {
     const ChiSquareExceedance x = rigid_exceedance(clean_run().exposures, store);
@@ -245,7 +298,8 @@ TEST(PostReport, RigidFitChiSquareExceedsItsQuantileWithinTheBinomialBand) {
 
 TEST(PostReport, ADroppedCameraShowsAtExactlyTheExposuresItMissed) {
   const ProcessedRun run =
-      process(kFirstSeed, Stated::kPerfect, kDroppedCamera, kDropFirst, kDropEnd);
+      process(kFirstSeed, Stated::kPerfect,
+              {.drop = kDroppedCamera, .drop_first = kDropFirst, .drop_end = kDropEnd});
   const int dropped_id = run.rig_camera_ids[kDroppedCamera];
   std::set<std::uint32_t> missed;
   for (const CameraResidualRow& row : run.residuals) {

@@ -24,6 +24,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 PROXY = os.path.join(ROOT, "tools", "fault-proxy")
 sys.path.insert(0, os.path.join(ROOT, "tools"))
 import sim_setup  # noqa: E402
+from host_listening import wait_until_listening  # noqa: E402
 
 # The units render (about 24 ms of CPU per 1920 x 1024 frame: 2 M noise draws) and centroid
 # full frames; four of them at 400 fps would need about 40 cores, so the fault runs are slow
@@ -155,8 +156,9 @@ def rig_index(first_seq, camera):
 def main():
     cams = setup()
     host = start_host(max_wait_ms=MAX_WAIT_MS)
+    wait_until_listening(host, PORT, os.path.join(OUT, "host.log"))
     proxy = start_proxy()
-    time.sleep(0.7)
+    time.sleep(0.7)  # the proxy's socket
     fault = {"case": CASE, "fps": FPS, "exposures": NEXP}
     # Unit 3's TAI clock steps forwards by 1 s (400 trigger periods exactly: by time alone a
     # sequence offset) for exposures 15..26 and back (a backward step) at 27; unit 2's steps

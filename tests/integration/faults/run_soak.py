@@ -61,6 +61,7 @@ a = ap.parse_args()
 sys.path.insert(0, os.path.join(a.root, "tools"))
 sys.path.insert(0, os.path.join(a.root, "host", "report"))
 import sim_setup  # noqa: E402
+from host_listening import wait_until_listening  # noqa: E402
 from storetrack_report import Checks  # noqa: E402
 if not 5 <= a.seconds <= 3600:
     sys.exit("run_soak.py: --seconds must be 5..3600")
@@ -148,7 +149,7 @@ def main():
     host = subprocess.Popen(host_args, stdout=open(os.path.join(OUT, "host.log"), "w"),
                             stderr=subprocess.STDOUT)
     try:
-        time.sleep(1.0)
+        wait_until_listening(host, PORT, os.path.join(OUT, "host.log"))
         tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         tx.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 4 << 20)
         dest = ("127.0.0.1", PORT)

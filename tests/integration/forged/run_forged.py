@@ -72,6 +72,7 @@ a = ap.parse_args()
 sys.path.insert(0, os.path.join(a.root, "tools"))
 sys.path.insert(0, os.path.join(a.root, "host", "report"))
 import sim_setup  # noqa: E402
+from host_listening import wait_until_listening  # noqa: E402
 from storetrack_report import Checks, read_ch10, read_csv  # noqa: E402
 
 HDR = 12
@@ -167,7 +168,7 @@ def run(groups, sim_dir, lead):
     host = subprocess.Popen(args, stdout=open(os.path.join(out, "host.log"), "w"),
                             stderr=subprocess.STDOUT)
     try:
-        time.sleep(1.0)
+        wait_until_listening(host, port, os.path.join(out, "host.log"))
         tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         dseq = {}
         t0 = time.monotonic() + 0.05

@@ -37,6 +37,7 @@ sys.path.insert(0, os.path.join(a.root, "tools"))
 sys.path.insert(0, os.path.join(a.root, "host", "report"))
 import sim_setup  # noqa: E402
 from storetrack_report import Checks, read_csv  # noqa: E402
+from host_listening import wait_until_listening  # noqa: E402
 
 N, STEP, MOVED = 900, 560, 1
 WINDOW, BASELINE_WINDOWS = 40, 10
@@ -80,7 +81,7 @@ def fly(mode, sim_dir, groups):
          "--expect-exposures", str(len(groups)), "--idle-exit-s", "6"],
         stdout=open(os.path.join(out, "host.log"), "w"), stderr=subprocess.STDOUT)
     try:
-        time.sleep(1.0)
+        wait_until_listening(host, port, os.path.join(out, "host.log"))
         tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         dseq, t0 = {}, time.monotonic() + 0.05
         for k, group in enumerate(groups):
@@ -160,6 +161,18 @@ def check_replay(mode, out, live):
     same = all(cams[c].get(k) == live_cams[c].get(k) for c in live_cams for k in keys) and \
         all(replayed[k] == live[k] for k in ("samples_flagged", "corrections", "exposures_excluding"))
     check(same, "%s: the replay's calibration health equals the live run's (%s)" % (mode, ", ".join(keys)))
+    # The residuals' calibration part per span of one calibration: one span more than the
+    # processor's rebuilds (correct mode), each camera once per span, the spans in order.
+    per_camera = json.load(open(os.path.join(report, "report.json")))["calibration_residuals"]["per_camera"]
+    spans = sorted({c["span"] for c in per_camera})
+    bounds = {c["span"]: (c["first_trigger_seq"], c["last_trigger_seq"]) for c in per_camera}
+    ordered = all(bounds[k][1] < bounds[k + 1][0] for k in spans[:-1])
+    check(spans == list(range(replayed["corrections"] + 1)) and ordered,
+          "%s: report.json's calibration part in %d span(s) for %d correction(s): %s; %s"
+          % (mode, len(spans), replayed["corrections"], bounds,
+             ", ".join("camera %d span %d chi2 %.1f (band %.1f .. %.1f)"
+                       % (c["camera_id"], c["span"], c["chi2"], c["band_low"], c["band_high"])
+                       for c in per_camera)))
     windows = read_csv(os.path.join(report, "calibration_health.csv"))
     alarm = windows["alarm"] == 1
     cams_alarmed = sorted({int(c) for c in windows["camera_id"][alarm]})

@@ -39,7 +39,16 @@ printf '{"clearance": {"geometry": "%s", "alarm_threshold_m": 0.10}}\n' "$GEOMET
 HOST_PID=$!
 UNIT_PIDS=""
 trap 'for p in $HOST_PID $UNIT_PIDS; do kill "$p" 2>/dev/null || true; done' EXIT
-sleep 0.5
+# The units start once the host listens (its "waiting for observations" line comes after the UDP
+# socket is bound): a datagram sent before is lost, and the raw channel is checked against what
+# the units sent. A fixed 0.5 s raced the host's start on a loaded machine (11 datagrams lost).
+for _ in $(seq 600); do
+  grep -q "waiting for observations" "$OUT/host.log" && break
+  kill -0 $HOST_PID 2>/dev/null || break
+  sleep 0.1
+done
+grep -q "waiting for observations" "$OUT/host.log" ||
+  { cat "$OUT/host.log"; echo "storetrack-host did not start listening within 60 s"; exit 1; }
 for c in 0 1 2 3; do
   FRAMES=$NEXP; [ "$c" -eq 3 ] && FRAMES=$(( NEXP - 20 ))
   "$UNIT" run --source sim --scenario "$OUT/scenario.json" --camera-index "$c" --seed 7 \
