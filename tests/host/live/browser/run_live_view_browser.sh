@@ -51,12 +51,15 @@ PY
 /usr/bin/python3 "$ROOT/tools/sim_setup.py" --initial-marks "$OUT/sim/truth_marks.csv" "$OUT/initial_marks.json"
 # The coverage overlay's envelope: 12 poses of the run's own trajectory (host.json live.store_envelope).
 /usr/bin/python3 "$ROOT/tools/sim_setup.py" --store-envelope "$OUT/sim/truth_poses.csv" "$OUT/host.json" 12
-# The host stays 6 s after the last observation: the page keeps showing the last snapshot.
+# The host keeps serving the page after the last observation (the page keeps showing the last
+# snapshot) until the browser is done, then is stopped with SIGINT: an idle exit 6 s after the
+# last observation raced the browser's reads and screenshots on a loaded machine (the page's
+# stream cut: "ERR_INCOMPLETE_CHUNKED_ENCODING", its reconnects refused). 120 s is a ceiling.
 "$HOST" --calibration "$OUT/sim/rig_calibrated.json" --pylon-survey "$OUT/sim/survey_pylon.json" \
   --store-survey "$OUT/sim/survey_store.json" --initial-marks "$OUT/initial_marks.json" \
   --udp-port "$PORT" --udp-bind 127.0.0.1 --udp-source 0@127.0.0.1 --udp-source 1@127.0.0.1 \
   --ch10 "$OUT/out.ch10" --csv "$OUT/fti.csv" --stats-json "$OUT/stats.json" \
-  --live 127.0.0.1:0 --config "$OUT/host.json" --max-wait-ms 3000 --idle-exit-s 6 \
+  --live 127.0.0.1:0 --config "$OUT/host.json" --max-wait-ms 3000 --idle-exit-s 120 \
   >"$OUT/host.log" 2>&1 &
 HOST_PID=$!
 UNIT_PIDS=""
@@ -85,6 +88,8 @@ for p in $UNIT_PIDS; do wait "$p" || { tail -n 5 "$OUT"/unit_cam*.log; echo "FAI
 UNIT_PIDS=""
 wait $BROWSER_PID || { cat "$OUT/browser.log"; echo "FAIL the browser run failed"; exit 1; }
 BROWSER_PID=""
+kill -0 $HOST_PID 2>/dev/null || { cat "$OUT/host.log"; echo "FAIL storetrack-host ended before the browser"; exit 1; }
+kill -INT $HOST_PID
 wait $HOST_PID || { cat "$OUT/host.log"; echo "FAIL storetrack-host failed"; exit 1; }
 trap - EXIT
 grep -E "exposures|samples" "$OUT/host.log" | head -5 || true
