@@ -35,11 +35,15 @@ std::vector<BoardView> camera_views(const ObservationSet& set, int camera,
     v.points.push_back(&o);
   }
   std::vector<BoardView> views;
-  for (auto& [frame, view] : by_frame)
-    if (std::string why = degenerate_view_reason(view); why.empty())
+  for (auto& [frame, view] : by_frame) {
+    Eigen::Matrix3d homography;
+    if (std::string why = degenerate_view_reason(view, &homography); why.empty()) {
+      view.homography = homography;
       views.push_back(view);
-    else
+    } else {
       skipped.push_back({frame, std::move(why)});
+    }
+  }
   return views;
 }
 
