@@ -179,8 +179,9 @@ int refine_intrinsics(const std::vector<BoardView>& views,
     if (problem.HasParameterBlock(state.poses[i].data()))
       ordering->AddElementToGroup(state.poses[i].data(), 0);  // eliminated first (Schur)
   }
+  // Groups of their own, as in refine_rig: an order that does not move with the heap's layout.
   ordering->AddElementToGroup(state.z.data(), 1);
-  if (warp) ordering->AddElementToGroup(state.warp.c.data(), 1);
+  if (warp) ordering->AddElementToGroup(state.warp.c.data(), 2);
   return solve(problem, ordering);
 }
 
@@ -202,16 +203,19 @@ int refine_rig(const std::vector<RigView>& views, const std::vector<std::vector<
           new ViewReprojectionCost(std::move(points), maps[camera], warp, camera > 0), nullptr,
           blocks);
   }
-  if (warp) ordering->AddElementToGroup(state.warp.c.data(), 1);
   for (PoseVector& board : state.T_r_b)
     if (problem.HasParameterBlock(board.data()))
       ordering->AddElementToGroup(board.data(), 0);  // eliminated first (Schur)
+  // One group per kept block, in camera order: within a group Ceres orders by address, which
+  // moves with the heap's layout (then the reduced system's summation order, its last bits).
+  int group = 1;
   for (size_t c = 0; c < state.z.size(); ++c) {
     if (problem.HasParameterBlock(state.z[c].data()))
-      ordering->AddElementToGroup(state.z[c].data(), 1);
+      ordering->AddElementToGroup(state.z[c].data(), group++);
     if (c > 0 && problem.HasParameterBlock(state.T_c_r[c].data()))
-      ordering->AddElementToGroup(state.T_c_r[c].data(), 1);
+      ordering->AddElementToGroup(state.T_c_r[c].data(), group++);
   }
+  if (warp) ordering->AddElementToGroup(state.warp.c.data(), group);
   return solve(problem, ordering);
 }
 
