@@ -35,11 +35,15 @@ std::vector<BoardView> camera_views(const ObservationSet& set, int camera,
     v.points.push_back(&o);
   }
   std::vector<BoardView> views;
-  for (auto& [frame, view] : by_frame)
-    if (std::string why = degenerate_view_reason(view); why.empty())
+  for (auto& [frame, view] : by_frame) {
+    Eigen::Matrix3d homography;
+    if (std::string why = degenerate_view_reason(view, &homography); why.empty()) {
+      view.homography = homography;
       views.push_back(view);
-    else
+    } else {
       skipped.push_back({frame, std::move(why)});
+    }
+  }
   return views;
 }
 
@@ -275,7 +279,9 @@ IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
     state.poses.push_back(pose);
   }
   const std::string deflection_reason = decide_deflection(views, options, state.warp, who);
-  std::vector<std::vector<char>> used = outlier_gate(weighted_residuals(views, map, state), 0);
+  std::vector<std::vector<char>> used;  // every point to start
+  for (const BoardView& v : views)
+    used.emplace_back(v.points.size(), 1);
   int iterations = 0;
   for (int round = 0; round < kMaxRejectionRounds; ++round) {
     try {
@@ -285,6 +291,8 @@ IntrinsicResult calibrate_intrinsics(const ObservationSet& set, int camera,
       throw CalibrationError(who + e.what());
     }
     check_board_orientations(views, state, who);
+    // Without a false alarm the gate keeps every point: no residual pass (a few % of a fit).
+    if (!(options.outlier_false_alarm > 0)) break;
     auto next = outlier_gate(weighted_residuals(views, map, state), options.outlier_false_alarm);
     if (next == used) break;
     used = std::move(next);

@@ -20,6 +20,24 @@ struct ViewBlocks {
   geometry::Mat6 D_inv;
 };
 
+/// weight * d pixel / d(free intrinsics padded to kIntrinsics, deflection (c_x, c_y)) of one
+/// point: the intrinsics through the map's non-zero entries, the deflection's columns zero when
+/// it is not fitted.
+Eigen::Matrix<double, 2, kN> free_jacobian(const IntrinsicParameterMap& map,
+                                           const camera::ProjectionJacobians& J,
+                                           const BoardWarp& warp, const geometry::Vec3& p_board,
+                                           double weight) {
+  Eigen::Matrix<double, 2, kIntrinsics, Eigen::RowMajor> chained;
+  map.chain_jacobian(J.d_intrinsics, weight, chained.data());
+  Eigen::Matrix<double, 2, kN> Jz = Eigen::Matrix<double, 2, kN>::Zero();
+  Jz.leftCols(map.size()) =
+      Eigen::Map<const Eigen::Matrix<double, 2, Eigen::Dynamic, Eigen::RowMajor>>(chained.data(), 2,
+                                                                                  map.size());
+  if (warp.fitted)
+    Jz.rightCols<2>() = weight * J.d_point_world.col(2) * warp.basis(p_board).transpose();
+  return Jz;
+}
+
 }  // namespace
 
 FitCovariance fit_covariance(const std::vector<BoardView>& views,
@@ -46,13 +64,13 @@ FitCovariance fit_covariance(const std::vector<BoardView>& views,
       camera::ProjectionJacobians J;
       if (!model.project_world(T_c_b, state.warp.apply(o.p_board), &J)) continue;
       const double w = 1.0 / o.weighting_sigma_px();
-      Eigen::Matrix<double, 2, kN> J_global;
-      J_global << J.d_intrinsics, J.d_point_world.col(2) * state.warp.basis(o.p_board).transpose();
-      const Eigen::Matrix<double, 2, kN> Jz = w * J_global * M;
+      const Eigen::Matrix<double, 2, kN> Jz = free_jacobian(map, J, state.warp, o.p_board, w);
       const Eigen::Matrix<double, 2, 6> Jp = w * J.d_pose;
-      A.noalias() += Jz.transpose() * Jz;
-      blocks[i].B.noalias() += Jz.transpose() * Jp;
-      blocks[i].D.noalias() += Jp.transpose() * Jp;
+      // Coefficient-wise products: Eigen's general product (blocking, packing) on these 2-deep
+      // ones took most of the covariance's time (docs/performance.md, issue 28's speed item).
+      A.noalias() += Jz.transpose().lazyProduct(Jz);
+      blocks[i].B.noalias() += Jz.transpose().lazyProduct(Jp);
+      blocks[i].D.noalias() += Jp.transpose().lazyProduct(Jp);
     }
   }
   MatN S = A;

@@ -51,17 +51,19 @@ ViewBlocks view_blocks(const RigView& view, const std::vector<char>& used,
     camera::ProjectionJacobians J;
     if (!model.project_world(T_c_r * T_r_b, state.warp.apply(o.p_board), &J)) continue;
     const double w = 1.0 / o.weighting_sigma_px();
-    const Eigen::Matrix<double, 2, kN> Jz = w * J.d_intrinsics * M;
+    // Coefficient-wise products throughout: Eigen's general product (blocking, packing) on
+    // these 2-deep ones costs more than the arithmetic (docs/performance.md, issue 28).
+    const Eigen::Matrix<double, 2, kN> Jz = w * J.d_intrinsics.lazyProduct(M);
     const Eigen::Matrix<double, 2, 6> Je = w * J.d_pose * d_cb_d_cr;
     const Eigen::Matrix<double, 2, 6> Jb = w * J.d_pose * d_cb_d_rb;
     const Eigen::Matrix2d Jw = w * J.d_point_world.col(2) * state.warp.basis(o.p_board).transpose();
-    v.zw.noalias() += Jz.transpose() * Jw;
+    v.zw.noalias() += Jz.transpose().lazyProduct(Jw);
     v.ew.noalias() += Je.transpose() * Jw;
     v.bw.noalias() += Jb.transpose() * Jw;
     v.ww.noalias() += Jw.transpose() * Jw;
-    v.zz.noalias() += Jz.transpose() * Jz;
-    v.ze.noalias() += Jz.transpose() * Je;
-    v.zb.noalias() += Jz.transpose() * Jb;
+    v.zz.noalias() += Jz.transpose().lazyProduct(Jz);
+    v.ze.noalias() += Jz.transpose().lazyProduct(Je);
+    v.zb.noalias() += Jz.transpose().lazyProduct(Jb);
     v.ee.noalias() += Je.transpose() * Je;
     v.eb.noalias() += Je.transpose() * Jb;
     v.bb.noalias() += Jb.transpose() * Jb;

@@ -79,9 +79,9 @@ double pixel_line_spread(const std::vector<Eigen::Vector2d>& x) {
   return std::sqrt(std::max(eig.eigenvalues()[0], 0.0));
 }
 
-/// Why the view's homography cannot be had, or "".
-std::string homography_problem(const BoardView& view) {
-  const Eigen::Matrix3d H = board_homography(view);
+/// Why the view's homography cannot be had, or "" (then H is it).
+std::string homography_problem(const BoardView& view, Eigen::Matrix3d& H) {
+  H = board_homography(view);
   if (!H.allFinite()) return "its homography is not finite";
   // Scale-free singularity test on the determinant (Hadamard's inequality bounds it by the
   // product of the column norms).
@@ -98,7 +98,7 @@ std::string homography_problem(const BoardView& view) {
 
 }  // namespace
 
-std::string degenerate_view_reason(const BoardView& view) {
+std::string degenerate_view_reason(const BoardView& view, Eigen::Matrix3d* homography) {
   const int n = static_cast<int>(view.points.size());
   if (n < kMinPointsPerView)
     return std::to_string(n) + (n == 1 ? " point" : " points") +
@@ -117,7 +117,10 @@ std::string degenerate_view_reason(const BoardView& view) {
     return "its " + std::to_string(n) + " pixels lie within " + text +
            " px (RMS) of one line: the board is seen edge-on";
   }
-  return homography_problem(view);
+  Eigen::Matrix3d H;
+  std::string why = homography_problem(view, H);
+  if (why.empty() && homography) *homography = H;
+  return why;
 }
 
 }  // namespace storetrack::calib

@@ -156,7 +156,7 @@ ZhangStart zhang_initialisation(const std::vector<BoardView>& views, const Image
   std::vector<Mat3> homographies;
   Eigen::MatrixXd V(2 * static_cast<Eigen::Index>(views.size()), 6);
   for (size_t i = 0; i < views.size(); ++i) {
-    homographies.push_back(board_homography(views[i]));
+    homographies.push_back(views[i].homography ? *views[i].homography : board_homography(views[i]));
     Mat3 Hc = N * homographies.back();
     Hc /= Hc.norm();
     const auto r = static_cast<Eigen::Index>(2 * i);
