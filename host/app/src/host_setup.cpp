@@ -114,9 +114,8 @@ std::unique_ptr<clearance::SampleClearance> load_clearance(
 }
 
 ProcessedExposure process_exposure(ProcessingChain& chain, const pipeline::AlignedExposure& e) {
-  ProcessedExposure out;
-  out.exposure = chain.health ? &chain.health->filter(e) : &e;
-  out.result = chain.processor->process(*out.exposure);
+  ProcessedExposure out{chain.health ? &chain.health->filter(e) : &e, chain.result};
+  chain.processor->process(*out.exposure, out.result);
   if (chain.health && chain.health->observe(*out.exposure, out.result)) {
     // The same chain on the corrected rig: its matcher's priors fitted again, its tracks new.
     chain.processor = make_processor(chain.cfg, chain.in, chain.health->rig());

@@ -48,6 +48,9 @@ struct ProcessingChain {
   std::unique_ptr<pipeline::CalibrationHealthGuard> health;
   /// nullptr: no clearance geometry (the samples' clearance fields stay invalid).
   std::unique_ptr<clearance::SampleClearance> clearance;
+  /// The last exposure's result, overwritten by the next (process_exposure): its marks'
+  /// observations and loadings keep their storage instead of being allocated per exposure.
+  pipeline::ExposureResult result;
 };
 ProcessingChain make_processing_chain(const HostConfig& cfg, const InputFiles& in);
 
@@ -70,7 +73,8 @@ struct ProcessedExposure {
   /// As processed: exclude mode's copy without the cameras declared moved (valid until the next
   /// call), else the exposure given.
   const pipeline::AlignedExposure* exposure = nullptr;
-  pipeline::ExposureResult result;
+  /// chain.result: valid until the next call.
+  pipeline::ExposureResult& result;
   bool processor_rebuilt = false;
   /// The clearance was evaluated (a measured or extrapolated pose): chain.clearance->parts()
   /// holds every part's until the next call; clearance_extrapolated: on the extrapolated pose.
