@@ -170,8 +170,13 @@ PartClearance ClearanceModel::evaluate_part(std::size_t aircraft_part,
 
   const double single = r.lower_bound_m;
   candidates_.clear();
-  const LeverArmReach reach_at{single, kCandidateReachSigmas, bounds.u_translation_m,
-                               bounds.u_rotation_rad, bounds.lambda_max};
+  const LeverArmReach reach_at{single,
+                               kCandidateReachSigmas,
+                               bounds.u_translation_m,
+                               bounds.u_rotation_rad,
+                               bounds.lambda_max,
+                               &cov,
+                               t};
   for (const Part& s : store_) {
     if (reach_at.at(s.tree.radius()) <= r.distance_m) continue;  // no pair can add to the sum
     pairs_.clear();

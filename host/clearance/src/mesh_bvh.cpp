@@ -96,7 +96,8 @@ class DualTraversal {
 
  private:
   /// Tests the triangles of two leaves; bound() is asked again for every pair because accept()
-  /// may lower it.
+  /// may lower it. A visitor with pair_bound() (the feature-switch pass) narrows it for the pairs
+  /// the cheap gaps keep, before the exact test.
   void leaf(const MeshBvh::Node& sn, const MeshBvh::Node& an) {
     for (std::int32_t i = sn.first; i < sn.first + sn.count; ++i) {
       const Triangle ts = posed_triangle(i);
@@ -107,13 +108,23 @@ class DualTraversal {
       for (std::int32_t j = an.first; j < an.first + an.count; ++j) {
         const auto k = static_cast<std::size_t>(j);
         const Triangle& ta = aircraft_.triangles()[k];
-        const double bound = visitor_.bound(lever);
-        if (triangle_box_distance(ts_box, aircraft_.triangle_boxes()[k]) >= bound ||
-            plane_gap(aircraft_.face_normals()[k], ta[0], ts) >= bound ||
-            plane_gap(ns, ts[0], ta) >= bound || centroid_line_gap(ts, ta) >= bound)
+        const Eigen::AlignedBox3d& ta_box = aircraft_.triangle_boxes()[k];
+        double bound = visitor_.bound(lever);
+        double lower = 0;
+        const auto beyond = [&](double gap) {
+          lower = std::max(lower, gap);
+          return lower >= bound;
+        };
+        if (beyond(triangle_box_distance(ts_box, ta_box)) ||
+            beyond(plane_gap(aircraft_.face_normals()[k], ta[0], ts)) ||
+            beyond(plane_gap(ns, ts[0], ta)) || beyond(centroid_line_gap(ts, ta)))
           continue;
+        if constexpr (Visitor::kNarrowsPerPair) {
+          bound = visitor_.pair_bound(ts_box, ta_box, lever);
+          if (lower >= bound) continue;
+        }
         const ClosestPair c = triangle_distance(ts, ta);
-        if (c.distance < visitor_.bound(lever))
+        if (c.distance < bound)
           visitor_.accept({c, store_.mesh_index()[static_cast<std::size_t>(i)],
                            aircraft_.mesh_index()[k], aircraft_.face_normals()[k]},
                           {i, j});
@@ -184,6 +195,7 @@ class DualTraversal {
 
 struct ClosestVisitor {
   static constexpr bool kUsesLeverArm = false;
+  static constexpr bool kNarrowsPerPair = false;
   MeshPair best;
   TreePair best_in_trees;
 
@@ -196,6 +208,7 @@ struct ClosestVisitor {
 
 struct WithinVisitor {
   static constexpr bool kUsesLeverArm = false;
+  static constexpr bool kNarrowsPerPair = false;
   double max_distance;
   std::vector<MeshPair>& out;
 
@@ -205,10 +218,16 @@ struct WithinVisitor {
 
 struct LeverArmWithinVisitor {
   static constexpr bool kUsesLeverArm = true;
+  static constexpr bool kNarrowsPerPair = true;
   const LeverArmReach& reach;
   std::vector<MeshPair>& out;
 
   double bound(double lever_arm) const { return reach.at(lever_arm); }
+  double pair_bound(const Eigen::AlignedBox3d& store, const Eigen::AlignedBox3d& aircraft,
+                    double lever_arm) const {
+    return reach.at(PairBoxes{store.center(), store.sizes() / 2, aircraft.center(),
+                              aircraft.sizes() / 2, lever_arm});
+  }
   void accept(const MeshPair& pair, TreePair /*in_trees*/) { out.push_back(pair); }
 };
 
@@ -336,6 +355,34 @@ double LeverArmReach::at(double lever_arm_m) const {
   // 1e-9 above the bound: a pair's u, rounded, cannot then exceed it (the filter downstream
   // compares the same quantities and would otherwise lose a pair in the last ulp).
   return base_m + sigmas * std::min(by_blocks, by_whole) * (1 + 1e-9);
+}
+
+// The direction bound: with a = p - q (store point minus aircraft point) and a0 = c_s - c_a,
+// |a - a0| <= e (the boxes' half diagonals), so the contact normal n = a / |a| is within
+// dn = 2 e / |a0| of n0 = a0 / |a0| (a touching pair has |a0| <= e: no narrowing then, its
+// normal being the face's). J - J0 = [(p - c_s) x n + (c_s - t) x (n - n0); n - n0] has parts
+// of norm at most |h_s| + |c_s - t| dn and dn, and sqrt(J^T C J) is a norm of J:
+// u <= u(J0) + u_rotation |dJ_r| + u_translation |dJ_t| (Cauchy-Schwarz on the cross term), or
+// u(J0) + sqrt(lambda_max) |dJ|.
+double LeverArmReach::at(const PairBoxes& b) const {
+  const double by_lever_arm = at(b.lever_arm_m);
+  if (cov == nullptr) return by_lever_arm;
+  const Vec3 between = b.store_centre - b.aircraft_centre;
+  const double centres_m = between.norm();
+  const double e = b.store_half.norm() + b.aircraft_half.norm();
+  if (!(centres_m > e)) return by_lever_arm;
+  const double dn = 2 * e / centres_m;
+  const Vec3 n0 = between / centres_m;
+  const Vec3 arm = b.store_centre - t_p_s;
+  geometry::Vec6 J0;
+  J0 << arm.cross(n0), n0;
+  const double u0 = std::sqrt(std::max(0.0, J0.dot(*cov * J0)));
+  const double d_rotation = b.store_half.norm() + arm.norm() * dn;
+  const double by_blocks = u_rotation_rad * d_rotation + u_translation_m * dn;
+  const double by_whole = std::sqrt(lambda_max * (d_rotation * d_rotation + dn * dn));
+  // The same relative 1e-9 as at(lever_arm_m), against rounding.
+  const double u = (u0 + std::min(by_blocks, by_whole)) * (1 + 1e-9);
+  return std::min(by_lever_arm, base_m + sigmas * u);
 }
 
 void pairs_within(const MeshBvh& store_s, const geometry::Transform& T_p_s,

@@ -85,17 +85,33 @@ MeshPair closest_pair(const MeshBvh& store_s, const geometry::Transform& T_p_s,
 void pairs_within(const MeshBvh& store_s, const geometry::Transform& T_p_s,
                   const MeshBvh& aircraft_p, double max_distance_m, std::vector<MeshPair>& out);
 
+/// Boxes, in frame p, that hold the store point p (posed) and the aircraft point q of a pair of
+/// triangles, with the store triangle's lever arm about the store's origin.
+struct PairBoxes {
+  geometry::Vec3 store_centre, store_half;
+  geometry::Vec3 aircraft_centre, aircraft_half;
+  double lever_arm_m = 0;
+};
+
 /// A reach that grows with the lever arm r: the largest distance, from the store's origin, of
 /// the store points a node or triangle holds: base_m + sigmas * u(r), with u(r) a bound on the
 /// distance's standard uncertainty of any pair whose store point is within r of the origin,
 /// min(u_translation_m + u_rotation_rad r, sqrt(lambda_max (1 + r^2))) (docs/clearance.md).
+/// With the covariance, the reach of one pair of triangles can be narrowed by the direction
+/// between their boxes (at(PairBoxes)).
 struct LeverArmReach {
   double base_m = 0;
   double sigmas = 0;
   double u_translation_m = 0;  ///< sqrt of the largest eigenvalue of the translation block
   double u_rotation_rad = 0;   ///< sqrt of the largest eigenvalue of the rotation block
   double lambda_max = 0;       ///< largest eigenvalue of the whole 6x6 covariance
+  /// The covariance of T_p_s's left perturbation and T_p_s's translation; null: no narrowing.
+  const geometry::Mat6* cov = nullptr;
+  geometry::Vec3 t_p_s = geometry::Vec3::Zero();
   double at(double lever_arm_m) const;
+  /// The reach of the pairs in `boxes`: u bounded by u at the boxes' centres plus how far J can
+  /// move within them (docs/clearance.md, "Feature switch"); never above at(lever_arm_m).
+  double at(const PairBoxes& boxes) const;
 };
 
 /// Appends every pair of triangles at a distance below reach.at(r) of its store triangle (the
