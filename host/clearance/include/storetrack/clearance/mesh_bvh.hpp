@@ -114,8 +114,10 @@ struct LeverArmReach {
   double at(const PairBoxes& boxes) const;
 };
 
-/// Appends every pair of triangles at a distance below reach.at(r) of its store triangle (the
-/// feature-switch pass with the reach taken per node: the same pairs pass its filter).
+/// Appends every pair of triangles at a distance below the reach of its two triangles'
+/// boxes, reach.at(PairBoxes) (reach.at(r) of the store triangle without a covariance): the
+/// feature-switch pass with the reach taken per node and per pair; the same pairs pass its
+/// filter.
 void pairs_within(const MeshBvh& store_s, const geometry::Transform& T_p_s,
                   const MeshBvh& aircraft_p, const LeverArmReach& reach,
                   std::vector<MeshPair>& out);
