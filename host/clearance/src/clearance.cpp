@@ -17,13 +17,6 @@ using geometry::Mat6;
 using geometry::Vec3;
 using geometry::Vec6;
 
-Vec6 distance_jacobian(const Vec3& p_store_p, const Vec3& t_p_s, const Vec3& normal_p) {
-  Vec6 J;
-  J.head<3>() = (p_store_p - t_p_s).cross(normal_p);
-  J.tail<3>() = normal_p;
-  return J;
-}
-
 namespace {
 
 /// The contact normal of a pair: from the aircraft's point to the store's, or the aircraft

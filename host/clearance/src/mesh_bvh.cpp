@@ -96,8 +96,8 @@ class DualTraversal {
 
  private:
   /// Tests the triangles of two leaves; bound() is asked again for every pair because accept()
-  /// may lower it. A visitor with pair_bound() (the feature-switch pass) narrows it for the pairs
-  /// the cheap gaps keep, before the exact test.
+  /// may lower it. The feature-switch pass (a visitor that uses the lever arm) narrows it by
+  /// pair_bound() for the pairs the cheap gaps keep, before the exact test.
   void leaf(const MeshBvh::Node& sn, const MeshBvh::Node& an) {
     for (std::int32_t i = sn.first; i < sn.first + sn.count; ++i) {
       const Triangle ts = posed_triangle(i);
@@ -119,8 +119,8 @@ class DualTraversal {
             beyond(plane_gap(aircraft_.face_normals()[k], ta[0], ts)) ||
             beyond(plane_gap(ns, ts[0], ta)) || beyond(centroid_line_gap(ts, ta)))
           continue;
-        if constexpr (Visitor::kNarrowsPerPair) {
-          bound = visitor_.pair_bound(ts_box, ta_box, lever);
+        if constexpr (Visitor::kUsesLeverArm) {
+          bound = std::min(bound, visitor_.pair_bound(ts_box, ta_box));
           if (lower >= bound) continue;
         }
         const ClosestPair c = triangle_distance(ts, ta);
@@ -195,7 +195,6 @@ class DualTraversal {
 
 struct ClosestVisitor {
   static constexpr bool kUsesLeverArm = false;
-  static constexpr bool kNarrowsPerPair = false;
   MeshPair best;
   TreePair best_in_trees;
 
@@ -208,7 +207,6 @@ struct ClosestVisitor {
 
 struct WithinVisitor {
   static constexpr bool kUsesLeverArm = false;
-  static constexpr bool kNarrowsPerPair = false;
   double max_distance;
   std::vector<MeshPair>& out;
 
@@ -218,15 +216,12 @@ struct WithinVisitor {
 
 struct LeverArmWithinVisitor {
   static constexpr bool kUsesLeverArm = true;
-  static constexpr bool kNarrowsPerPair = true;
   const LeverArmReach& reach;
   std::vector<MeshPair>& out;
 
   double bound(double lever_arm) const { return reach.at(lever_arm); }
-  double pair_bound(const Eigen::AlignedBox3d& store, const Eigen::AlignedBox3d& aircraft,
-                    double lever_arm) const {
-    return reach.at(PairBoxes{store.center(), store.sizes() / 2, aircraft.center(),
-                              aircraft.sizes() / 2, lever_arm});
+  double pair_bound(const Eigen::AlignedBox3d& store, const Eigen::AlignedBox3d& aircraft) const {
+    return reach.at(store, aircraft);
   }
   void accept(const MeshPair& pair, TreePair /*in_trees*/) { out.push_back(pair); }
 };
@@ -348,6 +343,13 @@ void pairs_within(const MeshBvh& store_s, const geometry::Transform& T_p_s,
   DualTraversal<WithinVisitor>(store_s, T_p_s, aircraft_p, visitor).run();
 }
 
+geometry::Vec6 distance_jacobian(const Vec3& p_store_p, const Vec3& t_p_s, const Vec3& normal_p) {
+  geometry::Vec6 J;
+  J.head<3>() = (p_store_p - t_p_s).cross(normal_p);
+  J.tail<3>() = normal_p;
+  return J;
+}
+
 double LeverArmReach::at(double lever_arm_m) const {
   const double by_blocks = u_translation_m + u_rotation_rad * lever_arm_m;
   const double whole2 = lambda_max * (1 + lever_arm_m * lever_arm_m);
@@ -364,25 +366,25 @@ double LeverArmReach::at(double lever_arm_m) const {
 // of norm at most |h_s| + |c_s - t| dn and dn, and sqrt(J^T C J) is a norm of J:
 // u <= u(J0) + u_rotation |dJ_r| + u_translation |dJ_t| (Cauchy-Schwarz on the cross term), or
 // u(J0) + sqrt(lambda_max) |dJ|.
-double LeverArmReach::at(const PairBoxes& b) const {
-  const double by_lever_arm = at(b.lever_arm_m);
-  if (cov == nullptr) return by_lever_arm;
-  const Vec3 between = b.store_centre - b.aircraft_centre;
+double LeverArmReach::at(const Eigen::AlignedBox3d& store_box,
+                         const Eigen::AlignedBox3d& aircraft_box) const {
+  constexpr double kNoBound = std::numeric_limits<double>::infinity();
+  if (cov == nullptr) return kNoBound;
+  const Vec3 between = store_box.center() - aircraft_box.center();
   const double centres_m = between.norm();
-  const double e = b.store_half.norm() + b.aircraft_half.norm();
-  if (!(centres_m > e)) return by_lever_arm;
+  const double store_half_m = store_box.sizes().norm() / 2;
+  const double e = store_half_m + aircraft_box.sizes().norm() / 2;
+  if (!(centres_m > e)) return kNoBound;
   const double dn = 2 * e / centres_m;
   const Vec3 n0 = between / centres_m;
-  const Vec3 arm = b.store_centre - t_p_s;
-  geometry::Vec6 J0;
-  J0 << arm.cross(n0), n0;
+  const geometry::Vec6 J0 = distance_jacobian(store_box.center(), t_p_s, n0);
   const double u0 = std::sqrt(std::max(0.0, J0.dot(*cov * J0)));
-  const double d_rotation = b.store_half.norm() + arm.norm() * dn;
+  const double d_rotation = store_half_m + (store_box.center() - t_p_s).norm() * dn;
   const double by_blocks = u_rotation_rad * d_rotation + u_translation_m * dn;
   const double by_whole = std::sqrt(lambda_max * (d_rotation * d_rotation + dn * dn));
   // The same relative 1e-9 as at(lever_arm_m), against rounding.
   const double u = (u0 + std::min(by_blocks, by_whole)) * (1 + 1e-9);
-  return std::min(by_lever_arm, base_m + sigmas * u);
+  return base_m + sigmas * u;
 }
 
 void pairs_within(const MeshBvh& store_s, const geometry::Transform& T_p_s,

@@ -27,12 +27,6 @@ inline constexpr double kSameFeatureCorrelation = 0.999;
 /// Pairs are searched within this many u_bound (a bound on every pair's u) of that bound.
 inline constexpr double kCandidateReachSigmas = 4.0;
 
-/// d(distance)/d(xi) for a left perturbation xi = (rx, ry, rz, tx, ty, tz) of T_p_s
-/// (geometry::perturb_left): the store's closest point p moves by -[p - t]x phi + rho, so with
-/// d = n . (p_store - p_aircraft), J = [((p_store - t_p_s) x n)^T, n^T].
-geometry::Vec6 distance_jacobian(const geometry::Vec3& p_store_p, const geometry::Vec3& t_p_s,
-                                 const geometry::Vec3& normal_p);
-
 struct PartClearance {
   // Names owned by the ClearanceModel (no string is copied per sample): valid while the model
   // that returned this result lives and is not moved.

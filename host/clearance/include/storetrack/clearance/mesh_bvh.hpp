@@ -85,20 +85,18 @@ MeshPair closest_pair(const MeshBvh& store_s, const geometry::Transform& T_p_s,
 void pairs_within(const MeshBvh& store_s, const geometry::Transform& T_p_s,
                   const MeshBvh& aircraft_p, double max_distance_m, std::vector<MeshPair>& out);
 
-/// Boxes, in frame p, that hold the store point p (posed) and the aircraft point q of a pair of
-/// triangles, with the store triangle's lever arm about the store's origin.
-struct PairBoxes {
-  geometry::Vec3 store_centre, store_half;
-  geometry::Vec3 aircraft_centre, aircraft_half;
-  double lever_arm_m = 0;
-};
+/// d(distance)/d(xi) for a left perturbation xi = (rx, ry, rz, tx, ty, tz) of T_p_s
+/// (geometry::perturb_left): the store's closest point p moves by -[p - t]x phi + rho, so with
+/// d = n . (p_store - p_aircraft), J = [((p_store - t_p_s) x n)^T, n^T].
+geometry::Vec6 distance_jacobian(const geometry::Vec3& p_store_p, const geometry::Vec3& t_p_s,
+                                 const geometry::Vec3& normal_p);
 
 /// A reach that grows with the lever arm r: the largest distance, from the store's origin, of
 /// the store points a node or triangle holds: base_m + sigmas * u(r), with u(r) a bound on the
 /// distance's standard uncertainty of any pair whose store point is within r of the origin,
 /// min(u_translation_m + u_rotation_rad r, sqrt(lambda_max (1 + r^2))) (docs/clearance.md).
-/// With the covariance, the reach of one pair of triangles can be narrowed by the direction
-/// between their boxes (at(PairBoxes)).
+/// With the covariance, the reach of one pair of triangles is also bounded by the direction
+/// between their boxes (at(store_box, aircraft_box)); theirs is the smaller of the two.
 struct LeverArmReach {
   double base_m = 0;
   double sigmas = 0;
@@ -109,15 +107,16 @@ struct LeverArmReach {
   const geometry::Mat6* cov = nullptr;
   geometry::Vec3 t_p_s = geometry::Vec3::Zero();
   double at(double lever_arm_m) const;
-  /// The reach of the pairs in `boxes`: u bounded by u at the boxes' centres plus how far J can
-  /// move within them (docs/clearance.md, "Feature switch"); never above at(lever_arm_m).
-  double at(const PairBoxes& boxes) const;
+  /// The reach of the pairs whose store point is in `store_box` and aircraft point in
+  /// `aircraft_box` (frame p), by their direction alone: u bounded by u at the boxes' centres plus
+  /// how far J can move within them (docs/clearance.md, "Feature switch"); infinity where the
+  /// boxes are too near for a bound (or without a covariance).
+  double at(const Eigen::AlignedBox3d& store_box, const Eigen::AlignedBox3d& aircraft_box) const;
 };
 
-/// Appends every pair of triangles at a distance below the reach of its two triangles'
-/// boxes, reach.at(PairBoxes) (reach.at(r) of the store triangle without a covariance): the
-/// feature-switch pass with the reach taken per node and per pair; the same pairs pass its
-/// filter.
+/// Appends every pair of triangles at a distance below its reach: the smaller of reach.at(r)
+/// of its store triangle and reach.at of its two triangles' boxes (the feature-switch pass with
+/// the reach taken per node and per pair; the same pairs pass its filter).
 void pairs_within(const MeshBvh& store_s, const geometry::Transform& T_p_s,
                   const MeshBvh& aircraft_p, const LeverArmReach& reach,
                   std::vector<MeshPair>& out);
