@@ -180,30 +180,11 @@ void CalibrationFactors::add_sync_factors(const camera::RigCalibration& rig) {
 
 namespace {
 
-// B += G F over the parameter group's factor columns (G: 3 x kParams, F: kParams x n, row-major).
-// Column by column with the three rows' sums in registers and kParams fixed, so the compiler
-// unrolls the sum and vectorises across columns; each sum runs in the order of F's rows and is
-// then added to B, as the coefficient-based product's vectorised path did. When the camera owns
+// B += G F over the parameter group's factor columns (add_loadings_product). When the camera owns
 // the columns (uncoupled factors) B B^T is added to `cov`.
-template <int kParams, typename Sensitivity, typename Factor, typename Block>
+template <typename Sensitivity, typename Factor, typename Block>
 void add_group_loadings(const Sensitivity& G, const Factor& F, Block B, Eigen::Matrix3d* cov) {
-  const Eigen::Index n = F.cols();
-  const double* f = F.data();
-  double* b0 = &B.coeffRef(0, 0);
-  double* b1 = &B.coeffRef(1, 0);
-  double* b2 = &B.coeffRef(2, 0);
-  for (Eigen::Index c = 0; c < n; ++c) {
-    double s0 = G(0, 0) * f[c], s1 = G(1, 0) * f[c], s2 = G(2, 0) * f[c];
-    for (int k = 1; k < kParams; ++k) {
-      const double fk = f[k * n + c];
-      s0 += G(0, k) * fk;
-      s1 += G(1, k) * fk;
-      s2 += G(2, k) * fk;
-    }
-    b0[c] += s0;
-    b1[c] += s1;
-    b2[c] += s2;
-  }
+  add_loadings_product(G, F, B);
   if (cov == nullptr) return;
   for (Eigen::Index r = 0; r < 3; ++r)
     for (Eigen::Index c = r; c < 3; ++c) {
@@ -223,14 +204,13 @@ void add_observation_loadings(const CalibrationFactors& f, int slot,
   // B = G F over the camera's column blocks (its own ones when the factors are uncoupled).
   const CameraSensitivity G = point_sensitivity(K, J);
   if (cf.intrinsic.cols() > 0)
-    add_group_loadings<camera::kNumIntrinsics>(
-        G.leftCols<camera::kNumIntrinsics>(), cf.intrinsic,
-        loadings.middleCols(cf.intrinsic_begin, cf.intrinsic.cols()),
-        f.coupled() ? nullptr : &cov_intrinsic);
+    add_group_loadings(G.leftCols<camera::kNumIntrinsics>(), cf.intrinsic,
+                       loadings.middleCols(cf.intrinsic_begin, cf.intrinsic.cols()),
+                       f.coupled() ? nullptr : &cov_intrinsic);
   if (cf.extrinsic.cols() > 0)
-    add_group_loadings<6>(G.rightCols<6>(), cf.extrinsic,
-                          loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols()),
-                          f.coupled() ? nullptr : &cov_extrinsic);
+    add_group_loadings(G.rightCols<6>(), cf.extrinsic,
+                       loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols()),
+                       f.coupled() ? nullptr : &cov_extrinsic);
 }
 
 }  // namespace storetrack::uncertainty

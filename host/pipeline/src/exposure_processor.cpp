@@ -97,15 +97,6 @@ void fill_pose(BodySolution&& b, const uncertainty::CalibrationFactors& f, PoseR
   out.survey_loadings = std::move(b.survey_loadings);
 }
 
-// out += A L for row-major loadings: each output row is a combination of L's contiguous rows
-// (vectorised axpys instead of strided dot products per coefficient).
-template <typename MatA, typename MatL, typename MatOut>
-void add_product(const MatA& A, const MatL& L, MatOut& out) {
-  for (Eigen::Index r = 0; r < A.rows(); ++r)
-    for (Eigen::Index j = 0; j < A.cols(); ++j)
-      if (A(r, j) != 0.0) out.row(r) += A(r, j) * L.row(j);
-}
-
 /// One observation of a surveyed mark for a single-view resection.
 struct ResectionView {
   const camera::CalibratedCamera* camera = nullptr;
@@ -599,7 +590,7 @@ void ExposureProcessor::solve(const Prepared& prep,
       sol.survey_loadings = Loadings6::Zero(6, survey_columns);
       for (size_t k = 0; k < idx.size(); ++k) {
         const MarkResult& m = out.marks[idx[k]];
-        add_product(bf.d_pose_d_point[k], m.loadings, sol.loadings);
+        uncertainty::add_loadings_product(bf.d_pose_d_point[k], m.loadings, sol.loadings);
         sol.cov_centroid.noalias() +=
             bf.d_pose_d_point[k] * m.cov_by_source[kCentroid] * bf.d_pose_d_point[k].transpose();
         sol.cov_survey.noalias() +=
@@ -658,15 +649,15 @@ void ExposureProcessor::solve(const Prepared& prep,
       pose::relative_pose_jacobians(pylon.T_w_b, store.T_w_b, A_p, A_s);
       // Common calibration factors add as loadings (correlated), the rest independently.
       rel.loadings = Loadings6::Zero(6, nz);
-      add_product(A_p, pylon.loadings, rel.loadings);
-      add_product(A_s, store.loadings, rel.loadings);
+      uncertainty::add_loadings_product(A_p, pylon.loadings, rel.loadings);
+      uncertainty::add_loadings_product(A_s, store.loadings, rel.loadings);
       rel.cov_centroid =
           A_p * pylon.cov_centroid * A_p.transpose() + A_s * store.cov_centroid * A_s.transpose();
       rel.cov_survey =
           A_p * pylon.cov_survey * A_p.transpose() + A_s * store.cov_survey * A_s.transpose();
       rel.survey_loadings = Loadings6::Zero(6, survey_columns);
-      add_product(A_p, pylon.survey_loadings, rel.survey_loadings);
-      add_product(A_s, store.survey_loadings, rel.survey_loadings);
+      uncertainty::add_loadings_product(A_p, pylon.survey_loadings, rel.survey_loadings);
+      uncertainty::add_loadings_product(A_s, store.survey_loadings, rel.survey_loadings);
     }
     fill_pose(std::move(rel), factors_, out.T_p_s);
     out.xyz_ypr = xyz_ypr(out.T_p_s.T);

@@ -138,6 +138,29 @@ inline CameraSensitivity point_sensitivity(const Eigen::Matrix<double, 3, 2>& K,
   return G;
 }
 
+namespace detail {
+// One output row: out.row(r) += sum_k A(r, k) L.row(k), the sum one expression over k (in order,
+// left to right), so Eigen evaluates it in one vectorised pass over the columns.
+template <typename MatA, typename MatL, typename MatOut, int... k>
+void add_loadings_rows(const MatA& A, const MatL& L, MatOut& out,
+                       std::integer_sequence<int, k...>) {
+  for (Eigen::Index r = 0; r < A.rows(); ++r)
+    out.row(r) += ((A(r, k) * L.row(k)) + ...);
+}
+}  // namespace detail
+
+/// out += A L for loadings L (A.cols() x n) and out (A.rows() x n), both row-major, A small and
+/// fixed-size: the one kernel of the loadings' products (a mark's G F over a camera's factor
+/// columns, a pose's d pose / d point times a mark's loadings, a relative pose's Jacobians times
+/// the bodies' loadings). Each output row is one pass over the columns with A's column count
+/// fixed: one load and store of out per element (an axpy per coefficient of A would load and
+/// store each output row A.cols() times).
+template <typename MatA, typename MatL, typename MatOut>
+void add_loadings_product(const MatA& A, const MatL& L, MatOut&& out) {
+  static_assert(MatA::ColsAtCompileTime > 0, "add_loadings_product: A's columns must be fixed");
+  detail::add_loadings_rows(A, L, out, std::make_integer_sequence<int, MatA::ColsAtCompileTime>{});
+}
+
 /// One camera's observation of a triangulated point: its loadings on the calibration factors,
 /// dp/dtheta F with dp/dtheta = -K dproj/dtheta (K = dp/d(pixel), the triangulation's gain; J
 /// its projection Jacobians), added over the camera's intrinsic and extrinsic columns. With
