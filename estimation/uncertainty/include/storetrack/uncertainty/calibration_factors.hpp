@@ -145,7 +145,7 @@ template <typename MatA, typename MatL, typename MatOut, int... k>
 void add_loadings_rows(const MatA& A, const MatL& L, MatOut& out,
                        std::integer_sequence<int, k...>) {
   for (Eigen::Index r = 0; r < A.rows(); ++r)
-    out.row(r) += ((A(r, k) * L.row(k)) + ...);
+    out.row(r) += (... + (A(r, k) * L.row(k)));
 }
 }  // namespace detail
 
