@@ -203,13 +203,6 @@ void MarkMatcher::load_exposure(Work& w, std::span<const msg::MarkObservations> 
       ob.span_index = e;
       ob.mark_index = j;
       ob.raw = Vec2(mk.x_px, mk.y_px);
-      // 1e-4 px: 40x below the wire quantisation step (1/256 px), fewer iterations than 1e-6.
-      const auto xy = cal.model.unproject(ob.raw, 1e-4, 30);
-      if (!xy) {
-        ++w.counts.undistort_failed;
-        continue;
-      }
-      ob.xy = *xy;
       ob.sigma = std::sqrt(sigma * sigma + q2);
       cam.obs.push_back(static_cast<int>(w.obs.size()));
       w.obs.push_back(ob);
@@ -233,7 +226,9 @@ void MarkMatcher::start_exposure_state(Work& w) const {
   w.ambiguous_cams.assign(marks_.size(), 0);
   w.cal_cache.resize(marks_.size() * rig_.cameras.size());
   w.dirty.assign(marks_.size(), false);
-  w.tri.assign(marks_.size(), {});
+  w.tri.resize(marks_.size());
+  for (Work::Tri& tri : w.tri)
+    tri.reject();  // its estimate keeps its storage: read only when valid
   w.motion.assign(marks_.size(), {});
   w.fitted.assign(bodies_.size(), false);
   w.T_w_b.assign(bodies_.size(), Transform::Identity());
@@ -253,8 +248,23 @@ void MarkMatcher::mark_velocities(Work& w, double t_s) const {
   }
 }
 
+void MarkMatcher::reuse_result(Work& w, MatchResult& out) {
+  for (MatchedMark& mm : out.marks)
+    w.spare_marks.push_back(std::move(mm));
+  MatchResult next;
+  next.marks = std::move(out.marks);
+  next.marks.clear();
+  next.ids = std::move(out.ids);  // load_exposure assigns every list
+  next.T_w_b = std::move(out.T_w_b);
+  next.cov_b = std::move(out.cov_b);
+  next.fitted = std::move(out.fitted);
+  next.reacquired = std::move(out.reacquired);
+  out = std::move(next);
+}
+
 double MarkMatcher::begin_exposure(Work& w, std::span<const msg::MarkObservations> cameras,
                                    MatchResult& out) {
+  reuse_result(w, out);
   load_exposure(w, cameras, out);
   start_exposure_state(w);
   const double t_s = static_cast<double>(out.reference_mid_tai_ns - time_origin_ns_) * 1e-9;
@@ -266,8 +276,13 @@ double MarkMatcher::begin_exposure(Work& w, std::span<const msg::MarkObservation
 }
 
 MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
-  Work& w = *work_.work;  // buffers reused across exposures (no per-call reallocation)
   MatchResult out;
+  match(cameras, out);
+  return out;
+}
+
+void MarkMatcher::match(std::span<const msg::MarkObservations> cameras, MatchResult& out) {
+  Work& w = *work_.work;  // buffers reused across exposures (no per-call reallocation)
   const double t_s = begin_exposure(w, cameras, out);
 
   if (out.has_reference_time) {
@@ -341,7 +356,6 @@ MatchResult MarkMatcher::match(std::span<const msg::MarkObservations> cameras) {
     next_search_s_[b] = t_s + config_.reacquisition_retry_s * static_cast<double>(1 << doublings);
   }
   accumulate(w.counts);
-  return out;
 }
 
 MatchResult MarkMatcher::estimate_identified(std::span<const msg::MarkObservations> cameras,
@@ -445,25 +459,30 @@ void MarkMatcher::finish_exposure(Work& w, double t_s, MatchResult& out) {
   auto add_mark = [&](int id, int body, PredictionSource source, std::vector<int>& as,
                       const Work::Tri& tri, const Work::Motion& motion) {
     std::sort(as.begin(), as.end());  // camera order (the estimate's views are in it already)
-    MatchedMark mm;
+    MatchedMark& mm = out.marks.emplace_back();
+    if (!w.spare_marks.empty()) {
+      mm = std::move(w.spare_marks.back());  // every field is set below
+      w.spare_marks.pop_back();
+    }
     mm.id = id;
     mm.body = body;
     mm.source = source;
-    mm.observations.reserve(as.size());
+    mm.observations.clear();
     for (int o : as) {
       const auto& ob = w.obs[o];
       const auto& cal = rig_.cameras[ob.slot];
-      mm.observations.push_back({cal.camera_id, ob.span_index, ob.mark_index, ob.raw,
-                                 cal.model.ideal_pixel(ob.xy), ob.xy, ob.sigma, ob.W,
-                                 w.cams[ob.cam].dt_s});
+      mm.observations.push_back(
+          {cal.camera_id, ob.span_index, ob.mark_index, ob.raw, ob.sigma, ob.W, w.cams[ob.cam].dt_s});
       out.ids[ob.span_index][ob.mark_index] = id;
     }
     mm.triangulated = tri.valid;
-    if (tri.valid) mm.estimate = tri.estimate;
+    if (tri.valid)
+      mm.estimate = tri.estimate;  // copied into the storage kept
+    else
+      mm.estimate = {};
     mm.velocity_w = motion.v_w;
     mm.velocity_valid = motion.valid;
     mm.motion_corrected = motion.valid;
-    out.marks.push_back(std::move(mm));
     out.identified += static_cast<int>(as.size());
   };
   for (size_t m = 0; m < marks_.size(); ++m) {

@@ -79,6 +79,7 @@ struct LayoutHypothesis {
 };
 
 enum class ObsState : std::uint8_t { kUnassigned, kAssigned, kAmbiguous, kUngated };
+enum class Undistortion : std::uint8_t { kNotYet, kDone, kFailed };
 
 /// Per-exposure working state.
 struct MarkMatcher::Work {
@@ -87,7 +88,11 @@ struct MarkMatcher::Work {
     int cam = -1;         ///< index into Work::cams
     int span_index = -1;  ///< index in the caller's span
     int mark_index = -1;
-    Vec2 raw = Vec2::Zero(), xy = Vec2::Zero();
+    Vec2 raw = Vec2::Zero();
+    /// Normalised image point, valid when undistortion is kDone: only the re-acquisition
+    /// search's rays need it (MarkMatcher::undistort).
+    Vec2 xy = Vec2::Zero();
+    Undistortion undistortion = Undistortion::kNotYet;
     double sigma = 0;
     Mat2 S_cal = Mat2::Zero();  ///< calibration pixel covariance at the mark (when assigned)
     Mat2 W = Mat2::Identity();  ///< (S_cal + sigma^2 I)^-1 (when assigned)
@@ -171,6 +176,8 @@ struct MarkMatcher::Work {
   std::vector<Tri> tri;        ///< per mark
   std::vector<Motion> motion;  ///< per mark
   std::vector<OtherMark> others;
+  /// Marks of the previous result, their storage reused by the next (MarkMatcher::reuse_result).
+  std::vector<MatchedMark> spare_marks;
   std::vector<triangulate::Observation> tri_views;  ///< triangulation scratch
   triangulate::Result tri_result;
   std::vector<Vec3> layout_q_b, layout_p_w;  ///< layout fit scratch
@@ -211,7 +218,7 @@ struct MarkMatcher::Work {
       obs[o].mark = -1;
     }
     assigned[m].clear();
-    tri[m] = {};
+    tri[m].reject();
   }
 };
 

@@ -310,12 +310,14 @@ void ExposureProcessor::reset_tracking() {
 
 ExposureResult ExposureProcessor::process(const AlignedExposure& exposure) {
   ExposureResult out;
-  process_into_new(exposure, matcher_.match(exposure.cameras), out);
+  matcher_.match(exposure.cameras, matched_);
+  process_into_new(exposure, matched_, out);
   return out;
 }
 
 void ExposureProcessor::process(const AlignedExposure& exposure, ExposureResult& out) {
-  process(exposure, matcher_.match(exposure.cameras), out);
+  matcher_.match(exposure.cameras, matched_);
+  process(exposure, matched_, out);
 }
 
 match::MatchResult ExposureProcessor::identify(const AlignedExposure& exposure,

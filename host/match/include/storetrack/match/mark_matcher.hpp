@@ -149,8 +149,6 @@ struct MatchedObservation {
   int camera_index = -1;                           ///< index in the span passed to match()
   int mark_index = -1;                             ///< index in that MarkObservations' marks[]
   geometry::Vec2 raw_px = geometry::Vec2::Zero();  ///< as received
-  geometry::Vec2 undistorted_px = geometry::Vec2::Zero();  ///< ideal pinhole pixel
-  geometry::Vec2 xy = geometry::Vec2::Zero();              ///< normalised image point (Z = 1)
   double sigma_px = 0;  ///< per-axis standard uncertainty used (incl. quantisation) [px]
   /// Weight of the view in the triangulation: (sigma_px^2 I + calibration pixel covariance at
   /// the mark)^-1 [px^-2].
@@ -213,7 +211,9 @@ struct MatchCounters {
   std::uint64_t bad_observation = 0;        ///< non-finite pixel, mark_count out of range
   std::uint64_t fallback_sigma = 0;         ///< sigma_px unusable: fallback_sigma_px used
   std::uint64_t rejected_by_flags = 0;      ///< observation flags in rejected_mark_flags
-  std::uint64_t undistort_failed = 0;       ///< unproject did not converge
+  /// unproject did not converge for an observation the re-acquisition search needed (tracking
+  /// compares projections with raw pixels and undistorts nothing); left out of that search
+  std::uint64_t undistort_failed = 0;
   std::uint64_t unmatched = 0;              ///< observation inside no gate
   std::uint64_t ambiguous_observation = 0;  ///< observation inside >= 2 marks' gates
   std::uint64_t ambiguous_mark = 0;         ///< >= 2 observations inside one mark's gate (camera)
@@ -263,6 +263,10 @@ class MarkMatcher {
   /// Identifies the marks of one exposure (all cameras that delivered it, any order, missing
   /// cameras simply absent), triangulates them and updates the tracks.
   MatchResult match(std::span<const msg::MarkObservations> cameras);
+  /// The same into `out`, whose storage (its marks with their observations and estimates, its
+  /// id lists) is reused: the host loop's and the replay's path, which then allocates nothing
+  /// per exposure once the exposures' sizes have been seen. Every field is this exposure's.
+  void match(std::span<const msg::MarkObservations> cameras, MatchResult& out);
 
   /// The same for marks already identified elsewhere (ids[e][j]: id of cameras[e].marks[j], -1
   /// none; e.g. the simulator's truth): no gates, no multi-view or layout test, no body fit;
@@ -356,6 +360,8 @@ class MarkMatcher {
   /// per-exposure state and, when it has a reference time, predicts every mark and takes its
   /// velocity from its track. Returns the exposure's time t_s since the time origin.
   double begin_exposure(Work& w, std::span<const msg::MarkObservations> cameras, MatchResult& out);
+  /// Resets `out` to a new result, its storage kept (the marks' in Work's spares).
+  static void reuse_result(Work& w, MatchResult& out);
   /// Validates and undistorts one exposure's observations into the Work; the reference time.
   void load_exposure(Work& w, std::span<const msg::MarkObservations> cameras, MatchResult& out);
   void start_exposure_state(Work& w) const;
@@ -371,6 +377,9 @@ class MarkMatcher {
   enum class SearchOutcome : std::uint8_t;
   void reacquire_lost_bodies(Work& w, double t_s) const;
   SearchOutcome search_body(Work& w, int b) const;
+  /// Observation o's normalised image point (Work::Obs::xy), undistorted on first use; false
+  /// (counted once) when the lens model cannot be inverted there.
+  bool undistort(Work& w, int o) const;
   void find_epipolar_pairs(Work& w) const;
   void form_candidates(Work& w) const;
   bool triangulate_free(Work& w, std::span<const int> obs, const geometry::Vec3& initial,

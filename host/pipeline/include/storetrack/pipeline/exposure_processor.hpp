@@ -150,6 +150,7 @@ class ExposureProcessor {
   std::vector<int> slot_of_camera_id_;  ///< camera_id -> index in rig_.cameras, -1 if unknown
 
   match::MarkMatcher matcher_;
+  match::MatchResult matched_;  ///< the last exposure's matches, their storage reused
   PoseTracker tracker_;
   ProcessorCounters counters_;
 };
