@@ -65,6 +65,19 @@ CalibrationFactors::CalibrationFactors(const camera::RigCalibration& rig, double
     factor_per_camera(rig, relative_floor);
   add_sync_factors(rig);
   compute_camera_covariances();
+  find_estimated_intrinsics();
+}
+
+void CalibrationFactors::find_estimated_intrinsics() {
+  for (CameraFactors& cf : cameras_) {
+    cf.num_estimated_intrinsics = 0;
+    cf.estimated_intrinsic_rows.setZero(camera::kNumIntrinsics, cf.intrinsic.cols());
+    for (int k = 0; k < camera::kNumIntrinsics; ++k) {
+      if (cf.intrinsic.cols() == 0 || cf.intrinsic.row(k).isZero(0.0)) continue;
+      cf.estimated_intrinsic_rows.row(cf.num_estimated_intrinsics) = cf.intrinsic.row(k);
+      cf.estimated_intrinsics[static_cast<size_t>(cf.num_estimated_intrinsics++)] = k;
+    }
+  }
 }
 
 void CalibrationFactors::compute_camera_covariances() {
@@ -180,11 +193,21 @@ void CalibrationFactors::add_sync_factors(const camera::RigCalibration& rig) {
 
 namespace {
 
-// B += G F over the parameter group's factor columns (add_loadings_product). When the camera owns
-// the columns (uncoupled factors) B B^T is added to `cov`.
-template <typename Sensitivity, typename Factor, typename Block>
-void add_group_loadings(const Sensitivity& G, const Factor& F, Block B, Eigen::Matrix3d* cov) {
-  add_loadings_product(G, F, B);
+// B += G.leftCols(count) F.topRows(count) with count a run-time number <= K, dispatched to the
+// fixed-size kernel (add_loadings_product) of that many columns.
+template <int K, typename Sensitivity, typename Factor, typename Block>
+void add_leading_product(int count, const Sensitivity& G, const Factor& F, Block& B) {
+  if constexpr (K > 0) {
+    if (count == K)
+      add_loadings_product(G.template leftCols<K>(), F, B);
+    else
+      add_leading_product<K - 1>(count, G, F, B);
+  }
+}
+
+// Adds B B^T to `cov` when the camera owns B's columns (uncoupled factors; cov not null).
+template <typename Block>
+void add_block_covariance(const Block& B, Eigen::Matrix3d* cov) {
   if (cov == nullptr) return;
   for (Eigen::Index r = 0; r < 3; ++r)
     for (Eigen::Index c = r; c < 3; ++c) {
@@ -203,14 +226,21 @@ void add_observation_loadings(const CalibrationFactors& f, int slot,
   const auto& cf = f.camera(slot);
   // B = G F over the camera's column blocks (its own ones when the factors are uncoupled).
   const CameraSensitivity G = point_sensitivity(K, J);
-  if (cf.intrinsic.cols() > 0)
-    add_group_loadings(G.leftCols<camera::kNumIntrinsics>(), cf.intrinsic,
-                       loadings.middleCols(cf.intrinsic_begin, cf.intrinsic.cols()),
-                       f.coupled() ? nullptr : &cov_intrinsic);
-  if (cf.extrinsic.cols() > 0)
-    add_group_loadings(G.rightCols<6>(), cf.extrinsic,
-                       loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols()),
-                       f.coupled() ? nullptr : &cov_extrinsic);
+  if (cf.intrinsic.cols() > 0) {
+    // Over the estimated intrinsics only: the fixed ones' factor rows are zero.
+    Eigen::Matrix<double, 3, camera::kNumIntrinsics> G_estimated;
+    for (int k = 0; k < cf.num_estimated_intrinsics; ++k)
+      G_estimated.col(k) = G.col(cf.estimated_intrinsics[static_cast<size_t>(k)]);
+    auto B = loadings.middleCols(cf.intrinsic_begin, cf.intrinsic.cols());
+    add_leading_product<camera::kNumIntrinsics>(cf.num_estimated_intrinsics, G_estimated,
+                                                cf.estimated_intrinsic_rows, B);
+    add_block_covariance(B, f.coupled() ? nullptr : &cov_intrinsic);
+  }
+  if (cf.extrinsic.cols() > 0) {
+    auto B = loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols());
+    add_loadings_product(G.rightCols<6>(), cf.extrinsic, B);
+    add_block_covariance(B, f.coupled() ? nullptr : &cov_extrinsic);
+  }
 }
 
 }  // namespace storetrack::uncertainty

@@ -15,6 +15,7 @@
 // then one per unit for its clock, shared by the unit's cameras), so each source is a range.
 #pragma once
 
+#include <array>
 #include <utility>
 #include <vector>
 
@@ -47,6 +48,14 @@ class CalibrationFactors {
     /// camera's own columns (uncoupled) or the whole intrinsic range (coupled). Row-major, as
     /// the loadings: B = G F is then evaluated row by row as vectorised sums of F's rows.
     Eigen::Matrix<double, camera::kNumIntrinsics, Eigen::Dynamic, Eigen::RowMajor> intrinsic;
+    /// The packed intrinsics whose rows of `intrinsic` are not all zero (those the calibration
+    /// estimated: a fixed parameter, the skew or an unused lens coefficient, has a zero row),
+    /// ascending, and those rows in that order in `estimated_intrinsic_rows`: a mark's loadings
+    /// skip the zero rows (5 of 13 for a rational Brown model without skew, k3..k6).
+    std::array<int, camera::kNumIntrinsics> estimated_intrinsics{};
+    int num_estimated_intrinsics = 0;
+    Eigen::Matrix<double, camera::kNumIntrinsics, Eigen::Dynamic, Eigen::RowMajor>
+        estimated_intrinsic_rows;
     int extrinsic_begin = 0;
     /// d(left perturbation of T_c_w)/dz (6 x cols) from extrinsic_begin; coupled with
     /// intrinsic-extrinsic correlation it starts at the intrinsic range.
@@ -98,6 +107,7 @@ class CalibrationFactors {
   void factor_jointly(const camera::RigCalibration& rig, double relative_floor);
   void add_sync_factors(const camera::RigCalibration& rig);
   void compute_camera_covariances();
+  void find_estimated_intrinsics();
 };
 
 /// The calibration's covariance of one camera's pixel of a point, J Sigma_c J^T with J = [d
