@@ -471,8 +471,8 @@ void MarkMatcher::finish_exposure(Work& w, double t_s, MatchResult& out) {
     for (int o : as) {
       const auto& ob = w.obs[o];
       const auto& cal = rig_.cameras[ob.slot];
-      mm.observations.push_back(
-          {cal.camera_id, ob.span_index, ob.mark_index, ob.raw, ob.sigma, ob.W, w.cams[ob.cam].dt_s});
+      mm.observations.push_back({cal.camera_id, ob.span_index, ob.mark_index, ob.raw, ob.sigma,
+                                 ob.W, w.cams[ob.cam].dt_s});
       out.ids[ob.span_index][ob.mark_index] = id;
     }
     mm.triangulated = tri.valid;

@@ -205,12 +205,12 @@ struct MatchResult {
 
 struct MatchCounters {
   std::uint64_t exposures = 0;
-  std::uint64_t observations = 0;           ///< usable observations seen
-  std::uint64_t identified = 0;             ///< observations given an id
-  std::uint64_t unknown_camera = 0;         ///< camera_id not in the rig (whole camera ignored)
-  std::uint64_t bad_observation = 0;        ///< non-finite pixel, mark_count out of range
-  std::uint64_t fallback_sigma = 0;         ///< sigma_px unusable: fallback_sigma_px used
-  std::uint64_t rejected_by_flags = 0;      ///< observation flags in rejected_mark_flags
+  std::uint64_t observations = 0;       ///< usable observations seen
+  std::uint64_t identified = 0;         ///< observations given an id
+  std::uint64_t unknown_camera = 0;     ///< camera_id not in the rig (whole camera ignored)
+  std::uint64_t bad_observation = 0;    ///< non-finite pixel, mark_count out of range
+  std::uint64_t fallback_sigma = 0;     ///< sigma_px unusable: fallback_sigma_px used
+  std::uint64_t rejected_by_flags = 0;  ///< observation flags in rejected_mark_flags
   /// unproject did not converge for an observation the re-acquisition search needed (tracking
   /// compares projections with raw pixels and undistorts nothing); left out of that search
   std::uint64_t undistort_failed = 0;
