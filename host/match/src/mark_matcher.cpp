@@ -456,8 +456,9 @@ bool MarkMatcher::triangulate_identified(Work& w, int m, std::span<const int> ob
 }
 
 void MarkMatcher::finish_exposure(Work& w, double t_s, MatchResult& out) {
+  // Hands each accepted estimate over to the result (swapped: the storage stays in use).
   auto add_mark = [&](int id, int body, PredictionSource source, std::vector<int>& as,
-                      const Work::Tri& tri, const Work::Motion& motion) {
+                      Work::Tri& tri, const Work::Motion& motion) {
     std::sort(as.begin(), as.end());  // camera order (the estimate's views are in it already)
     MatchedMark& mm = out.marks.emplace_back();
     if (!w.spare_marks.empty()) {
@@ -477,7 +478,7 @@ void MarkMatcher::finish_exposure(Work& w, double t_s, MatchResult& out) {
     }
     mm.triangulated = tri.valid;
     if (tri.valid)
-      mm.estimate = tri.estimate;  // copied into the storage kept
+      std::swap(mm.estimate, tri.estimate);
     else
       mm.estimate = {};
     mm.velocity_w = motion.v_w;

@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <span>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -117,15 +118,17 @@ struct MarkMatcher::Work {
     Vec3 p = Vec3::Zero();
     Mat3 cov = Mat3::Zero();  ///< estimate.cov_weighted (gates, layouts, tracks)
     double chi2 = 0;
-    triangulate::Result estimate;  ///< THE estimate (MatchedMark::estimate)
-    /// A triangulation that passed (or needed no) test: the mark's point and estimate. In
-    /// place: the estimate's per-view vectors keep their storage (no allocation per mark).
-    void accept(const triangulate::Result& r) {
+    /// THE estimate (MatchedMark::estimate); handed to the result by finish_exposure.
+    triangulate::Result estimate;
+    /// A triangulation that passed (or needed no) test: the mark's point and estimate. The
+    /// estimate is swapped with `scratch` (the triangulation's result, written anew by the
+    /// next one): neither copies nor allocates.
+    void accept(triangulate::Result& scratch) {
       valid = true;
-      p = r.p_w;
-      cov = r.cov_weighted;
-      chi2 = r.chi2;
-      estimate = r;
+      p = scratch.p_w;
+      cov = scratch.cov_weighted;
+      chi2 = scratch.chi2;
+      std::swap(estimate, scratch);
     }
     /// No estimate (the storage of the last one is kept for the next accept()).
     void reject() {
