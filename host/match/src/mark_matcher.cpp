@@ -480,7 +480,7 @@ void MarkMatcher::finish_exposure(Work& w, double t_s, MatchResult& out) {
     if (tri.valid)
       std::swap(mm.estimate, tri.estimate);
     else
-      mm.estimate = {};
+      mm.estimate.clear();
     mm.velocity_w = motion.v_w;
     mm.velocity_valid = motion.valid;
     mm.motion_corrected = motion.valid;

@@ -61,6 +61,18 @@ struct Result {
   std::vector<geometry::Vec2> residual_px;             ///< observed - predicted
   std::vector<camera::ProjectionJacobians> jacobians;  ///< at the solution
   std::vector<Eigen::Matrix<double, 3, 2>> gain;       ///< dp_w / d(pixel)
+
+  /// As constructed, the per-view vectors emptied with their storage kept (reused results).
+  void clear() {
+    p_w.setZero();
+    cov_weighted.setZero();
+    cov_centroid.setZero();
+    chi2 = 0;
+    iterations = 0;
+    residual_px.clear();
+    jacobians.clear();
+    gain.clear();
+  }
 };
 
 /// Linear (DLT) estimate; nullopt when fewer than 2 usable observations or degenerate rays.
