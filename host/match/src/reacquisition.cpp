@@ -657,8 +657,7 @@ void MarkMatcher::reacquire_lost_bodies(Work& w, double t_s) const {
       fr.clear();
       for (int o : w.cams[c].obs) {
         const auto& ob = w.obs[o];
-        if ((ob.state != ObsState::kAssigned || marks_[ob.mark].body == b) && undistort(w, o))
-          fr.push_back(o);
+        if (ob.state != ObsState::kAssigned || marks_[ob.mark].body == b) fr.push_back(o);
       }
       cams_with += !fr.empty();
       total += static_cast<int>(fr.size());
@@ -668,6 +667,10 @@ void MarkMatcher::reacquire_lost_bodies(Work& w, double t_s) const {
       ++w.counts.reacquisition_deferred;
       continue;
     }
+    // The search forms rays: it needs the normalised points, and leaves out what cannot be
+    // undistorted (undistorted here only, not while the search is deferred).
+    for (auto& fr : w.free_by_cam)
+      std::erase_if(fr, [&](int o) { return !undistort(w, o); });
     ++w.counts.reacquisition_attempted;
     const SearchOutcome outcome = search_body(w, b);
     w.search_refused[b] = outcome != SearchOutcome::kAccepted;

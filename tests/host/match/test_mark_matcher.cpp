@@ -570,6 +570,112 @@ TEST(MarkMatcher, DuplicateMarkIdsRejected) {
   EXPECT_THROW(MarkMatcher(camera::RigCalibration{}, {a, b}), std::invalid_argument);
 }
 
+void expect_same_estimate(const triangulate::Result& a, const triangulate::Result& b) {
+  EXPECT_TRUE(a.p_w == b.p_w);
+  EXPECT_TRUE(a.cov_weighted == b.cov_weighted);
+  EXPECT_TRUE(a.cov_centroid == b.cov_centroid);
+  EXPECT_EQ(a.chi2, b.chi2);
+  EXPECT_EQ(a.iterations, b.iterations);
+  ASSERT_EQ(a.residual_px.size(), b.residual_px.size());
+  ASSERT_EQ(a.jacobians.size(), b.jacobians.size());
+  ASSERT_EQ(a.gain.size(), b.gain.size());
+  for (size_t i = 0; i < a.residual_px.size(); ++i) {
+    EXPECT_TRUE(a.residual_px[i] == b.residual_px[i]);
+    EXPECT_TRUE(a.jacobians[i].d_point_cam == b.jacobians[i].d_point_cam);
+    EXPECT_TRUE(a.jacobians[i].d_point_world == b.jacobians[i].d_point_world);
+    EXPECT_TRUE(a.jacobians[i].d_pose == b.jacobians[i].d_pose);
+    EXPECT_TRUE(a.jacobians[i].d_intrinsics == b.jacobians[i].d_intrinsics);
+    EXPECT_TRUE(a.gain[i] == b.gain[i]);
+  }
+}
+
+/// Every field of `reused` equals `expected`'s, exactly.
+void expect_same_result(const MatchResult& expected, const MatchResult& reused) {
+  EXPECT_EQ(reused.reference_mid_tai_ns, expected.reference_mid_tai_ns);
+  EXPECT_EQ(reused.has_reference_time, expected.has_reference_time);
+  EXPECT_EQ(reused.ids, expected.ids);
+  EXPECT_EQ(reused.observations, expected.observations);
+  EXPECT_EQ(reused.identified, expected.identified);
+  EXPECT_EQ(reused.ambiguous, expected.ambiguous);
+  EXPECT_EQ(reused.acquired_from_prior, expected.acquired_from_prior);
+  EXPECT_EQ(reused.fitted, expected.fitted);
+  EXPECT_EQ(reused.reacquired, expected.reacquired);
+  ASSERT_EQ(reused.T_w_b.size(), expected.T_w_b.size());
+  ASSERT_EQ(reused.cov_b.size(), expected.cov_b.size());
+  for (size_t b = 0; b < expected.T_w_b.size(); ++b) {
+    EXPECT_TRUE(reused.T_w_b[b].matrix() == expected.T_w_b[b].matrix());
+    EXPECT_TRUE(reused.cov_b[b] == expected.cov_b[b]);
+  }
+  ASSERT_EQ(reused.marks.size(), expected.marks.size());
+  for (size_t i = 0; i < expected.marks.size(); ++i) {
+    const MatchedMark &e = expected.marks[i], &r = reused.marks[i];
+    SCOPED_TRACE("mark " + std::to_string(e.id));
+    EXPECT_EQ(r.id, e.id);
+    EXPECT_EQ(r.body, e.body);
+    EXPECT_EQ(r.source, e.source);
+    ASSERT_EQ(r.observations.size(), e.observations.size());
+    for (size_t k = 0; k < e.observations.size(); ++k) {
+      const MatchedObservation &eo = e.observations[k], &ro = r.observations[k];
+      EXPECT_EQ(ro.camera_id, eo.camera_id);
+      EXPECT_EQ(ro.camera_index, eo.camera_index);
+      EXPECT_EQ(ro.mark_index, eo.mark_index);
+      EXPECT_TRUE(ro.raw_px == eo.raw_px);
+      EXPECT_EQ(ro.sigma_px, eo.sigma_px);
+      EXPECT_TRUE(ro.information_px == eo.information_px);
+      EXPECT_EQ(ro.time_offset_s, eo.time_offset_s);
+    }
+    EXPECT_EQ(r.triangulated, e.triangulated);
+    expect_same_estimate(e.estimate, r.estimate);
+    EXPECT_TRUE(r.velocity_w == e.velocity_w);
+    EXPECT_EQ(r.velocity_valid, e.velocity_valid);
+    EXPECT_EQ(r.motion_corrected, e.motion_corrected);
+  }
+}
+
+// match(cameras, out) keeps out's storage from one exposure to the next (the host's and the
+// replay's path): every field must still be this exposure's, as in a new result. Two copies of
+// one matcher see the same 120 exposures, one camera missing in turn (none every 5th) and a
+// random third of the marks dropped, so that results shrink and grow and some marks go
+// untriangulated (the estimate a reused mark must clear); one returns new results, the other
+// fills one result over and over.
+TEST(MarkMatcher, ReusedResultEqualsANewOne) {
+  Scene s = make_setup("store_separation", 29, 0.005, 0.01);
+  MarkMatcher fresh = *s.matcher;  // the same priors; its own work buffers
+  MarkMatcher& reusing = *s.matcher;
+  MatchResult reused;
+  std::mt19937_64 rng(29);
+  std::uniform_real_distribution<double> u(0, 1);
+  const int cameras = s.sim->num_cameras();
+  int untriangulated = 0;
+  size_t fewest = 1000, most = 0;
+  for (int k = 0; k < 120; ++k) {
+    SCOPED_TRACE("exposure " + std::to_string(k));
+    std::vector<msg::MarkObservations> obs;
+    for (int c = 0; c < cameras; ++c) {
+      if (c == k % (cameras + 1)) continue;
+      const msg::MarkObservations& all = recorded(*s.sim, k).obs[c];
+      msg::MarkObservations kept = all;
+      kept.mark_count = 0;
+      for (int j = 0; j < all.mark_count; ++j)
+        if (u(rng) >= 1.0 / 3) kept.marks[kept.mark_count++] = all.marks[j];
+      obs.push_back(kept);
+    }
+    const MatchResult expected = fresh.match(obs);
+    reusing.match(obs, reused);
+    expect_same_result(expected, reused);
+    for (const MatchedMark& mm : expected.marks)
+      untriangulated += !mm.triangulated;
+    fewest = std::min(fewest, expected.marks.size());
+    most = std::max(most, expected.marks.size());
+  }
+  // The cases the reuse must survive were there: marks without a triangulation, and results
+  // of different sizes.
+  EXPECT_GT(untriangulated, 0);
+  EXPECT_LT(fewest, most);
+  std::printf("reused result: 120 exposures, %zu..%zu marks, %d untriangulated\n", fewest, most,
+              untriangulated);
+}
+
 // ---------------------------------------------------------------------------------------------
 // Re-acquisition without a prior (docs/matching.md, step 6).
 
@@ -852,6 +958,46 @@ TEST(MarkMatcherReacquisition, HostStartedMidSeparation) {
   EXPECT_GE(t.rate(), 0.95);
   EXPECT_GE(matcher.counters().reacquisition_accepted, 1u);
   expect_pose_coverage(t);
+}
+
+// Tracking compares projections with raw pixels and undistorts nothing; the re-acquisition
+// search forms rays and needs the normalised points. An observation the lens model cannot invert
+// (1e12 px out: Newton's 30 iterations from there do not reach the pre-image) is counted in
+// undistort_failed, once, only where that search ran, and is merely unmatched while tracking.
+TEST(MarkMatcherReacquisition, UndistortionOnlyWhereTheSearchNeedsIt) {
+  const sim::Simulator& sim = shared_simulator("store_separation");
+  const geometry::Vec2 wild(1.0e12, -1.0e12);
+  ASSERT_FALSE(sim.calibrated_rig().cameras[0].model.unproject(wild, 1e-4, 30))
+      << "the test needs a pixel the lens model cannot invert";
+  auto with_wild_pixel = [&](int k) {
+    std::vector<msg::MarkObservations> obs = recorded(sim, k).obs;
+    msg::MarkObservation extra = obs[0].marks[0];
+    extra.x_px = static_cast<float>(wild.x());
+    extra.y_px = static_cast<float>(wild.y());
+    obs[0].marks[obs[0].mark_count++] = extra;
+    return obs;
+  };
+  {
+    // Tracked from priors at the truth: no search, nothing undistorted.
+    Scene s = make_setup("store_separation", 31, 0.005, 0.01);
+    const auto obs = with_wild_pixel(0);
+    const MatchResult r = s.matcher->match(obs);
+    EXPECT_EQ(r.ids[0][obs[0].mark_count - 1], -1);
+    EXPECT_EQ(s.matcher->counters().reacquisition_attempted, 0u);
+    EXPECT_EQ(s.matcher->counters().undistort_failed, 0u);
+    EXPECT_GE(s.matcher->counters().unmatched, 1u);
+  }
+  {
+    // Started mid-separation from the installation priors: the store is searched for.
+    MarkMatcher matcher(sim.calibrated_rig(), {sim.pylon_survey(), sim.store_survey()});
+    set_installation_priors(sim, matcher);
+    ASSERT_TRUE(matcher.set_region("store", separation_region(sim)));
+    const auto obs = with_wild_pixel(150);
+    const MatchResult r = matcher.match(obs);
+    EXPECT_EQ(r.ids[0][obs[0].mark_count - 1], -1);
+    EXPECT_GE(matcher.counters().reacquisition_attempted, 1u);
+    EXPECT_EQ(matcher.counters().undistort_failed, 1u);
+  }
 }
 
 /// The identical store on the other pylon: 0.7 m to the side of ours (world y).
