@@ -362,7 +362,7 @@ class MarkMatcher {
   double begin_exposure(Work& w, std::span<const msg::MarkObservations> cameras, MatchResult& out);
   /// Resets `out` to a new result, its storage kept (the marks' in Work's spares).
   static void reuse_result(Work& w, MatchResult& out);
-  /// Validates and undistorts one exposure's observations into the Work; the reference time.
+  /// Validates one exposure's observations into the Work (raw pixels); the reference time.
   void load_exposure(Work& w, std::span<const msg::MarkObservations> cameras, MatchResult& out);
   void start_exposure_state(Work& w) const;
   /// Per-mark velocities from the tracks (before triangulation).
