@@ -56,60 +56,84 @@ Eigen::Matrix<double, 3, 2> weighted_transpose(const Observation& obs,
   return J.transpose() / (obs.sigma_px * obs.sigma_px);
 }
 
+/// Linearisation at X: H = sum J^T W J and g = sum J^T W r. `full` also fills out's residuals,
+/// Jacobians (with the calibration's where options ask) and gains (J^T W for now).
+bool linearise(std::span<const Observation> observations, const Options& options, const Vec3& X,
+               bool full, Mat3& H, Vec3& g, Result& out) {
+  H.setZero();
+  g.setZero();
+  if (full) {
+    out.residual_px.resize(observations.size());
+    out.jacobians.resize(observations.size());
+    out.gain.resize(observations.size());
+  }
+  for (size_t i = 0; i < observations.size(); ++i) {
+    const Observation& obs = observations[i];
+    std::optional<Vec2> u;
+    Eigen::Matrix<double, 2, 3> J;
+    if (!full) {
+      Eigen::Matrix<double, 2, 3> J_cam;
+      u = obs.model->project(obs.T_c_w * (X + obs.displacement_w), &J_cam);
+      J = J_cam * obs.T_c_w.linear();
+    } else if (options.calibration_jacobians) {
+      u = obs.model->project_world(obs.T_c_w, X + obs.displacement_w, &out.jacobians[i]);
+      J = out.jacobians[i].d_point_world;
+    } else {
+      u = obs.model->project(obs.T_c_w * (X + obs.displacement_w), &out.jacobians[i].d_point_cam);
+      out.jacobians[i].d_point_world = out.jacobians[i].d_point_cam * obs.T_c_w.linear();
+      J = out.jacobians[i].d_point_world;
+    }
+    if (!u) return false;
+    const Vec2 r = obs.pixel_px - *u;
+    const Eigen::Matrix<double, 3, 2> JtW = weighted_transpose(obs, J);
+    H.noalias() += JtW * J;
+    g.noalias() += JtW * r;
+    if (full) {
+      out.residual_px[i] = r;
+      out.gain[i] = JtW;
+    }
+  }
+  return true;
+}
+
+/// Gauss-Newton from X. The first pass projects only; the later ones linearise fully, since the
+/// pass whose step is below the tolerance is the last: its Jacobians, gains and covariance are
+/// kept (taken one step shorter than step_tolerance_m before the solution: a relative change
+/// of that step over the depth) and its residuals moved by that step to first order (exact to
+/// its square), which saves a projection pass. Converged on the first pass, or out of
+/// iterations, a full pass at the solution follows.
 bool refine(std::span<const Observation> observations, const Options& options, Vec3 X,
             Result& out) {
   const size_t n = observations.size();
-  Mat3 H = Mat3::Zero();
+  Mat3 H, H_inv;
+  Vec3 g;
+  bool full = false, converged = false;
   int it = 0;
-  for (; it < options.max_iterations; ++it) {
-    H.setZero();
-    Vec3 g = Vec3::Zero();
-    for (const Observation& obs : observations) {
-      const Mat3 R = obs.T_c_w.linear();
-      const Vec3 p_cam = obs.T_c_w * (X + obs.displacement_w);
-      Eigen::Matrix<double, 2, 3> J_cam;
-      const auto u = obs.model->project(p_cam, &J_cam);
-      if (!u) return false;
-      const Eigen::Matrix<double, 2, 3> J = J_cam * R;
-      const Eigen::Matrix<double, 3, 2> JtW = weighted_transpose(obs, J);
-      H.noalias() += JtW * J;
-      g.noalias() += JtW * (obs.pixel_px - *u);
-    }
+  for (; it < options.max_iterations && !converged; ++it) {
+    full = it > 0;
+    if (!linearise(observations, options, X, full, H, g, out)) return false;
     // H is symmetric positive definite unless the rays are degenerate (then this fails).
-    Mat3 H_inv;
     if (!uncertainty::inverse_spd<3>(H, H_inv)) return false;
     const Vec3 step = H_inv * g;
     if (!step.allFinite()) return false;
     X += step;
-    if (step.norm() < options.step_tolerance_m) {
-      ++it;
-      break;
-    }
+    converged = step.norm() < options.step_tolerance_m;
+    if (converged && full)
+      for (size_t i = 0; i < n; ++i)
+        out.residual_px[i] -= out.jacobians[i].d_point_world * step;
   }
-  // Final linearisation at the solution: residuals, full Jacobians, covariance and gains.
-  out.residual_px.resize(n);
-  out.jacobians.resize(n);
-  out.gain.resize(n);
-  H.setZero();
+  if (!(converged && full)) {
+    if (!linearise(observations, options, X, true, H, g, out)) return false;
+    if (!uncertainty::inverse_spd<3>(H, H_inv)) return false;
+  }
   out.chi2 = 0;
   for (size_t i = 0; i < n; ++i) {
-    const Observation& obs = observations[i];
-    std::optional<Vec2> u;
-    if (options.calibration_jacobians) {
-      u = obs.model->project_world(obs.T_c_w, X + obs.displacement_w, &out.jacobians[i]);
-    } else {
-      u = obs.model->project(obs.T_c_w * (X + obs.displacement_w), &out.jacobians[i].d_point_cam);
-      out.jacobians[i].d_point_world = out.jacobians[i].d_point_cam * obs.T_c_w.linear();
-    }
-    if (!u) return false;
-    out.residual_px[i] = obs.pixel_px - *u;
-    out.gain[i] = weighted_transpose(obs, out.jacobians[i].d_point_world);  // J^T W for now
-    out.chi2 += obs.information_px
-                    ? out.residual_px[i].dot(*obs.information_px * out.residual_px[i])
-                    : out.residual_px[i].squaredNorm() / (obs.sigma_px * obs.sigma_px);
-    H.noalias() += out.gain[i] * out.jacobians[i].d_point_world;
+    const Vec2& r = out.residual_px[i];
+    const auto& info = observations[i].information_px;
+    out.chi2 += info ? r.dot(*info * r)
+                     : r.squaredNorm() / (observations[i].sigma_px * observations[i].sigma_px);
   }
-  if (!uncertainty::inverse_spd<3>(H, out.cov_weighted)) return false;
+  out.cov_weighted = H_inv;
   bool sigma_weights = true;
   for (size_t i = 0; i < n; ++i) {
     out.gain[i] = out.cov_weighted * out.gain[i];

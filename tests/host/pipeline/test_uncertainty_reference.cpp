@@ -127,8 +127,12 @@ TEST(UncertaintyReference, FastPathMatchesDenseReference) {
           ref.d_theta.col(b + kPerCamera - 1) = -tri.gain[i] * (J.d_point_world * m.velocity_w);
       }
       EXPECT_LT((ref.p_w - m.p_w).norm(), 1e-9) << "mark " << m.id;
+      // The host's Gauss-Newton keeps the Jacobians of its last pass, one step shorter than its
+      // tolerance (match::estimator_options: 10 um) before the solution: a relative change of
+      // that step over the depth, < 1e-7 here (quadratic convergence leaves the last step far
+      // below the tolerance); the reference is triangulated again from the linear start.
       EXPECT_LT(relative_difference(m.cov_by_source[idx(Source::kCentroid)], ref.cov_centroid),
-                1e-9);
+                1e-6);
       Mat3 total = ref.cov_centroid;
       for (Source s : {Source::kIntrinsic, Source::kExtrinsic, Source::kSync}) {
         const Mat3 c = ref.d_theta * Sigma[idx(s)] * ref.d_theta.transpose();

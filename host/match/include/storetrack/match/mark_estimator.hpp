@@ -32,13 +32,15 @@ inline triangulate::Observation estimator_view(const camera::CalibratedCamera& c
 }
 
 /// The estimator's options, started at `initial_p_w` (the mark's prediction; in a draw, the
-/// nominal estimate). Gauss-Newton converges quadratically from inside the gate (2-4
-/// iterations); 0.1 um is far below any mark's sigma (>= 50 um), so the estimate does not depend
-/// on where it started.
+/// nominal estimate). Gauss-Newton converges quadratically from inside the gate: after a step
+/// shorter than 10 um the remaining error is of the order of its square over the depth
+/// (~1e-10 m at 1 m), far below any mark's sigma (>= 50 um), so the estimate does not depend on
+/// where it started; the last pass's Jacobians are 10 um from the solution (a relative change of
+/// ~1e-5 in the covariance and gains).
 inline triangulate::Options estimator_options(const geometry::Vec3& initial_p_w) {
   triangulate::Options options;
   options.initial_p_w = initial_p_w;
-  options.step_tolerance_m = 1e-7;
+  options.step_tolerance_m = 1e-5;
   return options;
 }
 
