@@ -69,14 +69,30 @@ CalibrationFactors::CalibrationFactors(const camera::RigCalibration& rig, double
 }
 
 void CalibrationFactors::find_estimated_intrinsics() {
-  for (CameraFactors& cf : cameras_) {
+  estimated_covariances_.assign(cameras_.size(), {});
+  for (size_t c = 0; c < cameras_.size(); ++c) {
+    CameraFactors& cf = cameras_[c];
     cf.num_estimated_intrinsics = 0;
     cf.estimated_intrinsic_rows.setZero(camera::kNumIntrinsics, cf.intrinsic.cols());
-    for (int k = 0; k < camera::kNumIntrinsics; ++k) {
-      if (cf.intrinsic.cols() == 0 || cf.intrinsic.row(k).isZero(0.0)) continue;
-      cf.estimated_intrinsic_rows.row(cf.num_estimated_intrinsics) = cf.intrinsic.row(k);
-      cf.estimated_intrinsics[static_cast<size_t>(cf.num_estimated_intrinsics++)] = k;
-    }
+    if (cf.intrinsic.cols() > 0)
+      for (int k = 0; k < camera::kNumIntrinsics; ++k) {
+        if (cf.intrinsic.row(k).isZero(0.0)) continue;
+        cf.estimated_intrinsic_rows.row(cf.num_estimated_intrinsics) = cf.intrinsic.row(k);
+        cf.estimated_intrinsics[static_cast<size_t>(cf.num_estimated_intrinsics++)] = k;
+      }
+    // A zero factor row is a zero row and column of F_c F_c^T.
+    EstimatedCovariance& e = estimated_covariances_[c];
+    e.count = 0;
+    for (int k = 0; k < cf.num_estimated_intrinsics; ++k)
+      e.parameters[static_cast<size_t>(e.count++)] =
+          cf.estimated_intrinsics[static_cast<size_t>(k)];
+    for (int k = 0; k < 6; ++k)
+      e.parameters[static_cast<size_t>(e.count++)] = camera::kNumIntrinsics + k;
+    e.covariance.resize(e.count, e.count);
+    for (int a = 0; a < e.count; ++a)
+      for (int b = 0; b < e.count; ++b)
+        e.covariance(a, b) = camera_covariances_[c](e.parameters[static_cast<size_t>(a)],
+                                                    e.parameters[static_cast<size_t>(b)]);
   }
 }
 

@@ -88,6 +88,19 @@ class CalibrationFactors {
   const CameraCovariance& camera_covariance(int slot) const {
     return camera_covariances_[static_cast<size_t>(slot)];
   }
+  /// The rows and columns of camera_covariance(slot) that are not all zero: the estimated
+  /// intrinsics (CameraFactors::estimated_intrinsics), then the 6 pose parameters; their
+  /// indices in the joint layout and that covariance block (a pixel covariance skips the rest).
+  struct EstimatedCovariance {
+    std::array<int, camera::kJointBlockSize> parameters{};
+    int count = 0;
+    Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, camera::kJointBlockSize,
+                  camera::kJointBlockSize>
+        covariance;
+  };
+  const EstimatedCovariance& estimated_covariance(int slot) const {
+    return estimated_covariances_[static_cast<size_t>(slot)];
+  }
   /// True when the camera's intrinsic and extrinsic errors are correlated (a joint covariance
   /// with that cross term).
   bool intrinsic_extrinsic_correlated(int slot) const {
@@ -99,6 +112,7 @@ class CalibrationFactors {
  private:
   std::vector<CameraFactors> cameras_;
   std::vector<CameraCovariance> camera_covariances_;
+  std::vector<EstimatedCovariance> estimated_covariances_;
   std::array<std::pair<int, int>, kNumSources> ranges_{};
   int num_factors_ = 0;
   bool coupled_ = false;
@@ -113,14 +127,37 @@ class CalibrationFactors {
 /// The calibration's covariance of one camera's pixel of a point, J Sigma_c J^T with J = [d
 /// pixel / d intrinsics, d pixel / d pose] and Sigma_c = f.camera_covariance(slot) (cross term
 /// included). The one implementation: the matcher's gates and the processor's resection weights.
+namespace detail {
+// J_e C_e J_e^T with N = e.count estimated parameters, fixed-size (dispatched on N from the
+// joint block size down): a run-time sized product costs more than the arithmetic it skips.
+template <int N>
+Eigen::Matrix2d estimated_pixel_covariance(const CalibrationFactors::EstimatedCovariance& e,
+                                           const camera::ProjectionJacobians& J) {
+  if constexpr (N > 0) {
+    if (e.count != N) return estimated_pixel_covariance<N - 1>(e, J);
+    Eigen::Matrix<double, 2, N> Jc;
+    for (int k = 0; k < N; ++k) {
+      const int p = e.parameters[static_cast<size_t>(k)];
+      if (p < camera::kNumIntrinsics)
+        Jc.col(k) = J.d_intrinsics.col(p);
+      else
+        Jc.col(k) = J.d_pose.col(p - camera::kNumIntrinsics);
+    }
+    const Eigen::Matrix<double, N, N> C = e.covariance.template topLeftCorner<N, N>();
+    // Coefficient-based (lazy) products: Eigen's blocked GEMM costs more than the arithmetic.
+    const Eigen::Matrix<double, 2, N> JS = Jc.lazyProduct(C);
+    return JS.lazyProduct(Jc.transpose());
+  }
+  return Eigen::Matrix2d::Zero();
+}
+}  // namespace detail
+
 inline Eigen::Matrix2d pixel_covariance(const CalibrationFactors& f, int slot,
                                         const camera::ProjectionJacobians& J) {
-  Eigen::Matrix<double, 2, camera::kJointBlockSize> Jc;
-  Jc << J.d_intrinsics, J.d_pose;
-  // Coefficient-based (lazy) products: Eigen's blocked GEMM costs more than the arithmetic.
-  const Eigen::Matrix<double, 2, camera::kJointBlockSize> JS =
-      Jc.lazyProduct(f.camera_covariance(slot));
-  return JS.lazyProduct(Jc.transpose());
+  // Over the parameters with a non-zero covariance only (the fixed intrinsics' rows and columns
+  // are exactly zero: skipping them leaves every sum as it was).
+  return detail::estimated_pixel_covariance<camera::kJointBlockSize>(f.estimated_covariance(slot),
+                                                                     J);
 }
 
 /// The weight of camera `slot`'s view of world point p_w in the host's triangulation:
