@@ -121,6 +121,15 @@ bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& me
   const Mat6 Ppp = pred.P.topLeftCorner<6, 6>();
   Mat6 Ppp_inv;
   if (!uncertainty::inverse_spd<6>(Ppp, Ppp_inv)) return false;
+  // The triangulated marks' weights do not change between the iterations.
+  std::vector<Mat3> W_point(members.size());
+  for (size_t k = 0; k < members.size(); ++k) {
+    const int m = members[k];
+    if (!w.tri[m].valid) continue;
+    const double s = marks_[m].survey_sigma_m;
+    if (!uncertainty::inverse_spd<3>(Mat3(w.tri[m].cov + s * s * Mat3::Identity()), W_point[k]))
+      return false;
+  }
   geometry::Vec6 delta = geometry::Vec6::Zero();
   Mat6 info, Ppp_post;
   for (int iter = 0; iter < 2; ++iter) {
@@ -128,7 +137,8 @@ bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& me
     info = Ppp_inv;
     geometry::Vec6 g = -Ppp_inv * delta;
     double yWy = 0;
-    for (int m : members) {
+    for (size_t k = 0; k < members.size(); ++k) {
+      const int m = members[k];
       if (!w.tri[m].valid) {
         Vec2 y;
         Eigen::Matrix<double, 2, 6> H;
@@ -140,10 +150,7 @@ bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& me
         yWy += y.dot(W * y);
         continue;
       }
-      const double s = marks_[m].survey_sigma_m;
-      Mat3 W;
-      if (!uncertainty::inverse_spd<3>(Mat3(w.tri[m].cov + s * s * Mat3::Identity()), W))
-        return false;
+      const Mat3& W = W_point[k];
       const Vec3 y = w.tri[m].p - T * marks_[m].p_body;
       const auto G = point_pose_jacobian(T, marks_[m].p_body);
       const Eigen::Matrix<double, 6, 3> GtW = G.transpose() * W;
