@@ -115,9 +115,20 @@ void MarkMatcher::gate_and_assign(Work& w) const {
     mark_hit.assign(M, -1);
     obs_hits.assign(N, 0);
     obs_hit.assign(N, -1);
+    // Each mark meets only the observations within its pre-gate radius in x: a binary search
+    // in the observations sorted by column instead of all M x N pairs. The assignment below
+    // depends on the hit counts only, not on the order in which the pairs are visited.
+    auto& by_x = w.free_by_x;
+    by_x.clear();
+    for (int k = 0; k < N; ++k)
+      by_x.emplace_back(w.obs[free_obs[k]].raw.x(), k);
+    std::sort(by_x.begin(), by_x.end());
     for (int i = 0; i < M; ++i) {
       Work::Cand& cd = cand[i];
-      for (int k = 0; k < N; ++k) {
+      const double reach = std::sqrt(cd.radius2);
+      auto it = std::lower_bound(by_x.begin(), by_x.end(), std::pair{cd.px.x() - reach, -1});
+      for (; it != by_x.end() && it->first <= cd.px.x() + reach; ++it) {
+        const int k = it->second;
         const auto& ob = w.obs[free_obs[k]];
         const Vec2 d = ob.raw - cd.px;
         if (d.squaredNorm() > cd.radius2) continue;

@@ -176,6 +176,8 @@ struct MarkMatcher::Work {
   std::vector<CalCache> cal_cache;
   std::vector<Cand> cand;
   std::vector<int> free_obs, mark_hits, mark_hit, obs_hits, obs_hit;
+  /// gate_and_assign: a camera's free observations as (column, index in free_obs), by column.
+  std::vector<std::pair<double, int>> free_by_x;
   std::vector<Tri> tri;        ///< per mark
   std::vector<Motion> motion;  ///< per mark
   std::vector<OtherMark> others;
