@@ -137,6 +137,8 @@ void MarkMatcher::reset_tracking() {
 void MarkMatcher::load_exposure(Work& w, std::span<const msg::MarkObservations> cameras,
                                 MatchResult& out) {
   w.obs.clear();
+  for (Work::Cam& c : w.cams)
+    w.spare_cam_obs.push_back(std::move(c.obs));
   w.cams.clear();
   w.others.clear();
   w.acquired = false;
@@ -168,6 +170,11 @@ void MarkMatcher::load_exposure(Work& w, std::span<const msg::MarkObservations> 
     }
     const auto& cal = rig_.cameras[slot];
     Work::Cam cam;
+    if (!w.spare_cam_obs.empty()) {
+      cam.obs = std::move(w.spare_cam_obs.back());
+      cam.obs.clear();
+      w.spare_cam_obs.pop_back();
+    }
     cam.slot = slot;
     cam.span_index = e;
     // Integer ns: TAI ns since 1970 do not fit a double's mantissa at ns resolution.

@@ -183,6 +183,8 @@ struct MarkMatcher::Work {
   std::vector<OtherMark> others;
   /// Marks of the previous result, their storage reused by the next (MarkMatcher::reuse_result).
   std::vector<MatchedMark> spare_marks;
+  /// The observation lists of the previous exposure's cameras (load_exposure reuses them).
+  std::vector<std::vector<int>> spare_cam_obs;
   std::vector<triangulate::Observation> tri_views;  ///< triangulation scratch
   triangulate::Result tri_result;
   std::vector<Vec3> layout_q_b, layout_p_w;  ///< layout fit scratch
