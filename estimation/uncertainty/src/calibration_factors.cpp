@@ -211,13 +211,20 @@ namespace {
 
 // B += G.leftCols(count) F.topRows(count) with count a run-time number <= K, dispatched to the
 // fixed-size kernel (add_loadings_product) of that many columns.
+// A camera's own factor of full rank over its K estimated parameters (uncoupled factors) is
+// K x K: then the whole product is fixed-size, which for so few columns costs a fraction of
+// the run-time sized loops.
 template <int K, typename Sensitivity, typename Factor, typename Block>
 void add_leading_product(int count, const Sensitivity& G, const Factor& F, Block& B) {
   if constexpr (K > 0) {
-    if (count == K)
-      add_loadings_product(G.template leftCols<K>(), F, B);
-    else
+    if (count != K) {
       add_leading_product<K - 1>(count, G, F, B);
+    } else if (F.cols() == K) {
+      auto B_fixed = B.template leftCols<K>();
+      add_loadings_product(G.template leftCols<K>(), F.template topLeftCorner<K, K>(), B_fixed);
+    } else {
+      add_loadings_product(G.template leftCols<K>(), F, B);
+    }
   }
 }
 
@@ -270,7 +277,11 @@ void add_observation_loadings(const CalibrationFactors& f, int slot,
                                                 cf.estimated_intrinsic_rows, B);
     add_block_covariance(B, f.coupled() ? nullptr : &cov_intrinsic);
   }
-  if (cf.extrinsic.cols() > 0) {
+  if (cf.extrinsic.cols() == 6) {  // a camera's own full-rank 6 x 6 factor: fixed-size
+    auto B = loadings.middleCols<6>(cf.extrinsic_begin);
+    add_loadings_product(G.rightCols<6>(), cf.extrinsic.leftCols<6>(), B);
+    add_block_covariance(B, f.coupled() ? nullptr : &cov_extrinsic);
+  } else if (cf.extrinsic.cols() > 0) {
     auto B = loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols());
     add_loadings_product(G.rightCols<6>(), cf.extrinsic, B);
     add_block_covariance(B, f.coupled() ? nullptr : &cov_extrinsic);
