@@ -268,6 +268,29 @@ struct ExposureProcessor::Exclusions {
   bool contains(int id) const { return std::find(ids.begin(), ids.end(), id) != ids.end(); }
 };
 
+struct ExposureProcessor::Scratch {
+  Prepared prepared;
+  std::vector<size_t> body_marks, fit_marks;
+  std::vector<rigid::MarkEstimate> estimates;
+  std::vector<Vec3> q_body, p_world;
+  std::vector<Mat3> cov_world;
+  std::vector<double> survey_sigma;
+  std::vector<int> survey_column;
+  pose::BodyFit fit;
+};
+
+ExposureProcessor::ScratchBuffer::ScratchBuffer() : scratch(std::make_unique<Scratch>()) {}
+ExposureProcessor::ScratchBuffer::ScratchBuffer(const ScratchBuffer&)
+    : scratch(std::make_unique<Scratch>()) {}
+ExposureProcessor::ScratchBuffer& ExposureProcessor::ScratchBuffer::operator=(
+    const ScratchBuffer&) {
+  return *this;  // scratch only: nothing to copy
+}
+ExposureProcessor::ScratchBuffer::ScratchBuffer(ScratchBuffer&&) noexcept = default;
+ExposureProcessor::ScratchBuffer& ExposureProcessor::ScratchBuffer::operator=(
+    ScratchBuffer&&) noexcept = default;
+ExposureProcessor::ScratchBuffer::~ScratchBuffer() = default;
+
 ExposureProcessor::ExposureProcessor(const camera::RigCalibration& rig,
                                      const survey::RigidBodySurvey& pylon,
                                      const survey::RigidBodySurvey& store,
@@ -338,10 +361,13 @@ ExposureResult ExposureProcessor::process(const AlignedExposure& exposure, const
   return process(exposure, identify(exposure, ids));
 }
 
-ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& exposure,
-                                                       const match::MatchResult& marks,
-                                                       ProcessorCounters& counters) const {
-  Prepared prep;
+void ExposureProcessor::prepare(const AlignedExposure& exposure, const match::MatchResult& marks,
+                                ProcessorCounters& counters, Prepared& prep) const {
+  // Every field is set below; the vectors keep their storage (a mark's views too, while the
+  // number of marks does not shrink).
+  prep.t_ref_tai_ns = std::numeric_limits<time::TaiNs>::min();
+  prep.cameras_used = 0;
+  prep.clock_not_locked = false;
   prep.dt_s.assign(rig_.cameras.size(), 0.0);
   prep.sync_error_s.assign(rig_.cameras.size(), 0.0);
   prep.clock_sigma_s.assign(rig_.cameras.size(), 0.0);
@@ -365,16 +391,17 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
       prep.clock_not_locked = true;
   }
   std::vector<bool> contributed(rig_.cameras.size(), false);
-  prep.marks.reserve(marks.marks.size());
-  for (const match::MatchedMark& mm : marks.marks) {
-    Prepared::Mark m;
+  prep.marks.resize(marks.marks.size());
+  for (size_t i = 0; i < marks.marks.size(); ++i) {
+    const match::MatchedMark& mm = marks.marks[i];
+    Prepared::Mark& m = prep.marks[i];
     m.id = mm.id;
     m.body = mm.body == kPylonBody ? 'p' : mm.body == kStoreBody ? 's' : '?';
     m.velocity_w = mm.velocity_w;
     m.velocity_valid = mm.velocity_valid;
     m.motion_corrected = mm.motion_corrected;
-    if (mm.triangulated) m.estimate = &mm.estimate;
-    m.obs.reserve(mm.observations.size());
+    m.estimate = mm.triangulated ? &mm.estimate : nullptr;
+    m.obs.clear();
     for (const match::MatchedObservation& mo : mm.observations) {
       const int slot = slot_of_camera_id_[static_cast<size_t>(mo.camera_id)];
       m.obs.push_back(
@@ -382,7 +409,6 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
       prep.dt_s[static_cast<size_t>(slot)] = mo.time_offset_s;
       contributed[static_cast<size_t>(slot)] = true;
     }
-    prep.marks.push_back(std::move(m));
   }
   prep.cameras_used = static_cast<int>(std::count(contributed.begin(), contributed.end(), true));
   for (size_t b = 0; b < prep.initial_T_w_b.size(); ++b) {
@@ -394,7 +420,6 @@ ExposureProcessor::Prepared ExposureProcessor::prepare(const AlignedExposure& ex
           matcher_.motion(static_cast<int>(b))
               .recent_world_pose(prep.t_ref_tai_ns, config_.matcher.track_max_gap_s);
   }
-  return prep;
 }
 
 void ExposureProcessor::solve(const Prepared& prep,
@@ -402,7 +427,7 @@ void ExposureProcessor::solve(const Prepared& prep,
                               const survey::RigidBodySurvey& pylon_survey,
                               const survey::RigidBodySurvey& store_survey, bool with_uncertainty,
                               const Exclusions* fixed_exclusions, ExposureResult& out,
-                              ProcessorCounters& counters) const {
+                              ProcessorCounters& counters, Scratch& scratch) const {
   const int nz = factors_.num_factors();
   // Survey loadings: 3 columns per surveyed mark, the pylon's marks first, then the store's.
   const int survey_columns =
@@ -508,8 +533,9 @@ void ExposureProcessor::solve(const Prepared& prep,
   out.marks.resize(marks_used);
 
   // Rigid-body checks (with uncertainty) or the given exclusions (Monte Carlo draws).
-  auto body_marks = [&](char body) {
-    std::vector<size_t> idx;
+  auto body_marks = [&](char body) -> const std::vector<size_t>& {
+    std::vector<size_t>& idx = scratch.body_marks;
+    idx.clear();
     for (size_t i = 0; i < out.marks.size(); ++i)
       if (out.marks[i].body == body) idx.push_back(i);
     return idx;
@@ -517,13 +543,14 @@ void ExposureProcessor::solve(const Prepared& prep,
   const rigid::RigidCheckConfig rigid_config{config_.rigid_false_alarm_probability,
                                              config_.min_pose_marks};
   auto run_check = [&](char body, rigid::RigidCheckResult& check) {
-    const auto idx = body_marks(body);
+    const auto& idx = body_marks(body);
     if (fixed_exclusions != nullptr) {
       for (size_t i : idx)
         out.marks[i].excluded = fixed_exclusions->contains(out.marks[i].id);
       return;
     }
-    std::vector<rigid::MarkEstimate> est(idx.size());
+    std::vector<rigid::MarkEstimate>& est = scratch.estimates;
+    est.resize(idx.size());
     for (size_t k = 0; k < idx.size(); ++k) {
       const MarkResult& m = out.marks[idx[k]];
       const survey::SurveyedMark* s = (body == 'p' ? pylon_survey : store_survey).find(m.id);
@@ -548,14 +575,21 @@ void ExposureProcessor::solve(const Prepared& prep,
   auto fit = [&](char body) {
     BodySolution sol;
     const survey::RigidBodySurvey& survey = body == 'p' ? pylon_survey : store_survey;
-    std::vector<size_t> idx;
+    std::vector<size_t>& idx = scratch.fit_marks;
+    idx.clear();
     for (size_t i : body_marks(body))
       if (!out.marks[i].excluded) idx.push_back(i);
     if (static_cast<int>(idx.size()) < config_.min_pose_marks) return sol;
-    std::vector<Vec3> q(idx.size()), p(idx.size());
-    std::vector<Mat3> cov(idx.size());
-    std::vector<double> sigma(idx.size());
-    std::vector<int> column(idx.size());
+    std::vector<Vec3>& q = scratch.q_body;
+    std::vector<Vec3>& p = scratch.p_world;
+    std::vector<Mat3>& cov = scratch.cov_world;
+    std::vector<double>& sigma = scratch.survey_sigma;
+    std::vector<int>& column = scratch.survey_column;
+    q.resize(idx.size());
+    p.resize(idx.size());
+    cov.resize(idx.size());
+    sigma.resize(idx.size());
+    column.resize(idx.size());
     for (size_t k = 0; k < idx.size(); ++k) {
       const MarkResult& m = out.marks[idx[k]];
       const survey::SurveyedMark* s = survey.find(m.id);
@@ -572,7 +606,7 @@ void ExposureProcessor::solve(const Prepared& prep,
       if (!(cov[k].trace() > 0)) cov[k] = Mat3::Identity() * 1e-6;
       sigma[k] = s->sigma_m;
     }
-    pose::BodyFit bf;
+    pose::BodyFit& bf = scratch.fit;
     if (!pose::fit_body(pose::PointsInBody{q}, pose::PointsInWorld{p}, cov, sigma, bf)) return sol;
     // First-order propagation is only honest while the pose is well determined: a nearly
     // collinear set of marks (one row of the store, three marks of the pendulum's cross) leaves
@@ -737,11 +771,13 @@ void ExposureProcessor::process(const AlignedExposure& exposure, const match::Ma
 void ExposureProcessor::process_into_new(const AlignedExposure& exposure,
                                          const match::MatchResult& marks, ExposureResult& out) {
   ++counters_.exposures;
-  const Prepared prep = prepare(exposure, marks, counters_);
+  Scratch& scratch = *scratch_.scratch;
+  prepare(exposure, marks, counters_, scratch.prepared);
+  const Prepared& prep = scratch.prepared;
   out.trigger_seq = exposure.trigger_seq;
   out.reference_mid_tai_ns = prep.t_ref_tai_ns;
   out.cameras_used = prep.cameras_used;
-  solve(prep, rig_.cameras, pylon_, store_, true, nullptr, out, counters_);
+  solve(prep, rig_.cameras, pylon_, store_, true, nullptr, out, counters_, scratch);
   if (!out.T_p_s.valid) ++counters_.pose_failed;
   // The bodies' motion states take this exposure's solutions. An unsolved T_p_s is
   // extrapolated from the store's over a short gap, or left invalid.
@@ -756,9 +792,11 @@ MonteCarloResult ExposureProcessor::monte_carlo(const AlignedExposure& exposure,
                                                 std::uint64_t seed) const {
   if (draws < 2) throw std::invalid_argument("monte_carlo: need at least 2 draws");
   ProcessorCounters scratch;
-  const Prepared prep = prepare(exposure, marks, scratch);
+  Scratch buffers;
+  Prepared& prep = buffers.prepared;
+  prepare(exposure, marks, scratch, prep);
   ExposureResult nominal;
-  solve(prep, rig_.cameras, pylon_, store_, true, nullptr, nominal, scratch);
+  solve(prep, rig_.cameras, pylon_, store_, true, nullptr, nominal, scratch, buffers);
 
   Exclusions excl;
   for (const MarkResult& m : nominal.marks)
@@ -811,7 +849,7 @@ MonteCarloResult ExposureProcessor::monte_carlo(const AlignedExposure& exposure,
       for (survey::SurveyedMark& sm : survey->marks)
         sm.p_body += Vec3(normal(rng), normal(rng), normal(rng)) * sm.sigma_m;
     ExposureResult r;
-    solve(p, cams, pylon, store, false, &excl, r, scratch);
+    solve(p, cams, pylon, store, false, &excl, r, scratch, buffers);
     bool ok = true;
     for (size_t k = 0; k < nm; ++k) {
       const MarkResult* m = r.find_mark(mc.mark_ids[k]);

@@ -10,6 +10,7 @@
 
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include <Eigen/Core>
@@ -130,13 +131,26 @@ class ExposureProcessor {
  private:
   struct Prepared;
   struct Exclusions;
-  Prepared prepare(const AlignedExposure& exposure, const match::MatchResult& marks,
-                   ProcessorCounters& counters) const;
+  /// Per-exposure working storage, kept so that an exposure does not allocate it again.
+  struct Scratch;
+  /// Owns a Scratch; a copy starts empty (scratch only: nothing to copy).
+  struct ScratchBuffer {
+    ScratchBuffer();
+    ScratchBuffer(const ScratchBuffer&);
+    ScratchBuffer& operator=(const ScratchBuffer&);
+    ScratchBuffer(ScratchBuffer&&) noexcept;
+    ScratchBuffer& operator=(ScratchBuffer&&) noexcept;
+    ~ScratchBuffer();
+    std::unique_ptr<Scratch> scratch;
+  };
+  /// Fills `prep` for this exposure, reusing its storage.
+  void prepare(const AlignedExposure& exposure, const match::MatchResult& marks,
+               ProcessorCounters& counters, Prepared& prep) const;
   void solve(const Prepared& prep, const std::vector<camera::CalibratedCamera>& cameras,
              const survey::RigidBodySurvey& pylon_survey,
              const survey::RigidBodySurvey& store_survey, bool with_uncertainty,
-             const Exclusions* fixed_exclusions, ExposureResult& out,
-             ProcessorCounters& counters) const;
+             const Exclusions* fixed_exclusions, ExposureResult& out, ProcessorCounters& counters,
+             Scratch& scratch) const;
   void fill_sample(const AlignedExposure& exposure, const Prepared& prep,
                    ExposureResult& out) const;
   /// process(exposure, marks) into `out`, whose fields other than marks are as constructed.
@@ -151,6 +165,7 @@ class ExposureProcessor {
 
   match::MarkMatcher matcher_;
   match::MatchResult matched_;  ///< the last exposure's matches, their storage reused
+  ScratchBuffer scratch_;
   PoseTracker tracker_;
   ProcessorCounters counters_;
 };
