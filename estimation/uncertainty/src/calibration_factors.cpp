@@ -65,10 +65,10 @@ CalibrationFactors::CalibrationFactors(const camera::RigCalibration& rig, double
     factor_per_camera(rig, relative_floor);
   add_sync_factors(rig);
   compute_camera_covariances();
-  find_estimated_intrinsics();
+  find_estimated_parameters();
 }
 
-void CalibrationFactors::find_estimated_intrinsics() {
+void CalibrationFactors::find_estimated_parameters() {
   estimated_covariances_.assign(cameras_.size(), {});
   for (size_t c = 0; c < cameras_.size(); ++c) {
     CameraFactors& cf = cameras_[c];
@@ -209,25 +209,6 @@ void CalibrationFactors::add_sync_factors(const camera::RigCalibration& rig) {
 
 namespace {
 
-// B += G.leftCols(count) F.topRows(count) with count a run-time number <= K, dispatched to the
-// fixed-size kernel (add_loadings_product) of that many columns.
-// A camera's own factor of full rank over its K estimated parameters (uncoupled factors) is
-// K x K: then the whole product is fixed-size, which for so few columns costs a fraction of
-// the run-time sized loops.
-template <int K, typename Sensitivity, typename Factor, typename Block>
-void add_leading_product(int count, const Sensitivity& G, const Factor& F, Block& B) {
-  if constexpr (K > 0) {
-    if (count != K) {
-      add_leading_product<K - 1>(count, G, F, B);
-    } else if (F.cols() == K) {
-      auto B_fixed = B.template leftCols<K>();
-      add_loadings_product(G.template leftCols<K>(), F.template topLeftCorner<K, K>(), B_fixed);
-    } else {
-      add_loadings_product(G.template leftCols<K>(), F, B);
-    }
-  }
-}
-
 // Adds B B^T to `cov` when the camera owns B's columns (uncoupled factors; cov not null). One
 // pass over B's few columns with the six sums in registers: six dynamic-length dot products of
 // 6 to 13 elements cost more in set-up than in arithmetic.
@@ -258,6 +239,23 @@ void add_block_covariance(const Block& B, Eigen::Matrix3d* cov) {
   C(2, 1) += s12;
 }
 
+// B += A F over the columns [begin, begin + F.cols()) of the loadings (A: K columns, fixed;
+// F's first K rows), and cov += B B^T (cov not null). A camera's own factor of full rank over
+// its K parameters (uncoupled factors) is K x K: the product is then fixed-size too.
+template <int K, typename MatA, typename Factor>
+void add_camera_block(const MatA& A, const Factor& F, Eigen::Index begin, Loadings3& loadings,
+                      Eigen::Matrix3d* cov) {
+  if (F.cols() == K) {
+    auto B = loadings.middleCols<K>(begin);
+    add_loadings_product(A, F.template topLeftCorner<K, K>(), B);
+    add_block_covariance(B, cov);
+  } else {
+    auto B = loadings.middleCols(begin, F.cols());
+    add_loadings_product(A, F, B);
+    add_block_covariance(B, cov);
+  }
+}
+
 }  // namespace
 
 void add_observation_loadings(const CalibrationFactors& f, int slot,
@@ -272,20 +270,15 @@ void add_observation_loadings(const CalibrationFactors& f, int slot,
     Eigen::Matrix<double, 3, camera::kNumIntrinsics> G_estimated;
     for (int k = 0; k < cf.num_estimated_intrinsics; ++k)
       G_estimated.col(k) = G.col(cf.estimated_intrinsics[static_cast<size_t>(k)]);
-    auto B = loadings.middleCols(cf.intrinsic_begin, cf.intrinsic.cols());
-    add_leading_product<camera::kNumIntrinsics>(cf.num_estimated_intrinsics, G_estimated,
-                                                cf.estimated_intrinsic_rows, B);
-    add_block_covariance(B, f.coupled() ? nullptr : &cov_intrinsic);
+    detail::with_fixed_size<camera::kNumIntrinsics>(cf.num_estimated_intrinsics, [&](auto size) {
+      constexpr int N = decltype(size)::value;
+      add_camera_block<N>(G_estimated.template leftCols<N>(), cf.estimated_intrinsic_rows,
+                          cf.intrinsic_begin, loadings, f.coupled() ? nullptr : &cov_intrinsic);
+    });
   }
-  if (cf.extrinsic.cols() == 6) {  // a camera's own full-rank 6 x 6 factor: fixed-size
-    auto B = loadings.middleCols<6>(cf.extrinsic_begin);
-    add_loadings_product(G.rightCols<6>(), cf.extrinsic.leftCols<6>(), B);
-    add_block_covariance(B, f.coupled() ? nullptr : &cov_extrinsic);
-  } else if (cf.extrinsic.cols() > 0) {
-    auto B = loadings.middleCols(cf.extrinsic_begin, cf.extrinsic.cols());
-    add_loadings_product(G.rightCols<6>(), cf.extrinsic, B);
-    add_block_covariance(B, f.coupled() ? nullptr : &cov_extrinsic);
-  }
+  if (cf.extrinsic.cols() > 0)
+    add_camera_block<6>(G.rightCols<6>(), cf.extrinsic, cf.extrinsic_begin, loadings,
+                        f.coupled() ? nullptr : &cov_extrinsic);
 }
 
 }  // namespace storetrack::uncertainty

@@ -16,6 +16,7 @@
 #pragma once
 
 #include <array>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -121,20 +122,35 @@ class CalibrationFactors {
   void factor_jointly(const camera::RigCalibration& rig, double relative_floor);
   void add_sync_factors(const camera::RigCalibration& rig);
   void compute_camera_covariances();
-  void find_estimated_intrinsics();
+  void find_estimated_parameters();
 };
+
+namespace detail {
+// f(std::integral_constant<int, N>{}) for N = n in [1, Max]; nothing for any other n. Turns a
+// run-time count of parameters into a fixed size: for so few columns a run-time sized product
+// costs more than the arithmetic it skips.
+template <int Max, typename F>
+void with_fixed_size(int n, F&& f) {
+  if constexpr (Max > 0) {
+    if (n == Max)
+      f(std::integral_constant<int, Max>{});
+    else
+      with_fixed_size<Max - 1>(n, f);
+  }
+}
+}  // namespace detail
 
 /// The calibration's covariance of one camera's pixel of a point, J Sigma_c J^T with J = [d
 /// pixel / d intrinsics, d pixel / d pose] and Sigma_c = f.camera_covariance(slot) (cross term
 /// included). The one implementation: the matcher's gates and the processor's resection weights.
-namespace detail {
-// J_e C_e J_e^T with N = e.count estimated parameters, fixed-size (dispatched on N from the
-// joint block size down): a run-time sized product costs more than the arithmetic it skips.
-template <int N>
-Eigen::Matrix2d estimated_pixel_covariance(const CalibrationFactors::EstimatedCovariance& e,
-                                           const camera::ProjectionJacobians& J) {
-  if constexpr (N > 0) {
-    if (e.count != N) return estimated_pixel_covariance<N - 1>(e, J);
+inline Eigen::Matrix2d pixel_covariance(const CalibrationFactors& f, int slot,
+                                        const camera::ProjectionJacobians& J) {
+  // Over the parameters with a non-zero covariance only (the fixed intrinsics' rows and columns
+  // are exactly zero: skipping them leaves every sum as it was), fixed-size.
+  const CalibrationFactors::EstimatedCovariance& e = f.estimated_covariance(slot);
+  Eigen::Matrix2d S = Eigen::Matrix2d::Zero();
+  detail::with_fixed_size<camera::kJointBlockSize>(e.count, [&](auto size) {
+    constexpr int N = decltype(size)::value;
     Eigen::Matrix<double, 2, N> Jc;
     for (int k = 0; k < N; ++k) {
       const int p = e.parameters[static_cast<size_t>(k)];
@@ -146,18 +162,9 @@ Eigen::Matrix2d estimated_pixel_covariance(const CalibrationFactors::EstimatedCo
     const Eigen::Matrix<double, N, N> C = e.covariance.template topLeftCorner<N, N>();
     // Coefficient-based (lazy) products: Eigen's blocked GEMM costs more than the arithmetic.
     const Eigen::Matrix<double, 2, N> JS = Jc.lazyProduct(C);
-    return JS.lazyProduct(Jc.transpose());
-  }
-  return Eigen::Matrix2d::Zero();
-}
-}  // namespace detail
-
-inline Eigen::Matrix2d pixel_covariance(const CalibrationFactors& f, int slot,
-                                        const camera::ProjectionJacobians& J) {
-  // Over the parameters with a non-zero covariance only (the fixed intrinsics' rows and columns
-  // are exactly zero: skipping them leaves every sum as it was).
-  return detail::estimated_pixel_covariance<camera::kJointBlockSize>(f.estimated_covariance(slot),
-                                                                     J);
+    S = JS.lazyProduct(Jc.transpose());
+  });
+  return S;
 }
 
 /// The weight of camera `slot`'s view of world point p_w in the host's triangulation:
