@@ -193,22 +193,43 @@ inline CameraSensitivity point_sensitivity(const Eigen::Matrix<double, 3, 2>& K,
 }
 
 namespace detail {
-// One output row: out.row(r) += sum_k A(r, k) L.row(k), the sum one expression over k (in order,
-// left to right), so Eigen evaluates it in one vectorised pass over the columns.
+// out += A L, two columns (one SSE2 / NEON vector of doubles) at a time for all of A's rows, so
+// each element of L is loaded once, not once per row of A. Each element's sum keeps one order,
+// out + ((A(r, 0) L(0, j) + A(r, 1) L(1, j)) + ...), whatever the width.
 template <typename MatA, typename MatL, typename MatOut, int... k>
 void add_loadings_rows(const MatA& A, const MatL& L, MatOut& out,
                        std::integer_sequence<int, k...>) {
-  for (Eigen::Index r = 0; r < A.rows(); ++r)
-    out.row(r) += (... + (A(r, k) * L.row(k)));
+  constexpr int R = MatA::RowsAtCompileTime;
+  static_assert(R > 0, "add_loadings_product: A's rows must be fixed");
+  using Pair = Eigen::Array2d;
+  const Eigen::Index n = out.cols();
+  const double* l = L.data();
+  double* o = out.data();
+  const Eigen::Index l_stride = L.rowStride(), o_stride = out.rowStride();
+  // Row-major storage: a row's columns are adjacent (a single column may be any vector).
+  eigen_assert(n < 2 || (L.colStride() == 1 && out.colStride() == 1));
+  // A's coefficients broadcast once, not in every pass over two columns.
+  std::array<std::array<Pair, sizeof...(k)>, R> a;
+  for (int r = 0; r < R; ++r)
+    a[r] = {Pair::Constant(A(r, k))...};
+  Eigen::Index j = 0;
+  for (; j + 2 <= n; j += 2) {
+    const Pair lj[] = {Eigen::Map<const Pair>(l + k * l_stride + j)...};
+    for (int r = 0; r < R; ++r)
+      Eigen::Map<Pair>(o + r * o_stride + j) += (... + (a[r][k] * lj[k]));
+  }
+  for (; j < n; ++j)
+    for (int r = 0; r < R; ++r)
+      o[r * o_stride + j] += (... + (A(r, k) * l[k * l_stride + j]));
 }
 }  // namespace detail
 
 /// out += A L for loadings L (A.cols() x n) and out (A.rows() x n), both row-major, A small and
 /// fixed-size: the one kernel of the loadings' products (a mark's G F over a camera's factor
 /// columns, a pose's d pose / d point times a mark's loadings, a relative pose's Jacobians times
-/// the bodies' loadings). Each output row is one pass over the columns with A's column count
-/// fixed: one load and store of out per element (an axpy per coefficient of A would load and
-/// store each output row A.cols() times).
+/// the bodies' loadings). One pass over the columns with A's size fixed: one load and store of
+/// out and one load of L per element (an axpy per coefficient of A would load and store each
+/// output row A.cols() times, a pass per output row load L A.rows() times).
 template <typename MatA, typename MatL, typename MatOut>
 void add_loadings_product(const MatA& A, const MatL& L, MatOut&& out) {
   static_assert(MatA::ColsAtCompileTime > 0, "add_loadings_product: A's columns must be fixed");
