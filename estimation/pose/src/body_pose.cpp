@@ -49,7 +49,9 @@ bool fit_body(PointsInBody q_body_in, PointsInWorld p_world_in, std::span<const 
   const std::span<const Vec3> q_body = q_body_in.points, p_world = p_world_in.points;
   const size_t n = q_body.size();
   if (n < 3 || p_world.size() != n || cov_w.size() != n || survey_sigma_m.size() != n) return false;
-  std::vector<double> weights(n);
+  // `out`'s lists keep their storage from fit to fit (the per-exposure path allocates nothing).
+  std::vector<double>& weights = out.start_weight;
+  weights.resize(n);
   for (size_t i = 0; i < n; ++i)
     weights[i] = 1.0 / (cov_w[i].trace() / 3.0 + survey_sigma_m[i] * survey_sigma_m[i]);
   geometry::Transform T;
@@ -57,7 +59,8 @@ bool fit_body(PointsInBody q_body_in, PointsInWorld p_world_in, std::span<const 
 
   // Weights: inverse of each mark's total covariance. Survey errors are isotropic in the body
   // frame, so R sigma^2 I R^T = sigma^2 I.
-  std::vector<Mat3> W(n);
+  std::vector<Mat3>& W = out.weight;
+  W.resize(n);
   for (size_t i = 0; i < n; ++i) {
     const Mat3 C = cov_w[i] + survey_sigma_m[i] * survey_sigma_m[i] * Mat3::Identity();
     if (!uncertainty::inverse_spd<3>(C, W[i])) return false;

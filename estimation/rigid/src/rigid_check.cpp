@@ -67,13 +67,17 @@ PairTest test_pair(const MarkEstimate& a, const MarkEstimate& b) {
   return t;
 }
 
-RigidCheckResult check_rigid_body(std::span<const MarkEstimate> marks,
-                                  const RigidCheckConfig& config) {
+void check_rigid_body(std::span<const MarkEstimate> marks, const RigidCheckConfig& config,
+                      RigidCheckResult& result) {
   if (!(config.false_alarm_probability > 0 && config.false_alarm_probability < 1))
     throw std::invalid_argument("rigid check: false_alarm_probability must be in (0, 1)");
-  RigidCheckResult result;
+  result.pairs.clear();
+  result.excluded_ids.clear();
+  result.excluded.clear();
+  result.failed = false;
+  result.consistent_after = true;
+  result.pair_threshold_z2 = 0;
   const size_t n = marks.size();
-  result.pairs.reserve(n * (n - 1) / 2);
   for (size_t i = 0; i < n; ++i)
     for (size_t j = i + 1; j < n; ++j)
       result.pairs.push_back(test_pair(marks[i], marks[j]));
@@ -82,7 +86,9 @@ RigidCheckResult check_rigid_body(std::span<const MarkEstimate> marks,
     if (i > j) std::swap(i, j);
     return i * n - i * (i + 1) / 2 + (j - i - 1);
   };
-  std::vector<bool> active(n, true);
+  auto active = [&result](size_t i) {  // few marks are ever out: a search is cheapest
+    return std::find(result.excluded.begin(), result.excluded.end(), i) == result.excluded.end();
+  };
   size_t active_count = n;
   bool first = true;
   while (active_count >= 2) {
@@ -93,10 +99,10 @@ RigidCheckResult check_rigid_body(std::span<const MarkEstimate> marks,
     size_t worst = n;
     double worst_score = -1;
     for (size_t i = 0; i < n; ++i) {
-      if (!active[i]) continue;
+      if (!active(i)) continue;
       double sum = 0;
       for (size_t j = 0; j < n; ++j) {
-        if (j == i || !active[j]) continue;
+        if (j == i || !active(j)) continue;
         const double z2 = result.pairs[pair_index(i, j)].z2;
         if (z2 > threshold) any_fail = true;
         sum += z2;
@@ -111,17 +117,16 @@ RigidCheckResult check_rigid_body(std::span<const MarkEstimate> marks,
     first = false;
     if (!any_fail) {
       result.consistent_after = true;
-      return result;
+      return;
     }
     if (static_cast<int>(active_count) <= config.min_marks) {
       result.consistent_after = false;
-      return result;
+      return;
     }
-    active[worst] = false;
     --active_count;
     result.excluded_ids.push_back(marks[worst].id);
+    result.excluded.push_back(worst);
   }
-  return result;
 }
 
 }  // namespace storetrack::rigid

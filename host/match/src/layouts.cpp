@@ -107,8 +107,8 @@ int MarkMatcher::measurement_dof(const Work& w, const std::vector<int>& members)
   return dof;
 }
 
-bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& members,
-                                PoseFilter& post, double& nis) const {
+bool MarkMatcher::filter_update(Work& w, int b, const std::vector<int>& members, PoseFilter& post,
+                                double& nis) const {
   // Extended Kalman filter update (Bar-Shalom et al. 2001, sec. 5.2 and 10.3). The marks
   // measure the pose only, so the pose is updated in information form on its 6x6 block,
   // Info = Ppp^-1 + sum H^T W H, with one relinearisation (iterated EKF, sec. 10.3.2), and the
@@ -122,7 +122,8 @@ bool MarkMatcher::filter_update(const Work& w, int b, const std::vector<int>& me
   Mat6 Ppp_inv;
   if (!uncertainty::inverse_spd<6>(Ppp, Ppp_inv)) return false;
   // The triangulated marks' weights do not change between the iterations.
-  std::vector<Mat3> W_point(members.size());
+  std::vector<Mat3>& W_point = w.filter_point_weights;
+  W_point.resize(members.size());
   for (size_t k = 0; k < members.size(); ++k) {
     const int m = members[k];
     if (!w.tri[m].valid) continue;
@@ -221,7 +222,8 @@ void MarkMatcher::verify_layouts(Work& w) const {
     }
     w.fitted[b] = false;
     w.body[b].updated = false;
-    std::vector<int> members;
+    std::vector<int>& members = w.layout_members;
+    members.clear();
     // Marks identified in one camera only update the body's own filter (not a prior alone:
     // MatcherConfig::single_view_requires_track); their ids are tested with the others.
     const bool single_views = w.body[b].from_track && config_.keep_single_view;

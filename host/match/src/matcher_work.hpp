@@ -190,7 +190,9 @@ struct MarkMatcher::Work {
   std::vector<Vec3> layout_q_b, layout_p_w;  ///< layout fit scratch
   std::vector<Mat3> layout_cov;
   std::vector<double> layout_weights;
-  std::vector<bool> fitted;  ///< per body
+  std::vector<int> layout_members;         ///< verify_layouts: one body's marks
+  std::vector<Mat3> filter_point_weights;  ///< filter_update: the triangulated marks' weights
+  std::vector<bool> fitted;                ///< per body
   std::vector<Transform> T_w_b;
   std::vector<Mat6> cov_b;
   /// Per body: the pose filter extrapolated to this exposure (valid when the body has a track)

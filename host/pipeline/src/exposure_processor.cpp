@@ -561,12 +561,10 @@ void ExposureProcessor::solve(const Prepared& prep,
       est[k].cov_independent = m.cov_by_source[kCentroid];
       est[k].loadings = &m.loadings;
     }
-    check = rigid::check_rigid_body(est, rigid_config);
-    for (int id : check.excluded_ids) {
-      for (size_t i : idx)
-        if (out.marks[i].id == id) out.marks[i].excluded = true;
-      ++counters.marks_excluded;
-    }
+    rigid::check_rigid_body(est, rigid_config, check);
+    for (size_t k : check.excluded)
+      out.marks[idx[k]].excluded = true;
+    counters.marks_excluded += check.excluded.size();
   };
   run_check('p', out.pylon_check);
   run_check('s', out.store_check);

@@ -43,6 +43,8 @@ struct BodyFit {
   std::vector<Mat63> d_pose_d_point;       ///< dxi/dp_w,m per mark (left perturbation)
   std::vector<Mat63> d_pose_d_survey;      ///< dxi/dq_m per mark
   std::vector<geometry::Vec3> residual_w;  ///< p_w,m - T_w_b q_m
+  std::vector<geometry::Mat3> weight;      ///< W_m = (cov_w,m + sigma_m^2 I)^-1 per mark
+  std::vector<double> start_weight;        ///< the starting absolute orientation's, per mark
   double chi2 = 0;                         ///< sum r^T W r (block-diagonal weights)
   int iterations = 0;
 };

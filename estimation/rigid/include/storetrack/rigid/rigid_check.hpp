@@ -43,6 +43,7 @@ struct PairTest {
 struct RigidCheckResult {
   std::vector<PairTest> pairs;    ///< all pairs of the marks given (before exclusion)
   std::vector<int> excluded_ids;  ///< in exclusion order
+  std::vector<size_t> excluded;   ///< the same marks' positions in the span checked
   bool failed = false;            ///< at least one pair inconsistent in the first test
   bool consistent_after = true;   ///< remaining marks pass (false: stopped at min_marks)
   double pair_threshold_z2 = 0;   ///< threshold of the first test
@@ -51,7 +52,16 @@ struct RigidCheckResult {
 /// Predicted standard uncertainty of |p_a - p_b| - |q_a - q_b|.
 PairTest test_pair(const MarkEstimate& a, const MarkEstimate& b);
 
-RigidCheckResult check_rigid_body(std::span<const MarkEstimate> marks,
-                                  const RigidCheckConfig& config);
+/// All pairs' tests, then the marks excluded one at a time (the worst mean z2) until the rest
+/// pass. Writes every field of `result`, reusing its lists' storage (the per-exposure path).
+void check_rigid_body(std::span<const MarkEstimate> marks, const RigidCheckConfig& config,
+                      RigidCheckResult& result);
+
+inline RigidCheckResult check_rigid_body(std::span<const MarkEstimate> marks,
+                                         const RigidCheckConfig& config) {
+  RigidCheckResult result;
+  check_rigid_body(marks, config, result);
+  return result;
+}
 
 }  // namespace storetrack::rigid

@@ -343,7 +343,7 @@ class MarkMatcher {
   void gate_and_assign(Work& w) const;
   void verify_views(Work& w) const;
   void verify_layouts(Work& w) const;
-  bool filter_update(const Work& w, int b, const std::vector<int>& members, PoseFilter& post,
+  bool filter_update(Work& w, int b, const std::vector<int>& members, PoseFilter& post,
                      double& nis) const;
   /// Mark m seen by one camera as a measurement of its body's pose T_w_b: innovation y (pixel
   /// minus projection), Jacobian H = d pixel / d(left perturbation) and information W = R^-1.
