@@ -84,7 +84,7 @@ bool fit_body(PointsInBody q_body_in, PointsInWorld p_world_in, std::span<const 
     H.bottomLeftCorner<3, 3>() = H.topRightCorner<3, 3>().transpose();
   };
   // Gauss-Newton. The normal matrix of the pass whose step is below the tolerance is kept for
-  // the covariance (taken one step of < 1e-9 rad and m before the solution: a relative change of
+  // the covariance (taken one step of < 1e-7 rad and m before the solution: a relative change of
   // that order) instead of a further pass at the solution; out of iterations, one follows.
   Mat6 H;
   int it = 0;
@@ -101,8 +101,9 @@ bool fit_body(PointsInBody q_body_in, PointsInWorld p_world_in, std::span<const 
     if (!step.allFinite()) return false;
     T = geometry::perturb_left(T, step);
     // The steps shrink linearly (non-zero residuals), by ~1e-4 per iteration here: after one
-    // of < 1e-9 rad and m the solution is ~1e-13 away, 1e-9 of any pose's uncertainty.
-    converged = step.head<3>().norm() < 1e-9 && step.tail<3>().norm() < 1e-9;
+    // of < 1e-7 rad and m the solution is ~1e-11 away, 1e-7 of any pose's uncertainty (and still
+    // 1e-5 of it were the steps to shrink by only 1e-2).
+    converged = step.head<3>().norm() < 1e-7 && step.tail<3>().norm() < 1e-7;
   }
   if (!converged) {
     H.setZero();
