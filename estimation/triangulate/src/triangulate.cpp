@@ -59,7 +59,7 @@ Eigen::Matrix<double, 3, 2> weighted_transpose(const Observation& obs,
 /// Linearisation at X: H = sum J^T W J and g = sum J^T W r. `full` also fills out's residuals,
 /// Jacobians (with the calibration's where options ask) and gains (J^T W for now).
 bool linearise(std::span<const Observation> observations, const Options& options, const Vec3& X,
-               bool full, Mat3& H, Vec3& g, Result& out) {
+               bool full, bool at_start, Mat3& H, Vec3& g, Result& out) {
   H.setZero();
   g.setZero();
   if (full) {
@@ -71,7 +71,10 @@ bool linearise(std::span<const Observation> observations, const Options& options
     const Observation& obs = observations[i];
     std::optional<Vec2> u;
     Eigen::Matrix<double, 2, 3> J;
-    if (!full) {
+    if (!full && at_start && obs.start != nullptr) {
+      J = obs.start->d_pixel_d_point_w;
+      u = obs.start->pixel_px + J * obs.displacement_w;
+    } else if (!full) {
       Eigen::Matrix<double, 2, 3> J_cam;
       u = obs.model->project(obs.T_c_w * (X + obs.displacement_w), &J_cam);
       J = J_cam * obs.T_c_w.linear();
@@ -101,9 +104,10 @@ bool linearise(std::span<const Observation> observations, const Options& options
 /// kept (taken one step shorter than step_tolerance_m before the solution: a relative change
 /// of that step over the depth) and its residuals moved by that step to first order (exact to
 /// its square), which saves a projection pass. Converged on the first pass, or out of
-/// iterations, a full pass at the solution follows.
+/// iterations, a full pass at the solution follows. `from_start`: X is options.initial_p_w, so
+/// the first pass may use the views' start projections.
 bool refine(std::span<const Observation> observations, const Options& options, Vec3 X,
-            Result& out) {
+            bool from_start, Result& out) {
   const size_t n = observations.size();
   Mat3 H, H_inv;
   Vec3 g;
@@ -111,7 +115,7 @@ bool refine(std::span<const Observation> observations, const Options& options, V
   int it = 0;
   for (; it < options.max_iterations && !converged; ++it) {
     full = it > 0;
-    if (!linearise(observations, options, X, full, H, g, out)) return false;
+    if (!linearise(observations, options, X, full, from_start && it == 0, H, g, out)) return false;
     // H is symmetric positive definite unless the rays are degenerate (then this fails).
     if (!uncertainty::inverse_spd<3>(H, H_inv)) return false;
     const Vec3 step = H_inv * g;
@@ -123,7 +127,7 @@ bool refine(std::span<const Observation> observations, const Options& options, V
         out.residual_px[i] -= out.jacobians[i].d_point_world * step;
   }
   if (!(converged && full)) {
-    if (!linearise(observations, options, X, true, H, g, out)) return false;
+    if (!linearise(observations, options, X, true, false, H, g, out)) return false;
     if (!uncertainty::inverse_spd<3>(H, H_inv)) return false;
   }
   out.chi2 = 0;
@@ -157,10 +161,10 @@ bool refine(std::span<const Observation> observations, const Options& options, V
 
 bool triangulate(std::span<const Observation> observations, const Options& options, Result& out) {
   if (options.initial_p_w && options.initial_p_w->allFinite() &&
-      refine(observations, options, *options.initial_p_w, out))
+      refine(observations, options, *options.initial_p_w, true, out))
     return true;
   const auto init = triangulate_linear(observations);
-  return init && refine(observations, options, *init, out);
+  return init && refine(observations, options, *init, false, out);
 }
 
 }  // namespace storetrack::triangulate

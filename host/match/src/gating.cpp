@@ -94,13 +94,13 @@ void MarkMatcher::gate_and_assign(Work& w) const {
       if (px->x() < -0.5 - margin || px->x() > in.width - 0.5 + margin || px->y() < -0.5 - margin ||
           px->y() > in.height - 0.5 + margin)
         continue;
-      const Eigen::Matrix<double, 2, 3> J_w = J_cam * R_c_w;
       Work::Cand cd;
       cd.mark = m;
       cd.px = *px;
+      cd.J_w = J_cam * R_c_w;
       cd.p_w = pr.p;
       cd.z = p_cam.z();
-      cd.S_pred = J_w * pr.cov * J_w.transpose();
+      cd.S_pred = cd.J_w * pr.cov * cd.J_w.transpose();
       // Pre-gate radius: lambda_max(S) <= trace(S_pred) + bound on trace(S_cal) + max sigma^2,
       // and d^T S^-1 d >= |d|^2 / lambda_max(S); pairs further apart cannot be in the gate.
       cd.radius2 = gate * (cd.S_pred.trace() + calibration_bound(cam.slot, p_cam.z()) + max_var);
@@ -180,6 +180,9 @@ void MarkMatcher::gate_and_assign(Work& w) const {
         ob.state = ObsState::kAssigned;
         ob.mark = cand[i].mark;
         ob.S_cal = cand[i].S_cal;
+        ob.start = {cand[i].px, cand[i].J_w};
+        ob.start_mark = cand[i].mark;
+        ob.start_p_w = cand[i].p_w;
         w.assigned[cand[i].mark].push_back(free_obs[k]);
         w.dirty[cand[i].mark] = true;
       } else {

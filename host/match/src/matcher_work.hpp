@@ -99,6 +99,11 @@ struct MarkMatcher::Work {
     Mat2 W = Mat2::Identity();  ///< (S_cal + sigma^2 I)^-1 (when assigned)
     int mark = -1;              ///< assigned mark (index in marks_)
     ObsState state = ObsState::kUnassigned;
+    /// The gate's projection of mark start_mark's prediction start_p_w into this camera: the
+    /// first pass of that mark's triangulation from that prediction (MarkMatcher::triangulate).
+    triangulate::StartProjection start;
+    int start_mark = -1;
+    Vec3 start_p_w = Vec3::Zero();
   };
   struct Cam {
     int slot = -1;
@@ -159,6 +164,7 @@ struct MarkMatcher::Work {
   struct Cand {
     int mark = -1;
     Vec2 px = Vec2::Zero();
+    Eigen::Matrix<double, 2, 3> J_w = Eigen::Matrix<double, 2, 3>::Zero();  ///< d px / d p_w
     Vec3 p_w = Vec3::Zero();
     Mat2 S_pred = Mat2::Zero();
     Mat2 S_cal = Mat2::Zero();

@@ -23,6 +23,8 @@ bool MarkMatcher::triangulate(Work& w, int m, std::span<const int> obs, const Ve
     const auto& ob = w.obs[o];
     views.push_back(estimator_view(rig_.cameras[ob.slot], ob.raw, ob.sigma, ob.W, velocity_w,
                                    w.cams[ob.cam].dt_s));
+    // The gate projected this prediction into the camera already: the first pass reuses it.
+    if (ob.start_mark == m && ob.start_p_w == initial) views.back().start = &ob.start;
   }
   if (!triangulate::triangulate(views, estimator_options(initial), w.tri_result)) return false;
   return std::isfinite(w.tri_result.chi2);

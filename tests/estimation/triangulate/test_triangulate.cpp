@@ -72,6 +72,51 @@ TEST(Triangulate, MotionDisplacementIsCompensated) {
   EXPECT_LT((r.p_w - p).norm(), 1e-9);
 }
 
+// A caller's projection of the start point replaces the first pass's projection; the later
+// passes linearise exactly, so the solution is the truth whether the start projection is
+// exact or off by pixels (a stale one), and the statistics match the projecting run.
+TEST(Triangulate, StartProjectionOnlyShortensTheFirstPass) {
+  const auto rig = test::synthetic_rig();
+  const Vec3 p(0.1, -0.2, 2.1), v(5.0, -3.0, 20.0), start(0.103, -0.198, 2.095);
+  const double dt[4] = {0, 1e-4, -2e-4, 3e-4};
+  std::vector<Observation> obs;
+  std::vector<StartProjection> exact(4), off(4);
+  for (size_t c = 0; c < 4; ++c) {
+    Observation o;
+    o.model = &rig.cameras[c].model;
+    o.T_c_w = rig.cameras[c].T_c_w;
+    o.displacement_w = v * dt[c];
+    o.pixel_px = *o.model->project_world(o.T_c_w, p + o.displacement_w);
+    obs.push_back(o);
+    camera::ProjectionJacobians J;
+    exact[c].pixel_px = *o.model->project_world(o.T_c_w, start, &J);
+    exact[c].d_pixel_d_point_w = J.d_point_world;
+    off[c] = exact[c];
+    off[c].pixel_px += Vec2(3.0, -2.0);
+  }
+  Options options;
+  options.initial_p_w = start;
+  Result projecting;
+  ASSERT_TRUE(triangulate(obs, options, projecting));
+  EXPECT_LT((projecting.p_w - p).norm(), 1e-9);
+  for (const auto* starts : {&exact, &off}) {
+    for (size_t c = 0; c < 4; ++c)
+      obs[c].start = &(*starts)[c];
+    Result r;
+    ASSERT_TRUE(triangulate(obs, options, r));
+    EXPECT_LT((r.p_w - p).norm(), 1e-9);
+    EXPECT_LT((r.cov_weighted - projecting.cov_weighted).norm(),
+              1e-6 * projecting.cov_weighted.norm());
+    EXPECT_NEAR(r.chi2, projecting.chi2, 1e-9);
+    // The stale start was used (its first step lands further away: one more pass), the exact
+    // one follows the projecting run's passes.
+    if (starts == &off)
+      EXPECT_GT(r.iterations, projecting.iterations);
+    else
+      EXPECT_EQ(r.iterations, projecting.iterations);
+  }
+}
+
 TEST(Triangulate, CentroidCovarianceIsHonest) {
   const auto rig = test::synthetic_rig();
   std::mt19937_64 rng(2);

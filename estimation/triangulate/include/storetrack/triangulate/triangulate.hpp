@@ -20,6 +20,13 @@
 namespace storetrack::triangulate {
 
 /// One camera's sighting of the mark.
+/// A view's projection of the refinement's start point (Options::initial_p_w, without the
+/// view's displacement) and d pixel / d p_w there, when the caller has them already.
+struct StartProjection {
+  geometry::Vec2 pixel_px = geometry::Vec2::Zero();
+  Eigen::Matrix<double, 2, 3> d_pixel_d_point_w = Eigen::Matrix<double, 2, 3>::Zero();
+};
+
 struct Observation {
   const camera::CameraModel* model = nullptr;
   geometry::Transform T_c_w = geometry::Transform::Identity();
@@ -31,6 +38,10 @@ struct Observation {
   /// Known motion of the mark between the reference time and this camera's exposure
   /// (velocity * time offset), world frame: the camera saw p_w + displacement_w.
   geometry::Vec3 displacement_w = geometry::Vec3::Zero();
+  /// The projection at the start point (e.g. the matcher's gate projected the prediction): the
+  /// first Gauss-Newton pass from initial_p_w uses it, moved by the displacement to first
+  /// order, instead of projecting again (the later passes linearise exactly).
+  const StartProjection* start = nullptr;
 };
 
 struct Options {
