@@ -689,9 +689,14 @@ void ExposureProcessor::solve(const Prepared& prep,
           A_p * pylon.cov_centroid * A_p.transpose() + A_s * store.cov_centroid * A_s.transpose();
       rel.cov_survey =
           A_p * pylon.cov_survey * A_p.transpose() + A_s * store.cov_survey * A_s.transpose();
+      // Each body loads only on its own marks' survey columns (the pylon's first).
+      const auto pylon_columns = static_cast<Eigen::Index>(3 * pylon_survey.marks.size());
+      const Eigen::Index store_columns = survey_columns - pylon_columns;
       rel.survey_loadings = Loadings6::Zero(6, survey_columns);
-      uncertainty::add_loadings_product(A_p, pylon.survey_loadings, rel.survey_loadings);
-      uncertainty::add_loadings_product(A_s, store.survey_loadings, rel.survey_loadings);
+      uncertainty::add_loadings_product(A_p, pylon.survey_loadings.leftCols(pylon_columns),
+                                        rel.survey_loadings.leftCols(pylon_columns));
+      uncertainty::add_loadings_product(A_s, store.survey_loadings.rightCols(store_columns),
+                                        rel.survey_loadings.rightCols(store_columns));
     }
     fill_pose(std::move(rel), factors_, out.T_p_s);
     out.xyz_ypr = xyz_ypr(out.T_p_s.T);
