@@ -78,38 +78,42 @@ void check_rigid_body(std::span<const MarkEstimate> marks, const RigidCheckConfi
   result.consistent_after = true;
   result.pair_threshold_z2 = 0;
   const size_t n = marks.size();
+  result.mean_z2.assign(n, 0.0);
   for (size_t i = 0; i < n; ++i)
     for (size_t j = i + 1; j < n; ++j)
       result.pairs.push_back(test_pair(marks[i], marks[j]));
-  // z2 of pair (i, j) is at pairs[index(i, j)].
-  auto pair_index = [n](size_t i, size_t j) {
-    if (i > j) std::swap(i, j);
-    return i * n - i * (i + 1) / 2 + (j - i - 1);
-  };
   auto active = [&result](size_t i) {  // few marks are ever out: a search is cheapest
     return std::find(result.excluded.begin(), result.excluded.end(), i) == result.excluded.end();
   };
+  std::vector<double>& score = result.mean_z2;
   size_t active_count = n;
   bool first = true;
   while (active_count >= 2) {
     const size_t pairs = active_count * (active_count - 1) / 2;
     const double threshold = pair_threshold(config.false_alarm_probability, pairs);
     if (first) result.pair_threshold_z2 = threshold;
+    // Each mark's sum over its active pairs, in the pairs' order (i-major, so each mark's
+    // terms come in the order of its partners).
     bool any_fail = false;
+    score.assign(n, 0.0);
+    size_t k = 0;
+    for (size_t i = 0; i < n; ++i) {
+      const bool active_i = active(i);
+      for (size_t j = i + 1; j < n; ++j, ++k) {
+        if (!active_i || !active(j)) continue;
+        const double z2 = result.pairs[k].z2;
+        if (z2 > threshold) any_fail = true;
+        score[i] += z2;
+        score[j] += z2;
+      }
+    }
     size_t worst = n;
     double worst_score = -1;
     for (size_t i = 0; i < n; ++i) {
       if (!active(i)) continue;
-      double sum = 0;
-      for (size_t j = 0; j < n; ++j) {
-        if (j == i || !active(j)) continue;
-        const double z2 = result.pairs[pair_index(i, j)].z2;
-        if (z2 > threshold) any_fail = true;
-        sum += z2;
-      }
-      const double score = sum / static_cast<double>(active_count - 1);
-      if (score > worst_score) {
-        worst_score = score;
+      score[i] /= static_cast<double>(active_count - 1);
+      if (score[i] > worst_score) {
+        worst_score = score[i];
         worst = i;
       }
     }

@@ -44,9 +44,12 @@ struct RigidCheckResult {
   std::vector<PairTest> pairs;    ///< all pairs of the marks given (before exclusion)
   std::vector<int> excluded_ids;  ///< in exclusion order
   std::vector<size_t> excluded;   ///< the same marks' positions in the span checked
-  bool failed = false;            ///< at least one pair inconsistent in the first test
-  bool consistent_after = true;   ///< remaining marks pass (false: stopped at min_marks)
-  double pair_threshold_z2 = 0;   ///< threshold of the first test
+  /// Per mark of the span: its mean z2 over its pairs in the last test (0 once excluded); the
+  /// worst is excluded next.
+  std::vector<double> mean_z2;
+  bool failed = false;           ///< at least one pair inconsistent in the first test
+  bool consistent_after = true;  ///< remaining marks pass (false: stopped at min_marks)
+  double pair_threshold_z2 = 0;  ///< threshold of the first test
 };
 
 /// Predicted standard uncertainty of |p_a - p_b| - |q_a - q_b|.
