@@ -322,9 +322,9 @@ void MarkMatcher::verify_against_reacquired_pose(Work& w, int b) const {
   // point off its mark) are dropped one by one instead of failing the whole layout.
   for (int m = 0; m < static_cast<int>(marks_.size()); ++m) {
     if (marks_[m].body != b || !w.tri[m].valid) continue;
-    const auto G = point_pose_jacobian(w.T_w_b[b], marks_[m].p_body);
     const double s = marks_[m].survey_sigma_m;
-    const Mat3 C = G * w.cov_b[b] * G.transpose() + w.tri[m].cov + s * s * Mat3::Identity();
+    const Mat3 C = point_covariance(w.T_w_b[b], marks_[m].p_body, w.cov_b[b]) + w.tri[m].cov +
+                   s * s * Mat3::Identity();
     const Vec3 e = w.tri[m].p - w.T_w_b[b] * marks_[m].p_body;
     Mat3 W;
     if (uncertainty::inverse_spd<3>(C, W) && e.dot(W * e) <= chi2_gate_[3]) continue;

@@ -311,11 +311,11 @@ void MarkMatcher::match(std::span<const msg::MarkObservations> cameras, MatchRes
       for (size_t m = 0; m < marks_.size(); ++m) {
         if (marks_[m].body != static_cast<int>(b) || w.assigned[m].size() == w.cams.size())
           continue;
-        const auto G = point_pose_jacobian(w.T_w_b[b], marks_[m].p_body);
         const double s2 = marks_[m].survey_sigma_m * marks_[m].survey_sigma_m +
                           config_.min_prediction_sigma_m * config_.min_prediction_sigma_m;
         w.pred[m].p = w.T_w_b[b] * marks_[m].p_body;
-        w.pred[m].cov = G * w.cov_b[b] * G.transpose() + s2 * Mat3::Identity();
+        w.pred[m].cov =
+            point_covariance(w.T_w_b[b], marks_[m].p_body, w.cov_b[b]) + s2 * Mat3::Identity();
         w.pred[m].source = PredictionSource::kLayout;
         w.pred[m].valid = true;
         any = true;

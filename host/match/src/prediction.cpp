@@ -74,9 +74,8 @@ void MarkMatcher::predict(Work& w, double t_s) const {
       from_track.valid = true;
     }
     if (body_src[b] != PredictionSource::kNone) {
-      const auto G = point_pose_jacobian(body_T[b], info.p_body);
       from_body.p = body_T[b] * info.p_body;
-      from_body.cov = G * body_cov[b] * G.transpose() +
+      from_body.cov = point_covariance(body_T[b], info.p_body, body_cov[b]) +
                       (info.survey_sigma_m * info.survey_sigma_m + floor2) * Mat3::Identity();
       from_body.source = body_src[b];
       from_body.valid = true;

@@ -294,10 +294,9 @@ void LayoutSearch::extend(const Transform& T_w_b, const Mat6& cov,
   hits_of_cand_.assign(K_, 0);
   found_.clear();
   for (int i = 0; i < M_; ++i) {
-    const auto G = point_pose_jacobian(T_w_b, marks_.q_b[i]);
     const Vec3 p = T_w_b * marks_.q_b[i];
-    const Mat3 C_pred =
-        G * cov * G.transpose() + marks_.sigma_m[i] * marks_.sigma_m[i] * Mat3::Identity();
+    const Mat3 C_pred = point_covariance(T_w_b, marks_.q_b[i], cov) +
+                        marks_.sigma_m[i] * marks_.sigma_m[i] * Mat3::Identity();
     int hit = -1, hits = 0;
     for (int k = 0; k < K_; ++k) {
       const Vec3 e = cands_[k].p - p;

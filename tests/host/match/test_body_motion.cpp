@@ -23,6 +23,20 @@ Mat12 random_spd(unsigned seed) {
   return A * A.transpose() + 1e-3 * Mat12::Identity();
 }
 
+TEST(PointCovariance, IsTheDenseJacobianProduct) {
+  for (unsigned seed = 1; seed <= 20; ++seed) {
+    const Mat12 A = random_spd(seed);
+    const Mat6 P = A.topLeftCorner<6, 6>();
+    const Transform T = geometry::make_transform(Vec3::Random(), Vec3::Random());
+    const Vec3 p_b = Vec3::Random();
+    // d(T p_b) / d(phi, rho) for R <- Exp(phi) R, t <- t + rho, written out.
+    Eigen::Matrix<double, 3, 6> G;
+    G << -geometry::skew(T.linear() * p_b), Mat3::Identity();
+    const Mat3 dense = G * P * G.transpose();
+    EXPECT_LT((point_covariance(T, p_b, P) - dense).norm(), 1e-12 * dense.norm()) << seed;
+  }
+}
+
 TEST(PoseFilter, PredictionIsTheConstantVelocityModelWithWhiteNoiseAcceleration) {
   PoseFilter f;
   f.valid = true;

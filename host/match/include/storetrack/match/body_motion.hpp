@@ -31,6 +31,17 @@
 
 namespace storetrack::match {
 
+/// Covariance of a body point T_w_b p_b under a pose covariance P (left rotation perturbation,
+/// translation: R <- Exp(phi) R, t <- t + rho): G P G^T with G = [S, I], S = -[R p_b]x, by
+/// blocks, (S P_rr + P_tr) S^T + S P_rt + P_tt (half the products of the dense 3 x 6 form).
+inline geometry::Mat3 point_covariance(const geometry::Transform& T_w_b, const geometry::Vec3& p_b,
+                                       const geometry::Mat6& P) {
+  const geometry::Mat3 S = -geometry::skew(T_w_b.linear() * p_b);
+  const geometry::Mat3 S_P_rt = S * P.topRightCorner<3, 3>();
+  const geometry::Mat3 Y = S * P.topLeftCorner<3, 3>() + P.bottomLeftCorner<3, 3>();
+  return Y * S.transpose() + S_P_rt + P.bottomRightCorner<3, 3>();
+}
+
 /// Constant-velocity pose filter of a body (error state: left rotation perturbation,
 /// translation, angular rate, velocity; all in the world frame).
 struct PoseFilter {
