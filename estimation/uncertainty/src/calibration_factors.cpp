@@ -93,6 +93,8 @@ void CalibrationFactors::find_estimated_parameters() {
       for (int b = 0; b < e.count; ++b)
         e.covariance(a, b) = camera_covariances_[c](e.parameters[static_cast<size_t>(a)],
                                                     e.parameters[static_cast<size_t>(b)]);
+    e.intrinsics_uncorrelated_with_pose =
+        e.covariance.topRightCorner(cf.num_estimated_intrinsics, 6).isZero(0.0);
   }
 }
 

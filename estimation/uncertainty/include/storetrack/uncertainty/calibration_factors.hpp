@@ -98,6 +98,8 @@ class CalibrationFactors {
     Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, camera::kJointBlockSize,
                   camera::kJointBlockSize>
         covariance;
+    /// Its intrinsic-pose block is zero (no cross term): the two diagonal blocks apart.
+    bool intrinsics_uncorrelated_with_pose = false;
   };
   const EstimatedCovariance& estimated_covariance(int slot) const {
     return estimated_covariances_[static_cast<size_t>(slot)];
@@ -161,6 +163,18 @@ inline Eigen::Matrix2d pixel_covariance(const CalibrationFactors& f, int slot,
     }
     const Eigen::Matrix<double, N, N> C = e.covariance.template topLeftCorner<N, N>();
     // Coefficient-based (lazy) products: Eigen's blocked GEMM costs more than the arithmetic.
+    if constexpr (N > 6) {
+      if (e.intrinsics_uncorrelated_with_pose) {  // block-diagonal: half the products
+        constexpr int I = N - 6;
+        const Eigen::Matrix<double, 2, I> Ji = Jc.template leftCols<I>();
+        const Eigen::Matrix<double, 2, 6> Jp = Jc.template rightCols<6>();
+        const Eigen::Matrix<double, 2, I> JiC = Ji.lazyProduct(C.template topLeftCorner<I, I>());
+        const Eigen::Matrix<double, 2, 6> JpC =
+            Jp.lazyProduct(C.template bottomRightCorner<6, 6>());
+        S = JiC.lazyProduct(Ji.transpose()) + JpC.lazyProduct(Jp.transpose());
+        return;
+      }
+    }
     const Eigen::Matrix<double, 2, N> JS = Jc.lazyProduct(C);
     S = JS.lazyProduct(Jc.transpose());
   });
