@@ -95,10 +95,9 @@ bool fit_body(PointsInBody q_body_in, PointsInWorld p_world_in, std::span<const 
     for (size_t i = 0; i < n; ++i)
       accumulate(i, H, &g);
     symmetrise(H);
-    const Eigen::LLT<Mat6> llt(H);  // H = J^T W J: positive definite for >= 3 non-collinear
-    if (llt.info() != Eigen::Success) return false;
-    const Vec6 step = -llt.solve(g);  // Gauss-Newton: H step = -J^T W r
-    if (!step.allFinite()) return false;
+    // Gauss-Newton: H step = -J^T W r (H = J^T W J: positive definite for >= 3 non-collinear).
+    Vec6 step;
+    if (!uncertainty::solve_spd<6>(H, Vec6(-g), step)) return false;
     T = geometry::perturb_left(T, step);
     // The steps shrink linearly (non-zero residuals), by ~1e-4 per iteration here: after one
     // of < 1e-7 rad and m the solution is ~1e-11 away, 1e-7 of any pose's uncertainty (and still

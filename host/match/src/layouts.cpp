@@ -162,9 +162,7 @@ bool MarkMatcher::filter_update(Work& w, int b, const std::vector<int>& members,
     // The last iteration's information is inverted for the posterior; the first only solved.
     geometry::Vec6 step;
     if (iter == 0) {
-      const Eigen::LLT<Mat6> solver(info);
-      if (solver.info() != Eigen::Success) return false;
-      step = solver.solve(g);
+      if (!uncertainty::solve_spd<6>(info, g, step)) return false;
     } else {
       if (!uncertainty::inverse_spd<6>(info, Ppp_post)) return false;
       step = Ppp_post * g;

@@ -162,10 +162,8 @@ bool resect_body(std::span<ResectionView> views, Transform T_w_b,
   bool converged = false;
   for (int iter = 0; iter < 12 && !converged; ++iter) {
     if (!resection_normal_equations(views, T_w_b, info, g, chi2)) return false;
-    const Eigen::LLT<Mat6> llt(info);
-    if (llt.info() != Eigen::Success) return false;
-    const Vec6 step = llt.solve(g);
-    if (!step.allFinite()) return false;
+    Vec6 step;
+    if (!uncertainty::solve_spd<6>(info, g, step)) return false;
     T_w_b = geometry::perturb_left(T_w_b, step);
     converged = step.norm() < 1e-9;  // rad and m: far below any mark's sigma
   }

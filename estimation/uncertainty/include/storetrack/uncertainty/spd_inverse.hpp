@@ -3,14 +3,68 @@
 // H^-1 = L^-T L^-1, with L^-1 by forward substitution in fixed-size loops. Eigen's
 // llt.solve(Identity) routes a matrix right-hand side through the blocked triangular solver, whose
 // set-up dominates for 3x3 and 6x6 matrices on the per-exposure path (docs/performance.md, "Host
-// processing").
+// processing"); its factorisation too, so fixed sizes use cholesky_lower below, as do the
+// Gauss-Newton steps (solve_spd).
 #pragma once
+
+#include <cmath>
 
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
 #include <Eigen/LU>
 
 namespace storetrack::uncertainty {
+
+/// Lower Cholesky factor L (H = L L^T, from H's lower triangle) of a fixed-size symmetric
+/// positive definite matrix, in loops of constant bounds (unrolled by the compiler: Eigen's LLT
+/// runs its run-time-sized blocked algorithm even for 6x6). False when a pivot is not positive
+/// (NaN included); L is then unspecified.
+template <int N>
+bool cholesky_lower(const Eigen::Matrix<double, N, N>& H, Eigen::Matrix<double, N, N>& L) {
+  static_assert(N > 0, "cholesky_lower: fixed size only");
+  L.setZero();
+  for (int j = 0; j < N; ++j) {
+    double d = H(j, j);
+    for (int k = 0; k < j; ++k)
+      d -= L(j, k) * L(j, k);
+    if (!(d > 0)) return false;
+    L(j, j) = std::sqrt(d);
+    const double inv = 1.0 / L(j, j);
+    for (int i = j + 1; i < N; ++i) {
+      double s = H(i, j);
+      for (int k = 0; k < j; ++k)
+        s -= L(i, k) * L(j, k);
+      L(i, j) = s * inv;
+    }
+  }
+  return true;
+}
+
+/// x = H^-1 b for a fixed-size symmetric positive definite H (Gauss-Newton steps), through its
+/// Cholesky factor. False (x untouched) when H is not numerically positive definite or x is not
+/// finite.
+template <int N>
+bool solve_spd(const Eigen::Matrix<double, N, N>& H, const Eigen::Matrix<double, N, 1>& b,
+               Eigen::Matrix<double, N, 1>& x) {
+  Eigen::Matrix<double, N, N> L;
+  if (!cholesky_lower<N>(H, L)) return false;
+  Eigen::Matrix<double, N, 1> y;
+  for (int i = 0; i < N; ++i) {  // L y = b
+    double s = b(i);
+    for (int k = 0; k < i; ++k)
+      s -= L(i, k) * y(k);
+    y(i) = s / L(i, i);
+  }
+  for (int i = N - 1; i >= 0; --i) {  // L^T x = y
+    double s = y(i);
+    for (int k = i + 1; k < N; ++k)
+      s -= L(k, i) * y(k);
+    y(i) = s / L(i, i);
+  }
+  if (!y.allFinite()) return false;
+  x = y;
+  return true;
+}
 
 /// Returns false (out untouched) when H is not numerically positive definite. N may be
 /// Eigen::Dynamic (joint calibration normal matrices, whose size depends on the rig).
@@ -44,9 +98,14 @@ bool inverse_spd(const Eigen::Matrix<double, N, N>& H, Eigen::Matrix<double, N, 
   }
   // Eigen's LLT reports success on NaN input (its pivot test `x <= 0` is false for NaN).
   if (!H.allFinite()) return false;
-  const Eigen::LLT<Eigen::Matrix<double, N, N>> llt(H);
-  if (llt.info() != Eigen::Success) return false;
-  const Eigen::Matrix<double, N, N> L = llt.matrixL();
+  Eigen::Matrix<double, N, N> L;
+  if constexpr (N == Eigen::Dynamic) {
+    const Eigen::LLT<Eigen::Matrix<double, N, N>> llt(H);
+    if (llt.info() != Eigen::Success) return false;
+    L = llt.matrixL();
+  } else if (!cholesky_lower<N>(H, L)) {
+    return false;
+  }
   const int n = static_cast<int>(H.rows());  // = N when fixed: the loops keep constant bounds
   Eigen::Matrix<double, N, N> L_inv = Eigen::Matrix<double, N, N>::Zero(n, n);
   for (int j = 0; j < (N == Eigen::Dynamic ? n : N); ++j) {
