@@ -19,7 +19,6 @@
 
 namespace storetrack::triangulate {
 
-/// One camera's sighting of the mark.
 /// A view's projection of the refinement's start point (Options::initial_p_w, without the
 /// view's displacement) and d pixel / d p_w there, when the caller has them already.
 struct StartProjection {
@@ -27,6 +26,7 @@ struct StartProjection {
   Eigen::Matrix<double, 2, 3> d_pixel_d_point_w = Eigen::Matrix<double, 2, 3>::Zero();
 };
 
+/// One camera's sighting of the mark.
 struct Observation {
   const camera::CameraModel* model = nullptr;
   geometry::Transform T_c_w = geometry::Transform::Identity();
