@@ -3,11 +3,26 @@
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
+#include <type_traits>
 
 #include "storetrack/geometry/symmetric_eigen.hpp"
 
 namespace storetrack::uncertainty {
 namespace {
+
+// f(std::integral_constant<int, N>{}) for N = n in [Min, Max]; nothing for any other n. Turns a
+// run-time count of parameters into a fixed size: for so few columns a run-time sized product
+// costs more than the arithmetic it skips. Each size is a copy of f's code: here, in one
+// translation unit, and no more sizes than can occur.
+template <int Min, int Max, typename F>
+void with_fixed_size(int n, F&& f) {
+  if constexpr (Max >= Min) {
+    if (n == Max)
+      f(std::integral_constant<int, Max>{});
+    else
+      with_fixed_size<Min, Max - 1>(n, f);
+  }
+}
 
 // Square-root factor F (n x r) with F F^T = cov, dropping null directions, and the map
 // to_factors (n x r) with z = to_factors^T theta on F's range. The eigen-decomposition is of the
@@ -260,6 +275,43 @@ void add_camera_block(const MatA& A, const Factor& F, Eigen::Index begin, Loadin
 
 }  // namespace
 
+Eigen::Matrix2d pixel_covariance(const CalibrationFactors& f, int slot,
+                                 const camera::ProjectionJacobians& J) {
+  // Over the parameters with a non-zero covariance only (the fixed intrinsics' rows and columns
+  // are exactly zero: skipping them leaves every sum as it was), fixed-size: the 6 pose
+  // parameters and 0 to all of the intrinsics.
+  const CalibrationFactors::EstimatedCovariance& e = f.estimated_covariance(slot);
+  Eigen::Matrix2d S = Eigen::Matrix2d::Zero();
+  with_fixed_size<6, camera::kJointBlockSize>(e.count, [&](auto size) {
+    constexpr int N = decltype(size)::value;
+    Eigen::Matrix<double, 2, N> Jc;
+    for (int k = 0; k < N; ++k) {
+      const int p = e.parameters[static_cast<size_t>(k)];
+      if (p < camera::kNumIntrinsics)
+        Jc.col(k) = J.d_intrinsics.col(p);
+      else
+        Jc.col(k) = J.d_pose.col(p - camera::kNumIntrinsics);
+    }
+    const Eigen::Matrix<double, N, N> C = e.covariance.template topLeftCorner<N, N>();
+    // Coefficient-based (lazy) products: Eigen's blocked GEMM costs more than the arithmetic.
+    if constexpr (N > 6) {
+      if (e.intrinsics_uncorrelated_with_pose) {  // block-diagonal: half the products
+        constexpr int I = N - 6;
+        const Eigen::Matrix<double, 2, I> Ji = Jc.template leftCols<I>();
+        const Eigen::Matrix<double, 2, 6> Jp = Jc.template rightCols<6>();
+        const Eigen::Matrix<double, 2, I> JiC = Ji.lazyProduct(C.template topLeftCorner<I, I>());
+        const Eigen::Matrix<double, 2, 6> JpC =
+            Jp.lazyProduct(C.template bottomRightCorner<6, 6>());
+        S = JiC.lazyProduct(Ji.transpose()) + JpC.lazyProduct(Jp.transpose());
+        return;
+      }
+    }
+    const Eigen::Matrix<double, 2, N> JS = Jc.lazyProduct(C);
+    S = JS.lazyProduct(Jc.transpose());
+  });
+  return S;
+}
+
 void add_observation_loadings(const CalibrationFactors& f, int slot,
                               const Eigen::Matrix<double, 3, 2>& K,
                               const camera::ProjectionJacobians& J, Loadings3& loadings,
@@ -272,7 +324,7 @@ void add_observation_loadings(const CalibrationFactors& f, int slot,
     Eigen::Matrix<double, 3, camera::kNumIntrinsics> G_estimated;
     for (int k = 0; k < cf.num_estimated_intrinsics; ++k)
       G_estimated.col(k) = G.col(cf.estimated_intrinsics[static_cast<size_t>(k)]);
-    detail::with_fixed_size<camera::kNumIntrinsics>(cf.num_estimated_intrinsics, [&](auto size) {
+    with_fixed_size<1, camera::kNumIntrinsics>(cf.num_estimated_intrinsics, [&](auto size) {
       constexpr int N = decltype(size)::value;
       add_camera_block<N>(G_estimated.template leftCols<N>(), cf.estimated_intrinsic_rows,
                           cf.intrinsic_begin, loadings, f.coupled() ? nullptr : &cov_intrinsic);

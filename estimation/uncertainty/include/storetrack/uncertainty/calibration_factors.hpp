@@ -16,7 +16,6 @@
 #pragma once
 
 #include <array>
-#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -127,59 +126,11 @@ class CalibrationFactors {
   void find_estimated_parameters();
 };
 
-namespace detail {
-// f(std::integral_constant<int, N>{}) for N = n in [1, Max]; nothing for any other n. Turns a
-// run-time count of parameters into a fixed size: for so few columns a run-time sized product
-// costs more than the arithmetic it skips.
-template <int Max, typename F>
-void with_fixed_size(int n, F&& f) {
-  if constexpr (Max > 0) {
-    if (n == Max)
-      f(std::integral_constant<int, Max>{});
-    else
-      with_fixed_size<Max - 1>(n, f);
-  }
-}
-}  // namespace detail
-
 /// The calibration's covariance of one camera's pixel of a point, J Sigma_c J^T with J = [d
 /// pixel / d intrinsics, d pixel / d pose] and Sigma_c = f.camera_covariance(slot) (cross term
 /// included). The one implementation: the matcher's gates and the processor's resection weights.
-inline Eigen::Matrix2d pixel_covariance(const CalibrationFactors& f, int slot,
-                                        const camera::ProjectionJacobians& J) {
-  // Over the parameters with a non-zero covariance only (the fixed intrinsics' rows and columns
-  // are exactly zero: skipping them leaves every sum as it was), fixed-size.
-  const CalibrationFactors::EstimatedCovariance& e = f.estimated_covariance(slot);
-  Eigen::Matrix2d S = Eigen::Matrix2d::Zero();
-  detail::with_fixed_size<camera::kJointBlockSize>(e.count, [&](auto size) {
-    constexpr int N = decltype(size)::value;
-    Eigen::Matrix<double, 2, N> Jc;
-    for (int k = 0; k < N; ++k) {
-      const int p = e.parameters[static_cast<size_t>(k)];
-      if (p < camera::kNumIntrinsics)
-        Jc.col(k) = J.d_intrinsics.col(p);
-      else
-        Jc.col(k) = J.d_pose.col(p - camera::kNumIntrinsics);
-    }
-    const Eigen::Matrix<double, N, N> C = e.covariance.template topLeftCorner<N, N>();
-    // Coefficient-based (lazy) products: Eigen's blocked GEMM costs more than the arithmetic.
-    if constexpr (N > 6) {
-      if (e.intrinsics_uncorrelated_with_pose) {  // block-diagonal: half the products
-        constexpr int I = N - 6;
-        const Eigen::Matrix<double, 2, I> Ji = Jc.template leftCols<I>();
-        const Eigen::Matrix<double, 2, 6> Jp = Jc.template rightCols<6>();
-        const Eigen::Matrix<double, 2, I> JiC = Ji.lazyProduct(C.template topLeftCorner<I, I>());
-        const Eigen::Matrix<double, 2, 6> JpC =
-            Jp.lazyProduct(C.template bottomRightCorner<6, 6>());
-        S = JiC.lazyProduct(Ji.transpose()) + JpC.lazyProduct(Jp.transpose());
-        return;
-      }
-    }
-    const Eigen::Matrix<double, 2, N> JS = Jc.lazyProduct(C);
-    S = JS.lazyProduct(Jc.transpose());
-  });
-  return S;
-}
+Eigen::Matrix2d pixel_covariance(const CalibrationFactors& f, int slot,
+                                 const camera::ProjectionJacobians& J);
 
 /// The weight of camera `slot`'s view of world point p_w in the host's triangulation:
 /// (sigma_px^2 I + pixel_covariance at the point)^-1 [px^-2]. False (W untouched) when the point
