@@ -26,14 +26,6 @@ using geometry::Vec3;
 /// Largest chi-square dof with a precomputed gate (MarkMatcher::chi2_gate_).
 constexpr int kMaxDof = 2 * 64;
 
-/// d p_w / d(left perturbation of T_w_b) for a body point p_b: [-[R p_b]x, I].
-inline Eigen::Matrix<double, 3, 6> point_pose_jacobian(const Transform& T_w_b, const Vec3& p_b) {
-  Eigen::Matrix<double, 3, 6> G;
-  G.leftCols<3>() = -geometry::skew(T_w_b.linear() * p_b);
-  G.rightCols<3>() = Mat3::Identity();
-  return G;
-}
-
 /// Absolute orientation (estimation/pose) of surveyed points q_b onto measured world points p_w,
 /// each with its total 3x3 covariance cov_w (measurement + survey): the pose, its covariance (G^T W
 /// G)^-1 and the chi-square sum of e^T W e (dof 3n - 6). src/layouts.cpp.

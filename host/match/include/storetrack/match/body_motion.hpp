@@ -31,12 +31,22 @@
 
 namespace storetrack::match {
 
-/// Covariance of a body point T_w_b p_b under a pose covariance P (left rotation perturbation,
-/// translation: R <- Exp(phi) R, t <- t + rho): G P G^T with G = [S, I], S = -[R p_b]x, by
-/// blocks, (S P_rr + P_tr) S^T + S P_rt + P_tt (half the products of the dense 3 x 6 form).
+/// d p_w / d(left perturbation of T_w_b) for a body point p_b (R <- Exp(phi) R, t <- t + rho):
+/// G = [S, I], S = -[R p_b]x.
+inline Eigen::Matrix<double, 3, 6> point_pose_jacobian(const geometry::Transform& T_w_b,
+                                                       const geometry::Vec3& p_b) {
+  Eigen::Matrix<double, 3, 6> G;
+  G.leftCols<3>() = -geometry::skew(T_w_b.linear() * p_b);
+  G.rightCols<3>() = geometry::Mat3::Identity();
+  return G;
+}
+
+/// Covariance of a body point T_w_b p_b under a pose covariance P: G P G^T with G =
+/// point_pose_jacobian = [S, I], by blocks, (S P_rr + P_tr) S^T + S P_rt + P_tt (half the
+/// products of the dense 3 x 6 form).
 inline geometry::Mat3 point_covariance(const geometry::Transform& T_w_b, const geometry::Vec3& p_b,
                                        const geometry::Mat6& P) {
-  const geometry::Mat3 S = -geometry::skew(T_w_b.linear() * p_b);
+  const geometry::Mat3 S = point_pose_jacobian(T_w_b, p_b).leftCols<3>();
   const geometry::Mat3 S_P_rt = S * P.topRightCorner<3, 3>();
   const geometry::Mat3 Y = S * P.topLeftCorner<3, 3>() + P.bottomLeftCorner<3, 3>();
   return Y * S.transpose() + S_P_rt + P.bottomRightCorner<3, 3>();
