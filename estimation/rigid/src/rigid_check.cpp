@@ -38,32 +38,73 @@ double pair_threshold(double alpha, size_t pairs) {
 
 }  // namespace
 
-PairTest test_pair(const MarkEstimate& a, const MarkEstimate& b) {
+namespace {
+
+// ((d - d_survey) / sigma)^2, infinite for an error without variance.
+double normalised_square(double error, double var) {
+  return var > 0 ? error * error / var : (error == 0 ? 0 : INFINITY);
+}
+
+// The pair's distance, its surveyed distance and the direction of p_a - p_b.
+PairTest pair_geometry(const MarkEstimate& a, const MarkEstimate& b, Vec3& u) {
   PairTest t;
   t.id_a = a.id;
   t.id_b = b.id;
   const Vec3 d = a.p_w - b.p_w;
   t.distance_m = d.norm();
   t.surveyed_m = (a.p_body - b.p_body).norm();
-  const Vec3 u = t.distance_m > 0 ? Vec3(d / t.distance_m) : Vec3::UnitX();
-  // Independent parts add; the common calibration part enters through L_a - L_b.
-  double var = u.dot((a.cov_independent + b.cov_independent) * u);
-  // |u^T (L_a - L_b)|^2 over the factors: a combination of the loadings' rows (row-major,
-  // contiguous: one vectorised pass, no temporaries; hot loop over all pairs).
+  u = t.distance_m > 0 ? Vec3(d / t.distance_m) : Vec3::UnitX();
+  return t;
+}
+
+double survey_variance(const MarkEstimate& a, const MarkEstimate& b) {
+  return a.survey_sigma_m * a.survey_sigma_m + b.survey_sigma_m * b.survey_sigma_m;
+}
+
+// |u^T (L_a - L_b)|^2 over the common factors: a combination of the loadings' rows (row-major,
+// contiguous: one vectorised pass, no temporaries; hot loop over all pairs).
+double shared_variance(const MarkEstimate& a, const MarkEstimate& b, const Vec3& u) {
   const auto* La = a.loadings;
   const auto* Lb = b.loadings;
-  if (La != nullptr && Lb != nullptr) {
-    var += (u(0) * (La->row(0) - Lb->row(0)) + u(1) * (La->row(1) - Lb->row(1)) +
+  if (La != nullptr && Lb != nullptr)
+    return (u(0) * (La->row(0) - Lb->row(0)) + u(1) * (La->row(1) - Lb->row(1)) +
             u(2) * (La->row(2) - Lb->row(2)))
-               .squaredNorm();
-  } else if (La != nullptr || Lb != nullptr) {
-    const auto* L = La != nullptr ? La : Lb;
-    var += (u(0) * L->row(0) + u(1) * L->row(1) + u(2) * L->row(2)).squaredNorm();
-  }
-  var += a.survey_sigma_m * a.survey_sigma_m + b.survey_sigma_m * b.survey_sigma_m;
+        .squaredNorm();
+  if (La == nullptr && Lb == nullptr) return 0;
+  const auto* L = La != nullptr ? La : Lb;
+  return (u(0) * L->row(0) + u(1) * L->row(1) + u(2) * L->row(2)).squaredNorm();
+}
+
+// Does every pair pass the threshold? A pair's shared calibration variance is formed only when
+// it fails without it: the variance short of that non-negative term is a lower bound of the
+// full one (rounding is monotonic), so its z2 an upper bound of the full test's.
+bool all_pairs_pass(std::span<const MarkEstimate> marks, double threshold) {
+  for (size_t i = 0; i < marks.size(); ++i)
+    for (size_t j = i + 1; j < marks.size(); ++j) {
+      const MarkEstimate &a = marks[i], &b = marks[j];
+      Vec3 u;
+      const PairTest t = pair_geometry(a, b, u);
+      const double e = t.distance_m - t.surveyed_m;
+      const double var_private = u.dot((a.cov_independent + b.cov_independent) * u);
+      if (normalised_square(e, var_private + survey_variance(a, b)) <= threshold) continue;
+      if (normalised_square(e, var_private + shared_variance(a, b, u) + survey_variance(a, b)) >
+          threshold)
+        return false;
+    }
+  return true;
+}
+
+}  // namespace
+
+PairTest test_pair(const MarkEstimate& a, const MarkEstimate& b) {
+  Vec3 u;
+  PairTest t = pair_geometry(a, b, u);
+  // Independent parts add; the common calibration part enters through L_a - L_b.
+  double var = u.dot((a.cov_independent + b.cov_independent) * u);
+  var += shared_variance(a, b, u);
+  var += survey_variance(a, b);
   t.sigma_m = std::sqrt(var);
-  const double e = t.distance_m - t.surveyed_m;
-  t.z2 = var > 0 ? e * e / var : (e == 0 ? 0 : INFINITY);
+  t.z2 = normalised_square(t.distance_m - t.surveyed_m, var);
   return t;
 }
 
@@ -79,6 +120,13 @@ void check_rigid_body(std::span<const MarkEstimate> marks, const RigidCheckConfi
   result.pair_threshold_z2 = 0;
   const size_t n = marks.size();
   result.mean_z2.assign(n, 0.0);
+  if (!config.pair_statistics && n >= 2) {
+    const double threshold = pair_threshold(config.false_alarm_probability, n * (n - 1) / 2);
+    if (all_pairs_pass(marks, threshold)) {
+      result.pair_threshold_z2 = threshold;
+      return;
+    }
+  }
   for (size_t i = 0; i < n; ++i)
     for (size_t j = i + 1; j < n; ++j)
       result.pairs.push_back(test_pair(marks[i], marks[j]));

@@ -75,8 +75,9 @@ void set_prior_poses(const HostConfig& cfg, const InputFiles& in,
 std::unique_ptr<pipeline::ExposureProcessor> make_processor(const HostConfig& cfg,
                                                             const InputFiles& in,
                                                             const camera::RigCalibration& rig) {
-  auto processor =
-      std::make_unique<pipeline::ExposureProcessor>(rig, in.pylon, in.store, cfg.processor);
+  pipeline::ProcessorConfig pc = cfg.processor;
+  pc.rigid_pair_statistics = !cfg.rigid_csv_path.empty();  // they feed only that CSV
+  auto processor = std::make_unique<pipeline::ExposureProcessor>(rig, in.pylon, in.store, pc);
   set_prior_poses(cfg, in, *processor);
   return processor;
 }

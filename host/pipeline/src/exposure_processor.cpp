@@ -539,7 +539,7 @@ void ExposureProcessor::solve(const Prepared& prep,
     return idx;
   };
   const rigid::RigidCheckConfig rigid_config{config_.rigid_false_alarm_probability,
-                                             config_.min_pose_marks};
+                                             config_.min_pose_marks, config_.rigid_pair_statistics};
   auto run_check = [&](char body, rigid::RigidCheckResult& check) {
     const auto& idx = body_marks(body);
     if (fixed_exclusions != nullptr) {

@@ -76,6 +76,7 @@ hostapp::HostOptions recorded_host_options(const Recording& r, const PostOptions
                                   hostapp::InputFileCheck::kNone) >= 0)
     throw InputError(first + ": the recorded command line does not parse (above)");
   o.command_line = std::move(args);
+  o.cfg.rigid_csv_path.clear();  // the host's diagnostic output, not the replay's
   if (!p.calibration_path.empty()) o.calibration_path = p.calibration_path;
   if (!p.pylon_path.empty()) o.pylon_path = p.pylon_path;
   if (!p.store_path.empty()) o.store_path = p.store_path;

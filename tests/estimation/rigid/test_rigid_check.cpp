@@ -126,5 +126,44 @@ TEST(RigidCheck, StopsAtMinimumMarks) {
   EXPECT_FALSE(r.consistent_after);
 }
 
+// Without the pairs' statistics (the host without a rigid-body CSV, the replay) the decision is
+// the full test's, exposure by exposure: intact bodies at a false alarm probability high enough
+// that some fail, and bodies with a mark displaced by 0 .. 2 sigma of a distance, so that
+// both the passing (no pairs formed) and the failing path (the full test) are taken.
+TEST(RigidCheck, DecisionWithoutPairStatisticsIsTheFullTests) {
+  std::mt19937_64 rng(5);
+  const Scene s = make_scene(rng, 16, 20);
+  RigidCheckConfig full;
+  full.false_alarm_probability = 0.05;
+  RigidCheckConfig decision = full;
+  decision.pair_statistics = false;
+  int passed = 0, failed = 0;
+  for (int trial = 0; trial < 600; ++trial) {
+    const double displacement = 2e-3 * (trial % 3);
+    const auto marks = draw(s, rng, 2e-4, trial % 16, displacement);
+    const RigidCheckResult a = check_rigid_body(marks, full);
+    const RigidCheckResult b = check_rigid_body(marks, decision);
+    ASSERT_EQ(a.failed, b.failed) << trial;
+    ASSERT_EQ(a.excluded_ids, b.excluded_ids) << trial;
+    ASSERT_EQ(a.excluded, b.excluded) << trial;
+    ASSERT_EQ(a.consistent_after, b.consistent_after) << trial;
+    ASSERT_EQ(a.pair_threshold_z2, b.pair_threshold_z2) << trial;
+    ASSERT_EQ(a.pairs.size(), 120u);
+    if (a.failed) {
+      ++failed;
+      ASSERT_EQ(b.pairs.size(), 120u) << trial;  // the full test's, field for field
+      for (size_t k = 0; k < a.pairs.size(); ++k)
+        ASSERT_EQ(a.pairs[k].z2, b.pairs[k].z2) << trial << " pair " << k;
+      ASSERT_EQ(a.mean_z2, b.mean_z2) << trial;
+    } else {
+      ++passed;
+      ASSERT_TRUE(b.pairs.empty()) << trial;
+    }
+  }
+  // Both paths taken often enough to mean something (observed: 334 passed, 266 failed).
+  EXPECT_GE(passed, 100) << passed << " passed, " << failed << " failed";
+  EXPECT_GE(failed, 100) << passed << " passed, " << failed << " failed";
+}
+
 }  // namespace
 }  // namespace storetrack::rigid

@@ -31,6 +31,11 @@ struct MarkEstimate {
 struct RigidCheckConfig {
   double false_alarm_probability = 1e-3;  ///< per body and exposure, for an intact body
   int min_marks = 3;                      ///< never exclude below this many marks
+  /// Every pair's sigma and z2 in the result (the host's rigid-body CSV). Off, only the decision
+  /// is made in full: the pairs are first tested without their shared calibration variance,
+  /// which can only raise z2, and when none exceeds the threshold the body passes, exactly as
+  /// the full test would, and `pairs` stays empty; otherwise the full test runs.
+  bool pair_statistics = true;
 };
 
 struct PairTest {
@@ -41,11 +46,13 @@ struct PairTest {
 };
 
 struct RigidCheckResult {
-  std::vector<PairTest> pairs;    ///< all pairs of the marks given (before exclusion)
+  /// All pairs of the marks given (before exclusion); empty when a body passed without them
+  /// (RigidCheckConfig::pair_statistics off).
+  std::vector<PairTest> pairs;
   std::vector<int> excluded_ids;  ///< in exclusion order
   std::vector<size_t> excluded;   ///< the same marks' positions in the span checked
-  /// Per mark of the span: its mean z2 over its pairs in the last test (0 once excluded); the
-  /// worst is excluded next.
+  /// Per mark of the span: its mean z2 over its pairs in the last test (0 once excluded, all 0
+  /// when `pairs` is empty); the worst is excluded next.
   std::vector<double> mean_z2;
   bool failed = false;           ///< at least one pair inconsistent in the first test
   bool consistent_after = true;  ///< remaining marks pass (false: stopped at min_marks)

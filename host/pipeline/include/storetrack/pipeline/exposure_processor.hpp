@@ -44,6 +44,9 @@ struct ProcessorConfig {
   /// first-order propagation no longer holds.
   double max_pose_rotation_sigma_rad = 0.02;
   double rigid_false_alarm_probability = 1e-3;  ///< per body and exposure (intact body)
+  /// Every rigid-body pair's sigma and z2 in the result (rigid::RigidCheckConfig); the program
+  /// turns it off when nothing reads them (no rigid-body CSV): the same decisions, cheaper.
+  bool rigid_pair_statistics = true;
   int max_mark_id = 1023;  ///< given ids above are counted (id_out_of_range) and not used
   /// Extrapolation of T_p_s over short gaps (the processor's PoseTracker).
   PoseTrackerConfig pose_tracker;
