@@ -36,10 +36,6 @@ double pair_threshold(double alpha, size_t pairs) {
   return e.threshold;
 }
 
-}  // namespace
-
-namespace {
-
 // ((d - d_survey) / sigma)^2, infinite for an error without variance.
 double normalised_square(double error, double var) {
   return var > 0 ? error * error / var : (error == 0 ? 0 : INFINITY);

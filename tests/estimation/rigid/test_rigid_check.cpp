@@ -128,8 +128,9 @@ TEST(RigidCheck, StopsAtMinimumMarks) {
 
 // Without the pairs' statistics (the host without a rigid-body CSV, the replay) the decision is
 // the full test's, exposure by exposure: intact bodies at a false alarm probability high enough
-// that some fail, and bodies with a mark displaced by 0 .. 2 sigma of a distance, so that
-// both the passing (no pairs formed) and the failing path (the full test) are taken.
+// that some fail, and bodies with a mark displaced by 0, 2 or 4 mm (~0, 2, 4 sigma of a
+// distance), so that both the passing (no pairs formed) and the failing path (the full test)
+// are taken.
 TEST(RigidCheck, DecisionWithoutPairStatisticsIsTheFullTests) {
   std::mt19937_64 rng(5);
   const Scene s = make_scene(rng, 16, 20);
