@@ -71,6 +71,18 @@ double shared_variance(const MarkEstimate& a, const MarkEstimate& b, const Vec3&
   return (u(0) * L->row(0) + u(1) * L->row(1) + u(2) * L->row(2)).squaredNorm();
 }
 
+// Variance of the distance error short of the shared calibration part: both marks' own parts.
+double private_variance(const MarkEstimate& a, const MarkEstimate& b, const Vec3& u) {
+  return u.dot((a.cov_independent + b.cov_independent) * u);
+}
+
+// The full variance of the distance error: independent parts add, the common calibration part
+// enters through L_a - L_b, and both survey sigmas.
+double pair_variance(const MarkEstimate& a, const MarkEstimate& b, const Vec3& u,
+                     double var_private) {
+  return var_private + shared_variance(a, b, u) + survey_variance(a, b);
+}
+
 // Does every pair pass the threshold? A pair's shared calibration variance is formed only when
 // it fails without it: the variance short of that non-negative term is a lower bound of the
 // full one (rounding is monotonic), so its z2 an upper bound of the full test's.
@@ -81,11 +93,9 @@ bool all_pairs_pass(std::span<const MarkEstimate> marks, double threshold) {
       Vec3 u;
       const PairTest t = pair_geometry(a, b, u);
       const double e = t.distance_m - t.surveyed_m;
-      const double var_private = u.dot((a.cov_independent + b.cov_independent) * u);
+      const double var_private = private_variance(a, b, u);
       if (normalised_square(e, var_private + survey_variance(a, b)) <= threshold) continue;
-      if (normalised_square(e, var_private + shared_variance(a, b, u) + survey_variance(a, b)) >
-          threshold)
-        return false;
+      if (normalised_square(e, pair_variance(a, b, u, var_private)) > threshold) return false;
     }
   return true;
 }
@@ -95,10 +105,7 @@ bool all_pairs_pass(std::span<const MarkEstimate> marks, double threshold) {
 PairTest test_pair(const MarkEstimate& a, const MarkEstimate& b) {
   Vec3 u;
   PairTest t = pair_geometry(a, b, u);
-  // Independent parts add; the common calibration part enters through L_a - L_b.
-  double var = u.dot((a.cov_independent + b.cov_independent) * u);
-  var += shared_variance(a, b, u);
-  var += survey_variance(a, b);
+  const double var = pair_variance(a, b, u, private_variance(a, b, u));
   t.sigma_m = std::sqrt(var);
   t.z2 = normalised_square(t.distance_m - t.surveyed_m, var);
   return t;
